@@ -1,0 +1,1 @@
+"""Camera models, target detection, intrinsic and system calibration, direct georeferencing."""

@@ -1,0 +1,5 @@
+import sys
+
+from dgcal.cli import main
+
+sys.exit(main())

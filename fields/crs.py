@@ -1,0 +1,146 @@
+"""Coordinate reference systems with pyproj: map grids, ECEF/geodetic, local ENU frames, convergence."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import pyproj
+
+from fields.errors import InputError
+from fields.frames import R_ecef_to_enu, R_enu_to_grid
+
+ECEF = "EPSG:4978"
+GEODETIC = "EPSG:4979"  # lat, lon, ellipsoidal height
+
+
+def parse_crs(text: str, source: str = "--crs") -> pyproj.CRS:
+    """A pyproj CRS from user text (EPSG code, PROJ string, WKT); InputError naming `source` if invalid."""
+    try:
+        return pyproj.CRS.from_user_input(text)
+    except pyproj.exceptions.CRSError as exc:
+        raise InputError(f"not a CRS pyproj understands: {text!r} ({exc})", field=source) from None
+
+
+def _transformer(src, dst) -> pyproj.Transformer:
+    return pyproj.Transformer.from_crs(src, dst, always_xy=True)
+
+
+def geodetic_to_ecef(lat_deg, lon_deg, h_m) -> np.ndarray:
+    """ECEF (m, WGS84) from latitude, longitude (degrees) and ellipsoidal height (m); shape (...,3)."""
+    x, y, z = _tf(GEODETIC, ECEF).transform(np.asarray(lon_deg, float), np.asarray(lat_deg, float),
+                                            np.asarray(h_m, float))
+    return np.stack([x, y, z], axis=-1)
+
+
+def ecef_to_geodetic(p_ecef) -> np.ndarray:
+    """Latitude, longitude (degrees) and ellipsoidal height (m) from ECEF (m); shape (...,3)."""
+    p = np.asarray(p_ecef, float)
+    lon, lat, h = _tf(ECEF, GEODETIC).transform(p[..., 0], p[..., 1], p[..., 2])
+    return np.stack([lat, lon, h], axis=-1)
+
+
+_TF_CACHE: dict[tuple[str, str], pyproj.Transformer] = {}
+
+
+def _tf(src: str, dst: str) -> pyproj.Transformer:
+    key = (str(src), str(dst))
+    if key not in _TF_CACHE:
+        _TF_CACHE[key] = _transformer(src, dst)
+    return _TF_CACHE[key]
+
+
+@dataclass(frozen=True)
+class LocalENU:
+    """A local tangent-plane frame (East, North, Up, metres) with its origin at a geodetic point."""
+
+    lat0: float
+    lon0: float
+    h0: float
+
+    @cached_property
+    def origin_ecef(self) -> np.ndarray:
+        return geodetic_to_ecef(self.lat0, self.lon0, self.h0)
+
+    @cached_property
+    def R_ecef_to_enu(self) -> np.ndarray:
+        return R_ecef_to_enu(self.lat0, self.lon0)
+
+    def from_ecef(self, p_ecef) -> np.ndarray:
+        """ENU coordinates (m) of ECEF points (m)."""
+        return (np.asarray(p_ecef, float) - self.origin_ecef) @ self.R_ecef_to_enu.T
+
+    def to_ecef(self, p_enu) -> np.ndarray:
+        """ECEF coordinates (m) of ENU points (m)."""
+        return np.asarray(p_enu, float) @ self.R_ecef_to_enu + self.origin_ecef
+
+    def from_geodetic(self, lat_deg, lon_deg, h_m) -> np.ndarray:
+        """ENU (m) of geodetic points (degrees, ellipsoidal m)."""
+        return self.from_ecef(geodetic_to_ecef(lat_deg, lon_deg, h_m))
+
+    def to_geodetic(self, p_enu) -> np.ndarray:
+        """Latitude, longitude (degrees), ellipsoidal height (m) of ENU points."""
+        return ecef_to_geodetic(self.to_ecef(p_enu))
+
+    def R_enu_here_to_local(self, lat_deg, lon_deg) -> np.ndarray:
+        """Rotation from the ENU frame at (lat, lon) to this frame's axes (earth curvature); (3,3) or (N,3,3)."""
+        return self.R_ecef_to_enu @ np.swapaxes(R_ecef_to_enu(lat_deg, lon_deg), -1, -2)
+
+
+class MapGrid:
+    """A map CRS (projected or geographic, 3-D with ellipsoidal heights) and its link to ECEF."""
+
+    def __init__(self, crs: str | pyproj.CRS):
+        self.crs = parse_crs(crs) if isinstance(crs, str) else crs
+        self._to_ecef = pyproj.Transformer.from_crs(self.crs.to_3d(), ECEF, always_xy=True)
+        self._from_ecef = pyproj.Transformer.from_crs(ECEF, self.crs.to_3d(), always_xy=True)
+        self._to_geo = pyproj.Transformer.from_crs(self.crs.to_3d(), GEODETIC, always_xy=True)
+        self._from_geo = pyproj.Transformer.from_crs(GEODETIC, self.crs.to_3d(), always_xy=True)
+
+    def to_ecef(self, xyz) -> np.ndarray:
+        """ECEF (m) of map coordinates (x=E, y=N, z=ellipsoidal height)."""
+        p = np.asarray(xyz, float)
+        return np.stack(self._to_ecef.transform(p[..., 0], p[..., 1], p[..., 2]), axis=-1)
+
+    def from_ecef(self, p_ecef) -> np.ndarray:
+        """Map coordinates (E, N, h) of ECEF points (m)."""
+        p = np.asarray(p_ecef, float)
+        return np.stack(self._from_ecef.transform(p[..., 0], p[..., 1], p[..., 2]), axis=-1)
+
+    def to_geodetic(self, xyz) -> np.ndarray:
+        """Latitude, longitude (degrees), ellipsoidal height of map coordinates."""
+        p = np.asarray(xyz, float)
+        lon, lat, h = self._to_geo.transform(p[..., 0], p[..., 1], p[..., 2])
+        return np.stack([lat, lon, h], axis=-1)
+
+    def from_geodetic(self, lat_deg, lon_deg, h_m) -> np.ndarray:
+        """Map coordinates of geodetic points (degrees, ellipsoidal m)."""
+        x, y, z = self._from_geo.transform(np.asarray(lon_deg, float), np.asarray(lat_deg, float),
+                                           np.asarray(h_m, float))
+        return np.stack([x, y, z], axis=-1)
+
+    def convergence_deg(self, lat_deg, lon_deg) -> np.ndarray:
+        """True azimuth of grid north (degrees, clockwise from true north) at geodetic points.
+
+        Computed from the projection itself (a short step along the meridian) so the sign can't be
+        confused; 0 for geographic CRS.
+        """
+        if self.crs.is_geographic:
+            return np.zeros(np.shape(lat_deg))
+        lat, lon = np.asarray(lat_deg, float), np.asarray(lon_deg, float)
+        d = 1e-5
+        p0 = self.from_geodetic(lat, lon, 0.0 * lat)
+        p1 = self.from_geodetic(lat + d, lon, 0.0 * lat)
+        dE, dN = p1[..., 0] - p0[..., 0], p1[..., 1] - p0[..., 1]
+        # the meridian's grid azimuth is atan2(dE, dN); grid north's true azimuth is its negative
+        return -np.degrees(np.arctan2(dE, dN))
+
+    def R_enu_to_grid_at(self, xyz) -> np.ndarray:
+        """Rotation from the local ENU frame at map points to grid-level axes (grid E, grid N, Up)."""
+        g = self.to_geodetic(xyz)
+        return R_enu_to_grid(self.convergence_deg(g[..., 0], g[..., 1]))
+
+    def local_frame(self, xyz) -> LocalENU:
+        """A local ENU frame with its origin at map point `xyz`."""
+        lat, lon, h = self.to_geodetic(np.asarray(xyz, float))
+        return LocalENU(float(lat), float(lon), float(h))

@@ -1,0 +1,96 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fields import frames
+from fields.crs import LocalENU, MapGrid, ecef_to_geodetic, geodetic_to_ecef
+
+rng = np.random.default_rng(1)
+
+
+def test_rph_round_trip_and_meaning():
+    rph = np.column_stack([rng.uniform(-60, 60, 50), rng.uniform(-80, 80, 50), rng.uniform(0, 360, 50)])
+    R = frames.R_body_to_ned_from_rph(*rph.T)
+    np.testing.assert_allclose(frames.rph_from_R_body_to_ned(R), rph, atol=1e-9)
+    # heading 90 deg: body x (forward) points east in NED
+    np.testing.assert_allclose(frames.R_body_to_ned_from_rph(0, 0, 90) @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+    # positive pitch lifts the nose: body x gets a negative down component
+    assert (frames.R_body_to_ned_from_rph(0, 10, 0) @ [1, 0, 0])[2] < 0
+    # positive roll dips the right wing: body y gets a positive down component
+    assert (frames.R_body_to_ned_from_rph(10, 0, 0) @ [0, 1, 0])[2] > 0
+
+
+def test_opk_round_trip_and_nadir_identity():
+    opk = np.column_stack([rng.uniform(-30, 30, 50), rng.uniform(-30, 30, 50), rng.uniform(-179, 179, 50)])
+    M = frames.R_photo_to_map_from_opk(*opk.T)
+    np.testing.assert_allclose(frames.opk_from_R_photo_to_map(M), opk, atol=1e-9)
+    Rcv = frames.R_cv_to_map_from_opk(*opk.T)
+    np.testing.assert_allclose(frames.opk_from_R_cv_to_map(Rcv), opk, atol=1e-9)
+    # nadir image, top to north: CV z (view) points down, CV -y (image top) points north
+    R0 = frames.R_cv_to_map_from_opk(0, 0, 0)
+    np.testing.assert_allclose(R0 @ [0, 0, 1], [0, 0, -1], atol=1e-12)
+    np.testing.assert_allclose(R0 @ [0, -1, 0], [0, 1, 0], atol=1e-12)
+    # M = Rx Ry Rz with the usual right-handed matrices
+    w, p, k = np.radians([5.0, -7.0, 30.0])
+    Rx = np.array([[1, 0, 0], [0, np.cos(w), -np.sin(w)], [0, np.sin(w), np.cos(w)]])
+    Ry = np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
+    Rz = np.array([[np.cos(k), -np.sin(k), 0], [np.sin(k), np.cos(k), 0], [0, 0, 1]])
+    np.testing.assert_allclose(frames.R_photo_to_map_from_opk(5, -7, 30), Rx @ Ry @ Rz, atol=1e-12)
+
+
+def test_ecef_geodetic_enu_round_trip():
+    lat, lon, h = 24.1 + rng.uniform(-1, 1, 20), 120.6 + rng.uniform(-1, 1, 20), rng.uniform(0, 3000, 20)
+    p = geodetic_to_ecef(lat, lon, h)
+    np.testing.assert_allclose(ecef_to_geodetic(p), np.column_stack([lat, lon, h]), atol=1e-7)
+    loc = LocalENU(24.1, 120.6, 100.0)
+    enu = loc.from_ecef(p)
+    np.testing.assert_allclose(loc.to_ecef(enu), p, atol=1e-6)
+    # one metre up at the origin is +U
+    up = loc.from_geodetic(24.1, 120.6, 101.0)
+    np.testing.assert_allclose(up, [0, 0, 1], atol=1e-6)
+    R = frames.R_ecef_to_enu(lat, lon)
+    assert R.shape == (20, 3, 3)
+    np.testing.assert_allclose(R[3], frames.R_ecef_to_enu(lat[3], lon[3]))
+
+
+def test_convergence_sign_and_grid_rotation():
+    grid = MapGrid("EPSG:32651")  # UTM 51N, central meridian 123 E
+    # east of the central meridian (northern hemisphere) meridians lean toward the pole on the central
+    # meridian, so grid north lies east of true north: positive true azimuth; west of it, negative
+    gamma_e = grid.convergence_deg(24.0, 124.0)
+    gamma_w = grid.convergence_deg(24.0, 121.0)
+    assert gamma_e > 0 > gamma_w
+    # textbook: gamma ~ atan(tan(lon - lon0) sin(lat)); pyproj's own factor agrees
+    assert np.isclose(gamma_e, np.degrees(np.arctan(np.tan(np.radians(1.0)) * np.sin(np.radians(24.0)))), atol=1e-3)
+    import pyproj
+    assert np.isclose(gamma_e, pyproj.Proj("EPSG:32651").get_factors(124.0, 24.0).meridian_convergence, atol=1e-5)
+    # a true-north vector expressed in grid axes has grid azimuth -gamma
+    R = grid.R_enu_to_grid_at(grid.from_geodetic(24.0, 124.0, 0.0))
+    v = R @ [0, 1, 0]
+    assert np.isclose(np.degrees(np.arctan2(v[0], v[1])), -gamma_e, atol=1e-9)
+    # and the grid really shows it: a point 1 km true north has that grid azimuth
+    p0 = grid.from_geodetic(24.0, 124.0, 0.0)
+    loc = LocalENU(24.0, 124.0, 0.0)
+    p1 = grid.from_geodetic(*loc.to_geodetic([0, 1000.0, 0]))
+    d = p1 - p0
+    assert np.isclose(np.degrees(np.arctan2(d[0], d[1])), -gamma_e, atol=2e-3)
+
+
+def test_map_grid_round_trips():
+    grid = MapGrid("EPSG:3826")
+    xyz = np.column_stack([rng.uniform(2e5, 2.5e5, 10), rng.uniform(2.6e6, 2.7e6, 10), rng.uniform(0, 500, 10)])
+    # TWD97 to WGS84 goes through a datum shift whose inverse is good to ~2e-5 m
+    np.testing.assert_allclose(grid.from_ecef(grid.to_ecef(xyz)), xyz, atol=1e-4)
+    g = grid.to_geodetic(xyz)
+    np.testing.assert_allclose(grid.from_geodetic(*g.T), xyz, atol=1e-6)
+
+
+def test_bad_crs_is_input_error():
+    from fields.errors import InputError
+    with pytest.raises(InputError, match="not a CRS"):
+        MapGrid("EPSG:999999")
+
+
+def test_skew_matches_cross():
+    a, b = rng.normal(size=3), rng.normal(size=3)
+    np.testing.assert_allclose(frames.skew(a) @ b, np.cross(a, b))
