@@ -12,7 +12,7 @@ fraser7 (Metashape's form, all parameters in pixels except the dimensionless K, 
     u = cx + (f + B1) xd + B2 yd
     v = cy + f yd
 
-P1, P2 here are OpenCV's p1, p2 (Metashape's XML swaps them; see calib.conversions), so
+P1, P2 here are OpenCV's p1, p2 (Metashape's XML swaps them; see calib.camera_conversions), so
 fraser7 equals OpenCV's 5-coefficient model exactly when B2 = 0 (fx = f + B1, fy = f).
 
 opencv8 (OpenCV's rational model)::
@@ -115,6 +115,57 @@ class CameraModel:
         """The 3x3 pinhole matrix of the model's linear part (skew dropped)."""
         raise NotImplementedError
 
+    def project_with_jacobians(self, X_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixels (N,2) of camera-frame points (N,3) with d(uv)/d(params) (N,2,P) and d(uv)/d(X_cam) (N,2,3)."""
+        X = np.atleast_2d(np.asarray(X_cam, float))
+        iz = 1.0 / X[:, 2]
+        xy = X[:, :2] * iz[:, None]
+        xyd = self.distort(xy)
+        uv = self.to_pixels(xyd)
+        J_params = self._param_jacobian(xy, xyd)
+        # chain rule: pixels <- distorted <- ideal normalised <- camera-frame point
+        J_xy = self.pixel_jacobian()[None] @ self.distort_jacobian(xy)
+        J_norm = np.zeros((len(X), 2, 3))
+        J_norm[:, 0, 0] = iz
+        J_norm[:, 1, 1] = iz
+        J_norm[:, :, 2] = -xy * iz[:, None]
+        return uv, J_params, J_xy @ J_norm
+
+    def pixel_jacobian(self) -> np.ndarray:
+        """d(uv)/d(distorted normalised xy), the constant 2x2 linear part (px)."""
+        raise NotImplementedError
+
+    def _param_jacobian(self, xy: np.ndarray, xyd: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def undistortion_maps(self, K_new: np.ndarray | None = None, size: tuple[int, int] | None = None,
+                          rows_per_block: int = 256) -> tuple[np.ndarray, np.ndarray]:
+        """cv2.remap maps (float32, height x width): for each pixel of the ideal pinhole image `K_new`, its
+        position (px) in the distorted image. Default K_new: `pinhole_K()`; default size: the image size."""
+        K = self.pinhole_K() if K_new is None else np.asarray(K_new, float)
+        w, h = self.image_size if size is None else (int(size[0]), int(size[1]))
+        map_x = np.empty((h, w), np.float32)
+        map_y = np.empty((h, w), np.float32)
+        Kinv = np.linalg.inv(K)
+        u = np.arange(w, dtype=float)
+        # in blocks of rows so a 24 MP map never needs GBs of float64 temporaries
+        for r0 in range(0, h, rows_per_block):
+            v = np.arange(r0, min(h, r0 + rows_per_block), dtype=float)
+            uu, vv = np.meshgrid(u, v)
+            pts = np.column_stack([uu.ravel(), vv.ravel(), np.ones(uu.size)]) @ Kinv.T
+            uvd = self.to_pixels(self.distort(pts[:, :2] / pts[:, 2:3]))
+            map_x[r0:r0 + len(v)] = uvd[:, 0].reshape(len(v), w)
+            map_y[r0:r0 + len(v)] = uvd[:, 1].reshape(len(v), w)
+        return map_x, map_y
+
+    def undistort_image(self, img: np.ndarray, K_new: np.ndarray | None = None,
+                        size: tuple[int, int] | None = None, interpolation: int | None = None) -> np.ndarray:
+        """The image resampled to the ideal pinhole camera `K_new` (default `pinhole_K()`), via cv2.remap."""
+        import cv2
+        map_x, map_y = self.undistortion_maps(K_new, size)
+        return cv2.remap(img, map_x, map_y, cv2.INTER_LINEAR if interpolation is None else interpolation,
+                         borderMode=cv2.BORDER_CONSTANT)
+
 
 def _radial_r2(xy):
     x, y = xy[:, 0], xy[:, 1]
@@ -163,6 +214,32 @@ class Fraser7(CameraModel):
         f, cx, cy = self.params[:3]
         return np.array([[f + self.params[8], 0, cx], [0, f, cy], [0, 0, 1.0]])
 
+    def pixel_jacobian(self):
+        f, b1, b2 = self.params[0], self.params[8], self.params[9]
+        return np.array([[f + b1, b2], [0.0, f]])
+
+    def _param_jacobian(self, xy, xyd):
+        x, y, r2 = _radial_r2(xy)
+        n = len(x)
+        D = np.empty((n, 2, 5))  # d(xd, yd)/d(K1, K2, K3, P1, P2)
+        r4 = r2 * r2
+        for j, rp in enumerate((r2, r4, r4 * r2)):
+            D[:, 0, j] = x * rp
+            D[:, 1, j] = y * rp
+        D[:, 0, 3] = 2 * x * y
+        D[:, 1, 3] = r2 + 2 * y * y
+        D[:, 0, 4] = r2 + 2 * x * x
+        D[:, 1, 4] = 2 * x * y
+        J = np.zeros((n, 2, 10))
+        J[:, 0, 0] = xyd[:, 0]
+        J[:, 1, 0] = xyd[:, 1]
+        J[:, 0, 1] = 1.0
+        J[:, 1, 2] = 1.0
+        J[:, :, 3:8] = self.pixel_jacobian()[None] @ D
+        J[:, 0, 8] = xyd[:, 0]
+        J[:, 0, 9] = xyd[:, 1]
+        return J
+
 
 class OpenCV8(CameraModel):
     """OpenCV rational model: fx, fy, cx, cy (px), k1, k2, p1, p2, k3, k4, k5, k6 (OpenCV's order)."""
@@ -208,6 +285,39 @@ class OpenCV8(CameraModel):
     def pinhole_K(self):
         fx, fy, cx, cy = self.params[:4]
         return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+
+    def pixel_jacobian(self):
+        return np.diag(self.params[:2]).astype(float)
+
+    def _param_jacobian(self, xy, xyd):
+        k1, k2, p1, p2, k3, k4, k5, k6 = self.params[4:]
+        x, y, r2 = _radial_r2(xy)
+        n = len(x)
+        r4 = r2 * r2
+        r6 = r4 * r2
+        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        # d radial / d(k1, k2, p1, p2, k3, k4, k5, k6); p1, p2 act on the tangential part only
+        drad = np.zeros((n, 8))
+        drad[:, 0], drad[:, 1], drad[:, 4] = r2 / den, r4 / den, r6 / den
+        q = -num / den**2
+        drad[:, 5], drad[:, 6], drad[:, 7] = q * r2, q * r4, q * r6
+        D = np.empty((n, 2, 8))
+        D[:, 0, :] = x[:, None] * drad
+        D[:, 1, :] = y[:, None] * drad
+        D[:, 0, 2] = 2 * x * y
+        D[:, 1, 2] = r2 + 2 * y * y
+        D[:, 0, 3] = r2 + 2 * x * x
+        D[:, 1, 3] = 2 * x * y
+        fx, fy = self.params[:2]
+        J = np.zeros((n, 2, 12))
+        J[:, 0, 0] = xyd[:, 0]
+        J[:, 1, 1] = xyd[:, 1]
+        J[:, 0, 2] = 1.0
+        J[:, 1, 3] = 1.0
+        J[:, 0, 4:] = fx * D[:, 0]
+        J[:, 1, 4:] = fy * D[:, 1]
+        return J
 
 
 MODELS: dict[str, type[CameraModel]] = {m.NAME: m for m in (Fraser7, OpenCV8)}
