@@ -1,0 +1,1 @@
+"""Positioning and orientation: IMU and GNSS readers, time, GNSS front end, GNSS/INS smoothing."""
