@@ -1,0 +1,314 @@
+"""Batch GNSS/INS smoother (gtsam): CombinedImuFactor between 1 Hz keyframes, TC pseudorange + Doppler or
+LC position + velocity factors, receiver clock process, Levenberg-Marquardt over the whole flight and
+covariances from `gtsam.Marginals`.
+
+Frames: states live in a fixed NED tangent frame at the flight centre (`pos.nav_frame.NavFrame`); the pose
+key holds R_body_to_nav (body FRD) and the IMU origin's position; the GNSS antenna sits at `lever_arm_b`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pos.nav_frame import C_LIGHT, NavFrame
+from pos.smoother_factors import (B, CLK, DRIFT, V, X, clock_factors, doppler_factors, position_factor,
+                                  pseudorange_factors, velocity_factor)
+from pos.smoother_imu import (ImuNoise, imu_noise_from_grade, preintegrate, preintegration_params,
+                              split_at_keyframes)
+from pos.smoother_init import (GnssFixes, anchor_attitude, initial_clocks, initial_track,
+                               propagate_attitude)
+
+
+@dataclass
+class SmootherOptions:
+    """Tuning of the smoother; defaults suit a code-only receiver on a UAV.
+
+    lever_arm_b: IMU origin -> GNSS antenna phase centre, body FRD, m.
+    clock_bias_rw_m / clock_drift_rw_mps: receiver clock process densities (m/sqrt(s), m/s/sqrt(s)).
+    huber_k: Huber threshold (in sigmas) of the GNSS factors; None for plain least squares.
+    """
+
+    lever_arm_b: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    use_doppler: bool = True
+    earth_rotation: bool = True
+    huber_k: float | None = 1.345
+    clock_bias_rw_m: float = 0.5
+    clock_drift_rw_mps: float = 0.1
+    prior_rot_sigma_deg: tuple = (10.0, 10.0, 30.0)
+    prior_pos_sigma_m: float = 20.0
+    prior_vel_sigma_mps: float = 2.0
+    lc_velocity: bool = True
+    max_iterations: int = 30
+    covariances: bool = True
+
+
+@dataclass
+class NavSolution:
+    """Keyframe states in the nav frame with covariances (gtsam tangent conventions, see docs/pos_smoother.md).
+
+    cov_pose (K,6,6): [rotation (body, rad), position (body axes, m)] as gtsam's Pose3; cov_vel (K,3,3) nav.
+    bias (K,6): accelerometer m/s^2 then gyro rad/s. clock: constellation -> (K,) s; drift (K,) s/s.
+    """
+
+    frame: NavFrame
+    t: np.ndarray
+    p_nav: np.ndarray
+    v_nav: np.ndarray
+    R_body_to_nav: np.ndarray
+    bias: np.ndarray
+    clock: dict
+    drift: np.ndarray
+    cov_pose: np.ndarray | None = None
+    cov_vel: np.ndarray | None = None
+    n_sat: np.ndarray | None = None
+    gnss_update: np.ndarray | None = None
+    residuals: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+    @property
+    def cov_p_nav(self) -> np.ndarray:
+        """Position covariance (K,3,3) in nav axes, m^2."""
+        R = self.R_body_to_nav
+        return R @ self.cov_pose[:, 3:, 3:] @ np.swapaxes(R, 1, 2)
+
+
+@dataclass
+class Problem:
+    """A built factor graph with its initial values and the bookkeeping needed to read it back."""
+
+    graph: object
+    values: object
+    frame: NavFrame
+    t_key: np.ndarray
+    systems: list
+    pims: list
+    epoch_factors: list  # per keyframe: list of (kind, sat, factor) GNSS factors
+    imu_factors: list
+    clock_factor_groups: list
+    prior_factors: list
+    n_sat: np.ndarray
+    gnss_update: np.ndarray
+    omega_b: np.ndarray
+
+
+def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
+    i = np.clip(np.searchsorted(imu.t, t, side="left"), 0, len(imu.t) - 1)
+    return imu.gyro_rad_s[i]
+
+
+def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu_noise: ImuNoise,
+                  opts: SmootherOptions, mode: str = "tc", epochs_at_key: list | None = None,
+                  lc_fixes: GnssFixes | None = None, bias_lin: np.ndarray | None = None) -> Problem:
+    """Assemble the factor graph: priors, IMU, GNSS (TC epochs or LC fixes) and clock factors."""
+    import gtsam
+    K = len(t_key)
+    lever = np.asarray(opts.lever_arm_b, float)
+    params = preintegration_params(imu_noise, frame, opts.earth_rotation)
+    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, imu.accel_m_s2, t_key, imu.dt[0])
+    if bias_lin is None:
+        biases = [gtsam.imuBias.ConstantBias()] * (K - 1)
+    else:
+        biases = [gtsam.imuBias.ConstantBias(b[:3], b[3:]) for b in bias_lin[:-1]]
+    pims = preintegrate(params, seg, biases)
+
+    p_ant, v_ant = initial_track(t_key, fixes, frame, lever)
+    a, R_a = anchor_attitude(v_ant)
+    R = propagate_attitude(pims, a, R_a, p_ant, v_ant)
+    p_imu = p_ant - np.einsum("kij,j->ki", R, lever)
+    omega_b = _imu_rate_at(imu, t_key)
+
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for k in range(K):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R[k]), p_imu[k]))
+        values.insert(V(k), v_ant[k].copy())
+        values.insert(B(k), biases[min(k, K - 2)])
+
+    prior = []
+    rs = np.radians(opts.prior_rot_sigma_deg)
+    prior.append(gtsam.PriorFactorPose3(X(0), values.atPose3(X(0)), gtsam.noiseModel.Diagonal.Sigmas(
+        np.r_[rs, [opts.prior_pos_sigma_m] * 3])))
+    prior.append(gtsam.PriorFactorPoint3(V(0), v_ant[0], gtsam.noiseModel.Isotropic.Sigma(3, opts.prior_vel_sigma_mps)))
+    prior.append(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(
+        np.r_[[imu_noise.accel_bias_sigma] * 3, [imu_noise.gyro_bias_sigma] * 3])))
+
+    imu_factors = [gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
+                   for k in range(K - 1)]
+
+    epoch_factors: list = [[] for _ in range(K)]
+    clock_groups = []
+    n_sat = np.zeros(K, int)
+    gnss_update = np.zeros(K, bool)
+    systems: list = []
+    if mode == "tc":
+        systems = sorted({str(s) for ep in epochs_at_key if ep is not None for s in ep.system},
+                         key=lambda s: "GECJRIS".find(s))
+        ecef_T_nav = frame.ecef_T_nav()
+        clk, drift = initial_clocks(t_key, epochs_at_key, p_ant, frame, systems)
+        for k in range(K):
+            for s in systems:
+                values.insert(CLK(s, k), float(clk[s][k]))
+            values.insert(DRIFT(k), float(drift[k]))
+        for s in systems:
+            prior.append(gtsam.PriorFactorDouble(CLK(s, 0), float(clk[s][0]),
+                                                 gtsam.noiseModel.Isotropic.Sigma(1, 1e3 / C_LIGHT)))
+        prior.append(gtsam.PriorFactorDouble(DRIFT(0), float(drift[0]),
+                                             gtsam.noiseModel.Isotropic.Sigma(1, 100.0 / C_LIGHT)))
+        for k in range(K - 1):
+            clock_groups.append(clock_factors(systems, k, t_key[k + 1] - t_key[k], opts.clock_bias_rw_m,
+                                              opts.clock_drift_rw_mps))
+        for k, ep in enumerate(epochs_at_key):
+            if ep is None or ep.n == 0:
+                continue
+            r_approx = frame.to_ecef(p_ant[k])
+            n_sat[k] = ep.n
+            gnss_update[k] = True
+            for f in pseudorange_factors(k, ep, r_approx, lever, ecef_T_nav, opts.huber_k):
+                epoch_factors[k].append(("pr", f))
+            if opts.use_doppler and k > 0:
+                for f in doppler_factors(k, ep, t_key[k] - t_key[k - 1], r_approx, lever, omega_b[k], ecef_T_nav,
+                                         opts.huber_k):
+                    epoch_factors[k].append(("dop", f))
+    else:
+        lc = lc_fixes if lc_fixes is not None else fixes
+        idx = np.clip(np.searchsorted(t_key, lc.t - 1e-3), 0, K - 1)
+        for j, k in enumerate(idx):
+            if abs(t_key[k] - lc.t[j]) > 1e-3 or not np.all(np.isfinite(lc.p_ecef[j])):
+                continue
+            epoch_factors[k].append(("pos", position_factor(k, frame.from_ecef(lc.p_ecef[j]), lc.sigma_ned[j],
+                                                            lever, opts.huber_k)))
+            gnss_update[k] = True
+            n_sat[k] = 1
+            if opts.lc_velocity and lc.v_ecef is not None and np.all(np.isfinite(lc.v_ecef[j])):
+                v_nav = lc.v_ecef[j] @ frame.R_nav_to_ecef
+                v_lever = R[k] @ np.cross(omega_b[k], lever)
+                epoch_factors[k].append(("vel", velocity_factor(k, v_nav - v_lever, lc.sigma_v_ned[j])))
+
+    for f in prior + imu_factors:
+        graph.add(f)
+    for g in clock_groups:
+        for f in g:
+            graph.add(f)
+    for fl in epoch_factors:
+        for _, f in fl:
+            graph.add(f)
+    return Problem(graph, values, frame, t_key, systems, pims, epoch_factors, imu_factors, clock_groups, prior,
+                   n_sat, gnss_update, omega_b)
+
+
+def optimize(problem: Problem, max_iterations: int = 30):
+    """Levenberg-Marquardt over the whole graph; returns the optimised gtsam.Values."""
+    import gtsam
+    p = gtsam.LevenbergMarquardtParams()
+    p.setMaxIterations(max_iterations)
+    p.setRelativeErrorTol(1e-7)
+    p.setAbsoluteErrorTol(1e-7)
+    return gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, p).optimize()
+
+
+def read_states(problem: Problem, values) -> NavSolution:
+    """Keyframe states from gtsam Values (no covariances)."""
+    K = len(problem.t_key)
+    p = np.empty((K, 3))
+    v = np.empty((K, 3))
+    R = np.empty((K, 3, 3))
+    b = np.empty((K, 6))
+    for k in range(K):
+        pose = values.atPose3(X(k))
+        p[k] = pose.translation()
+        R[k] = pose.rotation().matrix()
+        v[k] = values.atPoint3(V(k))
+        b[k] = values.atConstantBias(B(k)).vector()
+    clock = {s: np.array([values.atDouble(CLK(s, k)) for k in range(K)]) for s in problem.systems}
+    drift = (np.array([values.atDouble(DRIFT(k)) for k in range(K)]) if problem.systems
+             else np.zeros(K))
+    return NavSolution(problem.frame, problem.t_key.copy(), p, v, R, b, clock, drift,
+                       n_sat=problem.n_sat.copy(), gnss_update=problem.gnss_update.copy())
+
+
+def gnss_residuals(problem: Problem, values) -> dict:
+    """Post-fit residuals of the GNSS factors: kind -> (keyframe index (M,), residual (M,) m or m/s, sigma (M,))."""
+    out: dict = {}
+    for k, fl in enumerate(problem.epoch_factors):
+        for kind, f in fl:
+            e = np.atleast_1d(f.unwhitenedError(values))
+            w = np.atleast_1d(f.whitenedError(values))
+            for j in range(len(e)):
+                out.setdefault(kind, []).append((k, e[j], e[j] / w[j] if w[j] != 0 else np.nan))
+    return {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in out.items()}
+
+
+def add_marginals(sol: NavSolution, problem: Problem, values) -> None:
+    """Fill cov_pose / cov_vel from gtsam.Marginals at the solution."""
+    import gtsam
+    m = gtsam.Marginals(problem.graph, values)
+    K = len(sol.t)
+    sol.cov_pose = np.empty((K, 6, 6))
+    sol.cov_vel = np.empty((K, 3, 3))
+    for k in range(K):
+        sol.cov_pose[k] = m.marginalCovariance(X(k))
+        sol.cov_vel[k] = m.marginalCovariance(V(k))
+
+
+def keyframe_times(imu, t_obs: np.ndarray) -> np.ndarray:
+    """Keyframes (GPS s): the GNSS epochs inside the IMU span, gaps filled at the median epoch interval."""
+    t0 = imu.t[0] - imu.dt[0]
+    t = np.unique(np.asarray(t_obs, float))
+    t = t[(t >= t0 + 1e-6) & (t <= imu.t[-1] + 1e-6)]
+    if len(t) < 2:
+        raise ValueError("fewer than two GNSS epochs inside the IMU time span")
+    dt = float(np.median(np.diff(t)))
+    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-6)) + 1)
+    near = _nearest_gap(grid, t)
+    return np.union1d(t, grid[near > 0.25 * dt])
+
+
+def _nearest_gap(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
+    i = np.clip(np.searchsorted(t, grid), 1, len(t) - 1)
+    return np.minimum(np.abs(grid - t[i - 1]), np.abs(grid - t[i]))
+
+
+def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mode: str = "tc",
+           gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
+           relinearize_bias: bool = True) -> NavSolution:
+    """Smoothed trajectory over the whole flight.
+
+    imu: `pos.imu_io.ImuData` (body FRD increments). fixes: GNSS positions to initialise (SPP) and, in LC
+    mode, the measurements unless `lc_fixes` is given. gnss: `GnssObservations` (TC mode). grade: an
+    `ImuGrade` or `ImuNoise`. The keyframes are the GNSS epochs (TC) or fix times (LC) in the IMU span.
+    """
+    opts = opts or SmootherOptions()
+    noise = imu_noise_from_grade(grade)
+    if frame is None:
+        ok = np.all(np.isfinite(fixes.p_ecef), axis=1)
+        frame = NavFrame.at_ecef(fixes.p_ecef[ok].mean(axis=0))
+    if mode == "tc":
+        if gnss is None:
+            raise ValueError("TC mode needs GNSS observations")
+        t_all = gnss.t_gps
+        t_key = keyframe_times(imu, t_all)
+        j = np.clip(np.searchsorted(t_all, t_key), 0, len(t_all) - 1)
+        epochs = [gnss.epochs[i] if abs(t_all[i] - t) < 1e-3 else None for i, t in zip(j, t_key)]
+    elif mode == "lc":
+        t_key = keyframe_times(imu, (lc_fixes or fixes).t)
+        epochs = None
+    else:
+        raise ValueError(f"unknown mode {mode!r}")
+    problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes)
+    values = optimize(problem, opts.max_iterations)
+    sol = read_states(problem, values)
+    if relinearize_bias and np.max(np.abs(sol.bias[:, 3:])) > 5 * np.radians(10 / 3600):
+        # re-preintegrate about the estimated biases when they are large (consumer MEMS)
+        problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes, bias_lin=sol.bias)
+        problem.values = values  # same keys: start from the first solution
+        values = optimize(problem, opts.max_iterations)
+        sol = read_states(problem, values)
+    sol.residuals = gnss_residuals(problem, values)
+    sol.info = {"mode": mode, "keyframes": len(t_key), "factors": problem.graph.size(),
+                "error_final": problem.graph.error(values), "systems": problem.systems}
+    if opts.covariances:
+        add_marginals(sol, problem, values)
+    sol._problem = problem  # kept for the forward filter and reports
+    sol._values = values
+    return sol
