@@ -10,6 +10,7 @@ import json
 import math
 import re
 import xml.etree.ElementTree as ET
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -232,7 +233,7 @@ def metashape_xml_string(model: CameraModel) -> tuple[str, float]:
     for k in conv.METASHAPE_KEYS:
         if k in ("f", "cx", "cy") or d[k] != 0.0:
             ET.SubElement(root, k).text = repr(float(d[k]))
-    ET.SubElement(root, "date").text = "dgcal"
+    ET.SubElement(root, "date").text = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     ET.indent(root, space="  ")
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n", err
 

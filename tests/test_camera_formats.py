@@ -82,6 +82,14 @@ def test_opencv_yaml_written_by_opencv_itself(tmp_path):
     cam8 = cf.load_camera(p, model="opencv8")
     assert cam8.NAME == "opencv8"
     same_projection(cam, cam8)
+    # OpenCV's XML flavour of FileStorage too
+    fs = cv2.FileStorage(str(tmp_path / "calib.xml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("camera_matrix", np.array([[500.0, 0, 320], [0, 505, 240], [0, 0, 1]]))
+    fs.write("distortion_coefficients", np.array([[-0.1, 0.01, 0.001, 0.002, 0.0]]))
+    fs.release()
+    np.testing.assert_array_equal(cf.load_camera(tmp_path / "calib.xml").params, cam.params)
 
 
 @pytest.mark.parametrize("cam", [fraser(), fraser(0.8), opencv8()], ids=["fraser7", "fraser7-skew", "opencv8"])
