@@ -135,6 +135,10 @@ class CameraModel:
         """d(uv)/d(distorted normalised xy), the constant 2x2 linear part (px)."""
         raise NotImplementedError
 
+    def opencv_K_dist(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(K, distortion vector) when the model is exactly an OpenCV model, else None."""
+        return None
+
     def _param_jacobian(self, xy: np.ndarray, xyd: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
@@ -144,6 +148,11 @@ class CameraModel:
         position (px) in the distorted image. Default K_new: `pinhole_K()`; default size: the image size."""
         K = self.pinhole_K() if K_new is None else np.asarray(K_new, float)
         w, h = self.image_size if size is None else (int(size[0]), int(size[1]))
+        cv = self.opencv_K_dist()
+        if cv is not None:
+            import cv2
+            # the model is exactly OpenCV's: its C++ map builder is ~20x faster than NumPy here
+            return cv2.initUndistortRectifyMap(cv[0], cv[1], None, K, (w, h), cv2.CV_32FC1)
         map_x = np.empty((h, w), np.float32)
         map_y = np.empty((h, w), np.float32)
         Kinv = np.linalg.inv(K)
@@ -152,8 +161,8 @@ class CameraModel:
         for r0 in range(0, h, rows_per_block):
             v = np.arange(r0, min(h, r0 + rows_per_block), dtype=float)
             uu, vv = np.meshgrid(u, v)
-            pts = np.column_stack([uu.ravel(), vv.ravel(), np.ones(uu.size)]) @ Kinv.T
-            uvd = self.to_pixels(self.distort(pts[:, :2] / pts[:, 2:3]))
+            hom = Kinv[:, 0, None] * uu.ravel() + Kinv[:, 1, None] * vv.ravel() + Kinv[:, 2, None]
+            uvd = self.to_pixels(self.distort((hom[:2] / hom[2]).T))
             map_x[r0:r0 + len(v)] = uvd[:, 0].reshape(len(v), w)
             map_y[r0:r0 + len(v)] = uvd[:, 1].reshape(len(v), w)
         return map_x, map_y
@@ -217,6 +226,12 @@ class Fraser7(CameraModel):
     def pixel_jacobian(self):
         f, b1, b2 = self.params[0], self.params[8], self.params[9]
         return np.array([[f + b1, b2], [0.0, f]])
+
+    def opencv_K_dist(self):
+        if self.params[9] != 0.0:
+            return None
+        k1, k2, k3, p1, p2 = self.params[3:8]
+        return self.pinhole_K(), np.array([k1, k2, p1, p2, k3])
 
     def _param_jacobian(self, xy, xyd):
         x, y, r2 = _radial_r2(xy)
@@ -288,6 +303,9 @@ class OpenCV8(CameraModel):
 
     def pixel_jacobian(self):
         return np.diag(self.params[:2]).astype(float)
+
+    def opencv_K_dist(self):
+        return self.pinhole_K(), self.params[4:].copy()
 
     def _param_jacobian(self, xy, xyd):
         k1, k2, p1, p2, k3, k4, k5, k6 = self.params[4:]

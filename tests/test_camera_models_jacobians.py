@@ -66,3 +66,13 @@ def test_undistort_image_straightens_a_line():
     out = cam.undistort_image(img)
     rows = np.nonzero(out[:, 60:340].max(axis=1) > 60)[0]
     assert rows.min() >= 38 and rows.max() <= 42
+
+
+def test_undistortion_maps_opencv_path_equals_numpy_path():
+    cam = Fraser7((600, 400), [400.0, 301.0, 198.5, -0.08, 0.05, -0.01, 2e-4, -1e-4, 1.5, 0.0])
+    K_new = np.array([[350.0, 0, 300], [0, 350, 200], [0, 0, 1]])
+    fast = cam.undistortion_maps(K_new)          # exactly OpenCV's model: cv2.initUndistortRectifyMap
+    cam.opencv_K_dist = lambda: None              # force the NumPy path used for skewed cameras
+    slow = cam.undistortion_maps(K_new, rows_per_block=37)
+    np.testing.assert_allclose(fast[0], slow[0], atol=1e-3)
+    np.testing.assert_allclose(fast[1], slow[1], atol=1e-3)
