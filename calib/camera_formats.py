@@ -77,9 +77,9 @@ def camera_from_json_dict(d: dict, path: str | Path | None = None) -> CameraMode
     for key in ("model", "image_size"):
         if key not in d:
             raise InputError("camera.json lacks this field", path, field=key)
-    cls = model_class(d["model"]) if d["model"] in ("fraser7", "opencv8") else None
-    if cls is None:
-        raise InputError(f"unknown camera model {d['model']!r}", path, field="model")
+    if not isinstance(d["model"], str) or d["model"] not in ("fraser7", "opencv8"):
+        raise InputError(f"unknown camera model {d['model']!r} (fraser7 or opencv8)", path, field="model")
+    cls = model_class(d["model"])
     size = d["image_size"]
     if not (isinstance(size, list) and len(size) == 2):
         raise InputError("image_size must be [width, height]", path, field="image_size")

@@ -133,6 +133,9 @@ def test_loaders_name_file_and_field(tmp_path):
     p.write_text(json.dumps({"model": "fraser7", "image_size": [10, 10], "parameters": {"f": 1.0}}))
     with pytest.raises(InputError, match=r"camera.json.*parameters.cx"):
         cf.load_camera(p)
+    p.write_text(json.dumps({"model": ["x"], "image_size": [10, 10]}))
+    with pytest.raises(InputError, match=r"camera.json.*field 'model'.*unknown camera model"):
+        cf.load_camera(p)
     p.write_text("{not json")
     with pytest.raises(InputError, match=r"camera.json:1.*invalid JSON"):
         cf.load_camera(p)
