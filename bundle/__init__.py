@@ -1,0 +1,1 @@
+"""Aerial triangulation: tie points (pycolmap), initial orientation, bundle adjustment, blunders, pipeline."""

@@ -1,0 +1,124 @@
+"""Initial exterior orientation: PnP resection from known points and incremental growth through tie points.
+
+Frames as in `bundle.adjustment`: `R_world_to_cv`, `C_world` in a local Cartesian world frame (m).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from calib.camera_models import CameraModel
+
+
+def pnp(camera: CameraModel, uv: np.ndarray, X_world: np.ndarray, threshold_px: float = 4.0,
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Resect one image from >= 4 pixel/world correspondences: (R_world_to_cv, C_world, inlier mask) or None.
+
+    Pixels are undistorted to ideal normalised coordinates first, so PnP runs on an identity camera.
+    RANSAC (threshold in pixels) when there are 6 or more points, then Levenberg-Marquardt refinement.
+    """
+    import cv2
+    uv = np.asarray(uv, float)
+    X = np.asarray(X_world, float)
+    if len(uv) < 4:
+        return None
+    xy = camera.undistort_normalized(uv)
+    f = float(camera.pinhole_K()[0, 0])
+    K = np.eye(3)
+    origin = X.mean(0)   # PnP on centred coordinates keeps large map coordinates out of the solver
+    Xc = np.ascontiguousarray(X - origin)
+    xy = np.ascontiguousarray(xy)
+    inl = np.ones(len(uv), bool)
+    if len(uv) >= 6:
+        ok, rvec, tvec, idx = cv2.solvePnPRansac(Xc, xy, K, None, reprojectionError=threshold_px / f,
+                                                 iterationsCount=500, confidence=0.9999, flags=cv2.SOLVEPNP_SQPNP)
+        if not ok or idx is None or len(idx) < 4:
+            return None
+        inl = np.zeros(len(uv), bool)
+        inl[idx.ravel()] = True
+    else:
+        ok, rvec, tvec = cv2.solvePnP(Xc, xy, K, None, flags=cv2.SOLVEPNP_SQPNP)
+        if not ok:
+            return None
+    rvec, tvec = cv2.solvePnPRefineLM(Xc[inl], xy[inl], K, None, rvec, tvec)
+    R = cv2.Rodrigues(rvec)[0]
+    C = -R.T @ tvec.ravel() + origin
+    Xcam = (X - C) @ R.T
+    proj = Xcam[:, :2] / Xcam[:, 2:3]
+    err = np.linalg.norm(proj - xy, axis=1) * f
+    inl = inl & (Xcam[:, 2] > 0) & (err < max(threshold_px, 3 * np.median(err[inl]) if inl.any() else 0))
+    if inl.sum() < 4:
+        return None
+    return R, C, inl
+
+
+def triangulate_midpoint(C_world: np.ndarray, d_world: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares intersection of rays C + t d (k,3 each): the point (3,) and the widest ray angle (deg)."""
+    d = d_world / np.linalg.norm(d_world, axis=1, keepdims=True)
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    A = P.sum(0)
+    b = np.einsum("kij,kj->i", P, C_world)
+    X = np.linalg.lstsq(A, b, rcond=None)[0]
+    cosang = np.clip(d @ d.T, -1, 1)
+    return X, float(np.degrees(np.arccos(cosang.min())))
+
+
+def grow_orientation(camera: CameraModel, n_images: int, obs_image: np.ndarray, obs_point: np.ndarray,
+                     obs_uv: np.ndarray, X_known: np.ndarray, R0: np.ndarray | None = None,
+                     C0: np.ndarray | None = None, min_angle_deg: float = 1.0,
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Initial orientation of every image it can reach, and initial points.
+
+    `X_known` (m,3) holds coordinates of control points (NaN for tie points). Images with known
+    approximate orientation (`R0`, `C0`, NaN where unknown) start oriented; the others are resected
+    (PnP) from control and from tie points triangulated in already oriented images, repeatedly.
+    Returns (R_world_to_cv (n,3,3), C_world (n,3), oriented mask (n,), X (m,3), point known mask (m,)).
+    """
+    oi, op = np.asarray(obs_image, int), np.asarray(obs_point, int)
+    m = len(X_known)
+    X = np.array(X_known, float)
+    known = np.isfinite(X).all(1)
+    R = np.tile(np.eye(3), (n_images, 1, 1)) if R0 is None else np.array(R0, float)
+    C = np.zeros((n_images, 3)) if C0 is None else np.array(C0, float)
+    oriented = np.zeros(n_images, bool)
+    if R0 is not None and C0 is not None:
+        oriented = np.isfinite(np.asarray(R0)).all((1, 2)) & np.isfinite(np.asarray(C0)).all(1)
+    rays = camera.ray(obs_uv)
+    X_tie = X.copy()
+    failed_at = np.zeros(n_images, int)
+    used = np.zeros(m, int)
+    while True:
+        # triangulate tie points seen from two or more oriented images
+        cnt = np.bincount(op[oriented[oi]], minlength=m)
+        todo = ~known & (cnt >= 2) & (cnt > used) & (used < 4)   # more rays than last time, few so far
+        sel = oriented[oi] & todo[op]
+        if sel.any():
+            order = np.argsort(op[sel], kind="stable")
+            ks = np.nonzero(sel)[0][order]
+            pts, starts = np.unique(op[ks], return_index=True)
+            ends = np.append(starts[1:], len(ks))
+            for p, a, b in zip(pts, starts, ends):
+                kk = ks[a:b]
+                used[p] = len(kk)
+                d_w = np.einsum("kji,kj->ki", R[oi[kk]], rays[kk])
+                Xp, ang = triangulate_midpoint(C[oi[kk]], d_w)
+                depth = np.einsum("kij,kj->ki", R[oi[kk]], Xp - C[oi[kk]])[:, 2]
+                if ang >= min_angle_deg and (depth > 0).all():
+                    X_tie[p] = Xp
+        usable = known | np.isfinite(X_tie).all(1)
+        # resect the not-yet-oriented image with the most usable points
+        per_image = np.bincount(oi[usable[op]], minlength=n_images)
+        per_image = np.where(oriented | (per_image <= np.maximum(failed_at, 3)), -1, per_image)
+        best = int(np.argmax(per_image)) if per_image.max() > 0 else -1
+        best_n = per_image[best] if best >= 0 else 0
+        if best < 0:
+            break
+        kk = np.nonzero((oi == best) & usable[op])[0]
+        Xs = np.where(known[op[kk]][:, None], X[op[kk]], X_tie[op[kk]])
+        res = pnp(camera, obs_uv[kk], Xs)
+        if res is None:
+            failed_at[best] = best_n   # retry only once more points become usable
+            continue
+        R[best], C[best], _ = res
+        oriented[best] = True
+    X_out = np.where(known[:, None], X, X_tie)
+    return R, C, oriented, X_out, np.isfinite(X_out).all(1)

@@ -1,0 +1,229 @@
+"""Simulate a control-field flight: terrain, GCP targets, strips at two heights, images and measurements.
+
+`dgcal simulate flight --out DIR --seed N` writes
+- `gcp.csv` (ground points in the map CRS, ellipsoidal heights, sigmas, role control/check, coordinates
+  perturbed by those sigmas), `camera.json` (the fraser7 camera), `truth.json`, `truth_eop.csv`;
+- `measurements.csv` (noisy GCP image measurements, 0.3 px), `measurements_exact.csv` (noise-free),
+  `tie_measurements.csv` (simulated tie points, noisy), `measurements_all.csv` (GCPs + tie points);
+- `images/*.png` rendered views of a textured terrain with GCP targets (unless `--no-render`).
+Strips fly north and south alternately (kappa 0 / 180 deg) at two heights, 80 % forward and 40 % side
+overlap, with small random attitude and position jitter.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from calib.camera_formats import write_camera_json
+from calib.camera_models import Fraser7
+from fields.crs import LocalENU, MapGrid
+from fields.csvio import atomic_write, staged_dir
+from fields.formats import EOP, Measurements, Points, write_eop, write_measurements, write_points
+from fields.frames import R_CV_TO_PHOTO, R_enu_to_grid, opk_from_R_cv_to_map
+from scipy.spatial.transform import Rotation
+
+NAME = "flight"
+HELP = "a control-field flight: terrain, GCP targets, two heights, images, truth EOPs"
+
+DEFAULT_CRS = "EPSG:32651"
+CENTRE_LAT, CENTRE_LON, CENTRE_H = 24.0, 121.3, 120.0   # west of UTM 51's central meridian: convergence ~ -0.7 deg
+
+
+def default_camera(width: int = 1200, height: int = 800) -> Fraser7:
+    """The simulated payload camera (fraser7, px): f ~ 0.83 w, mild barrel distortion, small affinity."""
+    s = width / 1200.0
+    return Fraser7((width, height), np.array([1000.0 * s, (width - 1) / 2 + 4.0 * s, (height - 1) / 2 - 3.0 * s,
+                                              -0.06, 0.02, 0.0, 2e-4, -1e-4, 0.4 * s, 0.15 * s]))
+
+
+def terrain_height(e: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Terrain height (m, local Up) at local E, N (m): gentle hills a few metres high."""
+    return (3.0 * np.sin(e / 45.0) * np.cos(n / 60.0) + 1.5 * np.sin((e + n) / 25.0) + 0.004 * e)
+
+
+def _flight_plan(camera: Fraser7, heights, n_strips, n_images, rng):
+    w, h = camera.image_size
+    f = camera["f"]
+    plan = []
+    for hi, (H, ns, ni) in enumerate(zip(heights, n_strips, n_images)):
+        across = w / f * H          # image x across track for north/south strips
+        along = h / f * H
+        base = 0.2 * along          # 80 % forward overlap
+        spacing = 0.6 * across      # 40 % side overlap
+        e0 = -spacing * (ns - 1) / 2
+        n0 = -base * (ni - 1) / 2
+        for s in range(ns):
+            north = s % 2 == 0
+            for j in range(ni):
+                jj = j if north else ni - 1 - j
+                plan.append(dict(height=H, strip=f"h{hi}s{s}", heading=0.0 if north else 180.0,
+                                 e=e0 + s * spacing, n=n0 + jj * base))
+    return plan
+
+
+def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, render: bool = True,
+                    heights=(80.0, 120.0), n_strips=(3, 2), n_images=(14, 10), n_control: int = 12,
+                    n_check: int = 10, n_tie: int = 1500, noise_px: float = 0.3,
+                    gcp_sigma=(0.01, 0.01, 0.02), image_size=(1200, 800)) -> dict:
+    """Write a simulated flight to `out` and return the truth dictionary (also in `truth.json`)."""
+    rng = np.random.default_rng(seed)
+    cam = default_camera(*image_size)
+    grid = MapGrid(crs)
+    frame = LocalENU(CENTRE_LAT, CENTRE_LON, CENTRE_H)
+    plan = _flight_plan(cam, heights, n_strips, n_images, rng)
+    names, C_loc, R_w2c = [], [], []
+    for k, p in enumerate(plan):
+        g = terrain_height(np.array(p["e"]), np.array(p["n"]))
+        C = np.array([p["e"], p["n"], p["height"]]) + rng.normal(0, [1.0, 1.0, 0.5])
+        # camera: nadir, image top to the heading direction, plus a few degrees of jitter
+        kappa = -p["heading"]
+        R_cv_to_enu = (Rotation.from_euler("xyz", rng.normal(0, [1.5, 1.5, 2.0]), degrees=True).as_matrix()
+                       @ Rotation.from_euler("z", kappa, degrees=True).as_matrix() @ R_CV_TO_PHOTO)
+        names.append(f"IMG_{k:04d}.png")
+        C_loc.append(C)
+        R_w2c.append(R_cv_to_enu.T)
+    C_loc, R_w2c = np.array(C_loc), np.array(R_w2c)
+    # ground points: control and check spread over the low-flight block, inset from its edge
+    lo = C_loc[:, :2].min(0) + 10
+    hi = C_loc[:, :2].max(0) - 10
+    n_gp = n_control + n_check
+    gx = int(np.ceil(np.sqrt(n_gp * (hi[0] - lo[0]) / (hi[1] - lo[1]))))
+    gy = int(np.ceil(n_gp / gx))
+    ee, nn = np.meshgrid(np.linspace(lo[0], hi[0], gx), np.linspace(lo[1], hi[1], gy))
+    en = np.column_stack([ee.ravel(), nn.ravel()])[:n_gp] + rng.normal(0, 3.0, (n_gp, 2))
+    gp_loc = np.column_stack([en, terrain_height(en[:, 0], en[:, 1])])
+    role = np.array(["control", "check"] * n_gp, dtype=object)[:n_gp]
+    gp_ids = np.array([f"GCP{i:02d}" if role[i] == "control" else f"CHK{i:02d}" for i in range(n_gp)], dtype=object)
+    # tie points spread over the whole block
+    lo2, hi2 = C_loc[:, :2].min(0) - 20, C_loc[:, :2].max(0) + 20
+    te = rng.uniform(lo2, hi2, (n_tie, 2))
+    tie_loc = np.column_stack([te, terrain_height(te[:, 0], te[:, 1])])
+    tie_ids = np.array([f"T{i:05d}" for i in range(n_tie)], dtype=object)
+
+    def observe(ids, X):
+        rows_img, rows_id, rows_uv = [], [], []
+        for i in range(len(names)):
+            Xc = (X - C_loc[i]) @ R_w2c[i].T
+            ok = Xc[:, 2] > 1.0
+            uv = np.full((len(X), 2), np.nan)
+            uv[ok] = cam.project(Xc[ok])
+            w, h = cam.image_size
+            ok &= (uv[:, 0] > 5) & (uv[:, 0] < w - 6) & (uv[:, 1] > 5) & (uv[:, 1] < h - 6)
+            for j in np.nonzero(ok)[0]:
+                rows_img.append(names[i]); rows_id.append(ids[j]); rows_uv.append(uv[j])
+        return (np.array(rows_img, dtype=object), np.array(rows_id, dtype=object),
+                np.array(rows_uv).reshape(-1, 2))
+
+    gi, gid, guv = observe(gp_ids, gp_loc)
+    ti, tid, tuv = observe(tie_ids, tie_loc)
+    # keep tie points seen at least twice
+    uniq, cnt = np.unique(tid, return_counts=True)
+    keep = np.isin(tid, uniq[cnt >= 2])
+    ti, tid, tuv = ti[keep], tid[keep], tuv[keep]
+    g_noisy = guv + rng.normal(0, noise_px, guv.shape)
+    t_noisy = tuv + rng.normal(0, noise_px, tuv.shape)
+
+    # map coordinates
+    gp_map = grid.from_ecef(frame.to_ecef(gp_loc))
+    sig = np.tile(np.asarray(gcp_sigma, float), (n_gp, 1))
+    gp_map_obs = gp_map + rng.normal(0, 1.0, gp_map.shape) * sig
+    C_map = grid.from_ecef(frame.to_ecef(C_loc))
+    g = frame.to_geodetic(C_loc)
+    R_here_to_local = frame.R_enu_here_to_local(g[:, 0], g[:, 1])
+    gamma = grid.convergence_deg(g[:, 0], g[:, 1])
+    R_cv_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ np.swapaxes(R_here_to_local, -1, -2)
+                    @ np.swapaxes(R_w2c, -1, -2))
+    opk = opk_from_R_cv_to_map(R_cv_to_grid)
+    gsd = {f"{H:g}": float((H - 0.0) / cam["f"]) for H in heights}
+
+    out = Path(out)
+    with staged_dir(out) as tmp:
+        write_points(tmp / "gcp.csv", Points(gp_ids, gp_map_obs, sig, role), with_role=True)
+        write_measurements(tmp / "measurements.csv", Measurements(gi, gid, g_noisy, np.full(guv.shape, noise_px)))
+        write_measurements(tmp / "measurements_exact.csv", Measurements(gi, gid, guv, np.full(guv.shape, np.nan)))
+        write_measurements(tmp / "tie_measurements.csv", Measurements(ti, tid, t_noisy, np.full(tuv.shape, noise_px)))
+        write_measurements(tmp / "measurements_all.csv",
+                           Measurements(np.concatenate([gi, ti]), np.concatenate([gid, tid]),
+                                        np.concatenate([g_noisy, t_noisy]), np.full((len(gi) + len(ti), 2), noise_px)))
+        write_eop(tmp / "truth_eop.csv", EOP(np.array(names, dtype=object), C_map, opk))
+        write_camera_json(tmp / "camera.json", cam, stats={"rms_px": 0.0, "n_observations": 0, "n_rejected": 0})
+        if render:
+            _render_all(tmp / "images", cam, names, R_w2c, C_loc, gp_loc, seed)
+        truth = {
+            "crs": crs, "local_frame": {"lat0": CENTRE_LAT, "lon0": CENTRE_LON, "h0": CENTRE_H},
+            "camera": {"model": cam.NAME, "image_size": list(cam.image_size), "params": cam.as_dict()},
+            "noise_px": noise_px, "gcp_sigma_m": list(gcp_sigma), "gsd_m": gsd,
+            "images": [{"image": names[i], "X": C_map[i].tolist(), "opk_deg": opk[i].tolist(),
+                        "C_local": C_loc[i].tolist(), "R_world_to_cv_local": R_w2c[i].tolist(),
+                        "height_m": plan[i]["height"], "strip": plan[i]["strip"]} for i in range(len(names))],
+            "ground_points": [{"id": gp_ids[i], "role": role[i], "xyz": gp_map[i].tolist(),
+                               "local": gp_loc[i].tolist()} for i in range(n_gp)],
+            "n_tie_points": int(len(np.unique(tid))), "n_tie_observations": int(len(tid)),
+        }
+        with atomic_write(tmp / "truth.json") as fh:
+            json.dump(truth, fh, indent=1)
+    return truth
+
+
+# ---------------------------------------------------------------------------------------------
+def _texture(seed: int, size: int = 2048) -> np.ndarray:
+    """A tileable multi-scale noise texture (uint8), rich enough in corners for SIFT."""
+    import cv2
+    rng = np.random.default_rng(seed + 1000)
+    tex = np.zeros((size, size), np.float32)
+    for octave, amp in ((8, 1.0), (32, 0.7), (128, 0.5), (512, 0.35)):
+        small = rng.random((octave, octave)).astype(np.float32)
+        tex += amp * cv2.resize(np.tile(small, (2, 2)), (2 * size, 2 * size), interpolation=cv2.INTER_CUBIC)[:size, :size]
+    tex -= tex.min()
+    tex /= tex.max()
+    return (40 + 180 * tex).astype(np.uint8)
+
+
+def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: int,
+                texel_m: float = 0.05) -> None:
+    """Render each image: ray -> terrain intersection (fixed-point on height) -> texture and targets."""
+    import cv2
+    folder.mkdir(parents=True, exist_ok=True)
+    tex = _texture(seed)
+    size = tex.shape[0]
+    w, h = cam.image_size
+    uu, vv = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    rays_cv = cam.ray(np.column_stack([uu.ravel(), vv.ravel()]))
+    target_r = 0.5   # m: radius of a GCP target's black disc (white ring to 1.0 m)
+    for i, name in enumerate(names):
+        d = rays_cv @ R_w2c[i]          # world directions
+        C = C_loc[i]
+        z = np.full(len(d), terrain_height(np.array([C[0]]), np.array([C[1]]))[0])
+        for _ in range(6):
+            t = (z - C[2]) / d[:, 2]
+            P = C + t[:, None] * d
+            z = terrain_height(P[:, 0], P[:, 1])
+        ix = np.mod(P[:, 0] / texel_m, size).astype(np.float32)
+        iy = np.mod(P[:, 1] / texel_m, size).astype(np.float32)
+        img = cv2.remap(tex, ix.reshape(h, w), iy.reshape(h, w), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+        img = img.astype(np.float32)
+        for g in gp_loc:
+            r = np.hypot(P[:, 0] - g[0], P[:, 1] - g[1]).reshape(h, w)
+            img[r < 1.0] = 250.0
+            img[r < target_r] = 15.0
+            quad = ((P[:, 0] - g[0] > 0) == (P[:, 1] - g[1] > 0)).reshape(h, w)
+            img[(r < target_r) & quad] = 250.0
+        img = cv2.GaussianBlur(img, (0, 0), 0.6)
+        cv2.imwrite(str(folder / name), np.clip(img, 0, 255).astype(np.uint8))
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--crs", default=DEFAULT_CRS, help="map CRS of gcp.csv and truth_eop.csv (default %(default)s)")
+    p.add_argument("--no-render", action="store_true", help="write measurements only, no images")
+    p.add_argument("--noise-px", type=float, default=0.3, help="image measurement noise (px)")
+
+
+def run(args: argparse.Namespace) -> int:
+    truth = simulate_flight(args.out, args.seed, crs=args.crs, render=not args.no_render, noise_px=args.noise_px)
+    print(f"simulated {len(truth['images'])} images, {len(truth['ground_points'])} ground points -> {args.out}")
+    return 0
