@@ -1,0 +1,33 @@
+"""Mounting calibration entry point: EOPs + trajectory + events -> lever arm, boresight, delay (any method)."""
+from __future__ import annotations
+
+import numpy as np
+
+from calib.mounting_common import BlockFrame, Epochs, MountingResult, build_epochs
+from calib.mounting_diagnostics import observability_warnings
+from calib.mounting_proposed import calibrate_proposed
+from calib.mounting_traditional import calibrate_traditional
+from fields.crs import MapGrid
+from fields.errors import InputError
+from fields.formats import EOP, Events, Trajectory
+
+METHODS = ("traditional", "proposed", "iso")
+
+
+def prepare_epochs(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events) -> tuple[BlockFrame, Epochs]:
+    """The block frame (centred on the EOPs) and the matched epochs in it."""
+    frame = BlockFrame.at_map_points(grid, eop.xyz)
+    return frame, build_epochs(frame, eop, events, traj)
+
+
+def calibrate_mounting(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events,
+                       method: str = "proposed", **kw) -> MountingResult:
+    """Lever arm (body, m), boresight R_cam_to_body and delay (s) with covariance, by `traditional` or `proposed`."""
+    if method not in ("traditional", "proposed"):
+        raise InputError(f"method must be traditional or proposed here, got {method!r}", field="--method")
+    frame, ep = prepare_epochs(eop, grid, traj, events)
+    res = calibrate_traditional(ep) if method == "traditional" else calibrate_proposed(ep, **kw)
+    res.warnings = list(ep.warnings) + observability_warnings(ep, res if method != "traditional" else None)
+    res.extra["skipped_images"] = ep.skipped
+    res.extra["block_origin_lat_lon_h"] = [frame.local.lat0, frame.local.lon0, frame.local.h0]
+    return res

@@ -1,0 +1,254 @@
+"""Simulate a mounting-calibration flight (and a mapping flight) with known lever arm, boresight and exposure delay.
+
+A light, self-contained simulator for the mounting tests: straight strips in opposite headings at several
+heights with wind (so ground speed and crab differ between headings), attitude wobble (angular rates),
+Gauss-Markov POS errors (smoother-like, correlation time 0.5 s), bundle-like EOP noise, a Fraser camera,
+ground points (control and check) and their image measurements.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calib.camera_models import Fraser7
+from calib.mounting_common import BlockFrame, T
+from fields.crs import LocalENU, MapGrid
+from fields.formats import EOP, Events, Measurements, Points, Trajectory
+
+NAME = "mounting"
+HELP = "a mounting-calibration flight and a mapping flight with known lever arm, boresight and delay"
+
+R_CAM_TO_BODY_NOMINAL = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # image top forward
+
+
+def default_boresight() -> np.ndarray:
+    """A nominal down-looking camera (image top forward) misaligned by about a degree (like seed Table 1)."""
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_euler("xyz", [1.3, -0.7, 0.4], degrees=True).as_matrix() @ R_CAM_TO_BODY_NOMINAL
+
+
+def default_camera() -> Fraser7:
+    """A 20 mm lens on a 5616 x 3744 full-frame sensor (6.4 um pixels), like seed 003's EOS 5D Mark II."""
+    return Fraser7((5616, 3744), np.array([3125.0, 2815.0, 1868.0, -0.02, 0.01, 0, 1e-5, -1e-5, 0, 0]))
+
+
+@dataclass
+class FlightSim:
+    """One simulated flight: truth and the noisy files' contents."""
+
+    frame: BlockFrame
+    traj: Trajectory              # noisy POS with sigmas
+    traj_true: Trajectory
+    events: Events                # recorded event times (t_exposure - delay)
+    t_exposure: np.ndarray
+    eop: EOP                      # noisy bundle EOPs with sigmas (map CRS)
+    eop_true: EOP
+    measurements: Measurements    # image measurements of the ground points (px)
+    heights: np.ndarray           # flying height of each image above ground (m)
+
+
+@dataclass
+class MountingSim:
+    """A calibration flight, a mapping flight, ground points, camera and the true mounting."""
+
+    crs: str
+    camera: Fraser7
+    lever_arm_m: np.ndarray
+    R_cam_to_body: np.ndarray
+    delay_s: float
+    ground: Points
+    calibration: FlightSim
+    mapping: FlightSim
+    noise: dict = field(default_factory=dict)
+
+    def truth(self) -> dict:
+        return {"lever_arm_m": self.lever_arm_m.tolist(), "boresight_R_cam_to_body": self.R_cam_to_body.tolist(),
+                "delay_s": self.delay_s, "crs": self.crs, "noise": self.noise}
+
+
+def _gauss_markov(rng, n: int, dt: float, tau: float, sigma: np.ndarray) -> np.ndarray:
+    """Stationary first-order Gauss-Markov sequences (n, k) with standard deviations `sigma` (k,)."""
+    sigma = np.asarray(sigma, float)
+    phi = np.exp(-dt / tau)
+    x = np.empty((n, len(sigma)))
+    x[0] = rng.normal(0, sigma)
+    w = rng.normal(0, 1, (n, len(sigma))) * sigma * np.sqrt(1 - phi**2)
+    for k in range(1, n):
+        x[k] = phi * x[k - 1] + w[k]
+    return x
+
+
+def _strips(heights, n_strips, length_m, spacing_m, azimuth_deg):
+    out = []
+    for h in heights:
+        for k in range(n_strips):
+            az = azimuth_deg + (180.0 if k % 2 else 0.0)
+            offset = (k - (n_strips - 1) / 2) * spacing_m * h / heights[0]
+            out.append((h, az, offset, length_m))
+    return out
+
+
+def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, delay_s: float, ground_L: np.ndarray,
+                    ground_ids, *, heights=(300.0, 600.0), n_strips: int = 4, length_m: float = 1200.0,
+                    spacing_m: float = 180.0, azimuth_deg: float = 30.0, airspeed: float = 30.0,
+                    wind_en=(4.0, 5.0), photo_interval_s: float = 1.5, rate_hz: float = 20.0,
+                    pos_sigma=(0.05, 0.05, 0.08, 0.01, 0.01, 0.03), eop_sigma=(0.03, 0.03, 0.04, 0.003, 0.003, 0.002),
+                    pixel_sigma: float = 0.5, t0: float = 2200 * 604800.0 + 300000.0, tau_s: float = 0.5) -> FlightSim:
+    """Simulate one flight of straight strips (alternating headings) in L; see the module docstring."""
+    from fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph
+    wind = np.array([wind_en[0], wind_en[1], 0.0])
+    t_all, p_all, v_all, R_all = [], [], [], []
+    t_exp, strip_h = [], []
+    t = t0
+    for h, az, offset, length in _strips(list(heights), n_strips, length_m, spacing_m, azimuth_deg):
+        a = np.radians(az)
+        u = np.array([np.sin(a), np.cos(a), 0.0])
+        n = np.array([np.cos(a), -np.sin(a), 0.0])
+        crab = -np.arcsin(np.clip(wind @ n / airspeed, -1, 1))
+        vg = airspeed * np.cos(crab) + wind @ u
+        dur = length / vg
+        ts = np.arange(-3.0, dur + 3.0, 1.0 / rate_hz)
+        ph = rng.uniform(0, 2 * np.pi, 3)
+        p = (offset * n)[None] + (-length / 2 + vg * ts)[:, None] * u[None]
+        p[:, 2] = h
+        v = np.tile(vg * u, (len(ts), 1))
+        roll = 1.5 * np.sin(2 * np.pi * ts / 6.0 + ph[0])
+        pitch = 2.0 + 1.0 * np.sin(2 * np.pi * ts / 9.0 + ph[1])
+        heading = az + np.degrees(crab) + 0.5 * np.sin(2 * np.pi * ts / 13.0 + ph[2])
+        R_b = R_ENU_TO_NED.T @ R_body_to_ned_from_rph(roll, pitch, heading)  # body -> L (L level at the block)
+        t_all.append(t + ts)
+        p_all.append(p)
+        v_all.append(v)
+        R_all.append(R_b)
+        te = np.arange(0.5, dur - 0.5, photo_interval_s)
+        t_exp.append(t + te)
+        strip_h.append(np.full(len(te), h))
+        t += ts[-1] + 30.0  # the turn is not simulated: a gap in the trajectory
+    t_s, p_L, v_L, R_bL = (np.concatenate(x) for x in (t_all, p_all, v_all, R_all))
+    t_exp, heights_img = np.concatenate(t_exp), np.concatenate(strip_h)
+
+    # truth at exposure times, analytically interpolated on the fine samples (rate_hz) would add error:
+    # evaluate the strip model directly by re-sampling at exposure times
+    def at(tq):
+        from calib.mounting_common import so3_exp, so3_log
+        i = np.clip(np.searchsorted(t_s, tq) - 1, 0, len(t_s) - 2)
+        s = (tq - t_s[i]) / (t_s[i + 1] - t_s[i])
+        pq = p_L[i] + s[:, None] * (p_L[i + 1] - p_L[i])  # straight constant-velocity strips: linear is exact
+        Rq = R_bL[i] @ so3_exp(s[:, None] * so3_log(T(R_bL[i]) @ R_bL[i + 1]))
+        return pq, Rq
+
+    p_e, R_e = at(t_exp)
+    r_cam = p_e + np.einsum("nij,j->ni", R_e, lever_arm_m)
+    R_cv_to_L = R_e @ R_cam_to_body
+    names = np.array([f"IMG_{k:04d}.JPG" for k in range(len(t_exp))], dtype=object)
+    xyz, opk = frame.L_to_eop(r_cam, R_cv_to_L)
+    eop_true = EOP(names, xyz, opk)
+    es = np.tile(np.asarray(eop_sigma, float), (len(names), 1))
+    es *= (heights_img / heights[0])[:, None]  # bundle accuracy degrades with height
+    eop = EOP(names, xyz + rng.normal(0, 1, xyz.shape) * es[:, :3], opk + rng.normal(0, 1, opk.shape) * es[:, 3:],
+              es)
+    events = Events(names, t_exp - delay_s)
+
+    lat, lon, hh, v_ned, rph = frame.L_to_pos(p_L, v_L, R_bL)
+    traj_true = Trajectory(t_s, lat, lon, hh, v_ned, rph)
+    # smoother-like errors: correlated over tau_s, independent between photos
+    err = _gauss_markov(rng, len(t_s), 1.0 / rate_hz, tau_s, np.asarray(pos_sigma, float))
+    p_noisy = p_L + err[:, [1, 0, 2]]  # s_lat_m is north, s_lon_m east (L is ENU, level at the block)
+    lat_n, lon_n, h_n, _, _ = frame.L_to_pos(p_noisy, v_L, R_bL)
+    traj = Trajectory(t_s, lat_n, lon_n, h_n, v_ned + rng.normal(0, 0.02, v_ned.shape), rph + err[:, 3:],
+                      np.tile(np.asarray(pos_sigma, float), (len(t_s), 1)))
+
+    # image measurements of ground points from the true poses
+    rows_im, rows_id, uv_all = [], [], []
+    for k in range(len(names)):
+        X_c = (ground_L - r_cam[k]) @ R_cv_to_L[k]
+        ok = X_c[:, 2] > 1.0
+        uv = np.full((len(ground_L), 2), np.nan)
+        uv[ok] = camera.project(X_c[ok])
+        w, hgt = camera.image_size
+        ok &= (uv[:, 0] > 20) & (uv[:, 0] < w - 20) & (uv[:, 1] > 20) & (uv[:, 1] < hgt - 20)
+        for j in np.nonzero(ok)[0]:
+            rows_im.append(names[k])
+            rows_id.append(ground_ids[j])
+            uv_all.append(uv[j] + rng.normal(0, pixel_sigma, 2))
+    uv_all = np.array(uv_all).reshape(-1, 2)
+    meas = Measurements(np.array(rows_im, dtype=object), np.array(rows_id, dtype=object), uv_all,
+                        np.full(uv_all.shape, pixel_sigma))
+    return FlightSim(frame, traj, traj_true, events, t_exp, eop, eop_true, meas, heights_img)
+
+
+def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_to_body=None, delay_s: float = -0.14,
+                      crs: str = "EPSG:32651", lat0: float = 23.0, lon0: float = 120.3, h0: float = 30.0,
+                      n_ground: int = 49, calibration: dict | None = None, mapping: dict | None = None) -> MountingSim:
+    """A calibration flight (300 m and 600 m, opposite headings) and a mapping flight over the same ground points."""
+    rng = np.random.default_rng(seed)
+    grid = MapGrid(crs)
+    frame = BlockFrame(grid, LocalENU(lat0, lon0, h0))
+    camera = default_camera()
+    R_cb = default_boresight() if R_cam_to_body is None else np.asarray(R_cam_to_body, float)
+    lever = np.asarray(lever_arm_m, float)
+    k = int(round(np.sqrt(n_ground)))
+    g = np.linspace(-450, 450, k)
+    gx, gy = np.meshgrid(g, g)
+    ground_L = np.column_stack([gx.ravel(), gy.ravel(), rng.uniform(-5, 15, gx.size)])
+    ground_L[:, :2] += rng.normal(0, 20, (gx.size, 2))
+    ids = np.array([f"P{k:03d}" for k in range(len(ground_L))], dtype=object)
+    role = np.array(["control" if (i % 4 == 0) else "check" for i in range(len(ids))], dtype=object)
+    ground = Points(ids, frame.L_to_map(ground_L), np.full((len(ids), 3), 0.01), role)
+    cal = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_L, ids, **(calibration or {}))
+    mp = dict(heights=(450.0,), n_strips=4, spacing_m=250.0, azimuth_deg=100.0, wind_en=(-3.0, 6.0),
+              t0=2200 * 604800.0 + 310000.0)
+    mp.update(mapping or {})
+    mapf = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_L, ids, **mp)
+    noise = {"pos_sigma": [0.05, 0.05, 0.08, 0.01, 0.01, 0.03], "eop_sigma_300m": [0.03, 0.03, 0.04, 0.003, 0.003, 0.002],
+             "pixel_sigma": 0.5, "pos_correlation_time_s": 0.5}
+    return MountingSim(crs, camera, lever, R_cb, float(delay_s), ground, cal, mapf, noise)
+
+
+def camera_json(camera) -> dict:
+    """A camera.json record (model, image_size, parameters, opencv block) for the simulated camera."""
+    f, cx, cy, k1, k2, k3, p1, p2, b1, b2 = camera.params
+    d = {"model": camera.NAME, "image_size": list(camera.image_size), **camera.as_dict(),
+         "opencv": {"fx": f + b1, "fy": f, "cx": cx, "cy": cy, "k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3},
+         "opencv_max_error_px": 0.0}
+    return d
+
+
+def write_mounting_sim(sim: MountingSim, out: Path) -> None:
+    """Write the simulated files: calibration/ and mapping/ flights, ground.csv, camera.json, truth.json."""
+    from fields.csvio import atomic_write, staged_dir
+    from fields.formats import write_eop, write_events, write_measurements, write_points, write_trajectory
+    with staged_dir(out) as tmp:
+        for name, fl in (("calibration", sim.calibration), ("mapping", sim.mapping)):
+            d = tmp / name
+            d.mkdir()
+            write_trajectory(d / "trajectory.csv", fl.traj)
+            write_events(d / "events.csv", fl.events)
+            write_eop(d / "eop.csv", fl.eop)
+            write_eop(d / "eop_true.csv", fl.eop_true)
+            write_measurements(d / "measurements.csv", fl.measurements)
+        write_points(tmp / "ground.csv", sim.ground, with_role=True)
+        with atomic_write(tmp / "camera.json") as fh:
+            json.dump(camera_json(sim.camera), fh, indent=2)
+        with atomic_write(tmp / "truth.json") as fh:
+            json.dump(sim.truth(), fh, indent=2)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, type=Path, help="output directory")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--delay", type=float, default=-0.14, help="exposure delay t_exposure - t_event (s)")
+    p.add_argument("--lever-arm", type=float, nargs=3, default=(-0.30, 0.12, 0.20), metavar=("X", "Y", "Z"),
+                   help="lever arm IMU -> camera in body FRD (m)")
+    p.add_argument("--crs", default="EPSG:32651", help="map CRS of the EOPs and ground points")
+
+
+def run(args: argparse.Namespace) -> int:
+    sim = simulate_mounting(args.seed, lever_arm_m=args.lever_arm, delay_s=args.delay, crs=args.crs)
+    write_mounting_sim(sim, args.out)
+    print(args.out / "truth.json")
+    return 0
