@@ -21,8 +21,8 @@ The *corrected pseudorange* is::
     pr_corr_m = pr_m + c * sat_clk_s - iono_m - tropo_m
               = |sat_pos_ecef - p_rx_ecef| + c * dt_rx[system] + noise(sigma_pr_m)
 
-where ``c * dt_rx[system]`` is the receiver clock bias in metres of the constellation
-(one per system: 'G', 'E', 'C', 'J'), and the *corrected range rate* is::
+where ``c * dt_rx[CLOCK_GROUP[system]]`` is the receiver clock bias in metres of the
+constellation (one per clock group: 'G' (GPS and QZSS), 'E', 'C'), and the *corrected range rate* is::
 
     rr_corr_mps = range_rate_mps + c * sat_clk_drift
                 = e . (sat_vel_ecef - v_rx_ecef) + c * ddt_rx + noise(sigma_rr_mps)
@@ -42,6 +42,9 @@ C_LIGHT = 299792458.0          # m/s
 OMEGA_E = 7.2921151467e-5      # rad/s, WGS84 Earth rotation rate
 SECONDS_PER_WEEK = 604800.0
 SYSTEMS = ("G", "E", "C", "J")  # GPS, Galileo, BeiDou, QZSS
+# Receiver clock parameter of each system: QZSS L1 C/A is interoperable with GPS and shares its
+# receiver clock bias (as in RTKLIB); Galileo and BeiDou have their own (inter-system bias).
+CLOCK_GROUP = {"G": "G", "J": "G", "E": "E", "C": "C"}
 
 
 def split_gps_time(t_gps):
@@ -89,13 +92,18 @@ class GnssEpoch:
 
     @property
     def pr_corr_m(self) -> np.ndarray:
-        """Corrected pseudorange (m): ``rho + c*dt_rx[system] + noise``."""
+        """Corrected pseudorange (m): ``rho + c*dt_rx[CLOCK_GROUP[system]] + noise``."""
         return self.pr_m + C_LIGHT * self.sat_clk_s - self.iono_m - self.tropo_m
 
     @property
     def rr_corr_mps(self) -> np.ndarray:
         """Corrected range rate (m/s): ``e.(v_sat - v_rx) + c*ddt_rx + noise``; NaN without Doppler."""
         return self.range_rate_mps + C_LIGHT * self.sat_clk_drift
+
+    @property
+    def clock_group(self) -> np.ndarray:
+        """Receiver clock parameter ('G', 'E', 'C') of each satellite, see ``CLOCK_GROUP``."""
+        return np.array([CLOCK_GROUP[s] for s in self.system])
 
     @property
     def has_doppler(self) -> np.ndarray:
@@ -123,6 +131,7 @@ class GnssObservations:
     ``p_approx_ecef``: approximate antenna position (m, ECEF), from the RINEX header or SPP.
     ``signals``: the observation code used per system, e.g. ``{'G': 'C1C', 'E': 'C1C'}``.
     ``source``: the file (or 'simulation') the data came from, for error messages and reports.
+    ``truth``: for simulated data only, the true receiver states per epoch (see ``sim.gnss``).
     """
 
     epochs: list[GnssEpoch]
@@ -130,6 +139,7 @@ class GnssObservations:
     p_approx_ecef: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     signals: dict[str, str] = field(default_factory=dict)
     source: str = ""
+    truth: dict | None = None
 
     def __len__(self) -> int:
         return len(self.epochs)

@@ -16,7 +16,7 @@ import numpy as np
 from pos.ephemeris import states_at_transmission
 from pos.gnss_corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m, model_sigma_m,
                                   sagnac_rotate, saastamoinen_delay_m)
-from pos.gnss_types import C_LIGHT, SYSTEMS, GnssEpoch, GnssObservations
+from pos.gnss_types import C_LIGHT, CLOCK_GROUP, SYSTEMS, GnssEpoch, GnssObservations
 from pos.rinex import BroadcastNav
 
 F_L1 = 1575.42e6
@@ -133,10 +133,10 @@ def _wls(H: np.ndarray, y: np.ndarray, sigma: np.ndarray):
 
 
 def _solve_position(ep: GnssEpoch, x0: np.ndarray, systems: list[str], iters: int = 10):
-    """Gauss-Newton for [x, y, z, clk per system] (m) on the corrected pseudoranges."""
+    """Gauss-Newton for [x, y, z, clk per clock group] (m) on the corrected pseudoranges."""
     x = x0.copy()
     y_obs = ep.pr_corr_m
-    sys_col = np.array([systems.index(s) for s in ep.system])
+    sys_col = np.array([systems.index(s) for s in ep.clock_group])
     Ninv = None
     for _ in range(iters):
         d = ep.sat_pos_ecef - x[:3]
@@ -175,8 +175,8 @@ def _dops(H_geom: np.ndarray, p_ecef: np.ndarray) -> dict[str, float]:
 
 
 def _chi2_limit(dof: int, alpha: float) -> float:
-    from scipy.stats import chi2
-    return float(chi2.ppf(1.0 - alpha, dof))
+    from scipy.special import chdtri  # scipy.stats would cost seconds of import time
+    return float(chdtri(dof, alpha))
 
 
 def solve_epoch(raw: GnssEpoch, nav: BroadcastNav, p_guess: np.ndarray | None,
@@ -192,7 +192,7 @@ def solve_epoch(raw: GnssEpoch, nav: BroadcastNav, p_guess: np.ndarray | None,
         if rejected:
             ep = ep.subset(~np.isin(ep.sat, rejected))
         while True:
-            systems = [s for s in SYSTEMS if s in set(ep.system)]
+            systems = [s for s in SYSTEMS if s in set(ep.clock_group)]
             n_par = 3 + len(systems)
             if ep.n < n_par:
                 fail.rejected = rejected
@@ -217,7 +217,7 @@ def solve_epoch(raw: GnssEpoch, nav: BroadcastNav, p_guess: np.ndarray | None,
         x_prep = x[:3].copy()
         if moved < 20.0:
             break
-    systems = [s for s in SYSTEMS if s in set(ep.system)]
+    systems = [s for s in SYSTEMS if s in set(ep.clock_group)]
     H_geom = H.copy()
     dop = _dops(H_geom, x[:3])
     if not np.isfinite(dop["gdop"]) or dop["gdop"] > opts.max_gdop:
@@ -296,7 +296,7 @@ def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions = SppOptions(
         if s.ok:
             guess = s.p_ecef
         sols.append(s)
-    return collect(sols, obs.systems)
+    return collect(sols, sorted({CLOCK_GROUP[s] for s in obs.systems}, key=SYSTEMS.index))
 
 
 def collect(sols: list[EpochSolution], systems: list[str]) -> SppSolution:

@@ -1,0 +1,319 @@
+"""Simulated GNSS code pseudoranges and Doppler of a moving antenna, from broadcast orbits.
+
+``simulate_gnss`` is the plain function (used by the POS simulator and the smoother tests);
+``dgcal simulate gnss`` writes a static or circling receiver's RINEX 3 observations together with
+the navigation file used and ``truth.json``.
+
+Model (consistent with ``pos.spp.prepare_epoch``, so SPP on the output is unbiased)::
+
+    pr = c*tau + c*(dt_rx + isb[sys]) - c*dt_sat(t_tx) + I_klobuchar + T_saastamoinen + n_pr
+    rr = d(rho)/dt + c*ddt_rx - c*ddt_sat + n_rr,     doppler_hz = -rr / wavelength
+
+where ``tau`` solves the light-time equation exactly (Earth rotation during travel included)
+and ``d(rho)/dt`` is the numerical derivative of that exact range. The receiver time tag is
+``t_tag = t_true + dt_rx``: the antenna position at the tag is ``p(t_tag) - v * dt_rx``.
+Noise sigmas depend on elevation (``pos.gnss_corrections.code_sigma_m``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pos.gnss_corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m,
+                                  saastamoinen_delay_m)
+from pos.gnss_types import C_LIGHT, OMEGA_E, GnssEpoch, GnssObservations
+from pos.rinex import BroadcastNav, signal_frequency_hz
+
+NAME = "gnss"
+HELP = "simulate RINEX 3 GNSS observations of a static or moving receiver from broadcast orbits"
+
+DEFAULT_NAV = Path(__file__).resolve().parents[2] / "shared" / "data" / "rinex-sept" / "SEPT078M.21P"
+# 2021-03-19 12:00:00 GPS time, inside the validity of DEFAULT_NAV
+DEFAULT_T0_GPS = 2149 * 604800.0 + 5 * 86400.0 + 12 * 3600.0
+SIGNAL = {"G": "C1C", "J": "C1C", "E": "C1C", "C": "C2I"}
+MU_GPS = 3.986005e14
+
+
+@dataclass
+class RxClock:
+    """Receiver clock: bias (s) and drift (s/s) random walks plus constant inter-system biases (m).
+
+    ``q_bias`` (s^2/s) and ``q_drift`` (s^2/s^3) are the white-noise intensities of the bias and
+    drift random walks (defaults: a TCXO, h0 = 2e-19, h-2 = 2e-20).
+    """
+
+    bias_s: float = 2.0e-5
+    drift: float = 5.0e-8
+    q_bias: float = 1.0e-19
+    q_drift: float = 4.0e-19
+    isb_m: dict[str, float] = field(default_factory=lambda: {"G": 0.0, "J": 0.0, "E": 2.5, "C": -4.0})
+
+
+def _load_nav(nav) -> BroadcastNav:
+    if isinstance(nav, BroadcastNav):
+        return nav
+    if nav is None:
+        nav = DEFAULT_NAV
+    if isinstance(nav, str) and nav == "synthetic":
+        raise ValueError("use synthetic_nav(t0_gps, t1_gps) to build a synthetic constellation")
+    from pos.rinex import read_rinex_nav
+    return read_rinex_nav(nav)
+
+
+def synthetic_nav(t0_gps: float, t1_gps: float, systems=("G", "E", "C"), seed: int = 0) -> BroadcastNav:
+    """A built-in Walker-like constellation as broadcast ephemerides valid over [t0, t1] (GPS s).
+
+    GPS 24 satellites in 6 planes (i = 55 deg), Galileo 24 in 3 planes (56 deg), BeiDou MEO 24
+    in 3 planes (55 deg); near-circular orbits, small random clock offsets and drifts, no TGD.
+    Ephemerides are issued every 2 hours; the same orbit is continuous across issues.
+    """
+    from cssrlib.gnss import Eph, char2sys, gpst2time, prn2sat
+
+    rng = np.random.default_rng(seed)
+    spec = {"G": (26559.7e3, 55.0, 6, 4), "E": (29600.0e3, 56.0, 3, 8), "C": (27906.1e3, 55.0, 3, 8)}
+    toes = np.arange(np.floor(t0_gps / 7200.0) * 7200.0 - 7200.0, t1_gps + 7200.0 + 1.0, 7200.0)
+    eph_all, by_sat = [], {}
+    for s in systems:
+        a, inc, n_planes, per_plane = spec[s]
+        n_mot = np.sqrt(MU_GPS / a ** 3)
+        prn = 0
+        for pl in range(n_planes):
+            for k in range(per_plane):
+                prn += 1
+                raan = 2 * np.pi * pl / n_planes + (0.3 if s == "E" else 0.0)
+                m_ref = 2 * np.pi * k / per_plane + np.pi * pl / (n_planes * per_plane) * 2
+                ecc, omg = 0.002 + 0.008 * rng.random(), 2 * np.pi * rng.random()
+                af0, af1 = rng.normal(0, 2e-4), rng.normal(0, 3e-12)
+                sid = f"{s}{prn:02d}"
+                for toe in toes:
+                    week = int(np.floor(toe / 604800.0))
+                    eph = Eph(prn2sat(char2sys(s), prn))
+                    eph.toes = toe - week * 604800.0
+                    eph.week = week
+                    eph.toe = gpst2time(week, eph.toes)
+                    eph.toc = eph.toe
+                    eph.tot = eph.toe
+                    eph.A, eph.e, eph.i0, eph.omg = a, ecc, np.radians(inc), omg
+                    eph.M0 = np.mod(m_ref + n_mot * toe, 2 * np.pi)
+                    eph.OMG0 = np.mod(raan - OMEGA_E * week * 604800.0, 2 * np.pi)
+                    eph.deln = eph.OMGd = eph.idot = 0.0
+                    eph.crs = eph.crc = eph.cus = eph.cuc = eph.cis = eph.cic = 0.0
+                    eph.af0, eph.af1, eph.af2 = af0 + af1 * (toe - toes[0]), af1, 0.0
+                    eph.tgd, eph.svh, eph.sva, eph.mode = 0.0, 0, 0, 0
+                    eph.code = 516 if s == "E" else 0
+                    eph_all.append(eph)
+                    by_sat.setdefault(sid, []).append(eph)
+    ion = np.array([[1.118e-08, 7.451e-09, -5.960e-08, -5.960e-08],
+                    [9.011e+04, 0.0, -1.966e+05, -6.554e+04]])
+    return BroadcastNav(eph=eph_all, by_sat=by_sat, ion_gps=ion, ion_bds=None, leap_seconds=18,
+                        source="synthetic")
+
+
+def _clock_series(t: np.ndarray, clk: RxClock, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Receiver clock bias (s) and drift (s/s) at times t: integrated random walks."""
+    n = len(t)
+    b, d = np.empty(n), np.empty(n)
+    b[0], d[0] = clk.bias_s, clk.drift
+    for k in range(1, n):
+        dt = t[k] - t[k - 1]
+        d[k] = d[k - 1] + np.sqrt(clk.q_drift * dt) * rng.standard_normal()
+        b[k] = b[k - 1] + 0.5 * (d[k - 1] + d[k]) * dt + np.sqrt(clk.q_bias * dt) * rng.standard_normal()
+    return b, d
+
+
+def _ecef_acceleration(p: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Satellite acceleration in the rotating ECEF frame: gravity, Coriolis and centrifugal."""
+    w = np.array([0.0, 0.0, OMEGA_E])
+    grav = -MU_GPS * p / np.linalg.norm(p, axis=1, keepdims=True) ** 3
+    return grav - 2.0 * np.cross(w, v) - np.cross(w, np.cross(w, p))
+
+
+def _range_at(p_s0, v_s0, a_s0, t_s0, p_rx, t_rx):
+    """Exact light-time range (m) and travel time (s) to a receiver at (p_rx, t_rx).
+
+    Satellite motion near ``t_s0`` is a second-order Taylor series (the span is < 0.1 s).
+    """
+    tau = np.full(len(p_s0), 0.075)
+    for _ in range(4):
+        dt = (t_rx - tau - t_s0)[:, None]
+        ps = p_s0 + v_s0 * dt + 0.5 * a_s0 * dt ** 2
+        th = OMEGA_E * tau
+        c, s = np.cos(th), np.sin(th)
+        prot = np.stack([c * ps[:, 0] + s * ps[:, 1], -s * ps[:, 0] + c * ps[:, 1], ps[:, 2]], axis=1)
+        rho = np.linalg.norm(prot - p_rx, axis=1)
+        tau = rho / C_LIGHT
+    return rho, tau, prot
+
+
+def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np.ndarray,
+                  nav=None, rx_clock: RxClock | None = None, seed: int = 0,
+                  sigma_pr: float = 0.5, sigma_doppler: float = 0.05,
+                  outages: list[tuple[float, float, int]] = (), systems=("G", "E"),
+                  elev_mask_deg: float = 10.0, prepare: bool = True) -> GnssObservations:
+    """Pseudoranges (m) and Doppler (Hz) of an antenna moving along an ECEF trajectory.
+
+    ``traj_t_gps`` (N,) continuous GPS seconds (the receiver epochs), ``p_ecef_antenna`` (N,3) m,
+    ``v_ecef`` (N,3) m/s; ``nav``: a RINEX navigation path, a ``BroadcastNav`` (e.g. from
+    ``synthetic_nav``) or None for the bundled real file (flight on 2021-03-19). ``outages``:
+    (t0, t1, max_sats) -- between t0 and t1 only the ``max_sats`` highest satellites are kept.
+    ``sigma_pr``/``sigma_doppler``: zenith noise (m, m/s). With ``prepare`` the epochs are run
+    through ``pos.spp.prepare_epoch`` at the true positions (sigmas = the simulated noise, no
+    model-error budget), else they are raw. ``truth`` holds the true states per epoch:
+    ``p_ecef``, ``v_ecef``, ``clk_m`` {sys: c*(dt_rx)+isb}, ``drift_mps``, ``t_gps``.
+    """
+    rng = np.random.default_rng(seed)
+    nav = _load_nav(nav)
+    clk = rx_clock or RxClock()
+    t = np.asarray(traj_t_gps, float)
+    P = np.asarray(p_ecef_antenna, float).reshape(-1, 3)
+    V = np.asarray(v_ecef, float).reshape(-1, 3)
+    bias, drift = _clock_series(t, clk, rng)
+    sats = sorted(s for s in nav.by_sat if s[0] in systems)
+    lam = {s: C_LIGHT / signal_frequency_hz(s, SIGNAL[s]) for s in systems}
+    from fields.crs import ecef_to_geodetic
+    from pos.ephemeris import satellite_states
+
+    visible: list[str] = []
+    t_vis = -np.inf
+    raw_epochs = []
+    for k in range(len(t)):
+        t_true = t[k] - bias[k]
+        p_rx = P[k] - V[k] * bias[k]
+        lat, lon, h = ecef_to_geodetic(p_rx)
+        if t[k] - t_vis > 30.0:
+            ps, _, _, _, _, ok = satellite_states(nav, sats, np.full(len(sats), t_true))
+            el = np.full(len(sats), -1.0)
+            el[ok], _ = elevation_azimuth(p_rx, ps[ok], (lat, lon))
+            visible = [s for s, e in zip(sats, el) if e > np.radians(elev_mask_deg - 5.0)]
+            t_vis = t[k]
+        if not visible:
+            continue
+        t_s0 = t_true - 0.075
+        ps, vs, clk_s, clk_d, _, ok = satellite_states(nav, visible, np.full(len(visible), t_s0))
+        vis = [s for s, o in zip(visible, ok) if o]
+        ps, vs, clk_s, clk_d = ps[ok], vs[ok], clk_s[ok], clk_d[ok]
+        acc = _ecef_acceleration(ps, vs)
+        rho, tau, prot = _range_at(ps, vs, acc, t_s0, p_rx, t_true)
+        el, az = elevation_azimuth(p_rx, prot, (lat, lon))
+        m = el >= np.radians(elev_mask_deg)
+        for (a, b, nmax) in outages:
+            if a <= t[k] <= b and m.sum() > nmax:
+                keep = np.argsort(-np.where(m, el, -9))[:nmax]
+                m = np.zeros_like(m)
+                m[keep] = True
+        if not m.any():
+            continue
+        idx = np.nonzero(m)[0]
+        sid = [vis[i] for i in idx]
+        sysv = np.array([s[0] for s in sid])
+        h_d = 0.01
+        rho_p, _, _ = _range_at(ps[idx], vs[idx], acc[idx], t_s0, p_rx + V[k] * h_d, t_true + h_d)
+        rho_m, _, _ = _range_at(ps[idx], vs[idx], acc[idx], t_s0, p_rx - V[k] * h_d, t_true - h_d)
+        rr = (rho_p - rho_m) / (2 * h_d)
+        dt_tx = (t_true - tau[idx]) - t_s0
+        dts = clk_s[idx] + clk_d[idx] * dt_tx
+        lam_v = np.array([lam[s] for s in sysv])
+        iono = klobuchar_delay_m(t_true, lat, lon, el[idx], az[idx], nav.ion_gps, C_LIGHT / lam_v)
+        tropo = saastamoinen_delay_m(lat, h, el[idx])
+        isb = np.array([clk.isb_m.get(s, 0.0) for s in sysv])
+        s_pr = code_sigma_m(el[idx], sigma_pr)
+        s_rr = code_sigma_m(el[idx], sigma_doppler)
+        pr = (rho[idx] + C_LIGHT * bias[k] + isb - C_LIGHT * dts + iono + tropo
+              + s_pr * rng.standard_normal(len(idx)))
+        rr_meas = rr + C_LIGHT * drift[k] - C_LIGHT * clk_d[idx] + s_rr * rng.standard_normal(len(idx))
+        n = len(idx)
+        nan = np.full(n, np.nan)
+        raw_epochs.append(GnssEpoch(
+            t_gps=float(t[k]), sat=sid, system=sysv, pr_m=pr, doppler_hz=-rr_meas / lam_v,
+            range_rate_mps=rr_meas, wavelength_m=lam_v,
+            cn0_dbhz=np.round(30.0 + 20.0 * np.sin(el[idx]), 3),
+            sat_pos_ecef=np.full((n, 3), np.nan), sat_vel_ecef=np.full((n, 3), np.nan),
+            sat_clk_s=nan.copy(), sat_clk_drift=nan.copy(), iono_m=nan.copy(), tropo_m=nan.copy(),
+            elev_deg=nan.copy(), azim_deg=nan.copy(), sigma_pr_m=s_pr, sigma_rr_mps=s_rr))
+    truth = {"t_gps": t, "p_ecef": P, "v_ecef": V, "drift_mps": C_LIGHT * drift,
+             "clk_m": {s: C_LIGHT * bias + clk.isb_m.get(s, 0.0) for s in systems}}
+    obs = GnssObservations(epochs=raw_epochs, receiver="DGCAL SIM", p_approx_ecef=P[0].copy(),
+                           signals={s: SIGNAL[s] for s in systems}, source="simulation", truth=truth)
+    if prepare:
+        obs.epochs = prepare_simulated(obs, nav, sigma_pr, sigma_doppler, elev_mask_deg)
+    return obs
+
+
+def prepare_simulated(obs: GnssObservations, nav: BroadcastNav, sigma_pr: float,
+                      sigma_doppler: float, elev_mask_deg: float) -> list[GnssEpoch]:
+    """Run the front end on simulated raw epochs at the true antenna positions."""
+    from pos.spp import SppOptions, prepare_epoch
+    opts = SppOptions(elev_mask_deg=elev_mask_deg - 1e-6, code_sigma_zenith_m=sigma_pr,
+                      doppler_sigma_zenith_mps=sigma_doppler, model_errors=False,
+                      systems=tuple(obs.signals))
+    t_true = obs.truth["t_gps"]
+    out = []
+    for ep in obs.epochs:
+        k = int(np.searchsorted(t_true, ep.t_gps - 1e-9))
+        out.append(prepare_epoch(ep, nav, obs.truth["p_ecef"][k], opts))
+    return out
+
+
+# --------------------------------------------------------------------------------------- CLI
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: the bundled "
+                   "SEPT078M.21P, i.e. 2021-03-19); it is copied to DIR/nav.rnx")
+    p.add_argument("--t0", type=float, default=None,
+                   help="start, continuous GPS seconds (default 2021-03-19 12:00 GPS)")
+    p.add_argument("--duration", type=float, default=300.0, help="s")
+    p.add_argument("--rate", type=float, default=1.0, help="Hz")
+    p.add_argument("--lat", type=float, default=35.3, help="deg (default: near the SEPT station)")
+    p.add_argument("--lon", type=float, default=139.5, help="deg")
+    p.add_argument("--height", type=float, default=100.0, help="m, ellipsoidal")
+    p.add_argument("--radius", type=float, default=0.0, help="circle radius (m); 0 = static")
+    p.add_argument("--speed", type=float, default=10.0, help="m/s along the circle")
+    p.add_argument("--sigma-pr", type=float, default=0.5, help="zenith code noise, m")
+    p.add_argument("--sigma-doppler", type=float, default=0.05, help="zenith range-rate noise, m/s")
+    p.add_argument("--systems", default="GE", help="constellation letters, e.g. GEC")
+
+
+def circle_trajectory(t_gps: np.ndarray, lat: float, lon: float, h: float, radius: float,
+                      speed: float) -> tuple[np.ndarray, np.ndarray]:
+    """ECEF positions (m) and velocities (m/s) of a horizontal circle (or a static point)."""
+    from fields.crs import LocalENU
+    enu = LocalENU(lat, lon, h)
+    tt = t_gps - t_gps[0]
+    if radius > 0:
+        w = speed / radius
+        p = np.stack([radius * np.cos(w * tt), radius * np.sin(w * tt), np.zeros_like(tt)], 1)
+        v = np.stack([-radius * w * np.sin(w * tt), radius * w * np.cos(w * tt), np.zeros_like(tt)], 1)
+    else:
+        p, v = np.zeros((len(tt), 3)), np.zeros((len(tt), 3))
+    return enu.to_ecef(p), v @ enu.R_ecef_to_enu
+
+
+def run(args: argparse.Namespace) -> int:
+    import shutil
+
+    from fields.csvio import atomic_write, staged_dir
+    from pos.rinex import write_rinex_obs
+    systems = tuple(args.systems.upper())
+    t0 = args.t0 if args.t0 is not None else DEFAULT_T0_GPS
+    t = t0 + np.arange(0.0, args.duration + 1e-9, 1.0 / args.rate)
+    p, v = circle_trajectory(t, args.lat, args.lon, args.height, args.radius, args.speed)
+    nav = _load_nav(args.nav)
+    obs = simulate_gnss(t, p, v, nav, seed=args.seed, sigma_pr=args.sigma_pr,
+                        sigma_doppler=args.sigma_doppler, systems=systems, prepare=False)
+    with staged_dir(args.out) as d:
+        write_rinex_obs(Path(d) / "sim.obs", obs)
+        shutil.copyfile(args.nav or DEFAULT_NAV, Path(d) / "nav.rnx")
+        truth = {"kind": "gnss", "seed": args.seed, "systems": list(systems),
+                 "sigma_pr_m": args.sigma_pr, "sigma_doppler_mps": args.sigma_doppler,
+                 "t_gps": t.tolist(), "p_ecef": p.tolist(), "v_ecef": v.tolist(),
+                 "clk_m": {s: c.tolist() for s, c in obs.truth["clk_m"].items()},
+                 "drift_mps": obs.truth["drift_mps"].tolist()}
+        with atomic_write(Path(d) / "truth.json") as fh:
+            json.dump(truth, fh)
+    print(Path(args.out) / "sim.obs")
+    return 0
