@@ -1,0 +1,116 @@
+"""Multi-ray intersection of image measurements with known exterior orientations, with covariance.
+
+Frames: camera poses are given as projection centres `C_w` (M,3) and rotations `R_cv_to_w` (M,3,3) into any
+Cartesian world frame w (use a local level frame, not a map grid); pixels follow OpenCV. The point is found
+by Gauss-Newton on the pixel reprojection errors (started from the linear least-squares ray intersection),
+its covariance from the pixel sigmas, and the sensitivities dX/d(pose) of every point to every pose
+(pose errors: [centre (3, m, world), rotation (3, rad, right perturbation in the camera frame)]) so callers
+can propagate pose and common (calibration) covariances (`propagate_pose_covariance`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class IntersectionResult:
+    """Intersected points (K,3) in w with pixel-noise covariance (K,3,3), ray count, RMS reprojection (px),
+    `ok` (at least `min_rays` rays and a positive depth), and dX/dpose (K,M,3,6)."""
+
+    xyz: np.ndarray
+    cov: np.ndarray
+    n_rays: np.ndarray
+    rms_px: np.ndarray
+    ok: np.ndarray
+    dX_dpose: np.ndarray
+    residuals_px: np.ndarray  # (n_obs, 2)
+
+
+def _skew(v):
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def intersect(camera, C_w: np.ndarray, R_cv_to_w: np.ndarray, obs_image: np.ndarray, obs_point: np.ndarray,
+              uv: np.ndarray, sigma_uv: np.ndarray | None = None, n_points: int | None = None,
+              min_rays: int = 2, iterations: int = 10) -> IntersectionResult:
+    """Intersect points from pixels `uv` (n,2) observed in images `obs_image` (n,) of points `obs_point` (n,)."""
+    C_w = np.asarray(C_w, float)
+    R = np.asarray(R_cv_to_w, float)
+    obs_image = np.asarray(obs_image, int)
+    obs_point = np.asarray(obs_point, int)
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    K = int(obs_point.max()) + 1 if n_points is None else int(n_points)
+    M = len(C_w)
+    sig = np.ones_like(uv) if sigma_uv is None else np.where(np.isfinite(sigma_uv), sigma_uv, 1.0)
+    w = 1.0 / sig**2
+    # linear start: minimise squared distances to the rays
+    d_w = np.einsum("nij,nj->ni", R[obs_image], camera.ray(uv))
+    P = np.eye(3)[None] - d_w[:, :, None] * d_w[:, None, :]
+    A = np.zeros((K, 3, 3))
+    b = np.zeros((K, 3))
+    np.add.at(A, obs_point, P)
+    np.add.at(b, obs_point, np.einsum("nij,nj->ni", P, C_w[obs_image]))
+    n_rays = np.bincount(obs_point, minlength=K)
+    ok = n_rays >= min_rays
+    X = np.full((K, 3), np.nan)
+    if ok.any():
+        X[ok] = np.linalg.solve(A[ok] + 1e-12 * np.eye(3), b[ok][..., None])[..., 0]
+    use = ok[obs_point]
+    Ninv = np.full((K, 3, 3), np.nan)
+    for _ in range(iterations):
+        Xc = np.einsum("nji,nj->ni", R[obs_image], X[obs_point] - C_w[obs_image])
+        good = use & (Xc[:, 2] > 0)
+        pred, _, J_cam = camera.project_with_jacobians(np.where(good[:, None], Xc, [0, 0, 1.0]))
+        J = J_cam @ np.swapaxes(R[obs_image], -1, -2)  # d uv / d X_w
+        r = uv - pred
+        Nm = np.zeros((K, 3, 3))
+        g = np.zeros((K, 3))
+        JW = J * w[:, :, None]
+        np.add.at(Nm, obs_point[good], np.einsum("nki,nkj->nij", JW[good], J[good]))
+        np.add.at(g, obs_point[good], np.einsum("nki,nk->ni", JW[good], r[good]))
+        ok = ok & (np.bincount(obs_point[good], minlength=K) >= min_rays)
+        if not ok.any():
+            break
+        Ninv[ok] = np.linalg.inv(Nm[ok])
+        step = np.einsum("kij,kj->ki", Ninv[ok], g[ok])
+        X[ok] += step
+        use = ok[obs_point]
+        if np.max(np.abs(step)) < 1e-9:
+            break
+    # final residuals and sensitivities at the solution
+    Xc = np.einsum("nji,nj->ni", R[obs_image], X[obs_point] - C_w[obs_image])
+    good = use & (Xc[:, 2] > 0)
+    pred, _, J_cam = camera.project_with_jacobians(np.where(good[:, None], Xc, [0, 0, 1.0]))
+    res = np.where(good[:, None], uv - pred, np.nan)
+    Rt = np.swapaxes(R[obs_image], -1, -2)
+    J_X = J_cam @ Rt
+    J_pose = np.concatenate([-J_X, J_cam @ _skew(Xc)], axis=2)  # d uv / d [centre, camera rotation]
+    dX = np.zeros((K, M, 3, 6))
+    contrib = -np.einsum("nij,njk->nik", np.swapaxes(J_X * w[:, :, None], -1, -2), J_pose)  # (n,3,6)
+    idx = np.nonzero(good)[0]
+    np.add.at(dX, (obs_point[idx], obs_image[idx]), contrib[idx])
+    dX = np.einsum("kij,kmjl->kmil", np.nan_to_num(Ninv), dX)  # implicit function: -N^-1 sum J^T W dr/dpose
+    sq = np.zeros(K)
+    np.add.at(sq, obs_point[good], np.sum(res[good] ** 2, axis=1))
+    cnt = np.bincount(obs_point[good], minlength=K)
+    rms = np.sqrt(sq / np.maximum(cnt, 1) / 2)
+    X[~ok] = np.nan
+    return IntersectionResult(X, Ninv, n_rays, rms, ok, dX, res)
+
+
+def propagate_pose_covariance(res: IntersectionResult, pose_cov: np.ndarray | None = None,
+                              common_G: np.ndarray | None = None, common_cov: np.ndarray | None = None) -> np.ndarray:
+    """(K,3,3) point covariance from independent pose covariances (M,6,6) and common parameters (e.g. the
+    mounting) whose effect on the poses is `common_G` (M,6,q) with covariance `common_cov` (q,q)."""
+    K = res.xyz.shape[0]
+    out = np.zeros((K, 3, 3))
+    if pose_cov is not None:
+        out += np.einsum("kmij,mjl,kmnl->kin", res.dX_dpose, pose_cov, res.dX_dpose)
+    if common_G is not None and common_cov is not None:
+        A = np.einsum("kmij,mjq->kiq", res.dX_dpose, common_G)
+        out += A @ common_cov @ np.swapaxes(A, -1, -2)
+    return out
