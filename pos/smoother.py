@@ -61,6 +61,7 @@ class NavSolution:
     drift: np.ndarray
     cov_pose: np.ndarray | None = None
     cov_vel: np.ndarray | None = None
+    cov_block: np.ndarray | None = None
     n_sat: np.ndarray | None = None
     gnss_update: np.ndarray | None = None
     residuals: dict = field(default_factory=dict)
@@ -155,9 +156,14 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
                                                  gtsam.noiseModel.Isotropic.Sigma(1, 1e3 / C_LIGHT)))
         prior.append(gtsam.PriorFactorDouble(DRIFT(0), float(drift[0]),
                                              gtsam.noiseModel.Isotropic.Sigma(1, 100.0 / C_LIGHT)))
+        zeros = gtsam.Values()
+        for k in range(K):
+            for s in systems:
+                zeros.insert(CLK(s, k), 0.0)
+            zeros.insert(DRIFT(k), 0.0)
         for k in range(K - 1):
             clock_groups.append(clock_factors(systems, k, t_key[k + 1] - t_key[k], opts.clock_bias_rw_m,
-                                              opts.clock_drift_rw_mps))
+                                              opts.clock_drift_rw_mps, zeros))
         for k, ep in enumerate(epochs_at_key):
             if ep is None or ep.n == 0:
                 continue
@@ -239,16 +245,30 @@ def gnss_residuals(problem: Problem, values) -> dict:
     return {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in out.items()}
 
 
-def add_marginals(sol: NavSolution, problem: Problem, values) -> None:
-    """Fill cov_pose / cov_vel from gtsam.Marginals at the solution."""
+def add_marginals(sol: NavSolution, problem: Problem, values, filtered: bool = False) -> None:
+    """Fill cov_pose / cov_vel (and the full keyframe block `cov_block`) from the linearised graph."""
+    from pos.smoother_covariance import KeyframeBlocks, filtered_covariances, smoothed_covariances
+    blocks = KeyframeBlocks(len(sol.t), problem.systems)
+    fn = filtered_covariances if filtered else smoothed_covariances
+    P = fn(problem.graph, values, blocks)
+    sol.cov_pose = P[:, :6, :6].copy()
+    sol.cov_vel = P[:, 6:9, 6:9].copy()
+    sol.cov_block = P
+
+
+def solution_values(sol: NavSolution, problem: Problem):
+    """gtsam Values holding the states of a NavSolution (keys as in the problem)."""
     import gtsam
-    m = gtsam.Marginals(problem.graph, values)
-    K = len(sol.t)
-    sol.cov_pose = np.empty((K, 6, 6))
-    sol.cov_vel = np.empty((K, 3, 3))
-    for k in range(K):
-        sol.cov_pose[k] = m.marginalCovariance(X(k))
-        sol.cov_vel[k] = m.marginalCovariance(V(k))
+    vals = gtsam.Values()
+    for k in range(len(sol.t)):
+        vals.insert(X(k), gtsam.Pose3(gtsam.Rot3(sol.R_body_to_nav[k]), sol.p_nav[k]))
+        vals.insert(V(k), sol.v_nav[k].copy())
+        vals.insert(B(k), gtsam.imuBias.ConstantBias(sol.bias[k, :3], sol.bias[k, 3:]))
+        for s in problem.systems:
+            vals.insert(CLK(s, k), float(sol.clock[s][k]))
+        if problem.systems:
+            vals.insert(DRIFT(k), float(sol.drift[k]))
+    return vals
 
 
 def keyframe_times(imu, t_obs: np.ndarray) -> np.ndarray:

@@ -99,10 +99,12 @@ def doppler_factors(k: int, epoch, dt: float, p_approx_ecef, lever_arm_b, omega_
     return out
 
 
-def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: float) -> list:
+def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: float, zeros=None) -> list:
     """Receiver clock process from keyframe k to k+1: b_s(k+1) = b_s(k) + d(k) dt + w, d(k+1) = d(k) + w'.
 
-    Densities: `bias_rw_m` m/sqrt(s) on each bias, `drift_rw_mps` m/s/sqrt(s) on the drift.
+    Densities: `bias_rw_m` m/sqrt(s) on each bias, `drift_rw_mps` m/s/sqrt(s) on the drift. The bias
+    equation is linear: a JacobianFactor wrapped as a nonlinear factor (linearisation point `zeros`, a
+    Values holding 0.0 for the keys; built here when not given).
     """
     import gtsam
     out = []
@@ -111,9 +113,12 @@ def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: fl
         jf = gtsam.JacobianFactor(CLK(s, k + 1), np.array([[1.0]]), CLK(s, k), np.array([[-1.0]]),
                                   DRIFT(k), np.array([[-float(dt)]]), np.zeros(1),
                                   gtsam.noiseModel.Isotropic.Sigma(1, sb))
-        lin = gtsam.Values()
-        for key in (CLK(s, k + 1), CLK(s, k), DRIFT(k)):
-            lin.insert(key, 0.0)
+        if zeros is None:
+            lin = gtsam.Values()
+            for key in (CLK(s, k + 1), CLK(s, k), DRIFT(k)):
+                lin.insert(key, 0.0)
+        else:
+            lin = zeros
         out.append(gtsam.LinearContainerFactor(jf, lin))
     out.append(gtsam.BetweenFactorDouble(DRIFT(k), DRIFT(k + 1), 0.0,
                                          gtsam.noiseModel.Isotropic.Sigma(1, drift_rw_mps * np.sqrt(dt) / C_LIGHT)))
