@@ -209,18 +209,10 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     return MountingSim(crs, camera, lever, R_cb, float(delay_s), ground, cal, mapf, noise)
 
 
-def camera_json(camera) -> dict:
-    """A camera.json record (model, image_size, parameters, opencv block) for the simulated camera."""
-    f, cx, cy, k1, k2, k3, p1, p2, b1, b2 = camera.params
-    d = {"model": camera.NAME, "image_size": list(camera.image_size), **camera.as_dict(),
-         "opencv": {"fx": f + b1, "fy": f, "cx": cx, "cy": cy, "k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3},
-         "opencv_max_error_px": 0.0}
-    return d
-
-
 def write_mounting_sim(sim: MountingSim, out: Path) -> None:
     """Write the simulated files: calibration/ and mapping/ flights, ground.csv, camera.json, truth.json."""
     from fields.csvio import atomic_write, staged_dir
+    from calib.camera_formats import write_camera_json
     from fields.formats import write_eop, write_events, write_measurements, write_points, write_trajectory
     with staged_dir(out) as tmp:
         for name, fl in (("calibration", sim.calibration), ("mapping", sim.mapping)):
@@ -232,8 +224,7 @@ def write_mounting_sim(sim: MountingSim, out: Path) -> None:
             write_eop(d / "eop_true.csv", fl.eop_true)
             write_measurements(d / "measurements.csv", fl.measurements)
         write_points(tmp / "ground.csv", sim.ground, with_role=True)
-        with atomic_write(tmp / "camera.json") as fh:
-            json.dump(camera_json(sim.camera), fh, indent=2)
+        write_camera_json(tmp / "camera.json", sim.camera)
         with atomic_write(tmp / "truth.json") as fh:
             json.dump(sim.truth(), fh, indent=2)
 
