@@ -91,3 +91,36 @@ def test_image_count_mismatch_is_an_error(sim):
 def test_counter_going_backwards_is_an_error():
     with pytest.raises(InputError, match="counter does not increase"):
         restore_from_counter(np.array([1, 2, 3, 3, 4]), 0.02)
+
+
+def test_sync_command_end_to_end(tmp_path):
+    import json
+
+    from dgcal.cli import main
+    from fields.formats import read_events
+    from sim.logger import write_logger_sim
+
+    s = simulate_logger(seed=7, duration_s=300, n_bursts=2)
+    write_logger_sim(tmp_path / "sim", s)
+    rc = main(["sync", "--gnss-log", str(tmp_path / "sim/gnss_log.csv"), "--logger", str(tmp_path / "sim/logger.csv"),
+               "--images", str(tmp_path / "sim/images.csv"), "--out", str(tmp_path / "out")])
+    assert rc == 0
+    ev = read_events(tmp_path / "out/events.csv")
+    assert list(ev.image) == s.images
+    assert np.max(np.abs(ev.t - np.array(s.truth["t_exposure"]))) < 5e-3
+    summ = json.loads((tmp_path / "out/sync.json").read_text())
+    assert summ["skipped_triggers"] == s.truth["skipped_triggers"]
+    assert "data:image/png;base64" in (tmp_path / "out/report.html").read_text()
+
+
+def test_sync_command_bad_logger_file(tmp_path, capsys):
+    from dgcal.cli import main
+
+    (tmp_path / "g.csv").write_text("gps_week,gps_sow\n2150,1.0\n2150,1.02\n")
+    (tmp_path / "l.csv").write_text("counter,pps\n1,0\n")
+    rc = main(["sync", "--gnss-log", str(tmp_path / "g.csv"), "--logger", str(tmp_path / "l.csv"),
+               "--images", str(tmp_path / "g.csv"), "--out", str(tmp_path / "out")])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "l.csv:1" in err and "photo" in err
+    assert not (tmp_path / "out" / "events.csv").exists()
