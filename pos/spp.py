@@ -333,3 +333,65 @@ def load_gnss(obs_path, nav_path, opts: SppOptions = SppOptions(), progress: boo
     p0 = np.median(good, axis=0) if len(good) else raw.p_approx_ecef
     return GnssObservations(epochs=epochs, receiver=raw.receiver, p_approx_ecef=p0,
                             signals=raw.signals, source=raw.source), sol
+
+
+GNSS_CSV_COLUMNS = ["gps_week", "gps_sow", "x", "y", "z", "vx", "vy", "vz", "sx", "sy", "sz",
+                    "svx", "svy", "svz", "lat", "lon", "h", "s_e", "s_n", "s_u",
+                    "clk_G_m", "clk_E_m", "clk_C_m", "drift_mps", "n_sat",
+                    "gdop", "pdop", "hdop", "vdop", "chi2_dof", "rejected"]
+
+
+def enu_sigmas(p_ecef: np.ndarray, cov_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Geodetic (lat, lon deg, h m) of ECEF points (N,3) and their E/N/U sigmas (N,3) in metres."""
+    from fields.crs import ecef_to_geodetic
+    from fields.frames import R_ecef_to_enu
+    llh = ecef_to_geodetic(p_ecef)
+    R = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(-1, 3, 3)
+    cov_enu = R @ cov_p @ np.swapaxes(R, 1, 2)
+    return llh, np.sqrt(np.maximum(np.diagonal(cov_enu, axis1=1, axis2=2), 0.0))
+
+
+def write_gnss_csv(path, sol: SppSolution) -> None:
+    """Write the epochs with a fix as gnss.csv (columns ``GNSS_CSV_COLUMNS``, see docs/gnss.md)."""
+    from fields.csvio import write_table
+    from pos.gnss_types import split_gps_time
+    k = np.nonzero(sol.ok)[0]
+    week, sow = split_gps_time(sol.t_gps[k])
+    sp = np.sqrt(np.diagonal(sol.cov_p[k], axis1=1, axis2=2))
+    sv = np.sqrt(np.diagonal(sol.cov_v[k], axis1=1, axis2=2))
+    llh, senu = enu_sigmas(sol.p_ecef[k], sol.cov_p[k])
+    nan = np.full(len(k), np.nan)
+    clk = {g: sol.clk_m.get(g, nan)[k] if g in sol.clk_m else nan for g in ("G", "E", "C")}
+    rows = []
+    for j, i in enumerate(k):
+        rows.append([int(week[j]), float(sow[j]), *sol.p_ecef[i].tolist(), *sol.v_ecef[i].tolist(),
+                     *sp[j].tolist(), *sv[j].tolist(), *llh[j].tolist(), *senu[j].tolist(),
+                     float(clk["G"][j]), float(clk["E"][j]), float(clk["C"][j]),
+                     float(sol.drift_mps[i]), int(sol.n_sat[i]),
+                     *(float(sol.dop[d][i]) for d in ("gdop", "pdop", "hdop", "vdop")),
+                     float(sol.chi2_dof[i]), ";".join(sol.rejected[i])])
+    write_table(path, GNSS_CSV_COLUMNS, rows, fmt="%.12g")
+
+
+def spp_summary(sol: SppSolution, obs: GnssObservations, nav: BroadcastNav,
+                opts: SppOptions) -> dict:
+    """Numbers for gnss_summary.json: counts, median position, sigmas, DOP, rejections."""
+    ok = sol.ok
+    p = sol.p_ecef[ok]
+    s3 = np.sqrt(np.trace(sol.cov_p[ok], axis1=1, axis2=2))
+    llh, senu = enu_sigmas(p, sol.cov_p[ok])
+    return {
+        "rinex_obs": obs.source, "rinex_nav": nav.source, "signals": obs.signals,
+        "n_epochs": int(len(sol.ok)), "n_fixed": int(ok.sum()),
+        "median_ecef_m": np.median(p, axis=0).tolist(),
+        "scatter_enu_m": (np.std(llh[:, :2] - np.median(llh[:, :2], axis=0), axis=0) *
+                          np.array([111320.0, 111320.0 * np.cos(np.radians(np.median(llh[:, 0])))])
+                          ).tolist()[::-1] + [float(np.std(llh[:, 2]))],
+        "median_sigma_enu_m": np.median(senu, axis=0).tolist(),
+        "median_sigma_3d_m": float(np.median(s3)),
+        "mean_n_sat": float(sol.n_sat[ok].mean()), "median_pdop": float(np.median(sol.dop["pdop"][ok])),
+        "n_rejected": int(sum(len(r) for r in sol.rejected)),
+        "options": {"elev_mask_deg": opts.elev_mask_deg, "code_sigma_zenith_m": opts.code_sigma_zenith_m,
+                    "doppler_sigma_zenith_mps": opts.doppler_sigma_zenith_mps,
+                    "systems": list(opts.systems), "raim": opts.raim},
+    }

@@ -1,0 +1,111 @@
+"""Broadcast orbits against cssrlib, geometry and atmosphere models, Sagnac rotation."""
+import numpy as np
+import pytest
+
+from pos.ephemeris import satellite_states, select_ephemeris, states_at_transmission
+from pos.gnss_corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m, sagnac_rotate,
+                                  saastamoinen_delay_m)
+from pos.gnss_types import C_LIGHT, OMEGA_E
+from pos.rinex import gtime_from_gps_seconds, read_rinex_nav
+
+T0 = 2149 * 604800.0 + 5 * 86400.0 + 12 * 3600.0   # 2021-03-19 12:00 GPS
+REF = np.array([-3962108.673, 3381309.574, 3668678.638])
+
+
+@pytest.fixture(scope="module")
+def nav(shared_data):
+    return read_rinex_nav(shared_data / "rinex-sept/SEPT078M.21P")
+
+
+def test_orbits_match_cssrlib_and_velocity_is_derivative(nav):
+    from cssrlib.ephemeris import eph2pos
+    sats = sorted(nav.by_sat)
+    t = T0 + 17.25
+    p, v, clk, drift, ura, ok = satellite_states(nav, sats, t)
+    assert ok.sum() >= 25
+    for i in np.nonzero(ok)[0]:
+        eph = select_ephemeris(nav, sats[i], t)
+        rs, dts = eph2pos(gtime_from_gps_seconds(t), eph)
+        np.testing.assert_allclose(p[i], rs, atol=1e-3)
+        assert clk[i] == pytest.approx(dts - eph.tgd, abs=1e-15)
+        ra, ca = eph2pos(gtime_from_gps_seconds(t - 0.5), eph)
+        rb, cb = eph2pos(gtime_from_gps_seconds(t + 0.5), eph)
+        np.testing.assert_allclose(v[i], rb - ra, atol=1e-3)
+        assert drift[i] == pytest.approx(cb - ca, abs=1e-14)
+        assert 2.5e7 < np.linalg.norm(p[i]) < 4.6e7   # MEO .. QZSS QZO apogee
+    # a satellite without ephemeris is flagged, not invented
+    p2, *_, ok2 = satellite_states(nav, ["G31"], t)
+    assert not ok2[0] and np.all(np.isnan(p2))
+
+
+def test_transmission_time_is_consistent(nav):
+    sats = ["G01", "E08", "J03"]
+    p0, *_ = satellite_states(nav, sats, T0)
+    pr = np.linalg.norm(p0 - REF, axis=1) + 1.0e5        # + 333 us receiver clock
+    p, v, clk, drift, _, ok = states_at_transmission(nav, sats, T0, pr)
+    t_tx = T0 - pr / C_LIGHT - clk
+    p_direct, *_ = satellite_states(nav, sats, t_tx)
+    np.testing.assert_allclose(p, p_direct, atol=2e-3)
+
+
+def test_elevation_azimuth_directions():
+    from fields.crs import LocalENU
+    enu = LocalENU(35.0, 139.0, 50.0)
+    sats = enu.to_ecef(np.array([[0, 0, 2e7], [0, 2e7, 0.0], [2e7, 0, 0.0], [1e7, 0, 1e7]]))
+    el, az = elevation_azimuth(enu.origin_ecef, sats)
+    np.testing.assert_allclose(np.degrees(el), [90, 0, 0, 45], atol=1e-6)
+    np.testing.assert_allclose(np.degrees(az[1:]), [0, 90, 90], atol=1e-6)
+
+
+def test_klobuchar_textbook_values():
+    ion = np.array([[1.0e-8, 0.0, 0.0, 0.0], [72000.0, 0.0, 0.0, 0.0]])
+    # zenith at the equator, local time 14:00 (peak): 5 ns + amplitude, slant factor ~1
+    lat, lon = 0.0, 0.0
+    t = 14 * 3600.0
+    d = klobuchar_delay_m(t, lat, lon, np.array([np.pi / 2]), np.array([0.0]), ion)
+    F = 1.0 + 16.0 * (0.53 - 0.5) ** 3
+    # the pierce point latitude shifts the geomagnetic latitude, but alpha1..3 = 0 makes AMP = alpha0
+    assert d[0] == pytest.approx(C_LIGHT * F * (5e-9 + 1e-8), rel=1e-3)
+    # at night only the 5 ns floor remains; lower elevation increases the delay
+    night = klobuchar_delay_m(2 * 3600.0, lat, lon, np.array([np.pi / 2, 0.3]), np.zeros(2), ion)
+    assert night[0] == pytest.approx(C_LIGHT * F * 5e-9, rel=1e-3)
+    assert night[1] > 2.0 * night[0]
+    # frequency scaling (f_L1/f)^2
+    b1 = klobuchar_delay_m(t, lat, lon, np.array([np.pi / 2]), np.array([0.0]), ion, 1561.098e6)
+    assert b1[0] / d[0] == pytest.approx((1575.42 / 1561.098) ** 2)
+    assert klobuchar_delay_m(t, lat, lon, np.array([1.0]), np.array([0.0]), None)[0] == 0.0
+
+
+def test_saastamoinen_zenith_and_mapping():
+    z = saastamoinen_delay_m(45.0, 0.0, np.array([np.pi / 2]))[0]
+    assert 2.3 < z < 2.6                      # zenith total delay at sea level
+    z2 = saastamoinen_delay_m(45.0, 2000.0, np.array([np.pi / 2]))[0]
+    assert z2 < 0.85 * z                      # less atmosphere above a mountain
+    low = saastamoinen_delay_m(45.0, 0.0, np.array([np.radians(30.0)]))[0]
+    assert low == pytest.approx(2.0 * z, rel=1e-6)   # 1/sin(el) mapping
+
+
+def test_sagnac_rotation_and_its_rate():
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(5, 3)) * 1.5e7
+    v = rng.normal(size=(5, 3)) * 3e3
+    tau = np.full(5, 0.07)
+    pr, vr = sagnac_rotate(p, v, tau)
+    # rotation about z by w*tau: z unchanged, norm unchanged, displacement ~ w*tau*r_xy
+    np.testing.assert_allclose(pr[:, 2], p[:, 2])
+    np.testing.assert_allclose(np.linalg.norm(pr, axis=1), np.linalg.norm(p, axis=1), rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(pr - p, axis=1),
+                               OMEGA_E * 0.07 * np.linalg.norm(p[:, :2], axis=1), rtol=1e-6)
+    # velocity is d/dt_rx of the rotated position when tau changes at rate tau_dot
+    tau_dot = np.full(5, 2e-6)
+    _, vr = sagnac_rotate(p, v, tau, tau_dot)
+    h = 1e-3
+    pa, _ = sagnac_rotate(p - v * h * (1 - tau_dot[:, None]), v, tau - tau_dot * h)
+    pb, _ = sagnac_rotate(p + v * h * (1 - tau_dot[:, None]), v, tau + tau_dot * h)
+    np.testing.assert_allclose(vr, (pb - pa) / (2 * h), atol=1e-5)
+
+
+def test_code_sigma_grows_towards_horizon():
+    s = code_sigma_m(np.radians([90.0, 30.0, 10.0]), 0.3)
+    assert s[0] == pytest.approx(0.3)
+    assert s[0] < s[1] < s[2]

@@ -1,0 +1,111 @@
+"""SPP on real data (acceptance: 3 m 3D RMS; side by side with RTKLIB pntpos) and on simulated truth."""
+import numpy as np
+import pytest
+
+from pos.rinex import read_rinex_nav, read_rinex_obs
+from pos.spp import SppOptions, prepare_epoch, solve_epoch, spp
+
+REF = np.array([-3962108.673, 3381309.574, 3668678.638])
+OBS = "rinex-sept/SEPT078M1.21O"
+NAV = "rinex-sept/SEPT078M.21P"
+
+
+@pytest.fixture(scope="module")
+def real(shared_data):
+    nav = read_rinex_nav(shared_data / NAV)
+    obs = read_rinex_obs(shared_data / OBS)
+    return obs, nav
+
+
+@pytest.fixture(scope="module")
+def real_sol(real):
+    obs, nav = real
+    return spp(obs, nav, SppOptions())
+
+
+def test_real_spp_within_3m(real_sol):
+    sol = real_sol
+    assert sol.ok.all()
+    err = sol.p_ecef - REF
+    rms3d = np.sqrt(np.mean(np.sum(err ** 2, axis=1)))
+    assert rms3d < 3.0
+    # a static receiver: Doppler (from carrier phase) velocity ~ 0
+    assert np.sqrt(np.mean(np.sum(sol.v_ecef ** 2, axis=1))) < 0.05
+    assert np.all(sol.dop["pdop"] < 2.0) and np.all(sol.n_sat >= 20)
+    # the reported sigma (with the broadcast-model budget) is not optimistic
+    s3 = np.sqrt(np.trace(sol.cov_p, axis1=1, axis2=2))
+    assert np.median(np.linalg.norm(err, axis=1) / s3) < 1.0
+    # QZSS shares the GPS clock; Galileo has its own, both near the GPS one (same receiver)
+    assert set(sol.clk_m) == {"G", "E"}
+    assert np.all(np.abs(sol.clk_m["E"] - sol.clk_m["G"]) < 20.0)
+
+
+def test_real_spp_side_by_side_with_rtklib(real_sol, shared_data):
+    pytest.importorskip("pyrtklib")
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    from spp import rtklib_pntpos
+    t, p = rtklib_pntpos(str(shared_data / OBS), str(shared_data / NAV))
+    assert len(t) == 60
+    rms_rtklib = np.sqrt(np.mean(np.sum((p - REF) ** 2, axis=1)))
+    rms_dgcal = np.sqrt(np.mean(np.sum((real_sol.p_ecef - REF) ** 2, axis=1)))
+    print(f"3D RMS vs reference: dgcal {rms_dgcal:.2f} m, RTKLIB pntpos {rms_rtklib:.2f} m")
+    assert rms_rtklib < 3.0 and rms_dgcal < 3.0
+    d = real_sol.p_ecef - p
+    assert np.sqrt(np.mean(np.sum(d ** 2, axis=1))) < 1.5
+
+
+def test_raim_rejects_a_corrupted_satellite(real):
+    obs, nav = real
+    raw = obs[5]
+    bad = raw.subset(np.arange(raw.n))
+    k = bad.sat.index("G14")
+    bad.pr_m = bad.pr_m.copy()
+    bad.pr_m[k] += 60.0
+    s = solve_epoch(bad, nav, obs.p_approx_ecef, SppOptions())
+    assert s.ok and s.rejected == ["G14"]
+    assert np.linalg.norm(s.p_ecef - REF) < 5.0
+    s_off = solve_epoch(bad, nav, obs.p_approx_ecef, SppOptions(raim=False))
+    assert np.linalg.norm(s_off.p_ecef - REF) > np.linalg.norm(s.p_ecef - REF)
+
+
+def test_spp_from_unknown_position_converges(real):
+    obs, nav = real
+    s = solve_epoch(obs[0], nav, None, SppOptions())
+    assert s.ok and np.linalg.norm(s.p_ecef - REF) < 5.0
+    # prepare_epoch without a position models no atmosphere and keeps all satellites
+    ep = prepare_epoch(obs[0], nav, None)
+    assert ep.n == obs[0].n and np.all(ep.iono_m == 0)
+
+
+def test_too_few_satellites_gives_no_fix(real):
+    obs, nav = real
+    raw = obs[0]
+    few = raw.subset(np.isin(raw.sat, ["G01", "G03", "G04"]))
+    s = solve_epoch(few, nav, obs.p_approx_ecef, SppOptions())
+    assert not s.ok and np.all(np.isnan(s.p_ecef))
+
+
+def test_cli_writes_gnss_csv(shared_data, tmp_path):
+    from dgcal.cli import main
+    from fields.csvio import read_table
+    out = tmp_path / "out"
+    rc = main(["pos", "--rinex-obs", str(shared_data / OBS), "--rinex-nav", str(shared_data / NAV),
+               "--mode", "spp", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    tab = read_table(out / "gnss.csv", ["gps_week", "gps_sow", "x", "y", "z"],
+                     ["sx", "sy", "sz", "vx", "n_sat", "pdop", "lat", "lon", "h"])
+    assert len(tab) == 60
+    assert np.all(tab["gps_week"] == 2149)
+    p = np.column_stack([tab["x"], tab["y"], tab["z"]])
+    assert np.sqrt(np.mean(np.sum((p - REF) ** 2, axis=1))) < 3.0
+    assert np.all(tab["sx"] > 0) and np.all(tab["n_sat"] >= 20)
+    assert (out / "gnss_summary.json").is_file()
+    # bad input: one line, exit 2, nothing written
+    out2 = tmp_path / "out2"
+    rc = main(["pos", "--rinex-obs", str(shared_data / NAV), "--rinex-nav", str(shared_data / NAV),
+               "--mode", "spp", "--out", str(out2), "--no-progress"])
+    assert rc == 2 and not (out2 / "gnss.csv").exists()
+    rc = main(["pos", "--rinex-nav", str(shared_data / NAV), "--mode", "spp", "--out", str(out2)])
+    assert rc == 2
