@@ -1,0 +1,109 @@
+"""A tiny builder for one-file HTML reports: headings, text, key/value and row tables, PNG figures
+embedded as base64 (matplotlib, Agg backend), written atomically."""
+from __future__ import annotations
+
+import base64
+import html
+import io
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from fields.csvio import atomic_write
+
+_STYLE = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;
+color:#222;line-height:1.4;padding:0 1em}
+h1{font-size:1.6em;border-bottom:2px solid #345;padding-bottom:.2em}h2{font-size:1.25em;margin-top:1.6em;color:#345}
+table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.2em .6em;text-align:right}
+th{background:#eef2f6}td:first-child,th:first-child{text-align:left}
+.warn{background:#fff4e0;border-left:4px solid #e69500;padding:.4em .8em;margin:.3em 0}
+.ok{background:#eaf7ea;border-left:4px solid #3a3;padding:.4em .8em;margin:.3em 0}
+figure{margin:1em 0}figcaption{font-size:.9em;color:#555}img{max-width:100%}
+.small{font-size:.85em;color:#555}
+"""
+
+
+def figure_png(fig, dpi: int = 110) -> bytes:
+    """PNG bytes of a matplotlib figure (the figure is closed)."""
+    import matplotlib.pyplot as plt
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def new_figure(w_in: float = 8.0, h_in: float = 5.0, **kw):
+    """A matplotlib (figure, axes) on the Agg backend, for embedding."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt.subplots(figsize=(w_in, h_in), **kw)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        if v != v:
+            return "–"
+        if v != 0 and (abs(v) < 1e-3 or abs(v) >= 1e6):
+            return f"{v:.4e}"
+        return f"{v:.6g}"
+    return str(v)
+
+
+class HtmlReport:
+    """Collects sections of an HTML page; `write(path)` stores it as one self-contained file."""
+
+    def __init__(self, title: str):
+        self.title = title
+        self.parts: list[str] = []
+
+    def heading(self, text: str, level: int = 2) -> "HtmlReport":
+        self.parts.append(f"<h{level}>{html.escape(text)}</h{level}>")
+        return self
+
+    def text(self, text: str, cls: str | None = None) -> "HtmlReport":
+        c = f' class="{cls}"' if cls else ""
+        self.parts.append(f"<p{c}>{html.escape(text)}</p>")
+        return self
+
+    def warnings(self, items: Iterable[str], none_text: str = "No warnings.") -> "HtmlReport":
+        items = list(items)
+        if not items:
+            self.parts.append(f'<div class="ok">{html.escape(none_text)}</div>')
+        for w in items:
+            self.parts.append(f'<div class="warn">{html.escape(w)}</div>')
+        return self
+
+    def kv_table(self, pairs: Iterable[tuple[str, object]]) -> "HtmlReport":
+        rows = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(_fmt(v))}</td></tr>" for k, v in pairs)
+        self.parts.append(f"<table>{rows}</table>")
+        return self
+
+    def table(self, header: Sequence[str], rows: Iterable[Sequence]) -> "HtmlReport":
+        head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+        body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(v))}</td>" for v in r) + "</tr>" for r in rows)
+        self.parts.append(f"<table><tr>{head}</tr>{body}</table>")
+        return self
+
+    def figure(self, fig_or_png, caption: str = "") -> "HtmlReport":
+        """Embed a matplotlib figure (or PNG bytes) as a base64 image."""
+        png = fig_or_png if isinstance(fig_or_png, (bytes, bytearray)) else figure_png(fig_or_png)
+        b64 = base64.b64encode(png).decode("ascii")
+        cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
+        self.parts.append(f'<figure><img src="data:image/png;base64,{b64}" alt="{html.escape(caption)}">{cap}</figure>')
+        return self
+
+    def raw(self, html_text: str) -> "HtmlReport":
+        self.parts.append(html_text)
+        return self
+
+    def render(self) -> str:
+        return (f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{html.escape(self.title)}</title>"
+                f"<style>{_STYLE}</style></head><body><h1>{html.escape(self.title)}</h1>"
+                + "\n".join(self.parts) + "</body></html>\n")
+
+    def write(self, path: str | Path) -> Path:
+        """Write the page atomically; returns the path."""
+        with atomic_write(path, encoding="utf-8") as fh:
+            fh.write(self.render())
+        return Path(path)
