@@ -76,18 +76,24 @@ def _select_cached(nav: BroadcastNav, sid: str, t_gps: float):
     return cache[key]
 
 
+_PARAM_NAMES = ("A", "e", "M0", "deln", "omg", "cuc", "cus", "crc", "crs", "cic", "cis", "i0",
+                "idot", "OMG0", "OMGd", "toes", "af0", "af1", "af2", "tgd", "Adot", "delnd", "mode")
+
+
 def _params(nav: BroadcastNav, ephs: list) -> dict[str, np.ndarray]:
-    names = ("A", "e", "M0", "deln", "omg", "cuc", "cus", "crc", "crs", "cic", "cis", "i0", "idot",
-             "OMG0", "OMGd", "toes", "af0", "af1", "af2", "tgd", "Adot", "delnd")
-    out = {k: np.array([float(getattr(e, k)) for e in ephs]) for k in names}
-    out["mode"] = np.array([e.mode for e in ephs])
-    cache = nav._toe.setdefault("_abs", {})
-    ta = []
+    """Ephemeris parameters as arrays (one entry per record); rows are cached per record."""
+    cache = nav._toe.setdefault("_rows", {})
+    rows = []
     for e in ephs:
-        if id(e) not in cache:
-            cache[id(e)] = (gps_seconds_from_gtime(e.toe), gps_seconds_from_gtime(e.toc))
-        ta.append(cache[id(e)])
-    out["toe_abs"], out["toc_abs"] = np.array(ta).T.reshape(2, -1)
+        r = cache.get(id(e))
+        if r is None:
+            r = np.array([float(getattr(e, k)) for k in _PARAM_NAMES]
+                         + [gps_seconds_from_gtime(e.toe), gps_seconds_from_gtime(e.toc)])
+            cache[id(e)] = r
+        rows.append(r)
+    m = np.array(rows)
+    out = {k: m[:, i] for i, k in enumerate(_PARAM_NAMES)}
+    out["toe_abs"], out["toc_abs"] = m[:, -2], m[:, -1]
     return out
 
 

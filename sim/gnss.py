@@ -53,13 +53,16 @@ class RxClock:
     isb_m: dict[str, float] = field(default_factory=lambda: {"G": 0.0, "J": 0.0, "E": 2.5, "C": -4.0})
 
 
-def _load_nav(nav) -> BroadcastNav:
+def _load_nav(nav, t_span: tuple[float, float] | None = None, systems=("G", "E", "C"),
+              seed: int = 0) -> BroadcastNav:
     if isinstance(nav, BroadcastNav):
         return nav
     if nav is None:
         nav = DEFAULT_NAV
     if isinstance(nav, str) and nav == "synthetic":
-        raise ValueError("use synthetic_nav(t0_gps, t1_gps) to build a synthetic constellation")
+        if t_span is None:
+            raise ValueError("a synthetic constellation needs the time span")
+        return synthetic_nav(t_span[0], t_span[1], systems, seed)
     from pos.rinex import read_rinex_nav
     return read_rinex_nav(nav)
 
@@ -157,18 +160,21 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
     """Pseudoranges (m) and Doppler (Hz) of an antenna moving along an ECEF trajectory.
 
     ``traj_t_gps`` (N,) continuous GPS seconds (the receiver epochs), ``p_ecef_antenna`` (N,3) m,
-    ``v_ecef`` (N,3) m/s; ``nav``: a RINEX navigation path, a ``BroadcastNav`` (e.g. from
-    ``synthetic_nav``) or None for the bundled real file (flight on 2021-03-19). ``outages``:
+    ``v_ecef`` (N,3) m/s; ``nav``: a RINEX navigation path, a ``BroadcastNav``, ``"synthetic"``
+    (``synthetic_nav`` over the trajectory's span: any date, G/E/C) or None for the bundled real
+    file (then the flight must lie within about 2021-03-19 10:00-15:30 GPS time, e.g. from
+    ``DEFAULT_T0_GPS``; G, E and J are available). ``outages``:
     (t0, t1, max_sats) -- between t0 and t1 only the ``max_sats`` highest satellites are kept.
     ``sigma_pr``/``sigma_doppler``: zenith noise (m, m/s). With ``prepare`` the epochs are run
     through ``pos.spp.prepare_epoch`` at the true positions (sigmas = the simulated noise, no
     model-error budget), else they are raw. ``truth`` holds the true states per epoch:
-    ``p_ecef``, ``v_ecef``, ``clk_m`` {sys: c*(dt_rx)+isb}, ``drift_mps``, ``t_gps``.
+    ``p_ecef``, ``v_ecef``, ``clk_m`` {sys: c*(dt_rx)+isb} (m), ``drift_mps``, ``t_gps``, and
+    ``nav`` (the ``BroadcastNav`` used, e.g. to run ``pos.spp.spp`` on raw output).
     """
     rng = np.random.default_rng(seed)
-    nav = _load_nav(nav)
-    clk = rx_clock or RxClock()
     t = np.asarray(traj_t_gps, float)
+    nav = _load_nav(nav, (t[0], t[-1]), tuple(s for s in systems if s in "GEC"), seed)
+    clk = rx_clock or RxClock()
     P = np.asarray(p_ecef_antenna, float).reshape(-1, 3)
     V = np.asarray(v_ecef, float).reshape(-1, 3)
     bias, drift = _clock_series(t, clk, rng)
@@ -235,7 +241,7 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
             sat_clk_s=nan.copy(), sat_clk_drift=nan.copy(), iono_m=nan.copy(), tropo_m=nan.copy(),
             elev_deg=nan.copy(), azim_deg=nan.copy(), sigma_pr_m=s_pr, sigma_rr_mps=s_rr))
     truth = {"t_gps": t, "p_ecef": P, "v_ecef": V, "drift_mps": C_LIGHT * drift,
-             "clk_m": {s: C_LIGHT * bias + clk.isb_m.get(s, 0.0) for s in systems}}
+             "clk_m": {s: C_LIGHT * bias + clk.isb_m.get(s, 0.0) for s in systems}, "nav": nav}
     obs = GnssObservations(epochs=raw_epochs, receiver="DGCAL SIM", p_approx_ecef=P[0].copy(),
                            signals={s: SIGNAL[s] for s in systems}, source="simulation", truth=truth)
     if prepare:
