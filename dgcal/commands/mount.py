@@ -1,0 +1,66 @@
+"""Calibrate lever arm, boresight and exposure delay from bundle EOPs, the POS trajectory and the events."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+NAME = "mount"
+HELP = "system calibration: lever arm, boresight, exposure delay (traditional | proposed | iso)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--eop", required=True, type=Path, help="EOP CSV of the calibration flight (bundle output)")
+    p.add_argument("--crs", required=True, help="CRS of the EOPs (and ground points)")
+    p.add_argument("--trajectory", required=True, type=Path,
+                   help="trajectory.csv, or the events.csv of `dgcal pos` (one row per event)")
+    p.add_argument("--events", required=True, type=Path, help="events CSV image,gps_week,gps_sow")
+    p.add_argument("--method", default="proposed", choices=("traditional", "proposed", "iso"))
+    p.add_argument("--out", required=True, type=Path, help="output directory (mounting.json, report.html)")
+    p.add_argument("--no-reject", action="store_true", help="keep every epoch (no chi-square rejection)")
+    p.add_argument("--fix-delay", action="store_true", help="proposed/iso: hold the delay at 0")
+    p.add_argument("--measurements", type=Path, help="iso: image measurements of ground points (or gcp_list.txt)")
+    p.add_argument("--gcp", type=Path, help="iso: ground control points CSV (role check points are not used)")
+    p.add_argument("--camera", type=Path, help="iso: camera file (camera.json, ...)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from calib.mounting import calibrate_mounting
+    from fields.crs import MapGrid
+    from fields.csvio import atomic_write, staged_dir
+    from fields.errors import InputError
+    from fields.formats import read_eop, read_events, read_trajectory
+    from reports.mount_report import mount_report_html
+
+    grid = MapGrid(args.crs)
+    eop = read_eop(args.eop)
+    traj = read_trajectory(args.trajectory)
+    events = read_events(args.events)
+    if args.method == "iso":
+        missing = [o for o in ("measurements", "gcp", "camera") if getattr(args, o) is None]
+        if missing:
+            raise InputError(f"--method iso needs --{missing[0]}", field=f"--{missing[0]}")
+        from calib.mounting_iso import calibrate_iso_files
+        res = calibrate_iso_files(eop, grid, traj, events, args.measurements, args.gcp, args.camera,
+                                  fix_delay=args.fix_delay)
+    else:
+        kw = {} if args.method == "traditional" else {"reject": not args.no_reject, "fix_delay": args.fix_delay}
+        res = calibrate_mounting(eop, grid, traj, events, args.method, **kw)
+    main = res.to_json()
+    others = {}
+    if args.method != "traditional":
+        others["traditional"] = calibrate_mounting(eop, grid, traj, events, "traditional").to_json()
+    with staged_dir(args.out) as tmp:
+        with atomic_write(tmp / "mounting.json") as fh:
+            json.dump(main, fh, indent=2)
+            fh.write("\n")
+        with atomic_write(tmp / "report.html") as fh:
+            fh.write(mount_report_html(main, others))
+    s = res.sigmas
+    print(f"{res.method}: delay {res.delay_s:+.4f} ± {s[0]:.4f} s, lever arm "
+          + ", ".join(f"{v:+.3f}±{e:.3f}" for v, e in zip(res.lever_arm_m, s[1:4])) + " m, "
+          + f"{res.n_epochs} epochs, {len(res.rejected)} rejected")
+    for w in res.warnings:
+        print(f"warning: {w}")
+    print(args.out / "mounting.json")
+    return 0

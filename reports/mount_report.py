@@ -1,0 +1,168 @@
+"""HTML reports (single file, PNG plots embedded as base64) of the mounting calibration and of DG check points."""
+from __future__ import annotations
+
+import base64
+import html
+import io
+
+import numpy as np
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+    return f'<img alt="plot" src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
+
+
+def _table(header, rows) -> str:
+    h = "".join(f"<th>{html.escape(str(c))}</th>" for c in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
+
+
+_CSS = ("body{font-family:sans-serif;max-width:1100px;margin:auto;padding:1em}table{border-collapse:collapse;"
+        "margin:.5em 0}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}th{background:#eee}"
+        ".warn{color:#a40}img{max-width:100%}@media print{img{max-width:90%}}")
+
+
+def _page(title: str, parts: list[str]) -> str:
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+            f"<style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>{''.join(parts)}</body></html>\n")
+
+
+def _per_epoch_plots(results: dict) -> list[str]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    out = []
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    for name, res in results.items():
+        pe = res.get("per_epoch") or {}
+        if "lever_arm_m" not in pe:
+            continue
+        la = np.array(pe["lever_arm_m"])
+        for k, ax in enumerate(axes):
+            ax.plot(la[:, k], ".", ms=3, label=f"{name} per epoch")
+            ax.axhline(res["lever_arm_m"][k], lw=1, color=ax.lines[-1].get_color())
+            ax.set_ylabel(f"lever {'xyz'[k]} (m)")
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("epoch")
+    fig.suptitle("Lever arm per epoch (seed 003 Fig. 22): an uncalibrated delay shows as a speed-dependent bias")
+    out.append(_png(fig))
+    fig, axes = plt.subplots(3, 1, figsize=(10, 6), sharex=True)
+    for name, res in results.items():
+        pe = res.get("per_epoch") or {}
+        if "boresight_deg" not in pe:
+            continue
+        b = np.array(pe["boresight_deg"])
+        for k, ax in enumerate(axes):
+            ax.plot(b[:, k], ".", ms=3, label=name)
+            ax.set_ylabel(f"about body {'xyz'[k]} (deg)")
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("epoch")
+    fig.suptitle("Boresight per epoch, relative to the estimate")
+    out.append(_png(fig))
+    for name, res in results.items():
+        pe = res.get("per_epoch") or {}
+        if "residual_position_m" in pe:
+            rp, rr = np.array(pe["residual_position_m"]), np.array(pe["residual_rotation_deg"])
+            rej = np.array(pe.get("rejected", [False] * len(rp)))
+            fig, axes = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
+            for k in range(3):
+                axes[0].plot(rp[:, k], ".", ms=3, label="ENU"[k])
+                axes[1].plot(rr[:, k], ".", ms=3, label=f"cam {'xyz'[k]}")
+            if rej.any():
+                axes[0].plot(np.nonzero(rej)[0], rp[rej, 0], "kx", label="rejected")
+            axes[0].set_ylabel("position residual (m)")
+            axes[1].set_ylabel("rotation residual (deg)")
+            axes[0].legend(fontsize=8, ncol=4)
+            axes[1].legend(fontsize=8, ncol=3)
+            axes[1].set_xlabel("epoch")
+            fig.suptitle(f"{name}: residuals per epoch")
+            out.append(_png(fig))
+    return out
+
+
+def mount_report_html(main: dict, others: dict | None = None) -> str:
+    """The mounting report: estimates with sigmas, correlations, warnings, per-epoch plots and residuals."""
+    parts = []
+    results = {main["method"]: main, **(others or {})}
+    rows = []
+    for name, r in results.items():
+        rows.append([name, f"{r['delay_s']:.5f} ± {r['delay_sigma_s']:.5f}"]
+                    + [f"{v:.4f} ± {s:.4f}" for v, s in zip(r["lever_arm_m"], r["lever_arm_sigma_m"])]
+                    + [f"{v:.4f}" for v in r["boresight_rpy_deg"]]
+                    + [f"{s:.4f}" for s in r["boresight_sigma_deg"]] + [r.get("n_epochs", "")])
+    parts.append("<h2>Estimates</h2>" + _table(
+        ["method", "delay (s)", "lever x (m)", "lever y (m)", "lever z (m)", "bore roll (deg)", "bore pitch (deg)",
+         "bore yaw (deg)", "σ about x (deg)", "σ about y (deg)", "σ about z (deg)", "epochs"], rows))
+    parts.append("<p>Lever arm: IMU → camera perspective centre, body FRD. Boresight: R_cam_to_body = "
+                 "Rz(yaw) Ry(pitch) Rx(roll) (CV camera → body); its sigmas are small rotations about body axes. "
+                 "Delay = t_exposure − t_event.</p>")
+    R = np.array(main["boresight_R_cam_to_body"])
+    parts.append("<h3>R_cam_to_body</h3>" + _table(["", "cam x", "cam y", "cam z"],
+                                                   [[f"body {'xyz'[i]}"] + [f"{v:.8f}" for v in R[i]] for i in range(3)]))
+    if main.get("correlation"):
+        names = main.get("parameters", [])
+        corr = main["correlation"]
+        parts.append("<h2>Correlations</h2>" + _table(
+            [""] + names, [[names[i]] + ["" if v is None else f"{v:+.3f}" for v in corr[i]] for i in range(len(names))]))
+    for k in ("sigma0", "redundancy", "covariance_scaled_by", "boresight_parameterisation", "propagation"):
+        if k in main:
+            parts.append(f"<p><b>{k}</b>: {html.escape(str(main[k]))}</p>")
+    warn = main.get("warnings", [])
+    parts.append("<h2>Warnings</h2>" + ("".join(f"<p class='warn'>{html.escape(w)}</p>" for w in warn) or "<p>none</p>"))
+    if main.get("rejected_epochs"):
+        parts.append("<h2>Rejected epochs</h2><p>" + html.escape(", ".join(main["rejected_epochs"])) + "</p>")
+    parts.append("<h2>Per-epoch values</h2>" + "".join(_per_epoch_plots(results)))
+    return _page("dgcal mounting calibration", parts)
+
+
+def check_report_html(checks: dict, improvement: dict | None = None) -> str:
+    """DG check-point report: seed Table 2 per method, improvement rates, ASPRS 2023, predicted budget, plot."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    parts = []
+    rows = []
+    for name, c in checks.items():
+        s = c["stats"]
+        for what in ("avg", "std", "rms"):
+            rows.append([f"{name} ({s['n']})", what.upper()] + [f"{s[what][k]:.4f}" for k in ("E", "N", "U", "2D", "3D")])
+    parts.append("<h2>DG check-point errors (m), seed 003 Table 2</h2>"
+                 + _table(["method", "", "E", "N", "U", "2D", "3D"], rows))
+    if improvement:
+        parts.append("<h2>Improvement rates (%), seed Tables 4-5: (old − new)/new</h2>" + _table(
+            ["method", "2D", "3D"], [[k, f"{v['2D']:.2f}", f"{v['3D']:.2f}"] for k, v in improvement.items()]))
+    rows = []
+    for name, c in checks.items():
+        a = c["asprs_2023"]
+        rows.append([name, a["n_checkpoints"], f"{a['RMSE_x']:.4f}", f"{a['RMSE_y']:.4f}", f"{a['RMSE_H']:.4f}",
+                     f"{a['RMSE_V']:.4f}", f"{a.get('product_RMSE_H', float('nan')):.4f}",
+                     f"{a.get('product_RMSE_V', float('nan')):.4f}"])
+    parts.append("<h2>ASPRS Positional Accuracy Standards (2023)</h2>" + _table(
+        ["method", "check points", "RMSE_x", "RMSE_y", "RMSE_H", "RMSE_V", "RMSE_H incl. survey",
+         "RMSE_V incl. survey"], rows))
+    for name, c in checks.items():
+        b = c["budget"]
+        rows = [[k] + [f"{v[q]:.4f}" for q in ("E", "N", "U", "2D", "3D")] for k, v in b["sources"].items()]
+        rows.append(["predicted total"] + [f"{b['predicted_rms'][q]:.4f}" for q in ("E", "N", "U", "2D", "3D")])
+        rows.append(["achieved"] + [f"{b['achieved_rms'][q]:.4f}" for q in ("E", "N", "U", "2D", "3D")])
+        parts.append(f"<h2>{html.escape(name)}: error budget (seed Table 6), RMS σ on the ground (m)</h2>"
+                     + _table(["source", "E", "N", "U", "2D", "3D"], rows)
+                     + f"<p>mean flying height {b['mean_flying_height_m']:.0f} m, mean speed "
+                       f"{b['mean_speed_m_s']:.1f} m/s</p>")
+        for w in c.get("warnings", []) + c["asprs_2023"].get("warnings", []):
+            parts.append(f"<p class='warn'>{html.escape(w)}</p>")
+    fig, axes = plt.subplots(1, len(checks), figsize=(5 * len(checks), 4.5), squeeze=False)
+    for ax, (name, c) in zip(axes[0], checks.items()):
+        ref = np.array([p["ref"] for p in c["points"]])
+        err = np.array([p["err_enu"] for p in c["points"]])
+        scale = 100.0 / max(np.max(np.hypot(err[:, 0], err[:, 1])), 1e-9)
+        ax.quiver(ref[:, 0], ref[:, 1], err[:, 0], err[:, 1], angles="xy", scale_units="xy", scale=1 / scale)
+        ax.set_title(f"{name}: horizontal errors (max arrow = 100 m on the map)", fontsize=9)
+        ax.set_aspect("equal")
+    parts.append(_png(fig))
+    return _page("dgcal DG check points", parts)
