@@ -1,0 +1,173 @@
+"""One-step integrated sensor orientation (ISO): a bundle adjustment of the control-field flight with the POS as
+observations, estimating the lever arm, boresight and exposure delay in the same adjustment.
+
+Unknowns (block frame L): per image the projection centre C_i and a rotation correction d_i
+(R_cv_to_L,i = R0_i Exp(d_i)), the ground points (control points weighted by their sigmas, all others free
+tie points; points with role `check` are never control), and the mounting x = [dt, l_b, theta_b].
+Observations:
+- image measurements (px, collinearity with the fixed camera model, weighted by the pixel sigmas);
+- control point coordinates (m);
+- POS at every event, propagated over the delay as in the `proposed` method:
+    C_i = r_imu,i + v_i dt + R_b,i Exp(omega_i dt) l_b,   R_cv_to_L,i = R_b,i Exp(omega_i dt) Exp(theta_b) R_hat,
+  weighted by the POS covariance (position and attitude).
+Solved with scipy `least_squares` (trust region, sparse finite-difference Jacobian grouped by its sparsity);
+the covariance of the mounting comes from the full normal matrix, scaled by max(1, sigma0^2).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
+
+from bundle.intersection import intersect
+from calib.mounting_common import BlockFrame, MountingResult, T, build_epochs, so3_exp, so3_log
+from calib.mounting_diagnostics import observability_warnings
+from calib.mounting_proposed import DEFAULT_POS_SIGMA, _default_cov, calibrate_proposed
+from fields.crs import MapGrid
+from fields.errors import InputError
+from fields.formats import EOP, Events, Measurements, Points, Trajectory
+from fields.frames import skew
+
+DEFAULT_PIXEL_SIGMA = 0.5
+DEFAULT_GCP_SIGMA = 0.02
+
+
+def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, meas: Measurements, gcp: Points,
+                  camera, *, fix_delay: bool = False, max_nfev: int = 30) -> MountingResult:
+    """ISO mounting calibration; `eop` (e.g. a bundle or DG result) only initialises the image poses."""
+    frame = BlockFrame.at_map_points(grid, eop.xyz)
+    ep = build_epochs(frame, eop, events, traj)
+    init = calibrate_proposed(ep, fix_delay=fix_delay)
+    img_names = [str(s) for s in ep.image]
+    img_idx = {k: i for i, k in enumerate(img_names)}
+    gid = {str(k): j for j, k in enumerate(gcp.ids)}
+    keep = np.array([str(im) in img_idx for im in meas.image], bool)
+    m = meas.subset(keep)
+    pt_names = list(dict.fromkeys(str(k) for k in m.id))
+    pt_idx = {k: j for j, k in enumerate(pt_names)}
+    obs_img = np.array([img_idx[str(k)] for k in m.image], int)
+    obs_pt = np.array([pt_idx[str(k)] for k in m.id], int)
+    sig_uv = np.where(np.isfinite(m.sigma), m.sigma, DEFAULT_PIXEL_SIGMA)
+    ctrl = np.array([k in gid and gcp.role[gid[k]] == "control" for k in pt_names], bool)
+    if ctrl.sum() < 3:
+        raise InputError(f"ISO needs at least 3 measured control points, found {int(ctrl.sum())}", gcp.path,
+                         field="role")
+    ctrl_rows = np.array([gid[k] for k in np.array(pt_names)[ctrl]], int)
+    X_ctrl = frame.map_to_L(gcp.xyz[ctrl_rows])
+    s_ctrl = np.where(np.isfinite(gcp.sigma[ctrl_rows]), gcp.sigma[ctrl_rows], DEFAULT_GCP_SIGMA)
+    M, K = len(img_names), len(pt_names)
+    # initial points: control from the file, the others intersected from the initial poses
+    res0 = intersect(camera, ep.r_cam_L, ep.R_cv_to_L, obs_img, obs_pt, m.xy, sig_uv, K)
+    X0 = np.where(res0.ok[:, None], res0.xyz, 0.0)
+    X0[ctrl] = X_ctrl
+    lonely = ~res0.ok & ~ctrl
+    if lonely.any():
+        raise InputError(f"{int(lonely.sum())} points are seen in fewer than 2 images (e.g. {np.array(pt_names)[lonely][0]!r})",
+                         meas.path, field="id")
+    R0 = ep.R_cv_to_L.copy()
+    R_hat = init.R_cam_to_body.copy()
+    pos = ep.pos
+    C_pos = pos.cov if pos.cov is not None else _default_cov(M, DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2
+                                                             + DEFAULT_POS_SIGMA[2:])
+    # POS residual weights, from the POS covariance through the model at the initial mounting
+    G = np.zeros((M, 6, 6))
+    R_b0 = pos.R_body_to_L @ so3_exp(pos.omega_b * init.delay_s)
+    G[:, :3, :3] = -np.eye(3)
+    G[:, :3, 3:] = R_b0 @ skew(init.lever_arm_m)
+    G[:, 3:, 3:] = -R_hat.T
+    W_pos = np.linalg.inv(np.linalg.cholesky(G @ C_pos @ T(G)))
+    n_pose, n_pt = 6 * M, 3 * K
+    i_mnt = n_pose + n_pt
+    free_m = np.arange(1 if fix_delay else 0, 7)
+
+    def unpack(x):
+        C = x[:n_pose].reshape(M, 6)[:, :3]
+        d = x[:n_pose].reshape(M, 6)[:, 3:]
+        X = x[n_pose:i_mnt].reshape(K, 3)
+        mt = np.zeros(7)
+        mt[free_m] = x[i_mnt:]
+        return C, d, X, mt
+
+    def fun(x):
+        C, d, X, mt = unpack(x)
+        R = R0 @ so3_exp(d)
+        Xc = np.einsum("nji,nj->ni", R[obs_img], X[obs_pt] - C[obs_img])
+        Xc[:, 2] = np.maximum(Xc[:, 2], 1e-3)
+        r_img = ((camera.project(Xc) - m.xy) / sig_uv).ravel()
+        r_gcp = ((X[ctrl] - X_ctrl) / s_ctrl).ravel()
+        dt, lever, theta = mt[0], mt[1:4], mt[4:7]
+        R_b = pos.R_body_to_L @ so3_exp(pos.omega_b * dt)
+        p = pos.r_imu_L + pos.v_L * dt + np.einsum("nij,j->ni", R_b, lever)
+        Rc = R_b @ (so3_exp(theta) @ R_hat)
+        e = np.column_stack([C - p, so3_log(T(Rc) @ R)])
+        r_pos = np.einsum("nij,nj->ni", W_pos, e).ravel()
+        return np.concatenate([r_img, r_gcp, r_pos])
+
+    n_obs = len(obs_img)
+    n_res = 2 * n_obs + 3 * int(ctrl.sum()) + 6 * M
+    S = lil_matrix((n_res, i_mnt + len(free_m)), dtype=np.int8)
+    for k in range(n_obs):
+        for r in (2 * k, 2 * k + 1):
+            S[r, 6 * obs_img[k]:6 * obs_img[k] + 6] = 1
+            S[r, n_pose + 3 * obs_pt[k]:n_pose + 3 * obs_pt[k] + 3] = 1
+    row = 2 * n_obs
+    for j in np.nonzero(ctrl)[0]:
+        for a in range(3):
+            S[row, n_pose + 3 * j + a] = 1
+            row += 1
+    for i in range(M):
+        S[row:row + 6, 6 * i:6 * i + 6] = 1
+        S[row:row + 6, i_mnt:] = 1
+        row += 6
+    x0 = np.concatenate([np.column_stack([ep.r_cam_L, np.zeros((M, 3))]).ravel(), X0.ravel(),
+                         np.r_[init.delay_s, init.lever_arm_m, 0, 0, 0][free_m]])
+    sol = least_squares(fun, x0, jac_sparsity=S.tocsr(), method="trf", x_scale="jac", max_nfev=max_nfev,
+                        xtol=1e-10, ftol=1e-10)
+    J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+    N = J.T @ J
+    dof = n_res - N.shape[0]
+    sigma0_sq = float(2 * sol.cost / max(dof, 1))
+    # the mounting block of N^-1 via the Schur complement (poses and points eliminated)
+    A = N[:i_mnt, :i_mnt]
+    B = N[:i_mnt, i_mnt:]
+    Dm = N[i_mnt:, i_mnt:]
+    Sm = Dm - B.T @ np.linalg.solve(A, B)
+    cov = np.zeros((7, 7))
+    cov[np.ix_(free_m, free_m)] = np.linalg.inv(Sm) * max(1.0, sigma0_sq)
+    C, d, X, mt = unpack(sol.x)
+    R_final = so3_exp(mt[4:7]) @ R_hat
+    rpx = fun(sol.x)[:2 * n_obs].reshape(-1, 2) * sig_uv
+    res = MountingResult("iso", mt[1:4].copy(), R_final, 0.0 if fix_delay else float(mt[0]), cov, M, [],
+                         list(ep.warnings) + observability_warnings(ep), {})
+    corr = res.correlation()
+    for i in range(7):
+        for j in range(i + 1, 7):
+            if np.isfinite(corr[i, j]) and abs(corr[i, j]) > 0.9:
+                res.warnings.append(f"high correlation {corr[i, j]:+.3f} between {res.PARAM_NAMES[i]} and "
+                                    f"{res.PARAM_NAMES[j]}")
+    res.extra.update({"sigma0": float(np.sqrt(sigma0_sq)), "redundancy": int(dof),
+                      "covariance_scaled_by": float(max(1.0, sigma0_sq)), "n_image_observations": int(n_obs),
+                      "n_control_points": int(ctrl.sum()), "n_tie_points": int(K - ctrl.sum()),
+                      "image_rms_px": float(np.sqrt(np.mean(rpx**2))), "iterations": int(sol.nfev),
+                      "boresight_parameterisation": "unit quaternion with minimal 3-parameter multiplicative update",
+                      "initialisation": {"method": "proposed", "delay_s": init.delay_s,
+                                         "lever_arm_m": init.lever_arm_m.tolist()},
+                      "skipped_images": ep.skipped})
+    xyz_map, opk = frame.L_to_eop(C, R0 @ so3_exp(d))
+    res.extra["adjusted_eop"] = {"image": img_names, "xyz": xyz_map.tolist(), "opk_deg": opk.tolist()}
+    return res
+
+
+def calibrate_iso_files(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, meas_path: Path,
+                        gcp_path: Path, camera_path: Path, **kw) -> MountingResult:
+    """`calibrate_iso` with measurements (CSV or ODM gcp_list.txt), ground points and camera read from files."""
+    from calib.camera_formats import load_camera
+    from fields.formats import read_measurements, read_points
+    try:
+        from fields.gcp_io import is_odm_gcp_list, read_odm_gcp_list
+        meas = read_odm_gcp_list(meas_path)[2] if is_odm_gcp_list(meas_path) else read_measurements(meas_path)
+    except ImportError:
+        meas = read_measurements(meas_path)
+    return calibrate_iso(eop, grid, traj, events, meas, read_points(gcp_path), load_camera(camera_path), **kw)
