@@ -45,16 +45,25 @@ def _Rz(angle: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
 
 
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products of quaternion arrays (x, y, z, w last, scipy's order)."""
+    ax, ay, az, aw = np.moveaxis(a, -1, 0)
+    bx, by, bz, bw = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz], -1)
+
+
 def prefix_product(rots: Rotation) -> Rotation:
     """Cumulative products r0 * r1 * ... * rk for every k (Hillis-Steele scan, log2(N) vectorised passes)."""
-    q = rots
+    q = rots.as_quat()
     n = len(q)
     d = 1
     while d < n:
-        head = q[:d]
-        q = Rotation.concatenate([head, q[:-d] * q[d:]])
+        q = np.concatenate([q[:d], _qmul(q[:-d], q[d:])])
         d *= 2
-    return q
+    return Rotation.from_quat(q)
 
 
 def integrate_strapdown_ecef(t: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray, p0_ecef: np.ndarray,

@@ -221,36 +221,42 @@ class TrueTrajectory:
         return out
 
 
-def _assemble(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, with_increments: bool, rate_hz: float,
-              chunk: int = 40000) -> TrueTrajectory:
-    n = len(t)
-    keys = ("p_ecef", "v_ecef", "R_body_to_ecef", "f_b", "omega_ib_b")
+def _kinematics_chunked(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, keys, chunk: int) -> dict:
     out = {k: [] for k in keys}
-    dth, dvl = np.zeros((n, 3)), np.zeros((n, 3))
-    dt = 1.0 / rate_hz
-    for i0 in range(0, n, chunk):
-        sl = slice(i0, min(n, i0 + chunk))
+    for i0 in range(0, len(t), chunk):
+        sl = slice(i0, min(len(t), i0 + chunk))
         kin = profile.kinematics(t[sl], p_l[sl])
         for k in keys:
             out[k].append(kin[k])
-        if with_increments:
-            # integrals over (t-dt, t]; node positions by cubic Hermite (they only feed gravitation/centrifugal)
-            tk = t[sl]
-            w_sum, f_sum = 0.0, 0.0
-            c1 = profile.controls(tk - dt)
-            for x, wgt in zip(_GL_X, _GL_W):
-                tn = tk - dt + x * dt
-                cn = profile.controls(tn)
-                pa = p_l[sl] - 0.5 * dt * (c1["v_l"] + kin["v_l"])  # trapezoid: ~1e-8 m, plenty for gravitation
-                h00, h10, h01, h11 = (2 * x ** 3 - 3 * x ** 2 + 1, x ** 3 - 2 * x ** 2 + x, -2 * x ** 3 + 3 * x ** 2,
-                                      x ** 3 - x ** 2)
-                pn = h00 * pa + h10 * dt * c1["v_l"] + h01 * p_l[sl] + h11 * dt * kin["v_l"]
-                pn[:, 2] = profile.p0_l[2] - cn["height"]
-                kn = profile.kinematics(tn, pn)
-                w_sum = w_sum + wgt * kn["omega_ib_b"]
-                f_sum = f_sum + wgt * kn["f_b"]
-            dth[sl], dvl[sl] = w_sum * dt, f_sum * dt
-    arr = {k: np.concatenate(v) for k, v in out.items()}
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def _assemble(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, with_increments: bool, rate_hz: float,
+              chunk: int = 50000) -> TrueTrajectory:
+    n = len(t)
+    keys = ("p_ecef", "v_ecef", "R_body_to_ecef", "f_b", "omega_ib_b", "v_l")
+    arr = _kinematics_chunked(profile, t, p_l, keys, chunk)
+    dth, dvl = np.zeros((n, 3)), np.zeros((n, 3))
+    if with_increments:
+        # Simpson's rule over (t-dt, t] with the end values shared between neighbouring intervals: one
+        # extra evaluation per sample (error ~ dt^5 * 4th derivative / 2880: < 1e-12 rad at 200 Hz)
+        dt = 1.0 / rate_hz
+        t_prev = np.array([t[0] - dt])
+        c_prev = profile.controls(t_prev)
+        p_prev = p_l[:1] - dt * 0.5 * (c_prev["v_l"] + arr["v_l"][:1])
+        p_prev[:, 2] = profile.p0_l[2] - c_prev["height"]
+        k_prev = profile.kinematics(t_prev, p_prev)
+        pa = np.vstack([p_prev, p_l[:-1]])
+        va = np.vstack([c_prev["v_l"], arr["v_l"][:-1]])
+        t_mid = t - 0.5 * dt
+        # positions at the midpoints by cubic Hermite (they only feed gravitation and centrifugal terms)
+        p_mid = 0.5 * (pa + p_l) + dt / 8.0 * (va - arr["v_l"])
+        p_mid[:, 2] = profile.p0_l[2] - profile.climb.evaluate(t_mid - profile.t0)[0]
+        mid = _kinematics_chunked(profile, t_mid, p_mid, ("f_b", "omega_ib_b"), chunk)
+        w_a = np.vstack([k_prev["omega_ib_b"], arr["omega_ib_b"][:-1]])
+        f_a = np.vstack([k_prev["f_b"], arr["f_b"][:-1]])
+        dth = dt / 6.0 * (w_a + 4.0 * mid["omega_ib_b"] + arr["omega_ib_b"])
+        dvl = dt / 6.0 * (f_a + 4.0 * mid["f_b"] + arr["f_b"])
     geo = ecef_to_geodetic(arr["p_ecef"])
     R_en = R_ecef_to_ned(geo[:, 0], geo[:, 1])
     v_ned = np.einsum("nij,nj->ni", R_en, arr["v_ecef"])
