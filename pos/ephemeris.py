@@ -11,10 +11,6 @@ from pos.gnss_types import C_LIGHT
 from pos.rinex import BroadcastNav, gps_seconds_from_gtime, gtime_from_gps_seconds
 
 MAX_AGE_S = {"G": 7200.0, "J": 7200.0, "E": 10800.0, "C": 3900.0}   # |t - toe| allowed
-URA_M = np.array([2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0,
-                  1536.0, 3072.0, 6144.0])
-
-
 def _healthy(sid: str, eph) -> bool:
     if sid[0] == "E":
         return (int(eph.svh) & 0x7) == 0          # E1-B data validity and signal health bits
@@ -49,11 +45,12 @@ def select_ephemeris(nav: BroadcastNav, sid: str, t_gps: float):
 
 
 def ura_m(sid: str, eph) -> float:
-    """User range accuracy (m) of an ephemeris (GPS/QZSS URA index; 3 m for other systems)."""
-    if sid[0] in "GJ":
-        k = int(eph.sva)
-        return float(URA_M[k]) if 0 <= k < len(URA_M) else 6144.0
-    return 3.0
+    """Signal-in-space accuracy (m) of an ephemeris, at least 2 m.
+
+    RINEX 3 stores GPS/QZSS/BeiDou "SV accuracy" and Galileo SISA in metres (cssrlib keeps the
+    integer part); the synthetic constellation leaves it 0.
+    """
+    return max(float(eph.sva), 2.0)
 
 
 def _is_bds_geo(sid: str) -> bool:

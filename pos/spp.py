@@ -280,6 +280,7 @@ class SppSolution:
     used: list[list[str]]
     rejected: list[list[str]]
     epochs: list[GnssEpoch | None]
+    residuals_m: list[dict[str, float]] = field(default_factory=list)
 
 
 def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions = SppOptions(),
@@ -313,7 +314,8 @@ def collect(sols: list[EpochSolution], systems: list[str]) -> SppSolution:
         n_sat=np.array([s.n_sat for s in sols], dtype=int),
         dop={k: arr(lambda s: s.dop.get(k, np.nan)) for k in ("gdop", "pdop", "hdop", "vdop")},
         chi2_dof=arr(lambda s: s.chi2_dof), used=[s.used for s in sols],
-        rejected=[s.rejected for s in sols], epochs=[s.epoch for s in sols])
+        rejected=[s.rejected for s in sols], epochs=[s.epoch for s in sols],
+        residuals_m=[s.residuals_m for s in sols])
 
 
 def load_gnss(obs_path, nav_path, opts: SppOptions = SppOptions(), progress: bool = False

@@ -102,6 +102,8 @@ def test_cli_writes_gnss_csv(shared_data, tmp_path):
     assert np.sqrt(np.mean(np.sum((p - REF) ** 2, axis=1))) < 3.0
     assert np.all(tab["sx"] > 0) and np.all(tab["n_sat"] >= 20)
     assert (out / "gnss_summary.json").is_file()
+    html = (out / "gnss_report.html").read_text()
+    assert html.count("<img") >= 4 and "G14" in html
     # bad input: one line, exit 2, nothing written
     out2 = tmp_path / "out2"
     rc = main(["pos", "--rinex-obs", str(shared_data / NAV), "--rinex-nav", str(shared_data / NAV),

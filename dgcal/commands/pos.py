@@ -5,7 +5,7 @@ gps_week,gps_sow,x,y,z (ECEF, m), vx,vy,vz (m/s), sx,sy,sz, svx,svy,svz (1-sigma
 lat,lon,h (deg, deg, m ellipsoidal), s_e,s_n,s_u (m), clk_G_m,clk_E_m,clk_C_m (receiver clock
 bias per clock group, metres = c*dt; QZSS shares GPS's), drift_mps (c*clock drift, m/s),
 n_sat, gdop,pdop,hdop,vdop, chi2_dof, rejected (satellites removed by RAIM, ';'-separated);
-and DIR/gnss_summary.json. --mode tc|lc hand over to pos.pipeline.run_pos (trajectory.csv, events.csv).
+DIR/gnss_summary.json and DIR/gnss_report.html. --mode tc|lc hand over to pos.pipeline.run_pos (trajectory.csv, events.csv).
 """
 from __future__ import annotations
 
@@ -41,6 +41,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="GNSS antenna lever arm in the IMU body frame, m (tc/lc)")
     p.add_argument("--imu-grade", default=None,
                    help="IMU error model preset (tc/lc), e.g. consumer, tactical, navigation")
+    p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
+                   help="known antenna position (ECEF, m) for the spp report's error plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -84,8 +86,15 @@ def run_spp(args: argparse.Namespace) -> int:
     summary = spp_summary(sol, obs, nav, opts)
     with staged_dir(args.out) as d:
         write_gnss_csv(Path(d) / "gnss.csv", sol)
+        if args.reference is not None:
+            import numpy as np
+            ok = sol.ok
+            err = sol.p_ecef[ok] - np.asarray(args.reference)
+            summary["rms_3d_vs_reference_m"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
         with atomic_write(Path(d) / "gnss_summary.json") as fh:
             json.dump(summary, fh, indent=2)
+        from reports.pos_gnss_report import write_spp_report
+        write_spp_report(Path(d) / "gnss_report.html", sol, summary, args.reference)
     print(f"{Path(args.out) / 'gnss.csv'}: {summary['n_fixed']}/{summary['n_epochs']} epochs, "
           f"median sigma 3D {summary['median_sigma_3d_m']:.2f} m", file=sys.stderr)
     return 0
