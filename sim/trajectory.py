@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fields.crs import ecef_to_geodetic, geodetic_to_ecef
-from fields.formats import Events, gps_seconds
+from fields.formats import Events, Trajectory, gps_seconds
 from fields.frames import R_ecef_to_ned, rph_from_R_body_to_ned
 from sim.strapdown import OMEGA_IE_E, gravitation_ecef
 
@@ -200,7 +200,14 @@ class TrueTrajectory:
 
     @property
     def strips(self) -> list:
+        """The 'strip' segments (straight image lines) in flight order."""
         return [s for s in self.segments if s.kind == "strip"]
+
+    def as_trajectory(self, step: int = 1) -> Trajectory:
+        """Every `step`-th sample as a `fields.formats.Trajectory` (e.g. to write the true trajectory CSV)."""
+        sl = slice(None, None, step)
+        return Trajectory(t=self.t[sl], lat=self.lat[sl], lon=self.lon[sl], h=self.h[sl], v_ned=self.v_ned[sl],
+                          rph=self.rph[sl])
 
     def at(self, t_query) -> "TrueTrajectory":
         """The exact true state at arbitrary GPS times (within or slightly outside the sampled span)."""

@@ -84,6 +84,15 @@ def test_at_matches_samples_and_velocity_is_position_rate(flight):
     np.testing.assert_allclose(fd, flight.v_ecef[k], atol=1e-3)
 
 
+def test_as_trajectory_csv_round_trip(flight, tmp_path):
+    from fields.formats import read_trajectory, write_trajectory
+    write_trajectory(tmp_path / "truth.csv", flight.as_trajectory(step=100))
+    back = read_trajectory(tmp_path / "truth.csv")
+    np.testing.assert_allclose(back.t, flight.t[::100], atol=1e-6)
+    np.testing.assert_allclose(back.lat, flight.lat[::100], atol=1e-10)
+    np.testing.assert_allclose(back.v_ned, flight.v_ned[::100], atol=1e-4)
+
+
 def test_camera_events_on_strips_with_delay(flight):
     ev = camera_events(flight, distance_m=100.0, delay_s=-0.14)
     t_exp = ev.t - 0.14
