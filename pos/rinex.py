@@ -295,7 +295,17 @@ def _sys_letter(gns) -> str:
 def _decode_obs_body(dec, fh: _LineCounter, path: Path, signals, obs_types, t_start, t_end,
                      decimate_s) -> list[tuple[float, np.ndarray, dict]]:
     """Decode epochs with cssrlib; returns (t_gps, sats, {typ: values}) per epoch."""
-    from cssrlib.gnss import sat2prn, sys2char, uTYP
+    from cssrlib.gnss import char2sys, sat2prn, sys2char, uTYP
+    letter_cache: dict[int, str] = {}
+
+    def letter_of(sat: int) -> str:
+        if sat not in letter_cache:
+            letter_cache[sat] = sys2char(sat2prn(sat)[0])
+        return letter_cache[sat]
+
+    typ_of = {"C": uTYP.C, "L": uTYP.L, "D": uTYP.D, "S": uTYP.S}
+    has = {(c, k): c in signals and bool(dec.getSignals(char2sys(c), typ)) for c in "GRECJSI"
+           for k, typ in typ_of.items()}
     out = []
     while True:
         line_before = fh.line
@@ -314,24 +324,17 @@ def _decode_obs_body(dec, fh: _LineCounter, path: Path, signals, obs_types, t_st
             break
         if decimate_s and abs(t / decimate_s - round(t / decimate_s)) > 1e-6:
             continue
-        # column index of each wanted type, per system, in cssrlib's per-type arrays
+        # cssrlib's per-type arrays hold our single signal per system in column 0
         vals = {k: np.full(len(obs.sat), np.nan) for k in ("C", "L", "D", "S")}
         lli = np.zeros(len(obs.sat), dtype=int)
-        for i, sat in enumerate(obs.sat):
-            sys, _ = sat2prn(sat)
-            s = sys2char(sys)
-            if s not in signals:
+        letters = [letter_of(int(sat)) for sat in obs.sat]
+        for typ_name, arr in (("C", obs.P), ("L", obs.L), ("D", obs.D), ("S", obs.S)):
+            if arr.shape[1] == 0:
                 continue
-            for typ_name, typ in (("C", uTYP.C), ("L", uTYP.L), ("D", uTYP.D), ("S", uTYP.S)):
-                sigs = dec.getSignals(sys, typ)
-                if not sigs:
-                    continue
-                arr = {"C": obs.P, "L": obs.L, "D": obs.D, "S": obs.S}[typ_name]
-                v = arr[i, 0]
-                if v != 0.0:
-                    vals[typ_name][i] = v
-            if len(dec.getSignals(sys, uTYP.L)):
-                lli[i] = obs.lli[i, 0]
+            col = np.where(np.array([has[(c, typ_name)] for c in letters], dtype=bool), arr[:, 0], 0.0)
+            vals[typ_name] = np.where(col != 0.0, col, np.nan)
+            if typ_name == "L":
+                lli = np.where(np.isfinite(vals["L"]), obs.lli[:, 0], 0)
         out.append((t, np.asarray(obs.sat), vals, lli))
     return out
 
@@ -339,9 +342,15 @@ def _decode_obs_body(dec, fh: _LineCounter, path: Path, signals, obs_types, t_st
 def _raw_to_epochs(raw, signals, wavelength, sat2id) -> list[GnssEpoch]:
     """Build raw GnssEpochs; derive range rate from carrier phase where Doppler is missing."""
     epochs = []
+    id_cache: dict[int, str] = {}
     for t, sats, vals, lli in raw:
         ok = np.isfinite(vals["C"]) & (vals["C"] > 1e6)
-        ids = [sat2id(int(s)) for s in sats]
+        ids = []
+        for s in sats:
+            s = int(s)
+            if s not in id_cache:
+                id_cache[s] = sat2id(s)
+            ids.append(id_cache[s])
         keep = [i for i in range(len(ids)) if ok[i] and isinstance(ids[i], str) and ids[i][0] in signals]
         if not keep:
             continue
