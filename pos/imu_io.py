@@ -71,6 +71,10 @@ class ImuData:
         return cls(t, np.asarray(gyro_rad_s, float) * d[:, None], np.asarray(accel_m_s2, float) * d[:, None],
                    rate)
 
+    def gaps(self, factor: float = 1.5) -> np.ndarray:
+        """Indices i whose interval (t[i-1], t[i]] is longer than `factor` nominal steps (missing samples)."""
+        return np.flatnonzero(np.diff(self.t) > factor / self.rate_hz) + 1
+
     def between(self, t0: float, t1: float) -> "ImuData":
         """The samples with t0 <= t <= t1 (GPS s)."""
         i0, i1 = np.searchsorted(self.t, t0, side="left"), np.searchsorted(self.t, t1, side="right")

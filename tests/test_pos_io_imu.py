@@ -89,8 +89,13 @@ def test_missing_header_column_and_file(tmp_path):
         read_kf_gins(tmp_path / "nope.txt")
 
 
-def test_between_and_from_rates_consistency():
+def test_between_gaps_and_from_rates_consistency():
     imu = _imu(1000)
+    assert imu.gaps().size == 0
+    keep = np.r_[0:300, 305:1000]
+    holey = ImuData(imu.t[keep], imu.dtheta[keep], imu.dvel[keep], imu.rate_hz)
+    assert list(holey.gaps()) == [300]
+    assert holey.dt[300] == pytest.approx(6 / 200.0)
     sub = imu.between(imu.t[100], imu.t[199])
     assert len(sub) == 100 and sub.t[0] == imu.t[100]
     np.testing.assert_allclose(sub.dtheta, imu.dtheta[100:200])
