@@ -42,7 +42,7 @@ class PseudoAttitude:
 
 
 def time_derivative(t: np.ndarray, y: np.ndarray, window_s: float = 0.0) -> np.ndarray:
-    """d y / d t along axis 0: Savitzky-Golay (quadratic, `window_s` wide) on uniform sampling, else central differences."""
+    """d y / d t along axis 0: Savitzky-Golay (quadratic, `window_s` wide) if uniform, else central differences."""
     t = np.asarray(t, float)
     y = np.asarray(y, float)
     dt = np.diff(t)
