@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from pos.smoother import NavSolution, Problem, add_marginals, solution_values
-from pos.smoother_factors import B, CLK, DRIFT, V, X
+from pos.smoother_factors import B, CLK, DRIFT, V, X, ZERO
 
 
 def forward_solution(problem: Problem, relinearize_threshold: float = 0.05, relinearize_skip: int = 10,
@@ -20,6 +20,7 @@ def forward_solution(problem: Problem, relinearize_threshold: float = 0.05, reli
     prm = gtsam.ISAM2Params()
     prm.setRelinearizeThreshold(relinearize_threshold)
     prm.relinearizeSkip = relinearize_skip
+    prm.setFactorization("QR")  # the clock variables in seconds make Cholesky break down
     isam = gtsam.ISAM2(prm)
     K = len(problem.t_key)
     init = problem.values
@@ -48,6 +49,8 @@ def forward_solution(problem: Problem, relinearize_threshold: float = 0.05, reli
                 vals.insert(CLK(s, 0), init.atDouble(CLK(s, 0)))
             if problem.systems:
                 vals.insert(DRIFT(0), init.atDouble(DRIFT(0)))
+            if init.exists(ZERO()):
+                vals.insert(ZERO(), 0.0)
         else:
             b_prev = gtsam.imuBias.ConstantBias(prev["bias"][:3], prev["bias"][3:])
             ns = problem.pims[k - 1].predict(gtsam.NavState(gtsam.Rot3(prev["R"]), prev["p"], prev["v"]), b_prev)
@@ -64,9 +67,8 @@ def forward_solution(problem: Problem, relinearize_threshold: float = 0.05, reli
                 graph.add(f)
         # innovations: GNSS errors at the prediction (needs the previous clock too for Doppler)
         pred = gtsam.Values(vals)
-        if k > 0:
-            for s in problem.systems:
-                pred.insert(CLK(s, k - 1), prev["clock"][s])
+        if k > 0 and init.exists(ZERO()):
+            pred.insert(ZERO(), 0.0)
         for kind, f in problem.epoch_factors[k]:
             graph.add(f)
             if all(pred.exists(key) for key in f.keys()):

@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pos.nav_frame import C_LIGHT, NavFrame
-from pos.smoother_factors import (B, CLK, DRIFT, V, X, clock_factors, doppler_factors, position_factor,
+from pos.smoother_factors import (B, CLK, DRIFT, V, X, ZERO, clock_factors, doppler_factors, position_factor,
                                   pseudorange_factors, velocity_factor)
-from pos.smoother_imu import (ImuNoise, imu_noise_from_grade, preintegrate, preintegration_params,
-                              split_at_keyframes)
+from pos.smoother_imu import (ImuNoise, gravity_correction_b, imu_noise_from_grade, preintegrate,
+                              preintegration_params, split_at_keyframes)
 from pos.smoother_init import (GnssFixes, anchor_attitude, initial_clocks, initial_track,
                                propagate_attitude)
 
@@ -33,8 +33,8 @@ class SmootherOptions:
     use_doppler: bool = True
     earth_rotation: bool = True
     huber_k: float | None = 1.345
-    clock_bias_rw_m: float = 0.5
-    clock_drift_rw_mps: float = 0.1
+    clock_bias_rw_m: float = 0.1
+    clock_drift_rw_mps: float = 0.2
     prior_rot_sigma_deg: tuple = (10.0, 10.0, 30.0)
     prior_pos_sigma_m: float = 20.0
     prior_vel_sigma_mps: float = 2.0
@@ -100,13 +100,21 @@ def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
 
 def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu_noise: ImuNoise,
                   opts: SmootherOptions, mode: str = "tc", epochs_at_key: list | None = None,
-                  lc_fixes: GnssFixes | None = None, bias_lin: np.ndarray | None = None) -> Problem:
-    """Assemble the factor graph: priors, IMU, GNSS (TC epochs or LC fixes) and clock factors."""
+                  lc_fixes: GnssFixes | None = None, bias_lin: np.ndarray | None = None,
+                  first: NavSolution | None = None) -> Problem:
+    """Assemble the factor graph: priors, IMU, GNSS (TC epochs or LC fixes) and clock factors.
+
+    With a `first` solution, the accelerometers are corrected for the gravity change across the nav plane
+    (`gravity_correction_b`) and the IMU is preintegrated about its biases (`bias_lin`).
+    """
     import gtsam
     K = len(t_key)
     lever = np.asarray(opts.lever_arm_b, float)
     params = preintegration_params(imu_noise, frame, opts.earth_rotation)
-    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, imu.accel_m_s2, t_key, imu.dt[0])
+    accel = imu.accel_m_s2
+    if first is not None:
+        accel = accel + gravity_correction_b(imu.t, first.t, first.R_body_to_nav, first.p_nav, frame)
+    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_key, imu.dt[0])
     if bias_lin is None:
         biases = [gtsam.imuBias.ConstantBias()] * (K - 1)
     else:
@@ -156,6 +164,9 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
                                                  gtsam.noiseModel.Isotropic.Sigma(1, 1e3 / C_LIGHT)))
         prior.append(gtsam.PriorFactorDouble(DRIFT(0), float(drift[0]),
                                              gtsam.noiseModel.Isotropic.Sigma(1, 100.0 / C_LIGHT)))
+        if opts.use_doppler:
+            values.insert(ZERO(), 0.0)
+            prior.append(gtsam.PriorFactorDouble(ZERO(), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, 1e-3 / C_LIGHT)))
         zeros = gtsam.Values()
         for k in range(K):
             for s in systems:
@@ -172,8 +183,8 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
             gnss_update[k] = True
             for f in pseudorange_factors(k, ep, r_approx, lever, ecef_T_nav, opts.huber_k):
                 epoch_factors[k].append(("pr", f))
-            if opts.use_doppler and k > 0:
-                for f in doppler_factors(k, ep, t_key[k] - t_key[k - 1], r_approx, lever, omega_b[k], ecef_T_nav,
+            if opts.use_doppler:
+                for f in doppler_factors(k, ep, r_approx, lever, omega_b[k], ecef_T_nav,
                                          opts.huber_k):
                     epoch_factors[k].append(("dop", f))
     else:
@@ -268,6 +279,8 @@ def solution_values(sol: NavSolution, problem: Problem):
             vals.insert(CLK(s, k), float(sol.clock[s][k]))
         if problem.systems:
             vals.insert(DRIFT(k), float(sol.drift[k]))
+    if problem.values.exists(ZERO()):
+        vals.insert(ZERO(), 0.0)
     return vals
 
 
@@ -291,7 +304,7 @@ def _nearest_gap(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mode: str = "tc",
            gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
-           relinearize_bias: bool = True) -> NavSolution:
+           second_pass: bool = True) -> NavSolution:
     """Smoothed trajectory over the whole flight.
 
     imu: `pos.imu_io.ImuData` (body FRD increments). fixes: GNSS positions to initialise (SPP) and, in LC
@@ -318,9 +331,10 @@ def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mo
     problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes)
     values = optimize(problem, opts.max_iterations)
     sol = read_states(problem, values)
-    if relinearize_bias and np.max(np.abs(sol.bias[:, 3:])) > 5 * np.radians(10 / 3600):
-        # re-preintegrate about the estimated biases when they are large (consumer MEMS)
-        problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes, bias_lin=sol.bias)
+    if second_pass:
+        # re-preintegrate with the gravity correction and about the estimated biases, start from pass one
+        problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes, bias_lin=sol.bias,
+                                first=sol)
         problem.values = values  # same keys: start from the first solution
         values = optimize(problem, opts.max_iterations)
         sol = read_states(problem, values)

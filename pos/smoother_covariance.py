@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from pos.nav_frame import C_LIGHT
-from pos.smoother_factors import B, CLK, DRIFT, V, X
+from pos.smoother_factors import B, CLK, DRIFT, V, X, ZERO
 
 
 class KeyframeBlocks:
@@ -33,6 +33,7 @@ class KeyframeBlocks:
                 self.where[CLK(s, k)] = (k, 15 + j, 1)
             if systems:
                 self.where[DRIFT(k)] = (k, 15 + len(systems), 1)
+        self.where[ZERO()] = None  # a pinned constant: conditioned on (its rows/columns dropped)
         # seconds -> metres for the clock variables (x_s = x_m / c)
         self.scale = np.ones(self.n)
         self.scale[15:] = 1.0 / C_LIGHT
@@ -55,6 +56,14 @@ def _accumulate(graph, values, blocks: KeyframeBlocks):
         f = lin.at(i)
         locs = [where[key] for key in f.keys()]
         info = f.information()
+        if None in locs:
+            # only ZERO (dim 1) is None; drop its rows/columns
+            dims = [1 if l is None else l[2] for l in locs]
+            keep = np.concatenate([np.full(d, l is not None) for d, l in zip(dims, locs)])
+            info = info[np.ix_(keep, keep)]
+            locs = [l for l in locs if l is not None]
+            if not locs:
+                continue
         k0 = min(l[0] for l in locs)
         k1 = max(l[0] for l in locs)
         if k1 - k0 > 1:

@@ -45,6 +45,13 @@ def DRIFT(k: int) -> int:
     return gtsam.symbol("d", k)
 
 
+def ZERO() -> int:
+    """Key of a constant 0.0 (pinned by a tight prior): the 'previous clock' of the Doppler factors, see
+    `doppler_factors`."""
+    import gtsam
+    return gtsam.symbol("z", 0)
+
+
 def sagnac_m(sat_pos_ecef: np.ndarray, p_rx_ecef: np.ndarray) -> np.ndarray:
     """Earth-rotation range correction (m) as gtsam's pseudorange factors compute it."""
     s, r = np.atleast_2d(sat_pos_ecef), np.asarray(p_rx_ecef, float)
@@ -81,20 +88,24 @@ def pseudorange_factors(k: int, epoch, p_approx_ecef, lever_arm_b, ecef_T_nav, h
     return out
 
 
-def doppler_factors(k: int, epoch, dt: float, p_approx_ecef, lever_arm_b, omega_b, ecef_T_nav, huber_k=1.345,
+def doppler_factors(k: int, epoch, p_approx_ecef, lever_arm_b, omega_b, ecef_T_nav, huber_k=1.345,
                     sigma_scale: float = 1.0) -> list:
-    """DopplerFactorArm per satellite with Doppler at keyframe k (k >= 1; drift = clock difference / dt)."""
+    """DopplerFactorArm per satellite with Doppler at keyframe k, tied to the drift variable DRIFT(k).
+
+    gtsam's factor takes the receiver drift as (clock_curr - clock_prev) / dt; handing it (ZERO, DRIFT(k),
+    dt = 1 s) makes that the instantaneous drift state (s/s) rather than the mean over the epoch interval,
+    which would differ from it by the clock's random walk (~0.1-0.2 m/s for a TCXO, more than the noise).
+    """
     import gtsam
     rr = epoch.rr_corr_mps + sagnac_rate_mps(epoch.sat_pos_ecef, epoch.sat_vel_ecef, p_approx_ecef)
     out = []
     for i in range(epoch.n):
         if not np.isfinite(rr[i]):
             continue
-        s = str(epoch.system[i])
         # wavelength 1 m: the factor's measured range rate is -lambda*D, so D = -rr
         out.append(gtsam.DopplerFactorArm(
-            X(k), V(k), CLK(s, k - 1), CLK(s, k), float(-rr[i]), 1.0, epoch.sat_pos_ecef[i],
-            epoch.sat_vel_ecef[i], p_approx_ecef, lever_arm_b, ecef_T_nav, omega_b, float(dt), 0.0,
+            X(k), V(k), ZERO(), DRIFT(k), float(-rr[i]), 1.0, epoch.sat_pos_ecef[i],
+            epoch.sat_vel_ecef[i], p_approx_ecef, lever_arm_b, ecef_T_nav, omega_b, 1.0, 0.0,
             robust(epoch.sigma_rr_mps[i] * sigma_scale, 1, huber_k)))
     return out
 
@@ -108,7 +119,8 @@ def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: fl
     """
     import gtsam
     out = []
-    sb = bias_rw_m * np.sqrt(dt) / C_LIGHT
+    # the drift's own random walk integrates into the bias too (q_d dt^3 / 3)
+    sb = np.sqrt(bias_rw_m ** 2 * dt + drift_rw_mps ** 2 * dt ** 3 / 3.0) / C_LIGHT
     for s in systems:
         jf = gtsam.JacobianFactor(CLK(s, k + 1), np.array([[1.0]]), CLK(s, k), np.array([[-1.0]]),
                                   DRIFT(k), np.array([[-float(dt)]]), np.zeros(1),

@@ -113,3 +113,27 @@ def preintegrate(params, seg: ImuSegments, biases) -> list:
             f(accel[j], gyro[j], dt[j])
         out.append(pim)
     return out
+
+
+def gravity_correction_b(t_imu: np.ndarray, t_key: np.ndarray, R_body_to_nav: np.ndarray, p_nav: np.ndarray,
+                         frame: NavFrame) -> np.ndarray:
+    """Specific-force correction (N,3) m/s^2, body FRD, that makes the constant nav-frame gravity exact.
+
+    The preintegration uses normal gravity at the frame origin along nav Down; at a point p the true normal
+    gravity is gamma(p) along the local Down, which is tilted from nav Down by distance/R_earth. Adding
+    R_nav_to_body (g(p) - g0) to the accelerometers removes that error. Attitude and position come from a
+    first solution (keyframes), interpolated to the IMU times (slerp / linear).
+    """
+    from scipy.spatial.transform import Rotation, Slerp
+
+    from fields.crs import ecef_to_geodetic
+    from pos.nav_frame import normal_gravity
+    tq = np.clip(t_imu, t_key[0], t_key[-1])
+    R = Slerp(t_key, Rotation.from_matrix(R_body_to_nav))(tq).as_matrix()
+    # gravity varies slowly: evaluate it at the keyframes and interpolate
+    geo = ecef_to_geodetic(frame.to_ecef(p_nav))
+    gam = np.array([normal_gravity(la, h) for la, h in zip(geo[:, 0], geo[:, 2])])
+    down_nav = frame.R_nav_to_local_ned(p_nav)[:, 2, :]  # local Down expressed in nav axes
+    dg_key = gam[:, None] * down_nav - np.array([0.0, 0.0, frame.gravity])
+    dg = np.stack([np.interp(tq, t_key, dg_key[:, j]) for j in range(3)], axis=1)
+    return np.einsum("nji,nj->ni", R, dg)
