@@ -88,3 +88,23 @@ def test_smoother_reads_the_grade():
     assert n.gyro_arw == pytest.approx(g.gyro_arw) and n.accel_vrw == pytest.approx(g.accel_vrw)
     assert n.gyro_bias_sigma >= g.gyro_bias_sigma and n.accel_bias_sigma >= g.accel_bias_sigma
     assert G0 == pytest.approx(9.80665)
+
+
+def test_simulate_imu_dataset_files_read_back(tmp_path):
+    import json
+
+    from fields.formats import read_events, read_trajectory
+    from pos.imu_io import read_kf_gins
+    from sim.imu import simulate_imu_dataset
+    info = simulate_imu_dataset(tmp_path / "out", seed=2, grade="consumer", heights_agl=(150.0,), n_strips=2,
+                                duration_s=120.0, rate_hz=50.0, delay_s=-0.05)
+    d = tmp_path / "out"
+    assert json.loads((d / "truth.json").read_text())["imu_errors"]["gyro_turn_on_rad_s"] == \
+        info["imu_errors"]["gyro_turn_on_rad_s"]
+    imu = read_kf_gins(d / "imu.txt", gps_week=info["gps_week"])
+    assert len(imu) == 120 * 50 + 1 and imu.rate_hz == 50.0
+    tr = read_trajectory(d / "trajectory_true.csv")
+    assert tr.t[0] == pytest.approx(imu.t[0], abs=1e-5)
+    ev = read_events(d / "events.csv")
+    assert len(ev.t) > 0 and (ev.t - 0.05 >= tr.t[0]).all()
+    assert not list(d.glob(".staging*"))
