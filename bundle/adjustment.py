@@ -56,7 +56,7 @@ class BundleOptions:
     loss: str = "huber"            # "none", "huber" or "cauchy"
     loss_scale: float = 3.0        # whitened residual norm where the loss turns robust
     max_iterations: int = 60
-    tolerance: float = 1e-10       # relative cost decrease that stops the iterations
+    tolerance: float = 1e-8        # relative cost decrease that stops the iterations
     aposteriori: bool = True       # scale covariances by sigma0^2
     verbose: bool = False
 
@@ -232,7 +232,7 @@ class _Problem:
         # priors: diagonal, whitened
         okp = np.isfinite(self.pp)
         wp = np.where(okp, 1.0 / np.where(okp, self.ps, 1.0) ** 2, 0.0)
-        V[:, [0, 1, 2], [0, 1, 2]] += wp
+        V[:, [0, 1, 2], [0, 1, 2]] += wp + 1e-10   # a 100 km prior: unobserved points stay invertible
         gp -= np.where(okp, (X - np.nan_to_num(self.pp)) * wp, 0.0)
         okc = np.isfinite(self.cp)
         wc = np.where(okc, 1.0 / np.where(okc, self.cs, 1.0) ** 2, 0.0)

@@ -300,7 +300,16 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
 
 
 def _readjust(inp: BundleInput, active: np.ndarray, bopt: BundleOptions, prev: BundleResult) -> BundleResult:
-    """Re-run the adjustment on the active observations only, starting from the previous solution."""
+    """Re-run the adjustment on the active observations only, starting from the previous solution.
+
+    Tie points left with fewer than two active rays are deactivated too (in place in `active`)."""
+    free = ~np.isfinite(inp.point_prior).all(1) if inp.point_prior is not None else np.ones(len(inp.point_ids), bool)
+    while True:
+        cnt = np.bincount(inp.obs_point[active], minlength=len(inp.point_ids))
+        lone = active & free[inp.obs_point] & (cnt[inp.obs_point] < 2)
+        if not lone.any():
+            break
+        active &= ~lone
     sub = BundleInput(inp.camera, inp.images, prev.R_world_to_cv, prev.C_world, inp.point_ids, prev.X_world,
                       inp.obs_image[active], inp.obs_point[active], inp.obs_uv[active], inp.obs_sigma[active],
                       inp.point_prior, inp.point_prior_sigma, inp.center_prior, inp.center_prior_sigma, inp.refine,
