@@ -109,3 +109,27 @@ def test_code_sigma_grows_towards_horizon():
     s = code_sigma_m(np.radians([90.0, 30.0, 10.0]), 0.3)
     assert s[0] == pytest.approx(0.3)
     assert s[0] < s[1] < s[2]
+
+
+def test_beidou_geo_state_uses_cssrlib_geo_frame():
+    from cssrlib.gnss import Eph, char2sys, gpst2time, prn2sat
+    from pos.rinex import BroadcastNav
+    week, toes = 2149, 475200.0
+    eph = Eph(prn2sat(char2sys("C"), 1))
+    eph.week, eph.toes = week, toes
+    eph.toe = eph.toc = gpst2time(week, toes)
+    eph.A, eph.e, eph.i0, eph.omg, eph.M0 = 42164.0e3, 0.0005, np.radians(5.0), 0.3, 1.0  # i0 in the -5 deg GEO frame
+    eph.OMG0, eph.OMGd = 2.0, 0.0
+    eph.cuc = eph.cus = eph.crc = eph.crs = eph.cic = eph.cis = eph.idot = eph.deln = 0.0
+    eph.af0, eph.af1 = 1e-4, 1e-12
+    nav = BroadcastNav(eph=[eph], by_sat={"C01": [eph]}, ion_gps=None, ion_bds=None, leap_seconds=18)
+    t = week * 604800.0 + toes + 100.0
+    p, v, clk, drift, ura, ok = satellite_states(nav, ["C01"], t)
+    assert ok[0]
+    assert abs(np.linalg.norm(p[0]) - 42164.0e3) < 50e3
+    assert np.linalg.norm(v[0]) < 400.0              # geosynchronous: slow in ECEF (MEO: ~3 km/s)
+    # in ECEF a geosynchronous orbit repeats after one sidereal day
+    from pos.ephemeris import _geo_state
+    p1, *_ = _geo_state(eph, t + 86164.09)
+    assert np.linalg.norm(p1 - p[0]) < 2e3
+    assert clk[0] == pytest.approx(1e-4 + 1e-12 * 100.0, abs=3e-9)   # + relativistic term

@@ -111,3 +111,10 @@ def test_cli_writes_gnss_csv(shared_data, tmp_path):
     assert rc == 2 and not (out2 / "gnss.csv").exists()
     rc = main(["pos", "--rinex-nav", str(shared_data / NAV), "--mode", "spp", "--out", str(out2)])
     assert rc == 2
+    # two navigation files (here the same one twice) are merged
+    out3 = tmp_path / "out3"
+    rc = main(["pos", "--rinex-obs", str(shared_data / OBS), "--rinex-nav", str(shared_data / NAV),
+               str(shared_data / NAV), "--out", str(out3), "--no-progress", "--systems", "G"])
+    assert rc == 0
+    tab = read_table(out3 / "gnss.csv", ["x", "y", "z", "n_sat"])
+    assert np.all(tab["n_sat"] == 10)
