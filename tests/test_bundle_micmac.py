@@ -16,7 +16,7 @@ def micmac(shared_data):
     cam = load_camera(d / "Ori-Ground_mm3d" / "AutoCal_Foc-28000_Cam-PENTAX_K5.xml")
     pts = read_micmac_points(d / "Ground-Pts3D.xml")
     gcp_meas = read_micmac_measurements(d / "GroundMeasure.xml")
-    tie = extract_tie_points(d, max_features=3000, camera_K=cam.pinhole_K())
+    tie = extract_tie_points(d, max_features=1500, camera_K=cam.pinhole_K())
     pts.sigma[:] = 0.005            # the file's "1 1 1" are placeholders, not metres
     meas = Measurements(np.concatenate([gcp_meas.image, tie.image]), np.concatenate([gcp_meas.id, tie.id]),
                         np.concatenate([gcp_meas.xy, tie.xy]),
