@@ -52,6 +52,7 @@ class IntrinsicBAResult:
     point_ids: list[str]
     points_xyz: np.ndarray                 # (N,3) m, adjusted when targets were refined
     points_sigma: np.ndarray               # (N,3) m, 0 when held fixed
+    points_free: np.ndarray                # (N,3) bool: coordinate adjusted
     obs_image: np.ndarray                  # (n,) image index of every input observation
     obs_point: np.ndarray                  # (n,) point index
     obs_xy: np.ndarray                     # (n,2) measured px
@@ -579,7 +580,7 @@ def adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, model
     return IntrinsicBAResult(
         camera=camera, free=prob.free_cam.copy(), cov_camera=cov_cam, correlation=corr,
         image_names=image_names, R_field_to_cam=R_out, t_cam=t_out, pose_sigma=pose_sigma,
-        point_ids=list(field_ids), points_xyz=prob.X.copy(), points_sigma=pts_sigma,
+        point_ids=list(field_ids), points_xyz=prob.X.copy(), points_sigma=pts_sigma, points_free=prob.pt_free.copy(),
         obs_image=obs_img, obs_point=obs_pt, obs_xy=meas_xy, obs_sigma=sig, residuals=r_all, used=active,
         sigma0=sigma0, rms_px=rms, rejected=rejected, dropped_images=list(dropped),
         refine_targets=refine_targets, iterations=total_it, converged=bool(lm_conv),
