@@ -1,95 +1,80 @@
-"""Forward-only (filter-equivalent) solution for comparison: a gtsam incremental fixed-lag smoother (ISAM2
-that marginalises states older than a few seconds) fed one keyframe at a time; the state of keyframe k is
-read right after its update, before any later data — what an (iterated) Kalman filter would give.
+"""Forward-only (filter) solution for comparison with the smoother.
 
-The same factors as the batch smoother are used (pos.smoother.build_problem), so any difference between the
-two solutions is the benefit of smoothing. Innovations: the GNSS factors' errors at the predicted state.
+The smoother's factor graph, linearised about the smoothed trajectory, is solved recursively forward in
+time with only the factors available at each epoch: a Kalman filter in information form (a linearised
+filter about the final trajectory — what the first half of a forward-filter + RTS smoother computes).
+The smoother is the same system with the backward pass added, so the difference between the two is the
+benefit of smoothing. (An ISAM2 filter was tried: with the receiver clocks in seconds its Cholesky breaks
+down, and with QR it is far slower than this recursion.)
+Innovations: the GNSS factors' errors at the filtered state of the previous epoch propagated by the IMU.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from pos.smoother import NavSolution, Problem, add_marginals, solution_values
-from pos.smoother_factors import B, CLK, DRIFT, V, X, ZERO
+from pos.smoother import NavSolution, Problem
 
 
-def forward_solution(problem: Problem, relinearize_threshold: float = 0.05, relinearize_skip: int = 10,
-                     progress: bool = False) -> NavSolution:
-    """Filtered keyframe states and covariances (each from the data up to and including its own epoch)."""
+def forward_solution(problem: Problem, values) -> NavSolution:
+    """Filtered keyframe states and covariances (each from the data up to and including its own epoch).
+
+    `values`: the linearisation point (the smoothed solution's gtsam Values).
+    """
     import gtsam
-    prm = gtsam.ISAM2Params()
-    prm.setRelinearizeThreshold(relinearize_threshold)
-    prm.relinearizeSkip = relinearize_skip
-    prm.setFactorization("QR")  # the clock variables in seconds make Cholesky break down
-    isam = gtsam.ISAM2(prm)
+
+    from pos.smoother import read_states
+    from pos.smoother_covariance import KeyframeBlocks, forward_pass
     K = len(problem.t_key)
-    init = problem.values
-    p = np.empty((K, 3))
-    v = np.empty((K, 3))
-    R = np.empty((K, 3, 3))
-    bias = np.empty((K, 6))
-    clock = {s: np.empty(K) for s in problem.systems}
-    drift = np.zeros(K)
-    innov: dict = {}
-    prev = None
-    it = range(K)
-    if progress:
-        from tqdm import tqdm
-        it = tqdm(it, desc="forward", unit="epoch", leave=False)
-    for k in it:
-        graph = gtsam.NonlinearFactorGraph()
-        vals = gtsam.Values()
-        if k == 0:
-            for f in problem.prior_factors:
-                graph.add(f)
-            vals.insert(X(0), init.atPose3(X(0)))
-            vals.insert(V(0), init.atPoint3(V(0)))
-            vals.insert(B(0), init.atConstantBias(B(0)))
-            for s in problem.systems:
-                vals.insert(CLK(s, 0), init.atDouble(CLK(s, 0)))
-            if problem.systems:
-                vals.insert(DRIFT(0), init.atDouble(DRIFT(0)))
-            if init.exists(ZERO()):
-                vals.insert(ZERO(), 0.0)
-        else:
-            b_prev = gtsam.imuBias.ConstantBias(prev["bias"][:3], prev["bias"][3:])
-            ns = problem.pims[k - 1].predict(gtsam.NavState(gtsam.Rot3(prev["R"]), prev["p"], prev["v"]), b_prev)
-            vals.insert(X(k), ns.pose())
-            vals.insert(V(k), ns.velocity())
-            vals.insert(B(k), b_prev)
-            dt = problem.t_key[k] - problem.t_key[k - 1]
-            for s in problem.systems:
-                vals.insert(CLK(s, k), prev["clock"][s] + prev["drift"] * dt)
-            if problem.systems:
-                vals.insert(DRIFT(k), prev["drift"])
-            graph.add(problem.imu_factors[k - 1])
-            for f in problem.clock_factor_groups[k - 1] if problem.clock_factor_groups else []:
-                graph.add(f)
-        # innovations: GNSS errors at the prediction (needs the previous clock too for Doppler)
-        pred = gtsam.Values(vals)
-        if k > 0 and init.exists(ZERO()):
-            pred.insert(ZERO(), 0.0)
-        for kind, f in problem.epoch_factors[k]:
-            graph.add(f)
-            if all(pred.exists(key) for key in f.keys()):
-                e = float(np.atleast_1d(f.unwhitenedError(pred))[0])
-                w = float(np.atleast_1d(f.whitenedError(pred))[0])
-                innov.setdefault(kind, []).append((k, e, e / w if w else np.nan))
-        isam.update(graph, vals)
-        pose = isam.calculateEstimatePose3(X(k))
-        p[k], R[k] = pose.translation(), pose.rotation().matrix()
-        v[k] = isam.calculateEstimatePoint3(V(k))
-        bias[k] = isam.calculateEstimateConstantBias(B(k)).vector()
-        for s in problem.systems:
-            clock[s][k] = isam.calculateEstimateDouble(CLK(s, k))
+    blocks = KeyframeBlocks(K, problem.systems)
+    dx, P = forward_pass(problem.graph, values, blocks)
+    base = read_states(problem, values)
+    sol = NavSolution(problem.frame, problem.t_key.copy(), base.p_nav.copy(), base.v_nav.copy(),
+                      base.R_body_to_nav.copy(), base.bias.copy(), {s: c.copy() for s, c in base.clock.items()},
+                      base.drift.copy(), n_sat=problem.n_sat.copy(), gnss_update=problem.gnss_update.copy())
+    for k in range(K):
+        pose = gtsam.Pose3(gtsam.Rot3(base.R_body_to_nav[k]), base.p_nav[k]).retract(dx[k, :6])
+        sol.p_nav[k], sol.R_body_to_nav[k] = pose.translation(), pose.rotation().matrix()
+        sol.v_nav[k] += dx[k, 6:9]
+        sol.bias[k] += dx[k, 9:15]
+        for j, s in enumerate(problem.systems):
+            sol.clock[s][k] += dx[k, 15 + j]
         if problem.systems:
-            drift[k] = isam.calculateEstimateDouble(DRIFT(k))
-        prev = {"p": p[k], "R": R[k], "v": v[k], "bias": bias[k], "drift": drift[k],
-                "clock": {s: clock[s][k] for s in problem.systems}}
-    sol = NavSolution(problem.frame, problem.t_key.copy(), p, v, R, bias, clock, drift,
-                      n_sat=problem.n_sat.copy(), gnss_update=problem.gnss_update.copy())
-    # covariances of the filter: information of the factors up to each epoch, at the filtered states
-    add_marginals(sol, problem, solution_values(sol, problem), filtered=True)
-    sol.residuals = {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in innov.items()}
+            sol.drift[k] += dx[k, 15 + len(problem.systems)]
+    sol.cov_pose = P[:, :6, :6].copy()
+    sol.cov_vel = P[:, 6:9, 6:9].copy()
+    sol.cov_block = P
+    sol.residuals = _innovations(problem, sol)
     sol.info = {"mode": "forward"}
     return sol
+
+
+def _innovations(problem: Problem, fw: NavSolution) -> dict:
+    """GNSS factor errors at the one-step IMU prediction from the previous filtered state."""
+    import gtsam
+
+    from pos.smoother_factors import B, CLK, DRIFT, V, X, ZERO
+    out: dict = {}
+    has_zero = problem.values.exists(ZERO())
+    for k in range(1, len(fw.t)):
+        if not problem.epoch_factors[k]:
+            continue
+        b = gtsam.imuBias.ConstantBias(fw.bias[k - 1, :3], fw.bias[k - 1, 3:])
+        ns = problem.pims[k - 1].predict(gtsam.NavState(gtsam.Rot3(fw.R_body_to_nav[k - 1]), fw.p_nav[k - 1],
+                                                       fw.v_nav[k - 1]), b)
+        vals = gtsam.Values()
+        vals.insert(X(k), ns.pose())
+        vals.insert(V(k), ns.velocity())
+        vals.insert(B(k), b)
+        dt = fw.t[k] - fw.t[k - 1]
+        for s in problem.systems:
+            vals.insert(CLK(s, k), fw.clock[s][k - 1] + fw.drift[k - 1] * dt)
+        if problem.systems:
+            vals.insert(DRIFT(k), fw.drift[k - 1])
+        if has_zero:
+            vals.insert(ZERO(), 0.0)
+        for kind, f in problem.epoch_factors[k]:
+            e = np.atleast_1d(f.unwhitenedError(vals))
+            w = np.atleast_1d(f.whitenedError(vals))
+            for j in range(len(e)):
+                out.setdefault(kind, []).append((k, e[j], e[j] / w[j] if w[j] != 0 else np.nan))
+    return {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in out.items()}

@@ -91,6 +91,7 @@ class Problem:
     n_sat: np.ndarray
     gnss_update: np.ndarray
     omega_b: np.ndarray
+    params: object = None
 
 
 def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
@@ -211,7 +212,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
         for _, f in fl:
             graph.add(f)
     return Problem(graph, values, frame, t_key, systems, pims, epoch_factors, imu_factors, clock_groups, prior,
-                   n_sat, gnss_update, omega_b)
+                   n_sat, gnss_update, omega_b, params)
 
 
 def optimize(problem: Problem, max_iterations: int = 30):
@@ -256,12 +257,11 @@ def gnss_residuals(problem: Problem, values) -> dict:
     return {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in out.items()}
 
 
-def add_marginals(sol: NavSolution, problem: Problem, values, filtered: bool = False) -> None:
+def add_marginals(sol: NavSolution, problem: Problem, values) -> None:
     """Fill cov_pose / cov_vel (and the full keyframe block `cov_block`) from the linearised graph."""
-    from pos.smoother_covariance import KeyframeBlocks, filtered_covariances, smoothed_covariances
+    from pos.smoother_covariance import KeyframeBlocks, smoothed_covariances
     blocks = KeyframeBlocks(len(sol.t), problem.systems)
-    fn = filtered_covariances if filtered else smoothed_covariances
-    P = fn(problem.graph, values, blocks)
+    P = smoothed_covariances(problem.graph, values, blocks)
     sol.cov_pose = P[:, :6, :6].copy()
     sol.cov_vel = P[:, 6:9, 6:9].copy()
     sol.cov_block = P

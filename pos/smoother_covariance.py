@@ -5,7 +5,7 @@ Jacobian columns are ~c/sigma = 1e9 larger than the others and the Cholesky of t
 down (Jacobian condition ~1e10). Here every factor's information block is assembled per keyframe with the
 clock columns rescaled to metres, and the marginals follow from the exact block-tridiagonal recursion
 (forward Schur complements, backward Rauch-Tung-Striebel pass). The same forward pass restricted to the
-factors available at each epoch gives the filtered (forward-only) covariances.
+factors available at each epoch is a Kalman filter in information form (`forward_pass`).
 
 Covariances are in gtsam's local coordinates: Pose3 = [rotation (body, rad), position (body axes, m)].
 """
@@ -49,18 +49,21 @@ def _accumulate(graph, values, blocks: KeyframeBlocks):
     D = np.zeros((K, n, n))
     U = np.zeros((max(K - 1, 0), n, n))
     Dn = np.zeros((K, n, n))
+    eD = np.zeros((K, n))
+    en = np.zeros((K, n))
     lin = graph.linearize(values)
     where = blocks.where
     cache: dict = {}
     for i in range(lin.size()):
         f = lin.at(i)
         locs = [where[key] for key in f.keys()]
-        info = f.information()
+        aug = f.augmentedInformation()
+        info, eta = aug[:-1, :-1], aug[:-1, -1]
         if None in locs:
             # only ZERO (dim 1) is None; drop its rows/columns
             dims = [1 if l is None else l[2] for l in locs]
             keep = np.concatenate([np.full(d, l is not None) for d, l in zip(dims, locs)])
-            info = info[np.ix_(keep, keep)]
+            info, eta = info[np.ix_(keep, keep)], eta[keep]
             locs = [l for l in locs if l is not None]
             if not locs:
                 continue
@@ -75,12 +78,15 @@ def _accumulate(graph, values, blocks: KeyframeBlocks):
         (a00, b00), (a11, b11), (a01, b01) = ix
         if k1 == k0:
             D[k0][a00] += info[b00]
+            eD[k0][a00[0][:, 0]] += eta[b00[0][:, 0]]
         else:
             Dn[k0][a00] += info[b00]
             D[k1][a11] += info[b11]
             U[k0][a01] += info[b01]
+            en[k0][a00[0][:, 0]] += eta[b00[0][:, 0]]
+            eD[k1][a11[0][:, 0]] += eta[b11[0][:, 0]]
     ss = np.outer(blocks.scale, blocks.scale)
-    return D * ss, U * ss, Dn * ss
+    return D * ss, U * ss, Dn * ss, eD * blocks.scale, en * blocks.scale
 
 
 def _pattern_index(pattern):
@@ -101,7 +107,7 @@ def _unscale(P: np.ndarray, blocks: KeyframeBlocks) -> np.ndarray:
 def smoothed_covariances(graph, values, blocks: KeyframeBlocks) -> np.ndarray:
     """Marginal covariance (K,n,n) of every keyframe block given all data (clock entries in s, s/s)."""
     K, n = blocks.K, blocks.n
-    D, U, Dn = _accumulate(graph, values, blocks)
+    D, U, Dn, _, _ = _accumulate(graph, values, blocks)
     D = D + Dn
     Sinv = np.empty((K, n, n))
     S = D[0]
@@ -118,19 +124,26 @@ def smoothed_covariances(graph, values, blocks: KeyframeBlocks) -> np.ndarray:
     return np.stack([_unscale(p, blocks) for p in P])
 
 
-def filtered_covariances(graph, values, blocks: KeyframeBlocks) -> np.ndarray:
-    """Covariance (K,n,n) of keyframe k given only the factors up to keyframe k (the forward filter's)."""
+def forward_pass(graph, values, blocks: KeyframeBlocks) -> tuple[np.ndarray, np.ndarray]:
+    """Kalman filter on the graph linearised at `values`: for each keyframe k the correction (K,n) to its
+    linearisation point and the covariance (K,n,n) given only the factors up to keyframe k (clock entries
+    in s, s/s)."""
     K, n = blocks.K, blocks.n
-    D, U, Dn = _accumulate(graph, values, blocks)
+    D, U, Dn, eD, en = _accumulate(graph, values, blocks)
     P = np.empty((K, n, n))
-    S = D[0]
+    dx = np.empty((K, n))
+    S, y = D[0], eD[0]
     P[0] = _inv_sym(S)
+    dx[0] = P[0] @ y
     for k in range(1, K):
         Sp = S + Dn[k - 1]  # previous keyframe's information including the factors that reach k
-        G = np.linalg.solve(Sp, U[k - 1])
-        S = D[k] - U[k - 1].T @ G
+        yp = y + en[k - 1]
+        G = np.linalg.solve(Sp, np.column_stack([U[k - 1], yp]))
+        S = D[k] - U[k - 1].T @ G[:, :n]
+        y = eD[k] - U[k - 1].T @ G[:, n]
         P[k] = _inv_sym(S)
-    return np.stack([_unscale(p, blocks) for p in P])
+        dx[k] = P[k] @ y
+    return dx * blocks.scale, np.stack([_unscale(p, blocks) for p in P])
 
 
 def _inv_sym(S: np.ndarray) -> np.ndarray:
