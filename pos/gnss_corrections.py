@@ -57,13 +57,15 @@ def klobuchar_delay_m(t_gps: float, lat_deg: float, lon_deg: float, elev: np.nda
     return np.where(elev > 0, delay, 0.0)
 
 
-def saastamoinen_delay_m(lat_deg: float, h_m: float, elev: np.ndarray,
-                         humidity: float = 0.7) -> np.ndarray:
-    """Saastamoinen slant tropospheric delay (m) with the standard atmosphere (RTKLIB's form)."""
+def saastamoinen_delay_m(lat_deg, h_m, elev: np.ndarray, humidity: float = 0.7) -> np.ndarray:
+    """Saastamoinen slant tropospheric delay (m) with the standard atmosphere (RTKLIB's form).
+
+    ``lat_deg`` and ``h_m`` (ellipsoidal) may be scalars or arrays broadcasting with ``elev``;
+    outside -100 m .. 10 km the delay is zero.
+    """
     elev = np.asarray(elev, float)
-    if not (-100.0 < h_m < 1e4):
-        return np.zeros_like(elev)
-    hgt = max(h_m, 0.0)
+    h_m = np.asarray(h_m, float)
+    hgt = np.maximum(h_m, 0.0)
     pres = 1013.25 * (1.0 - 2.2557e-5 * hgt) ** 5.2568
     temp = 15.0 - 6.5e-3 * hgt + 273.16
     e = 6.108 * humidity * np.exp((17.15 * temp - 4684.0) / (temp - 38.45))
@@ -71,7 +73,8 @@ def saastamoinen_delay_m(lat_deg: float, h_m: float, elev: np.ndarray,
     lat = np.radians(lat_deg)
     dry = 0.0022768 * pres / (1.0 - 0.00266 * np.cos(2.0 * lat) - 0.00028 * hgt / 1e3) / cosz
     wet = 0.002277 * (1255.0 / temp + 0.05) * e / cosz
-    return np.where(elev > 0, dry + wet, 0.0)
+    valid = (elev > 0) & (h_m > -100.0) & (h_m < 1e4)
+    return np.where(valid, dry + wet, 0.0)
 
 
 def sagnac_rotate(p_sat_ecef: np.ndarray, v_sat_ecef: np.ndarray, tau_s: np.ndarray,

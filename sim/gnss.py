@@ -178,68 +178,8 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
     P = np.asarray(p_ecef_antenna, float).reshape(-1, 3)
     V = np.asarray(v_ecef, float).reshape(-1, 3)
     bias, drift = _clock_series(t, clk, rng)
-    sats = sorted(s for s in nav.by_sat if s[0] in systems)
-    lam = {s: C_LIGHT / signal_frequency_hz(s, SIGNAL[s]) for s in systems}
-    from fields.crs import ecef_to_geodetic
-    from pos.ephemeris import satellite_states
-
-    visible: list[str] = []
-    t_vis = -np.inf
-    raw_epochs = []
-    for k in range(len(t)):
-        t_true = t[k] - bias[k]
-        p_rx = P[k] - V[k] * bias[k]
-        lat, lon, h = ecef_to_geodetic(p_rx)
-        if t[k] - t_vis > 30.0:
-            ps, _, _, _, _, ok = satellite_states(nav, sats, np.full(len(sats), t_true))
-            el = np.full(len(sats), -1.0)
-            el[ok], _ = elevation_azimuth(p_rx, ps[ok], (lat, lon))
-            visible = [s for s, e in zip(sats, el) if e > np.radians(elev_mask_deg - 5.0)]
-            t_vis = t[k]
-        if not visible:
-            continue
-        t_s0 = t_true - 0.075
-        ps, vs, clk_s, clk_d, _, ok = satellite_states(nav, visible, np.full(len(visible), t_s0))
-        vis = [s for s, o in zip(visible, ok) if o]
-        ps, vs, clk_s, clk_d = ps[ok], vs[ok], clk_s[ok], clk_d[ok]
-        acc = _ecef_acceleration(ps, vs)
-        rho, tau, prot = _range_at(ps, vs, acc, t_s0, p_rx, t_true)
-        el, az = elevation_azimuth(p_rx, prot, (lat, lon))
-        m = el >= np.radians(elev_mask_deg)
-        for (a, b, nmax) in outages:
-            if a <= t[k] <= b and m.sum() > nmax:
-                keep = np.argsort(-np.where(m, el, -9))[:nmax]
-                m = np.zeros_like(m)
-                m[keep] = True
-        if not m.any():
-            continue
-        idx = np.nonzero(m)[0]
-        sid = [vis[i] for i in idx]
-        sysv = np.array([s[0] for s in sid])
-        h_d = 0.01
-        rho_p, _, _ = _range_at(ps[idx], vs[idx], acc[idx], t_s0, p_rx + V[k] * h_d, t_true + h_d)
-        rho_m, _, _ = _range_at(ps[idx], vs[idx], acc[idx], t_s0, p_rx - V[k] * h_d, t_true - h_d)
-        rr = (rho_p - rho_m) / (2 * h_d)
-        dt_tx = (t_true - tau[idx]) - t_s0
-        dts = clk_s[idx] + clk_d[idx] * dt_tx
-        lam_v = np.array([lam[s] for s in sysv])
-        iono = klobuchar_delay_m(t_true, lat, lon, el[idx], az[idx], nav.ion_gps, C_LIGHT / lam_v)
-        tropo = saastamoinen_delay_m(lat, h, el[idx])
-        isb = np.array([clk.isb_m.get(s, 0.0) for s in sysv])
-        s_pr = code_sigma_m(el[idx], sigma_pr)
-        s_rr = code_sigma_m(el[idx], sigma_doppler)
-        pr = (rho[idx] + C_LIGHT * bias[k] + isb - C_LIGHT * dts + iono + tropo
-              + s_pr * rng.standard_normal(len(idx)))
-        rr_meas = rr + C_LIGHT * drift[k] - C_LIGHT * clk_d[idx] + s_rr * rng.standard_normal(len(idx))
-        n = len(idx)
-        nan = np.full(n, np.nan)
-        raw_epochs.append(GnssEpoch(
-            t_gps=float(t[k]), sat=sid, system=sysv, pr_m=pr, doppler_hz=-rr_meas / lam_v,
-            range_rate_mps=rr_meas, wavelength_m=lam_v,
-            cn0_dbhz=np.round(30.0 + 20.0 * np.sin(el[idx]), 3),
-            sat_pos_ecef=np.full((n, 3), np.nan), sat_vel_ecef=np.full((n, 3), np.nan),
-            sat_clk_s=nan.copy(), sat_clk_drift=nan.copy(), iono_m=nan.copy(), tropo_m=nan.copy(),
-            elev_deg=nan.copy(), azim_deg=nan.copy(), sigma_pr_m=s_pr, sigma_rr_mps=s_rr))
+    raw_epochs = _simulate_raw(t, P, V, bias, drift, nav, clk, rng, sigma_pr, sigma_doppler,
+                               outages, systems, elev_mask_deg)
     truth = {"t_gps": t, "p_ecef": P, "v_ecef": V, "drift_mps": C_LIGHT * drift,
              "clk_m": {s: C_LIGHT * bias + clk.isb_m.get(s, 0.0) for s in systems}, "nav": nav}
     obs = GnssObservations(epochs=raw_epochs, receiver="DGCAL SIM", p_approx_ecef=P[0].copy(),
@@ -247,6 +187,86 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
     if prepare:
         obs.epochs = prepare_simulated(obs, nav, sigma_pr, sigma_doppler, elev_mask_deg)
     return obs
+
+
+def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_doppler, outages,
+                  systems, elev_mask_deg) -> list[GnssEpoch]:
+    """Raw epochs, vectorised over all (epoch, satellite) pairs."""
+    from fields.crs import ecef_to_geodetic
+    from fields.frames import R_ecef_to_enu
+    from pos.ephemeris import satellite_states
+
+    n_ep = len(t)
+    t_true = t - bias                        # receiver tags run ahead of true time by dt_rx
+    p_rx = P - V * bias[:, None]
+    llh = ecef_to_geodetic(p_rx).reshape(n_ep, 3)
+    R = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(n_ep, 3, 3)
+    sats = sorted(s for s in nav.by_sat if s[0] in systems)
+
+    def elev_azim(k_idx, p_sat):
+        d = p_sat - p_rx[k_idx]
+        e = np.einsum("nij,nj->ni", R[k_idx], d / np.linalg.norm(d, axis=1, keepdims=True))
+        return np.arcsin(np.clip(e[:, 2], -1, 1)), np.mod(np.arctan2(e[:, 0], e[:, 1]), 2 * np.pi)
+
+    # candidate satellites per 30-s block (elevation above mask - 5 deg at the block start)
+    block = np.floor((t - t[0]) / 30.0).astype(int)
+    starts = np.nonzero(np.r_[True, np.diff(block) != 0])[0]
+    kk = np.repeat(starts, len(sats))
+    ss = sats * len(starts)
+    ps, *_, ok = satellite_states(nav, ss, t_true[kk])
+    el = np.full(len(ss), -1.0)
+    el[ok], _ = elev_azim(kk[ok], ps[ok])
+    vis_ok = (el > np.radians(elev_mask_deg - 5.0)).reshape(len(starts), len(sats))
+    visible = {int(block[k]): [s for s, v in zip(sats, row) if v] for k, row in zip(starts, vis_ok)}
+    K = np.concatenate([np.full(len(visible[int(block[k])]), k) for k in range(n_ep)]).astype(int)
+    S = [s for k in range(n_ep) for s in visible[int(block[k])]]
+    if len(K) == 0:
+        return []
+    t_s0 = t_true[K] - 0.075
+    ps, vs, clk_s, clk_d, _, ok = satellite_states(nav, S, t_s0)
+    acc = _ecef_acceleration(ps, vs)
+    rho, tau, prot = _range_at(ps, vs, acc, t_s0, p_rx[K], t_true[K])
+    el, az = elev_azim(K, prot)
+    m = ok & (el >= np.radians(elev_mask_deg))
+    for (a, b, nmax) in outages:
+        for k in np.nonzero((t >= a) & (t <= b))[0]:
+            idx = np.nonzero((K == k) & m)[0]
+            if len(idx) > nmax:
+                m[idx[np.argsort(-el[idx])[nmax:]]] = False
+    sel = np.nonzero(m)[0]
+    K, S = K[sel], [S[i] for i in sel]
+    ps, vs, acc, clk_s, clk_d = ps[sel], vs[sel], acc[sel], clk_s[sel], clk_d[sel]
+    rho, tau, el, az, t_s0 = rho[sel], tau[sel], el[sel], az[sel], t_s0[sel]
+    h_d = 0.01
+    rho_p, _, _ = _range_at(ps, vs, acc, t_s0, p_rx[K] + V[K] * h_d, t_true[K] + h_d)
+    rho_m, _, _ = _range_at(ps, vs, acc, t_s0, p_rx[K] - V[K] * h_d, t_true[K] - h_d)
+    rr = (rho_p - rho_m) / (2 * h_d)
+    dts = clk_s + clk_d * ((t_true[K] - tau) - t_s0)
+    sysv = np.array([s[0] for s in S])
+    lam = {s: C_LIGHT / signal_frequency_hz(s, SIGNAL[s]) for s in systems}
+    lam_v = np.array([lam[s] for s in sysv])
+    iono = klobuchar_delay_m(t_true[K], llh[K, 0], llh[K, 1], el, az, nav.ion_gps, C_LIGHT / lam_v)
+    tropo = saastamoinen_delay_m(llh[K, 0], llh[K, 2], el)
+    isb = np.array([clk.isb_m.get(s, 0.0) for s in sysv])
+    s_pr = code_sigma_m(el, sigma_pr)
+    s_rr = code_sigma_m(el, sigma_doppler)
+    pr = (rho + C_LIGHT * bias[K] + isb - C_LIGHT * dts + iono + tropo
+          + s_pr * rng.standard_normal(len(K)))
+    rr_meas = rr + C_LIGHT * drift[K] - C_LIGHT * clk_d + s_rr * rng.standard_normal(len(K))
+    cn0 = np.round(30.0 + 20.0 * np.sin(el), 3)
+    out = []
+    bounds = np.nonzero(np.r_[True, np.diff(K) != 0, True])[0]
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        n = b - a
+        nan = np.full(n, np.nan)
+        out.append(GnssEpoch(
+            t_gps=float(t[K[a]]), sat=S[a:b], system=sysv[a:b], pr_m=pr[a:b],
+            doppler_hz=-rr_meas[a:b] / lam_v[a:b], range_rate_mps=rr_meas[a:b],
+            wavelength_m=lam_v[a:b], cn0_dbhz=cn0[a:b],
+            sat_pos_ecef=np.full((n, 3), np.nan), sat_vel_ecef=np.full((n, 3), np.nan),
+            sat_clk_s=nan.copy(), sat_clk_drift=nan.copy(), iono_m=nan.copy(), tropo_m=nan.copy(),
+            elev_deg=nan.copy(), azim_deg=nan.copy(), sigma_pr_m=s_pr[a:b], sigma_rr_mps=s_rr[a:b]))
+    return out
 
 
 def prepare_simulated(obs: GnssObservations, nav: BroadcastNav, sigma_pr: float,

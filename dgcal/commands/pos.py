@@ -41,12 +41,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="GNSS antenna lever arm in the IMU body frame, m (tc/lc)")
     p.add_argument("--imu-grade", default=None,
                    help="IMU error model preset (tc/lc), e.g. consumer, tactical, navigation")
+    p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
+                   help="further smoother option for tc/lc (repeatable), passed to pos.pipeline")
     p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="known antenna position (ECEF, m) for the spp report's error plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
-def _spp_options(args: argparse.Namespace):
+def spp_options_from_args(args: argparse.Namespace):
     from pos.spp import SppOptions
     systems = tuple(s for s in args.systems.upper() if s in "GECJ")
     if not systems:
@@ -76,7 +78,7 @@ def run_spp(args: argparse.Namespace) -> int:
     from pos.spp import spp_summary, write_gnss_csv
     from fields.csvio import atomic_write, staged_dir
 
-    opts = _spp_options(args)
+    opts = spp_options_from_args(args)
     nav = read_rinex_nav(args.rinex_nav[0], args.rinex_nav[1:])
     obs = read_rinex_obs(args.rinex_obs, systems=opts.systems, t_start=args.t_start, t_end=args.t_end)
     sol = spp(obs, nav, opts, progress=not args.no_progress)
