@@ -107,3 +107,24 @@ def test_cli_simulate_then_pos_end_to_end(tmp_path):
     assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) < 2.5
     vel = np.column_stack([tab["vx"], tab["vy"], tab["vz"]])
     assert np.sqrt(np.mean(np.sum((vel - np.array(truth["v_ecef"])) ** 2, axis=1))) < 0.3
+
+
+def test_rtklib_reads_simulated_rinex_without_bias(nav, tmp_path):
+    """An independent implementation (RTKLIB pntpos) positions our simulated RINEX near the truth."""
+    pytest.importorskip("pyrtklib")
+    import sys
+    from pathlib import Path
+    from pos.rinex import write_rinex_obs
+    from sim.gnss import DEFAULT_NAV
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    from spp import rtklib_pntpos
+    t = DEFAULT_T0_GPS + 1200.0 + np.arange(0.0, 40.0)
+    p, v = circle_trajectory(t, 35.3, 139.5, 100.0, 0.0, 0.0)
+    obs = simulate_gnss(t, p, v, nav, seed=11, sigma_pr=0.5, systems=("G", "E"), prepare=False)
+    write_rinex_obs(tmp_path / "s.obs", obs)
+    tr, pr = rtklib_pntpos(str(tmp_path / "s.obs"), str(DEFAULT_NAV), systems="GE")
+    assert len(tr) == 40
+    np.testing.assert_allclose(tr, t, atol=1e-6)
+    err = pr - p
+    assert np.all(np.abs(err.mean(axis=0)) < 0.5)
+    assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) < 2.0
