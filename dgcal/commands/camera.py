@@ -1,0 +1,55 @@
+"""Calibrate a camera from a target field: self-calibrating bundle adjustment of image measurements (or of
+targets detected in a folder of images). Writes camera.json, report.html, opencv.yaml, cameras.txt
+(COLMAP), metashape.xml and, when detecting, measurements.csv."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+NAME = "camera"
+HELP = "calibrate camera intrinsics from a target field (fraser7 or opencv8)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--field", required=True, metavar="FIELD.csv", help="target field: id,x,y,z[,sx,sy,sz] (m)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--images", metavar="DIR", help="folder of images of the field (targets are detected)")
+    src.add_argument("--measurements", metavar="MEAS.csv", help="image measurements image,id,x,y[,sx,sy] (px)")
+    p.add_argument("--image-size", nargs=2, type=int, metavar=("W", "H"), help="image width and height (px)")
+    p.add_argument("--model", default="fraser7", choices=("fraser7", "opencv8"), help="camera model")
+    p.add_argument("--fix", nargs="+", default=[], metavar="PARAM",
+                   help="camera parameters held at their initial values, e.g. --fix K3 B2")
+    p.add_argument("--refine-targets", choices=("none", "free", "weighted"), default="none",
+                   help="also adjust the target coordinates: free network (minimal datum) or weighted by "
+                        "the field's sx,sy,sz (default: targets fixed)")
+    p.add_argument("--reject", type=float, default=4.0, metavar="K",
+                   help="reject observations beyond K robust sigmas (default 4)")
+    p.add_argument("--workers", type=int, default=None, help="detection processes (default: up to 2)")
+    p.add_argument("--no-report", action="store_true", help="skip report.html")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    from calib.camera_calibration import calibrate_camera, write_camera_outputs
+    from fields.csvio import staged_dir
+    from fields.errors import InputError
+    if args.measurements is not None and args.image_size is None:
+        raise InputError("--image-size W H is required with --measurements", args.measurements)
+    cal = calibrate_camera(args.field, measurements=args.measurements, images=args.images,
+                           image_size=args.image_size, model=args.model, fixed=args.fix,
+                           refine_targets=args.refine_targets, reject_k=args.reject,
+                           progress=sys.stderr.isatty(), workers=args.workers)
+    with staged_dir(args.out) as tmp:
+        write_camera_outputs(cal, tmp)
+        if not args.no_report:
+            from reports.camera_report import write_camera_report
+            write_camera_report(cal, tmp / "report.html")
+    ba = cal.ba
+    print(f"{cal.camera.NAME}: RMS {ba.rms_px:.3f} px over {ba.n_observations} observations "
+          f"({ba.n_rejected} rejected), {len(ba.image_names) - len(ba.dropped_images)} images")
+    for k, v, s, f in zip(cal.camera.PARAMS, cal.camera.params, cal.camera.sigmas, ba.free):
+        print(f"  {k:3s} {v: .8g}" + (f" +- {s:.3g}" if f else " (fixed)"))
+    for w in cal.warnings:
+        print(f"dgcal camera: warning: {w}", file=sys.stderr)
+    print(f"wrote {args.out}/camera.json" + ("" if args.no_report else f" and {args.out}/report.html"))
+    return 0
