@@ -114,6 +114,8 @@ def _check_version(path: Path, kind: str) -> None:
     """RINEX 3+ only; names the file if the first line is not a RINEX 3 header of the right kind."""
     with _open_text(path) as fh:
         first = fh.readline()
+    if "CRINEX VERS" in first:
+        raise InputError("Hatanaka-compressed RINEX: decompress it first (crx2rnx)", path, 1)
     if "RINEX VERSION / TYPE" not in first:
         raise InputError("not a RINEX file (no 'RINEX VERSION / TYPE' header line)", path, 1)
     try:
