@@ -55,7 +55,7 @@ def dg_poses(frame: BlockFrame, traj: Trajectory, events: Events, mount: Mountin
                                                                traj.rph[tr], traj.sigma[tr])
         pos = PoseAt(t_x, p, v, R, np.zeros((len(tr), 3)), cov)
     else:
-        pos = pose_at_times(frame, traj, t_x)
+        pos = pose_at_times(frame, traj, t_x, names)
     l_b, R_cb = mount.lever_arm_m, mount.R_cam_to_body
     R_b = pos.R_body_to_L
     r_cam = pos.r_imu_L + np.einsum("nij,j->ni", R_b, l_b)

@@ -163,7 +163,7 @@ def pos_covariance_L(frame: BlockFrame, lat, lon, h, rph, sigma: np.ndarray) -> 
     return C
 
 
-# --- pose interpolation (interim: replaced by pos.interpolate when it lands) ------------------
+# --- POS at exposure/event times ----------------------------------------------------------------
 @dataclass
 class PoseAt:
     """POS state at query times in L: IMU position, velocity, body-to-L rotation, body angular rate (rad/s),
@@ -179,56 +179,23 @@ class PoseAt:
     rph: np.ndarray | None = None
 
 
-def pose_at_times(frame: BlockFrame, traj: Trajectory, t_query: np.ndarray, max_gap_s: float = 2.0,
-                  rate_window_s: float = 0.5) -> PoseAt:
-    """POS interpolated at times (s): cubic Hermite position (positions + velocities), SLERP attitude,
-    body angular rate from the bracketing samples; sigmas interpolated linearly.
-
-    A trajectory with one row per event (`traj.image` set) is used as is at its own times (angular rate 0)."""
-    tq = np.asarray(t_query, float)
-    p_L, v_L, R_bL = frame.pos_to_L(traj.lat, traj.lon, traj.h, traj.v_ned, traj.rph)
-    t = traj.t
-    if len(t) < 2:
-        raise InputError("trajectory needs at least two samples", traj.path)
-    i = np.searchsorted(t, tq, side="right") - 1
-    bad = (i < 0) | (i >= len(t) - 1)
-    if bad.any():
-        raise InputError(f"time {tq[np.argmax(bad)]:.3f} s is outside the trajectory "
-                         f"[{t[0]:.3f}, {t[-1]:.3f}]", traj.path)
-    i = np.clip(i, 0, len(t) - 2)
-    h = t[i + 1] - t[i]
-    if np.any(h > max_gap_s):
-        k = int(np.argmax(h > max_gap_s))
-        raise InputError(f"trajectory gap of {h[k]:.2f} s around time {tq[k]:.3f} s (more than {max_gap_s} s)",
-                         traj.path)
-    s = (tq - t[i]) / h
-    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-    r = (h00[:, None] * p_L[i] + h10[:, None] * h[:, None] * v_L[i] + h01[:, None] * p_L[i + 1]
-         + h11[:, None] * h[:, None] * v_L[i + 1])
-    # velocity from the POS velocities, not from differencing positions (position noise / 0.05 s is large)
-    v = (1 - s)[:, None] * v_L[i] + s[:, None] * v_L[i + 1]
-    rel = so3_log(T(R_bL[i]) @ R_bL[i + 1])  # body-frame rotation over the interval
-    R = R_bL[i] @ so3_exp(s[:, None] * rel)
-    # angular rate over a window of about rate_window_s: short enough to follow the motion, long enough
-    # that attitude noise differenced over it stays small
-    half = max(1, int(round(rate_window_s / 2 / np.median(np.diff(t)))))
-    a = np.clip(i - half + 1, 0, len(t) - 1)
-    b = np.clip(i + half, 0, len(t) - 1)
-    omega_b = so3_log(T(R_bL[a]) @ R_bL[b]) / (t[b] - t[a])[:, None]
-    cov = None
-    geo = frame.local.to_geodetic(r)
-    if traj.sigma is not None:
-        sig = (1 - s)[:, None] * traj.sigma[i] + s[:, None] * traj.sigma[i + 1]
-        lat, lon = geo[:, 0], geo[:, 1]
-        rph_q = frame.L_to_pos(r, v, R)[4]
-        cov = pos_covariance_L(frame, lat, lon, geo[:, 2], rph_q, sig)
-    return PoseAt(tq, r, v, R, omega_b, cov, geo)
+def pose_at_times(frame: BlockFrame, traj: Trajectory, t_query: np.ndarray, names=None,
+                  max_gap_s: float | None = None) -> PoseAt:
+    """POS interpolated at GPS times (s) by `pos.interpolate` (cubic Hermite position, cubic attitude, angular
+    rate, variance-linear sigmas), expressed in L."""
+    from pos.interpolate import interpolate_trajectory
+    st = interpolate_trajectory(traj, np.asarray(t_query, float), names, max_gap_s=max_gap_s)
+    r, v, R = frame.pos_to_L(st.lat, st.lon, st.h, st.v_ned, st.rph)
+    cov = None if st.sigma is None else pos_covariance_L(frame, st.lat, st.lon, st.h, st.rph, st.sigma)
+    # omega_eb_b: body rate relative to the earth in body axes, the rate of R_body_to_L (L is earth-fixed)
+    return PoseAt(st.t, r, v, R, np.asarray(st.omega_eb_b, float), cov, np.column_stack([st.lat, st.lon, st.h]),
+                  st.rph)
 
 
 def pose_at_events(frame: BlockFrame, traj: Trajectory, images: np.ndarray, t_event: np.ndarray) -> PoseAt:
     """POS at event times: interpolated from a trajectory, or read from an events-at-trajectory file by image."""
     if traj.image is None:
-        return pose_at_times(frame, traj, t_event)
+        return pose_at_times(frame, traj, t_event, images)
     idx = {str(k): j for j, k in enumerate(traj.image)}
     rows = np.array([idx[str(im)] for im in images], int)
     p_L, v_L, R_bL = frame.pos_to_L(traj.lat[rows], traj.lon[rows], traj.h[rows], traj.v_ned[rows], traj.rph[rows])
@@ -253,9 +220,23 @@ class Epochs:
     has_rate: bool
     warnings: list[str] = field(default_factory=list)
     skipped: dict[str, list[str]] = field(default_factory=dict)
+    dt_ref: float = 0.0  # the POS in `pos` is at t_event + dt_ref
+    frame: BlockFrame | None = field(default=None, repr=False)
+    traj: Trajectory | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.image)
+
+    @property
+    def can_resample(self) -> bool:
+        """True when the full trajectory is at hand, so the POS can be re-interpolated at t_event + delay."""
+        return self.traj is not None and self.traj.image is None and self.frame is not None
+
+    def at_delay(self, dt: float) -> "Epochs":
+        """The epochs with the POS re-interpolated at t_event + dt (s)."""
+        pos = pose_at_times(self.frame, self.traj, self.t_event + dt, self.image)
+        return Epochs(self.image, self.t_event, self.r_cam_L, self.R_cv_to_L, self.cov_eop, pos, self.has_rate,
+                      list(self.warnings), dict(self.skipped), float(dt), self.frame, self.traj)
 
     def subset(self, mask: np.ndarray) -> "Epochs":
         """Epochs where `mask` is true."""
@@ -265,7 +246,7 @@ class Epochs:
                      None if p.rph is None else p.rph[mask])
         return Epochs(self.image[mask], self.t_event[mask], self.r_cam_L[mask], self.R_cv_to_L[mask],
                       None if self.cov_eop is None else self.cov_eop[mask], pos, self.has_rate,
-                      list(self.warnings), dict(self.skipped))
+                      list(self.warnings), dict(self.skipped), self.dt_ref, self.frame, self.traj)
 
 
 def match_images(eop: EOP, events: Events, traj: Trajectory) -> tuple[np.ndarray, np.ndarray, list[str], dict]:
@@ -307,7 +288,7 @@ def build_epochs(frame: BlockFrame, eop: EOP, events: Events, traj: Trajectory) 
     if not has_rate:
         warnings.append("trajectory has one row per event: no angular rate, attitude is held fixed over the delay")
     return Epochs(images, events.t[r_ev], r_cam_L, R_cv_to_L, eop_covariance_L(frame, eop, r_eop), pos,
-                  has_rate, warnings, skipped)
+                  has_rate, warnings, skipped, 0.0, frame, traj)
 
 
 # --- result ------------------------------------------------------------------------------------

@@ -1,7 +1,9 @@
 """Proposed mounting calibration (seed 003 eq. 10-11): exposure delay, lever arm and boresight in one weighted
 least-squares adjustment.
 
-Model per epoch i (block frame L; t_e = event time, dt = delay, POS propagated over the delay):
+Model per epoch i (block frame L; t_e = event time, dt = delay, POS propagated over the delay; with a full
+trajectory the POS is re-interpolated at t_e + dt between iterations, so the propagation only spans the last
+correction and the constant-rate approximation leaves no bias):
     R_body_to_L(t_e + dt) = R_body_to_L,i Exp(omega_b,i dt)           (body angular rate from the POS)
     r_imu_L(t_e + dt)     = r_imu_L,i + v_L,i dt                       (POS velocity)
     r_cam_L,i   = r_imu_L(t_e + dt) + R_body_to_L(t_e + dt) l_b
@@ -37,8 +39,9 @@ def predict(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> tuple[np.ndarray, n
     """Predicted camera positions (N,3), `R_cv_to_L` (N,3,3) and body rotations at exposure for parameters
     x = [dt, l_b(3), theta_b(3)] around boresight R_hat."""
     dt, lever, theta = x[0], x[1:4], x[4:7]
-    R_b = ep.pos.R_body_to_L @ so3_exp(ep.pos.omega_b * dt)
-    p = ep.pos.r_imu_L + ep.pos.v_L * dt + np.einsum("nij,j->ni", R_b, lever)
+    ddt = dt - ep.dt_ref  # the POS of `ep` is already at t_event + dt_ref
+    R_b = ep.pos.R_body_to_L @ so3_exp(ep.pos.omega_b * ddt)
+    p = ep.pos.r_imu_L + ep.pos.v_L * ddt + np.einsum("nij,j->ni", R_b, lever)
     return p, R_b @ (so3_exp(theta) @ R_hat), R_b
 
 
@@ -98,14 +101,8 @@ def _solve(ep: Epochs, R_hat: np.ndarray, x0: np.ndarray, fix_delay: bool, iters
     return x, R_hat, e, Tstat, Ninv
 
 
-def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = True,
-                       confidence: float = 0.999) -> MountingResult:
-    """Delay, lever arm and boresight by weighted least squares with outlier rejection (see module docstring)."""
-    init = calibrate_traditional(ep)
-    x0 = np.r_[0.0, init.lever_arm_m, 0, 0, 0]
-    R_hat = init.R_cam_to_body
-    keep = np.ones(len(ep), bool)
-    limit = chi2.ppf(confidence, 6)
+def _solve_robust(ep, x0, R_hat, keep, fix_delay, reject, limit):
+    """Solve, test every epoch against the chi-square limit, re-solve until the kept set is stable."""
     for _ in range(10):
         sub = ep.subset(keep)
         if len(sub) < 3:
@@ -121,13 +118,32 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
             break
         keep = new_keep
         x0, R_hat = x, R_hat_s
+    return x, R_hat_s, keep, Tstat, Ninv, T_all
+
+
+def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = True,
+                       confidence: float = 0.999) -> MountingResult:
+    """Delay, lever arm and boresight by weighted least squares with outlier rejection (see module docstring)."""
+    init = calibrate_traditional(ep)
+    x0 = np.r_[0.0, init.lever_arm_m, 0, 0, 0]
+    R_hat = init.R_cam_to_body
+    keep = np.ones(len(ep), bool)
+    limit = chi2.ppf(confidence, 6)
+    for _outer in range(5):
+        x, R_hat, keep, Tstat, Ninv, T_all = _solve_robust(ep, x0, R_hat, keep, fix_delay, reject, limit)
+        # re-interpolate the POS at the new exposure times so the linear propagation only spans the last step
+        if fix_delay or not ep.can_resample or abs(x[0] - ep.dt_ref) < 1e-5:
+            break
+        ep = ep.at_delay(float(x[0]))
+        x0 = x
+    R_hat_s = R_hat
     n = int(keep.sum())
     dof = 6 * n - (6 if fix_delay else 7)
     sigma0_sq = float(Tstat.sum() / max(dof, 1))
     cov = Ninv * max(1.0, sigma0_sq)
     # per-epoch values with the delay applied (seed Fig. 22): what each epoch says about l_b and the boresight
     p_pred, Rc_pred, R_b = predict(ep, x, R_hat_s)
-    lever_i = np.einsum("nji,nj->ni", R_b, ep.r_cam_L - ep.pos.r_imu_L - ep.pos.v_L * x[0])
+    lever_i = np.einsum("nji,nj->ni", R_b, ep.r_cam_L - ep.pos.r_imu_L - ep.pos.v_L * (x[0] - ep.dt_ref))
     ang_i = so3_log((T(R_b) @ ep.R_cv_to_L) @ R_hat_s.T)
     e_full = residuals(ep, x, R_hat_s)
     per_epoch = {"image": [str(s) for s in ep.image], "t_event": ep.t_event.tolist(),
@@ -140,8 +156,10 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
                       "covariance_scaled_by": float(max(1.0, sigma0_sq)),
                       "boresight_parameterisation": "unit quaternion with minimal 3-parameter multiplicative update "
                                                     "R_cam_to_body = Exp(theta_b) R_hat (theta about body axes)",
-                      "propagation": "position with POS velocity, attitude with POS body angular rate" if ep.has_rate
-                      else "position with POS velocity; attitude held fixed (no angular rate in an events file)",
+                      "propagation": ("POS re-interpolated at t_event + delay (iterated); within an iteration "
+                                      "position propagated with the POS velocity, attitude with the body angular rate")
+                      if ep.can_resample else
+                      "position propagated with the POS velocity; attitude held fixed (no angular rate in an events file)",
                       "rejection_limit_chi2_6dof": float(limit)})
     if not reject:
         res.extra["rejection"] = "off"

@@ -2,7 +2,7 @@
 
 A light, self-contained simulator for the mounting tests: straight strips in opposite headings at several
 heights with wind (so ground speed and crab differ between headings), attitude wobble (angular rates),
-Gauss-Markov POS errors (smoother-like, correlation time 0.5 s), bundle-like EOP noise, a Fraser camera,
+smooth POS errors (smoother-like, Gaussian correlation, kernel 0.3 s), bundle-like EOP noise, a Fraser camera,
 ground points (control and check) and their image measurements.
 """
 from __future__ import annotations
@@ -70,16 +70,18 @@ class MountingSim:
                 "delay_s": self.delay_s, "crs": self.crs, "noise": self.noise}
 
 
-def _gauss_markov(rng, n: int, dt: float, tau: float, sigma: np.ndarray) -> np.ndarray:
-    """Stationary first-order Gauss-Markov sequences (n, k) with standard deviations `sigma` (k,)."""
+def _smooth_noise(rng, n: int, dt: float, width_s: float, sigma: np.ndarray) -> np.ndarray:
+    """Stationary smooth random sequences (n, k): white noise convolved with a Gaussian kernel of standard
+    deviation `width_s`, scaled to standard deviations `sigma` (k,). Smooth like a smoother's errors at the
+    sample rate, yet independent between photos a few kernel widths apart."""
     sigma = np.asarray(sigma, float)
-    phi = np.exp(-dt / tau)
-    x = np.empty((n, len(sigma)))
-    x[0] = rng.normal(0, sigma)
-    w = rng.normal(0, 1, (n, len(sigma))) * sigma * np.sqrt(1 - phi**2)
-    for k in range(1, n):
-        x[k] = phi * x[k - 1] + w[k]
-    return x
+    half = int(np.ceil(4 * width_s / dt))
+    tk = np.arange(-half, half + 1) * dt
+    g = np.exp(-0.5 * (tk / width_s) ** 2)
+    g /= np.sqrt(np.sum(g**2))
+    w = rng.normal(0, 1, (n + 2 * half, len(sigma)))
+    out = np.column_stack([np.convolve(w[:, j], g, mode="valid") for j in range(len(sigma))])
+    return out * sigma
 
 
 def _strips(heights, n_strips, length_m, spacing_m, azimuth_deg):
@@ -97,7 +99,7 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
                     spacing_m: float = 180.0, azimuth_deg: float = 30.0, airspeed: float = 30.0,
                     wind_en=(4.0, 5.0), photo_interval_s: float = 1.5, rate_hz: float = 20.0,
                     pos_sigma=(0.05, 0.05, 0.08, 0.01, 0.01, 0.03), eop_sigma=(0.03, 0.03, 0.04, 0.003, 0.003, 0.002),
-                    pixel_sigma: float = 0.5, t0: float = 2200 * 604800.0 + 300000.0, tau_s: float = 0.5) -> FlightSim:
+                    pixel_sigma: float = 0.5, t0: float = 2200 * 604800.0 + 300000.0, tau_s: float = 0.3) -> FlightSim:
     """Simulate one flight of straight strips (alternating headings) in L; see the module docstring."""
     from fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph
     wind = np.array([wind_en[0], wind_en[1], 0.0])
@@ -155,8 +157,8 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
 
     lat, lon, hh, v_ned, rph = frame.L_to_pos(p_L, v_L, R_bL)
     traj_true = Trajectory(t_s, lat, lon, hh, v_ned, rph)
-    # smoother-like errors: correlated over tau_s, independent between photos
-    err = _gauss_markov(rng, len(t_s), 1.0 / rate_hz, tau_s, np.asarray(pos_sigma, float))
+    # smoother-like errors: smooth, correlated over ~tau_s, independent between photos
+    err = _smooth_noise(rng, len(t_s), 1.0 / rate_hz, tau_s, np.asarray(pos_sigma, float))
     p_noisy = p_L + err[:, [1, 0, 2]]  # s_lat_m is north, s_lon_m east (L is ENU, level at the block)
     lat_n, lon_n, h_n, _, _ = frame.L_to_pos(p_noisy, v_L, R_bL)
     traj = Trajectory(t_s, lat_n, lon_n, h_n, v_ned + rng.normal(0, 0.02, v_ned.shape), rph + err[:, 3:],
@@ -205,7 +207,7 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     mp.update(mapping or {})
     mapf = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_L, ids, **mp)
     noise = {"pos_sigma": [0.05, 0.05, 0.08, 0.01, 0.01, 0.03], "eop_sigma_300m": [0.03, 0.03, 0.04, 0.003, 0.003, 0.002],
-             "pixel_sigma": 0.5, "pos_correlation_time_s": 0.5}
+             "pixel_sigma": 0.5, "pos_error_kernel_s": 0.3}
     return MountingSim(crs, camera, lever, R_cb, float(delay_s), ground, cal, mapf, noise)
 
 
