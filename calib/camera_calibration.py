@@ -76,7 +76,15 @@ class CameraCalibration:
     def camera_json(self) -> dict:
         """The camera.json content (see docs/camera_calibration.md)."""
         from calib.camera_formats import camera_json_dict
-        return camera_json_dict(self.camera, self.camera.sigmas, self.stats())
+        d = camera_json_dict(self.camera, self.camera.sigmas, self.stats())
+        err = d.get("opencv_max_error_px") or 0.0
+        if err > 0.05:
+            msg = (f"the OpenCV block (and opencv.yaml, cameras.txt) is an approximation of this {self.camera.NAME} "
+                   f"camera: up to {err:.3g} px off over the frame")
+            if msg not in self.diagnostics.warnings:
+                self.diagnostics.warnings.append(msg)
+            d["warnings"] = self.warnings
+        return d
 
 
 def _check_measurements(meas: Measurements, field: Points, image_size) -> None:

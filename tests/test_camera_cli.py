@@ -135,3 +135,22 @@ def test_missing_field_file(sim_dir, tmp_path, capsys):
     rc, _, err = run_cli(["--field", tmp_path / "nofield.csv", "--measurements", d / "measurements.csv",
                           "--image-size", *SIZE, "--out", out], capsys)
     _assert_failed_cleanly(rc, err, out, "nofield.csv")
+
+
+def test_camera_cli_from_rendered_images(tmp_path, capsys):
+    from calib.camera_formats import camera_from_json_dict
+    from fields.formats import read_measurements
+    from sim.camera_field import simulate_camera_field
+    sim = tmp_path / "sim"
+    truth = simulate_camera_field(sim, seed=3, n_images=12, image_size=(1200, 800),
+                                  field=TargetField(square_m=0.16, marker_m=0.12), supersample=1, progress=False)
+    out = tmp_path / "out"
+    rc, _, err = run_cli(["--field", sim / "field.csv", "--images", sim / "images", "--workers", 1,
+                          "--out", out], capsys)
+    assert rc == 0, err
+    meas = read_measurements(out / "measurements.csv")
+    assert len(meas.images()) == 12 and len(meas) > 500
+    cj = json.loads((out / "camera.json").read_text())
+    assert cj["image_size"] == [1200, 800]
+    rms, _, _ = projection_difference(camera_from_json_dict(truth["camera"]), load_camera(out / "camera.json"))
+    assert rms < 0.1, rms
