@@ -7,6 +7,7 @@ key holds R_body_to_nav (body FRD) and the IMU origin's position; the GNSS anten
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -101,25 +102,14 @@ def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
 
 def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu_noise: ImuNoise,
                   opts: SmootherOptions, mode: str = "tc", epochs_at_key: list | None = None,
-                  lc_fixes: GnssFixes | None = None, bias_lin: np.ndarray | None = None,
-                  first: NavSolution | None = None) -> Problem:
-    """Assemble the factor graph: priors, IMU, GNSS (TC epochs or LC fixes) and clock factors.
-
-    With a `first` solution, the accelerometers are corrected for the gravity change across the nav plane
-    (`gravity_correction_b`) and the IMU is preintegrated about its biases (`bias_lin`).
-    """
+                  lc_fixes: GnssFixes | None = None) -> Problem:
+    """Assemble the factor graph: priors, IMU (zero biases), GNSS (TC epochs or LC fixes) and clock factors."""
     import gtsam
     K = len(t_key)
     lever = np.asarray(opts.lever_arm_b, float)
     params = preintegration_params(imu_noise, frame, opts.earth_rotation)
-    accel = imu.accel_m_s2
-    if first is not None:
-        accel = accel + gravity_correction_b(imu.t, first.t, first.R_body_to_nav, first.p_nav, frame)
-    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_key, imu.dt[0])
-    if bias_lin is None:
-        biases = [gtsam.imuBias.ConstantBias()] * (K - 1)
-    else:
-        biases = [gtsam.imuBias.ConstantBias(b[:3], b[3:]) for b in bias_lin[:-1]]
+    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, imu.accel_m_s2, t_key, imu.dt[0])
+    biases = [gtsam.imuBias.ConstantBias()] * (K - 1)
     pims = preintegrate(params, seg, biases)
 
     p_ant, v_ant = initial_track(t_key, fixes, frame, lever)
@@ -168,14 +158,9 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
         if opts.use_doppler:
             values.insert(ZERO(), 0.0)
             prior.append(gtsam.PriorFactorDouble(ZERO(), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, 1e-3 / C_LIGHT)))
-        zeros = gtsam.Values()
-        for k in range(K):
-            for s in systems:
-                zeros.insert(CLK(s, k), 0.0)
-            zeros.insert(DRIFT(k), 0.0)
         for k in range(K - 1):
             clock_groups.append(clock_factors(systems, k, t_key[k + 1] - t_key[k], opts.clock_bias_rw_m,
-                                              opts.clock_drift_rw_mps, zeros))
+                                              opts.clock_drift_rw_mps, values))
         for k, ep in enumerate(epochs_at_key):
             if ep is None or ep.n == 0:
                 continue
@@ -213,6 +198,29 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
             graph.add(f)
     return Problem(graph, values, frame, t_key, systems, pims, epoch_factors, imu_factors, clock_groups, prior,
                    n_sat, gnss_update, omega_b, params)
+
+
+def rebuild_imu(problem: Problem, imu, imu_noise: ImuNoise, opts: SmootherOptions, first: NavSolution) -> Problem:
+    """The same problem with the IMU factors re-preintegrated about `first`'s biases and with the gravity
+    correction of `first`'s trajectory (all other factors are reused)."""
+    import gtsam
+    t_key = problem.t_key
+    accel = imu.accel_m_s2 + gravity_correction_b(imu.t, first.t, first.R_body_to_nav, first.p_nav, problem.frame)
+    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_key, imu.dt[0])
+    biases = [gtsam.imuBias.ConstantBias(b[:3], b[3:]) for b in first.bias[:-1]]
+    pims = preintegrate(problem.params, seg, biases)
+    imu_factors = [gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
+                   for k in range(len(t_key) - 1)]
+    graph = gtsam.NonlinearFactorGraph()
+    for f in problem.prior_factors + imu_factors:
+        graph.add(f)
+    for g in problem.clock_factor_groups:
+        for f in g:
+            graph.add(f)
+    for fl in problem.epoch_factors:
+        for _, f in fl:
+            graph.add(f)
+    return dataclasses.replace(problem, graph=graph, pims=pims, imu_factors=imu_factors)
 
 
 def optimize(problem: Problem, max_iterations: int = 30):
@@ -333,9 +341,8 @@ def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mo
     sol = read_states(problem, values)
     if second_pass:
         # re-preintegrate with the gravity correction and about the estimated biases, start from pass one
-        problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes, bias_lin=sol.bias,
-                                first=sol)
-        problem.values = values  # same keys: start from the first solution
+        problem = rebuild_imu(problem, imu, noise, opts, sol)
+        problem.values = values
         values = optimize(problem, opts.max_iterations)
         sol = read_states(problem, values)
     sol.residuals = gnss_residuals(problem, values)

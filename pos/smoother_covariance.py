@@ -39,7 +39,22 @@ class KeyframeBlocks:
         self.scale[15:] = 1.0 / C_LIGHT
 
 
+_CACHE: dict = {}
+
+
 def _accumulate(graph, values, blocks: KeyframeBlocks):
+    """Cached `_assemble` (the smoothed covariances and the forward pass linearise at the same point)."""
+    key = (id(graph), id(values), blocks.K, tuple(blocks.systems))
+    hit = _CACHE.get(key)
+    if hit is not None and hit[0] is graph and hit[1] is values:
+        return hit[2]
+    out = _assemble(graph, values, blocks)
+    _CACHE.clear()
+    _CACHE[key] = (graph, values, out)
+    return out
+
+
+def _assemble(graph, values, blocks: KeyframeBlocks):
     """Information blocks of the linearised graph per keyframe, clock columns in metres.
 
     Returns D (K,n,n): factors whose latest keyframe is k, on keyframe k; U (K-1,n,n): coupling of k and k+1;

@@ -110,28 +110,24 @@ def doppler_factors(k: int, epoch, p_approx_ecef, lever_arm_b, omega_b, ecef_T_n
     return out
 
 
-def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: float, zeros=None) -> list:
+def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: float, lin_values) -> list:
     """Receiver clock process from keyframe k to k+1: b_s(k+1) = b_s(k) + d(k) dt + w, d(k+1) = d(k) + w'.
 
     Densities: `bias_rw_m` m/sqrt(s) on each bias, `drift_rw_mps` m/s/sqrt(s) on the drift. The bias
-    equation is linear: a JacobianFactor wrapped as a nonlinear factor (linearisation point `zeros`, a
-    Values holding 0.0 for the keys; built here when not given).
+    equation is linear: a JacobianFactor wrapped as a nonlinear factor about `lin_values` (which must hold
+    the three clock keys; its right-hand side is set so that the error is exactly A x).
     """
     import gtsam
     out = []
     # the drift's own random walk integrates into the bias too (q_d dt^3 / 3)
     sb = np.sqrt(bias_rw_m ** 2 * dt + drift_rw_mps ** 2 * dt ** 3 / 3.0) / C_LIGHT
+    d0 = lin_values.atDouble(DRIFT(k))
     for s in systems:
+        x0 = lin_values.atDouble(CLK(s, k + 1)) - lin_values.atDouble(CLK(s, k)) - dt * d0
         jf = gtsam.JacobianFactor(CLK(s, k + 1), np.array([[1.0]]), CLK(s, k), np.array([[-1.0]]),
-                                  DRIFT(k), np.array([[-float(dt)]]), np.zeros(1),
+                                  DRIFT(k), np.array([[-float(dt)]]), np.array([-x0]),
                                   gtsam.noiseModel.Isotropic.Sigma(1, sb))
-        if zeros is None:
-            lin = gtsam.Values()
-            for key in (CLK(s, k + 1), CLK(s, k), DRIFT(k)):
-                lin.insert(key, 0.0)
-        else:
-            lin = zeros
-        out.append(gtsam.LinearContainerFactor(jf, lin))
+        out.append(gtsam.LinearContainerFactor(jf, lin_values))
     out.append(gtsam.BetweenFactorDouble(DRIFT(k), DRIFT(k + 1), 0.0,
                                          gtsam.noiseModel.Isotropic.Sigma(1, drift_rw_mps * np.sqrt(dt) / C_LIGHT)))
     return out

@@ -1,0 +1,259 @@
+"""`dgcal pos --mode tc|lc`: IMU + RINEX (or GNSS positions) + events -> smoothed trajectory, events, report.
+
+`process(...)` works on in-memory data (tests, simulator); `run_pos(...)` reads the files, runs it and
+writes DIR/trajectory.csv, DIR/events.csv, DIR/trajectory_forward.csv, DIR/pos_summary.json (and
+DIR/report.html through the writer the command hands in) via a staged directory (nothing half-written).
+"""
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fields.errors import InputError
+from pos.smoother_init import GnssFixes
+
+
+@dataclass
+class PosResult:
+    """Everything the pipeline produced: smoothed and forward solutions, trajectories, GNSS inputs."""
+
+    mode: str
+    smoothed: object  # NavSolution
+    forward: object | None
+    trajectory: object  # fields.formats.Trajectory at the output rate
+    keyframes: object  # Trajectory at the keyframes
+    forward_keyframes: object | None
+    events: object | None
+    spp: object | None = None
+    fixes: GnssFixes | None = None
+    summary: dict = field(default_factory=dict)
+
+
+def fixes_from_spp(sol) -> GnssFixes:
+    """GnssFixes (antenna ECEF, NED sigmas) from a pos.spp.SppSolution's epochs with a fix."""
+    from fields.crs import ecef_to_geodetic
+    from fields.frames import R_ecef_to_ned
+    ok = sol.ok
+    p = sol.p_ecef[ok]
+    geo = ecef_to_geodetic(p)
+    Rn = R_ecef_to_ned(geo[:, 0], geo[:, 1])
+    cp = Rn @ sol.cov_p[ok] @ np.swapaxes(Rn, 1, 2)
+    cv = Rn @ sol.cov_v[ok] @ np.swapaxes(Rn, 1, 2)
+    s_p = np.sqrt(np.einsum("nii->ni", cp))
+    s_v = np.sqrt(np.einsum("nii->ni", cv))
+    v = sol.v_ecef[ok]
+    good_v = np.all(np.isfinite(v), axis=1) & np.all(np.isfinite(s_v), axis=1)
+    v = np.where(good_v[:, None], v, np.nan)
+    return GnssFixes(sol.t_gps[ok], p, s_p, v, np.where(good_v[:, None], s_v, np.nan))
+
+
+def read_gnss_csv(path) -> GnssFixes:
+    """LC input: gnss.csv of `dgcal pos --mode spp` (or any CSV with gps_week,gps_sow,x,y,z[,sx..,vx..])."""
+    from fields.crs import ecef_to_geodetic
+    from fields.csvio import read_table
+    from fields.frames import R_ecef_to_ned
+    tab = read_table(path, ("gps_week", "gps_sow", "x", "y", "z"), ("sx", "sy", "sz", "vx", "vy", "vz",
+                                                                     "svx", "svy", "svz"))
+    for name in ("x", "y", "z"):
+        bad = np.flatnonzero(~np.isfinite(tab[name]))
+        if len(bad):
+            raise InputError("not a finite number", tab.path, int(tab.lines[bad[0]]), name)
+    t = tab["gps_week"] * 604800.0 + tab["gps_sow"]
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if len(back):
+        raise InputError("time does not increase", tab.path, int(tab.lines[back[0] + 1]), "gps_sow")
+    p = np.column_stack([tab["x"], tab["y"], tab["z"]])
+    n = len(t)
+
+    def ned_sigma(cols, default):
+        if not all(c in tab for c in cols):
+            return np.full((n, 3), default)
+        s = np.column_stack([tab[c] for c in cols])
+        geo = ecef_to_geodetic(p)
+        Rn = R_ecef_to_ned(geo[:, 0], geo[:, 1])
+        C = Rn @ (s[:, :, None] ** 2 * np.eye(3)) @ np.swapaxes(Rn, 1, 2)
+        return np.sqrt(np.einsum("nii->ni", C))
+    s_p = ned_sigma(("sx", "sy", "sz"), 3.0)
+    v = s_v = None
+    if all(c in tab for c in ("vx", "vy", "vz")):
+        v = np.column_stack([tab["vx"], tab["vy"], tab["vz"]])
+        s_v = ned_sigma(("svx", "svy", "svz"), 0.2)
+    return GnssFixes(t, p, s_p, v, s_v)
+
+
+def tc_epochs(raw, nav, spp_sol, opts):
+    """GNSS epochs for the TC smoother: SPP's modelled epochs where it had a fix; elsewhere (fewer than four
+    satellites, RAIM failure) the raw epoch modelled at the SPP track interpolated in time."""
+    from pos.gnss_types import GnssObservations
+    from pos.spp import prepare_epoch
+    ok = spp_sol.ok
+    if ok.sum() < 2:
+        raise InputError("fewer than two epochs with a GNSS fix: cannot initialise", raw.source or None)
+    t_ok = spp_sol.t_gps[ok]
+    p_ok = spp_sol.p_ecef[ok]
+    out = []
+    for i, ep in enumerate(raw.epochs):
+        if ok[i] and spp_sol.epochs[i] is not None:
+            out.append(spp_sol.epochs[i])
+            continue
+        p = np.array([np.interp(ep.t_gps, t_ok, p_ok[:, j]) for j in range(3)])
+        m = prepare_epoch(ep, nav, p, opts)
+        out.append(m if m.n > 0 else None)
+    epochs = [e for e in out if e is not None]
+    return GnssObservations(epochs=epochs, receiver=raw.receiver, p_approx_ecef=np.median(p_ok, axis=0),
+                            signals=raw.signals, source=raw.source)
+
+
+def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_opts=None,
+            lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool = True,
+            smoother_opts=None, progress: bool = False) -> PosResult:
+    """Run SPP (when RINEX is given), the smoother (TC or LC), the forward solution and the outputs in memory."""
+    from pos.forward_filter import forward_solution
+    from pos.interpolate import trajectory_at_events
+    from pos.smoother import SmootherOptions, smooth
+    from pos.smoother_output import densify, solution_trajectory
+    from pos.spp import SppOptions, spp
+    if mode not in ("tc", "lc"):
+        raise InputError(f"mode must be tc or lc, not {mode!r}", field="--mode")
+    opts = smoother_opts or SmootherOptions()
+    opts.lever_arm_b = np.asarray(lever_arm_b, float)
+    spp_sol = fixes = gnss = None
+    if raw_obs is not None:
+        spp_opts = spp_opts or SppOptions()
+        spp_sol = spp(raw_obs, nav, spp_opts, progress=progress)
+        fixes = fixes_from_spp(spp_sol)
+        if mode == "tc":
+            gnss = tc_epochs(raw_obs, nav, spp_sol, spp_opts)
+    if mode == "lc" and lc_fixes is None:
+        lc_fixes = fixes
+    if fixes is None:
+        fixes = lc_fixes
+    if fixes is None:
+        raise InputError("no GNSS data: give RINEX observations and navigation (or --gnss for lc)",
+                         field="--rinex-obs")
+    if mode == "tc" and gnss is None:
+        raise InputError("tc mode needs RINEX observations and navigation", field="--rinex-obs")
+    sol = smooth(imu, fixes, grade, opts, mode=mode, gnss=gnss, lc_fixes=lc_fixes)
+    fw = forward_solution(sol._problem, sol._values) if forward else None
+    dense = densify(sol, sol._problem, imu, rate_hz)
+    ev = trajectory_at_events(dense, events) if events is not None and len(events) else None
+    res = PosResult(mode, sol, fw, dense, solution_trajectory(sol), solution_trajectory(fw) if fw else None, ev,
+                    spp_sol, fixes)
+    res.summary = summarize(res)
+    return res
+
+
+def summarize(res: PosResult) -> dict:
+    """Numbers for pos_summary.json: spans, counts, sigmas, residual and innovation statistics."""
+    sol = res.smoothed
+    s = res.keyframes.sigma
+    out = {
+        "mode": res.mode, "keyframes": int(len(sol.t)), "t_start_gps": float(sol.t[0]), "t_end_gps": float(sol.t[-1]),
+        "nav_frame_origin_deg_m": [sol.frame.lat0, sol.frame.lon0, sol.frame.h0],
+        "epochs_with_gnss": int(sol.gnss_update.sum()),
+        "epochs_without_gnss_update": int((~sol.gnss_update).sum()),
+        "systems": list(sol.info.get("systems", [])),
+        "median_sigma_m": np.median(s[:, :3], axis=0).round(4).tolist() if s is not None else None,
+        "median_sigma_deg": np.median(s[:, 3:], axis=0).round(5).tolist() if s is not None else None,
+        "max_sigma_m": np.max(s[:, :3], axis=0).round(3).tolist() if s is not None else None,
+        "gyro_bias_deg_h_mean": np.degrees(sol.bias[:, 3:].mean(0) * 3600).round(3).tolist(),
+        "accel_bias_mg_mean": (sol.bias[:, :3].mean(0) / 9.80665e-3).round(4).tolist(),
+        "residuals": {k: _stats(v) for k, v in sol.residuals.items()},
+        "events": int(len(res.events.t)) if res.events is not None else 0,
+    }
+    if res.forward is not None:
+        out["innovations"] = {k: _stats(v) for k, v in res.forward.residuals.items()}
+        d = res.forward.p_nav - sol.p_nav
+        out["forward_minus_smoothed_rms_m"] = np.sqrt((d ** 2).mean(0)).round(4).tolist()
+    return out
+
+
+def _stats(rows) -> dict:
+    k, e, sig = rows
+    z = e / sig
+    return {"n": int(len(e)), "rms": float(np.sqrt(np.mean(e ** 2))), "rms_normalised": float(np.sqrt(np.nanmean(z ** 2))),
+            "max_abs": float(np.max(np.abs(e))), "share_beyond_3sigma": float(np.mean(np.abs(z) > 3))}
+
+
+def load_imu(path, gps_week: int | None = None):
+    """IMU file by extension: .csv = `gps_week,gps_sow,gx..az` increments, else KF-GINS text (sow dθ dv)."""
+    from pos.imu_io import read_imu_csv, read_kf_gins
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", path)
+    if path.suffix.lower() == ".csv":
+        return read_imu_csv(path)
+    return read_kf_gins(path, gps_week=gps_week)
+
+
+def run_pos(args=None, report_writer=None, **kw) -> int:
+    """CLI entry (`dgcal pos --mode tc|lc`): an argparse Namespace, or keyword arguments of the same names.
+
+    `report_writer(path, PosResult)` writes DIR/report.html (reports.pos_report.write_pos_report, handed
+    in by the command because `pos` must not import `reports`).
+    """
+    import argparse
+    a = args if isinstance(args, argparse.Namespace) else argparse.Namespace(**kw)
+    g = lambda name, default=None: getattr(a, name, default)  # noqa: E731
+    from fields.csvio import atomic_write, staged_dir
+    from fields.formats import read_events, write_trajectory
+    from pos.imu_grades import imu_grade
+    from pos.spp import SppOptions
+    mode = g("mode")
+    if not g("imu"):
+        raise InputError(f"required for --mode {mode}", field="--imu")
+    if not g("events"):
+        raise InputError(f"required for --mode {mode}", field="--events")
+    try:
+        grade = imu_grade(g("imu_grade") or "adis16488")
+    except ValueError as exc:
+        raise InputError(str(exc), field="--imu-grade") from None
+    lever = np.asarray(g("lever_arm") or (0.0, 0.0, 0.0), float)
+    events = read_events(g("events"))
+    raw = nav = lc = None
+    spp_opts = None
+    week = int(np.floor(events.t[0] / 604800.0)) if len(events) else None
+    if g("rinex_obs") and g("rinex_nav"):
+        from pos.rinex import read_rinex_nav, read_rinex_obs
+        systems = tuple(s for s in str(g("systems", "GECJ")).upper() if s in "GECJ")
+        spp_opts = SppOptions(elev_mask_deg=g("elev_mask", 10.0), code_sigma_zenith_m=g("code_sigma", 0.3),
+                              doppler_sigma_zenith_mps=g("doppler_sigma", 0.1), systems=systems or ("G",),
+                              raim=not g("no_raim", False), model_errors=not g("no_model_errors", False))
+        navs = g("rinex_nav")
+        navs = [navs] if isinstance(navs, (str, Path)) else list(navs)
+        nav = read_rinex_nav(navs[0], navs[1:])
+        raw = read_rinex_obs(g("rinex_obs"), systems=spp_opts.systems, t_start=g("t_start"), t_end=g("t_end"))
+        if len(raw.epochs):
+            week = int(np.floor(raw.epochs[0].t_gps / 604800.0))
+    elif mode == "tc":
+        raise InputError("tc mode needs --rinex-obs and --rinex-nav", field="--rinex-obs")
+    if g("gnss"):
+        lc = read_gnss_csv(g("gnss"))
+        week = int(np.floor(lc.t[0] / 604800.0))
+    imu = load_imu(g("imu"), gps_week=week)
+    try:
+        res = process(mode, imu, grade, lever, raw_obs=raw, nav=nav, spp_opts=spp_opts, lc_fixes=lc,
+                      events=events, rate_hz=float(g("rate", None) or 10.0), forward=True,
+                      progress=not g("no_progress", False))
+    except ValueError as exc:
+        raise InputError(str(exc), g("imu")) from None
+    with staged_dir(g("out")) as d:
+        d = Path(d)
+        write_trajectory(d / "trajectory.csv", res.trajectory)
+        if res.events is not None:
+            write_trajectory(d / "events.csv", res.events)
+        if res.forward_keyframes is not None:
+            write_trajectory(d / "trajectory_forward.csv", res.forward_keyframes)
+        with atomic_write(d / "pos_summary.json") as fh:
+            json.dump(res.summary, fh, indent=2)
+        if report_writer is not None:
+            report_writer(d / "report.html", res)
+    s = res.summary
+    print(f"{Path(g('out')) / 'trajectory.csv'}: {mode.upper()} {s['keyframes']} keyframes, "
+          f"{s['events']} events, median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg",
+          file=sys.stderr)
+    return 0

@@ -1,0 +1,154 @@
+"""`dgcal simulate pos`: a UAV flight with a realistic IMU, raw GNSS code + Doppler from broadcast orbits,
+an antenna lever arm, a partial outage (3 satellites for 60 s) and camera events, with the truth.
+
+Composes sim.trajectory (exact flight kinematics), sim.imu (grade presets of pos.imu_grades) and sim.gnss
+(pseudoranges from the real navigation file of ../shared/data/rinex-sept by default, so the flight is dated
+2021-03-19 around 12:00 GPS time). Files: imu.csv (increments, pos.imu_io), obs.rnx (RINEX 3), nav.rnx,
+events.csv, truth_trajectory.csv (true IMU trajectory at 10 Hz), truth_events.csv, truth.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+NAME = "pos"
+HELP = "simulate a UAV flight: raw IMU, RINEX code/Doppler with an outage, events, truth"
+
+
+@dataclass
+class PosSimulation:
+    """An in-memory simulated POS data set (see `simulate_pos`)."""
+
+    traj: object  # sim.trajectory.TrueTrajectory
+    imu: object  # pos.imu_io.ImuData (noisy)
+    imu_errors: object  # sim.imu.ImuErrors
+    obs: object  # pos.gnss_types.GnssObservations (raw epochs; obs.truth holds the receiver truth)
+    nav: object  # pos.rinex.BroadcastNav
+    events: object  # fields.formats.Events
+    lever_arm_b: np.ndarray
+    outage: tuple
+    grade: object
+    sigma_pr: float
+    sigma_doppler: float
+    info: dict = field(default_factory=dict)
+
+
+def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multirotor", imu_grade="adis16488",
+                 rate_hz: float = 200.0, lever_arm_b=(0.05, -0.10, -0.30), outage_start_s: float | None = None,
+                 outage_s: float = 60.0, outage_sats: int = 3, nav=None, systems=("G", "E"),
+                 sigma_pr: float = 0.3, sigma_doppler: float = 0.1, event_interval_s: float = 2.0,
+                 lat0: float = 35.3, lon0: float = 139.5, h_ground: float = 40.0, height_agl: float = 120.0,
+                 n_strips: int = 6, strip_length_m: float = 600.0, strip_spacing_m: float = 80.0,
+                 misalignment: bool = True) -> PosSimulation:
+    """Simulate a flight (seconds, metres, degrees; GPS time from the navigation file's day).
+
+    The outage (`outage_sats` highest satellites kept) starts at `outage_start_s` after take-off (default:
+    60 % of the flight, on a strip or turn). GNSS epochs are at whole GPS seconds at 1 Hz.
+    """
+    from pos.imu_grades import imu_grade as grade_of
+    from sim.gnss import DEFAULT_T0_GPS, _load_nav, simulate_gnss
+    from sim.imu import simulate_imu
+    from sim.trajectory import camera_events, simulate_flight
+    nav = _load_nav(nav)
+    week = int(DEFAULT_T0_GPS // 604800)
+    sow = DEFAULT_T0_GPS - week * 604800 + 5.0
+    traj = simulate_flight(kind, lat0=lat0, lon0=lon0, h_ground=h_ground, heights_agl=(height_agl,),
+                           n_strips=n_strips, strip_length_m=strip_length_m, strip_spacing_m=strip_spacing_m,
+                           rate_hz=rate_hz, gps_week=week, gps_sow=sow, duration_s=duration_s)
+    grade = grade_of(imu_grade)
+    imu, err = simulate_imu(traj, grade, seed=seed + 1, misalignment=misalignment)
+    # the first sample's increment covers the interval before the flight start: drop it
+    imu = imu.between(traj.t[1], traj.t[-1])
+    lever = np.asarray(lever_arm_b, float)
+    t_gnss = np.arange(np.ceil(traj.t[0]) + 1.0, np.floor(traj.t[-1]) - 1.0 + 1e-9, 1.0)
+    st = traj.at(t_gnss)
+    p_ant = st.p_ecef + np.einsum("kij,j->ki", st.R_body_to_ecef, lever)
+    # antenna velocity: IMU velocity plus the lever arm's rotation (body rate relative to the earth)
+    from sim.strapdown import OMEGA_IE_E
+    w_eb_b = st.omega_ib_b - np.einsum("kji,j->ki", st.R_body_to_ecef, np.array(OMEGA_IE_E, float).ravel())
+    v_ant = st.v_ecef + np.einsum("kij,kj->ki", st.R_body_to_ecef, np.cross(w_eb_b, lever))
+    t0 = t_gnss[0] + (0.6 * (t_gnss[-1] - t_gnss[0]) if outage_start_s is None else outage_start_s)
+    outage = (float(t0), float(t0 + outage_s), int(outage_sats))
+    obs = simulate_gnss(t_gnss, p_ant, v_ant, nav=nav, seed=seed + 2, sigma_pr=sigma_pr,
+                        sigma_doppler=sigma_doppler, outages=[outage], systems=tuple(systems), prepare=False)
+    events = camera_events(traj, interval_s=event_interval_s)
+    inside = (events.t > t_gnss[0] + 1.0) & (events.t < t_gnss[-1] - 1.0)  # the smoothed span
+    events.image, events.t = events.image[inside], events.t[inside]
+    return PosSimulation(traj, imu, err, obs, nav, events, lever, outage, grade, sigma_pr, sigma_doppler,
+                         {"seed": seed, "kind": kind, "duration_s": duration_s, "rate_hz": rate_hz})
+
+
+def true_trajectory(traj, t) -> object:
+    """The true IMU trajectory at times t as a fields.formats.Trajectory (no sigmas)."""
+    from fields.formats import Trajectory
+    st = traj.at(np.asarray(t, float))
+    return Trajectory(t=st.t, lat=st.lat, lon=st.lon, h=st.h, v_ned=st.v_ned, rph=st.rph)
+
+
+def write_pos_dataset(out, sim: PosSimulation) -> dict:
+    """Write the files of a simulated data set into `out` (staged: all or nothing); returns truth.json."""
+    from fields.csvio import atomic_write, staged_dir
+    from fields.formats import write_events, write_trajectory
+    from pos.imu_io import write_imu_csv
+    from pos.rinex import write_rinex_obs
+    t10 = np.arange(sim.traj.t[0], sim.traj.t[-1], 0.1)
+    truth = {
+        "kind": "pos", **sim.info, "lever_arm_gnss_m": sim.lever_arm_b.tolist(),
+        "imu_grade": sim.grade.name, "imu_errors": sim.imu_errors.as_dict(),
+        "outage": {"t0_gps": sim.outage[0], "t1_gps": sim.outage[1], "max_sats": sim.outage[2]},
+        "gnss": {"sigma_pr_zenith_m": sim.sigma_pr, "sigma_doppler_zenith_mps": sim.sigma_doppler,
+                 "systems": sorted(sim.obs.signals), "signals": sim.obs.signals,
+                 "model_errors": False, "n_epochs": len(sim.obs.epochs)},
+        "n_events": len(sim.events.t),
+        "files": {"imu": "imu.csv", "rinex_obs": "obs.rnx", "rinex_nav": "nav.rnx", "events": "events.csv",
+                  "truth_trajectory": "truth_trajectory.csv", "truth_events": "truth_events.csv"},
+        "command": ("dgcal pos --mode tc --rinex-obs obs.rnx --rinex-nav nav.rnx --imu imu.csv --events events.csv "
+                    f"--imu-grade {sim.grade.name} --lever-arm {' '.join('%g' % v for v in sim.lever_arm_b)} "
+                    f"--code-sigma {sim.sigma_pr:g} --doppler-sigma {sim.sigma_doppler:g} "
+                    "--set model_errors=false --out OUT"),
+    }
+    with staged_dir(out) as d:
+        d = Path(d)
+        write_imu_csv(d / "imu.csv", sim.imu)
+        write_rinex_obs(d / "obs.rnx", sim.obs)
+        src = Path(sim.nav.source) if sim.nav.source else None
+        if src is not None and src.is_file():
+            shutil.copyfile(src, d / "nav.rnx")
+        write_events(d / "events.csv", sim.events)
+        write_trajectory(d / "truth_trajectory.csv", true_trajectory(sim.traj, t10))
+        te = true_trajectory(sim.traj, sim.events.t)
+        te.image = sim.events.image
+        write_trajectory(d / "truth_events.csv", te)
+        with atomic_write(d / "truth.json") as fh:
+            json.dump(truth, fh, indent=2)
+    return truth
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=float, default=1200.0, help="flight duration, s")
+    p.add_argument("--kind", default="multirotor", choices=("multirotor", "fixed-wing"))
+    p.add_argument("--imu-grade", default="adis16488", help="navigation, adis16488, adis16405, consumer")
+    p.add_argument("--rate", type=float, default=200.0, help="IMU rate, Hz")
+    p.add_argument("--lever-arm", type=float, nargs=3, default=(0.05, -0.10, -0.30), metavar=("X", "Y", "Z"),
+                   help="GNSS antenna lever arm, body FRD, m")
+    p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: ../shared/data/rinex-sept)")
+    p.add_argument("--outage-sats", type=int, default=3, help="satellites kept during the 60 s outage")
+
+
+def run(args: argparse.Namespace) -> int:
+    from fields.errors import InputError
+    try:
+        sim = simulate_pos(seed=args.seed, duration_s=args.duration, kind=args.kind, imu_grade=args.imu_grade,
+                           rate_hz=args.rate, lever_arm_b=args.lever_arm, nav=args.nav,
+                           outage_sats=args.outage_sats)
+    except ValueError as exc:
+        raise InputError(str(exc), field="--imu-grade") from None
+    write_pos_dataset(args.out, sim)
+    return 0
