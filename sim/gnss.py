@@ -67,6 +67,13 @@ def _load_nav(nav, t_span: tuple[float, float] | None = None, systems=("G", "E",
     return read_rinex_nav(nav)
 
 
+def load_nav(nav=None, t_span: tuple[float, float] | None = None, systems=("G", "E", "C"),
+             seed: int = 0) -> BroadcastNav:
+    """Broadcast orbits for simulation: a path, a ``BroadcastNav``, "synthetic" (needs ``t_span``)
+    or None for the bundled real file (2021-03-19)."""
+    return _load_nav(nav, t_span, systems, seed)
+
+
 def synthetic_nav(t0_gps: float, t1_gps: float, systems=("G", "E", "C"), seed: int = 0) -> BroadcastNav:
     """A built-in Walker-like constellation as broadcast ephemerides valid over [t0, t1] (GPS s).
 

@@ -40,7 +40,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="GNSS antenna lever arm in the IMU body frame, m (tc/lc)")
     p.add_argument("--imu-grade", default=None,
-                   help="IMU error model preset (tc/lc), e.g. consumer, tactical, navigation")
+                   help="IMU error model preset (tc/lc), see pos.imu_grades: navigation, adis16488, "
+                   "adis16405, consumer")
     p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                    help="further smoother option for tc/lc (repeatable), passed to pos.pipeline")
     p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
