@@ -25,9 +25,11 @@ from fields.formats import Measurements, read_points
 from fields.target_field import TargetField, load_layout
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
-# ratio of true corner errors to the propagated noise sigma in simulations (JPEG, blur, gradient correlation)
-SIGMA_FACTOR = 1.0
-SIGMA_FLOOR_PX = 0.01
+# sigma = hypot(SIGMA_FACTOR * propagated noise sigma, SIGMA_FLOOR_PX), fitted to rendered images (JPEG q95,
+# blur 0.8 px, noise 2 and 5 DN; 1200x800 and 3000x2000): the factor covers JPEG and correlated gradient
+# noise, the floor the remaining model error (sampling, perspective within the window)
+SIGMA_FACTOR = 1.9
+SIGMA_FLOOR_PX = 0.025
 # half-size of the cornerSubPix window in squares: only the X-junction and the white gap (0.125) around it;
 # a window reaching the corners of the markers' black borders can slide towards them (seen in simulations)
 WINDOW_SQUARES = 0.12
