@@ -190,6 +190,36 @@ def load_imu(path, gps_week: int | None = None):
     return read_kf_gins(path, gps_week=gps_week)
 
 
+_SETTINGS = {"rate": float, "forward": bool, "model_errors": bool, "use_doppler": bool, "earth_rotation": bool,
+             "huber_k": float, "clock_bias_rw_m": float, "clock_drift_rw_mps": float, "prior_pos_sigma_m": float,
+             "prior_vel_sigma_mps": float, "lc_velocity": bool, "max_iterations": int}
+
+
+def parse_settings(items) -> dict:
+    """`--set KEY=VALUE` items -> typed dict (keys of `_SETTINGS`); InputError naming --set otherwise."""
+    out: dict = {}
+    for item in items:
+        key, sep, val = str(item).partition("=")
+        key = key.strip().replace("-", "_")
+        if not sep or key not in _SETTINGS:
+            raise InputError(f"unknown setting {item!r} (KEY=VALUE with KEY one of {', '.join(_SETTINGS)})",
+                             field="--set")
+        typ = _SETTINGS[key]
+        v = val.strip().lower()
+        try:
+            if typ is bool:
+                if v not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
+                    raise ValueError(v)
+                out[key] = v in ("1", "true", "yes", "on")
+            elif key == "huber_k" and v in ("none", "off"):
+                out[key] = None
+            else:
+                out[key] = typ(v)
+        except ValueError:
+            raise InputError(f"bad value for {key}: {val!r}", field="--set") from None
+    return out
+
+
 def run_pos(args=None, report_writer=None, **kw) -> int:
     """CLI entry (`dgcal pos --mode tc|lc`): an argparse Namespace, or keyword arguments of the same names.
 
@@ -204,6 +234,7 @@ def run_pos(args=None, report_writer=None, **kw) -> int:
     from pos.imu_grades import imu_grade
     from pos.spp import SppOptions
     mode = g("mode")
+    extra = parse_settings(g("extra") or [])
     if not g("imu"):
         raise InputError(f"required for --mode {mode}", field="--imu")
     if not g("events"):
@@ -222,7 +253,7 @@ def run_pos(args=None, report_writer=None, **kw) -> int:
         systems = tuple(s for s in str(g("systems", "GECJ")).upper() if s in "GECJ")
         spp_opts = SppOptions(elev_mask_deg=g("elev_mask", 10.0), code_sigma_zenith_m=g("code_sigma", 0.3),
                               doppler_sigma_zenith_mps=g("doppler_sigma", 0.1), systems=systems or ("G",),
-                              raim=not g("no_raim", False), model_errors=not g("no_model_errors", False))
+                              raim=not g("no_raim", False), model_errors=bool(extra.pop("model_errors", True)))
         navs = g("rinex_nav")
         navs = [navs] if isinstance(navs, (str, Path)) else list(navs)
         nav = read_rinex_nav(navs[0], navs[1:])
@@ -235,9 +266,13 @@ def run_pos(args=None, report_writer=None, **kw) -> int:
         lc = read_gnss_csv(g("gnss"))
         week = int(np.floor(lc.t[0] / 604800.0))
     imu = load_imu(g("imu"), gps_week=week)
+    from pos.smoother import SmootherOptions
+    rate = float(extra.pop("rate", 10.0))
+    forward = bool(extra.pop("forward", True))
+    sm = SmootherOptions(**extra)
     try:
         res = process(mode, imu, grade, lever, raw_obs=raw, nav=nav, spp_opts=spp_opts, lc_fixes=lc,
-                      events=events, rate_hz=float(g("rate", None) or 10.0), forward=True,
+                      events=events, rate_hz=rate, forward=forward, smoother_opts=sm,
                       progress=not g("no_progress", False))
     except ValueError as exc:
         raise InputError(str(exc), g("imu")) from None

@@ -80,7 +80,7 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     inside = (events.t > t_gnss[0] + 1.0) & (events.t < t_gnss[-1] - 1.0)  # the smoothed span
     events.image, events.t = events.image[inside], events.t[inside]
     return PosSimulation(traj, imu, err, obs, nav, events, lever, outage, grade, sigma_pr, sigma_doppler,
-                         {"seed": seed, "kind": kind, "duration_s": duration_s, "rate_hz": rate_hz})
+                         {"seed": seed, "flight": kind, "duration_s": duration_s, "rate_hz": rate_hz})
 
 
 def true_trajectory(traj, t) -> object:

@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
             from pos.pipeline import run_pos
         except ImportError:
             raise InputError(f"mode {args.mode} not available yet", field="--mode") from None
-        return int(run_pos(args) or 0)
+        from reports.pos_report import write_pos_report
+        return int(run_pos(args, report_writer=write_pos_report) or 0)
     for name in ("rinex_obs", "rinex_nav"):
         if not getattr(args, name):
             raise InputError("required for --mode spp", field="--" + name.replace("_", "-"))
