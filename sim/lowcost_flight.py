@@ -173,3 +173,206 @@ def format_accuracy_table(report: dict) -> str:
                      f"{r['roll']['std_deg']:10.3f}{r['pitch']['std_deg']:10.3f}{pos:>22s}")
     lines.append(f"{'seed 000':10s}{'':30s}{2.6:10.3f}{2.1:10.3f}")
     return "\n".join(lines)
+
+
+# --- single-image georeferencing campaign (seed 000 sec. 5.3, Table 6, Fig. 19) ---------------------------
+
+R_CAM_TO_BODY_NADIR = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # image top forward
+
+
+def seed_camera(scale: float = 1.0):
+    """The seed's still camera class: 4272 x 2848 px, 135.7 x 90.4 m footprint at 110 m, mild barrel distortion."""
+    from calib.camera_models import Fraser7
+    w, h = int(round(4272 * scale)), int(round(2848 * scale))
+    f = 0.5 * w / (0.5 * 135.7 / 110.0)
+    return Fraser7.from_dict((w, h), {"f": f, "cx": (w - 1) / 2 + 6 * scale, "cy": (h - 1) / 2 - 4 * scale,
+                                      "K1": -0.04, "K2": 0.01})
+
+
+def terrain_dem(center_w: np.ndarray, half_size_m: float = 600.0, step_m: float = 2.0, slope=(0.03, -0.02),
+                hill_m: float = 6.0, hill_sigma_m: float = 60.0):
+    """A synthetic DEM (calib.dem.Dem, world E/N/Up frame) around `center_w`: a gentle slope plus a hill."""
+    from calib.dem import Dem
+    n = int(round(2 * half_size_m / step_m)) + 1
+    x = center_w[0] - half_size_m + step_m * np.arange(n)
+    y = center_w[1] + half_size_m - step_m * np.arange(n)  # north-up rows
+    X, Y = np.meshgrid(x, y)
+    dx, dy = X - center_w[0], Y - center_w[1]
+    H = center_w[2] + slope[0] * dx + slope[1] * dy + hill_m * np.exp(
+        -((dx - 40.0) ** 2 + (dy + 30.0) ** 2) / (2 * hill_sigma_m ** 2))
+    return Dem(H, np.array([[step_m, 0.0, x[0]], [0.0, -step_m, y[0]]]))
+
+
+def _ray_dem_hit(C, d, dem):
+    from calib.single_image import _intersect_dem
+    X, ok = _intersect_dem(np.asarray(C, float), np.atleast_2d(d), dem, 0.0, 50, 1e-6)
+    return X[0]
+
+
+def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, laser_sigma_m: float = 0.5,
+                    trigger_interval_s: float = 0.5, progress: bool = False) -> dict:
+    """Seed 000's geo-referencing study on a simulated flight: 15 images of a reference point taken on the
+    straight legs, georeferenced with raw data (level attitude, no distortion correction), with distortion
+    removed, with the UKF attitude (known point height), with the laser range, and with a DEM; plus true
+    poses. Returns the per-image table (seed Table 6), mean/std rows and the 15-image averages (Fig. 19)."""
+    from calib.single_image import average_estimates, georeference, pose_covariance_from_rph
+    from fields.frames import R_ENU_TO_NED, rph_from_R_body_to_ned
+    from pos.ukf import run_ukf
+    truth = simulate_flight("fixed-wing", lat0=39.65, lon0=-79.95, h_ground=300.0, heights_agl=(113.0,),
+                            n_strips=3, strip_length_m=500.0, strip_spacing_m=0.0, strip_heading_deg=225.0,
+                            speed=26.0, bank_deg=25.0, climb_rate=4.0, aoa_deg=2.0, rate_hz=50.0)
+    imu, err = simulate_imu(truth, "adis16405", seed=seed)
+    fixes, _ = gnss_fixes(truth, 50.0, seed=seed + 1)
+    from pos.nav_frame import NavFrame
+    frame = NavFrame.at_ecef(fixes.p_ecef.mean(axis=0))
+    R_n2w = R_ENU_TO_NED.T  # world = ENU axes of the UKF's tangent frame
+
+    def to_w(p_ecef):
+        return frame.from_ecef(p_ecef) @ R_n2w.T
+
+    rng = np.random.default_rng(seed + 7)
+    # reference point ("fire hydrant") 18 m right of the leg centre line, on the DEM
+    c_ecef = geodetic_to_ecef_np(39.65, -79.95, 300.0)
+    c_w = to_w(c_ecef)
+    dem = terrain_dem(c_w)
+    strips = truth.strips
+    psi = np.radians(225.0)
+    across_w = np.array([np.cos(psi + np.pi / 2), np.sin(psi + np.pi / 2)])[[1, 0]]  # (E, N) of "right"
+    P_xy = c_w[:2] + 18.0 * across_w + np.array([6.0, -9.0])
+    P_w = np.array([P_xy[0], P_xy[1], float(dem.height(P_xy[0], P_xy[1]))])
+    camera = seed_camera()
+    lever = np.array([0.10, 0.0, 0.05])
+    w, h = camera.image_size
+    rows = []
+    t_fix = fixes.t
+    for s in strips:
+        tt = np.arange(s.t_start, s.t_end, trigger_interval_s)
+        k = np.clip(np.searchsorted(t_fix, tt), 0, len(t_fix) - 1)  # exposures on the logger's 50 Hz grid
+        for j in np.unique(k):
+            if len(rows) >= n_images:
+                break
+            tr = truth.at(t_fix[j])
+            R_b2w = R_n2w @ frame.R_nav_to_ecef.T @ tr.R_body_to_ecef[0]
+            C_true, R_true = to_w(tr.p_ecef[0]) + R_b2w @ lever, R_b2w @ R_CAM_TO_BODY_NADIR
+            X_c = R_true.T @ (P_w - C_true)
+            if X_c[2] <= 0:
+                continue
+            uv_true = camera.project(X_c[None])[0]
+            if not (0.05 * w < uv_true[0] < 0.95 * w and 0.05 * h < uv_true[1] < 0.95 * h):
+                continue
+            uv = uv_true + rng.standard_normal(2) * sigma_px
+            centre_hit = _ray_dem_hit(C_true, R_true[:, 2], dem)
+            rho = float(np.linalg.norm(centre_hit - C_true)) + rng.standard_normal() * laser_sigma_m
+            rows.append(dict(j=int(j), t=float(t_fix[j]), uv=uv, C_true=C_true, R_true=R_true, rho=rho,
+                             centre_true=centre_hit, speed=float(np.linalg.norm(tr.v_ned[0]))))
+        if len(rows) >= n_images:
+            break
+    if len(rows) < n_images:
+        raise RuntimeError(f"only {len(rows)} images see the reference point")
+    # the filter runs up to the last exposure (its states are causal); map exposures to its epochs
+    t_last = rows[-1]["t"] + 1.0
+    keep = fixes.t <= t_last
+    u = run_ukf(imu.between(imu.t[0], t_last), GnssFixes(fixes.t[keep], fixes.p_ecef[keep], fixes.sigma_ned[keep],
+                                                           fixes.v_ecef[keep], fixes.sigma_v_ned[keep]),
+                err.grade, frame=frame, progress=progress)
+    iu = {round(float(t), 4): i for i, t in enumerate(u.t)}
+    for r in rows:
+        r["j"] = iu[round(r["t"], 4)]
+    # GNSS errors are time-correlated: filtering white-noise-modelled 50 Hz fixes does not beat the
+    # receiver's own accuracy, so the camera position covariance is at least the fix covariance
+    gnss_cov = np.diag(fixes.sigma_ned[0][[1, 0, 2]] ** 2)
+    from calib.camera_models import Fraser7
+    pinhole = Fraser7.from_dict(camera.image_size, {"f": camera["f"], "cx": camera["cx"], "cy": camera["cy"]})
+    cases = {"raw": [], "distortion": [], "attitude": [], "laser": [], "dem": [], "truth": []}
+    covs = {k: [] for k in cases}
+    table = []
+    for r in rows:
+        j = r["j"]
+        P_nav = u.P[j]
+        R_nw = R_n2w
+        C_imu = R_nw @ u.p_nav[j]
+        rph = u.rph_deg[j]
+        R_b2w = R_nw @ R_body_to_ned_from_rph_np(rph)
+        C, R = C_imu + R_b2w @ lever, R_b2w @ R_CAM_TO_BODY_NADIR
+        cov_rph = np.degrees(np.degrees(P_nav[6:9, 6:9]))
+        cov_p = np.maximum(R_nw @ P_nav[0:3, 0:3] @ R_nw.T, gnss_cov)
+        pose_cov = pose_covariance_from_rph(rph, cov_rph, cov_p, R_CAM_TO_BODY_NADIR, R_enu_to_w=np.eye(3))
+        # raw data: level attitude, heading from the GNSS course, no distortion model
+        v = u.v_nav[j]
+        course = np.degrees(np.arctan2(v[1], v[0]))
+        R_lvl = R_nw @ R_body_to_ned_from_rph_np(np.array([0.0, 0.0, course]))
+        C_lvl, R_l = C_imu + R_lvl @ lever, R_lvl @ R_CAM_TO_BODY_NADIR
+        lvl_cov = pose_covariance_from_rph(np.array([0.0, 0.0, course]), np.array([3.0, 3.0, 3.0]) ** 2,
+                                           cov_p, R_CAM_TO_BODY_NADIR, np.eye(3))
+        est = {"raw": georeference(pinhole, r["uv"], C_lvl, R_l, height=P_w[2], pose_cov=lvl_cov, sigma_px=sigma_px),
+               "distortion": georeference(camera, r["uv"], C_lvl, R_l, height=P_w[2], pose_cov=lvl_cov,
+                                          sigma_px=sigma_px),
+               "attitude": georeference(camera, r["uv"], C, R, height=P_w[2], pose_cov=pose_cov, sigma_px=sigma_px),
+               "laser": georeference(camera, r["uv"], C, R, range_m=r["rho"], pose_cov=pose_cov, sigma_px=sigma_px,
+                                     sigma_range=laser_sigma_m),
+               "dem": georeference(camera, r["uv"], C, R, dem=dem, pose_cov=pose_cov, sigma_px=sigma_px,
+                                   sigma_height=0.1),
+               "truth": georeference(camera, r["uv"], r["C_true"], r["R_true"], height=P_w[2], sigma_px=sigma_px)}
+        row = {"image": f"IMG_{7242 + len(table):04d}", "t_gps": r["t"], "pitch_deg": float(rph[1]),
+               "roll_deg": float(rph[0]), "yaw_deg": float(rph[2]), "laser_range_m": r["rho"],
+               "ground_speed_mps": r["speed"],
+               "offset_from_centre_N_m": float(P_w[1] - r["centre_true"][1]),
+               "offset_from_centre_E_m": float(P_w[0] - r["centre_true"][0])}
+        for k, e in est.items():
+            d = e.xyz[0, :2] - P_w[:2]
+            cases[k].append(d)
+            covs[k].append(e.cov[0, :2, :2])
+            row[k] = {"dN_m": float(d[1]), "dE_m": float(d[0]), "total_m": float(np.hypot(*d)),
+                      "sigma_N_m": float(e.sigma[0, 1]), "sigma_E_m": float(e.sigma[0, 0])}
+        table.append(row)
+    summary = {}
+    for k in cases:
+        d = np.array(cases[k])
+        tot = np.hypot(d[:, 0], d[:, 1])
+        av = average_estimates(d + P_w[:2], np.array(covs[k]), common_cov=None if k == "truth" else gnss_cov[:2, :2])
+        z = np.array([np.sqrt(x @ np.linalg.solve(c, x) / 2) for x, c in zip(d, covs[k])])
+        summary[k] = {"mean_dN_m": float(d[:, 1].mean()), "mean_dE_m": float(d[:, 0].mean()),
+                      "mean_total_m": float(tot.mean()), "std_total_m": float(tot.std(ddof=1)),
+                      "std_dN_m": float(d[:, 1].std(ddof=1)), "std_dE_m": float(d[:, 0].std(ddof=1)),
+                      "average_error_m": float(np.hypot(*(av.mean - P_w[:2]))),
+                      "weighted_average_error_m": float(np.hypot(*(av.weighted - P_w[:2]))),
+                      "weighted_average_sigma_m": float(np.sqrt(np.trace(av.cov_weighted))),
+                      "weighted_average_sigma_common_m": float(np.sqrt(np.trace(av.cov_with_common))),
+                      "chi2_dof": av.chi2_dof, "normalised_error_rms": float(np.sqrt(np.mean(z ** 2)))}
+    rph_true = np.array([rph_from_R_body_to_ned(truth.at(r["t"]).R_body_to_ned[0]) for r in rows])
+    return {"images": table, "summary": summary, "n_images": len(table), "sigma_px": sigma_px,
+            "reference_point_w": P_w.tolist(), "mean_height_agl_m": float(np.mean([r["C_true"][2] for r in rows])
+                                                                            - P_w[2]),
+            "ukf_attitude_rms_deg": np.sqrt(np.mean((np.array([x["roll_deg"] for x in table]) - rph_true[:, 0]) ** 2
+                                                    )).tolist(),
+            "pixel_ground_size_m": float(np.mean([x["laser_range_m"] for x in table]) / camera["f"])}
+
+
+def geodetic_to_ecef_np(lat, lon, h) -> np.ndarray:
+    from fields.crs import geodetic_to_ecef
+    return np.asarray(geodetic_to_ecef(lat, lon, h), float)
+
+
+def R_body_to_ned_from_rph_np(rph) -> np.ndarray:
+    from fields.frames import R_body_to_ned_from_rph
+    return R_body_to_ned_from_rph(*np.asarray(rph, float))
+
+
+def format_table6(rep: dict) -> str:
+    """Seed Table 6 layout: per image attitude, range, speed, offset and errors (N, E, total) per case."""
+    cases = ("raw", "distortion", "attitude", "laser", "dem", "truth")
+    hdr = f"{'image':9s}{'pitch':>6s}{'roll':>6s}{'yaw':>7s}{'range':>7s}{'gs':>6s}{'offN':>6s}{'offE':>6s}"
+    hdr += "".join(f"{c[:9]:>21s}" for c in cases)
+    out = [hdr]
+    for r in rep["images"]:
+        s = (f"{r['image']:9s}{r['pitch_deg']:6.2f}{r['roll_deg']:6.2f}{r['yaw_deg']:7.1f}{r['laser_range_m']:7.1f}"
+             f"{r['ground_speed_mps']:6.1f}{r['offset_from_centre_N_m']:6.1f}{r['offset_from_centre_E_m']:6.1f}")
+        s += "".join(f"{r[c]['dN_m']:7.2f}{r[c]['dE_m']:7.2f}{r[c]['total_m']:7.2f}" for c in cases)
+        out.append(s)
+    sm = rep["summary"]
+    out.append(f"{'mean':51s}" + "".join(f"{sm[c]['mean_dN_m']:7.2f}{sm[c]['mean_dE_m']:7.2f}"
+                                          f"{sm[c]['mean_total_m']:7.2f}" for c in cases))
+    out.append(f"{'std':51s}" + "".join(f"{sm[c]['std_dN_m']:7.2f}{sm[c]['std_dE_m']:7.2f}"
+                                         f"{sm[c]['std_total_m']:7.2f}" for c in cases))
+    out.append(f"{'avg of n':51s}" + "".join(f"{'':14s}{sm[c]['average_error_m']:7.2f}" for c in cases))
+    return "\n".join(out)
