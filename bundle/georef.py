@@ -22,7 +22,8 @@ from fields.frames import R_cv_to_map_from_opk, R_enu_to_grid, opk_from_R_cv_to_
 class Georef:
     """Map CRS <-> local adjustment frame, for points, heights and camera orientations."""
 
-    def __init__(self, crs: str | None, centre_map: np.ndarray, geoid: float | str | None = None):
+    def __init__(self, crs: str | None, centre_map: np.ndarray, geoid: float | str | None = None,
+                 source: str | Path | None = None):
         self.local_only = crs is None or str(crs).strip().lower() in ("", "local", "none")
         self.crs_text = None if self.local_only else str(crs)
         self.centre_map = np.asarray(centre_map, float).reshape(3)
@@ -43,7 +44,8 @@ class Georef:
             self.grid = MapGrid(parse_crs(self.crs_text))
             lat, lon, h = self.grid.to_geodetic(self._to_ellipsoidal(self.centre_map[None]))[0]
             if not (np.isfinite([lat, lon, h]).all() and abs(lat) <= 90):
-                raise InputError(f"the ground points are not valid coordinates in {self.crs_text}", field="--crs")
+                raise InputError(f"the ground points are not valid coordinates in {self.crs_text} "
+                                 f"(centre {self.centre_map.round(3).tolist()}): wrong --crs?", source, field="--crs")
             self.frame = LocalENU(float(lat), float(lon), float(h))
 
     # --- heights ----------------------------------------------------------------------------

@@ -122,3 +122,61 @@ def grow_orientation(camera: CameraModel, n_images: int, obs_image: np.ndarray, 
         oriented[best] = True
     X_out = np.where(known[:, None], X, X_tie)
     return R, C, oriented, X_out, np.isfinite(X_out).all(1)
+
+
+def similarity_umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Scale s, rotation R, translation t with dst ~ s R src + t (least squares, Umeyama 1991)."""
+    ms, md = src.mean(0), dst.mean(0)
+    a, b = src - ms, dst - md
+    U, S, Vt = np.linalg.svd(b.T @ a / len(src))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    s = float(np.trace(np.diag(S) @ D) / (np.sum(a * a) / len(src)))
+    return s, R, md - s * R @ ms
+
+
+def relative_bootstrap(camera: CameraModel, n_images: int, obs_image: np.ndarray, obs_point: np.ndarray,
+                       obs_uv: np.ndarray, X_known: np.ndarray, max_pairs: int = 5):
+    """Orientation without any image seeing 4 control points: relative orientation of the pair with the
+    most common points (essential matrix), growth in that model frame, then a 3-D similarity onto the
+    control points triangulated in it. Returns grow_orientation's tuple in the world frame, or None."""
+    import cv2
+    oi, op = np.asarray(obs_image, int), np.asarray(obs_point, int)
+    m = len(X_known)
+    known = np.isfinite(X_known).all(1)
+    # co-observation counts of image pairs (sparse: points seen in few images)
+    M = np.zeros((n_images, m), bool)
+    M[oi, op] = True
+    co = M.astype(np.int32) @ M.T.astype(np.int32)
+    np.fill_diagonal(co, 0)
+    xy = camera.undistort_normalized(obs_uv)
+    f = float(camera.pinhole_K()[0, 0])
+    lookup = -np.ones((n_images, m), int)
+    lookup[oi, op] = np.arange(len(oi))
+    order = np.argsort(co, axis=None)[::-1]
+    for flat in order[:2 * max_pairs:2]:
+        i, j = np.unravel_index(flat, co.shape)
+        common = np.nonzero(M[i] & M[j])[0]
+        if len(common) < 8:
+            break
+        x1, x2 = xy[lookup[i, common]], xy[lookup[j, common]]
+        E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), cv2.RANSAC, 0.999, 2.0 / f)
+        if E is None or E.shape != (3, 3):
+            continue
+        _, R, t, mask = cv2.recoverPose(E, x1, x2, np.eye(3), mask=mask)
+        R0 = np.full((n_images, 3, 3), np.nan)
+        C0 = np.full((n_images, 3), np.nan)
+        R0[i], C0[i] = np.eye(3), np.zeros(3)
+        R0[j], C0[j] = R, (-R.T @ t).ravel()
+        Rm, Cm, ok, Xm, okp = grow_orientation(camera, n_images, oi, op, obs_uv, np.full((m, 3), np.nan), R0, C0,
+                                               min_angle_deg=0.5)
+        ctrl = known & okp
+        if ctrl.sum() < 3 or np.linalg.matrix_rank(Xm[ctrl] - Xm[ctrl].mean(0), tol=1e-9) < 2:
+            continue
+        s, Rs, ts = similarity_umeyama(Xm[ctrl], X_known[ctrl])
+        C = s * Cm @ Rs.T + ts
+        R_w2c = Rm @ Rs.T
+        X = s * Xm @ Rs.T + ts
+        X[known] = X_known[known]
+        return R_w2c, C, ok, X, okp | known
+    return None

@@ -22,7 +22,7 @@ import numpy as np
 from bundle.adjustment import BundleInput, BundleOptions, BundleResult, adjust
 from bundle.blunders import CRITICAL_W, Suspect, find_suspects, standardized
 from bundle.georef import Georef
-from bundle.resection import grow_orientation, triangulate_midpoint
+from bundle.resection import grow_orientation, relative_bootstrap
 from calib.camera_models import CameraModel
 from fields.errors import InputError
 from fields.formats import EOP, Measurements, Points
@@ -127,7 +127,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     if not ctrl_mask.any():
         raise InputError("none of the control points is measured in any image", meas.path, field="id")
     centre = points.xyz[ctrl_mask].mean(0)
-    geo = Georef(crs, centre, opt.geoid)
+    geo = Georef(crs, centre, opt.geoid, points.path)
     P_local = geo.to_local(points.xyz)
     if not np.isfinite(P_local).all():
         bad = int(np.argmax(~np.isfinite(P_local).all(1)))
@@ -181,6 +181,12 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
                 Ra, Ca = geo.eop_to_local(approx.xyz[a_idx[name]][None], approx.opk[a_idx[name]][None])
                 R0[i], C0[i] = Ra[0], Ca[0]
     R, C, oriented, X0, okpt = grow_orientation(camera, n, oi, op, uv, Xprior, R0, C0)
+    if not oriented[np.unique(oi)].all():
+        boot = relative_bootstrap(camera, n, oi, op, uv, Xprior)
+        if boot is not None and boot[2].sum() > oriented.sum():
+            R, C, oriented, X0, okpt = boot
+            _warn(msgs, "too few control points per image for resection: started from a relative orientation "
+                        "scaled onto the control points", opt.verbose)
     for i in np.nonzero(~oriented)[0]:
         nm = int(np.sum(oi == i))
         _warn(msgs, f"image {images[i]} could not be oriented ({nm} usable measurements): left out"
@@ -285,9 +291,10 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
         for mm in g["measurements"]:
             mm["rejected"] = (mm["image"], g["id"]) in removed
     unknown_rep = []
+    k_index = {p: j for j, p in enumerate(pids_k)}
     for pid in unknown_ids:
-        if pid in pids_k:
-            j = pids_k.index(pid)
+        if pid in k_index:
+            j = k_index[pid]
             unknown_rep.append({"id": pid, "n_images": int(np.sum(a_op == j)), "xyz": X_map[j].tolist()})
         else:
             unknown_rep.append({"id": pid, "n_images": int(counts.get(pid, 0)), "xyz": None})
@@ -317,66 +324,49 @@ def _readjust(inp: BundleInput, active: np.ndarray, bopt: BundleOptions, prev: B
     return adjust(sub, bopt)
 
 
-def _intersect(camera, R_world_to_cv, C_world, uv, sigma_px, cov_pose):
-    """Multi-ray intersection (m) with covariance from pixel noise and the images' pose covariances."""
-    try:
-        from bundle.intersection import intersect_with_covariance as _e
-    except ImportError:
-        _e = None
-    if _e is not None:
-        return _e(camera, R_world_to_cv, C_world, uv, sigma_px, cov_pose)
-    rays = camera.ray(uv)
-    d_w = np.einsum("kji,kj->ki", R_world_to_cv, rays)
-    X, _ = triangulate_midpoint(C_world, d_w)
-    for _ in range(5):   # Gauss-Newton on pixel residuals
-        Xc = np.einsum("kij,kj->ki", R_world_to_cv, X - C_world)
-        pred, _, JX = camera.project_with_jacobians(Xc)
-        A = (JX @ R_world_to_cv / sigma_px[:, :, None]).reshape(-1, 3)
-        r = ((uv - pred) / sigma_px).ravel()
-        dx = np.linalg.lstsq(A, r, rcond=None)[0]
-        X = X + dx
-        if np.linalg.norm(dx) < 1e-9:
-            break
-    Xc = np.einsum("kij,kj->ki", R_world_to_cv, X - C_world)
-    _, _, JX = camera.project_with_jacobians(Xc)
-    A = JX @ R_world_to_cv                                   # d uv / d X  (k,2,3)
-    B = np.concatenate([-JX @ R_world_to_cv, -JX @ np.stack([_skew(x) for x in Xc])], 2)  # d uv / d pose
-    Wm = np.linalg.inv(np.einsum("kai,kaj->ij", A / sigma_px[:, :, None] ** 2, A))
-    # X = X(uv, pose): dX = N^-1 A^T P (duv - B dpose): pose noise propagated through the same gain
-    G = np.einsum("ij,kaj->kia", Wm, A / sigma_px[:, :, None] ** 2)   # (k,3,2) gain per image
-    GB = np.einsum("kia,kaj->kij", G, B)
-    cov = Wm + np.einsum("kij,kjl,kml->im", GB, cov_pose, GB)
-    return X, cov
-
-
-def _skew(v):
-    from fields.frames import skew
-    return skew(v)
+def _pose_cov_right(cov_pose: np.ndarray) -> np.ndarray:
+    """Pose covariances in bundle.intersection's convention: [C, rotation as a right perturbation of
+    R_cv_to_world]. Ours perturb R_world_to_cv on the left by d, i.e. R_cv_to_world on the right by -d:
+    the centre/rotation cross blocks change sign."""
+    c = np.array(cov_pose, float)
+    c[:, :3, 3:] *= -1
+    c[:, 3:, :3] *= -1
+    return c
 
 
 def _check_points(camera, res: BundleResult, geo: Georef, points: Points, meas: Measurements,
                   is_check: np.ndarray, images_k: list[str], msgs: list[str], opt) -> list[dict]:
-    """Intersect check points from the adjusted images; errors (intersected - given) in grid E, N, Up."""
-    out = []
+    """Intersect check points from the adjusted images (bundle.intersection, pixel and pose covariance);
+    errors (intersected - given) and sigmas in grid E, N, Up."""
+    from bundle.intersection import intersect, propagate_pose_covariance
     im_idx = {n: i for i, n in enumerate(images_k)}
     pidx = points.index()
-    for pid in dict.fromkeys(meas.id[is_check].astype(str)):
-        rows = np.nonzero((meas.id.astype(str) == pid))[0]
-        rows = [r for r in rows if str(meas.image[r]) in im_idx]
-        if len(rows) < 2:
-            _warn(msgs, f"check point {pid} is measured in {len(rows)} oriented image(s): needs 2, not evaluated",
-                  opt.verbose)
-            out.append({"id": pid, "n_images": len(rows), "evaluated": False})
-            continue
-        ii = np.array([im_idx[str(meas.image[r])] for r in rows])
+    rows = np.array([r for r in np.nonzero(is_check)[0] if str(meas.image[r]) in im_idx], int)
+    ids = list(dict.fromkeys(meas.id[is_check].astype(str)))
+    out = []
+    if len(rows):
+        pid_of = {p: j for j, p in enumerate(ids)}
+        oi = np.array([im_idx[str(meas.image[r])] for r in rows])
+        op = np.array([pid_of[str(meas.id[r])] for r in rows])
         sig = np.where(np.isfinite(meas.sigma[rows]), meas.sigma[rows], opt.sigma_px)
-        X, cov = _intersect(camera, res.R_world_to_cv[ii], res.C_world[ii], meas.xy[rows], sig, res.cov_pose[ii])
+        R_c2w = np.swapaxes(res.R_world_to_cv, -1, -2)
+        ir = intersect(camera, res.C_world, R_c2w, oi, op, meas.xy[rows], sig, n_points=len(ids))
+        cov = ir.cov + propagate_pose_covariance(ir, _pose_cov_right(res.cov_pose))
+    for j, pid in enumerate(ids):
+        n_rays = int(ir.n_rays[j]) if len(rows) else 0
+        if not len(rows) or not ir.ok[j]:
+            _warn(msgs, f"check point {pid} is measured in {n_rays} oriented image(s): needs 2, not evaluated",
+                  opt.verbose)
+            out.append({"id": pid, "n_images": n_rays, "evaluated": False})
+            continue
+        X = ir.xyz[j]
         given = geo.to_local(points.xyz[pidx[pid]][None])[0]
         R_lg = geo.R_local_to_grid_at(X[None])[0]
         d = R_lg @ (X - given)
-        s = np.sqrt(np.clip(np.diag(R_lg @ cov @ R_lg.T), 0, None))
-        out.append({"id": pid, "n_images": len(rows), "evaluated": True, "xyz": points.xyz[pidx[pid]].tolist(),
-                    "intersected": geo.to_map(X[None])[0].tolist(), "dENU_m": d.tolist(), "sigma_ENU_m": s.tolist()})
+        s = np.sqrt(np.clip(np.diag(R_lg @ cov[j] @ R_lg.T), 0, None))
+        out.append({"id": pid, "n_images": n_rays, "evaluated": True, "xyz": points.xyz[pidx[pid]].tolist(),
+                    "intersected": geo.to_map(X[None])[0].tolist(), "dENU_m": d.tolist(), "sigma_ENU_m": s.tolist(),
+                    "rms_px": float(ir.rms_px[j])})
     return out
 
 
@@ -397,7 +387,9 @@ def _summary(res, eop, images, images_k, gcp_rep, check_rep, unknown_rep, suspec
         "median_sigma": {k: float(np.median(eop.sigma[:, j])) for j, k in
                          enumerate(("X_m", "Y_m", "Z_m", "omega_deg", "phi_deg", "kappa_deg"))},
         "camera": {"model": res.camera.NAME, "refined": list(res.refine), "params": res.camera.as_dict()},
-        "unknown_points": unknown_rep, "suspects": [s.as_dict() for s in suspects], "warnings": list(msgs),
+        "n_unknown_ids": len(unknown_rep),
+        "unknown_points": [u for u in unknown_rep if not str(u["id"]).startswith("tie_")][:200],
+        "suspects": [s.as_dict() for s in suspects], "warnings": list(msgs),
     }
 
 
