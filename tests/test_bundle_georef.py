@@ -1,0 +1,114 @@
+"""Map CRS <-> local frame for points and EOP angles (convergence, curvature, geoid), resection helpers."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bundle.georef import Georef
+from bundle.resection import pnp, relative_bootstrap, similarity_umeyama
+from fields.crs import MapGrid
+from fields.errors import InputError
+from sim.flight import default_camera
+
+rng = np.random.default_rng(11)
+CENTRE = np.array([327000.0, 2655000.0, 120.0])     # UTM 51N, ~1.7 deg west of the central meridian
+
+
+def _random_R(n):
+    return Rotation.from_rotvec(rng.normal(0, 0.3, (n, 3))).as_matrix()
+
+
+def test_points_and_eops_round_trip():
+    g = Georef("EPSG:32651", CENTRE)
+    P = CENTRE + rng.uniform(-2000, 2000, (20, 3)) * [1, 1, 0.05]
+    np.testing.assert_allclose(g.to_map(g.to_local(P)), P, atol=1e-6)
+    R, C = _random_R(20), g.to_local(P)
+    xyz, opk = g.eop_to_map(R, C)
+    R2, C2 = g.eop_to_local(xyz, opk)
+    np.testing.assert_allclose(R2, R, atol=1e-12)
+    np.testing.assert_allclose(C2, C, atol=1e-4)
+
+
+def test_eop_angles_follow_grid_axes_at_the_centre():
+    """A ray's direction in grid-level axes at the projection centre, from the map EOP, points to where the
+    ground point really is in map coordinates (checked independently of the local frame, 300 m away)."""
+    g = Georef("EPSG:32651", CENTRE)
+    grid = MapGrid("EPSG:32651")
+    C_map = CENTRE + [1500.0, -800.0, 400.0]       # far from the frame origin: curvature and convergence differ
+    P_map = C_map + [120.0, 250.0, -380.0]
+    R_w2c, C_loc = np.eye(3)[None] @ Rotation.from_euler("x", [180.0], degrees=True).as_matrix(), g.to_local(C_map)
+    xyz, opk = g.eop_to_map(R_w2c, C_loc)
+    from fields.frames import R_cv_to_map_from_opk
+    R_cv_to_grid = R_cv_to_map_from_opk(*opk[0])
+    # ray to P in the camera frame, computed in the adjustment frame
+    ray_cv = R_w2c[0] @ (g.to_local(P_map)[0] - C_loc[0])
+    d_grid = R_cv_to_grid @ ray_cv
+    # the same direction from map coordinates: grid E/N differences scaled back to metres on the ground
+    lat, lon, _ = grid.to_geodetic(C_map)
+    k = _scale_factor(grid, C_map)
+    d_map = (P_map - C_map) / [k, k, 1.0]
+    cosang = d_grid @ d_map / np.linalg.norm(d_grid) / np.linalg.norm(d_map)
+    assert np.degrees(np.arccos(min(1, cosang))) < 0.003   # vs ~0.7 deg convergence and 0.01 deg curvature
+    # and a nadir camera looking straight down at its own centre with top to grid north has opk ~ 0
+    R_nadir_cv_to_grid = np.diag([1.0, -1.0, -1.0])
+    R_w2c_n = (np.swapaxes(g.R_local_to_grid_at(C_loc), -1, -2)[0] @ R_nadir_cv_to_grid).T
+    np.testing.assert_allclose(g.eop_to_map(R_w2c_n[None], C_loc)[1], [[0, 0, 0]], atol=1e-9)
+    # while in the local frame it is rotated by the convergence (~-0.7 deg) plus the curvature
+    kappa_local = np.degrees(np.arctan2(R_w2c_n[0, 1], R_w2c_n[0, 0]))
+    assert 0.3 < abs(kappa_local) < 1.5
+
+
+def _scale_factor(grid, xyz):
+    lat, lon, h = grid.to_geodetic(xyz)
+    a = grid.from_geodetic(lat, lon, 0.0)
+    b = grid.from_geodetic(lat + 1e-4, lon, 0.0)
+    from pyproj import Geod
+    dist = Geod(ellps="WGS84").inv(lon, lat, lon, lat + 1e-4)[2]
+    return np.hypot(*(b - a)[:2]) / dist
+
+
+def test_covariance_to_map_matches_monte_carlo():
+    g = Georef("EPSG:32651", CENTRE)
+    R, C = _random_R(1), np.array([[300.0, -200.0, 150.0]])
+    A = rng.normal(size=(6, 6)) * [0.02, 0.02, 0.02, 1e-3, 1e-3, 1e-3]
+    cov = A @ A.T
+    J = g.eop_covariance_to_map(R, C, cov[None])[0]
+    xyz0, opk0 = g.eop_to_map(R, C)
+    s = rng.multivariate_normal(np.zeros(6), cov, 4000)
+    Rs = Rotation.from_rotvec(s[:, 3:]).as_matrix() @ R
+    xyz, opk = g.eop_to_map(Rs, C + s[:, :3])
+    emp = np.cov(np.column_stack([xyz - xyz0, opk - opk0]).T)
+    np.testing.assert_allclose(np.sqrt(np.diag(emp)), np.sqrt(np.diag(J)), rtol=0.08)
+
+
+def test_geoid_constant_undulation():
+    g = Georef("EPSG:32651", CENTRE, geoid=20.0)
+    e = Georef("EPSG:32651", CENTRE + [0, 0, 20.0])
+    P = CENTRE + [[10.0, 20.0, 5.0]]
+    np.testing.assert_allclose(g.to_local(P), e.to_local(P + [0, 0, 20.0]), atol=1e-6)
+    np.testing.assert_allclose(g.to_map(g.to_local(P)), P, atol=1e-6)
+
+
+def test_bad_crs_and_local_frame():
+    with pytest.raises(InputError, match="--crs"):
+        Georef("EPSG:4326", CENTRE)
+    loc = Georef("local", np.array([10.0, 20.0, 3.0]))
+    P = np.array([[11.0, 22.0, 4.0]])
+    np.testing.assert_allclose(loc.to_local(P), [[1.0, 2.0, 1.0]])
+    R = _random_R(1)
+    xyz, opk = loc.eop_to_map(R, loc.to_local(P))
+    R2, _ = loc.eop_to_local(xyz, opk)
+    np.testing.assert_allclose(R2, R, atol=1e-12)
+
+
+def test_pnp_and_umeyama():
+    cam = default_camera()
+    X = rng.uniform([-40, -30, -3], [40, 30, 3], (12, 3))
+    R = Rotation.from_euler("xyz", [182.0, -3.0, 30.0], degrees=True).as_matrix()
+    C = np.array([2.0, -1.0, 80.0])
+    uv = cam.project((X - C) @ R.T)
+    R2, C2, inl = pnp(cam, uv, X)
+    np.testing.assert_allclose(R2, R, atol=1e-6)
+    np.testing.assert_allclose(C2, C, atol=1e-4)
+    Rs = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
+    s, R3, t = similarity_umeyama(X, 2.5 * X @ Rs.T + [1, 2, 3])
+    assert s == pytest.approx(2.5) and np.allclose(R3, Rs) and np.allclose(t, [1, 2, 3])
