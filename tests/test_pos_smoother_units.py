@@ -1,0 +1,180 @@
+"""Unit tests of the smoother's pieces: frames, factor conventions, preintegration splitting, covariances."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+from pos.gnss_types import C_LIGHT, GnssEpoch  # noqa: E402
+from pos.nav_frame import NavFrame  # noqa: E402
+from pos.smoother_factors import CLK, DRIFT, V, X, ZERO, doppler_factors, pseudorange_factors  # noqa: E402
+
+
+def test_nav_frame_round_trip_and_curvature():
+    f = NavFrame(35.3, 139.5, 40.0)
+    p = np.array([[100.0, -250.0, -120.0], [1000.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    assert np.allclose(f.from_ecef(f.to_ecef(p)), p, atol=1e-6)
+    R = f.R_nav_to_local_ned(p)
+    assert np.allclose(R[2], np.eye(3), atol=1e-12)
+    # 1 km north: local level tilts by d/R about east
+    ang = np.degrees(np.arccos(np.clip((np.trace(R[1]) - 1) / 2, -1, 1)))
+    assert ang == pytest.approx(np.degrees(1000.0 / 6.36e6), rel=0.02)
+
+
+def _epoch(frame, p_ant_nav, v_ant_nav, clk_s, drift, rng):
+    """A hand-built GnssEpoch (corrected-pseudorange convention of pos.gnss_types) for 6 satellites."""
+    r = frame.to_ecef(p_ant_nav)
+    v_r = v_ant_nav @ frame.R_nav_to_ecef.T
+    n = 6
+    d = rng.normal(size=(n, 3))
+    d[:, 2] = np.abs(d[:, 2]) + 0.5
+    sat = r + d / np.linalg.norm(d, axis=1, keepdims=True) * 2.2e7
+    vs = rng.normal(0, 2000, (n, 3))
+    rho = np.linalg.norm(sat - r, axis=1)
+    e = (sat - r) / rho[:, None]
+    system = np.array(["G", "G", "G", "E", "E", "E"])
+    cb = np.where(system == "G", clk_s["G"], clk_s["E"])
+    pr = rho + C_LIGHT * cb
+    rr = np.einsum("ij,ij->i", e, vs - v_r) + C_LIGHT * drift
+    z = np.zeros(n)
+    return GnssEpoch(0.0, [f"{s}{i:02d}" for i, s in enumerate(system)], system, pr, -rr / 0.19, rr,
+                     np.full(n, 0.19), z + 45, sat, vs, z, z, z, z, z + 45, z, z + 0.5, z + 0.05)
+
+
+def test_tc_factors_vanish_at_the_truth():
+    """Pseudorange/Doppler factors: clock in seconds, lever arm in body, nav frame via ecef_T_nav, Sagnac."""
+    rng = np.random.default_rng(4)
+    frame = NavFrame(47.0, 8.0, 500.0)
+    R = gtsam.Rot3.Ypr(0.7, 0.05, -0.1)
+    p_imu = np.array([120.0, -40.0, -90.0])
+    v_imu = np.array([8.0, 3.0, -1.0])
+    lever = np.array([0.1, -0.2, -0.4])
+    omega_b = np.array([0.05, -0.02, 0.3])
+    p_ant = p_imu + R.matrix() @ lever
+    v_ant = v_imu + R.matrix() @ np.cross(omega_b, lever)
+    clk = {"G": 2.0e-5, "E": 2.0e-5 + 8e-9}
+    drift = 5e-8
+    ep = _epoch(frame, p_ant, v_ant, clk, drift, rng)
+    vals = gtsam.Values()
+    vals.insert(X(3), gtsam.Pose3(R, p_imu))
+    vals.insert(V(3), v_imu)
+    vals.insert(CLK("G", 3), clk["G"])
+    vals.insert(CLK("E", 3), clk["E"])
+    vals.insert(DRIFT(3), drift)
+    vals.insert(ZERO(), 0.0)
+    # an SPP-quality position is enough (the Doppler line of sight errs by 1 mm/s per ~5 m)
+    r_approx = frame.to_ecef(p_ant) + np.array([3.0, -2.0, 1.0])
+    T = frame.ecef_T_nav()
+    pr = pseudorange_factors(3, ep, r_approx, lever, T, huber_k=None)
+    dop = doppler_factors(3, ep, r_approx, lever, omega_b, T, huber_k=None)
+    e_pr = np.array([f.unwhitenedError(vals)[0] for f in pr])
+    e_dop = np.array([f.unwhitenedError(vals)[0] for f in dop])
+    assert np.max(np.abs(e_pr)) < 2e-3
+    assert np.max(np.abs(e_dop)) < 2e-3
+    # and they see a 1 m position error and a 1 ns clock error
+    vals.update(X(3), gtsam.Pose3(R, p_imu + [1.0, 0, 0]))
+    assert np.max(np.abs([f.unwhitenedError(vals)[0] for f in pr])) > 0.2
+    vals.update(X(3), gtsam.Pose3(R, p_imu))
+    vals.update(CLK("G", 3), clk["G"] + 1e-9)
+    assert pr[0].unwhitenedError(vals)[0] - e_pr[0] == pytest.approx(C_LIGHT * 1e-9, rel=1e-6)
+
+
+def test_split_at_keyframes_keeps_the_increments():
+    from pos.smoother_imu import split_at_keyframes
+    rng = np.random.default_rng(0)
+    t = 100.0 + np.arange(1, 1001) * 0.01
+    g = rng.normal(size=(1000, 3))
+    a = rng.normal(size=(1000, 3))
+    t_key = np.array([100.0, 100.5, 101.003, 103.0, 109.997])
+    seg = split_at_keyframes(t, g, a, t_key, 0.01)
+    assert seg.dt.sum() == pytest.approx(t_key[-1] - t_key[0])
+    for k in range(len(t_key) - 1):
+        sl = slice(seg.start[k], seg.start[k + 1])
+        assert seg.dt[sl].sum() == pytest.approx(t_key[k + 1] - t_key[k], abs=1e-9)
+    # the integral of the rates equals the sum of the (partial) increments
+    n_full = int(np.floor((t_key[-1] - 100.0) / 0.01 + 1e-9))  # samples entirely inside the span
+    full = (g * 0.01)[:n_full].sum(0)
+    part = g[n_full] * 0.007
+    assert np.allclose((seg.gyro * seg.dt[:, None]).sum(0), full + part, atol=1e-9)
+
+
+def test_euler_rate_matrix_matches_numerical_derivative():
+    from fields.frames import R_body_to_ned_from_rph, rph_from_R_body_to_ned
+    from pos.smoother_output import euler_rate_matrix
+    rph = np.array([[12.0, -7.0, 250.0]])
+    J = euler_rate_matrix(rph)[0]
+    R0 = R_body_to_ned_from_rph(*rph[0])
+    h = 1e-6
+    Jn = np.empty((3, 3))
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = h
+        Rp = R0 @ gtsam.Rot3.Expmap(d).matrix()
+        Rm = R0 @ gtsam.Rot3.Expmap(-d).matrix()
+        Jn[:, i] = np.radians(rph_from_R_body_to_ned(Rp) - rph_from_R_body_to_ned(Rm)) / (2 * h)
+    assert np.allclose(J, Jn, atol=1e-6)
+
+
+def test_gravity_correction_tilts_with_distance():
+    from pos.smoother_imu import gravity_correction_b
+    f = NavFrame(35.0, 139.0, 50.0)
+    t_key = np.array([0.0, 1.0])
+    R = np.stack([np.eye(3), np.eye(3)])
+    p = np.array([[2000.0, 0.0, 0.0], [2000.0, 0.0, 0.0]])  # 2 km north, level body
+    dg = gravity_correction_b(np.array([0.5]), t_key, R, p, f)[0]
+    # gravity at 2 km north points back towards the origin's vertical: -g d/R along north
+    assert dg[0] == pytest.approx(-f.gravity * 2000.0 / 6.36e6, rel=0.03)
+    assert abs(dg[1]) < 1e-6
+
+
+def _lc_problem(K=40, seed=0):
+    """A small LC problem built from a straight simulated segment (no clocks, so gtsam.Marginals works)."""
+    from pos.imu_io import ImuData
+    from pos.smoother import SmootherOptions, build_problem, optimize
+    from pos.smoother_imu import ImuNoise
+    from pos.smoother_init import GnssFixes
+    rng = np.random.default_rng(seed)
+    frame = NavFrame(30.0, 100.0, 0.0)
+    rate = 50.0
+    t = 1000.0 + np.arange(1, int(K * rate) + 1) / rate
+    acc = np.tile([0.0, 0.0, -frame.gravity], (len(t), 1)) + rng.normal(0, 0.01, (len(t), 3))
+    acc[:, 1] += 0.5 * np.sin(0.3 * (t - t[0]))
+    gyr = np.tile([0.0, 0.0, 0.05], (len(t), 1)) + rng.normal(0, 1e-3, (len(t), 3))
+    imu = ImuData.from_rates(t, gyr, acc, rate)
+    tk = 1000.0 + np.arange(0, K + 1, 1.0)
+    p = np.column_stack([5.0 * (tk - 1000.0), np.zeros_like(tk), np.zeros_like(tk)])
+    fx = GnssFixes(tk, frame.to_ecef(p + rng.normal(0, 0.5, p.shape)), np.full(p.shape, 0.5),
+                   np.tile([5.0, 0.0, 0.0], (len(tk), 1)) @ frame.R_nav_to_ecef.T, np.full(p.shape, 0.1))
+    noise = ImuNoise(1e-3, 1e-2, 1e-5, 1e-4, 1e-3, 1e-2)
+    pr = build_problem(imu, frame, tk, fx, noise, SmootherOptions(earth_rotation=False), "lc", None, fx)
+    return pr, optimize(pr)
+
+
+def test_block_covariances_equal_gtsam_marginals():
+    from pos.smoother_covariance import KeyframeBlocks, smoothed_covariances
+    pr, vals = _lc_problem()
+    P = smoothed_covariances(pr.graph, vals, KeyframeBlocks(len(pr.t_key), []))
+    m = gtsam.Marginals(pr.graph, vals)
+    for k in (0, 7, len(pr.t_key) - 1):
+        assert np.allclose(P[k, :6, :6], m.marginalCovariance(X(k)), rtol=1e-6, atol=1e-12)
+        assert np.allclose(P[k, 6:9, 6:9], m.marginalCovariance(V(k)), rtol=1e-6, atol=1e-12)
+
+
+def test_forward_pass_meets_the_smoother_at_the_last_epoch():
+    """Filter and smoother agree at the final epoch (same information), and the filter is never tighter."""
+    from pos.smoother_covariance import KeyframeBlocks, forward_pass, smoothed_covariances
+    pr, vals = _lc_problem()
+    blocks = KeyframeBlocks(len(pr.t_key), [])
+    dx, Pf = forward_pass(pr.graph, vals, blocks)
+    Ps = smoothed_covariances(pr.graph, vals, blocks)
+    assert np.allclose(Pf[-1], Ps[-1], rtol=1e-6, atol=1e-12)
+    # the correction at the last epoch is the full Gauss-Newton step there (the graph's own solve)
+    step = pr.graph.linearize(vals).optimize()
+    K = len(pr.t_key) - 1
+    assert np.allclose(dx[-1, :6], step.at(X(K)), atol=1e-7)
+    assert np.allclose(dx[-1, 6:9], step.at(V(K)), atol=1e-7)
+    tr_f = np.trace(Pf[:, 3:6, 3:6], axis1=1, axis2=2)
+    tr_s = np.trace(Ps[:, 3:6, 3:6], axis1=1, axis2=2)
+    assert np.all(tr_f >= tr_s * (1 - 1e-9))
+    assert np.mean(tr_f) > 1.2 * np.mean(tr_s)
