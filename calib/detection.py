@@ -100,6 +100,7 @@ class CharucoPlateDetector:
         self.aruco = cv2.aruco.ArucoDetector(tf.detection_dictionary(), dp)
         cp = cv2.aruco.CharucoParameters()
         cp.minMarkers = 2
+        cp.checkMarkers = False  # its global board check rejects raised blocks; corners are checked locally below
         self.charuco = cv2.aruco.CharucoDetector(self.board, cp, dp)
         ids, num, xyz = tf.targets()
         self.target_of_corner = {int(n): str(i) for n, i in zip(num, ids)}
