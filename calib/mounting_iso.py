@@ -5,7 +5,8 @@ Unknowns (block frame L): per image the projection centre C_i and a rotation cor
 (R_cv_to_L,i = R0_i Exp(d_i)), the ground points (control points weighted by their sigmas, all others free
 tie points; points with role `check` are never control), and the mounting x = [dt, l_b, theta_b].
 Observations:
-- image measurements (px, collinearity with the fixed camera model, weighted by the pixel sigmas);
+- image measurements (px, collinearity with the camera model, weighted by the pixel sigmas); selected
+  intrinsics (`refine_intrinsics`) may be estimated too;
 - control point coordinates (m);
 - POS at every event, propagated over the delay as in the `proposed` method:
     C_i = r_imu,i + v_i dt + R_b,i Exp(omega_i dt) l_b,   R_cv_to_L,i = R_b,i Exp(omega_i dt) Exp(theta_b) R_hat,
@@ -35,8 +36,17 @@ DEFAULT_GCP_SIGMA = 0.02
 
 
 def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, meas: Measurements, gcp: Points,
-                  camera, *, fix_delay: bool = False, max_nfev: int = 30) -> MountingResult:
-    """ISO mounting calibration; `eop` (e.g. a bundle or DG result) only initialises the image poses."""
+                  camera, *, fix_delay: bool = False, max_nfev: int = 30,
+                  refine_intrinsics: tuple[str, ...] = ()) -> MountingResult:
+    """ISO mounting calibration; `eop` (e.g. a bundle or DG result) only initialises the image poses.
+    `refine_intrinsics` names camera parameters (e.g. ("f", "cx", "cy")) estimated in the same adjustment."""
+    bad = [k for k in refine_intrinsics if k not in camera.PARAMS]
+    if bad:
+        raise InputError(f"camera model {camera.NAME} has no parameter {bad[0]!r} ({', '.join(camera.PARAMS)})",
+                         field="--refine-intrinsics")
+    cam = camera.copy()
+    i_intr = [camera.PARAMS.index(k) for k in refine_intrinsics]
+    n_intr = len(i_intr)
     frame = BlockFrame.at_map_points(grid, eop.xyz)
     ep = build_epochs(frame, eop, events, traj)
     init = calibrate_proposed(ep, fix_delay=fix_delay)
@@ -87,7 +97,7 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
         d = x[:n_pose].reshape(M, 6)[:, 3:]
         X = x[n_pose:i_mnt].reshape(K, 3)
         mt = np.zeros(7)
-        mt[free_m] = x[i_mnt:]
+        mt[free_m] = x[i_mnt:i_mnt + len(free_m)]
         return C, d, X, mt
 
     def fun(x):
@@ -95,7 +105,9 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
         R = R0 @ so3_exp(d)
         Xc = np.einsum("nji,nj->ni", R[obs_img], X[obs_pt] - C[obs_img])
         Xc[:, 2] = np.maximum(Xc[:, 2], 1e-3)
-        r_img = ((camera.project(Xc) - m.xy) / sig_uv).ravel()
+        if n_intr:
+            cam.params[i_intr] = x[i_mnt + len(free_m):]
+        r_img = ((cam.project(Xc) - m.xy) / sig_uv).ravel()
         r_gcp = ((X[ctrl] - X_ctrl) / s_ctrl).ravel()
         dt, lever, theta = mt[0], mt[1:4], mt[4:7]
         R_b = pos.R_body_to_L @ so3_exp(pos.omega_b * dt)
@@ -107,7 +119,10 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
 
     n_obs = len(obs_img)
     n_res = 2 * n_obs + 3 * int(ctrl.sum()) + 6 * M
-    S = lil_matrix((n_res, i_mnt + len(free_m)), dtype=np.int8)
+    n_glob = len(free_m) + n_intr
+    S = lil_matrix((n_res, i_mnt + n_glob), dtype=np.int8)
+    if n_intr:
+        S[:2 * n_obs, i_mnt + len(free_m):] = 1
     for k in range(n_obs):
         for r in (2 * k, 2 * k + 1):
             S[r, 6 * obs_img[k]:6 * obs_img[k] + 6] = 1
@@ -119,10 +134,10 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
             row += 1
     for i in range(M):
         S[row:row + 6, 6 * i:6 * i + 6] = 1
-        S[row:row + 6, i_mnt:] = 1
+        S[row:row + 6, i_mnt:i_mnt + len(free_m)] = 1
         row += 6
     x0 = np.concatenate([np.column_stack([ep.r_cam_L, np.zeros((M, 3))]).ravel(), X0.ravel(),
-                         np.r_[init.delay_s, init.lever_arm_m, 0, 0, 0][free_m]])
+                         np.r_[init.delay_s, init.lever_arm_m, 0, 0, 0][free_m], camera.params[i_intr]])
     sol = least_squares(fun, x0, jac_sparsity=S.tocsr(), method="trf", x_scale="jac", max_nfev=max_nfev,
                         xtol=1e-10, ftol=1e-10)
     J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
@@ -134,8 +149,10 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     B = N[:i_mnt, i_mnt:]
     Dm = N[i_mnt:, i_mnt:]
     Sm = Dm - B.T @ np.linalg.solve(A, B)
+    cov_glob = np.linalg.inv(Sm) * max(1.0, sigma0_sq)  # mounting (free) then intrinsics
     cov = np.zeros((7, 7))
-    cov[np.ix_(free_m, free_m)] = np.linalg.inv(Sm) * max(1.0, sigma0_sq)
+    nf = len(free_m)
+    cov[np.ix_(free_m, free_m)] = cov_glob[:nf, :nf]
     C, d, X, mt = unpack(sol.x)
     R_final = so3_exp(mt[4:7]) @ R_hat
     rpx = fun(sol.x)[:2 * n_obs].reshape(-1, 2) * sig_uv
@@ -155,6 +172,10 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
                       "initialisation": {"method": "proposed", "delay_s": init.delay_s,
                                          "lever_arm_m": init.lever_arm_m.tolist()},
                       "skipped_images": ep.skipped})
+    if n_intr:
+        res.extra["intrinsics"] = {k: float(v) for k, v in zip(refine_intrinsics, sol.x[i_mnt + nf:])}
+        res.extra["intrinsics_sigma"] = {k: float(v) for k, v in
+                                         zip(refine_intrinsics, np.sqrt(np.diag(cov_glob)[nf:]))}
     xyz_map, opk = frame.L_to_eop(C, R0 @ so3_exp(d))
     res.extra["adjusted_eop"] = {"image": img_names, "xyz": xyz_map.tolist(), "opk_deg": opk.tolist()}
     return res

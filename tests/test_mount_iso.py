@@ -36,3 +36,16 @@ def test_iso_cli(sim, tmp_path):
     import json
     j = json.loads((tmp_path / "iso" / "mounting.json").read_text())
     assert j["method"] == "iso" and abs(j["delay_s"] - sim.delay_s) < 0.002
+
+
+def test_iso_refines_intrinsics(sim):
+    c = sim.calibration
+    cam0 = sim.camera.copy()
+    cam0.params[0] += 6.0  # focal length off by 6 px (0.2 %)
+    cam0.params[1] -= 4.0
+    r = calibrate_iso(c.eop, MapGrid(sim.crs), c.traj, c.events, c.measurements, sim.ground, cam0,
+                      refine_intrinsics=("f", "cx", "cy"))
+    for k, i in (("f", 0), ("cx", 1), ("cy", 2)):
+        err = r.extra["intrinsics"][k] - sim.camera.params[i]
+        assert abs(err) < 3 * r.extra["intrinsics_sigma"][k] + 0.05, (k, err)
+    assert abs(r.delay_s - sim.delay_s) < 0.002

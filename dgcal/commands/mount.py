@@ -22,6 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--measurements", type=Path, help="iso: image measurements of ground points (or gcp_list.txt)")
     p.add_argument("--gcp", type=Path, help="iso: ground control points CSV (role check points are not used)")
     p.add_argument("--camera", type=Path, help="iso: camera file (camera.json, ...)")
+    p.add_argument("--refine-intrinsics", default="", metavar="NAMES",
+                   help="iso: comma-separated camera parameters to estimate too (e.g. f,cx,cy)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,8 +43,9 @@ def run(args: argparse.Namespace) -> int:
         if missing:
             raise InputError(f"--method iso needs --{missing[0]}", field=f"--{missing[0]}")
         from calib.mounting_iso import calibrate_iso_files
+        refine = tuple(k.strip() for k in args.refine_intrinsics.split(",") if k.strip())
         res = calibrate_iso_files(eop, grid, traj, events, args.measurements, args.gcp, args.camera,
-                                  fix_delay=args.fix_delay)
+                                  fix_delay=args.fix_delay, refine_intrinsics=refine)
     else:
         kw = {} if args.method == "traditional" else {"reject": not args.no_reject, "fix_delay": args.fix_delay}
         res = calibrate_mounting(eop, grid, traj, events, args.method, **kw)
