@@ -338,6 +338,10 @@ class MountingResult:
             "boresight_rpy_deg": [float(v) for v in rpy],
             "boresight_rpy_convention": "R_cam_to_body = Rz(yaw) Ry(pitch) Rx(roll)",
             "boresight_quaternion_wxyz": [float(q[3]), float(q[0]), float(q[1]), float(q[2])],
+            # seed Table 1 style: PATB-like angles of the photo frame in the body frame, R_photo_to_body =
+            # R_cam_to_body diag(1,-1,-1) = Rx(omega) Ry(phi) Rz(kappa)
+            "boresight_opk_deg": [float(v) for v in
+                                  Rotation.from_matrix(R @ np.diag([1.0, -1.0, -1.0])).as_euler("XYZ", degrees=True)],
             "parameters": list(self.PARAM_NAMES),
             "covariance": [[float(v) for v in row] for row in self.cov],
             "covariance_units": "s, m, m, m, rad, rad, rad",

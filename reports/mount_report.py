@@ -156,13 +156,21 @@ def check_report_html(checks: dict, improvement: dict | None = None) -> str:
                        f"{b['mean_speed_m_s']:.1f} m/s</p>")
         for w in c.get("warnings", []) + c["asprs_2023"].get("warnings", []):
             parts.append(f"<p class='warn'>{html.escape(w)}</p>")
-    fig, axes = plt.subplots(1, len(checks), figsize=(5 * len(checks), 4.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(checks), figsize=(5 * len(checks), 4.8), squeeze=False)
+    # one arrow scale for all methods, so the panels compare
+    emax = max(max(np.hypot(p["err_enu"][0], p["err_enu"][1]) for p in c["points"]) for c in checks.values())
+    ref_all = np.array([p["ref"] for c in checks.values() for p in c["points"]])
+    origin = ref_all[:, :2].mean(axis=0)
+    span = max(float(np.ptp(ref_all[:, 0])), float(np.ptp(ref_all[:, 1])), 1.0)
+    k = 0.15 * span / max(emax, 1e-9)  # the largest error is drawn 15 % of the block wide
     for ax, (name, c) in zip(axes[0], checks.items()):
-        ref = np.array([p["ref"] for p in c["points"]])
+        ref = np.array([p["ref"] for p in c["points"]])[:, :2] - origin
         err = np.array([p["err_enu"] for p in c["points"]])
-        scale = 100.0 / max(np.max(np.hypot(err[:, 0], err[:, 1])), 1e-9)
-        ax.quiver(ref[:, 0], ref[:, 1], err[:, 0], err[:, 1], angles="xy", scale_units="xy", scale=1 / scale)
-        ax.set_title(f"{name}: horizontal errors (max arrow = 100 m on the map)", fontsize=9)
+        ax.quiver(ref[:, 0], ref[:, 1], err[:, 0] * k, err[:, 1] * k, angles="xy", scale_units="xy", scale=1)
+        ax.set_title(f"{name}: horizontal errors", fontsize=9)
+        ax.set_xlabel("E − E0 (m)")
+        ax.set_ylabel("N − N0 (m)")
         ax.set_aspect("equal")
+    fig.suptitle(f"arrows: {emax:.3f} m error drawn as {0.15 * span:.0f} m (same scale in every panel)", fontsize=9)
     parts.append(_png(fig))
     return _page("dgcal DG check points", parts)
