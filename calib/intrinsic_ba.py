@@ -221,25 +221,30 @@ class _Problem:
         Jc2 = Jc.reshape(-1, P)
         ne.Acc = Jc2.T @ Jc2
         ne.gc = Jc2.T @ r.reshape(-1)
-        ne.U = _group_sum(_tdot(Jpose, Jpose), i, M)
-        ne.W = _group_sum(_tdot(Jc, Jpose), i, M)
-        ne.gpose = _group_sum(Jpose[:, 0] * r[:, :1] + Jpose[:, 1] * r[:, 1:], i, M)
+        # per-image blocks by one BLAS product per image (observations sorted by image)
+        perm = np.argsort(i, kind="stable")
+        bounds = np.searchsorted(i[perm], np.arange(M + 1))
+        ne.U = np.zeros((M, 6, 6))
+        ne.W = np.zeros((M, P, 6))
+        ne.gpose = np.zeros((M, 6))
+        for m in range(M):
+            rows = perm[bounds[m]:bounds[m + 1]]
+            if len(rows) == 0:
+                continue
+            Jp_m = Jpose[rows].reshape(-1, 6)
+            ne.U[m] = Jp_m.T @ Jp_m
+            ne.W[m] = Jc[rows].reshape(-1, P).T @ Jp_m
+            ne.gpose[m] = Jp_m.T @ r[rows].reshape(-1)
         ne.cost = float(np.sum(r * r))
         if not self.refine:
             return ne
         Jx = (JX @ self.R[i]) * self.pt_free[j][:, None, :]               # (n,2,3)
-        n = len(i)
         nu = P + 6 * M
-        # coupling (camera + poses) x targets, one 3-column block per observation and per target
-        Bc = _group_sum(_tdot(Jc, Jx), j, N)
-        Bp = _tdot(Jpose, Jx)                                                 # (n,6,3)
-        rows = np.concatenate([np.broadcast_to(np.arange(P)[None, :, None], (N, P, 3)).ravel(),
-                               (P + 6 * i[:, None, None] + np.arange(6)[None, :, None]
-                                + np.zeros((1, 1, 3), int)).ravel()])
-        cols = np.concatenate([(3 * np.arange(N)[:, None, None] + np.arange(3)[None, None, :]
-                                + np.zeros((1, P, 1), int)).ravel(),
-                               (3 * j[:, None, None] + np.arange(3)[None, None, :] + np.zeros((1, 6, 1), int)).ravel()])
-        ne.B = sp.csr_matrix((np.concatenate([Bc.ravel(), Bp.ravel()]), (rows, cols)), shape=(nu, 3 * N))
+        # coupling (camera + poses) x targets as a dense (nu, N, 3) array: camera rows are full anyway
+        Bd = np.zeros((nu, N, 3))
+        Bd[:P] = _group_sum(_tdot(Jc, Jx), j, N).transpose(1, 0, 2)
+        Bd[P + 6 * i[:, None] + np.arange(6), j[:, None], :] = _tdot(Jpose, Jx)
+        ne.B = Bd.reshape(nu, 3 * N)
         ne.V = _group_sum(_tdot(Jx, Jx), j, N)
         gp = _group_sum(Jx[:, 0] * r[:, :1] + Jx[:, 1] * r[:, 1:], j, N)
         wp = np.where(self.pt_free, self.pt_prior_w, 0.0)
@@ -277,7 +282,7 @@ class _Normals:
     U: np.ndarray = None        # (M,6,6) pose blocks
     W: np.ndarray = None        # (M,P,6) camera-pose coupling
     gpose: np.ndarray = None    # (M,6)
-    B: sp.csr_matrix = None     # (P+6M, 3N) coupling to targets
+    B: np.ndarray = None        # (P+6M, 3N) coupling to targets (dense)
     V: np.ndarray = None        # (N,3,3) target blocks
     gp: np.ndarray = None       # (3N,)
     cost: float = 0.0
@@ -310,7 +315,12 @@ def _scaled_solve(S, rhs):
 
 def _scaled_inv(S):
     s = np.sqrt(np.maximum(np.diag(S), 1e-300))
-    return np.linalg.pinv(S / s[:, None] / s[None, :], rcond=1e-14, hermitian=True) / s[:, None] / s[None, :]
+    Sn = S / s[:, None] / s[None, :]
+    try:
+        inv = np.linalg.inv(Sn)
+    except np.linalg.LinAlgError:
+        inv = np.linalg.pinv(Sn, rcond=1e-14, hermitian=True)
+    return inv / s[:, None] / s[None, :]
 
 
 def _solve_step(ne: _Normals, lam: float, covariance: bool = False):
@@ -333,15 +343,15 @@ def _solve_step(ne: _Normals, lam: float, covariance: bool = False):
         return np.concatenate([dc, dpose.ravel()]), None
     A, gu = ne.dense_u()
     Vinv = np.linalg.inv(_damped(ne.V, lam))
-    Y = (ne.B @ sp.block_diag(list(Vinv), format="csr")).tocsr()
-    S = _damped(A, lam) - (Y @ ne.B.T).toarray()
+    nu = A.shape[0]
+    Y = (ne.B.reshape(nu, ne.N, 3).transpose(1, 0, 2) @ Vinv).transpose(1, 0, 2).reshape(nu, 3 * ne.N)
+    S = _damped(A, lam) - Y @ ne.B.T
     if covariance:
         Sinv = _scaled_inv(S)
         idx = P + 6 * np.arange(M)[:, None] + np.arange(6)
         cov_pose = Sinv[idx[:, :, None], idx[:, None, :]]
-        Yd = Y.toarray()
-        Z = Sinv @ Yd
-        cov_pts = Vinv + np.einsum("kna,knb->nab", Yd.reshape(-1, ne.N, 3), Z.reshape(-1, ne.N, 3))
+        Z = Sinv @ Y
+        cov_pts = Vinv + np.einsum("kna,knb->nab", Y.reshape(-1, ne.N, 3), Z.reshape(-1, ne.N, 3))
         return Sinv[:P, :P], cov_pose, cov_pts
     du = _scaled_solve(S, -gu + Y @ ne.gp)
     dp = np.einsum("nab,nb->na", Vinv, (-ne.gp - ne.B.T @ du).reshape(-1, 3)).reshape(-1)

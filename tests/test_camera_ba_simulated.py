@@ -54,24 +54,36 @@ def opencv_calibrate(pts, img, ids, xy, size):
 
 
 def test_projection_accuracy_and_opencv_comparison():
-    # B2 = 0 so OpenCV's model family holds the truth and the comparison is fair
-    truth = default_camera(SIZE)
-    truth.params[9] = 0.0
-    truth, pts, img, ids, xy = scene(1, truth=truth)
+    # the simulator's lens has a small skew B2, which OpenCV's model cannot represent
+    truth, pts, img, ids, xy = scene(1)
     assert len(set(img.tolist())) >= 40
     res = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7")
     rms, mx, _ = projection_difference(truth, res.camera)
     assert rms < 0.03 and mx < 0.08, (rms, mx)
     cv_rms, cv_cam = opencv_calibrate(pts, img, ids, xy, SIZE)
     cv_diff, cv_max, _ = projection_difference(truth, cv_cam)
-    assert rms <= 1.05 * cv_diff + 0.002, (rms, cv_diff)
-    # OpenCV's RMS is per point over all observations; ours over the kept ones, same definition
-    assert res.rms_px <= cv_rms + 1e-3
+    assert rms < cv_diff and mx < cv_max, (rms, cv_diff, mx, cv_max)
+    assert res.rms_px <= cv_rms  # same definition: sqrt(mean |v|^2) per point
     assert abs(res.sigma0 - 0.1) < 0.01
     err = (res.camera.params - truth.params)[res.free] / res.camera.sigmas[res.free]
     assert np.all(np.abs(err) < 3.0), dict(zip(np.array(truth.PARAMS)[res.free], err))
     dg = diagnose(res)
     assert not dg.pattern.lens_misfit and not dg.pattern.systematic
+
+
+def test_same_model_as_opencv_gives_the_same_accuracy():
+    # without skew OpenCV's 5-coefficient model is fraser7 with B2 = 0: hold B2 and compare like with like
+    truth = default_camera(SIZE)
+    truth.params[9] = 0.0
+    truth, pts, img, ids, xy = scene(2, truth=truth)
+    res = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7", fixed=("B2",))
+    rms, mx, _ = projection_difference(truth, res.camera)
+    cv_rms, cv_cam = opencv_calibrate(pts, img, ids, xy, SIZE)
+    cv_diff, cv_max, _ = projection_difference(truth, cv_cam)
+    assert rms < 0.03 and mx < 0.08, (rms, mx)
+    # equal up to the few 4-sigma tail points the robust rejection removes from Gaussian noise
+    assert rms <= 1.1 * cv_diff + 0.001, (rms, cv_diff)
+    assert res.n_rejected < 5e-4 * len(xy) + 3
 
 
 def test_sigmas_are_honest_over_seeds():
