@@ -15,8 +15,8 @@ import numpy as np
 from pos.nav_frame import C_LIGHT, NavFrame
 from pos.smoother_factors import (B, CLK, DRIFT, V, X, ZERO, clock_factors, doppler_factors, position_factor,
                                   pseudorange_factors, velocity_factor)
-from pos.smoother_imu import (ImuNoise, gravity_correction_b, imu_noise_from_grade, preintegrate,
-                              preintegration_params, split_at_keyframes)
+from pos.smoother_imu import (ImuNoise, gravity_correction_b, imu_noise_from_grade, interval_params,
+                              preintegrate, preintegration_params, split_at_keyframes)
 from pos.smoother_init import (GnssFixes, anchor_attitude, initial_clocks, initial_track,
                                propagate_attitude)
 
@@ -110,7 +110,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     params = preintegration_params(imu_noise, frame, opts.earth_rotation)
     seg = split_at_keyframes(imu.t, imu.gyro_rad_s, imu.accel_m_s2, t_key, imu.dt[0])
     biases = [gtsam.imuBias.ConstantBias()] * (K - 1)
-    pims = preintegrate(params, seg, biases)
+    pims = preintegrate(params, seg, biases, interval_params(imu_noise, frame, seg, opts.earth_rotation))
 
     p_ant, v_ant = initial_track(t_key, fixes, frame, lever)
     a, R_a = anchor_attitude(v_ant)
@@ -208,7 +208,8 @@ def rebuild_imu(problem: Problem, imu, imu_noise: ImuNoise, opts: SmootherOption
     accel = imu.accel_m_s2 + gravity_correction_b(imu.t, first.t, first.R_body_to_nav, first.p_nav, problem.frame)
     seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_key, imu.dt[0])
     biases = [gtsam.imuBias.ConstantBias(b[:3], b[3:]) for b in first.bias[:-1]]
-    pims = preintegrate(problem.params, seg, biases)
+    pims = preintegrate(problem.params, seg, biases,
+                        interval_params(imu_noise, problem.frame, seg, opts.earth_rotation))
     imu_factors = [gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
                    for k in range(len(t_key) - 1)]
     graph = gtsam.NonlinearFactorGraph()

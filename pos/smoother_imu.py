@@ -19,6 +19,9 @@ class ImuNoise:
     gyro_arw: angle random walk, rad/sqrt(s); accel_vrw: velocity random walk, m/s/sqrt(s);
     gyro_bias_rw / accel_bias_rw: bias random-walk densities, rad/s/sqrt(s) and m/s^2/sqrt(s);
     gyro_bias_sigma / accel_bias_sigma: turn-on bias sigma (prior on the first bias), rad/s and m/s^2.
+    *_scale / *_misalign: residual scale-factor (fraction) and axis-misalignment (rad) sigmas; not estimated,
+    they act as a bias proportional to the rate / specific force and are absorbed by letting the bias
+    states move when the rates change (see `interval_params`).
     """
 
     gyro_arw: float
@@ -27,6 +30,10 @@ class ImuNoise:
     accel_bias_rw: float
     gyro_bias_sigma: float
     accel_bias_sigma: float
+    gyro_scale: float = 0.0
+    gyro_misalign: float = 0.0
+    accel_scale: float = 0.0
+    accel_misalign: float = 0.0
 
 
 def imu_noise_from_grade(grade) -> ImuNoise:
@@ -50,7 +57,11 @@ def imu_noise_from_grade(grade) -> ImuNoise:
         gyro_arw=float(g.gyro_arw), accel_vrw=float(g.accel_vrw),
         gyro_bias_rw=max(float(gyro_bias_rw), 1e-9), accel_bias_rw=max(float(accel_bias_rw), 1e-8),
         gyro_bias_sigma=max(float(getattr(g, "gyro_bias_sigma", 0.0) or 0.0), gbi, 1e-7),
-        accel_bias_sigma=max(float(getattr(g, "accel_bias_sigma", 0.0) or 0.0), abi, 1e-6))
+        accel_bias_sigma=max(float(getattr(g, "accel_bias_sigma", 0.0) or 0.0), abi, 1e-6),
+        gyro_scale=float(getattr(g, "gyro_scale_sigma", 0.0) or 0.0),
+        gyro_misalign=float(getattr(g, "gyro_misalign_sigma", 0.0) or 0.0),
+        accel_scale=float(getattr(g, "accel_scale_sigma", 0.0) or 0.0),
+        accel_misalign=float(getattr(g, "accel_misalign_sigma", 0.0) or 0.0))
 
 
 def preintegration_params(noise: ImuNoise, frame: NavFrame, earth_rotation: bool = True):
@@ -101,13 +112,47 @@ def split_at_keyframes(t_imu: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t
     return ImuSegments(gyro[idx], accel[idx], dt, key_pos)
 
 
-def preintegrate(params, seg: ImuSegments, biases) -> list:
-    """One PreintegratedCombinedMeasurements per keyframe interval; `biases[k]` is the linearisation bias."""
+def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_rotation: bool = True) -> list:
+    """Preintegration parameters per keyframe interval, with the scale/misalignment errors as bias motion.
+
+    A scale error s and misalignment m turn a rate change dw into an apparent bias change of variance
+    s^2 dw_i^2 + m^2 sum_{j!=i} dw_j^2 per axis. That variance is added to the interval's bias random walk,
+    and a quarter of it (the bias is held at its start value within the interval) to the white noise.
+    Returns None entries where nothing is added (the shared base parameters are used).
+    """
+    K = len(seg.start) - 1
+    if not (noise.gyro_scale or noise.gyro_misalign or noise.accel_scale or noise.accel_misalign) or K < 2:
+        return [None] * K
+    T = np.add.reduceat(seg.dt, seg.start[:-1])
+    wbar = np.add.reduceat(seg.gyro * seg.dt[:, None], seg.start[:-1]) / T[:, None]
+    fbar = np.add.reduceat(seg.accel * seg.dt[:, None], seg.start[:-1]) / T[:, None]
+
+    def jump_var(x, s, m):
+        d = np.diff(x, axis=0, append=x[-1:])
+        d2 = d ** 2
+        return s ** 2 * d2 + m ** 2 * (d2.sum(1, keepdims=True) - d2)
+    qg = jump_var(wbar, noise.gyro_scale, noise.gyro_misalign)
+    qa = jump_var(fbar, noise.accel_scale, noise.accel_misalign)
+    out = []
+    for k in range(K):
+        p = preintegration_params(noise, frame, earth_rotation)
+        p.setBiasOmegaCovariance(np.diag(noise.gyro_bias_rw ** 2 + qg[k] / T[k]))
+        p.setBiasAccCovariance(np.diag(noise.accel_bias_rw ** 2 + qa[k] / T[k]))
+        p.setGyroscopeCovariance(np.diag(noise.gyro_arw ** 2 + qg[k] * T[k] / 4.0))
+        p.setAccelerometerCovariance(np.diag(noise.accel_vrw ** 2 + qa[k] * T[k] / 4.0))
+        out.append(p)
+    return out
+
+
+def preintegrate(params, seg: ImuSegments, biases, per_interval: list | None = None) -> list:
+    """One PreintegratedCombinedMeasurements per keyframe interval; `biases[k]` is the linearisation bias,
+    `per_interval[k]` (optional) replaces `params` for interval k."""
     import gtsam
     out = []
     gyro, accel, dt = seg.gyro, seg.accel, seg.dt
     for k in range(len(seg.start) - 1):
-        pim = gtsam.PreintegratedCombinedMeasurements(params, biases[k])
+        pk = per_interval[k] if per_interval is not None and per_interval[k] is not None else params
+        pim = gtsam.PreintegratedCombinedMeasurements(pk, biases[k])
         f = pim.integrateMeasurement
         for j in range(seg.start[k], seg.start[k + 1]):
             f(accel[j], gyro[j], dt[j])

@@ -1,0 +1,108 @@
+"""Acceptance of the GNSS/INS smoother on a simulated UAV flight (issue 4), in a short version for the suite.
+
+ADIS16488-class IMU (pos.imu_grades, with scale factors and misalignments) at 100 Hz, code pseudoranges and
+Doppler of GPS + Galileo from the real broadcast orbits, a 60 s outage with only 3 satellites, 5 minutes.
+The 20-minute, 200 Hz version runs in bench/pos.py (`--acceptance`).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+pytest.importorskip("gtsam")
+
+
+@pytest.fixture(scope="module")
+def flight():
+    from pos.pipeline import process
+    from pos.spp import SppOptions
+    from sim.pos import simulate_pos
+    sim = simulate_pos(seed=0, duration_s=300.0, rate_hz=100.0)
+    opts = SppOptions(code_sigma_zenith_m=sim.sigma_pr, doppler_sigma_zenith_mps=sim.sigma_doppler,
+                      model_errors=False, systems=("G", "E"))
+    out = {"sim": sim}
+    for mode in ("tc", "lc"):
+        out[mode] = process(mode, sim.imu, sim.grade, sim.lever_arm_b, raw_obs=sim.obs, nav=sim.nav,
+                            spp_opts=opts, events=sim.events)
+    return out
+
+
+def errors(sol, traj):
+    """Position (K,3) m and attitude (K,3) rad errors (nav axes / body rotation vector) and their sigmas."""
+    st = traj.at(sol.t)
+    dp = sol.p_nav - sol.frame.from_ecef(st.p_ecef)
+    R_true = np.einsum("ji,kjl->kil", sol.frame.R_nav_to_ecef, st.R_body_to_ecef)
+    dth = Rotation.from_matrix(np.einsum("kji,kjl->kil", R_true, sol.R_body_to_nav)).as_rotvec()
+    sp = np.sqrt(np.einsum("kii->ki", sol.cov_p_nav))
+    sa = np.sqrt(np.einsum("kii->ki", sol.cov_pose[:, :3, :3]))
+    return dp, dth, sp, sa
+
+
+def rms(x, axis=0):
+    return np.sqrt(np.mean(np.asarray(x) ** 2, axis=axis))
+
+
+def test_tc_accuracy(flight):
+    dp, dth, _, _ = errors(flight["tc"].smoothed, flight["sim"].traj)
+    assert np.sqrt(np.mean(np.sum(dp ** 2, axis=1))) <= 1.0
+    att = np.degrees(rms(dth))  # about body x/y/z: ~roll/pitch/heading for a near-level UAV
+    assert att[0] <= 0.05 and att[1] <= 0.05
+    assert att[2] <= 0.15
+
+
+def test_tc_event_attitude_in_rph(flight):
+    """The events file (interpolated, local NED, degrees) has the same accuracy in roll/pitch/heading."""
+    ev = flight["tc"].events
+    te = flight["sim"].traj.at(flight["sim"].events.t)
+    assert len(ev.t) == len(flight["sim"].events.t)
+    assert list(ev.image) == list(flight["sim"].events.image)
+    d = ev.rph - te.rph
+    d[:, 2] = (d[:, 2] + 180.0) % 360.0 - 180.0
+    assert np.all(rms(d)[:2] <= 0.05) and rms(d)[2] <= 0.15
+    from fields.crs import geodetic_to_ecef
+    dp = geodetic_to_ecef(ev.lat, ev.lon, ev.h) - te.p_ecef
+    assert rms(np.linalg.norm(dp, axis=1)) <= 1.0
+
+
+@pytest.mark.parametrize("mode", ["tc", "lc"])
+def test_sigmas_cover_the_errors(flight, mode):
+    dp, dth, sp, sa = errors(flight[mode].smoothed, flight["sim"].traj)
+    nees_p = rms((dp / sp).ravel())
+    nees_a = rms((dth / sa).ravel())
+    assert 0.7 <= nees_p <= 1.4, nees_p
+    assert 0.7 <= nees_a <= 1.4, nees_a
+
+
+def test_smoother_beats_forward(flight):
+    for mode in ("tc", "lc"):
+        s = errors(flight[mode].smoothed, flight["sim"].traj)
+        f = errors(flight[mode].forward, flight["sim"].traj)
+        assert rms(np.linalg.norm(s[0], axis=1)) < 0.5 * rms(np.linalg.norm(f[0], axis=1))
+        assert rms(np.linalg.norm(s[1], axis=1)) < 0.5 * rms(np.linalg.norm(f[1], axis=1))
+        # the forward solution's own sigmas are honest too (it is a proper filter)
+        assert 0.6 <= rms((f[0] / f[2]).ravel()) <= 1.5
+
+
+def test_outage_with_three_satellites(flight):
+    sim = flight["sim"]
+    t0, t1, nmax = sim.outage
+    tc, lc = flight["tc"].smoothed, flight["lc"].smoothed
+    inside = (tc.t >= t0 + 1) & (tc.t <= t1 - 1)
+    assert inside.sum() >= 55
+    assert np.all(tc.n_sat[inside] <= nmax) and np.all(tc.gnss_update[inside])  # TC still uses the 3
+    dp = errors(tc, sim.traj)[0]
+    assert np.max(np.linalg.norm(dp[inside], axis=1)) <= 3.0
+    inside_lc = (lc.t >= t0 + 1) & (lc.t <= t1 - 1)
+    assert not lc.gnss_update[inside_lc].any()  # SPP has no fix there: LC has no GNSS update
+    # the forward TC filter stays bounded through the outage while forward LC drifts
+    f_tc = errors(flight["tc"].forward, sim.traj)[0]
+    f_lc = errors(flight["lc"].forward, sim.traj)[0]
+    assert np.max(np.linalg.norm(f_tc[inside], axis=1)) < np.max(np.linalg.norm(f_lc[inside_lc], axis=1))
+
+
+def test_post_fit_residuals_match_their_sigmas(flight):
+    res = flight["tc"].summary["residuals"]
+    assert 0.6 <= res["pr"]["rms_normalised"] <= 1.2
+    assert 0.6 <= res["dop"]["rms_normalised"] <= 1.2
+    assert flight["tc"].summary["innovations"]["pr"]["n"] > 1000
