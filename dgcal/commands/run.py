@@ -1,0 +1,31 @@
+"""Run a calibration campaign: camera field -> triangulation -> POS -> mounting (and the methods compared) ->
+DG check, resumable (a finished step is skipped unless its inputs changed), ending with the calibration
+report DIR/report.html and DIR/report.json. The campaign file is described in docs/campaign.md."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "run"
+HELP = "run (or resume) a calibration campaign from CAMPAIGN.toml and write its calibration report"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("campaign", type=Path, metavar="CAMPAIGN.toml", help="campaign file (paths relative to it)")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (one sub-folder per step)")
+    p.add_argument("--force", action="store_true", help="rerun every step even when it is up to date")
+    p.add_argument("--dry-run", action="store_true", help="list the steps and their commands, run nothing")
+
+
+def run(args: argparse.Namespace) -> int:
+    from dgcal.campaign import load_campaign, plan, run_campaign
+    if args.dry_run:
+        for step in plan(load_campaign(args.campaign), args.out):
+            print(f"[{step.name}] dgcal {' '.join(step.argv)}")
+        return 0
+    res = run_campaign(args.campaign, args.out, force=args.force)
+    ran = [k for k, v in res["steps"].items() if v == "ran"]
+    print(f"{len(ran)} step(s) ran, {len(res['steps']) - len(ran)} up to date; "
+          + ", ".join(f"{k} {v:.1f} s" for k, v in res["timings_s"].items()))
+    print(res["report"])
+    return 0

@@ -1,0 +1,435 @@
+"""A complete synthetic calibration campaign like seed 003, from one consistent truth.
+
+Truth: a fixed-wing flight (`sim.trajectory.simulate_flight`: take-off, orbit climbs, strips in opposite
+headings at 300 m and 600 m above ground) -> its IMU data (`sim.imu.simulate_imu`, ADIS16488 grade) ->
+GNSS antenna positions (cm-level, PPK-like; or RINEX pseudoranges with `gnss_mode="tc"`) -> camera
+events (`camera_events`, the exposure happening `delay_s` after the event) -> true camera poses at the
+exposure times (trajectory at t_event + delay, lever arm, boresight) -> image measurements of ground
+control, check and tie points through the true fraser7 camera (noisy, no rendering) -> plus the
+measurements of a rotating coded-target plate photographed by the same camera (`sim.camera_field`).
+
+`dgcal simulate campaign --out DIR --seed N` writes what a user has after such a campaign:
+
+    campaign.toml            the campaign file of `dgcal run`
+    field/field.csv          target plate coordinates (plate frame, m); field/measurements.csv (px)
+    flight/gcp.csv           control (role control) and check (role check) points, map CRS
+    flight/measurements.csv  image measurements of ground and tie points (px)
+    flight/measurements_gcp.csv   the ground-point measurements only
+    flight/events.csv        camera events (GPS week, seconds of week)
+    flight/imu.txt           IMU increments (KF-GINS text, body FRD)
+    flight/gnss.csv          antenna positions (gnss.csv of `dgcal pos --mode spp`, cm-level), LC input
+    flight/rover.obs, nav.rnx     (gnss_mode "tc") simulated RINEX pseudoranges and navigation
+    truth.json, truth/*      the true camera, mounting, delay, trajectory, EOPs
+
+Code-only TC processing gives metre-level positions and hence dm-level lever arms; the lever-arm (3 cm)
+and delay (2 ms) accuracy of a calibration needs PPK-quality antenna positions, the default here.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+NAME = "campaign"
+HELP = "a complete calibration campaign (camera field, control-field flight, IMU, GNSS, events) with truth"
+
+DEFAULT_CRS = "EPSG:32651"           # UTM 51N; the site lies 2.4 deg west of its central meridian (123 E)
+SITE = (23.70, 120.60, 40.0)         # lat, lon (deg), ellipsoidal ground height (m): western Taiwan
+LEVER_ARM_M = (0.12, -0.06, 0.18)    # IMU -> camera, body FRD (m), of the order of seed Table 1
+BORESIGHT_DEG = (0.9, -0.6, 1.4)     # small rotations (x, y, z, deg) applied to the nominal mounting
+LEVER_ARM_GNSS_M = (0.05, 0.0, -0.35)  # IMU -> GNSS antenna, body FRD (m), surveyed
+R_CAM_TO_BODY_NOMINAL = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # image top forward
+
+
+def default_camera():
+    """A 20 mm lens on a 6000 x 4000 full-frame sensor (6 um pixels): f = 3333 px, mild barrel distortion."""
+    from calib.camera_models import Fraser7
+    w, h = 6000, 4000
+    return Fraser7((w, h), [20.0 / 0.006, (w - 1) / 2 + 11.0, (h - 1) / 2 - 7.0,
+                            -0.045, 0.018, 0.0, 3e-5, -2e-5, 0.25, 0.05])
+
+
+def boresight_matrix(deg=BORESIGHT_DEG) -> np.ndarray:
+    """R_cam_to_body: the nominal down-looking, image-top-forward mounting turned by small angles (deg)."""
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_euler("xyz", deg, degrees=True).as_matrix() @ R_CAM_TO_BODY_NOMINAL
+
+
+def terrain_up(e: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Terrain height above the site's ground height (m) at local east/north (m): rolling, +-15 m."""
+    return 9.0 * np.sin(e / 310.0) * np.cos(n / 420.0) + 5.0 * np.sin((e - 2 * n) / 190.0) + 0.004 * n
+
+
+class _SpeedProfile:
+    """A `sim.trajectory.FlightProfile` whose airspeed changes smoothly: V(t) = speed + sum of smooth steps.
+
+    Only `controls` and `attitude` depend on the speed; they are redefined here with V(t) and its rates
+    (the flight-path pitch uses V(t)), everything else (positions by quadrature, specific force, angular
+    rate, `TrueTrajectory.at`) follows from them exactly.
+    """
+
+    @staticmethod
+    def make(base, steps):
+        from sim.trajectory import FlightProfile
+
+        class Profile(FlightProfile):
+            def controls(self, t):
+                tau = np.asarray(t, float) - self.t0
+                psi_i, r, rdot, _ = self.turn.evaluate(tau)
+                up_i, vup, vupdot, vupddot = self.climb.evaluate(tau)
+                _, dv, dvdot, dvddot = steps.evaluate(tau)
+                V, Vd, Vdd = self.speed + dv, dvdot, dvddot
+                psi = self.heading0 + psi_i
+                c, s = np.cos(psi), np.sin(psi)
+                v_l = np.stack([V * c, V * s, -vup], -1)
+                a_l = np.stack([Vd * c - V * r * s, Vd * s + V * r * c, -vupdot], -1)
+                j_l = np.stack([Vdd * c - 2 * Vd * r * s - V * rdot * s - V * r * r * c,
+                                Vdd * s + 2 * Vd * r * c + V * rdot * c - V * r * r * s, -vupddot], -1)
+                return dict(psi=psi, r=r, rdot=rdot, height=up_i, vup=vup, vupdot=vupdot, v_l=v_l, a_l=a_l,
+                            j_l=j_l, V=V, Vdot=Vd)
+
+            def attitude(self, c):
+                # FlightProfile.attitude with V(t): evaluate it on a copy whose speed is the local V, after
+                # correcting the pitch-rate term for dV/dt (thdot = (V vupdot - vup Vdot) / (V^2 + vup^2))
+                V, Vd = c["V"], c["Vdot"]
+                c2 = dict(c, vupdot=c["vupdot"] - c["vup"] * Vd / V)
+                saved = self.speed
+                try:
+                    self.speed = V
+                    R, w = FlightProfile.attitude(self, c2)
+                finally:
+                    self.speed = saved
+                return R, w
+
+        return Profile(base.lat0, base.lon0, base.h0, base.t0, base.p0_l, base.speed, base.heading0, base.turn,
+                       base.climb, base.aoa_rad, base.crab_rad)
+
+
+def _flight_with_speeds(speeds, **kw):
+    """`sim.trajectory.simulate_flight` with airspeed speeds[i] on the strips of height i (changed smoothly
+    during the orbit climb before them); heights fly at different ground speeds, which separates the
+    exposure delay from the along-track lever arm."""
+    from sim.trajectory import SmoothSteps, _assemble, simulate_flight
+    base = simulate_flight(speed=float(speeds[0]), **kw)
+    climbs = [s for s in base.segments if s.kind == "climb"]
+    a, T, d = [], [], []
+    for i in range(1, len(speeds)):
+        if i < len(climbs):
+            a.append(climbs[i].t_start - base.profile.t0 + 5.0)
+            T.append(min(20.0, climbs[i].t_end - climbs[i].t_start - 10.0))
+            d.append(float(speeds[i]) - float(speeds[i - 1]))
+    if not a:
+        return base
+    prof = _SpeedProfile.make(base.profile, SmoothSteps(a, T, d))
+    t = base.t
+    inc = prof.horizontal_increment(t[:-1], t[1:])
+    p_l = np.zeros((len(t), 3))
+    p_l[:, :2] = prof.p0_l[:2] + np.vstack([np.zeros(2), np.cumsum(inc, axis=0)])
+    p_l[:, 2] = prof.p0_l[2] - prof.climb.evaluate(t - prof.t0)[0]
+    traj = _assemble(prof, t, p_l, with_increments=True, rate_hz=base.rate_hz)
+    traj.segments = base.segments
+    return traj
+
+
+def _camera_field(out: Path, camera, rng, n_images: int, noise_px: float) -> dict:
+    """Target-plate measurements (no rendering): shots of sim.camera_field, projected, noisy."""
+    from fields.csvio import write_table
+    from fields.formats import Measurements, write_measurements
+    from fields.target_field import TargetField, write_field
+    from sim.camera_field import plan_shots, truth_projections
+    tf = TargetField()
+    shots = plan_shots(n_images, camera, tf, rng)
+    rows_img, rows_id, uv_all = [], [], []
+    for shot in shots:
+        ids, uv, _ = truth_projections(camera, tf, shot, [])
+        rows_img += [shot.image] * len(ids)
+        rows_id += list(ids)
+        uv_all.append(uv)
+    uv = np.vstack(uv_all)
+    out.mkdir(parents=True, exist_ok=True)
+    write_field(out / "field.csv", tf)
+    write_measurements(out / "measurements.csv",
+                       Measurements(np.array(rows_img, dtype=object), np.array(rows_id, dtype=object),
+                                    uv + rng.normal(0, noise_px, uv.shape), np.full(uv.shape, noise_px)))
+    write_table(out / "truth_measurements.csv", ["image", "id", "x", "y"],
+                ([a, b, *p] for a, b, p in zip(rows_img, rows_id, uv)), fmt="%.5f")
+    return {"n_images": len(shots), "n_observations": int(len(uv)), "noise_px": noise_px}
+
+
+def _observe(camera, C_ecef, R_cv_to_ecef, names, ids, X_ecef, margin_px: float = 10.0):
+    """Noise-free projections of points X_ecef into every image: (image, id, uv) rows."""
+    w, h = camera.image_size
+    rows_img, rows_id, uv_all = [], [], []
+    for k in range(len(names)):
+        Xc = (X_ecef - C_ecef[k]) @ R_cv_to_ecef[k]
+        ok = Xc[:, 2] > 1.0
+        uv = np.full((len(X_ecef), 2), np.nan)
+        uv[ok] = camera.project(Xc[ok])
+        ok &= (uv[:, 0] > margin_px) & (uv[:, 0] < w - 1 - margin_px) & (uv[:, 1] > margin_px) & \
+              (uv[:, 1] < h - 1 - margin_px)
+        j = np.nonzero(ok)[0]
+        rows_img += [names[k]] * len(j)
+        rows_id += list(ids[j])
+        uv_all.append(uv[j])
+    return np.array(rows_img, dtype=object), np.array(rows_id, dtype=object), np.vstack(uv_all)
+
+
+def _gnss_rows(t, p_ant, v_ant, sig_enu, sig_v):
+    """Rows of gnss.csv (the columns of `dgcal pos --mode spp`) for antenna positions with ENU sigmas."""
+    from fields.crs import ecef_to_geodetic
+    from fields.formats import week_sow
+    from fields.frames import R_ecef_to_enu
+    llh = ecef_to_geodetic(p_ant)
+    R = R_ecef_to_enu(llh[:, 0], llh[:, 1])                  # (N,3,3) ECEF -> ENU
+    cov = np.einsum("nji,j,njk->nik", R, np.asarray(sig_enu) ** 2, R)   # ENU diag -> ECEF
+    s_ecef = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
+    week, sow = week_sow(t)
+    nan = float("nan")
+    rows = []
+    for i in range(len(t)):
+        rows.append([int(week[i]), float(sow[i]), *p_ant[i], *v_ant[i], *s_ecef[i], sig_v, sig_v, sig_v, *llh[i],
+                     *sig_enu, nan, nan, nan, nan, 12, 1.8, 1.5, 0.9, 1.2, 1.0, ""])
+    return rows
+
+
+def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS, site=SITE,
+                      heights_agl=(300.0, 600.0), n_strips: int = 4, strip_length_m: float = 1100.0,
+                      strip_spacing_m: float = 220.0, strip_heading_deg: float = 35.0, speeds_mps=(22.0, 32.0),
+                      event_distance_m: float = 80.0,
+                      delay_s: float = -0.14, lever_arm_m=LEVER_ARM_M, boresight_deg=BORESIGHT_DEG,
+                      lever_arm_gnss_m=LEVER_ARM_GNSS_M, imu_grade: str = "adis16488", imu_rate_hz: float = 100.0,
+                      gnss_mode: str = "lc", gnss_rate_hz: float = 1.0, gnss_sigma_enu=(0.02, 0.02, 0.04),
+                      gnss_sigma_v: float = 0.03, sigma_pr: float = 0.5, noise_px: float = 0.3,
+                      n_control: int = 12, n_check: int = 12, gcp_sigma=(0.01, 0.01, 0.02), n_tie: int = 1500,
+                      field_images: int = 36, field_noise_px: float = 0.15, pos_extra: dict | None = None) -> dict:
+    """Write a campaign into `out` (see the module doc); returns the truth dictionary (also truth.json)."""
+    from calib.camera_formats import camera_json_dict
+    from fields.crs import LocalENU, MapGrid
+    from fields.csvio import atomic_write, staged_dir
+    from fields.errors import InputError
+    from fields.formats import (EOP, Measurements, Points, week_sow, write_eop, write_events, write_measurements,
+                                write_points, write_trajectory)
+    from fields.frames import opk_from_R_cv_to_map
+    from pos.imu_io import write_kf_gins
+    from sim.gnss import DEFAULT_T0_GPS
+    from sim.imu import simulate_imu
+    from sim.trajectory import camera_events
+
+    if gnss_mode not in ("lc", "tc"):
+        raise InputError(f"unknown GNSS mode {gnss_mode!r} (lc or tc)", field="gnss_mode")
+    rng = np.random.default_rng(seed)
+    lat0, lon0, h0 = site
+    grid = MapGrid(crs)
+    enu = LocalENU(lat0, lon0, h0)
+    camera = default_camera()
+    R_cb = boresight_matrix(boresight_deg)
+    lever = np.asarray(lever_arm_m, float)
+    lever_g = np.asarray(lever_arm_gnss_m, float)
+    week0, sow0 = (int(v) for v in week_sow(DEFAULT_T0_GPS))  # inside the bundled navigation file (tc mode)
+
+    # 1. the true flight, its IMU, the events and the true camera poses at the exposures
+    traj = _flight_with_speeds(speeds_mps, kind="fixed-wing", lat0=lat0, lon0=lon0, h_ground=h0,
+                               heights_agl=tuple(heights_agl), n_strips=n_strips, strip_length_m=strip_length_m,
+                               strip_spacing_m=strip_spacing_m, strip_heading_deg=strip_heading_deg,
+                               rate_hz=imu_rate_hz, gps_week=week0, gps_sow=float(sow0))
+    # no triad misalignment: the IMU axes define the body frame, so the true boresight is well defined (a real
+    # triad's non-orthogonality ends up in the calibrated boresight)
+    imu, imu_err = simulate_imu(traj, imu_grade, seed=seed + 1, misalignment=False)
+    events = camera_events(traj, distance_m=event_distance_m, delay_s=delay_s)
+    t_exp = events.t + delay_s
+    at = traj.at(t_exp)
+    C_ecef = at.p_ecef + np.einsum("nij,j->ni", at.R_body_to_ecef, lever)
+    R_cv_to_ecef = at.R_body_to_ecef @ R_cb
+    names = np.asarray(events.image, dtype=object)
+
+    # 2. ground points on the terrain: control and check points over the low block, tie points everywhere
+    C_enu = enu.from_ecef(C_ecef)
+    low = C_enu[:, 2] < (heights_agl[0] + (heights_agl[1] if len(heights_agl) > 1 else 2 * heights_agl[0])) / 2
+    lo, hi = C_enu[low, :2].min(0), C_enu[low, :2].max(0)
+    ctr, half = (lo + hi) / 2, (hi - lo) / 2
+    a = math.radians(strip_heading_deg)
+    u_along = np.array([math.sin(a), math.cos(a)])     # (E, N) along the strips
+    u_across = np.array([math.cos(a), -math.sin(a)])
+    n_gp = n_control + n_check
+    na = int(math.ceil(math.sqrt(n_gp * 1.6)))
+    nc = int(math.ceil(n_gp / na))
+    span_al = 0.38 * strip_length_m
+    span_ac = 0.40 * strip_spacing_m * (n_strips - 1) + 60.0
+    ga, gc = np.meshgrid(np.linspace(-span_al, span_al, na), np.linspace(-span_ac, span_ac, nc))
+    en = (ga.ravel()[:, None] * u_along + gc.ravel()[:, None] * u_across)[:n_gp]
+    en += ctr + rng.normal(0, 15.0, en.shape)
+    gp_enu = np.column_stack([en, terrain_up(en[:, 0], en[:, 1])])
+    order = rng.permutation(n_gp)
+    role = np.empty(n_gp, dtype=object)
+    role[order[:n_control]] = "control"
+    role[order[n_control:]] = "check"
+    gp_ids = np.array([("GCP" if role[i] == "control" else "CHK") + f"{i + 1:02d}" for i in range(n_gp)],
+                      dtype=object)
+    te = ctr + rng.uniform(-1, 1, (n_tie, 2)) * (half + 150.0)
+    tie_enu = np.column_stack([te, terrain_up(te[:, 0], te[:, 1])])
+    tie_ids = np.array([f"T{i + 1:05d}" for i in range(n_tie)], dtype=object)
+    gp_ecef, tie_ecef = enu.to_ecef(gp_enu), enu.to_ecef(tie_enu)
+
+    gi, gid, guv = _observe(camera, C_ecef, R_cv_to_ecef, names, gp_ids, gp_ecef)
+    ti, tid, tuv = _observe(camera, C_ecef, R_cv_to_ecef, names, tie_ids, tie_ecef)
+    uniq, cnt = np.unique(tid, return_counts=True)
+    keep = np.isin(tid, uniq[cnt >= 2])
+    ti, tid, tuv = ti[keep], tid[keep], tuv[keep]
+    g_noisy = guv + rng.normal(0, noise_px, guv.shape)
+    t_noisy = tuv + rng.normal(0, noise_px, tuv.shape)
+
+    gp_map = grid.from_ecef(gp_ecef)
+    sig = np.tile(np.asarray(gcp_sigma, float), (n_gp, 1))
+    gp_map_obs = gp_map + rng.normal(0, 1.0, gp_map.shape) * sig  # surveyed coordinates carry their sigmas
+    C_map = grid.from_ecef(C_ecef)
+    # EOP angles: camera frame -> grid axes (ENU at the centre turned by the meridian convergence)
+    from fields.frames import R_ecef_to_enu, R_enu_to_grid
+    llh_c = grid.to_geodetic(C_map)
+    gamma = grid.convergence_deg(llh_c[:, 0], llh_c[:, 1])
+    R_cv_to_grid = R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ R_ecef_to_enu(llh_c[:, 0], llh_c[:, 1]) @ R_cv_to_ecef
+    opk = opk_from_R_cv_to_map(R_cv_to_grid)
+
+    # 3. GNSS antenna: PPK-like positions (lc) or pseudoranges (tc)
+    t_gnss = np.arange(math.ceil(traj.t[0]), traj.t[-1] + 1e-9, 1.0 / gnss_rate_hz)
+    g_at = traj.at(t_gnss)
+    p_ant = g_at.p_ecef + np.einsum("nij,j->ni", g_at.R_body_to_ecef, lever_g)
+    from sim.strapdown import OMEGA_IE_E
+    w_eb_b = g_at.omega_ib_b - np.einsum("nji,j->ni", g_at.R_body_to_ecef, OMEGA_IE_E)
+    v_ant = g_at.v_ecef + np.einsum("nij,nj->ni", g_at.R_body_to_ecef, np.cross(w_eb_b, lever_g))
+
+    out = Path(out)
+    with staged_dir(out) as tmp:
+        fl = tmp / "flight"
+        fl.mkdir()
+        field_info = _camera_field(tmp / "field", camera, rng, field_images, field_noise_px)
+        write_points(fl / "gcp.csv", Points(gp_ids, gp_map_obs, sig, role), with_role=True)
+        write_measurements(fl / "measurements_gcp.csv", Measurements(gi, gid, g_noisy, np.full(guv.shape, noise_px)))
+        write_measurements(fl / "measurements.csv",
+                           Measurements(np.concatenate([gi, ti]), np.concatenate([gid, tid]),
+                                        np.concatenate([g_noisy, t_noisy]),
+                                        np.full((len(gi) + len(ti), 2), noise_px)))
+        write_events(fl / "events.csv", events)
+        write_kf_gins(fl / "imu.txt", imu)
+        if gnss_mode == "lc":
+            from fields.csvio import write_table
+            from pos.spp import GNSS_CSV_COLUMNS
+            sg = np.asarray(gnss_sigma_enu, float)
+            llh = grid.to_geodetic(grid.from_ecef(p_ant))
+            R_e2enu = R_ecef_to_enu(llh[:, 0], llh[:, 1])
+            noise_enu = rng.normal(0, 1, p_ant.shape) * sg
+            p_obs = p_ant + np.einsum("nji,nj->ni", R_e2enu, noise_enu)
+            v_obs = v_ant + rng.normal(0, gnss_sigma_v, v_ant.shape)
+            write_table(fl / "gnss.csv", GNSS_CSV_COLUMNS, _gnss_rows(t_gnss, p_obs, v_obs, sg, gnss_sigma_v),
+                        fmt="%.12g")
+        else:
+            import shutil
+
+            from pos.rinex import write_rinex_obs
+            from sim.gnss import DEFAULT_NAV, simulate_gnss
+            obs = simulate_gnss(t_gnss, p_ant, v_ant, None, seed=seed + 2, sigma_pr=sigma_pr, systems=("G", "E"),
+                                prepare=False)
+            write_rinex_obs(fl / "rover.obs", obs)
+            shutil.copyfile(DEFAULT_NAV, fl / "nav.rnx")
+        tr = tmp / "truth"
+        tr.mkdir()
+        write_eop(tr / "eop.csv", EOP(names, C_map, opk))
+        write_trajectory(tr / "trajectory.csv", traj.as_trajectory(max(1, int(round(imu_rate_hz / 10)))))
+        write_points(tr / "gcp.csv", Points(gp_ids, gp_map, sig, role), with_role=True)
+        with atomic_write(tr / "camera.json") as fh:
+            json.dump(camera_json_dict(camera), fh, indent=1)
+        truth = {
+            "simulator": NAME, "seed": int(seed), "crs": crs, "site": {"lat": lat0, "lon": lon0, "h_ground": h0},
+            "convergence_deg": float(grid.convergence_deg(lat0, lon0)),
+            "lever_arm_m": lever.tolist(), "boresight_R_cam_to_body": R_cb.tolist(),
+            "boresight_deg_about_nominal": list(boresight_deg), "delay_s": float(delay_s),
+            "lever_arm_gnss_m": lever_g.tolist(),
+            "camera": camera_json_dict(camera),
+            "flight": {"heights_agl_m": list(heights_agl), "n_strips": n_strips, "strip_length_m": strip_length_m,
+                       "strip_spacing_m": strip_spacing_m, "strip_heading_deg": strip_heading_deg,
+                       "airspeed_mps": list(speeds_mps), "duration_s": float(traj.t[-1] - traj.t[0]),
+                       "n_images": int(len(names)), "event_distance_m": event_distance_m,
+                       "gsd_m": {f"{H:g}": float(H / camera["f"]) for H in heights_agl}},
+            "imu": imu_err.as_dict() | {"rate_hz": imu_rate_hz},
+            "gnss": {"mode": gnss_mode, "rate_hz": gnss_rate_hz, "sigma_enu_m": list(gnss_sigma_enu),
+                     "sigma_v_mps": gnss_sigma_v, "sigma_pr_m": sigma_pr if gnss_mode == "tc" else None},
+            "image_noise_px": noise_px, "gcp_sigma_m": list(gcp_sigma),
+            "n_control": n_control, "n_check": n_check, "n_tie_points": int(len(np.unique(tid))),
+            "n_observations": {"ground": int(len(gi)), "tie": int(len(ti))},
+            "camera_field": field_info,
+            "files": {"eop": "truth/eop.csv (true EOPs at the exposures, map CRS)",
+                      "trajectory": "truth/trajectory.csv (true IMU trajectory, 10 Hz)",
+                      "gcp": "truth/gcp.csv (error-free ground points)", "camera": "truth/camera.json"},
+        }
+        with atomic_write(tmp / "truth.json") as fh:
+            json.dump(truth, fh, indent=1, default=float)
+        _write_toml(tmp / "campaign.toml", crs, camera.image_size, gnss_mode, imu_grade, lever_g, pos_extra)
+    return truth
+
+
+def _write_toml(path: Path, crs: str, image_size, gnss_mode: str, imu_grade: str, lever_g, pos_extra) -> None:
+    from fields.csvio import atomic_write
+    w, h = image_size
+    gn = ('gnss = "flight/gnss.csv"' if gnss_mode == "lc"
+          else 'rinex_obs = "flight/rover.obs"\nrinex_nav = "flight/nav.rnx"')
+    extra = "".join(f'\nset = {json.dumps([f"{k}={v}" for k, v in pos_extra.items()])}' if pos_extra else "")
+    text = f"""# dgcal calibration campaign (simulated by `dgcal simulate campaign`); paths relative to this file
+name = "simulated seed-003 campaign"
+crs = "{crs}"
+truth = "truth.json"          # simulation only: the report compares the estimates with the truth
+
+[camera]                      # camera intrinsics from the rotating target plate
+field = "field/field.csv"
+measurements = "field/measurements.csv"
+image_size = [{w}, {h}]
+model = "fraser7"
+
+[triangulation]               # aerial triangulation over the control field
+gcp = "flight/gcp.csv"
+measurements = "flight/measurements.csv"
+
+[pos]                         # GNSS/INS smoothing
+mode = "{gnss_mode}"
+imu = "flight/imu.txt"
+events = "flight/events.csv"
+{gn}
+imu_grade = "{imu_grade}"
+lever_arm_gnss = [{", ".join(f"{v:g}" for v in lever_g)}]{extra}
+
+[mount]                       # system calibration: the method to use and the ones to compare
+method = "proposed"
+compare = ["traditional", "iso"]
+measurements = "flight/measurements_gcp.csv"   # iso: image measurements of the ground points
+
+[check]                       # DG accuracy on the check points (here: the calibration flight itself)
+gcp = "flight/gcp.csv"
+measurements = "flight/measurements_gcp.csv"
+events = "flight/events.csv"
+"""
+    with atomic_write(path) as fh:
+        fh.write(text)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--crs", default=DEFAULT_CRS, help="map CRS of the ground points (default %(default)s)")
+    p.add_argument("--gnss-mode", choices=("lc", "tc"), default="lc",
+                   help="lc: cm-level antenna positions (PPK-like, default); tc: RINEX pseudoranges (metre-level)")
+    p.add_argument("--delay", type=float, default=-0.14, help="exposure delay t_exposure - t_event (s)")
+    p.add_argument("--heights", type=float, nargs="+", default=[300.0, 600.0], help="flying heights above ground (m)")
+    p.add_argument("--strips", type=int, default=4, help="strips per height (alternating headings)")
+    p.add_argument("--n-tie", type=int, default=1500, help="number of simulated tie points")
+    p.add_argument("--field-images", type=int, default=36, help="photos of the target plate")
+
+
+def run(args: argparse.Namespace) -> int:
+    truth = simulate_campaign(args.out, args.seed, crs=args.crs, gnss_mode=args.gnss_mode, delay_s=args.delay,
+                              heights_agl=tuple(args.heights), n_strips=args.strips, n_tie=args.n_tie,
+                              field_images=args.field_images)
+    print(f"simulated {truth['flight']['n_images']} images over {truth['n_control']} control and "
+          f"{truth['n_check']} check points, {truth['flight']['duration_s']:.0f} s flight -> "
+          f"{Path(args.out) / 'campaign.toml'}")
+    return 0
