@@ -152,10 +152,25 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
               "ratio_achieved_to_predicted": {k: stats["rms"][k] / pred[k] if pred[k] > 0 else None
                                               for k in ("E", "N", "U", "2D", "3D")},
               "mean_flying_height_m": float(np.mean(poses.r_cam_L[:, 2] - X_L[:, 2].mean())),
-              "mean_speed_m_s": float(np.mean(np.linalg.norm(poses.pos.v_L, axis=1)))}
+              "mean_speed_m_s": float(np.mean(np.linalg.norm(poses.pos.v_L, axis=1))),
+              "magnitudes": _magnitudes(traj, mount, m)}
     sig = np.sqrt(np.diagonal(total_grid, axis1=1, axis2=2))
     return CheckResult(ids, xyz_dg, xyz_ref, err, res.n_rays[ok], sig, stats,
                        asprs_2023(err, pts.sigma[[pid[k] for k in ids]]), budget, warnings)
+
+
+def _magnitudes(traj: Trajectory, mount: MountingResult, meas: Measurements) -> dict:
+    """The size of each error source (seed Table 6 'Magnitude' column)."""
+    s = mount.sigmas
+    out = {"delay": f"{s[0] * 1e3:.2f} ms", "lever_arm": "{:.3f} {:.3f} {:.3f} m".format(*s[1:4]),
+           "boresight": "{:.4f} {:.4f} {:.4f} deg".format(*np.degrees(s[4:7]))}
+    if traj.sigma is not None:
+        ms = np.median(traj.sigma, axis=0)
+        out["pos_position"] = "{:.3f} {:.3f} {:.3f} m (N, E, U)".format(*ms[:3])
+        out["pos_attitude"] = "{:.4f} {:.4f} {:.4f} deg (roll, pitch, heading)".format(*ms[3:])
+    sig = meas.sigma[np.isfinite(meas.sigma)]
+    out["image_measurements"] = f"{np.median(sig):.2f} px" if sig.size else "1 px (default)"
+    return out
 
 
 def _pos_to_pose(poses, mount: MountingResult) -> np.ndarray:

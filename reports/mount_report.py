@@ -147,11 +147,13 @@ def check_report_html(checks: dict, improvement: dict | None = None) -> str:
          "RMSE_V incl. survey"], rows))
     for name, c in checks.items():
         b = c["budget"]
-        rows = [[k] + [f"{v[q]:.4f}" for q in ("E", "N", "U", "2D", "3D")] for k, v in b["sources"].items()]
-        rows.append(["predicted total"] + [f"{b['predicted_rms'][q]:.4f}" for q in ("E", "N", "U", "2D", "3D")])
-        rows.append(["achieved"] + [f"{b['achieved_rms'][q]:.4f}" for q in ("E", "N", "U", "2D", "3D")])
+        mag = b.get("magnitudes", {})
+        rows = [[k, mag.get(k, "")] + [f"{v[q]:.4f}" for q in ("E", "N", "U", "2D", "3D")]
+                for k, v in b["sources"].items()]
+        rows.append(["predicted total", ""] + [f"{b['predicted_rms'][q]:.4f}" for q in ("E", "N", "U", "2D", "3D")])
+        rows.append(["achieved", ""] + [f"{b['achieved_rms'][q]:.4f}" for q in ("E", "N", "U", "2D", "3D")])
         parts.append(f"<h2>{html.escape(name)}: error budget (seed Table 6), RMS σ on the ground (m)</h2>"
-                     + _table(["source", "E", "N", "U", "2D", "3D"], rows)
+                     + _table(["source", "magnitude", "E", "N", "U", "2D", "3D"], rows)
                      + f"<p>mean flying height {b['mean_flying_height_m']:.0f} m, mean speed "
                        f"{b['mean_speed_m_s']:.1f} m/s</p>")
         for w in c.get("warnings", []) + c["asprs_2023"].get("warnings", []):
