@@ -78,3 +78,30 @@ def test_bad_input_names_the_file_and_leaves_nothing(files, tmp_path, capsys):
     assert not (tmp_path / "out" / "mounting.json").exists()
     rc = _mount(files, tmp_path / "iso", "iso")
     assert rc == 2 and "--measurements" in capsys.readouterr().err
+
+
+def test_errors_name_the_bad_input(files, tmp_path, capsys):
+    bad = tmp_path / "mounting.json"
+    bad.write_text('{"method": "x", "lever_arm_m": [0, 0]}')
+    assert main(["compare", str(bad), str(bad)]) == 2
+    assert "mounting.json" in capsys.readouterr().err
+    m = files / "mapping"
+    good = tmp_path / "good.json"
+    good.write_text('{"method": "proposed", "lever_arm_m": [0, 0, 0], "delay_s": 0.0, '
+                    '"boresight_R_cam_to_body": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}')
+    rc = main(["export", "--mounting", str(good), "--trajectory", str(m / "trajectory.csv"), "--events",
+               str(m / "events.csv"), "--crs", "EPSG:32651", "--formats", "pix4d,kml", "--out", str(tmp_path / "e")])
+    assert rc == 2 and "kml" in capsys.readouterr().err
+    # an event outside the trajectory is named
+    ev = (m / "events.csv").read_text().splitlines()
+    ev.append("LATE.JPG,2200,999999.0")
+    (tmp_path / "events.csv").write_text("\n".join(ev) + "\n")
+    rc = main(["export", "--mounting", str(good), "--trajectory", str(m / "trajectory.csv"), "--events",
+               str(tmp_path / "events.csv"), "--crs", "EPSG:32651", "--formats", "eop", "--out", str(tmp_path / "e2")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "LATE.JPG" in err
+    assert not (tmp_path / "e2" / "eop.csv").exists()
+    rot = tmp_path / "rot.json"
+    rot.write_text(good.read_text().replace("[0, 0, 1]]", "[0, 0, 2]]"))
+    assert main(["compare", str(good), str(rot)]) == 2
+    assert "rotation" in capsys.readouterr().err
