@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.mounting_common import (BlockFrame, MountingResult, PoseAt, T, _numeric_rot_jacobian, pos_covariance_L,
+from calib.mounting_common import (BlockFrame, MountingResult, PoseAt, T, numeric_rot_jacobian, pos_covariance_L,
                                    pose_at_times)
 from fields.crs import LocalENU, MapGrid
 from fields.errors import InputError
@@ -78,7 +78,7 @@ def dg_poses(frame: BlockFrame, traj: Trajectory, events: Events, mount: Mountin
 
 def pose_cov_to_map(frame: BlockFrame, xyz: np.ndarray, opk: np.ndarray, cov_L: np.ndarray) -> np.ndarray:
     """(N,6,6) covariance of map [X, Y, Z (m), omega, phi, kappa (deg)] from [centre L, camera rotation rad]."""
-    Jr = _numeric_rot_jacobian(lambda a: frame.R_grid_to_L_at(xyz) @ R_cv_to_map_from_opk(a[:, 0], a[:, 1], a[:, 2]),
+    Jr = numeric_rot_jacobian(lambda a: frame.R_grid_to_L_at(xyz) @ R_cv_to_map_from_opk(a[:, 0], a[:, 1], a[:, 2]),
                                opk, frame.R_grid_to_L_at(xyz) @ R_cv_to_map_from_opk(opk[:, 0], opk[:, 1], opk[:, 2]),
                                1e-5)
     H = np.zeros((len(xyz), 6, 6))

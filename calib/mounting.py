@@ -1,8 +1,6 @@
 """Mounting calibration entry point: EOPs + trajectory + events -> lever arm, boresight, delay (any method)."""
 from __future__ import annotations
 
-import numpy as np
-
 from calib.mounting_common import BlockFrame, Epochs, MountingResult, build_epochs
 from calib.mounting_diagnostics import observability_warnings
 from calib.mounting_proposed import calibrate_proposed

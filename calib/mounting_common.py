@@ -111,7 +111,7 @@ class BlockFrame:
         return geo[:, 0], geo[:, 1], geo[:, 2], v_ned, rph_from_R_body_to_ned(R_body_to_ned)
 
 
-def _numeric_rot_jacobian(fun, x0: np.ndarray, R0: np.ndarray, step: float = 1e-6) -> np.ndarray:
+def numeric_rot_jacobian(fun, x0: np.ndarray, R0: np.ndarray, step: float = 1e-6) -> np.ndarray:
     """d delta / d x (N,3,k) where fun(x) -> (N,3,3) and delta = Log(R0^T fun(x)) (right perturbation)."""
     n, k = x0.shape
     J = np.empty((n, 3, k))
@@ -134,7 +134,7 @@ def eop_covariance_L(frame: BlockFrame, eop: EOP, rows: np.ndarray) -> np.ndarra
         C_map[:, np.arange(6), np.arange(6)] = eop.sigma[rows] ** 2
     _, R0 = frame.eop_to_L(xyz, opk)
     # d(rotation error, rad)/d(omega, phi, kappa, deg): the angle covariance is in deg^2
-    Jr = _numeric_rot_jacobian(lambda a: frame.eop_to_L(xyz, a)[1], opk, R0, 1e-5)
+    Jr = numeric_rot_jacobian(lambda a: frame.eop_to_L(xyz, a)[1], opk, R0, 1e-5)
     G = np.zeros((len(rows), 6, 6))
     G[:, :3, :3] = frame.R_grid_to_L_at(xyz)
     G[:, 3:, 3:] = Jr
@@ -156,7 +156,7 @@ def pos_covariance_L(frame: BlockFrame, lat, lon, h, rph, sigma: np.ndarray) -> 
     def R_of(a):
         return R_body_to_ned_from_rph(a[:, 0], a[:, 1], a[:, 2]).reshape(-1, 3, 3)
 
-    Jr = _numeric_rot_jacobian(R_of, rph, R_of(rph), 1e-5)  # rad per degree
+    Jr = numeric_rot_jacobian(R_of, rph, R_of(rph), 1e-5)  # rad per degree
     C_rph = np.zeros((len(lat), 3, 3))
     C_rph[:, np.arange(3), np.arange(3)] = sigma[:, 3:] ** 2
     C[:, 3:, 3:] = Jr @ C_rph @ T(Jr)
