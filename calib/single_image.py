@@ -229,3 +229,92 @@ def average_estimates(xy: np.ndarray, cov: np.ndarray, common_cov: np.ndarray | 
     sc = np.cov(x.T).reshape(d, d) / M if M > 1 else np.full((d, d), np.nan)
     common = np.zeros((d, d)) if common_cov is None else np.asarray(common_cov, float)
     return AveragedPoint(xm, xw, cov_w, C.sum(axis=0) / M ** 2, sc, chi2, M, cov_w + common)
+
+
+def pose_covariance_from_opk(opk_deg, cov_eop: np.ndarray) -> np.ndarray:
+    """6x6 pose covariance [centre m, camera-frame rotation rad] from an EOP covariance [X, Y, Z (m),
+    omega, phi, kappa (deg)] (6x6, or (6,) sigmas), PATB angles (`fields.frames.R_cv_to_map_from_opk`)."""
+    from fields.frames import R_cv_to_map_from_opk
+    C = np.asarray(cov_eop, float)
+    C = np.diag(C ** 2) if C.ndim == 1 else C
+    opk = np.asarray(opk_deg, float)
+    R0 = R_cv_to_map_from_opk(*opk)
+    J = np.empty((3, 3))
+    eps = 1e-6
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = eps
+        J[:, i] = log_so3(R0.T @ R_cv_to_map_from_opk(*(opk + d))) / eps
+    H = np.zeros((6, 6))
+    H[:3, :3] = np.eye(3)
+    H[3:, 3:] = J
+    return H @ C @ H.T
+
+
+@dataclass
+class ImageGeoref:
+    """Per-measurement ground points of `georeference_images` and the per-point averages."""
+
+    image: np.ndarray
+    id: np.ndarray
+    xyz: np.ndarray
+    cov: np.ndarray
+    ok: np.ndarray
+    averages: dict  # id -> AveragedPoint of (E, N) plus mean height
+
+
+def georeference_images(camera, meas, eop, *, height: float | None = None, dem=None, ranges: dict | None = None,
+                        sigma_px: float = 0.5, sigma_height: float = 0.0, sigma_range: float = 0.5,
+                        laser_dir_cam=(0.0, 0.0, 1.0)) -> ImageGeoref:
+    """Single-image ground points of every measurement (`fields.formats.Measurements`) of an image that has an
+    EOP (`fields.formats.EOP`, map CRS, PATB), with covariances from the EOP covariance/sigmas, and per point
+    id the covariance-weighted average over its images. Height source: `height` (m), `dem` or `ranges`
+    (image -> (range m, sigma m or NaN)). Measurement sigmas (sx, sy) override `sigma_px`."""
+    from fields.errors import InputError
+    from fields.frames import R_cv_to_map_from_opk
+    idx = {str(k): j for j, k in enumerate(eop.image)}
+    rows_img, rows_id, X, Cv, OK = [], [], [], [], []
+    for img in dict.fromkeys(str(x) for x in meas.image):
+        if img not in idx:
+            continue
+        j = idx[img]
+        sel = np.flatnonzero(meas.image.astype(str) == img)
+        C = eop.xyz[j]
+        R = R_cv_to_map_from_opk(*eop.opk[j])
+        if eop.cov is not None:
+            P = pose_covariance_from_opk(eop.opk[j], eop.cov[j])
+        elif eop.sigma is not None and np.all(np.isfinite(eop.sigma[j])):
+            P = pose_covariance_from_opk(eop.opk[j], eop.sigma[j])
+        else:
+            P = None
+        kw = {}
+        if ranges is not None:
+            if img not in ranges:
+                raise InputError(f"no laser range for image {img!r}", field="image")
+            rho, s_r = ranges[img]
+            kw = dict(range_m=rho, sigma_range=s_r if np.isfinite(s_r) else sigma_range, laser_dir_cam=laser_dir_cam)
+        elif dem is not None:
+            kw = dict(dem=dem, sigma_height=sigma_height)
+        else:
+            kw = dict(height=height, sigma_height=sigma_height)
+        for k in sel:
+            s = meas.sigma[k]
+            spx = float(np.nanmean(s)) if np.any(np.isfinite(s)) else sigma_px
+            e = georeference(camera, meas.xy[k][None], C, R, pose_cov=P, sigma_px=spx, **kw)
+            rows_img.append(img)
+            rows_id.append(str(meas.id[k]))
+            X.append(e.xyz[0])
+            Cv.append(e.cov[0])
+            OK.append(bool(e.ok[0]))
+    if not X:
+        raise InputError("no measurement belongs to an image with an exterior orientation", field="image")
+    X, Cv, OK = np.array(X), np.array(Cv), np.array(OK)
+    ids = np.array(rows_id)
+    averages = {}
+    for pid in dict.fromkeys(rows_id):
+        m = (ids == pid) & OK
+        if m.sum() == 0:
+            continue
+        cov2 = Cv[m][:, :2, :2] + np.eye(2) * 1e-12
+        averages[pid] = (average_estimates(X[m][:, :2], cov2), float(np.mean(X[m][:, 2])))
+    return ImageGeoref(np.array(rows_img), ids, X, Cv, OK, averages)
