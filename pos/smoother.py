@@ -337,20 +337,31 @@ def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mo
         epochs = None
     else:
         raise ValueError(f"unknown mode {mode!r}")
+    import time
+    timing = {}
+    t0 = time.perf_counter()
     problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes)
+    timing["build_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     values = optimize(problem, opts.max_iterations)
+    timing["optimize_s"] = time.perf_counter() - t0
     sol = read_states(problem, values)
     if second_pass:
         # re-preintegrate with the gravity correction and about the estimated biases, start from pass one
+        t0 = time.perf_counter()
         problem = rebuild_imu(problem, imu, noise, opts, sol)
         problem.values = values
         values = optimize(problem, opts.max_iterations)
         sol = read_states(problem, values)
+        timing["second_pass_s"] = time.perf_counter() - t0
     sol.residuals = gnss_residuals(problem, values)
     sol.info = {"mode": mode, "keyframes": len(t_key), "factors": problem.graph.size(),
                 "error_final": problem.graph.error(values), "systems": problem.systems}
     if opts.covariances:
+        t0 = time.perf_counter()
         add_marginals(sol, problem, values)
+        timing["covariance_s"] = time.perf_counter() - t0
+    sol.info["timing"] = {k: round(v, 2) for k, v in timing.items()}
     sol._problem = problem  # kept for the forward filter and reports
     sol._values = values
     return sol

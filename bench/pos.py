@@ -1,0 +1,122 @@
+"""Benchmark and acceptance run of the GNSS/INS smoother (issue 4).
+
+    python bench/pos.py                 # 1 h of 200 Hz IMU + 1 Hz GNSS, TC: wall time and peak memory
+    python bench/pos.py --acceptance    # 20-min ADIS16488 flight, TC and LC: accuracy, sigma honesty,
+                                        # smoother vs forward, 60 s with 3 satellites (several seeds)
+"""
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def _rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _errors(sol, traj):
+    st = traj.at(sol.t)
+    dp = sol.p_nav - sol.frame.from_ecef(st.p_ecef)
+    R_true = np.einsum("ji,kjl->kil", sol.frame.R_nav_to_ecef, st.R_body_to_ecef)
+    dth = Rotation.from_matrix(np.einsum("kji,kjl->kil", R_true, sol.R_body_to_nav)).as_rotvec()
+    sp = np.sqrt(np.einsum("kii->ki", sol.cov_p_nav))
+    sa = np.sqrt(np.einsum("kii->ki", sol.cov_pose[:, :3, :3]))
+    return dp, dth, sp, sa
+
+
+def _rms(x, axis=0):
+    return np.sqrt(np.mean(np.asarray(x) ** 2, axis=axis))
+
+
+def acceptance(seeds, duration, rate):
+    from pos.pipeline import process
+    from pos.spp import SppOptions
+    from sim.pos import simulate_pos
+    for seed in seeds:
+        t0 = time.time()
+        sim = simulate_pos(seed=seed, duration_s=duration, rate_hz=rate)
+        print(f"seed {seed}: simulated {duration:.0f} s at {rate:.0f} Hz in {time.time() - t0:.1f} s; "
+              f"{len(sim.obs.epochs)} epochs, mean {np.mean([e.n for e in sim.obs.epochs]):.1f} satellites")
+        opts = SppOptions(code_sigma_zenith_m=sim.sigma_pr, doppler_sigma_zenith_mps=sim.sigma_doppler,
+                          model_errors=False, systems=tuple(sim.obs.signals))
+        t0_out, t1_out, nmax = sim.outage
+        for mode in ("tc", "lc"):
+            t0 = time.time()
+            r = process(mode, sim.imu, sim.grade, sim.lever_arm_b, raw_obs=sim.obs, nav=sim.nav, spp_opts=opts,
+                        events=sim.events)
+            wall = time.time() - t0
+            for name, sol in (("smoothed", r.smoothed), ("forward", r.forward)):
+                dp, dth, sp, sa = _errors(sol, sim.traj)
+                inside = (sol.t >= t0_out) & (sol.t <= t1_out)
+                ev = ""
+                if name == "smoothed":
+                    te = sim.traj.at(sim.events.t)
+                    d = r.events.rph - te.rph
+                    d[:, 2] = (d[:, 2] + 180) % 360 - 180
+                    ev = (f" | events rph RMS {np.array2string(_rms(d), precision=4)} deg, "
+                          f"normalised {np.array2string(_rms(d / r.events.sigma[:, 3:]), precision=2)}")
+                print(f"  {mode} {name:8s} pos 3D RMS {_rms(np.linalg.norm(dp, axis=1)):.3f} m, "
+                      f"att RMS (x,y,z body) {np.array2string(np.degrees(_rms(dth)), precision=4)} deg, "
+                      f"normalised pos {_rms((dp / sp).ravel()):.2f} att {_rms((dth / sa).ravel()):.2f} "
+                      f"(per axis {np.array2string(_rms(dth / sa), precision=2)}), "
+                      f"outage max 3D {np.max(np.linalg.norm(dp[inside], axis=1)):.2f} m "
+                      f"({int(sol.gnss_update[inside].sum())} GNSS updates){ev}")
+            print(f"  {mode} wall time {wall:.1f} s (SPP, smoother, forward, outputs)")
+
+
+def benchmark(hours, rate, systems):
+    from pos.imu_io import ImuData
+    from pos.pipeline import process
+    from pos.spp import SppOptions
+    from sim.pos import simulate_pos
+    t0 = time.time()
+    sim = simulate_pos(seed=0, duration_s=hours * 3600.0, rate_hz=rate, systems=systems, n_strips=10,
+                       strip_length_m=1000.0, strip_spacing_m=100.0)
+    n_sat = np.mean([e.n for e in sim.obs.epochs])
+    print(f"simulated {hours * 3600:.0f} s: {len(sim.imu.t)} IMU samples at {rate:.0f} Hz, {len(sim.obs.epochs)} "
+          f"GNSS epochs with {n_sat:.1f} satellites on average ({''.join(systems)}); {time.time() - t0:.1f} s")
+    imu = ImuData(sim.imu.t.copy(), sim.imu.dtheta.copy(), sim.imu.dvel.copy(), sim.imu.rate_hz)
+    opts = SppOptions(code_sigma_zenith_m=sim.sigma_pr, doppler_sigma_zenith_mps=sim.sigma_doppler,
+                      model_errors=False, systems=tuple(systems))
+    rss0 = _rss_mb()
+    t0 = time.time()
+    r = process("tc", imu, sim.grade, sim.lever_arm_b, raw_obs=sim.obs, nav=sim.nav, spp_opts=opts,
+                events=sim.events, forward=True)
+    wall = time.time() - t0
+    info = r.smoothed.info
+    dp, dth, sp, sa = _errors(r.smoothed, sim.traj)
+    print(f"TC smoothing of {hours:g} h: wall time {wall:.1f} s (target < 60 s) for SPP + smoother (2 passes) + "
+          f"covariances + forward + {len(r.trajectory.t)}-row trajectory + {len(r.events.t)} events")
+    print(f"  {info['keyframes']} keyframes, {info['factors']} factors; timings {info.get('timing', {})}")
+    print(f"  peak RSS {_rss_mb():.0f} MB (before the run {rss0:.0f} MB, after simulating the data)")
+    print(f"  accuracy: pos 3D RMS {_rms(np.linalg.norm(dp, axis=1)):.3f} m, attitude RMS "
+          f"{np.array2string(np.degrees(_rms(dth)), precision=4)} deg, normalised pos {_rms((dp / sp).ravel()):.2f} "
+          f"att {_rms((dth / sa).ravel()):.2f}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--acceptance", action="store_true")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--duration", type=float, default=1200.0, help="acceptance flight, s")
+    ap.add_argument("--rate", type=float, default=200.0, help="IMU rate, Hz")
+    ap.add_argument("--hours", type=float, default=1.0, help="benchmark length, h")
+    ap.add_argument("--systems", default="GEJ", help="benchmark constellations (real nav file: G, E, J)")
+    a = ap.parse_args()
+    if a.acceptance:
+        acceptance(a.seeds, a.duration, a.rate)
+    else:
+        benchmark(a.hours, a.rate, tuple(a.systems))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
