@@ -59,14 +59,17 @@ def bench_adjustment(n_images: int, square_m: float, seed: int) -> None:
     print(f"simulated: {n_img} images, {len(pts.ids)} field corners, {len(xy)} observations "
           f"({len(xy) / n_img:.0f} per image), 0.1 px noise, {size[0]}x{size[1]} px")
     print(f"{'solver':34s} {'time s':>8s} {'RMS px':>8s} {'truth diff RMS':>15s} {'max px':>8s}")
-    for model, refine in (("fraser7", "none"), ("opencv8", "none"), ("fraser7", "free")):
+    runs = (("fraser7", "none", ()), ("fraser7", "none", ("B2",)), ("opencv8", "none", ()),
+            ("fraser7", "free", ()))
+    for model, refine, fixed in runs:
         t0 = time.perf_counter()
-        res = adjust(pts.ids, pts.xyz, img, ids, xy, size, model, refine_targets=refine)
+        res = adjust(pts.ids, pts.xyz, img, ids, xy, size, model, refine_targets=refine, fixed=fixed)
         dt = time.perf_counter() - t0
         d_rms, d_max, _ = projection_difference(truth, res.camera)
-        print(f"{'dgcal ' + model + (' + targets' if refine != 'none' else ''):34s} {dt:8.2f} {res.rms_px:8.4f} "
-              f"{d_rms:15.4f} {d_max:8.4f}")
-        if model == "fraser7" and refine == "none":
+        label = "dgcal " + model + (" + targets" if refine != "none" else "") + \
+            (f" ({', '.join(fixed)} held)" if fixed else "")
+        print(f"{label:34s} {dt:8.2f} {res.rms_px:8.4f} {d_rms:15.4f} {d_max:8.4f}   ({res.iterations} iterations)")
+        if model == "fraser7" and refine == "none" and not fixed:
             e = (res.camera.params - truth.params) / res.camera.sigmas
             print(f"{'':34s} parameter errors / sigma: max {np.max(np.abs(e[res.free])):.2f}, "
                   f"RMS {np.sqrt(np.mean(e[res.free] ** 2)):.2f}")

@@ -14,6 +14,7 @@ robustly scaled residual norm. Covariances are sigma0^2 N^-1 with sigma0 from th
 """
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -411,6 +412,24 @@ def adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, model
     or 'weighted' (targets with their CSV sigmas `field_sigma` (m) as priors; NaN sigma = held).
     fixed: names of camera parameters held at their initial values. meas_sigma (px) are relative weights.
     """
+    try:
+        from threadpoolctl import threadpool_limits
+        limiter = threadpool_limits(limits=1)
+    except ImportError:
+        limiter = contextlib.nullcontext()
+    # the dense blocks are small (<= ~1000): BLAS threads cost more than they give, and much more on a
+    # busy machine (a 190x190 solve took 170 ms with threads competing, 1 ms on one)
+    with limiter:
+        return _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, model, meas_sigma,
+                       field_sigma, fixed, refine_targets, initial, reject_k, max_rounds, min_points_per_image,
+                       progress)
+
+
+def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, model: str = "fraser7",
+           meas_sigma=None, field_sigma=None, fixed=(), refine_targets: str = "none",
+           initial: CameraModel | None = None, reject_k: float = 4.0, max_rounds: int = 6,
+           min_points_per_image: int = 6, progress=None) -> IntrinsicBAResult:
+    """The adjustment itself (see `adjust`)."""
     w, h = int(image_size[0]), int(image_size[1])
     cls = model_class(model)
     field_ids = np.asarray(field_ids).astype(str)
