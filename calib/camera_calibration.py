@@ -165,9 +165,27 @@ def calibrate_camera(field: Points | str | Path, measurements: Measurements | st
                              detected=images is not None, detection_report=detection_report)
 
 
+def write_poses(path: str | Path, ba: IntrinsicBAResult) -> None:
+    """Per-image poses in the field frame: projection centre X,Y,Z (m) and PATB omega, phi, kappa (deg) of
+    R_photo_to_field, their sigmas (centre m; rotation deg about the camera axes), RMS (px) and count."""
+    from fields.csvio import write_table
+    from fields.frames import opk_from_R_cv_to_map
+    C, sC = ba.camera_centres()
+    rms = ba.per_image_rms()
+    n = np.bincount(ba.obs_image[ba.used], minlength=len(ba.image_names))
+    rows = []
+    for i, name in enumerate(ba.image_names):
+        if name in ba.dropped_images:
+            continue
+        opk = opk_from_R_cv_to_map(ba.R_field_to_cam[i].T)
+        rows.append([name, *C[i], *opk, *sC[i], *ba.pose_sigma[i, :3], rms[name], int(n[i])])
+    write_table(path, ["image", "X", "Y", "Z", "omega", "phi", "kappa", "sX", "sY", "sZ", "s_rx_deg",
+                       "s_ry_deg", "s_rz_deg", "rms_px", "n_obs"], rows, fmt="%.8g")
+
+
 def write_camera_outputs(cal: CameraCalibration, out_dir: str | Path) -> dict[str, Path]:
-    """Write camera.json, opencv.yaml, cameras.txt (COLMAP), metashape.xml, measurements.csv (when detected)
-    and field_refined.csv (when targets were refined) into `out_dir`; returns the paths by name."""
+    """Write camera.json, opencv.yaml, cameras.txt (COLMAP), metashape.xml, poses.csv, measurements.csv (when
+    detected) and field_refined.csv (when targets were refined) into `out_dir`; returns the paths by name."""
     from calib.camera_formats import write_colmap_cameras_txt, write_metashape_xml, write_opencv_yaml
     from fields.csvio import atomic_write
     out = Path(out_dir)
@@ -183,6 +201,8 @@ def write_camera_outputs(cal: CameraCalibration, out_dir: str | Path) -> dict[st
     paths["cameras.txt"] = out / "cameras.txt"
     write_metashape_xml(out / "metashape.xml", cal.camera)
     paths["metashape.xml"] = out / "metashape.xml"
+    write_poses(out / "poses.csv", cal.ba)
+    paths["poses.csv"] = out / "poses.csv"
     if cal.detected:
         write_measurements(out / "measurements.csv", cal.measurements)
         paths["measurements.csv"] = out / "measurements.csv"

@@ -50,6 +50,7 @@ class IntrinsicBAResult:
     R_field_to_cam: np.ndarray             # (M,3,3)
     t_cam: np.ndarray                      # (M,3) m, X_cam = R X_field + t
     pose_sigma: np.ndarray                 # (M,6) rotation (deg, about camera axes) and translation (m)
+    pose_cov: np.ndarray                   # (M,6,6) covariance of (rotation increment rad, t m)
     point_ids: list[str]
     points_xyz: np.ndarray                 # (N,3) m, adjusted when targets were refined
     points_sigma: np.ndarray               # (N,3) m, 0 when held fixed
@@ -86,6 +87,19 @@ class IntrinsicBAResult:
             m = self.used & (self.obs_image == i)
             out[name] = float(np.sqrt(n2[m].mean())) if m.any() else float("nan")
         return out
+
+    def camera_centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Projection centres in the field frame (M,3) m, C = -R^T t, and their sigmas (M,3) m."""
+        Rt = self.R_field_to_cam.transpose(0, 2, 1)
+        C = -np.einsum("mab,mb->ma", Rt, self.t_cam)
+        # C(R exp, t + dt) ~ C - R^T [t]x d - R^T dt for the left rotation increment d
+        t = self.t_cam
+        tx = np.zeros((len(t), 3, 3))
+        tx[:, 0, 1], tx[:, 0, 2], tx[:, 1, 2] = -t[:, 2], t[:, 1], -t[:, 0]
+        tx[:, 1, 0], tx[:, 2, 0], tx[:, 2, 1] = t[:, 2], -t[:, 1], t[:, 0]
+        J = np.concatenate([-Rt @ tx, -Rt], axis=2)
+        cov = J @ self.pose_cov @ J.transpose(0, 2, 1)
+        return C, np.sqrt(np.maximum(np.einsum("mkk->mk", cov), 0))
 
     def camera_sigmas(self) -> dict[str, float]:
         """Sigma of every camera parameter by name (0 for fixed ones)."""
@@ -586,6 +600,8 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     pose_sigma = sigma0 * np.sqrt(np.maximum(np.einsum("mkk->mk", cov_pose), 0))
     pose_sigma[:, :3] = np.degrees(pose_sigma[:, :3])
     pose_sigma[~keep_img] = np.nan
+    pose_cov = sigma0**2 * cov_pose
+    pose_cov[~keep_img] = np.nan
     pts_sigma = np.zeros((N, 3))
     if cov_pts is not None:
         pts_sigma = sigma0 * np.sqrt(np.maximum(np.einsum("naa->na", cov_pts), 0)) * prob.pt_free
@@ -608,7 +624,7 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     t_out[~keep_img] = np.nan
     return IntrinsicBAResult(
         camera=camera, free=prob.free_cam.copy(), cov_camera=cov_cam, correlation=corr,
-        image_names=image_names, R_field_to_cam=R_out, t_cam=t_out, pose_sigma=pose_sigma,
+        image_names=image_names, R_field_to_cam=R_out, t_cam=t_out, pose_sigma=pose_sigma, pose_cov=pose_cov,
         point_ids=list(field_ids), points_xyz=prob.X.copy(), points_sigma=pts_sigma, points_free=prob.pt_free.copy(),
         obs_image=obs_img, obs_point=obs_pt, obs_xy=meas_xy, obs_sigma=sig, residuals=r_all, used=active,
         sigma0=sigma0, rms_px=rms, rejected=rejected, dropped_images=list(dropped),

@@ -141,3 +141,21 @@ def test_too_few_images_is_an_input_error():
     keep = np.isin(img, sorted(set(img.tolist()))[:2])
     with pytest.raises(InputError, match="need 3 or more"):
         adjust(pts.ids, pts.xyz, img[keep], ids[keep], xy[keep], SIZE, "fraser7")
+
+
+def test_camera_centres_and_their_sigmas_are_honest():
+    from scipy.spatial.transform import Rotation
+    truth, pts, img, ids, xy = scene(11, n_images=30, square_m=0.16)
+    res = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7")
+    rng = np.random.default_rng(11)
+    shots = {s.image: s for s in plan_shots(30, truth, TargetField(square_m=0.16, marker_m=0.12), rng)}
+    C, sC = res.camera_centres()
+    z = []
+    for i, name in enumerate(res.image_names):
+        s = shots[name]
+        C_true = -s.R_plate_to_cam.T @ s.t_plate_to_cam
+        z.append((C[i] - C_true) / sC[i])
+        dR = Rotation.from_matrix(res.R_field_to_cam[i] @ s.R_plate_to_cam.T).as_rotvec()
+        assert np.all(np.abs(np.degrees(dR)) < 4 * res.pose_sigma[i, :3] + 1e-9)
+    z = np.array(z)
+    assert np.all(np.abs(z) < 4.5) and 0.5 < np.sqrt(np.mean(z**2)) < 1.6, np.sqrt(np.mean(z**2))

@@ -39,7 +39,7 @@ def test_camera_cli_writes_every_output(sim_dir, tmp_path, capsys):
     rc, stdout, err = run_cli(["--field", d / "field.csv", "--measurements", d / "measurements.csv",
                                "--image-size", *SIZE, "--out", out], capsys)
     assert rc == 0, err
-    for name in ("camera.json", "report.html", "opencv.yaml", "cameras.txt", "metashape.xml"):
+    for name in ("camera.json", "report.html", "opencv.yaml", "cameras.txt", "metashape.xml", "poses.csv"):
         assert (out / name).is_file(), name
     cj = json.loads((out / "camera.json").read_text())
     assert cj["model"] == "fraser7" and cj["image_size"] == list(SIZE)
