@@ -39,8 +39,9 @@ class LowcostFlight:
 
 def gnss_fixes(truth: TrueTrajectory, rate_hz: float = 50.0, sigma_h_m: float = 1.5, sigma_v_m: float = 2.5,
                tau_s: float = 60.0, white_m: float = 0.2, sigma_vel_mps: float = 0.05,
-               seed: int = 0) -> tuple[GnssFixes, np.ndarray]:
-    """GNSS antenna fixes (at the IMU origin) at `rate_hz` with Gauss-Markov position errors; (fixes, errors NED)."""
+               seed: int = 0, lever_arm_b=(0.0, 0.0, 0.0)) -> tuple[GnssFixes, np.ndarray]:
+    """GNSS antenna fixes at `rate_hz` with Gauss-Markov position errors; the antenna sits at `lever_arm_b`
+    (body FRD, m) from the IMU origin. Returns (fixes, position errors NED)."""
     rng = np.random.default_rng(seed)
     step = max(1, int(round(truth.rate_hz / rate_hz)))
     idx = np.arange(0, len(truth.t), step)
@@ -55,8 +56,12 @@ def gnss_fixes(truth: TrueTrajectory, rate_hz: float = 50.0, sigma_h_m: float = 
         e[k] = phi * e[k - 1] + w[k]
     e += rng.standard_normal((n, 3)) * white_m
     R_ne = np.swapaxes(R_ecef_to_ned(truth.lat[idx], truth.lon[idx]), 1, 2)
-    p = truth.p_ecef[idx] + np.einsum("nij,nj->ni", R_ne, e)
-    v = truth.v_ecef[idx] + np.einsum("nij,nj->ni", R_ne, rng.standard_normal((n, 3)) * sigma_vel_mps)
+    lever = np.asarray(lever_arm_b, float)
+    R_be = truth.R_body_to_ecef[idx]
+    p_ant = truth.p_ecef[idx] + R_be @ lever
+    v_ant = truth.v_ecef[idx] + np.einsum("nij,nj->ni", R_be, np.cross(truth.omega_ib_b[idx], lever))
+    p = p_ant + np.einsum("nij,nj->ni", R_ne, e)
+    v = v_ant + np.einsum("nij,nj->ni", R_ne, rng.standard_normal((n, 3)) * sigma_vel_mps)
     s_p = np.tile(np.hypot(sig, white_m), (n, 1))
     s_v = np.full((n, 3), sigma_vel_mps)
     return GnssFixes(t=truth.t[idx].copy(), p_ecef=p, sigma_ned=s_p, v_ecef=v, sigma_v_ned=s_v), e

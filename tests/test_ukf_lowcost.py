@@ -71,3 +71,17 @@ def test_smoother_better_than_ukf(report):
 def test_ukf_sigmas_are_honest(report):
     z = np.array(report["ukf_normalised_error_rms"])
     assert np.all(z[:2] > 0.3) and np.all(z[:2] < 2.0), z
+
+
+def test_ukf_with_antenna_lever_arm():
+    from pos.ukf import UkfOptions, run_ukf
+    from sim.lowcost_flight import _rph_error, gnss_fixes
+    f = simulate_lowcost_flight(duration_s=75.0, rate_hz=50.0, seed=2)
+    lever = np.array([0.3, -0.2, -0.4])
+    fixes, _ = gnss_fixes(f.truth, 50.0, seed=3, lever_arm_b=lever)
+    u = run_ukf(f.imu, fixes, f.imu_errors.grade, UkfOptions(lever_arm_b=lever))
+    a = u.t > u.t[0] + 25.0
+    e = _rph_error(f.truth, u.t[a], u.rph_deg[a])
+    assert np.all(np.sqrt(np.mean(e[:, :2] ** 2, axis=0)) < 0.5)
+    p_true = u.frame.from_ecef(f.truth.at(u.t[a]).p_ecef)
+    assert np.sqrt(np.mean(np.sum((u.p_nav[a] - p_true) ** 2, axis=1))) < 3.0
