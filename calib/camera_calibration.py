@@ -208,7 +208,9 @@ def write_camera_outputs(cal: CameraCalibration, out_dir: str | Path) -> dict[st
         paths["measurements.csv"] = out / "measurements.csv"
     if cal.ba.refine_targets != "none":
         from fields.formats import write_points
-        refined = Points(cal.field.ids, cal.ba.points_xyz, cal.ba.points_sigma, cal.field.role)
+        # held (datum) and unobserved coordinates have no sigma: NaN, which read_points accepts as "not given"
+        sig = np.where(cal.ba.points_free, cal.ba.points_sigma, np.nan)
+        refined = Points(cal.field.ids, cal.ba.points_xyz, sig, cal.field.role)
         write_points(out / "field_refined.csv", refined)
         paths["field_refined.csv"] = out / "field_refined.csv"
     return paths

@@ -154,3 +154,22 @@ def test_camera_cli_from_rendered_images(tmp_path, capsys):
     assert cj["image_size"] == [1200, 800]
     rms, _, _ = projection_difference(camera_from_json_dict(truth["camera"]), load_camera(out / "camera.json"))
     assert rms < 0.1, rms
+
+
+def test_camera_cli_options_refine_and_fix(sim_dir, tmp_path, capsys):
+    from fields.formats import read_points
+    d, truth = sim_dir
+    out = tmp_path / "out"
+    rc, _, err = run_cli(["--field", d / "field.csv", "--measurements", d / "measurements.csv",
+                          "--image-size", *SIZE, "--refine-targets", "free", "--fix", "K3", "--no-report",
+                          "--out", out], capsys)
+    assert rc == 0, err
+    cj = json.loads((out / "camera.json").read_text())
+    assert cj["fixed_parameters"] == ["K3"] and cj["sigmas"]["K3"] == 0.0
+    assert cj["refine_targets"] == "free" and cj["targets_moved_max_m"] < 0.01
+    refined = read_points(out / "field_refined.csv")
+    assert len(refined.ids) == len(read_points(d / "field.csv").ids)
+    assert not (out / "report.html").exists()
+    rc, _, err = run_cli(["--field", d / "field.csv", "--measurements", d / "measurements.csv",
+                          "--image-size", *SIZE, "--fix", "k9", "--out", tmp_path / "out2"], capsys)
+    _assert_failed_cleanly(rc, err, tmp_path / "out2", "k9")
