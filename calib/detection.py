@@ -25,11 +25,12 @@ from fields.formats import Measurements, read_points
 from fields.target_field import TargetField, load_layout
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
-# sigma = hypot(SIGMA_FACTOR * propagated noise sigma, SIGMA_FLOOR_PX), fitted to rendered images (JPEG q95,
+# sigma = hypot(SIGMA_FACTOR * propagated noise sigma, SIGMA_FLOOR_PX * max(1, 4 / half-window)^2), fitted to rendered images (JPEG q95,
 # blur 0.8 px, noise 2 and 5 DN; 1200x800 and 3000x2000): the factor covers JPEG and correlated gradient
 # noise, the floor the remaining model error (sampling, perspective within the window)
 SIGMA_FACTOR = 1.9
 SIGMA_FLOOR_PX = 0.025
+SMALL_WINDOW_PX = 4  # below this half-window the floor grows as (4 / half)^2: 0.1 px at 2, 0.044 px at 3
 # half-size of the cornerSubPix window in squares: only the X-junction and the white gap (0.125) around it;
 # a window reaching the corners of the markers' black borders can slide towards them (seen in simulations)
 WINDOW_SQUARES = 0.12
@@ -45,6 +46,8 @@ class Detection:
     xy: np.ndarray
     sigma: np.ndarray
     stats: dict
+    window_px: np.ndarray | None = None  # half-size of each corner's cornerSubPix window (px)
+    square_px: np.ndarray | None = None  # local size of a square (px, geometric mean of the two axes)
 
 
 def list_images(image_dir: str | Path) -> list[Path]:
@@ -187,19 +190,22 @@ class CharucoPlateDetector:
             refined[idx] = cv2.cornerSubPix(img, pts, (int(hw), int(hw)), (-1, -1), crit).reshape(-1, 2)
         noise = estimate_noise(img)
         sigma = _corner_sigmas(imgf, refined, half, noise)
+        # model error grows on small windows (blur and the marker borders close to the junction)
+        floor = SIGMA_FLOOR_PX * np.maximum(1.0, SMALL_WINDOW_PX / half) ** 2
+        sigma = np.sqrt(sigma ** 2 + floor[:, None] ** 2)
 
         bad = self._homography_outliers(cids, refined, sq_px, H_mk)
         stats["rejected_homography"] = int(bad.sum())
         ok = ~bad & np.isfinite(sigma).all(axis=1)
         ids = np.array([self.target_of_corner[int(k)] for k in cids[ok]], dtype=object)
-        xy, sig = refined[ok], sigma[ok]
+        xy, sig, hw, sqp = refined[ok], sigma[ok], half[ok], sq_px[ok]
         if self.keep_ids is not None:
             known = np.array([i in self.keep_ids for i in ids], bool)
             stats["not_in_field"] += int((~known).sum())
-            ids, xy, sig = ids[known], xy[known], sig[known]
+            ids, xy, sig, hw, sqp = ids[known], xy[known], sig[known], hw[known], sqp[known]
         stats["corners"] = int(len(ids))
         stats["noise_dn"] = noise
-        return Detection(ids, xy, sig, stats)
+        return Detection(ids, xy, sig, stats, hw, sqp)
 
     def _homography_outliers(self, cids, xy, sq_px, H_mk) -> np.ndarray:
         """Corners off the homography of their detected 3x3 grid neighbours (or of their two markers)."""
@@ -285,7 +291,7 @@ def _corner_sigmas(img: np.ndarray, xy: np.ndarray, half: np.ndarray, noise_dn: 
             continue
         cov = sg2 * Ai @ B @ Ai
         out[j] = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    return np.sqrt((SIGMA_FACTOR * out) ** 2 + SIGMA_FLOOR_PX ** 2)
+    return SIGMA_FACTOR * out
 
 
 def detect_image(img: np.ndarray, field: TargetField | str | Path) -> Detection:

@@ -171,7 +171,6 @@ def simulate_camera_field(out: str | Path, seed: int = 0, n_images: int = 48,
     from tqdm import tqdm
 
     from calib.camera_formats import camera_json_dict
-    from fields.formats import Measurements, write_measurements
     rng = np.random.default_rng(seed)
     camera = default_camera(image_size) if camera is None else camera
     tf = field if field is not None else (nonplanar_field() if nonplanar else TargetField())
