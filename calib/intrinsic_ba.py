@@ -373,10 +373,15 @@ def _solve_step(ne: _Normals, lam: float, covariance: bool = False):
     return du, dp
 
 
-def _lm(prob: _Problem, active, M, N, max_iter=100, tol=1e-8):
-    """Levenberg-Marquardt to convergence on the active observations; returns (iterations, converged)."""
+def _lm(prob: _Problem, active, M, N, max_iter=100, tol_chi2=0.01):
+    """Levenberg-Marquardt to convergence on the active observations; returns (iterations, converged).
+
+    Converged when a step lowers chi^2 (cost / sigma0^2) by less than `tol_chi2`: the parameters are then
+    within a small fraction of their sigmas of the minimum (ill-conditioned models such as the rational one
+    otherwise crawl along a flat valley with negligible gains)."""
     lam = 1e-4
     cost = prob.cost(active)
+    dof = max(2 * int(active.sum()) - 6 * M, 1)
     for it in range(1, max_iter + 1):
         ne = prob.normal_equations(active, M, N)
         improved = False
@@ -390,13 +395,13 @@ def _lm(prob: _Problem, active, M, N, max_iter=100, tol=1e-8):
             new = prob.cost(active, camera=cam, R=R, t=t, X=X)
             if new < cost:
                 prob.camera, prob.R, prob.t, prob.X = cam, R, t, X
-                rel = (cost - new) / max(cost, 1e-300)
+                gain_chi2 = (cost - new) / max(new / dof, 1e-300)
                 cost = new
                 lam = max(lam / 10, 1e-12)
                 improved = True
                 break
             lam *= 10
-        if not improved or rel < tol:
+        if not improved or gain_chi2 < tol_chi2:
             return it, True
     return max_iter, False
 
