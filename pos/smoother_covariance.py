@@ -43,75 +43,92 @@ _CACHE: dict = {}
 
 
 def _accumulate(graph, values, blocks: KeyframeBlocks):
-    """Cached `_assemble` (the smoothed covariances and the forward pass linearise at the same point)."""
+    """Cached `_assemble_sparse` (the smoothed covariances and the forward pass linearise at the same point)."""
     key = (id(graph), id(values), blocks.K, tuple(blocks.systems))
     hit = _CACHE.get(key)
     if hit is not None and hit[0] is graph and hit[1] is values:
         return hit[2]
-    out = _assemble(graph, values, blocks)
+    out = _assemble_sparse(graph, values, blocks)
     _CACHE.clear()
     _CACHE[key] = (graph, values, out)
     return out
 
 
-def _assemble(graph, values, blocks: KeyframeBlocks):
-    """Information blocks of the linearised graph per keyframe, clock columns in metres.
+def _assemble_sparse(graph, values, blocks: KeyframeBlocks):
+    """Information blocks per keyframe from the whitened sparse Jacobian of the linearised graph (one gtsam
+    call, scipy products), clock columns in metres.
 
-    Returns D (K,n,n): factors whose latest keyframe is k, on keyframe k; U (K-1,n,n): coupling of k and k+1;
-    Dn (K,n,n): factors reaching keyframe k+1, on keyframe k.
+    Returns D (K,n,n): rows whose latest keyframe is k, on keyframe k; U (K-1,n,n): coupling of k and k+1;
+    Dn (K,n,n): rows reaching keyframe k+1, on keyframe k; and the matching information vectors eD, en.
+
+    Rows touching two keyframes are split into the part on the earlier keyframe (A_lo) and on the later
+    one (A_hi): Dn = A_lo'A_lo, U = A_lo'A_hi, and A_hi'A_hi goes to D with the single-keyframe rows.
     """
+    import scipy.sparse as sp
     K, n = blocks.K, blocks.n
-    D = np.zeros((K, n, n))
-    U = np.zeros((max(K - 1, 0), n, n))
-    Dn = np.zeros((K, n, n))
-    eD = np.zeros((K, n))
-    en = np.zeros((K, n))
     lin = graph.linearize(values)
-    where = blocks.where
-    cache: dict = {}
-    for i in range(lin.size()):
-        f = lin.at(i)
-        locs = [where[key] for key in f.keys()]
-        aug = f.augmentedInformation()
-        info, eta = aug[:-1, :-1], aug[:-1, -1]
-        if None in locs:
-            # only ZERO (dim 1) is None; drop its rows/columns
-            dims = [1 if l is None else l[2] for l in locs]
-            keep = np.concatenate([np.full(d, l is not None) for d, l in zip(dims, locs)])
-            info, eta = info[np.ix_(keep, keep)], eta[keep]
-            locs = [l for l in locs if l is not None]
-            if not locs:
-                continue
-        k0 = min(l[0] for l in locs)
-        k1 = max(l[0] for l in locs)
-        if k1 - k0 > 1:
-            raise ValueError("factor spans more than two keyframes")
-        pattern = tuple((k - k0, off, dim) for (k, off, dim) in locs)
-        ix = cache.get(pattern)
-        if ix is None:
-            ix = cache[pattern] = _pattern_index(pattern)
-        (a00, b00), (a11, b11), (a01, b01) = ix
-        if k1 == k0:
-            D[k0][a00] += info[b00]
-            eD[k0][a00[0][:, 0]] += eta[b00[0][:, 0]]
+    ijs = lin.sparseJacobian_()
+    rows = ijs[0].astype(np.int64) - 1
+    cols = ijs[1].astype(np.int64) - 1
+    vals = ijs[2]
+    # gtsam orders the columns by sorted key; the last column is the right-hand side b
+    keys = sorted(int(k) for k in values.keys())
+    col_block = []
+    col_off = []
+    for key in keys:
+        loc = blocks.where.get(key, "absent")
+        dim = _key_dim(values, key)
+        if loc is None or loc == "absent":
+            col_block.extend([-1] * dim)  # ZERO: conditioned on
+            col_off.extend([0] * dim)
         else:
-            Dn[k0][a00] += info[b00]
-            D[k1][a11] += info[b11]
-            U[k0][a01] += info[b01]
-            en[k0][a00[0][:, 0]] += eta[b00[0][:, 0]]
-            eD[k1][a11[0][:, 0]] += eta[b11[0][:, 0]]
+            k, off, d = loc
+            col_block.extend([k] * d)
+            col_off.extend(range(off, off + d))
+    col_block = np.array(col_block + [-2])  # -2: the b column
+    col_off = np.array(col_off + [0])
+    n_rows = int(rows.max()) + 1 if len(rows) else 0
+    cb = col_block[cols]
+    is_b = cb == -2
+    b = np.zeros(n_rows)
+    np.add.at(b, rows[is_b], vals[is_b])
+    keep = cb >= 0
+    r, c, v, kb = rows[keep], col_off[cols[keep]] + n * cb[keep], vals[keep], cb[keep]
+    kmin = np.full(n_rows, K, np.int64)
+    kmax = np.full(n_rows, -1, np.int64)
+    np.minimum.at(kmin, r, kb)
+    np.maximum.at(kmax, r, kb)
+    pair = (kmax > kmin)[r]
+    lo = pair & (kb == kmin[r])
+    N = K * n
+    shape = (n_rows, N)
+    A_single_hi = sp.csr_matrix((v[~lo], (r[~lo], c[~lo])), shape=shape)
+    A_lo = sp.csr_matrix((v[lo], (r[lo], c[lo])), shape=shape)
+    A_hi_pair = sp.csr_matrix((v[pair & ~lo], (r[pair & ~lo], c[pair & ~lo])), shape=shape)
+    H_D = (A_single_hi.T @ A_single_hi).tocsr()
+    H_Dn = (A_lo.T @ A_lo).tocsr()
+    H_U = (A_lo.T @ A_hi_pair).tocsr()
+    e_D = A_single_hi.T @ b
+    e_n = A_lo.T @ b
+    D = np.empty((K, n, n))
+    Dn = np.empty((K, n, n))
+    U = np.zeros((max(K - 1, 0), n, n))
+    for k in range(K):
+        sl = slice(k * n, (k + 1) * n)
+        D[k] = H_D[sl, sl].toarray()
+        Dn[k] = H_Dn[sl, sl].toarray()
+        if k < K - 1:
+            U[k] = H_U[sl, slice((k + 1) * n, (k + 2) * n)].toarray()
+    eD = e_D.reshape(K, n)
+    en = e_n.reshape(K, n)
     ss = np.outer(blocks.scale, blocks.scale)
     return D * ss, U * ss, Dn * ss, eD * blocks.scale, en * blocks.scale
 
 
-def _pattern_index(pattern):
-    i0, i1, j0, j1 = [], [], [], []  # positions inside the keyframe blocks, and inside the factor's info
-    c = 0
-    for (dk, off, dim) in pattern:
-        (i0 if dk == 0 else i1).extend(range(off, off + dim))
-        (j0 if dk == 0 else j1).extend(range(c, c + dim))
-        c += dim
-    return ((np.ix_(i0, i0), np.ix_(j0, j0)), (np.ix_(i1, i1), np.ix_(j1, j1)), (np.ix_(i0, i1), np.ix_(j0, j1)))
+def _key_dim(values, key) -> int:
+    import gtsam
+    sym = gtsam.Symbol(key).chr()
+    return {ord("x"): 6, ord("v"): 3, ord("b"): 6}.get(sym, 1)
 
 
 def _unscale(P: np.ndarray, blocks: KeyframeBlocks) -> np.ndarray:
