@@ -121,6 +121,25 @@ def radial_profile_figure(cal: CameraCalibration):
     return fig
 
 
+def stations_figure(cal: CameraCalibration):
+    """Projection centres of the used images around the targets: plan (x, y) and side (x, z) views, m."""
+    ba = cal.ba
+    C, _ = ba.camera_centres()
+    ok = np.isfinite(C[:, 0])
+    X = ba.points_xyz[np.unique(ba.obs_point[ba.used])]
+    fig, axes = new_figure(9, 4.2, ncols=2)
+    for ax, (a, b), lab in zip(axes, ((0, 1), (0, 2)), ("plan view (x, y)", "side view (x, z)")):
+        ax.plot(X[:, a], X[:, b], ".", ms=1.5, color="0.5", label="targets")
+        ax.plot(C[ok, a], C[ok, b], "^", color="tab:orange", ms=5, label="cameras")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(lab)
+        ax.set_xlabel("xyz"[a] + " (m)")
+        ax.set_ylabel("xyz"[b] + " (m)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    return fig
+
+
 def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calibration") -> HtmlReport:
     """The report page (not yet written)."""
     ba, cam = cal.ba, cal.camera
@@ -153,6 +172,8 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
     rep.figure(correlation_figure(cal))
     rep.heading("Per-image RMS")
     rep.figure(per_image_figure(cal))
+    rep.heading("Camera stations")
+    rep.figure(stations_figure(cal), "Projection centres of the used images (poses.csv) in the field frame.")
     if ba.rejected:
         rep.heading("Rejected observations")
         shown = sorted(ba.rejected, key=lambda r: -(r.residual_px if r.residual_px == r.residual_px else 0))[:200]

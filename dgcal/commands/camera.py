@@ -1,6 +1,6 @@
 """Calibrate a camera from a target field: self-calibrating bundle adjustment of image measurements (or of
 targets detected in a folder of images). Writes camera.json, report.html, opencv.yaml, cameras.txt
-(COLMAP), metashape.xml and, when detecting, measurements.csv."""
+(COLMAP), metashape.xml, poses.csv and, when detecting, measurements.csv (see docs/camera_calibration.md)."""
 from __future__ import annotations
 
 import argparse
