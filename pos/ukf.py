@@ -74,6 +74,20 @@ class UkfSolution:
         """Rotation body FRD -> nav NED at each epoch (K,3,3)."""
         return R_body_to_ned_from_rph(self.rph_deg[:, 0], self.rph_deg[:, 1], self.rph_deg[:, 2])
 
+    def to_trajectory(self):
+        """The filtered states as a `fields.formats.Trajectory` (geodetic, local-NED velocity and attitude,
+        sigmas from the filter covariance) for the trajectory CSV and the DG / mounting tools."""
+        from fields.crs import ecef_to_geodetic
+        from fields.formats import Trajectory
+        from fields.frames import rph_from_R_body_to_ned
+        R_loc = self.frame.R_nav_to_local_ned(self.p_nav)  # nav axes -> local NED (earth curvature)
+        geo = ecef_to_geodetic(self.frame.to_ecef(self.p_nav))
+        v = np.einsum("kij,kj->ki", R_loc, self.v_nav)
+        rph = rph_from_R_body_to_ned(R_loc @ self.R_body_to_nav)
+        P_p = R_loc @ self.P[:, 0:3, 0:3] @ np.swapaxes(R_loc, 1, 2)
+        sig = np.column_stack([np.sqrt(np.einsum("kii->ki", P_p)), self.sigma_rph_deg])
+        return Trajectory(t=self.t.copy(), lat=geo[:, 0], lon=geo[:, 1], h=geo[:, 2], v_ned=v, rph=rph, sigma=sig)
+
 
 def wrap_pi(a: np.ndarray) -> np.ndarray:
     """Angles (rad) wrapped to (-pi, pi]."""

@@ -85,3 +85,18 @@ def test_ukf_with_antenna_lever_arm():
     assert np.all(np.sqrt(np.mean(e[:, :2] ** 2, axis=0)) < 0.5)
     p_true = u.frame.from_ecef(f.truth.at(u.t[a]).p_ecef)
     assert np.sqrt(np.mean(np.sum((u.p_nav[a] - p_true) ** 2, axis=1))) < 3.0
+
+
+def test_ukf_solution_as_trajectory_file(tmp_path):
+    from fields.formats import read_trajectory, write_trajectory
+    from pos.ukf import run_ukf
+    f = simulate_lowcost_flight(duration_s=40.0, rate_hz=50.0, seed=5)
+    u = run_ukf(f.imu, f.fixes, f.imu_errors.grade)
+    tr = u.to_trajectory()
+    write_trajectory(tmp_path / "ukf.csv", tr)
+    back = read_trajectory(tmp_path / "ukf.csv")
+    assert np.allclose(back.t, u.t, atol=1e-6) and np.allclose(back.rph[:, :2], u.rph_deg[:, :2], atol=0.05)
+    truth = f.truth.at(u.t)
+    a = u.t > u.t[0] + 15
+    assert np.abs(back.h[a] - truth.h[a]).max() < 5.0
+    assert np.all(back.sigma[:, 3:] > 0)
