@@ -106,7 +106,8 @@ def plan(cfg: dict, out: Path) -> list[Step]:
     cam_json = _p(cfg, "camera", "camera_json", required=False) if cam else None
     if cam and cam_json is None:
         field_csv = _p(cfg, "camera", "field")
-        a = ["camera", "--field", str(field_csv), "--model", str(cam.get("model", "fraser7")), "--out", str(out / "camera")]
+        a = ["camera", "--field", str(field_csv), "--model", str(cam.get("model", "fraser7")),
+             "--out", str(out / "camera")]
         ins = [field_csv]
         if "images" in cam:
             a += ["--images", str(_p(cfg, "camera", "images"))]
@@ -242,6 +243,11 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     cfg = load_campaign(path)
     out = Path(out)
     steps = plan(cfg, out)
+    out_abs = out.resolve()
+    for step in steps:  # every campaign file must be there before anything runs
+        for p in step.inputs:
+            if not Path(p).exists() and out_abs not in Path(p).resolve().parents:
+                raise InputError(f"input of step {step.name} not found", p)
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE
     state = {}
@@ -263,7 +269,13 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
         state.pop(step.name, None)
         _save_state(state_path, state)
         t0 = time.perf_counter()
-        rc = runner(step.argv)
+        try:
+            rc = runner(step.argv)
+        except InputError:
+            raise
+        except Exception as exc:  # a crash inside a verb: one line naming the step; earlier steps stay done
+            raise InputError(f"step {step.name} crashed ({type(exc).__name__}: {exc}); rerun it alone with "
+                             f"`dgcal --debug {' '.join(step.argv[:1])} ...` to see where", cfg["_path"]) from exc
         timings[step.name] = time.perf_counter() - t0
         if rc != 0:
             raise InputError(f"step {step.name} failed (exit {rc}); fix it and run again to resume", cfg["_path"])

@@ -207,7 +207,8 @@ def _fig_correlation(m: dict):
     for i in range(7):
         for j in range(7):
             if np.isfinite(C[i, j]):
-                ax.text(j, i, f"{C[i, j]:.2f}", ha="center", va="center", fontsize=6)
+                ax.text(j, i, f"{C[i, j]:.2f}", ha="center", va="center", fontsize=6,
+                        color="white" if abs(C[i, j]) > 0.6 else "black")
     fig.colorbar(im, ax=ax, shrink=0.8)
     return fig
 
@@ -287,7 +288,8 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
             ("exposure delay (s)", f"{m['delay_s']:+.4f} ± {m.get('delay_sigma_s', 0):.4f}"),
             ("lever arm IMU → camera, body FRD (m)",
              ", ".join(f"{v:+.4f} ± {s:.4f}" for v, s in zip(m["lever_arm_m"], m["lever_arm_sigma_m"]))),
-            ("boresight roll, pitch, yaw of R_cam_to_body (deg)", ", ".join(f"{v:+.4f}" for v in m["boresight_rpy_deg"])),
+            ("boresight roll, pitch, yaw of R_cam_to_body (deg)",
+             ", ".join(f"{v:+.4f}" for v in m["boresight_rpy_deg"])),
             ("boresight sigmas about body x, y, z (deg)", ", ".join(f"{s:.4f}" for s in m["boresight_sigma_deg"])),
             ("boresight R_cam_to_body", "; ".join(", ".join(f"{v:+.6f}" for v in row)
                                                    for row in m["boresight_R_cam_to_body"])),
@@ -297,12 +299,12 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
     if chk:
         rep.table(["method", "check points", "RMS E (m)", "RMS N (m)", "RMS U (m)", "RMS 2D (m)", "RMS 3D (m)",
                    "predicted 3D (m)", "achieved / predicted 3D"],
-                  [[k, c["stats"]["n"], *(c["stats"]["rms"][a] for a in ("E", "N", "U", "2D", "3D")),
-                    c["budget"]["predicted_rms"]["3D"], c["budget"]["ratio_achieved_to_predicted"]["3D"]]
+                  [[k, c["stats"]["n"], *(_m(c["stats"]["rms"][a]) for a in ("E", "N", "U", "2D", "3D")),
+                    _m(c["budget"]["predicted_rms"]["3D"]), _m(c["budget"]["ratio_achieved_to_predicted"]["3D"], 2)]
                    for k, c in chk.items()])
     if d.get("steps"):
         rep.table(["step", "status", "time (s)"],
-                  [[k, v, d["timings_s"].get(k, float("nan"))] for k, v in d["steps"].items()])
+                  [[k, v, _m(d["timings_s"].get(k), 1)] for k, v in d["steps"].items()])
     tc = d.get("truth_comparison")
     if tc:
         rep.heading("Against the simulation truth")
@@ -351,7 +353,7 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
         rep.kv_table(pairs)
         for key, label in (("check_rmse_m", "check-point RMSE (m)"), ("control_rmse_m", "control-point RMSE (m)")):
             if isinstance(tri.get(key), dict):
-                rep.kv_table([(f"{label} {a}", v if v is not None else float("nan")) for a, v in tri[key].items()])
+                rep.kv_table([(f"{label} {a}", v if a == "n" else _m(v)) for a, v in tri[key].items()])
         fig = _fig_block(out, cfg)
         if fig is not None:
             rep.figure(fig, "Projection centres (colour: height) and ground points of the calibration flight.")
@@ -396,18 +398,20 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
             rep.heading(f"{k}", 3)
             st = c["stats"]
             rep.table(["statistic", "E (m)", "N (m)", "U (m)", "2D (m)", "3D (m)"],
-                      [[s.upper(), *(st[s][a] for a in ("E", "N", "U", "2D", "3D"))] for s in ("avg", "std", "rms")])
+                      [[s.upper(), *(_m(st[s][a]) for a in ("E", "N", "U", "2D", "3D"))]
+                       for s in ("avg", "std", "rms")])
             b = c["budget"]
             rep.table(["predicted RMS from", "E (m)", "N (m)", "U (m)", "2D (m)", "3D (m)"],
-                      [[src, *(v[a] for a in ("E", "N", "U", "2D", "3D"))] for src, v in b["sources"].items()]
-                      + [["all sources", *(b["predicted_rms"][a] for a in ("E", "N", "U", "2D", "3D"))],
-                         ["achieved", *(b["achieved_rms"][a] for a in ("E", "N", "U", "2D", "3D"))]])
+                      [[src, *(_m(v[a]) for a in ("E", "N", "U", "2D", "3D"))] for src, v in b["sources"].items()]
+                      + [["all sources", *(_m(b["predicted_rms"][a]) for a in ("E", "N", "U", "2D", "3D"))],
+                         ["achieved", *(_m(b["achieved_rms"][a]) for a in ("E", "N", "U", "2D", "3D"))]])
             a = c.get("asprs_2023", {})
-            rep.kv_table([(f"ASPRS 2023 {key}", v) for key, v in a.items() if not isinstance(v, list)])
+            rep.kv_table([(f"ASPRS 2023 {key} (m)" if key != "n_checkpoints" else "ASPRS 2023 check points",
+                           _m(v) if key != "n_checkpoints" else v) for key, v in a.items() if not isinstance(v, list)])
         imp = {k: v for k, v in d["check"].items() if k.startswith("improvement_over_") and v}
         for k, v in imp.items():
             rep.heading(f"Improvement rates over {k[len('improvement_over_'):]} (seed Tables 4–5, %)", 3)
-            rep.table(["method", "2D (%)", "3D (%)"], [[m_, r["2D"], r["3D"]] for m_, r in v.items()])
+            rep.table(["method", "2D (%)", "3D (%)"], [[m_, _m(r["2D"], 1), _m(r["3D"], 1)] for m_, r in v.items()])
         fig = _fig_check(d["check"])
         if fig is not None:
             rep.figure(fig, "Check-point errors of direct georeferencing per method.")
@@ -418,6 +422,15 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
     rep.raw('<h2 id="warnings">Warnings</h2>')
     rep.warnings(d.get("warnings", []))
     return rep.render()
+
+
+def _m(v, nd: int = 4) -> str:
+    """A number with `nd` decimals (metres to 0.1 mm), '–' for missing values."""
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return "–"
+    return "–" if not np.isfinite(v) else f"{v:.{nd}f}"
 
 
 def _ratio(v) -> str:

@@ -289,7 +289,8 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     from fields.frames import R_ecef_to_enu, R_enu_to_grid
     llh_c = grid.to_geodetic(C_map)
     gamma = grid.convergence_deg(llh_c[:, 0], llh_c[:, 1])
-    R_cv_to_grid = R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ R_ecef_to_enu(llh_c[:, 0], llh_c[:, 1]) @ R_cv_to_ecef
+    R_cv_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ R_ecef_to_enu(llh_c[:, 0], llh_c[:, 1])
+                    @ R_cv_to_ecef)
     opk = opk_from_R_cv_to_map(R_cv_to_grid)
 
     # 3. GNSS antenna: PPK-like positions (lc) or pseudoranges (tc)
