@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
+from scipy.sparse import csr_matrix, lil_matrix
 
 from bundle.intersection import intersect
 from calib.mounting_common import BlockFrame, MountingResult, T, build_epochs, so3_exp, so3_log
@@ -140,16 +140,9 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
                          np.r_[init.delay_s, init.lever_arm_m, 0, 0, 0][free_m], camera.params[i_intr]])
     sol = least_squares(fun, x0, jac_sparsity=S.tocsr(), method="trf", x_scale="jac", max_nfev=max_nfev,
                         xtol=1e-10, ftol=1e-10)
-    J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-    N = J.T @ J
-    dof = n_res - N.shape[0]
+    dof = n_res - len(sol.x)
     sigma0_sq = float(2 * sol.cost / max(dof, 1))
-    # the mounting block of N^-1 via the Schur complement (poses and points eliminated)
-    A = N[:i_mnt, :i_mnt]
-    B = N[:i_mnt, i_mnt:]
-    Dm = N[i_mnt:, i_mnt:]
-    Sm = Dm - B.T @ np.linalg.solve(A, B)
-    cov_glob = np.linalg.inv(Sm) * max(1.0, sigma0_sq)  # mounting (free) then intrinsics
+    cov_glob = _global_covariance(csr_matrix(sol.jac), n_pose, K, len(free_m) + n_intr) * max(1.0, sigma0_sq)
     cov = np.zeros((7, 7))
     nf = len(free_m)
     cov[np.ix_(free_m, free_m)] = cov_glob[:nf, :nf]
@@ -179,6 +172,33 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     xyz_map, opk = frame.L_to_eop(C, R0 @ so3_exp(d))
     res.extra["adjusted_eop"] = {"image": img_names, "xyz": xyz_map.tolist(), "opk_deg": opk.tolist()}
     return res
+
+
+def _global_covariance(J, n_pose: int, n_points: int, n_glob: int) -> np.ndarray:
+    """Covariance (cofactor) of the global parameters (mounting, intrinsics: the last `n_glob` columns) from a
+    sparse Jacobian [poses | points | globals]: points eliminated by their 3x3 blocks, then poses (Schur)."""
+    i_pt = n_pose
+    i_gl = n_pose + 3 * n_points
+    Jc = J[:, np.r_[0:i_pt, i_gl:i_gl + n_glob]]   # poses and globals
+    Jp = J[:, i_pt:i_gl]                             # points
+    # block-diagonal point normals, inverted block by block
+    Np = (Jp.T @ Jp).tocsr()
+    blocks = np.zeros((n_points, 3, 3))
+    for a in range(3):
+        for b in range(3):
+            blocks[:, a, b] = np.asarray(Np[np.arange(n_points) * 3 + a, np.arange(n_points) * 3 + b]).ravel()
+    inv = np.linalg.inv(blocks)
+    from scipy.sparse import block_diag
+    Ainv = block_diag(list(inv), format="csr") if n_points else None
+    Ncc = (Jc.T @ Jc).toarray()
+    if n_points:
+        W = (Jp.T @ Jc).tocsr()
+        Ncc = Ncc - (W.T @ (Ainv @ W)).toarray()
+    # poses then globals: eliminate the poses
+    P = Ncc[:n_pose, :n_pose]
+    G = Ncc[:n_pose, n_pose:]
+    S = Ncc[n_pose:, n_pose:] - G.T @ np.linalg.solve(P, G)
+    return np.linalg.inv(S)
 
 
 def calibrate_iso_files(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, meas_path: Path,
