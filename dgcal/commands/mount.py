@@ -51,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
         res = calibrate_mounting(eop, grid, traj, events, args.method, **kw)
     main = res.to_json()
     others = {}
+    if args.method == "iso":
+        others["proposed"] = calibrate_mounting(eop, grid, traj, events, "proposed").to_json()
     if args.method != "traditional":
         others["traditional"] = calibrate_mounting(eop, grid, traj, events, "traditional").to_json()
     with staged_dir(args.out) as tmp:
