@@ -56,6 +56,7 @@ def test_georef_dem_and_height(campaign):
     assert main(["georef", "--camera", str(d / "camera.json"), "--measurements", str(d / "pix.csv"), "--crs", CRS,
                  "--eop", str(d / "eop.csv"), "--dem", str(d / "dem.tif"), "--sigma-px", "0.3",
                  "--out", str(d / "out_dem")]) == 0
+    assert (d / "out_dem" / "georef.html").stat().st_size > 5000
     av = _avg(d / "out_dem")
     xy, s, n = av["H1"]
     assert n == 6 and np.abs(xy - P["H1"][:2]).max() < 0.01 and np.all(s > 0) and np.all(s < 0.2)

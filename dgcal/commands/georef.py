@@ -26,7 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sigma-px", type=float, default=0.5, help="pixel sigma when the CSV has none (px)")
     p.add_argument("--sigma-height", type=float, default=0.0, help="sigma of the height / DEM (m)")
     p.add_argument("--sigma-range", type=float, default=0.5, help="laser range sigma when the CSV has none (m)")
-    p.add_argument("--out", required=True, type=Path, help="output directory (georef_points.csv, georef_average.csv)")
+    p.add_argument("--out", required=True, type=Path,
+                   help="output directory (georef_points.csv, georef_average.csv, georef.json, georef.html)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -85,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
                        "z": z, "n_images": av.n, "chi2_dof": av.chi2_dof}
         write_table(tmp / "georef_average.csv", ["id", "x", "y", "z", "sx", "sy", "n_images", "chi2_dof", "x_mean",
                                                  "y_mean"], rows, fmt="%.4f")
+        _html(res, args).write(tmp / "georef.html")
         with atomic_write(tmp / "georef.json") as fh:
             json.dump({"crs": args.crs, "n_points": int(len(res.id)), "n_ok": int(res.ok.sum()),
                        "height_source": "dem" if dem is not None else "ranges" if ranges is not None else "height",
@@ -92,3 +94,40 @@ def run(args: argparse.Namespace) -> int:
     print(f"{int(res.ok.sum())}/{len(res.id)} pixels georeferenced, {len(res.averages)} points averaged -> "
           f"{args.out / 'georef_average.csv'}")
     return 0
+
+
+def _html(res, args):
+    """One-file report: per point the spread of its single-image estimates around the average (seed Fig. 19)."""
+    import numpy as np
+
+    from reports.html import HtmlReport, new_figure
+    rep = HtmlReport("dgcal single-image georeferencing")
+    src = "DEM " + str(args.dem) if args.dem else "laser ranges " + str(args.ranges) if args.ranges else \
+        f"known height {args.height} m"
+    rep.kv_table([("CRS", args.crs), ("height source", src), ("pixels", len(res.id)),
+                  ("georeferenced", int(res.ok.sum())), ("points averaged", len(res.averages))])
+    rows = []
+    for pid, (av, z) in res.averages.items():
+        s = np.sqrt(np.diag(av.cov_weighted))
+        rows.append([pid, av.n, *np.round(av.weighted, 3), round(z, 3), *np.round(s, 3), round(av.chi2_dof, 2)])
+    rep.table(["id", "images", "x", "y", "z", "sx", "sy", "chi2/dof"], rows)
+    ids = list(res.averages)[:6]
+    if ids:
+        fig, axes = new_figure(4.0 * len(ids), 4.0, ncols=len(ids), squeeze=False)
+        t = np.linspace(0, 2 * np.pi, 100)
+        for ax, pid in zip(axes[0], ids):
+            av, _ = res.averages[pid]
+            m = (res.id == pid) & res.ok
+            d = res.xyz[m][:, :2] - av.weighted
+            ax.scatter(d[:, 0], d[:, 1], s=14, label="single images")
+            w, V = np.linalg.eigh(res.cov[m][:, :2, :2].mean(axis=0))
+            ell = (V * np.sqrt(np.maximum(w, 0) * 5.99)) @ np.vstack([np.cos(t), np.sin(t)])
+            ax.plot(ell[0], ell[1], "C1", lw=1, label="mean single-image 95 %")
+            ax.plot(0, 0, "k+", ms=12, label="weighted average")
+            ax.set_title(str(pid))
+            ax.set_xlabel("dE (m)")
+            ax.set_ylabel("dN (m)")
+            ax.set_aspect("equal", adjustable="datalim")
+        axes[0][0].legend(fontsize=7)
+        rep.figure(fig, "Single-image estimates around their covariance-weighted average")
+    return rep
