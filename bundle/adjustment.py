@@ -57,7 +57,9 @@ class BundleOptions:
     loss_scale: float = 3.0        # whitened residual norm where the loss turns robust
     max_iterations: int = 60
     tolerance: float = 1e-8        # relative cost decrease that stops the iterations
-    aposteriori: bool = True       # scale covariances by sigma0^2
+    aposteriori: bool = True       # scale covariances by max(sigma0^2, 1): inflate when the fit is worse than
+                                   # the stated sigmas, never shrink (precise tie points must not make the
+                                   # GCP-driven datum look better than its own sigmas say)
     verbose: bool = False
 
 
@@ -85,7 +87,7 @@ class BundleResult:
 
     @property
     def scale2(self) -> float:
-        return self.sigma0 ** 2 if self._cache.get("aposteriori", True) else 1.0
+        return max(self.sigma0 ** 2, 1.0) if self._cache.get("aposteriori", True) else 1.0
 
     def point_covariance(self, idx) -> np.ndarray:
         """Covariances (len(idx),3,3) of adjusted points (m^2), scaled like the pose covariances."""
@@ -321,7 +323,7 @@ def adjust(inp: BundleInput, options: BundleOptions | None = None) -> BundleResu
     n_res = 2 * pb.k + int(np.isfinite(pb.pp).sum() + np.isfinite(pb.cp).sum() + np.isfinite(pb.ips).sum())
     redundancy = int(n_res - pb.nc - 3 * pb.m)
     sigma0 = float(np.sqrt(cost / redundancy)) if redundancy > 0 else float("nan")
-    s2 = sigma0 ** 2 if (opt.aposteriori and redundancy > 0) else 1.0
+    s2 = max(sigma0 ** 2, 1.0) if (opt.aposteriori and redundancy > 0) else 1.0
     n = pb.n
     cov_pose = np.array([cof[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(n)]) * s2
     cov_int = cof[6 * n:, 6 * n:] * s2

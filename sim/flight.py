@@ -151,7 +151,8 @@ def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, rend
         write_eop(tmp / "truth_eop.csv", EOP(np.array(names, dtype=object), C_map, opk))
         write_camera_json(tmp / "camera.json", cam, stats={"rms_px": 0.0, "n_observations": 0, "n_rejected": 0})
         if render:
-            _render_all(tmp / "images", cam, names, R_w2c, C_loc, gp_loc, seed)
+            # texels a little finer than the lowest flight's ground pixel: detail without aliasing
+            _render_all(tmp / "images", cam, names, R_w2c, C_loc, gp_loc, seed, texel_m=0.8 * min(heights) / cam["f"])
         truth = {
             "crs": crs, "local_frame": {"lat0": CENTRE_LAT, "lon0": CENTRE_LON, "h0": CENTRE_H},
             "camera": {"model": cam.NAME, "image_size": list(cam.image_size), "params": cam.as_dict()},
@@ -169,22 +170,24 @@ def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, rend
 
 
 # ---------------------------------------------------------------------------------------------
-def _texture(seed: int, size: int = 2048) -> np.ndarray:
-    """A tileable multi-scale noise texture (uint8), rich enough in corners for SIFT."""
-    import cv2
+def _texture(seed: int, size: int = 4096) -> np.ndarray:
+    """A seamless (periodic) 1/f noise texture (uint8): detail at every scale, for SIFT, and no tile seams.
+    Its period (size x texel) must exceed the block, or SIFT matches repeated ground."""
     rng = np.random.default_rng(seed + 1000)
-    tex = np.zeros((size, size), np.float32)
-    for octave, amp in ((8, 1.0), (32, 0.7), (128, 0.5), (512, 0.35)):
-        small = rng.random((octave, octave)).astype(np.float32)
-        tex += amp * cv2.resize(np.tile(small, (2, 2)), (2 * size, 2 * size), interpolation=cv2.INTER_CUBIC)[:size, :size]
-    tex -= tex.min()
-    tex /= tex.max()
-    return (40 + 180 * tex).astype(np.uint8)
+    fx = np.fft.rfftfreq(size)[None, :]
+    fy = np.fft.fftfreq(size)[:, None]
+    f = np.hypot(fx, fy)
+    f[0, 0] = 1.0
+    spec = np.fft.rfft2(rng.normal(size=(size, size)).astype(np.float32)) / f ** 1.1 * np.exp(-(f / 0.25) ** 2)
+    tex = np.fft.irfft2(spec, s=(size, size))
+    tex = (tex - tex.mean()) / tex.std()
+    return np.clip(128 + 38 * tex, 10, 245).astype(np.uint8)
 
 
 def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: int,
-                texel_m: float = 0.05) -> None:
-    """Render each image: ray -> terrain intersection (fixed-point on height) -> texture and targets."""
+                texel_m: float = 0.07) -> None:
+    """Render each image: ray -> terrain intersection (fixed-point on height) -> texture, plus GCP targets
+    (a white disc of 1 m radius with a black-and-white quartered centre of 0.5 m radius)."""
     import cv2
     folder.mkdir(parents=True, exist_ok=True)
     tex = _texture(seed)
@@ -192,25 +195,39 @@ def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: i
     w, h = cam.image_size
     uu, vv = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     rays_cv = cam.ray(np.column_stack([uu.ravel(), vv.ravel()]))
-    target_r = 0.5   # m: radius of a GCP target's black disc (white ring to 1.0 m)
+    target_r = 0.5
     for i, name in enumerate(names):
         d = rays_cv @ R_w2c[i]          # world directions
         C = C_loc[i]
         z = np.full(len(d), terrain_height(np.array([C[0]]), np.array([C[1]]))[0])
-        for _ in range(6):
+        for _ in range(5):
             t = (z - C[2]) / d[:, 2]
             P = C + t[:, None] * d
             z = terrain_height(P[:, 0], P[:, 1])
-        ix = np.mod(P[:, 0] / texel_m, size).astype(np.float32)
-        iy = np.mod(P[:, 1] / texel_m, size).astype(np.float32)
-        img = cv2.remap(tex, ix.reshape(h, w), iy.reshape(h, w), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-        img = img.astype(np.float32)
-        for g in gp_loc:
-            r = np.hypot(P[:, 0] - g[0], P[:, 1] - g[1]).reshape(h, w)
-            img[r < 1.0] = 250.0
-            img[r < target_r] = 15.0
-            quad = ((P[:, 0] - g[0] > 0) == (P[:, 1] - g[1] > 0)).reshape(h, w)
-            img[(r < target_r) & quad] = 250.0
+        ix = np.mod(P[:, 0] / texel_m, size).astype(np.float32).reshape(h, w)
+        iy = np.mod(-P[:, 1] / texel_m, size).astype(np.float32).reshape(h, w)
+        img = cv2.remap(tex, ix, iy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP).astype(np.float32)
+        P3 = P.reshape(h, w, 3)
+        Xc = (gp_loc - C) @ R_w2c[i].T
+        front = Xc[:, 2] > 1
+        if front.any():
+            uv = np.full((len(gp_loc), 2), np.nan)
+            uv[front] = cam.project(Xc[front])
+            rad = int(np.ceil(1.5 * cam["f"] / max(np.min(Xc[front, 2]), 1.0))) + 3
+            for g, (u, v) in zip(gp_loc, uv):
+                if not (np.isfinite(u) and -rad < u < w + rad and -rad < v < h + rad):
+                    continue
+                r0, r1 = max(0, int(v) - rad), min(h, int(v) + rad + 1)
+                c0, c1 = max(0, int(u) - rad), min(w, int(u) + rad + 1)
+                if r0 >= r1 or c0 >= c1:
+                    continue
+                win = P3[r0:r1, c0:c1]
+                dx, dy = win[..., 0] - g[0], win[..., 1] - g[1]
+                r = np.hypot(dx, dy)
+                sub = img[r0:r1, c0:c1]
+                sub[r < 1.0] = 245.0
+                sub[r < target_r] = 15.0
+                sub[(r < target_r) & ((dx > 0) == (dy > 0))] = 245.0
         img = cv2.GaussianBlur(img, (0, 0), 0.6)
         cv2.imwrite(str(folder / name), np.clip(img, 0, 255).astype(np.uint8))
 
