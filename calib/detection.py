@@ -36,6 +36,7 @@ SMALL_WINDOW_PX = 4  # below this half-window the floor grows as (4 / half)^2: 0
 WINDOW_SQUARES = 0.12
 MIN_HALF_WINDOW = 2
 MIN_GAP_PX = 2.5
+MARKER_IMAGE_PX = 3000  # markers are searched on a copy at most this large (speed); corners use full resolution
 
 
 @dataclass
@@ -87,7 +88,11 @@ def estimate_noise(img: np.ndarray) -> float:
     """Robust image noise sigma (DN): median absolute Laplacian-type response (edges are a minority)."""
     import cv2
     k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    r = cv2.filter2D(img.astype(np.float32), -1, k, borderType=cv2.BORDER_REFLECT)[1:-1, 1:-1]
+    # bands of 34 rows spread over the image, about 1 MP in all (enough for a median, fast on 20 MP)
+    h = img.shape[0]
+    step = max(34, int(34 * img.size / 1e6))
+    bands = [img[r:r + 34] for r in range(0, max(1, h - 33), step)]
+    r = np.concatenate([cv2.filter2D(b.astype(np.float32), -1, k)[1:-1, 1:-1].ravel() for b in bands])
     return float(1.4826 * np.median(np.abs(r)) / 6.0)
 
 
@@ -120,6 +125,22 @@ class CharucoPlateDetector:
         self.adjacent = {k: [marker_at[q] for q in ((k // n + a, k % n + b) for a in (0, 1) for b in (0, 1))
                              if q in marker_at] for k in self.target_of_corner}
 
+    def _markers(self, img: np.ndarray):
+        """ArUco markers, found on a copy reduced to at most MARKER_IMAGE_PX a side (identification needs no
+        more; the ChArUco corners are refined on the full image), corners in full-image pixels."""
+        import cv2
+        scale = min(1.0, MARKER_IMAGE_PX / max(img.shape[:2]))
+        if scale > 0.9:
+            mcorners, mids, _ = self.aruco.detectMarkers(img)
+            return mcorners, mids
+        small = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        sx, sy = small.shape[1] / img.shape[1], small.shape[0] / img.shape[0]
+        mcorners, mids, _ = self.aruco.detectMarkers(small)
+        # pixel centres: x_full = (x_small + 0.5) / s - 0.5
+        mcorners = tuple(((c.reshape(4, 2) + 0.5) / [sx, sy] - 0.5).reshape(1, 4, 2).astype(np.float32)
+                         for c in mcorners)
+        return mcorners, mids
+
     def detect(self, img: np.ndarray) -> Detection:
         """Targets in a grey image (uint8)."""
         import cv2
@@ -127,7 +148,7 @@ class CharucoPlateDetector:
         stats = {"size": [int(w), int(h)], "markers": 0, "corners": 0, "rejected_duplicate_marker": 0,
                  "rejected_border": 0, "rejected_small": 0, "rejected_homography": 0, "not_in_field": 0}
         empty = Detection(np.zeros(0, object), np.zeros((0, 2)), np.zeros((0, 2)), stats)
-        mcorners, mids, _ = self.aruco.detectMarkers(img)
+        mcorners, mids = self._markers(img)
         if mids is None or len(mids) == 0:
             return empty
         mids = mids.ravel().astype(int)
@@ -181,7 +202,6 @@ class CharucoPlateDetector:
         if len(cids) == 0:
             return empty
 
-        imgf = img.astype(np.float32)
         crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
         refined = cc.copy()
         for hw in np.unique(half):
@@ -189,7 +209,7 @@ class CharucoPlateDetector:
             pts = cc[idx].astype(np.float32).reshape(-1, 1, 2)
             refined[idx] = cv2.cornerSubPix(img, pts, (int(hw), int(hw)), (-1, -1), crit).reshape(-1, 2)
         noise = estimate_noise(img)
-        sigma = _corner_sigmas(imgf, refined, half, noise)
+        sigma = _corner_sigmas(img, refined, half, noise)
         # model error grows on small windows (blur and the marker borders close to the junction)
         floor = SIGMA_FLOOR_PX * np.maximum(1.0, SMALL_WINDOW_PX / half) ** 2
         sigma = np.sqrt(sigma ** 2 + floor[:, None] ** 2)
@@ -269,8 +289,6 @@ def _corner_sigmas(img: np.ndarray, xy: np.ndarray, half: np.ndarray, noise_dn: 
     """Sigma (px) of cornerSubPix corners: sandwich covariance A^-1 (sg^2 sum w^2 |p-q|^2 g g^T) A^-1 with
     A = sum w g g^T, the weights and gradients of cornerSubPix and sg the gradient noise."""
     import cv2
-    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3) / 8.0
     sg2 = noise_dn ** 2 * 12.0 / 64.0  # variance of the Sobel/8 derivative of white noise
     out = np.full((len(xy), 2), np.nan)
     h, w = img.shape
@@ -280,7 +298,10 @@ def _corner_sigmas(img: np.ndarray, xy: np.ndarray, half: np.ndarray, noise_dn: 
             continue
         ys, xs = np.mgrid[y0 - hw:y0 + hw + 1, x0 - hw:x0 + hw + 1]
         wgt = np.exp(-((xs - x0) / hw) ** 2 - ((ys - y0) / hw) ** 2)
-        g = np.stack([gx[ys, xs], gy[ys, xs]], axis=-1).reshape(-1, 2)
+        patch = img[y0 - hw - 1:y0 + hw + 2, x0 - hw - 1:x0 + hw + 2].astype(np.float32)
+        gx = cv2.Sobel(patch, cv2.CV_32F, 1, 0, ksize=3)[1:-1, 1:-1] / 8.0
+        gy = cv2.Sobel(patch, cv2.CV_32F, 0, 1, ksize=3)[1:-1, 1:-1] / 8.0
+        g = np.stack([gx, gy], axis=-1).reshape(-1, 2)
         wv = wgt.ravel()
         d2 = ((xs - q[0]) ** 2 + (ys - q[1]) ** 2).ravel()
         A = (g * wv[:, None]).T @ g
