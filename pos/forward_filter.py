@@ -48,6 +48,13 @@ def forward_solution(problem: Problem, values) -> NavSolution:
     return sol
 
 
+def _sigmas(f) -> np.ndarray:
+    """Measurement sigmas of a factor's (possibly robust) Gaussian noise model."""
+    nm = f.noiseModel()
+    base = nm.noise() if hasattr(nm, "noise") else nm
+    return np.atleast_1d(base.sigmas())
+
+
 def _innovations(problem: Problem, fw: NavSolution) -> dict:
     """GNSS factor errors at the one-step IMU prediction from the previous filtered state."""
     import gtsam
@@ -74,7 +81,7 @@ def _innovations(problem: Problem, fw: NavSolution) -> dict:
             vals.insert(ZERO(), 0.0)
         for kind, f in problem.epoch_factors[k]:
             e = np.atleast_1d(f.unwhitenedError(vals))
-            w = np.atleast_1d(f.whitenedError(vals))
+            sig = _sigmas(f)
             for j in range(len(e)):
-                out.setdefault(kind, []).append((k, e[j], e[j] / w[j] if w[j] != 0 else np.nan))
+                out.setdefault(kind, []).append((k, e[j], sig[j]))
     return {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in out.items()}

@@ -119,15 +119,19 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     from pos.spp import SppOptions, spp
     if mode not in ("tc", "lc"):
         raise InputError(f"mode must be tc or lc, not {mode!r}", field="--mode")
+    import time
     opts = smoother_opts or SmootherOptions()
     opts.lever_arm_b = np.asarray(lever_arm_b, float)
     spp_sol = fixes = gnss = None
+    timing = {}
+    t0 = time.perf_counter()
     if raw_obs is not None:
         spp_opts = spp_opts or SppOptions()
         spp_sol = spp(raw_obs, nav, spp_opts, progress=progress)
         fixes = fixes_from_spp(spp_sol)
         if mode == "tc":
             gnss = tc_epochs(raw_obs, nav, spp_sol, spp_opts)
+    timing["gnss_front_end_s"] = time.perf_counter() - t0
     if mode == "lc" and lc_fixes is None:
         lc_fixes = fixes
     if fixes is None:
@@ -137,10 +141,17 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
                          field="--rinex-obs")
     if mode == "tc" and gnss is None:
         raise InputError("tc mode needs RINEX observations and navigation", field="--rinex-obs")
+    t0 = time.perf_counter()
     sol = smooth(imu, fixes, grade, opts, mode=mode, gnss=gnss, lc_fixes=lc_fixes)
+    timing["smoother_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     fw = forward_solution(sol._problem, sol._values) if forward else None
+    timing["forward_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     dense = densify(sol, sol._problem, imu, rate_hz)
     ev = trajectory_at_events(dense, events) if events is not None and len(events) else None
+    timing["outputs_s"] = time.perf_counter() - t0
+    sol.info.setdefault("timing", {}).update({k: round(v, 2) for k, v in timing.items()})
     res = PosResult(mode, sol, fw, dense, solution_trajectory(sol), solution_trajectory(fw) if fw else None, ev,
                     spp_sol, fixes)
     res.summary = summarize(res)

@@ -93,6 +93,8 @@ class Problem:
     gnss_update: np.ndarray
     omega_b: np.ndarray
     params: object = None
+    iterations: int = 0
+    accel: np.ndarray | None = None  # the (gravity-corrected) accelerometer rates the IMU factors used
 
 
 def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
@@ -221,7 +223,7 @@ def rebuild_imu(problem: Problem, imu, imu_noise: ImuNoise, opts: SmootherOption
     for fl in problem.epoch_factors:
         for _, f in fl:
             graph.add(f)
-    return dataclasses.replace(problem, graph=graph, pims=pims, imu_factors=imu_factors)
+    return dataclasses.replace(problem, graph=graph, pims=pims, imu_factors=imu_factors, accel=accel)
 
 
 def optimize(problem: Problem, max_iterations: int = 30):
@@ -231,7 +233,10 @@ def optimize(problem: Problem, max_iterations: int = 30):
     p.setMaxIterations(max_iterations)
     p.setRelativeErrorTol(1e-7)
     p.setAbsoluteErrorTol(1e-7)
-    return gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, p).optimize()
+    opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, p)
+    values = opt.optimize()
+    problem.iterations = opt.iterations()
+    return values
 
 
 def read_states(problem: Problem, values) -> NavSolution:
@@ -345,6 +350,7 @@ def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mo
     t0 = time.perf_counter()
     values = optimize(problem, opts.max_iterations)
     timing["optimize_s"] = time.perf_counter() - t0
+    iterations = [problem.iterations]
     sol = read_states(problem, values)
     if second_pass:
         # re-preintegrate with the gravity correction and about the estimated biases, start from pass one
@@ -354,9 +360,11 @@ def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mo
         values = optimize(problem, opts.max_iterations)
         sol = read_states(problem, values)
         timing["second_pass_s"] = time.perf_counter() - t0
+        iterations.append(problem.iterations)
     sol.residuals = gnss_residuals(problem, values)
     sol.info = {"mode": mode, "keyframes": len(t_key), "factors": problem.graph.size(),
-                "error_final": problem.graph.error(values), "systems": problem.systems}
+                "error_final": problem.graph.error(values), "systems": problem.systems,
+                "lm_iterations": iterations}
     if opts.covariances:
         t0 = time.perf_counter()
         add_marginals(sol, problem, values)

@@ -65,7 +65,8 @@ def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
     grid = np.arange(np.ceil(t_key[0] / step) * step, t_key[-1], step)
     t_out = np.union1d(t_key, grid[(grid > t_key[0]) & (grid < t_key[-1])])
     t_out = t_out[np.concatenate([[True], np.diff(t_out) > 1e-6])]
-    accel = imu.accel_m_s2 + gravity_correction_b(imu.t, t_key, sol.R_body_to_nav, sol.p_nav, sol.frame)
+    accel = problem.accel if problem.accel is not None else (
+        imu.accel_m_s2 + gravity_correction_b(imu.t, t_key, sol.R_body_to_nav, sol.p_nav, sol.frame))
     seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_out, imu.dt[0])
     params = problem.params
     n = len(t_out)
