@@ -292,7 +292,7 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
         t0 = time.perf_counter()
         paths = write_campaign_report(cfg, out, steps=done, timings=timings)
         timings["report"] = time.perf_counter() - t0
-        result["report"] = str(paths["html"])
+        result["report"] = str(Path(paths["html"]).resolve())
     return result
 
 
