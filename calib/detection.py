@@ -93,7 +93,13 @@ def estimate_noise(img: np.ndarray) -> float:
     step = max(34, int(34 * img.size / 1e6))
     bands = [img[r:r + 34] for r in range(0, max(1, h - 33), step)]
     r = np.concatenate([cv2.filter2D(b.astype(np.float32), -1, k)[1:-1, 1:-1].ravel() for b in bands])
-    return float(1.4826 * np.median(np.abs(r)) / 6.0)
+    a = np.rint(np.abs(r)).astype(np.int64)
+    # median of the integer responses, interpolated within its bin (a plain median moves in whole steps)
+    cdf = np.cumsum(np.bincount(a)) / a.size
+    m = int(np.searchsorted(cdf, 0.5))
+    below = cdf[m - 1] if m > 0 else 0.0
+    med = max(m - 0.5, 0.0) + (0.5 - below) / max(cdf[m] - below, 1e-12) * (1.0 if m > 0 else 0.5)
+    return float(1.4826 * med / 6.0)
 
 
 class CharucoPlateDetector:
