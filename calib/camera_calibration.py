@@ -57,6 +57,7 @@ class CameraCalibration:
             "fixed_parameters": [k for k, f in zip(names, ba.free) if not f],
             "refine_targets": ba.refine_targets,
             "converged": ba.converged,
+            "rejection_settled": ba.rejection_settled,
             "iterations": ba.iterations,
             "rms_definition": "sqrt(mean(|projected - measured|^2)) over used observations, px (as OpenCV)",
             "correlation": {"parameters": names, "matrix": corr},
@@ -148,11 +149,10 @@ def calibrate_camera(field: Points | str | Path, measurements: Measurements | st
     progress_fn = None
     if progress:
         import sys
+        from functools import partial
 
         from tqdm import tqdm
-
-        def progress_fn(it):
-            return tqdm(it, desc="initial poses", unit="img", file=sys.stderr, leave=False)
+        progress_fn = partial(tqdm, desc="initial poses", unit="img", file=sys.stderr, leave=False)
     try:
         ba = adjust(pts.ids, pts.xyz, meas.image, meas.id, meas.xy, image_size, model,
                     meas_sigma=meas.sigma, field_sigma=field_sigma, fixed=tuple(fixed),

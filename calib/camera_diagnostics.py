@@ -178,6 +178,9 @@ def diagnose(result, corr_threshold: float = 0.9, reject_warn_fraction: float = 
                         "as outliers or left out")
     if result.dropped_images:
         warnings.append(f"{len(result.dropped_images)} image(s) left out: " + ", ".join(result.dropped_images[:10]))
+    if not result.rejection_settled:
+        warnings.append("the set of rejected observations was still changing when outlier rejection stopped; "
+                        "the residuals may hold more outliers or a model misfit")
     if not result.converged:
         warnings.append("the adjustment did not converge within its iteration limit; check the results")
     return Diagnostics(significance=sig, high_correlations=corr, pattern=pattern, warnings=warnings)

@@ -15,7 +15,7 @@ robustly scaled residual norm. Covariances are sigma0^2 N^-1 with sigma0 from th
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -69,7 +69,7 @@ class IntrinsicBAResult:
     iterations: int
     converged: bool                        # the final Levenberg-Marquardt run converged
     redundancy: int
-    warnings: list[str] = field(default_factory=list)
+    rejection_settled: bool = True         # the outlier set stopped changing within max_rounds
 
     @property
     def n_observations(self) -> int:
@@ -555,7 +555,7 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
 
     # --- outlier rejection: solve, reject |v|/sigma > k sigma_robust over all observations, repeat ----
     usable = ~np.isin(obs_img, [img_index[d] for d in dropped])
-    converged = False
+    settled = False
     for _ in range(max_rounds):
         r, _, _ = prob.residuals(usable)
         norm = np.full(n, np.inf)
@@ -571,7 +571,7 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
             rejected_reason[obs_img == i] = "image dropped: too few inliers"
         changed = int(np.sum(new_active != active))
         if changed <= 5e-3 * usable.sum():  # later rounds only trade a few borderline points
-            converged = True
+            settled = True
             active = new_active
             break
         active = new_active
@@ -633,5 +633,5 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
         point_ids=list(field_ids), points_xyz=prob.X.copy(), points_sigma=pts_sigma, points_free=prob.pt_free.copy(),
         obs_image=obs_img, obs_point=obs_pt, obs_xy=meas_xy, obs_sigma=sig, residuals=r_all, used=active,
         sigma0=sigma0, rms_px=rms, rejected=rejected, dropped_images=list(dropped),
-        refine_targets=refine_targets, iterations=total_it, converged=bool(lm_conv),
+        refine_targets=refine_targets, iterations=total_it, converged=bool(lm_conv), rejection_settled=settled,
         redundancy=int(redundancy))
