@@ -148,3 +148,13 @@ def test_border_and_homography_rejections():
     H = [fit_homography(np.array([d.corner_board_xy[k] for k in cids]), xy)] * len(cids)
     bad = d._homography_outliers(cids, xy, np.full(len(cids), 80.0), H)
     assert bad[j] and bad.sum() == 1
+
+
+@pytest.mark.parametrize("sigma", [1.0, 3.0, 6.0])
+def test_noise_estimate_on_a_textured_image(sigma):
+    from calib.detection import estimate_noise
+    tf = TargetField(diameter_m=0.9, square_m=0.08, marker_m=0.06)
+    clean = print_raster(tf, 25.4).astype(float) * 0.7 + 40  # strong edges over much of the image
+    rng = np.random.default_rng(1)
+    img = np.clip(np.rint(clean + rng.normal(0, sigma, clean.shape)), 0, 255).astype(np.uint8)
+    assert abs(estimate_noise(img) / sigma - 1) < 0.15
