@@ -22,6 +22,7 @@ from scipy.stats import chi2
 
 from calib.mounting_common import Epochs, MountingResult, T, so3_exp, so3_log
 from calib.mounting_traditional import calibrate_traditional
+from fields.errors import InputError
 from fields.frames import skew
 
 DEFAULT_EOP_SIGMA = (0.05, np.radians(0.01))        # m, rad when the EOP file has no sigmas
@@ -106,7 +107,8 @@ def _solve_robust(ep, x0, R_hat, keep, fix_delay, reject, limit):
     for _ in range(10):
         sub = ep.subset(keep)
         if len(sub) < 3:
-            raise ValueError("fewer than 3 usable epochs for the mounting adjustment")
+            raise InputError(f"only {len(sub)} usable epochs (images with both an EOP and an event) after "
+                             "rejection: the adjustment needs at least 3", field="image")
         x, R_hat_s, e, Tstat, Ninv = _solve(sub, R_hat, x0, fix_delay)
         scale = max(1.0, float(np.median(Tstat) / chi2.median(6)))
         # test every epoch (also rejected ones, so a wrongly rejected epoch can come back)

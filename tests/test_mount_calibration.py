@@ -140,3 +140,11 @@ def test_one_heading_one_height_warns():
     _, ep2 = prepare_epochs(s2.calibration.eop, MapGrid(s2.crs), s2.calibration.traj, s2.calibration.events)
     w2 = " ".join(observability_warnings(ep2))
     assert "one heading" not in w2 and "one flying height" not in w2
+
+
+def test_too_few_epochs_is_an_input_error(sim):
+    from fields.errors import InputError
+    c = sim.calibration
+    eop = EOP(c.eop.image[:2], c.eop.xyz[:2], c.eop.opk[:2], c.eop.sigma[:2])
+    with pytest.raises(InputError, match="at least 3"):
+        calibrate_mounting(eop, MapGrid(sim.crs), c.traj, c.events, "proposed")
