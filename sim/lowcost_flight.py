@@ -161,8 +161,12 @@ def compare_ukf_smoother(flight: LowcostFlight, smoother_rate_hz: float = 10.0, 
     pos_s = np.sqrt(np.mean((sm.p_nav[b] - p_true) ** 2, axis=0))
     return {"n_epochs": int(len(t)), "skip_s": skip_s, "gnss_rate_hz": float(1.0 / np.median(np.diff(fx.t))),
             "smoother_rate_hz": smoother_rate_hz, "imu_grade": grade.name,
-            "ukf": {**attitude_error_stats(e_u), "pos_rms_ned_m": pos_u.tolist()},
-            "smoother": {**attitude_error_stats(e_s), "pos_rms_ned_m": pos_s.tolist()},
+            "ukf": {**attitude_error_stats(e_u), "pos_rms_ned_m": pos_u.tolist(),
+                    "tilt_rms_deg": float(np.sqrt(np.mean(e_u[:, :2] ** 2))),
+                    "attitude_rms_deg": float(np.sqrt(np.mean(e_u ** 2)))},
+            "smoother": {**attitude_error_stats(e_s), "pos_rms_ned_m": pos_s.tolist(),
+                         "tilt_rms_deg": float(np.sqrt(np.mean(e_s[:, :2] ** 2))),
+                         "attitude_rms_deg": float(np.sqrt(np.mean(e_s ** 2)))},
             "ukf_normalised_error_rms": np.sqrt(np.mean(z ** 2, axis=0)).tolist(),
             "seed000_ukf_std_deg": {"roll": 2.6, "pitch": 2.1}}
 
