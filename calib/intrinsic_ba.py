@@ -487,7 +487,12 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
 
     # --- initial values ----------------------------------------------------------------------
     if initial is not None:
-        cam = cls(image_size, initial.params) if isinstance(initial, cls) else initial
+        if isinstance(initial, cls):
+            cam = cls((w, h), initial.params)
+        else:  # another model: its closest equivalent (exact where one model contains the other)
+            from calib.camera_conversions import convert_model
+            cam = convert_model(initial, model)[0]
+            cam = cls((w, h), cam.params)
         f0 = float(cam.pinhole_K()[0, 0])
     else:
         f0 = _focal_guess(groups_ok, field_xyz if not planar else plane_xyz, (w, h), planar, plane_xyz)

@@ -159,3 +159,13 @@ def test_camera_centres_and_their_sigmas_are_honest():
         assert np.all(np.abs(np.degrees(dR)) < 4 * res.pose_sigma[i, :3] + 1e-9)
     z = np.array(z)
     assert np.all(np.abs(z) < 4.5) and 0.5 < np.sqrt(np.mean(z**2)) < 1.6, np.sqrt(np.mean(z**2))
+
+
+def test_initial_camera_gives_the_same_solution():
+    truth, pts, img, ids, xy = scene(12, n_images=20, square_m=0.16)
+    a = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7")
+    b = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7", initial=truth)
+    assert np.all(np.abs(a.camera.params - b.camera.params) < 0.01 * a.camera.sigmas)
+    # another model as the start: converted, then adjusted
+    c = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "opencv8", initial=truth)
+    assert abs(c.rms_px - a.rms_px) < 0.01
