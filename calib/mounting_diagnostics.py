@@ -42,6 +42,12 @@ def observability_warnings(ep: Epochs, result: MountingResult | None = None,
         out.append("one flying height only: boresight errors and POS attitude errors, and the vertical lever arm "
                    "and height-dependent bundle errors, are hard to tell apart (fly two heights, e.g. 300 m and 600 m)")
     if result is not None:
+        s = result.sigmas
+        if s[0] > 0.002:
+            out.append(f"the exposure delay is poorly determined (sigma {s[0] * 1e3:.1f} ms): fly strips in opposite "
+                       "headings with different ground speeds, or add turns")
+        if np.any(s[1:4] > 0.05):
+            out.append("the lever arm is poorly determined (sigma " + ", ".join(f"{v:.3f}" for v in s[1:4]) + " m)")
         C = result.correlation()
         names = result.PARAM_NAMES
         for i in range(7):

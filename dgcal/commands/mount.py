@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
             fh.write("\n")
         with atomic_write(tmp / "report.html") as fh:
             fh.write(mount_report_html(main, others))
+        _write_epochs(tmp / "epochs.csv", main)
     s = res.sigmas
     print(f"{res.method}: delay {res.delay_s:+.4f} ± {s[0]:.4f} s, lever arm "
           + ", ".join(f"{v:+.3f}±{e:.3f}" for v, e in zip(res.lever_arm_m, s[1:4])) + " m, "
@@ -69,3 +70,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {w}")
     print(args.out / "mounting.json")
     return 0
+
+
+def _write_epochs(path: Path, d: dict) -> None:
+    """Per-epoch values of mounting.json as CSV (lever arm m, boresight deg, residuals, rejection)."""
+    from fields.csvio import write_table
+    pe = d.get("per_epoch") or {}
+    if "image" not in pe:
+        return
+    cols = [("lever_x", "lever_arm_m", 0), ("lever_y", "lever_arm_m", 1), ("lever_z", "lever_arm_m", 2),
+            ("bore_x_deg", "boresight_deg", 0), ("bore_y_deg", "boresight_deg", 1), ("bore_z_deg", "boresight_deg", 2),
+            ("res_e_m", "residual_position_m", 0), ("res_n_m", "residual_position_m", 1),
+            ("res_u_m", "residual_position_m", 2), ("res_rx_deg", "residual_rotation_deg", 0),
+            ("res_ry_deg", "residual_rotation_deg", 1), ("res_rz_deg", "residual_rotation_deg", 2)]
+    cols = [c for c in cols if c[1] in pe]
+    rows = []
+    for i, im in enumerate(pe["image"]):
+        rows.append([im] + [pe[k][i][j] for _, k, j in cols] + [int(bool(pe.get("rejected", [False] * (i + 1))[i]))])
+    write_table(path, ["image"] + [c[0] for c in cols] + ["rejected"], rows, fmt="%.6f")
