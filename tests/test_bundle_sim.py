@@ -82,3 +82,25 @@ def test_blunder_is_named_and_removed(flight):
     assert res.suspects[0].removed
     assert len(res.suspects) == 1
     assert any("blunder" in w for w in res.warnings)
+
+
+def test_gnss_priors_and_in_flight_refinement(flight, solved):
+    """Camera-centre priors tighten the EOPs; refined intrinsics recover a perturbed focal length."""
+    out, truth = flight
+    _, _, base = solved
+    cam = load_camera(out / "camera.json")
+    te = read_eop(out / "truth_eop.csv")
+    rng = np.random.default_rng(1)
+    gnss = type(te)(te.image, te.xyz + rng.normal(0, 0.02, te.xyz.shape), te.opk, np.full((len(te.image), 6), 0.02))
+    pts, meas = read_points(out / "gcp.csv"), read_measurements(out / "measurements_all.csv")
+    res = triangulate(cam, pts, meas, truth["crs"], centre_priors=gnss)
+    assert np.median(res.eop.sigma[:, 2]) < 0.8 * np.median(base.eop.sigma[:, 2])
+    cam2 = cam.copy()
+    cam2.params[0] += 3.0                                       # f off by 3 px
+    res2 = triangulate(cam2, pts, meas, truth["crs"], TriangulationOptions(refine=("f", "cx", "cy")))
+    f_err = res2.camera["f"] - cam["f"]
+    assert abs(f_err) < 3 * res2.camera.sigmas[0] and abs(f_err) < 2.0   # f is correlated with heights: sigma ~3 px
+    idx = {k: i for i, k in enumerate(te.image)}
+    ti = np.array([idx[k] for k in res2.eop.image])
+    z = (res2.eop.xyz - te.xyz[ti]) / res2.eop.sigma[:, :3]
+    assert np.sqrt(np.mean(z ** 2)) < 1.4
