@@ -197,8 +197,8 @@ def _gnss_rows(t, p_ant, v_ant, sig_enu, sig_v):
 
 def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS, site=SITE,
                       heights_agl=(300.0, 600.0), n_strips: int = 4, strip_length_m: float = 1100.0,
-                      strip_spacing_m: float = 220.0, strip_heading_deg: float = 35.0, speeds_mps=(22.0, 32.0),
-                      event_distance_m: float = 80.0,
+                      strip_spacing_m: float = 220.0, strip_heading_deg: float = 35.0, speeds_mps=(20.0, 34.0),
+                      event_distance_m: float = 70.0,
                       delay_s: float = -0.14, lever_arm_m=LEVER_ARM_M, boresight_deg=BORESIGHT_DEG,
                       lever_arm_gnss_m=LEVER_ARM_GNSS_M, imu_grade: str = "adis16488", imu_rate_hz: float = 100.0,
                       gnss_mode: str = "lc", gnss_rate_hz: float = 1.0, gnss_sigma_enu=(0.02, 0.02, 0.04),
