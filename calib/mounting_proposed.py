@@ -136,7 +136,12 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
         # re-interpolate the POS at the new exposure times so the linear propagation only spans the last step
         if fix_delay or not ep.can_resample or abs(x[0] - ep.dt_ref) < 1e-5:
             break
-        ep = ep.at_delay(float(x[0]))
+        try:
+            ep = ep.at_delay(float(x[0]))
+        except InputError as exc:
+            # an exposure time beyond the trajectory's end: keep the linear propagation for this solution
+            ep.warnings.append(f"POS not re-interpolated at t_event + delay ({exc}); linear propagation used")
+            break
         x0 = x
     R_hat_s = R_hat
     n = int(keep.sum())

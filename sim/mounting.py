@@ -151,8 +151,10 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
     eop_true = EOP(names, xyz, opk)
     es = np.tile(np.asarray(eop_sigma, float), (len(names), 1))
     es *= (heights_img / heights[0])[:, None]  # bundle accuracy degrades with height
-    eop = EOP(names, xyz + rng.normal(0, 1, xyz.shape) * es[:, :3], opk + rng.normal(0, 1, opk.shape) * es[:, 3:],
-              es)
+    # position noise in metres along grid E, N, Up (also right for a geographic CRS, whose X, Y are degrees)
+    n_grid = rng.normal(0, 1, xyz.shape) * es[:, :3]
+    xyz_noisy = frame.L_to_map(r_cam + np.einsum("nij,nj->ni", frame.R_grid_to_L_at(xyz), n_grid))
+    eop = EOP(names, xyz_noisy, opk + rng.normal(0, 1, opk.shape) * es[:, 3:], es)
     events = Events(names, t_exp - delay_s)
 
     lat, lon, hh, v_ned, rph = frame.L_to_pos(p_L, v_L, R_bL)

@@ -148,3 +148,13 @@ def test_too_few_epochs_is_an_input_error(sim):
     eop = EOP(c.eop.image[:2], c.eop.xyz[:2], c.eop.opk[:2], c.eop.sigma[:2])
     with pytest.raises(InputError, match="at least 3"):
         calibrate_mounting(eop, MapGrid(sim.crs), c.traj, c.events, "proposed")
+
+
+@pytest.mark.parametrize("crs", ["EPSG:4326", "EPSG:3826"])
+def test_other_map_crs(crs):
+    """Geographic EOPs (degrees, sigmas in metres) and Taiwan's TM2 (TWD97) give the same calibration."""
+    s = simulate_mounting(1, crs=crs)
+    c = s.calibration
+    res = calibrate_mounting(c.eop, MapGrid(crs), c.traj, c.events, "proposed")
+    err = _errors(res, s)
+    assert np.all(np.abs(err) < 3 * res.sigmas) and 0.7 < res.extra["sigma0"] < 1.4
