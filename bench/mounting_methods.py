@@ -7,8 +7,14 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+# run as a script, bench/ is first on sys.path and bench/pos.py would shadow the `pos` package
+_HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+sys.path.insert(0, str(_HERE.parent))
 
 
 def bundle_eop(sim, flight):
@@ -40,6 +46,7 @@ def bundle_eop(sim, flight):
     res = adjust(inp, BundleOptions(loss="none"))
     R_cv = np.swapaxes(res.R_world_to_cv, -1, -2)
     xyz, opk = frame.L_to_eop(res.C_world, R_cv)
+    print(f"bundle pose covariance: min diagonal {np.min(np.diagonal(res.cov_pose, axis1=1, axis2=2)):.3g}")
     cov = pose_cov_to_map(frame, xyz, opk, res.cov_pose)  # left camera-frame perturbation = -right: same cov
     sig = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
     return EOP(flight.eop.image, xyz, opk, sig, cov), res.sigma0
