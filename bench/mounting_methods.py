@@ -48,7 +48,7 @@ def bundle_eop(sim, flight):
     xyz, opk = frame.L_to_eop(res.C_world, R_cv)
     print(f"bundle pose covariance: min diagonal {np.min(np.diagonal(res.cov_pose, axis1=1, axis2=2)):.3g}")
     cov = pose_cov_to_map(frame, xyz, opk, res.cov_pose)  # left camera-frame perturbation = -right: same cov
-    sig = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
+    sig = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
     return EOP(flight.eop.image, xyz, opk, sig, cov), res.sigma0
 
 
