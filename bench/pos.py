@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import sys
 import time
@@ -88,13 +89,17 @@ def benchmark(hours, rate, systems):
                       model_errors=False, systems=tuple(systems))
     rss0 = _rss_mb()
     t0 = time.time()
+    c0 = time.process_time()
     r = process("tc", imu, sim.grade, sim.lever_arm_b, raw_obs=sim.obs, nav=sim.nav, spp_opts=opts,
                 events=sim.events, forward=True)
     wall = time.time() - t0
+    cpu = time.process_time() - c0
+    load = os.getloadavg()[0]
     info = r.smoothed.info
     dp, dth, sp, sa = _errors(r.smoothed, sim.traj)
-    print(f"TC smoothing of {hours:g} h: wall time {wall:.1f} s (target < 60 s) for SPP + smoother (2 passes) + "
-          f"covariances + forward + {len(r.trajectory.t)}-row trajectory + {len(r.events.t)} events")
+    print(f"TC smoothing of {hours:g} h: wall time {wall:.1f} s, CPU time {cpu:.1f} s (target < 60 s; load average "
+          f"{load:.1f} on {os.cpu_count()} cores) for SPP + smoother (2 passes) + covariances + forward + "
+          f"{len(r.trajectory.t)}-row trajectory + {len(r.events.t)} events")
     print(f"  {info['keyframes']} keyframes, {info['factors']} factors; timings {info.get('timing', {})}")
     print(f"  peak RSS {_rss_mb():.0f} MB (before the run {rss0:.0f} MB, after simulating the data)")
     print(f"  accuracy: pos 3D RMS {_rms(np.linalg.norm(dp, axis=1)):.3f} m, attitude RMS "

@@ -145,10 +145,10 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     sol = smooth(imu, fixes, grade, opts, mode=mode, gnss=gnss, lc_fixes=lc_fixes)
     timing["smoother_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    fw = forward_solution(sol._problem, sol._values) if forward else None
+    fw = forward_solution(sol.problem, sol.values) if forward else None
     timing["forward_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    dense = densify(sol, sol._problem, imu, rate_hz)
+    dense = densify(sol, sol.problem, imu, rate_hz)
     ev = trajectory_at_events(dense, events) if events is not None and len(events) else None
     timing["outputs_s"] = time.perf_counter() - t0
     sol.info.setdefault("timing", {}).update({k: round(v, 2) for k, v in timing.items()})

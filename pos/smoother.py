@@ -67,6 +67,8 @@ class NavSolution:
     gnss_update: np.ndarray | None = None
     residuals: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    problem: object = field(default=None, repr=False)  # the Problem it came from (forward pass, outputs)
+    values: object = field(default=None, repr=False)  # its gtsam Values (the linearisation point)
 
     @property
     def cov_p_nav(self) -> np.ndarray:
@@ -114,7 +116,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     biases = [gtsam.imuBias.ConstantBias()] * (K - 1)
     pims = preintegrate(params, seg, biases, interval_params(imu_noise, frame, seg, opts.earth_rotation))
 
-    p_ant, v_ant = initial_track(t_key, fixes, frame, lever)
+    p_ant, v_ant = initial_track(t_key, fixes, frame)
     a, R_a = anchor_attitude(v_ant)
     R = propagate_attitude(pims, a, R_a, p_ant, v_ant)
     p_imu = p_ant - np.einsum("kij,j->ki", R, lever)
@@ -370,6 +372,5 @@ def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mo
         add_marginals(sol, problem, values)
         timing["covariance_s"] = time.perf_counter() - t0
     sol.info["timing"] = {k: round(v, 2) for k, v in timing.items()}
-    sol._problem = problem  # kept for the forward filter and reports
-    sol._values = values
+    sol.problem, sol.values = problem, values
     return sol

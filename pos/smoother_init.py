@@ -33,7 +33,7 @@ def interp_rows(t_new: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(t_new, t, y[:, j]) for j in range(y.shape[1])], axis=1)
 
 
-def initial_track(t_key: np.ndarray, fixes: GnssFixes, frame: NavFrame, lever_arm_b: np.ndarray):
+def initial_track(t_key: np.ndarray, fixes: GnssFixes, frame: NavFrame):
     """Antenna track at keyframes in nav (p (K,3) m, v (K,3) m/s), interpolated over gaps."""
     ok = np.all(np.isfinite(fixes.p_ecef), axis=1)
     if ok.sum() < 2:
