@@ -129,3 +129,91 @@ def write_png(path: str | Path, tf: TargetField, dpi: float = 100.0) -> None:
     img = print_raster(tf, dpi)
     with atomic_write(path, "wb") as fh:
         Image.fromarray(img).save(fh, format="PNG", dpi=(dpi, dpi))
+
+
+PAGES_MM = {"A4": (210, 297), "A3": (297, 420), "A2": (420, 594), "A1": (594, 841), "A0": (841, 1189)}
+
+
+def tile_grid(tf: TargetField, page: str = "A3", margin_m: float = 0.010, overlap_m: float = 0.010,
+              landscape: bool = True) -> list[tuple[int, int, float, float, float, float]]:
+    """Tiles (row, col, x0, y0, x1, y1 in the board frame, m) covering the plate on `page` sheets: each tile
+    is the printable area (page minus margins); neighbours overlap by `overlap_m`; empty tiles are left out."""
+    w_mm, h_mm = PAGES_MM[page]
+    if landscape:
+        w_mm, h_mm = h_mm, w_mm
+    tw, th = w_mm / 1000 - 2 * margin_m, h_mm / 1000 - 2 * margin_m
+    S, R = tf.board_size_m, tf.diameter_m / 2
+    nx = max(1, math.ceil((S - overlap_m) / (tw - overlap_m)))
+    ny = max(1, math.ceil((S - overlap_m) / (th - overlap_m)))
+    # centre the tile grid on the board
+    x_start = S / 2 - (nx * (tw - overlap_m) + overlap_m) / 2
+    y_start = S / 2 - (ny * (th - overlap_m) + overlap_m) / 2
+    tiles = []
+    for r in range(ny):
+        for c in range(nx):
+            x0, y0 = x_start + c * (tw - overlap_m), y_start + r * (th - overlap_m)
+            x1, y1 = x0 + tw, y0 + th
+            # nearest point of the tile to the plate centre: skip tiles off the plate
+            dx = max(x0 - S / 2, 0, S / 2 - x1)
+            dy = max(y0 - S / 2, 0, S / 2 - y1)
+            if math.hypot(dx, dy) < R:
+                tiles.append((r, c, x0, y0, x1, y1))
+    return tiles
+
+
+def tile_figure(tf: TargetField, tile: tuple, page: str = "A3", margin_m: float = 0.010,
+                overlap_m: float = 0.010, rects: np.ndarray | None = None):
+    """The matplotlib figure of one tile (from `tile_grid`) on a landscape `page` sheet at true scale."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+    from matplotlib.patches import Circle, Rectangle
+
+    r, c, x0, y0, x1, y1 = tile
+    w_mm, h_mm = PAGES_MM[page]
+    pw, ph = h_mm / 1000, w_mm / 1000  # landscape
+    rects = black_rectangles(tf) if rects is None else rects
+    S = tf.board_size_m
+    fig = plt.figure(figsize=(pw / INCH_M, ph / INCH_M))
+    ax = fig.add_axes((0, 0, 1, 1))
+    # the axes span the whole sheet: the tile sits inside the margins
+    ax.set_xlim(x0 - margin_m, x0 - margin_m + pw)
+    ax.set_ylim(y0 - margin_m + ph, y0 - margin_m)
+    ax.axis("off")
+    sel = (rects[:, 2] > x0) & (rects[:, 0] < x1) & (rects[:, 3] > y0) & (rects[:, 1] < y1)
+    rs = rects[sel]
+    polys = np.stack([rs[:, [0, 1]], rs[:, [2, 1]], rs[:, [2, 3]], rs[:, [0, 3]]], axis=1)
+    coll = PolyCollection(polys, facecolors="black", edgecolors="none", antialiased=False)
+    clip = Rectangle((x0, y0), x1 - x0, y1 - y0, transform=ax.transData)
+    coll.set_clip_path(clip)
+    ax.add_collection(coll)
+    circ = Circle((S / 2, S / 2), tf.diameter_m / 2, fill=False, edgecolor="0.5", linewidth=0.5)
+    circ.set_clip_path(clip)
+    ax.add_patch(circ)
+    ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="0.6", linewidth=0.3))
+    ax.add_patch(Rectangle((x0 + overlap_m, y0 + overlap_m), x1 - x0 - 2 * overlap_m, y1 - y0 - 2 * overlap_m,
+                           fill=False, edgecolor="0.8", linewidth=0.3, linestyle="--"))
+    ax.text(x0, y0 - margin_m / 2, f"tile row {r + 1} col {c + 1}  ({page}, print at 100 %, overlap "
+            f"{overlap_m * 1000:g} mm)  {_label(tf)}", fontsize=0.0025 * 72 / INCH_M, va="center", ha="left",
+            color="0.3")
+    return fig
+
+
+def write_pdf_tiles(path: str | Path, tf: TargetField, page: str = "A3", margin_m: float = 0.010,
+                    overlap_m: float = 0.010) -> int:
+    """Multi-page PDF of the plate on `page` sheets at true scale (landscape), one tile per page with its
+    row/column, the tile outline and overlap lines for assembling; returns the number of pages."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    rects = black_rectangles(tf)
+    tiles = tile_grid(tf, page, margin_m, overlap_m)
+    with atomic_write(path, "wb") as fh, PdfPages(fh) as pdf:
+        for tile in tiles:
+            fig = tile_figure(tf, tile, page, margin_m, overlap_m, rects)
+            pdf.savefig(fig)
+            plt.close(fig)
+    return len(tiles)

@@ -109,3 +109,33 @@ def test_printed_raster_is_detected_at_the_right_places():
             for i, p in zip(ids, xyz)}
     err = np.array([det.xy[k] - want[i] for k, i in enumerate(det.ids)])
     assert np.abs(err).max() < 0.05
+
+
+def test_tiled_print_matches_the_plate():
+    import io
+
+    from PIL import Image
+
+    from fields.field_print import tile_figure, tile_grid
+    tf = TargetField(diameter_m=0.9)
+    tiles = tile_grid(tf, "A4")
+    ref = print_raster(tf, 25.4)
+    S = ref.shape[0]
+    # the tiles cover the plate: every target lies in some tile, away from its edge by half the overlap
+    _, _, xyz = tf.targets()
+    bx, by = xyz[:, 0] + tf.board_size_m / 2, tf.board_size_m / 2 - xyz[:, 1]
+    inside = np.zeros(len(bx), bool)
+    for _, _, x0, y0, x1, y1 in tiles:
+        inside |= (bx >= x0 + 0.005) & (bx <= x1 - 0.005) & (by >= y0 + 0.005) & (by <= y1 - 0.005)
+    assert inside.all()
+    r, c, x0, y0, x1, y1 = tiles[len(tiles) // 2]
+    buf = io.BytesIO()
+    tile_figure(tf, tiles[len(tiles) // 2], "A4").savefig(buf, format="png", dpi=25.4)  # 1 mm pixels
+    sheet = np.array(Image.open(buf).convert("L"))
+    assert sheet.shape == (210, 297)  # landscape A4 at true scale
+    X0, Y0 = round((x0 - 0.01) * 1000), round((y0 - 0.01) * 1000)
+    a0, a1 = max(0, round(y0 * 1000) + 2), min(S, round(y1 * 1000) - 2)
+    b0, b1 = max(0, round(x0 * 1000) + 2), min(S, round(x1 * 1000) - 2)
+    sub, want = sheet[a0 - Y0:a1 - Y0, b0 - X0:b1 - X0].astype(int), ref[a0:a1, b0:b1].astype(int)
+    assert (want < 128).mean() > 0.2
+    assert np.mean(np.abs(sub - want) > 100) < 0.005

@@ -18,11 +18,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sigma-z", type=float, default=0.0005, help="target sigma across the plate (m)")
     p.add_argument("--dpi", type=float, default=100.0, help="PNG resolution (dots per inch, default 100)")
     p.add_argument("--no-png", action="store_true", help="skip the PNG raster")
+    p.add_argument("--tiles", choices=("A4", "A3", "A2", "A1", "A0"),
+                   help="also write field_tiles_<page>.pdf: the plate on landscape sheets, 10 mm overlap")
 
 
 def run(args: argparse.Namespace) -> int:
     from fields.csvio import staged_dir
-    from fields.field_print import write_pdf, write_png
+    from fields.field_print import write_pdf, write_pdf_tiles, write_png
     from fields.target_field import TargetField, nonplanar_field, write_field
     kw = dict(diameter_m=args.diameter, square_m=args.square, marker_m=args.marker, dictionary=args.dictionary,
               sigma_xy_m=args.sigma_xy, sigma_z_m=args.sigma_z)
@@ -32,6 +34,9 @@ def run(args: argparse.Namespace) -> int:
         write_pdf(tmp / "field.pdf", tf)
         if not args.no_png:
             write_png(tmp / "field.png", tf, args.dpi)
+        if args.tiles:
+            pages = write_pdf_tiles(tmp / f"field_tiles_{args.tiles}.pdf", tf, args.tiles)
+            print(f"field_tiles_{args.tiles}.pdf: {pages} pages")
     print(f"{len(pts.ids)} targets, {tf.n_printed_markers()} markers on a {tf.diameter_m:g} m plate: "
           f"wrote field.csv, field.json, field.pdf{'' if args.no_png else ', field.png'} to {args.out}")
     return 0
