@@ -111,11 +111,13 @@ def _check_measurements(meas: Measurements, field: Points, image_size) -> None:
 def calibrate_camera(field: Points | str | Path, measurements: Measurements | str | Path | None = None,
                      image_size: tuple[int, int] | None = None, images: str | Path | None = None,
                      model: str = "fraser7", fixed=(), refine_targets: str = "none", reject_k: float = 4.0,
-                     progress: bool = True, workers: int | None = None) -> CameraCalibration:
+                     progress: bool = True, workers: int | None = None,
+                     initial: CameraModel | str | Path | None = None) -> CameraCalibration:
     """Calibrate one camera from a target field (m) and image measurements (px) or a folder of images.
 
     With `images`, the targets are detected (calib.detection) and the image size is read from the images.
-    Measurement sigmas `sx,sy` act as relative weights; sigma0 scales every reported sigma.
+    Measurement sigmas `sx,sy` act as relative weights; sigma0 scales every reported sigma. `initial`: a
+    camera (or a camera file load_camera reads) to start from instead of the built-in initial values.
     """
     model_class(model)
     field_path = Path(field) if isinstance(field, (str, Path)) else field.path
@@ -145,6 +147,12 @@ def calibrate_camera(field: Points | str | Path, measurements: Measurements | st
     if image_size[0] <= 0 or image_size[1] <= 0:
         raise InputError(f"image size must be positive, got {image_size}", field="image_size")
     _check_measurements(meas, pts, image_size)
+    if isinstance(initial, (str, Path)):
+        from calib.camera_formats import load_camera
+        initial = load_camera(initial)
+    if initial is not None and tuple(initial.image_size) != image_size:
+        raise InputError(f"the initial camera is for {initial.image_size[0]} x {initial.image_size[1]} px images, "
+                         f"these are {image_size[0]} x {image_size[1]}", field="initial")
     field_sigma = pts.sigma if np.isfinite(pts.sigma).any() else None
     progress_fn = None
     if progress:
@@ -156,12 +164,13 @@ def calibrate_camera(field: Points | str | Path, measurements: Measurements | st
     try:
         ba = adjust(pts.ids, pts.xyz, meas.image, meas.id, meas.xy, image_size, model,
                     meas_sigma=meas.sigma, field_sigma=field_sigma, fixed=tuple(fixed),
-                    refine_targets=refine_targets, reject_k=reject_k, progress=progress_fn)
+                    refine_targets=refine_targets, reject_k=reject_k, initial=initial, progress=progress_fn)
     except InputError as exc:
         if exc.path is None and exc.field is None:
             raise InputError(str(exc), images if images is not None else meas.path) from None
         raise
-    return CameraCalibration(ba=ba, diagnostics=diagnose(ba), field=pts, measurements=meas,
+    sigmas_given = bool(np.isfinite(meas.sigma).all())
+    return CameraCalibration(ba=ba, diagnostics=diagnose(ba, sigmas_given=sigmas_given), field=pts, measurements=meas,
                              detected=images is not None, detection_report=detection_report)
 
 

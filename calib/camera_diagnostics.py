@@ -134,8 +134,10 @@ def residual_pattern(uv: np.ndarray, residuals: np.ndarray, image_size, principa
                            radial_chi2_per_dof=r_chi2, radial_pattern_rms_px=r_sys)
 
 
-def diagnose(result, corr_threshold: float = 0.9, reject_warn_fraction: float = 0.05) -> Diagnostics:
-    """Significance, correlation and poor-fit warnings for an `intrinsic_ba.IntrinsicBAResult`."""
+def diagnose(result, corr_threshold: float = 0.9, reject_warn_fraction: float = 0.05,
+             sigmas_given: bool = False) -> Diagnostics:
+    """Significance, correlation and poor-fit warnings for an `intrinsic_ba.IntrinsicBAResult`;
+    `sigmas_given`: the measurement sigmas were stated in px (then sigma0 >> 1 means a poor fit too)."""
     cam = result.camera
     names = list(cam.PARAMS)
     sig = significance(cam, result.free)
@@ -172,6 +174,9 @@ def diagnose(result, corr_threshold: float = 0.9, reject_warn_fraction: float = 
                         f"{pattern.chi2_per_dof:.1f}, pattern RMS {pattern.pattern_rms_px:.2f} px of "
                         f"{pattern.residual_rms_px:.2f} px): check the target coordinates (plate flatness or "
                         "scale: refine the targets) and the measurements")
+    if sigmas_given and result.sigma0 > 3.0:
+        warnings.append(f"the residuals are {result.sigma0:.1f} times the measurement sigmas given in the file "
+                        "(sigma0); the model, the target coordinates or the stated sigmas are off")
     frac = result.n_rejected / max(len(result.used), 1)
     if frac > reject_warn_fraction:
         warnings.append(f"{result.n_rejected} of {len(result.used)} observations ({100 * frac:.1f} %) rejected "

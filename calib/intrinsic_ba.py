@@ -155,6 +155,8 @@ def _pnp(obj: np.ndarray, img: np.ndarray, K: np.ndarray, planar: bool, thresh_p
     if not ok:
         return None
     R = cv2.Rodrigues(rvec)[0]
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(tvec))):
+        return None
     if np.median((obj[mask] @ R.T + tvec.ravel())[:, 2]) <= 0:
         return None
     return R, tvec.ravel(), mask
@@ -514,9 +516,25 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
             continue
         obj = plane_xyz[obs_pt[m]]
         uv = meas_xy[m]
-        if initial is not None:
-            uv = cam.undistort_points(uv, K0)
         pose = _pnp(obj, uv, K0, planar, 0.02 * max(w, h))
+        if initial is not None:
+            # with a start camera: PnP on undistorted pixels too, keep whichever pose the camera fits better
+            with np.errstate(all="ignore"):
+                xy_n = cam.undistort_normalized(uv)
+                ok = np.all(np.isfinite(xy_n), axis=1) & np.all(np.abs(xy_n) < 100, axis=1)
+            cands = [] if pose is None else [pose]
+            if ok.sum() >= min_points_per_image:
+                alt = _pnp(obj[ok], xy_n[ok] @ K0[:2, :2].T + K0[:2, 2], K0, planar, 0.02 * max(w, h))
+                if alt is not None:
+                    cands.append(alt)
+            best = np.inf
+            pose = None
+            for Rc, tc, _ in cands:
+                with np.errstate(all="ignore"):
+                    e = np.linalg.norm(cam.project(obj @ Rc.T + tc) - uv, axis=1)
+                if np.nanmedian(e) < best:
+                    best = float(np.nanmedian(e))
+                    pose = (Rc, tc, np.nan_to_num(e, nan=np.inf) < max(0.02 * max(w, h), 3 * best))
         if pose is None:
             dropped.append(image_names[i])
             active[m] = False

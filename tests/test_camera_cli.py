@@ -173,3 +173,14 @@ def test_camera_cli_options_refine_and_fix(sim_dir, tmp_path, capsys):
     rc, _, err = run_cli(["--field", d / "field.csv", "--measurements", d / "measurements.csv",
                           "--image-size", *SIZE, "--fix", "k9", "--out", tmp_path / "out2"], capsys)
     _assert_failed_cleanly(rc, err, tmp_path / "out2", "k9")
+
+
+def test_initial_camera_of_another_size_is_refused(sim_dir, tmp_path, capsys):
+    from calib.camera_formats import write_camera_json
+    d, truth = sim_dir
+    other = default_camera((3000, 2000))
+    write_camera_json(tmp_path / "start.json", other)
+    out = tmp_path / "out"
+    rc, _, err = run_cli(["--field", d / "field.csv", "--measurements", d / "measurements.csv",
+                          "--image-size", *SIZE, "--initial", tmp_path / "start.json", "--out", out], capsys)
+    _assert_failed_cleanly(rc, err, out, "initial")

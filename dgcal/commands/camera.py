@@ -22,6 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refine-targets", choices=("none", "free", "weighted"), default="none",
                    help="also adjust the target coordinates: free network (minimal datum) or weighted by "
                         "the field's sx,sy,sz (default: targets fixed)")
+    p.add_argument("--initial", metavar="CAMERA",
+                   help="start from this camera (camera.json, opencv.yaml, cameras.txt, Metashape XML, ...)")
     p.add_argument("--reject", type=float, default=4.0, metavar="K",
                    help="reject observations beyond K robust sigmas (default 4)")
     p.add_argument("--workers", type=int, default=None, help="detection processes (default: up to 2)")
@@ -38,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     cal = calibrate_camera(args.field, measurements=args.measurements, images=args.images,
                            image_size=args.image_size, model=args.model, fixed=args.fix,
                            refine_targets=args.refine_targets, reject_k=args.reject,
-                           progress=sys.stderr.isatty(), workers=args.workers)
+                           progress=sys.stderr.isatty(), workers=args.workers, initial=args.initial)
     with staged_dir(args.out) as tmp:
         write_camera_outputs(cal, tmp)
         if not args.no_report:
