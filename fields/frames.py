@@ -72,7 +72,8 @@ def R_enu_to_grid(convergence_deg) -> np.ndarray:
     `convergence_deg` is the true azimuth of grid north (clockwise from true north), see
     `fields.crs.MapGrid.convergence_deg`; a vector of true azimuth a has grid azimuth a - convergence.
     """
-    return Rotation.from_euler("z", convergence_deg, degrees=True).as_matrix()
+    c = np.asarray(convergence_deg, float)
+    return Rotation.from_euler("z", c.reshape(-1, 1), degrees=True).as_matrix().reshape(c.shape + (3, 3))
 
 
 def skew(v: np.ndarray) -> np.ndarray:

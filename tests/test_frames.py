@@ -68,6 +68,11 @@ def test_convergence_sign_and_grid_rotation():
     R = grid.R_enu_to_grid_at(grid.from_geodetic(24.0, 124.0, 0.0))
     v = R @ [0, 1, 0]
     assert np.isclose(np.degrees(np.arctan2(v[0], v[1])), -gamma_e, atol=1e-9)
+    # vectorised over points
+    pts = grid.from_geodetic(np.array([24.0, 24.5]), np.array([124.0, 121.0]), np.zeros(2))
+    Rs = grid.R_enu_to_grid_at(pts)
+    assert Rs.shape == (2, 3, 3)
+    np.testing.assert_allclose(Rs[0], R, atol=1e-12)
     # and the grid really shows it: a point 1 km true north has that grid azimuth
     p0 = grid.from_geodetic(24.0, 124.0, 0.0)
     loc = LocalENU(24.0, 124.0, 0.0)

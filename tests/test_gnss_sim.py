@@ -112,12 +112,9 @@ def test_cli_simulate_then_pos_end_to_end(tmp_path):
 def test_rtklib_reads_simulated_rinex_without_bias(nav, tmp_path):
     """An independent implementation (RTKLIB pntpos) positions our simulated RINEX near the truth."""
     pytest.importorskip("pyrtklib")
-    import sys
-    from pathlib import Path
     from pos.rinex import write_rinex_obs
     from sim.gnss import DEFAULT_NAV
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-    from spp import rtklib_pntpos
+    from pos.rtklib_bridge import rtklib_pntpos
     t = DEFAULT_T0_GPS + 1200.0 + np.arange(0.0, 40.0)
     p, v = circle_trajectory(t, 35.3, 139.5, 100.0, 0.0, 0.0)
     # GPS only: there RTKLIB's single-frequency models (TGD, Klobuchar, Saastamoinen) are ours;

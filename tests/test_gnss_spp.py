@@ -42,10 +42,7 @@ def test_real_spp_within_3m(real_sol):
 
 def test_real_spp_side_by_side_with_rtklib(real_sol, shared_data):
     pytest.importorskip("pyrtklib")
-    import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-    from spp import rtklib_pntpos
+    from pos.rtklib_bridge import rtklib_pntpos
     t, p = rtklib_pntpos(str(shared_data / OBS), str(shared_data / NAV))
     assert len(t) == 60
     rms_rtklib = np.sqrt(np.mean(np.sum((p - REF) ** 2, axis=1)))
