@@ -18,7 +18,7 @@ demo: $(STAMP)
 	$(BIN)/dgcal demo --out demo_out
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 bench: $(STAMP)
 	for f in bench/*.py; do $(BIN)/python $$f; done
