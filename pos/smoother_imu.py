@@ -116,7 +116,8 @@ def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_ro
     """Preintegration parameters per keyframe interval, with the scale/misalignment errors as bias motion.
 
     A scale error s and misalignment m turn a rate change dw into an apparent bias change of variance
-    s^2 dw_i^2 + m^2 sum_{j!=i} dw_j^2 per axis. That variance is added to the interval's bias random walk,
+    s^2 dw_i^2 + m^2 sum_{j!=i} dw_j^2 per axis (a change spread over neighbouring intervals counted as
+    one). That variance is added to the interval's bias random walk,
     and a quarter of it (the bias is held at its start value within the interval) to the white noise.
     Returns None entries where nothing is added (the shared base parameters are used).
     """
@@ -127,10 +128,15 @@ def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_ro
     wbar = np.add.reduceat(seg.gyro * seg.dt[:, None], seg.start[:-1]) / T[:, None]
     fbar = np.add.reduceat(seg.accel * seg.dt[:, None], seg.start[:-1]) / T[:, None]
 
-    def jump_var(x, s, m):
-        d = np.diff(x, axis=0, append=x[-1:])
-        d2 = d ** 2
-        return s ** 2 * d2 + m ** 2 * (d2.sum(1, keepdims=True) - d2)
+    def jump_var(x, s, m, half_window: int = 3):
+        # a rate change spread over several intervals (a turn entry) is one correlated jump: give each
+        # interval |d_k| times the total change around it, so the variances add up to (s * total)^2
+        a = np.abs(np.diff(x, axis=0, append=x[-1:]))
+        c = np.cumsum(np.vstack([np.zeros((1, 3)), a]), axis=0)
+        idx = np.arange(len(a))
+        lo, hi = np.clip(idx - half_window, 0, len(a)), np.clip(idx + half_window + 1, 0, len(a))
+        aw = a * (c[hi] - c[lo])
+        return s ** 2 * aw + m ** 2 * (aw.sum(1, keepdims=True) - aw)
     qg = jump_var(wbar, noise.gyro_scale, noise.gyro_misalign)
     qa = jump_var(fbar, noise.accel_scale, noise.accel_misalign)
     out = []
