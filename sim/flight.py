@@ -67,8 +67,12 @@ def _flight_plan(camera: Fraser7, heights, n_strips, n_images, rng):
 def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, render: bool = True,
                     heights=(80.0, 120.0), n_strips=(3, 2), n_images=(14, 10), n_control: int = 12,
                     n_check: int = 10, n_tie: int = 1500, noise_px: float = 0.3,
-                    gcp_sigma=(0.01, 0.01, 0.02), image_size=(1200, 800)) -> dict:
-    """Write a simulated flight to `out` and return the truth dictionary (also in `truth.json`)."""
+                    gcp_sigma=(0.01, 0.01, 0.02), image_size=(1200, 800), targets: str = "disc",
+                    target_size_m: float = 2.0) -> dict:
+    """Write a simulated flight to `out` and return the truth dictionary (also in `truth.json`).
+
+    `targets`: "disc" (quartered discs, ids GCPnn/CHKnn) or "aruco" (DICT_4X4_50 markers of
+    `target_size_m`, top to grid north, point ids = marker ids "0", "1", ...)."""
     rng = np.random.default_rng(seed)
     cam = default_camera(*image_size)
     grid = MapGrid(crs)
@@ -87,16 +91,23 @@ def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, rend
         R_w2c.append(R_cv_to_enu.T)
     C_loc, R_w2c = np.array(C_loc), np.array(R_w2c)
     # ground points: control and check spread over the low-flight block, inset from its edge
-    lo = C_loc[:, :2].min(0) + 10
-    hi = C_loc[:, :2].max(0) - 10
+    half_fp = 0.3 * min(heights) * np.array(cam.image_size, float)[::-1] / cam["f"]   # N-S strips: x across
+    mid = 0.5 * (C_loc[:, :2].min(0) + C_loc[:, :2].max(0))
+    lo = np.minimum(C_loc[:, :2].min(0) + 10, mid - half_fp)
+    hi = np.maximum(C_loc[:, :2].max(0) - 10, mid + half_fp)
     n_gp = n_control + n_check
     gx = int(np.ceil(np.sqrt(n_gp * (hi[0] - lo[0]) / (hi[1] - lo[1]))))
     gy = int(np.ceil(n_gp / gx))
     ee, nn = np.meshgrid(np.linspace(lo[0], hi[0], gx), np.linspace(lo[1], hi[1], gy))
-    en = np.column_stack([ee.ravel(), nn.ravel()])[:n_gp] + rng.normal(0, 3.0, (n_gp, 2))
+    step = np.min((hi - lo) / np.maximum([gx - 1, gy - 1], 1))
+    # jitter small enough that neighbouring targets (up to ~3 m with their quiet zone) never overlap
+    en = np.column_stack([ee.ravel(), nn.ravel()])[:n_gp] + rng.uniform(-1, 1, (n_gp, 2)) * min(3.0, max(0.0, step / 2 - 2.0))
     gp_loc = np.column_stack([en, terrain_height(en[:, 0], en[:, 1])])
     role = np.array(["control", "check"] * n_gp, dtype=object)[:n_gp]
-    gp_ids = np.array([f"GCP{i:02d}" if role[i] == "control" else f"CHK{i:02d}" for i in range(n_gp)], dtype=object)
+    if targets == "aruco":
+        gp_ids = np.array([str(i) for i in range(n_gp)], dtype=object)
+    else:
+        gp_ids = np.array([f"GCP{i:02d}" if role[i] == "control" else f"CHK{i:02d}" for i in range(n_gp)], dtype=object)
     # tie points spread over the whole block
     lo2, hi2 = C_loc[:, :2].min(0) - 20, C_loc[:, :2].max(0) + 20
     te = rng.uniform(lo2, hi2, (n_tie, 2))
@@ -152,7 +163,8 @@ def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, rend
         write_camera_json(tmp / "camera.json", cam, stats={"rms_px": 0.0, "n_observations": 0, "n_rejected": 0})
         if render:
             # texels a little finer than the lowest flight's ground pixel: detail without aliasing
-            _render_all(tmp / "images", cam, names, R_w2c, C_loc, gp_loc, seed, texel_m=0.8 * min(heights) / cam["f"])
+            _render_all(tmp / "images", cam, names, R_w2c, C_loc, gp_loc, seed, texel_m=0.8 * min(heights) / cam["f"],
+                        targets=targets, target_size_m=target_size_m)
         truth = {
             "crs": crs, "local_frame": {"lat0": CENTRE_LAT, "lon0": CENTRE_LON, "h0": CENTRE_H},
             "camera": {"model": cam.NAME, "image_size": list(cam.image_size), "params": cam.as_dict()},
@@ -185,7 +197,7 @@ def _texture(seed: int, size: int = 4096) -> np.ndarray:
 
 
 def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: int,
-                texel_m: float = 0.07) -> None:
+                texel_m: float = 0.07, targets: str = "disc", target_size_m: float = 2.0) -> None:
     """Render each image: ray -> terrain intersection (fixed-point on height) -> texture, plus GCP targets
     (a white disc of 1 m radius with a black-and-white quartered centre of 0.5 m radius)."""
     import cv2
@@ -196,6 +208,10 @@ def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: i
     uu, vv = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     rays_cv = cam.ray(np.column_stack([uu.ravel(), vv.ravel()]))
     target_r = 0.5
+    markers = None
+    if targets == "aruco":
+        dic = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+        markers = [cv2.aruco.generateImageMarker(dic, j, 120, borderBits=1) for j in range(len(gp_loc))]
     for i, name in enumerate(names):
         d = rays_cv @ R_w2c[i]          # world directions
         C = C_loc[i]
@@ -213,8 +229,9 @@ def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: i
         if front.any():
             uv = np.full((len(gp_loc), 2), np.nan)
             uv[front] = cam.project(Xc[front])
-            rad = int(np.ceil(1.5 * cam["f"] / max(np.min(Xc[front, 2]), 1.0))) + 3
-            for g, (u, v) in zip(gp_loc, uv):
+            reach = 1.5 if markers is None else target_size_m
+            rad = int(np.ceil(reach * cam["f"] / max(np.min(Xc[front, 2]), 1.0))) + 3
+            for gi, (g, (u, v)) in enumerate(zip(gp_loc, uv)):
                 if not (np.isfinite(u) and -rad < u < w + rad and -rad < v < h + rad):
                     continue
                 r0, r1 = max(0, int(v) - rad), min(h, int(v) + rad + 1)
@@ -223,8 +240,19 @@ def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: i
                     continue
                 win = P3[r0:r1, c0:c1]
                 dx, dy = win[..., 0] - g[0], win[..., 1] - g[1]
-                r = np.hypot(dx, dy)
                 sub = img[r0:r1, c0:c1]
+                if markers is not None:
+                    # white quiet zone, then the marker: image rows run from grid north to south
+                    half = target_size_m / 2
+                    sub[(np.abs(dx) < 1.4 * half) & (np.abs(dy) < 1.4 * half)] = 245.0
+                    inside = (np.abs(dx) < half) & (np.abs(dy) < half)
+                    mk = markers[gi]
+                    n_px = mk.shape[0]
+                    col = np.clip(((dx / target_size_m + 0.5) * n_px).astype(int), 0, n_px - 1)
+                    row = np.clip(((-dy / target_size_m + 0.5) * n_px).astype(int), 0, n_px - 1)
+                    sub[inside] = np.where(mk[row, col] > 127, 245.0, 15.0)[inside]
+                    continue
+                r = np.hypot(dx, dy)
                 sub[r < 1.0] = 245.0
                 sub[r < target_r] = 15.0
                 sub[(r < target_r) & ((dx > 0) == (dy > 0))] = 245.0
@@ -238,9 +266,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--crs", default=DEFAULT_CRS, help="map CRS of gcp.csv and truth_eop.csv (default %(default)s)")
     p.add_argument("--no-render", action="store_true", help="write measurements only, no images")
     p.add_argument("--noise-px", type=float, default=0.3, help="image measurement noise (px)")
+    p.add_argument("--targets", choices=("disc", "aruco"), default="disc",
+                   help="GCP targets: quartered discs, or ArUco DICT_4X4_50 markers named by their ids")
 
 
 def run(args: argparse.Namespace) -> int:
-    truth = simulate_flight(args.out, args.seed, crs=args.crs, render=not args.no_render, noise_px=args.noise_px)
+    truth = simulate_flight(args.out, args.seed, crs=args.crs, render=not args.no_render, noise_px=args.noise_px,
+                            targets=args.targets)
     print(f"simulated {len(truth['images'])} images, {len(truth['ground_points'])} ground points -> {args.out}")
     return 0

@@ -32,3 +32,19 @@ def test_rendered_flight_with_sift_tie_points(tmp_path):
     assert len(d) >= 3
     assert np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2)) < 1.5 * gsd
     assert np.sqrt(np.mean(d[:, 2] ** 2)) < 2.5 * gsd
+
+
+def test_aruco_gcp_targets_are_detected_where_they_project(tmp_path):
+    from bundle.targets import detect_gcp_targets
+    truth = simulate_flight(tmp_path, seed=8, render=True, heights=(80.0,), n_strips=(1,), n_images=(3,),
+                            n_control=6, n_check=3, n_tie=10, targets="aruco")
+    names = [im["image"] for im in truth["images"]]
+    det = detect_gcp_targets(tmp_path / "images", names, "DICT_4X4_50")
+    exact = read_measurements(tmp_path / "measurements_exact.csv")
+    ref = {(a, b): xy for a, b, xy in zip(exact.image, exact.id, exact.xy)}
+    d = np.array([det.xy[i] - ref[(det.image[i], det.id[i])] for i in range(len(det))])
+    inner = [(a, b) for a, b, (x, y) in zip(exact.image, exact.id, exact.xy) if 40 < x < 1160 and 40 < y < 760]
+    found = set(zip(det.image, det.id))
+    assert sum(k in found for k in inner) >= 0.9 * len(inner)   # markers cut by the frame edge may be missed
+    assert np.abs(d).max() < 1.5 and np.sqrt(np.mean(d ** 2)) < 0.5
+    assert set(det.id) <= {str(i) for i in range(9)}

@@ -33,6 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--approx", help="approximate EOP CSV in --crs (initial values and spatial image pairs)")
     p.add_argument("--gnss", help="EOP CSV in --crs whose X,Y,Z (and sX..sZ) are camera-centre priors")
     p.add_argument("--max-features", type=int, default=4000, help="SIFT features per image")
+    p.add_argument("--targets", metavar="DICT", help="detect ArUco GCP targets (e.g. DICT_4X4_50) in --images; "
+                   "marker id = point id; measurements in --measurements take precedence")
     p.add_argument("--no-blunder-rejection", action="store_true", help="report suspects without removing them")
     p.add_argument("--formats", default="colmap,pix4d,metashape,odm", help="exports (comma separated)")
 
@@ -93,6 +95,27 @@ def run(args: argparse.Namespace) -> int:
             pairs += sequential_pairs([n for n in names if n not in a_idx])
         else:
             pairs = sequential_pairs(names, overlap=len(names) if len(names) <= 30 else 10)
+        if args.targets:
+            from bundle.targets import detect_gcp_targets
+            det = detect_gcp_targets(args.images, names, args.targets, sigma_px=args.sigma_px)
+            known = set(points.ids.astype(str))
+            unknown = sorted(set(det.id) - known)
+            if unknown:
+                pre_warnings.append(f"{len(unknown)} detected marker id(s) not in the ground points, ignored: "
+                                    + ", ".join(unknown[:10]))
+            keep = np.isin(det.id.astype(str), list(known))
+            if meas is not None:
+                have = set(zip(meas.image.astype(str), meas.id.astype(str)))
+                keep &= np.array([(a, b) not in have for a, b in zip(det.image.astype(str), det.id.astype(str))], bool)
+            det = det.subset(keep)
+            pre_warnings.append(f"{len(det)} GCP target measurement(s) detected automatically ({args.targets})")
+            if meas is None:
+                meas = det
+            else:
+                meas = Measurements(np.concatenate([meas.image, det.image]), np.concatenate([meas.id, det.id]),
+                                    np.concatenate([meas.xy, det.xy]), np.concatenate([meas.sigma, det.sigma]),
+                                    None if meas.lines is None else np.concatenate([meas.lines, np.zeros(len(det), int)]),
+                                    meas.path)
         tie = extract_tie_points(args.images, names, pairs, max_features=args.max_features,
                                  camera_K=camera.pinhole_K())
         if args.tie_sigma_px:
