@@ -13,9 +13,7 @@
 """
 from __future__ import annotations
 
-import warnings as _warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
