@@ -138,8 +138,21 @@ def run(args: argparse.Namespace) -> int:
     res = triangulate(camera, points, meas, None if local else args.crs, opt,
                       image_size=args.image_size, approx=approx, centre_priors=gnss, all_images=all_images)
     res.warnings[:0] = pre_warnings
-    res.summary["warnings"][:0] = pre_warnings
+    res.summary["warnings"] = res.warnings
     with staged_dir(args.out) as tmp:
+        formats = [f.strip() for f in args.formats.split(",") if f.strip()]
+        if local and formats:
+            kept = [f for f in formats if f in ("pix4d", "metashape")]
+            if len(kept) < len(formats):
+                res.warnings.append("COLMAP and ODM exports need a map CRS: skipped for --crs local")
+            formats = kept
+        if formats:
+            from fields.crs import MapGrid
+            from reports.eop_exports import export_all
+            ctrl = {g["id"]: g["xyz"] for g in res.gcp}
+            obs = [(meas.image[i], meas.id[i], *meas.xy[i]) for i in range(len(meas)) if str(meas.id[i]) in ctrl]
+            export_all(tmp / "exports", res.eop, None if local else MapGrid(args.crs), camera, formats,
+                       points_map=ctrl, observations=obs)
         write_eop(tmp / "eop.csv", res.eop)
         write_summary_json(tmp / "summary.json", res)
         write_bundle_report(tmp / "report.html", res)
@@ -150,19 +163,6 @@ def run(args: argparse.Namespace) -> int:
         write_table(tmp / "residuals.csv", ["image", "id", "rx", "ry"],
                     ([res.images[inp.obs_image[k]], res.point_ids[inp.obs_point[k]], *res.bundle.residuals_px[k]]
                      for k in range(len(inp.obs_image))), fmt="%.4f")
-        formats = [f.strip() for f in args.formats.split(",") if f.strip()]
-        if local and formats:
-            kept = [f for f in formats if f in ("pix4d", "metashape")]
-            if len(kept) < len(formats):
-                res.summary["warnings"].append("COLMAP and ODM exports need a map CRS: skipped for --crs local")
-            formats = kept
-        if formats:
-            from fields.crs import MapGrid
-            from reports.eop_exports import export_all
-            ctrl = {g["id"]: g["xyz"] for g in res.gcp}
-            obs = [(meas.image[i], meas.id[i], *meas.xy[i]) for i in range(len(meas)) if str(meas.id[i]) in ctrl]
-            export_all(tmp / "exports", res.eop, None if local else MapGrid(args.crs), camera, formats,
-                       points_map=ctrl, observations=obs)
     s = res.summary
     print(f"{s['n_oriented']}/{s['n_images']} images oriented, sigma0 {s['sigma0']:.3f}, "
           f"check RMSE E/N/U {_f(s['check_rmse_m']['E'])}/{_f(s['check_rmse_m']['N'])}/{_f(s['check_rmse_m']['U'])} m, "
