@@ -49,6 +49,8 @@ def main() -> None:
     print(f"triangulation (initial orientation + bundle + covariance + check points): {t3 - t2:.1f} s, "
           f"{res.bundle.iterations} LM iterations, sigma0 {res.bundle.sigma0:.3f}")
     print("normalised EOP errors RMS (X Y Z omega phi kappa):", np.round(np.sqrt(np.mean(z ** 2, 0)), 2))
+    print(f"{s['n_oriented']}/{s['n_images']} images oriented, {s['n_tie_points']} tie points adjusted; warnings:",
+          "; ".join(s["warnings"]) or "none")
     print(f"check RMSE horizontal {s['check_rmse_m']['horizontal']:.4f} m, vertical {s['check_rmse_m']['U']:.4f} m "
           f"(GSD {min(truth['gsd_m'].values()):.3f} m)")
 

@@ -99,23 +99,28 @@ class BundleResult:
             return self._cache["pt"][p]
         lin = self._cache["lin"]
         Vinv_p = lin["Vinv"][p]
-        Wp = lin["W"][:, 3 * p:3 * p + 3].toarray()           # (n_c,3)
-        S_pc = -Vinv_p @ Wp.T @ self._cofactor_cc             # (3,n_c)
-        S_pp = Vinv_p - S_pc @ Wp @ Vinv_p
+        Wp = lin["W"][:, 3 * p:3 * p + 3]                      # (n_c,3) sparse: the images seeing p
+        nz = np.unique(Wp.indices)
+        Wd = Wp[nz].toarray()
+        S_pc = -Vinv_p @ Wd.T @ self._cofactor_cc[nz]           # (3,n_c)
+        S_pp = Vinv_p - S_pc[:, nz] @ Wd @ Vinv_p
         self._cache["pt"][p] = (None, S_pc, S_pp)
         return self._cache["pt"][p]
 
     def redundancy_numbers(self, obs_idx) -> np.ndarray:
         """Redundancy numbers (len,2) of pixel observations (1 - leverage of the whitened, weighted obs)."""
         lin = self._cache["lin"]
-        out = np.empty((len(obs_idx), 2))
+        Jc = lin["Jc"]
+        out = np.empty((len(np.atleast_1d(obs_idx)), 2))
         for n, k in enumerate(np.atleast_1d(obs_idx)):
             p = int(self._inp.obs_point[k])
             _, S_pc, S_pp = self._point_blocks(p)
-            a_c = lin["Jc"][2 * k:2 * k + 2].toarray()        # (2,n_c) whitened
+            rows = Jc[2 * k:2 * k + 2]
+            cols = np.unique(rows.indices)                     # the image's 6 columns and the intrinsics
+            a_c = rows[:, cols].toarray()                       # (2,c) whitened
             a_p = lin["Jp_blocks"][k]                           # (2,3)
-            q = (np.einsum("ij,jk,ik->i", a_c, self._cofactor_cc, a_c)
-                 + 2 * np.einsum("ij,jk,ik->i", a_p, S_pc, a_c)
+            q = (np.einsum("ij,jk,ik->i", a_c, self._cofactor_cc[np.ix_(cols, cols)], a_c)
+                 + 2 * np.einsum("ij,jk,ik->i", a_p, S_pc[:, cols], a_c)
                  + np.einsum("ij,jk,ik->i", a_p, S_pp, a_p))
             out[n] = 1.0 - q
         return np.clip(out, 1e-9, 1.0)
@@ -257,7 +262,8 @@ class _Problem:
         dv = V[:, [0, 1, 2], [0, 1, 2]].copy()
         V[:, [0, 1, 2], [0, 1, 2]] += lam * np.maximum(dv, 1e-9)
         Vinv = np.linalg.inv(V)
-        Vinv_sp = sp.block_diag(list(Vinv), format="csr") if self.m else sp.csr_matrix((0, 0))
+        Vinv_sp = sp.bsr_matrix((Vinv, np.arange(self.m), np.arange(self.m + 1)),
+                                shape=(3 * self.m, 3 * self.m)).tocsr()
         Y = lin["W"] @ Vinv_sp
         S = U - (Y @ lin["W"].T).toarray()
         rhs = lin["gc"] - Y @ lin["gp"]

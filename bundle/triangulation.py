@@ -121,7 +121,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
                         "and its measurement cannot be checked for blunders", opt.verbose)
 
     # --- georeferencing: local ENU at the centroid of the measured control ------------------------
-    ctrl_mask = np.isin(points.ids.astype(str), [c for c in control_ids if c in measured])
+    ctrl_mask = np.array([str(c) in measured and role_of[str(c)] == "control" for c in points.ids], bool)
     if not ctrl_mask.any():
         raise InputError("none of the control points is measured in any image", meas.path, field="id")
     centre = points.xyz[ctrl_mask].mean(0)
@@ -146,7 +146,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
             if pid in unknown_ids and len(once) <= 20 else None
     if len(once) > 20:
         _warn(msgs, f"{len(once)} tie points are measured in one image only: not used", opt.verbose)
-    use &= ~np.isin(ids, list(once))
+    use &= ~np.array([i in once for i in ids], bool)
     images = list(dict.fromkeys((all_images or []) + meas.images()))
     img_index = {n: i for i, n in enumerate(images)}
     point_ids = list(dict.fromkeys(ids[use].tolist()))

@@ -132,7 +132,8 @@ def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, rend
     ti, tid, tuv = observe(tie_ids, tie_loc)
     # keep tie points seen at least twice
     uniq, cnt = np.unique(tid, return_counts=True)
-    keep = np.isin(tid, uniq[cnt >= 2])
+    twice = set(uniq[cnt >= 2].tolist())
+    keep = np.array([t in twice for t in tid], bool)   # np.isin on object arrays is quadratic
     ti, tid, tuv = ti[keep], tid[keep], tuv[keep]
     g_noisy = guv + rng.normal(0, noise_px, guv.shape)
     t_noisy = tuv + rng.normal(0, noise_px, tuv.shape)

@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
             if unknown:
                 pre_warnings.append(f"{len(unknown)} detected marker id(s) not in the ground points, ignored: "
                                     + ", ".join(unknown[:10]))
-            keep = np.isin(det.id.astype(str), list(known))
+            keep = np.array([i in known for i in det.id.astype(str)], bool)
             if meas is not None:
                 have = set(zip(meas.image.astype(str), meas.id.astype(str)))
                 keep &= np.array([(a, b) not in have for a, b in zip(det.image.astype(str), det.id.astype(str))], bool)
