@@ -114,7 +114,8 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=1200.0, help="acceptance flight, s")
     ap.add_argument("--rate", type=float, default=200.0, help="IMU rate, Hz")
     ap.add_argument("--hours", type=float, default=1.0, help="benchmark length, h")
-    ap.add_argument("--systems", default="G", help="benchmark constellations (real nav file: G, E, J); G gives ~10 satellites")
+    ap.add_argument("--systems", default="G",
+                    help="benchmark constellations (real nav file: G, E, J); G gives ~10 satellites")
     a = ap.parse_args()
     if a.acceptance:
         acceptance(a.seeds, a.duration, a.rate)

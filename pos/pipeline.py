@@ -186,7 +186,8 @@ def summarize(res: PosResult) -> dict:
 def _stats(rows) -> dict:
     k, e, sig = rows
     z = e / sig
-    return {"n": int(len(e)), "rms": float(np.sqrt(np.mean(e ** 2))), "rms_normalised": float(np.sqrt(np.nanmean(z ** 2))),
+    return {"n": int(len(e)), "rms": float(np.sqrt(np.mean(e ** 2))),
+            "rms_normalised": float(np.sqrt(np.nanmean(z ** 2))),
             "max_abs": float(np.max(np.abs(e))), "share_beyond_3sigma": float(np.mean(np.abs(z) > 3))}
 
 

@@ -72,7 +72,8 @@ def propagate_attitude(pims: list, anchor: int, R_anchor: np.ndarray, p_nav, v_n
 
 
 def initial_clocks(t_key, epochs_at_key, p_ant_nav, frame: NavFrame, systems) -> tuple[dict, np.ndarray]:
-    """Receiver clock bias per constellation (s) at keyframes from pseudoranges at the initial track, and drift (s/s)."""
+    """Receiver clock bias per constellation (s) at keyframes from the pseudoranges at the initial track,
+    and the drift (s/s)."""
     from pos.smoother_factors import sagnac_m
     K = len(t_key)
     clk = {s: np.full(K, np.nan) for s in systems}
