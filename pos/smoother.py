@@ -117,7 +117,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     pims = preintegrate(params, seg, biases, interval_params(imu_noise, frame, seg, opts.earth_rotation))
 
     p_ant, v_ant = initial_track(t_key, fixes, frame)
-    a, R_a = anchor_attitude(v_ant)
+    a, R_a = anchor_attitude(t_key, v_ant)
     R = propagate_attitude(pims, a, R_a, p_ant, v_ant)
     p_imu = p_ant - np.einsum("kij,j->ki", R, lever)
     omega_b = _imu_rate_at(imu, t_key)

@@ -1,5 +1,6 @@
 """Initial values for the smoother in motion: positions/velocities from GNSS fixes, attitude from the GNSS
-course at one moving epoch propagated with the gyros, receiver clocks from the pseudoranges.
+velocity (pseudo-attitude) at one moving epoch propagated with the gyros, receiver clocks from the
+pseudoranges.
 
 No static alignment is needed: the smoother refines the coarse attitude (heading errors of several degrees
 converge because the turns of a flight make heading observable).
@@ -47,8 +48,16 @@ def initial_track(t_key: np.ndarray, fixes: GnssFixes, frame: NavFrame):
     return p, v
 
 
-def anchor_attitude(v_nav: np.ndarray, min_speed: float = 3.0) -> tuple[int, np.ndarray]:
-    """Keyframe index and coarse R_body_to_nav from the GNSS course (level, heading = course)."""
+def anchor_attitude(t_key: np.ndarray, v_nav: np.ndarray, min_speed: float = 3.0) -> tuple[int, np.ndarray]:
+    """Keyframe index and coarse R_body_to_nav at the first moving epoch: the pseudo-attitude of the GNSS
+    velocity (pos.pseudo_attitude: roll from the turn's centripetal acceleration, pitch = flight-path
+    angle, heading = course); level with heading = course if it cannot be formed."""
+    from pos.pseudo_attitude import pseudo_attitude
+    pa = pseudo_attitude(t_key, v_nav, window_s=0.0, min_speed=min_speed)
+    ok = np.flatnonzero(pa.valid & np.all(np.isfinite(pa.rph), axis=1))
+    if len(ok):
+        a = int(ok[0])
+        return a, R_body_to_ned_from_rph(*pa.rph[a])
     vh = np.hypot(v_nav[:, 0], v_nav[:, 1])
     moving = np.flatnonzero(vh > min_speed)
     a = int(moving[0]) if len(moving) else 0
