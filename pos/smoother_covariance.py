@@ -20,19 +20,21 @@ from pos.smoother_factors import B, CLK, DRIFT, V, X, ZERO
 class KeyframeBlocks:
     """Variable layout of one keyframe block: X (6), V (3), B (6), one clock per system (1 each), drift (1)."""
 
-    def __init__(self, K: int, systems: list):
+    def __init__(self, K: int, systems: list, first: int = 0):
+        """Blocks for keyframes first .. first+K-1 (numbered 0 .. K-1 here)."""
         self.K = K
         self.systems = list(systems)
         self.n = 15 + len(systems) + (1 if systems else 0)
         self.where: dict = {}
-        for k in range(K):
-            self.where[X(k)] = (k, 0, 6)
-            self.where[V(k)] = (k, 6, 3)
-            self.where[B(k)] = (k, 9, 6)
+        for i in range(K):
+            k = first + i
+            self.where[X(k)] = (i, 0, 6)
+            self.where[V(k)] = (i, 6, 3)
+            self.where[B(k)] = (i, 9, 6)
             for j, s in enumerate(systems):
-                self.where[CLK(s, k)] = (k, 15 + j, 1)
+                self.where[CLK(s, k)] = (i, 15 + j, 1)
             if systems:
-                self.where[DRIFT(k)] = (k, 15 + len(systems), 1)
+                self.where[DRIFT(k)] = (i, 15 + len(systems), 1)
         self.where[ZERO()] = None  # a pinned constant: conditioned on (its rows/columns dropped)
         # seconds -> metres for the clock variables (x_s = x_m / c)
         self.scale = np.ones(self.n)
