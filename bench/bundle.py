@@ -48,6 +48,8 @@ def main() -> None:
     s = res.summary
     print(f"triangulation (initial orientation + bundle + covariance + check points): {t3 - t2:.1f} s, "
           f"{res.bundle.iterations} LM iterations, sigma0 {res.bundle.sigma0:.3f}")
+    print("stages (s):", s["timings_s"], "(initialised = PnP growth; adjusted = first bundle with covariance; "
+          "cleaned = outlier/blunder re-adjustments; done = check points, map conversion, reports)")
     print("normalised EOP errors RMS (X Y Z omega phi kappa):", np.round(np.sqrt(np.mean(z ** 2, 0)), 2))
     print(f"{s['n_oriented']}/{s['n_images']} images oriented, {s['n_tie_points']} tie points adjusted; warnings:",
           "; ".join(s["warnings"]) or "none")

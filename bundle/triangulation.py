@@ -13,6 +13,7 @@
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,6 +89,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     `all_images` lists images that should be oriented (those without measurements are reported).
     """
     opt = options or TriangulationOptions()
+    clock = {"start": time.perf_counter()}
     msgs: list[str] = []
     if image_size is not None and tuple(int(v) for v in image_size) != tuple(camera.image_size):
         raise InputError(f"image size {tuple(image_size)} differs from the camera's {tuple(camera.image_size)}",
@@ -178,6 +180,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
             if name in a_idx:
                 Ra, Ca = geo.eop_to_local(approx.xyz[a_idx[name]][None], approx.opk[a_idx[name]][None])
                 R0[i], C0[i] = Ra[0], Ca[0]
+    clock["prepared"] = time.perf_counter()
     R, C, oriented, X0, okpt = grow_orientation(camera, n, oi, op, uv, Xprior, R0, C0)
     if not oriented[np.unique(oi)].all():
         boot = relative_bootstrap(camera, n, oi, op, uv, Xprior)
@@ -223,7 +226,9 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     inp = BundleInput(camera, images_k, R[img_keep], C[img_keep], pids_k, X0[pt_keep], oi2, op2, uv2, sig2,
                       Xprior[pt_keep], Sprior[pt_keep], cprior, csig, tuple(opt.refine))
     bopt = BundleOptions(loss=opt.loss, loss_scale=opt.loss_scale, aposteriori=opt.aposteriori, verbose=opt.verbose)
+    clock["initialised"] = time.perf_counter()
     res = adjust(inp, bopt)
+    clock["adjusted"] = time.perf_counter()
     # --- tie-point outliers (SIFT mismatches) then GCP blunders, one at a time ------------------
     active = np.ones(len(oi2), bool)
     if (kind_k == "tie").any() and np.isfinite(res.sigma0):
@@ -252,6 +257,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
         _warn(msgs, f"measurement of {worst.point} in {worst.image} rejected as a blunder "
                     f"(standardised residual {worst.w:.1f})", opt.verbose)
         res = _readjust(inp, active, bopt, res)
+    clock["cleaned"] = time.perf_counter()
     # --- outputs ----------------------------------------------------------------------------
     geo_xyz, geo_opk = geo.eop_to_map(res.R_world_to_cv, res.C_world)
     cov_map = geo.eop_covariance_to_map(res.R_world_to_cv, res.C_world, res.cov_pose)
@@ -290,14 +296,18 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
             mm["rejected"] = (mm["image"], g["id"]) in removed
     unknown_rep = []
     k_index = {p: j for j, p in enumerate(pids_k)}
+    n_rays = np.bincount(a_op, minlength=len(pids_k))
     for pid in unknown_ids:
         if pid in k_index:
             j = k_index[pid]
-            unknown_rep.append({"id": pid, "n_images": int(np.sum(a_op == j)), "xyz": X_map[j].tolist()})
+            unknown_rep.append({"id": pid, "n_images": int(n_rays[j]), "xyz": X_map[j].tolist()})
         else:
             unknown_rep.append({"id": pid, "n_images": int(counts.get(pid, 0)), "xyz": None})
     check_rep = _check_points(camera, res, geo, points, meas, is_check, images_k, msgs, opt)
     summary = _summary(res, eop, images, images_k, gcp_rep, check_rep, unknown_rep, suspects, msgs, geo, kind_k)
+    clock["done"] = time.perf_counter()
+    names = list(clock)
+    summary["timings_s"] = {f"{b}": round(clock[b] - clock[a], 3) for a, b in zip(names, names[1:])}
     if opt.verbose:
         print(f"sigma0 {res.sigma0:.3f}, {len(images_k)} images, {len(pids_k)} points, redundancy {res.redundancy}")
     return TriangulationResult(eop, geo, res, res.camera, images_k, pids_k, kind_k, gcp_rep, check_rep, image_stats,
