@@ -126,3 +126,26 @@ def test_check_point_seen_once_and_missing_images_are_warnings(small, tmp_path):
     assert any(chk in x and "not evaluated" in x for x in s["warnings"])
     assert any("not in" in x and "without tie points" in x for x in s["warnings"])
     assert any("other.png" in x and "no measurements" in x for x in s["warnings"])
+
+
+def test_approximate_eops_fixed_gcps_and_bad_refine(small, tmp_path, capsys):
+    d, truth = small
+    te = read_eop(d / "truth_eop.csv")
+    rng = np.random.default_rng(2)
+    te.xyz = te.xyz + rng.normal(0, 2.0, te.xyz.shape)       # GNSS-grade approximate positions
+    te.opk = te.opk + rng.normal(0, 1.0, te.opk.shape)
+    from fields.formats import write_eop
+    write_eop(tmp_path / "approx.csv", te)
+    base = ["--camera", d / "camera.json", "--gcp", d / "gcp.csv", "--crs", truth["crs"], "--measurements",
+            d / "measurements_all.csv"]
+    assert _run(base + ["--approx", tmp_path / "approx.csv", "--fixed-gcps", "--out", tmp_path / "a"]) == 0
+    assert _run(base + ["--fixed-gcps", "--out", tmp_path / "p"]) == 0
+    eop, ref = read_eop(tmp_path / "a" / "eop.csv"), read_eop(tmp_path / "p" / "eop.csv")
+    idx = {k: i for i, k in enumerate(ref.image)}
+    # started 2 m / 1 deg away, the same minimum as when started from PnP
+    assert np.abs(eop.xyz - ref.xyz[[idx[k] for k in eop.image]]).max() < 1e-3
+    truth_eop = read_eop(d / "truth_eop.csv")
+    z = (eop.xyz - truth_eop.xyz[[idx[k] for k in eop.image]]) / eop.sigma[:, :3]
+    assert np.abs(z).max() < 4.5
+    assert _run(base + ["--refine", "f,Q7", "--out", tmp_path / "b"]) == 2
+    assert "unknown camera parameter 'Q7'" in capsys.readouterr().err
