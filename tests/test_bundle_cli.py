@@ -149,3 +149,24 @@ def test_approximate_eops_fixed_gcps_and_bad_refine(small, tmp_path, capsys):
     assert np.abs(z).max() < 4.5
     assert _run(base + ["--refine", "f,Q7", "--out", tmp_path / "b"]) == 2
     assert "unknown camera parameter 'Q7'" in capsys.readouterr().err
+
+
+def test_odm_gcp_list_plus_tie_csv(small, tmp_path, capsys):
+    """GCPs from an ODM gcp_list.txt (points and CRS inside), tie points from a CSV: the same EOPs."""
+    from fields.gcp_io import write_odm_gcp_list
+    d, truth = small
+    pts = read_points(d / "gcp.csv")
+    ctrl = pts.subset(pts.role == "control")
+    gm = read_measurements(d / "measurements.csv")
+    write_odm_gcp_list(tmp_path / "gcp_list.txt", truth["crs"], ctrl, gm)
+    rc = _run(["--camera", d / "camera.json", "--crs", truth["crs"], "--measurements", tmp_path / "gcp_list.txt",
+               d / "tie_measurements.csv", "--sigma-px", 0.3, "--gcp-sigma", 0.01, 0.01, 0.02, "--out", tmp_path / "o"])
+    assert rc == 0
+    assert _run(["--camera", d / "camera.json", "--gcp", d / "gcp.csv", "--crs", truth["crs"], "--measurements",
+                 d / "measurements.csv", d / "tie_measurements.csv", "--out", tmp_path / "r"]) == 0
+    a, b = read_eop(tmp_path / "o" / "eop.csv"), read_eop(tmp_path / "r" / "eop.csv")
+    # the reference also has check points measured (they do not enter the adjustment): same EOPs
+    np.testing.assert_allclose(a.xyz, b.xyz, atol=0.02)
+    assert _run(["--camera", d / "camera.json", "--crs", "EPSG:32650", "--measurements", tmp_path / "gcp_list.txt",
+                 d / "tie_measurements.csv", "--out", tmp_path / "x"]) == 2
+    assert "differs from --crs" in capsys.readouterr().err

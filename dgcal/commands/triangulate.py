@@ -20,7 +20,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gcp", help="ground points: CSV, MicMac XML or ODM gcp_list.txt")
     p.add_argument("--crs", required=True, help="map CRS of the ground points and of eop.csv (pyproj text, or 'local')")
     p.add_argument("--images", help="image folder: SIFT tie points (and the image list)")
-    p.add_argument("--measurements", help="image measurements: CSV, ODM gcp_list.txt or MicMac XML")
+    p.add_argument("--measurements", nargs="+", metavar="MEAS",
+                   help="image measurements: CSV, ODM gcp_list.txt or MicMac XML (several files are merged)")
     p.add_argument("--image-size", nargs=2, type=int, metavar=("W", "H"), help="image size (px) when there are no images")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--sigma-px", type=float, default=0.5, help="measurement sigma (px) where the file gives none")
@@ -59,9 +60,13 @@ def run(args: argparse.Namespace) -> int:
     if not local:
         parse_crs(args.crs)
     points, gcp_crs = (read_any_points(args.gcp) if args.gcp else (None, None))
-    meas, meas_crs, meas_points = (read_any_measurements(args.measurements) if args.measurements
-                                   else (None, None, None))
-    for src, c in ((args.gcp, gcp_crs), (args.measurements, meas_crs)):
+    meas, meas_points, crs_sources = None, None, [(args.gcp, gcp_crs)]
+    for path in args.measurements or []:
+        m, c, p = read_any_measurements(path)
+        crs_sources.append((path, c))
+        meas = m if meas is None else _merge(meas, m)
+        meas_points = meas_points if p is None else p
+    for src, c in crs_sources:
         if c is not None and not local and parse_crs(c) != parse_crs(args.crs):
             raise InputError(f"the file's CRS {c!r} differs from --crs {args.crs!r}", src, 1, "--crs")
     if points is None:
@@ -168,6 +173,22 @@ def run(args: argparse.Namespace) -> int:
           f"check RMSE E/N/U {_f(s['check_rmse_m']['E'])}/{_f(s['check_rmse_m']['N'])}/{_f(s['check_rmse_m']['U'])} m, "
           f"{len(res.warnings)} warning(s) -> {args.out}/eop.csv")
     return 0
+
+
+def _merge(a, b):
+    """Two measurement sets as one; a point measured twice in one image is an error naming the second file."""
+    import numpy as np
+
+    from fields.errors import InputError
+    from fields.formats import Measurements
+    seen = set(zip(a.image.astype(str), a.id.astype(str)))
+    for i, key in enumerate(zip(b.image.astype(str), b.id.astype(str))):
+        if key in seen:
+            raise InputError(f"point {key[1]!r} in image {key[0]!r} is also measured in {a.path}", b.path,
+                             None if b.lines is None else int(b.lines[i]), "id")
+    lines = None if a.lines is None or b.lines is None else np.concatenate([a.lines, b.lines])
+    return Measurements(np.concatenate([a.image, b.image]), np.concatenate([a.id, b.id]),
+                        np.concatenate([a.xy, b.xy]), np.concatenate([a.sigma, b.sigma]), lines, a.path)
 
 
 def _f(v) -> str:
