@@ -39,6 +39,14 @@ def test_cli_writes_eops_report_and_exports(small, tmp_path):
     assert "data:image/png;base64" in html and "Check points" in html
     for f in ("colmap/images.txt", "pix4d_external_orientation.txt", "metashape_opk.csv", "geo.txt"):
         assert (out / "exports" / f).is_file()
+    # every export reads back (reports.eop_exports readers) to the EOPs of eop.csv
+    from reports.eop_exports import read_colmap, read_metashape, read_odm_geo, read_pix4d
+    ex = out / "exports"
+    for back in (read_pix4d(ex / "pix4d_external_orientation.txt"), read_metashape(ex / "metashape_opk.csv"),
+                 read_odm_geo(ex / "geo.txt")[0], read_colmap(ex / "colmap")[0]):
+        assert list(back.image) == list(eop.image)
+        np.testing.assert_allclose(back.xyz, eop.xyz, atol=2e-6)
+        np.testing.assert_allclose((back.opk - eop.opk + 180) % 360 - 180, 0, atol=2e-6)
 
 
 def test_colmap_export_reprojects_gcps(small, tmp_path):
