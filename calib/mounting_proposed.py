@@ -13,7 +13,9 @@ R_cam_to_body = Exp(theta_b) R_hat, so no unit-norm constraint is needed; the qu
 Observations: the 3 position and 3 rotation residuals of each epoch, weighted by the full 6x6 covariance of
 EOP (bundle) and POS (smoother) errors propagated through the model. Epochs failing a chi-square test
 (6 dof, 99.9 %) against the robust scale are rejected and listed. Covariance: N^-1 scaled by
-max(1, sigma0^2), so optimistic input sigmas do not give optimistic results.
+max(1, sigma0^2), so optimistic input sigmas do not give optimistic results, plus the effect of the POS
+error common to all epochs (`common_mode_covariance`, weighted by `pos_common_fraction`): POS errors
+driven by slowly varying states do not average down over one flight.
 """
 from __future__ import annotations
 
@@ -56,15 +58,59 @@ def residual_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndar
     """(N,6,6) covariance of the residuals from EOP and POS covariances (defaults when not given)."""
     n = len(ep)
     C_eop = ep.cov_eop if ep.cov_eop is not None else _default_cov(n, DEFAULT_EOP_SIGMA[0], (DEFAULT_EOP_SIGMA[1],) * 3)
-    C_pos = ep.pos.cov if ep.pos.cov is not None else _default_cov(n, DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2
-                                                                   + DEFAULT_POS_SIGMA[2:])
-    _, Rc, R_b = predict(ep, x, R_hat)
+    C_pos = _pos_cov(ep)
+    G = pos_error_jacobian(ep, x, R_hat)
+    return C_eop + G @ C_pos @ T(G)
+
+
+def pos_error_jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
+    """(N,6,6) d(residual)/d(POS error): position error in L (m), attitude error about body axes (rad)."""
+    n = len(ep)
+    _, _, R_b = predict(ep, x, R_hat)
     R_cb = so3_exp(x[4:7]) @ R_hat
-    G = np.zeros((n, 6, 6))  # d(residual)/d(POS error [position L, body rotation])
+    G = np.zeros((n, 6, 6))
     G[:, :3, :3] = -np.eye(3)
     G[:, :3, 3:] = R_b @ skew(x[1:4])  # -(-R_b [l]x)
     G[:, 3:, 3:] = -R_cb.T
-    return C_eop + G @ C_pos @ T(G)
+    return G
+
+
+def _pos_cov(ep: Epochs) -> np.ndarray:
+    if ep.pos.cov is not None:
+        return ep.pos.cov
+    return _default_cov(len(ep), DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2 + DEFAULT_POS_SIGMA[2:])
+
+
+def _jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray, W: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Whitened d(prediction)/d(free parameters), by central differences, (6N, len(free))."""
+    J = np.empty((6 * len(ep), len(free)))
+    for k, j in enumerate(free):
+        h = 1e-6 if j > 0 else 1e-5
+        dx = np.zeros(7)
+        dx[j] = h
+        rp = np.einsum("nij,nj->ni", W, residuals(ep, x + dx, R_hat)).ravel()
+        rm = np.einsum("nij,nj->ni", W, residuals(ep, x - dx, R_hat)).ravel()
+        J[:, k] = -(rp - rm) / (2 * h)  # residual = obs - pred, so d(pred)/dx = -d(residual)/dx
+    return J
+
+
+def common_mode_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray, fix_delay: bool) -> np.ndarray:
+    """(7,7) parameter covariance from the POS error that all epochs share.
+
+    A smoothed trajectory's errors are driven by slowly varying states (accelerometer bias -> tilt,
+    GNSS biases -> position), so they do not average down over the epochs of one flight the way the
+    per-epoch weighting assumes: a constant POS pitch error is indistinguishable from boresight pitch.
+    The mean POS covariance, taken as an error common to every epoch, is pushed through the
+    estimator (x = N^-1 J^T W r): a conservative bound, since part of the POS error is random.
+    """
+    free = np.arange(1 if fix_delay else 0, 7)
+    W = _whiten(residual_covariance(ep, x, R_hat))
+    J = _jacobian(ep, x, R_hat, W, free)
+    B = np.einsum("nij,njk->nik", W, pos_error_jacobian(ep, x, R_hat)).reshape(-1, 6)
+    S = np.linalg.solve(J.T @ J, J.T @ B)
+    C = np.zeros((7, 7))
+    C[np.ix_(free, free)] = S @ _pos_cov(ep).mean(axis=0) @ S.T
+    return C
 
 
 def _whiten(C: np.ndarray) -> np.ndarray:
@@ -79,14 +125,7 @@ def _solve(ep: Epochs, R_hat: np.ndarray, x0: np.ndarray, fix_delay: bool, iters
     for _ in range(iters):
         W = _whiten(residual_covariance(ep, x, R_hat))
         r = np.einsum("nij,nj->ni", W, residuals(ep, x, R_hat)).ravel()
-        J = np.empty((r.size, len(free)))
-        for k, j in enumerate(free):
-            h = 1e-6 if j > 0 else 1e-5
-            dx = np.zeros(7)
-            dx[j] = h
-            rp = np.einsum("nij,nj->ni", W, residuals(ep, x + dx, R_hat)).ravel()
-            rm = np.einsum("nij,nj->ni", W, residuals(ep, x - dx, R_hat)).ravel()
-            J[:, k] = -(rp - rm) / (2 * h)  # residual = obs - pred, so d(pred)/dx = -d(residual)/dx
+        J = _jacobian(ep, x, R_hat, W, free)
         N = J.T @ J
         step = np.linalg.solve(N, J.T @ r)
         x[free] += step
@@ -124,8 +163,16 @@ def _solve_robust(ep, x0, R_hat, keep, fix_delay, reject, limit):
 
 
 def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = True,
-                       confidence: float = 0.999) -> MountingResult:
-    """Delay, lever arm and boresight by weighted least squares with outlier rejection (see module docstring)."""
+                       confidence: float = 0.999, pos_common_fraction: float = 0.0) -> MountingResult:
+    """Delay, lever arm and boresight by weighted least squares with outlier rejection (see module docstring).
+
+    `pos_common_fraction` (0-1) is the share of the POS error variance common to all epochs of the
+    flight (bias-driven tilt, GNSS biases); 0 treats POS errors as independent between photos (the seed's
+    assumption), 1 as entirely common (conservative for a smoothed MEMS trajectory).
+    """
+    if not 0.0 <= pos_common_fraction <= 1.0:
+        raise InputError(f"pos_common_fraction must be within 0..1, got {pos_common_fraction}",
+                         field="--pos-common-fraction")
     init = calibrate_traditional(ep)
     x0 = np.r_[0.0, init.lever_arm_m, 0, 0, 0]
     R_hat = init.R_cam_to_body
@@ -147,7 +194,10 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
     n = int(keep.sum())
     dof = 6 * n - (6 if fix_delay else 7)
     sigma0_sq = float(Tstat.sum() / max(dof, 1))
-    cov = Ninv * max(1.0, sigma0_sq)
+    cov_random = Ninv * max(1.0, sigma0_sq)
+    cov_common = (pos_common_fraction * common_mode_covariance(ep.subset(keep), x, R_hat, fix_delay)
+                  if pos_common_fraction > 0 else np.zeros((7, 7)))
+    cov = cov_random + cov_common
     # per-epoch values with the delay applied (seed Fig. 22): what each epoch says about l_b and the boresight
     p_pred, Rc_pred, R_b = predict(ep, x, R_hat_s)
     lever_i = np.einsum("nji,nj->ni", R_b, ep.r_cam_L - ep.pos.r_imu_L - ep.pos.v_L * (x[0] - ep.dt_ref))
@@ -161,6 +211,11 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
                          [str(s) for s in ep.image[~keep]], list(ep.warnings), per_epoch)
     res.extra.update({"sigma0": float(np.sqrt(sigma0_sq)), "redundancy": int(dof),
                       "covariance_scaled_by": float(max(1.0, sigma0_sq)),
+                      "sigma_random": np.sqrt(np.diag(cov_random)).tolist(),
+                      "sigma_pos_common_mode": np.sqrt(np.diag(cov_common)).tolist(),
+                      "pos_common_fraction": float(pos_common_fraction),
+                      "covariance_model": "per-epoch EOP and POS errors (scaled by max(1, sigma0^2)) plus "
+                                          "pos_common_fraction x the mean POS covariance as an error common to all epochs",
                       "boresight_parameterisation": "unit quaternion with minimal 3-parameter multiplicative update "
                                                     "R_cam_to_body = Exp(theta_b) R_hat (theta about body axes)",
                       "propagation": ("POS re-interpolated at t_event + delay (iterated); within an iteration "

@@ -99,7 +99,8 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
                     spacing_m: float = 180.0, azimuth_deg: float = 30.0, airspeed: float = 30.0,
                     wind_en=(4.0, 5.0), photo_interval_s: float = 1.5, rate_hz: float = 20.0,
                     pos_sigma=(0.05, 0.05, 0.08, 0.01, 0.01, 0.03), eop_sigma=(0.03, 0.03, 0.04, 0.003, 0.003, 0.002),
-                    pixel_sigma: float = 0.5, t0: float = 2200 * 604800.0 + 300000.0, tau_s: float = 0.3) -> FlightSim:
+                    pixel_sigma: float = 0.5, t0: float = 2200 * 604800.0 + 300000.0, tau_s: float = 0.3,
+                    pos_common_fraction: float = 0.0) -> FlightSim:
     """Simulate one flight of straight strips (alternating headings) in L; see the module docstring."""
     from fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph
     wind = np.array([wind_en[0], wind_en[1], 0.0])
@@ -159,8 +160,11 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
 
     lat, lon, hh, v_ned, rph = frame.L_to_pos(p_L, v_L, R_bL)
     traj_true = Trajectory(t_s, lat, lon, hh, v_ned, rph)
-    # smoother-like errors: smooth, correlated over ~tau_s, independent between photos
-    err = _smooth_noise(rng, len(t_s), 1.0 / rate_hz, tau_s, np.asarray(pos_sigma, float))
+    # smoother-like errors: a part common to the whole flight (bias-driven tilt, GNSS biases: it does not
+    # average down over the photos) and a smooth part correlated over ~tau_s, independent between photos
+    f = float(pos_common_fraction)
+    err = (np.sqrt(1 - f) * _smooth_noise(rng, len(t_s), 1.0 / rate_hz, tau_s, np.asarray(pos_sigma, float))
+           + np.sqrt(f) * rng.normal(0, 1, 6) * np.asarray(pos_sigma, float))
     p_noisy = p_L + err[:, [1, 0, 2]]  # s_lat_m is north, s_lon_m east (L is ENU, level at the block)
     lat_n, lon_n, h_n, _, _ = frame.L_to_pos(p_noisy, v_L, R_bL)
     traj = Trajectory(t_s, lat_n, lon_n, h_n, v_ned + rng.normal(0, 0.02, v_ned.shape), rph + err[:, 3:],
@@ -209,7 +213,8 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     mp.update(mapping or {})
     mapf = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_L, ids, **mp)
     noise = {"pos_sigma": [0.05, 0.05, 0.08, 0.01, 0.01, 0.03], "eop_sigma_300m": [0.03, 0.03, 0.04, 0.003, 0.003, 0.002],
-             "pixel_sigma": 0.5, "pos_error_kernel_s": 0.3}
+             "pixel_sigma": 0.5, "pos_error_kernel_s": 0.3,
+             "pos_common_fraction": (calibration or {}).get("pos_common_fraction", 0.0)}
     return MountingSim(crs, camera, lever, R_cb, float(delay_s), ground, cal, mapf, noise)
 
 

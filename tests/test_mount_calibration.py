@@ -158,3 +158,21 @@ def test_other_map_crs(crs):
     res = calibrate_mounting(c.eop, MapGrid(crs), c.traj, c.events, "proposed")
     err = _errors(res, s)
     assert np.all(np.abs(err) < 3 * res.sigmas) and 0.7 < res.extra["sigma0"] < 1.4
+
+
+def test_common_mode_pos_errors_need_the_common_fraction():
+    """A smoother's POS errors partly repeat in every photo (bias-driven tilt, GNSS biases): treated as
+    independent, the sigmas are too small; with pos_common_fraction they cover the errors again."""
+    from calib.mounting import calibrate_mounting
+    z_indep, z_common = [], []
+    for seed in range(6):
+        s = simulate_mounting(seed, calibration={"pos_common_fraction": 1.0,
+                                                 "pos_sigma": (0.01, 0.01, 0.015, 0.01, 0.01, 0.03)})
+        c = s.calibration
+        for frac, out in ((0.0, z_indep), (1.0, z_common)):
+            res = calibrate_mounting(c.eop, MapGrid(s.crs), c.traj, c.events, "proposed", pos_common_fraction=frac)
+            out.append(_errors(res, s) / res.sigmas)
+    rms_indep = float(np.sqrt(np.mean(np.square(z_indep))))
+    rms_common = float(np.sqrt(np.mean(np.square(z_common))))
+    assert rms_indep > 1.6, rms_indep
+    assert 0.6 < rms_common < 1.4, rms_common
