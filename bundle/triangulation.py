@@ -363,7 +363,8 @@ def _check_points(camera, res: BundleResult, geo: Georef, points: Points, meas: 
     for j, pid in enumerate(ids):
         n_rays = int(ir.n_rays[j]) if len(rows) else 0
         if not len(rows) or not ir.ok[j]:
-            _warn(msgs, f"check point {pid} is measured in {n_rays} oriented image(s): needs 2, not evaluated",
+            why = ("needs 2" if n_rays < 2 else "the rays do not intersect in front of the cameras")
+            _warn(msgs, f"check point {pid} is measured in {n_rays} oriented image(s): {why}, not evaluated",
                   opt.verbose)
             out.append({"id": pid, "n_images": n_rays, "evaluated": False})
             continue
