@@ -83,15 +83,19 @@ def test_proposed_mounting_against_truth(campaign):
     assert np.all(np.abs(d_lever) < 3 * np.array(m["lever_arm_sigma_m"]))
 
 
-@pytest.mark.xfail(reason="the LC smoother recovers only 60-85 % of the ADIS16488's body-x accelerometer bias "
-                          "(2 mg turn-on), a nearly constant 0.02-0.04 deg pitch error that the boresight absorbs; "
-                          "the mounting adjustment treats the epochs' POS attitude errors as independent, so its "
-                          "boresight sigma is ~sqrt(epochs) too small (pos smoother, calib/mounting_proposed)",
-                   strict=False)
-def test_proposed_boresight_within_0_02_deg_and_3_sigma(campaign):
+def test_proposed_boresight_within_3_sigma(campaign):
+    # the POS pitch error is mostly common to the flight; with pos_common_fraction the sigma says so
+    m, _, _, d_bore = _errors(campaign, "proposed")
+    assert np.all(np.abs(d_bore) < 3 * np.array(m["boresight_sigma_deg"]))
+
+
+@pytest.mark.xfail(reason="the LC smoother leaves part of the ADIS16488's horizontal accelerometer bias "
+                          "(2 mg turn-on) unresolved: a nearly constant 0.02-0.05 deg pitch error of the POS that "
+                          "the boresight absorbs (inseparable within one flight); needs a better-determined "
+                          "accelerometer bias in pos/smoother", strict=False)
+def test_proposed_boresight_within_0_02_deg(campaign):
     m, _, _, d_bore = _errors(campaign, "proposed")
     assert np.all(np.abs(d_bore) < 0.02)
-    assert np.all(np.abs(d_bore) < 3 * np.array(m["boresight_sigma_deg"]))
 
 
 def test_traditional_is_biased_by_the_delay(campaign):
