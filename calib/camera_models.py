@@ -176,6 +176,16 @@ class CameraModel:
                          borderMode=cv2.BORDER_CONSTANT)
 
 
+def _brown_distort_jacobian(x, y, rad, drad, p1, p2) -> np.ndarray:
+    """d(distorted)/d(ideal) (N,2,2) of `radial(r^2) * xy + Brown tangential(p1, p2)`; drad = d radial / d r^2."""
+    J = np.empty((len(x), 2, 2))
+    J[:, 0, 0] = rad + x * drad * 2 * x + 2 * p1 * y + 6 * p2 * x
+    J[:, 0, 1] = x * drad * 2 * y + 2 * p1 * x + 2 * p2 * y
+    J[:, 1, 0] = y * drad * 2 * x + 2 * p1 * x + 2 * p2 * y
+    J[:, 1, 1] = rad + y * drad * 2 * y + 6 * p1 * y + 2 * p2 * x
+    return J
+
+
 def _radial_r2(xy):
     x, y = xy[:, 0], xy[:, 1]
     return x, y, x * x + y * y
@@ -200,12 +210,7 @@ class Fraser7(CameraModel):
         x, y, r2 = _radial_r2(np.atleast_2d(xy))
         rad = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
         drad = k1 + r2 * (2 * k2 + 3 * k3 * r2)  # d rad / d r2
-        J = np.empty((len(x), 2, 2))
-        J[:, 0, 0] = rad + x * drad * 2 * x + 2 * p1 * y + 6 * p2 * x
-        J[:, 0, 1] = x * drad * 2 * y + 2 * p1 * x + 2 * p2 * y
-        J[:, 1, 0] = y * drad * 2 * x + 2 * p1 * x + 2 * p2 * y
-        J[:, 1, 1] = rad + y * drad * 2 * y + 6 * p1 * y + 2 * p2 * x
-        return J
+        return _brown_distort_jacobian(x, y, rad, drad, p1, p2)
 
     def to_pixels(self, xyd):
         f, cx, cy = self.params[:3]
@@ -282,12 +287,7 @@ class OpenCV8(CameraModel):
         p1, p2 = self.params[6:8]
         x, y, r2 = _radial_r2(np.atleast_2d(xy))
         rad, drad = self._rad(r2)
-        J = np.empty((len(x), 2, 2))
-        J[:, 0, 0] = rad + x * drad * 2 * x + 2 * p1 * y + 6 * p2 * x
-        J[:, 0, 1] = x * drad * 2 * y + 2 * p1 * x + 2 * p2 * y
-        J[:, 1, 0] = y * drad * 2 * x + 2 * p1 * x + 2 * p2 * y
-        J[:, 1, 1] = rad + y * drad * 2 * y + 6 * p1 * y + 2 * p2 * x
-        return J
+        return _brown_distort_jacobian(x, y, rad, drad, p1, p2)
 
     def to_pixels(self, xyd):
         fx, fy, cx, cy = self.params[:4]

@@ -34,6 +34,23 @@ def week_sow(t_gps) -> tuple[np.ndarray, np.ndarray]:
     return week, t - week * SECONDS_PER_WEEK
 
 
+class _GpsTimed:
+    """GPS week and seconds of week of the continuous GPS seconds `t` of a record set."""
+
+    t: np.ndarray
+
+    @property
+    def week(self) -> np.ndarray:
+        return week_sow(self.t)[0]
+
+    @property
+    def sow(self) -> np.ndarray:
+        return week_sow(self.t)[1]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
 def _duplicates(values: np.ndarray) -> list:
     uniq, counts = np.unique(values.astype(str), return_counts=True)
     return [str(u) for u in uniq[counts > 1]]
@@ -168,7 +185,7 @@ def write_measurements(path: str | Path, m: Measurements) -> None:
 
 # ---------------------------------------------------------------------------------------------
 @dataclass
-class Trajectory:
+class Trajectory(_GpsTimed):
     """Trajectory samples: GPS time, geodetic position (deg, m ellipsoidal), NED velocity, roll/pitch/heading (deg).
 
     `sigma` is (N,6): s_lat_m, s_lon_m, s_h_m (m), s_roll, s_pitch, s_heading (deg), or None.
@@ -185,17 +202,6 @@ class Trajectory:
     image: np.ndarray | None = None
     lines: np.ndarray | None = None
     path: Path | None = None
-
-    @property
-    def week(self) -> np.ndarray:
-        return week_sow(self.t)[0]
-
-    @property
-    def sow(self) -> np.ndarray:
-        return week_sow(self.t)[1]
-
-    def __len__(self) -> int:
-        return len(self.t)
 
 
 def read_trajectory(path: str | Path) -> Trajectory:
@@ -235,24 +241,13 @@ def write_trajectory(path: str | Path, tr: Trajectory) -> None:
 
 # ---------------------------------------------------------------------------------------------
 @dataclass
-class Events:
+class Events(_GpsTimed):
     """Camera events: image label and recorded event (trigger) time in continuous GPS seconds."""
 
     image: np.ndarray
     t: np.ndarray
     lines: np.ndarray | None = None
     path: Path | None = None
-
-    @property
-    def week(self) -> np.ndarray:
-        return week_sow(self.t)[0]
-
-    @property
-    def sow(self) -> np.ndarray:
-        return week_sow(self.t)[1]
-
-    def __len__(self) -> int:
-        return len(self.t)
 
 
 def read_events(path: str | Path) -> Events:
