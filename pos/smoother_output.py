@@ -59,7 +59,7 @@ def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
     sigmas interpolated linearly in variance between keyframes."""
     import gtsam
 
-    from pos.smoother_imu import gravity_correction_b, split_at_keyframes
+    from pos.smoother_imu import gravity_correction_b, rotation_compensated_accel, split_at_keyframes
     t_key = sol.t
     step = 1.0 / rate_hz
     grid = np.arange(np.ceil(t_key[0] / step) * step, t_key[-1], step)
@@ -68,6 +68,7 @@ def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
     accel = problem.accel if problem.accel is not None else (
         imu.accel_m_s2 + gravity_correction_b(imu.t, t_key, sol.R_body_to_nav, sol.p_nav, sol.frame))
     seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_out, imu.dt[0])
+    acc_c = rotation_compensated_accel(seg.gyro, seg.accel, seg.dt)
     params = problem.params
     n = len(t_out)
     P = np.empty((n, 3))
@@ -83,7 +84,7 @@ def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
         f = pim.integrateMeasurement
         for i in range(i0, i1):
             for j in range(seg.start[i], seg.start[i + 1]):
-                f(seg.accel[j], seg.gyro[j], seg.dt[j])
+                f(acc_c[j], seg.gyro[j], seg.dt[j])
             ns = pim.predict(ns0, b)
             P[i + 1], Vv[i + 1], R[i + 1] = ns.position(), ns.velocity(), ns.attitude().matrix()
         # closure: spread the mismatch with the next keyframe linearly in time
