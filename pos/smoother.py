@@ -235,6 +235,9 @@ def optimize(problem: Problem, max_iterations: int = 30):
     p.setMaxIterations(max_iterations)
     p.setRelativeErrorTol(1e-7)
     p.setAbsoluteErrorTol(1e-7)
+    # a navigation-grade IMU makes the normal equations so stiff that only heavily damped steps succeed:
+    # let lambda grow past gtsam's default bound (1e5) instead of stopping without a single step
+    p.setlambdaUpperBound(1e12)
     opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, p)
     values = opt.optimize()
     problem.iterations = opt.iterations()
@@ -300,6 +303,18 @@ def solution_values(sol: NavSolution, problem: Problem):
     return vals
 
 
+# the IMU noise floor of the coarse first pass (ADIS16488-class): densities below it are raised to it
+_COARSE_FLOOR = dict(gyro_arw=8.7e-5, accel_vrw=4.8e-4, gyro_bias_rw=1.3e-6, accel_bias_rw=4.4e-5,
+                     gyro_bias_sigma=1.7e-4, accel_bias_sigma=2e-2)
+
+
+def _coarse_noise(noise: ImuNoise) -> ImuNoise | None:
+    """`noise` with every density raised to at least `_COARSE_FLOOR`, or None if it is not below it anywhere."""
+    low = {k: v for k, v in _COARSE_FLOOR.items() if getattr(noise, k) < 0.5 * v}
+    return dataclasses.replace(noise, **{k: max(getattr(noise, k), v) for k, v in _COARSE_FLOOR.items()}) \
+        if low else None
+
+
 def keyframe_times(imu, t_obs: np.ndarray) -> np.ndarray:
     """Keyframes (GPS s): the GNSS epochs inside the IMU span, gaps filled at the median epoch interval."""
     t0 = imu.t[0] - imu.dt[0]
@@ -349,10 +364,21 @@ def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mo
     t0 = time.perf_counter()
     problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes)
     timing["build_s"] = time.perf_counter() - t0
+    iterations = []
+    coarse = _coarse_noise(noise)
+    if coarse is not None:
+        # a very precise IMU makes the initial attitude error (the pseudo-attitude's pitch misses the angle of
+        # attack by degrees) a huge, badly conditioned residual on which LM stalls at iteration 0: solve with
+        # tactical-grade noise first and start the real model from there
+        t0 = time.perf_counter()
+        p0 = build_problem(imu, frame, t_key, fixes, coarse, opts, mode, epochs, lc_fixes)
+        problem.values = optimize(p0, opts.max_iterations)
+        iterations.append(p0.iterations)
+        timing["coarse_pass_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     values = optimize(problem, opts.max_iterations)
     timing["optimize_s"] = time.perf_counter() - t0
-    iterations = [problem.iterations]
+    iterations.append(problem.iterations)
     sol = read_states(problem, values)
     if second_pass:
         # re-preintegrate with the gravity correction and about the estimated biases, start from pass one
