@@ -89,11 +89,9 @@ def test_proposed_boresight_within_3_sigma(campaign):
     assert np.all(np.abs(d_bore) < 3 * np.array(m["boresight_sigma_deg"]))
 
 
-@pytest.mark.xfail(reason="the LC smoother leaves part of the ADIS16488's horizontal accelerometer bias "
-                          "(2 mg turn-on) unresolved: a nearly constant 0.02-0.05 deg pitch error of the POS that "
-                          "the boresight absorbs (inseparable within one flight); needs a better-determined "
-                          "accelerometer bias in pos/smoother", strict=False)
 def test_proposed_boresight_within_0_02_deg(campaign):
+    # passed only after the smoother's preintegration stopped reading turns as x-accelerometer bias (a
+    # 0.04-0.06 deg pitch error common to the flight, which the boresight absorbed)
     m, _, _, d_bore = _errors(campaign, "proposed")
     assert np.all(np.abs(d_bore) < 0.02)
 
@@ -114,9 +112,12 @@ def test_dg_check_points_proposed_beats_traditional_iso_at_least_as_good(campaig
     assert chk["proposed"]["stats"]["n"] == 10
 
 
-@pytest.mark.xfail(reason="the smoothed heading scatters 2-3x its reported sigma (pos smoother), so the predicted "
-                          "budget is optimistic on this small flight (achieved/predicted 1.35; 0.94 on the demo)",
-                   strict=False)
+@pytest.mark.xfail(reason="the predicted budget is now PESSIMISTIC (achieved/predicted 3D 0.41 here, 0.17-0.59 over "
+                          "seeds 3/5/7/11, 0.31 on the demo): with pos_common_fraction = 1 the boresight sigma carries "
+                          "the POS attitude sigma and the per-image POS attitude sigma is added again although the "
+                          "boresight absorbs that common part; and the smoother's roll/pitch sigmas allow for the "
+                          "ADIS16488's axis misalignment, which the campaign's IMU does not have (roll errors 0.3 "
+                          "sigma, pitch 0.6-1 sigma)", strict=False)
 def test_dg_rmse_agrees_with_predicted_budget(campaign):
     chk = json.loads((campaign["out"] / "check" / "check.json").read_text())["checks"]["proposed"]
     ratio = chk["budget"]["ratio_achieved_to_predicted"]["3D"]
