@@ -126,6 +126,7 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
     # errors as differences of map coordinates (grid E, N, height)
     err = xyz_dg - xyz_ref
     # predicted covariances per source, rotated into grid axes
+    cov_mount = mount.covariance_for_flight(images)
     parts = {"image_measurements": res.cov[ok]}
     if poses.cov_pos is not None:
         Cp = poses.pos.cov
@@ -136,14 +137,14 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
             parts[name] = propagate_pose_covariance(res, Gp @ C @ T(Gp))[ok]
     for name, idx in (("delay", [0]), ("lever_arm", [1, 2, 3]), ("boresight", [4, 5, 6])):
         Cm = np.zeros((7, 7))
-        Cm[np.ix_(idx, idx)] = mount.cov[np.ix_(idx, idx)]
+        Cm[np.ix_(idx, idx)] = cov_mount[np.ix_(idx, idx)]
         parts[name] = propagate_pose_covariance(res, None, poses.G_mount, Cm)[ok]
     parts_grid = {k: R_L_to_grid @ v @ T(R_L_to_grid) for k, v in parts.items()}
     # all sources together, with the mounting correlations
     total = res.cov[ok].copy()
     if poses.cov_pos is not None:
         total += propagate_pose_covariance(res, poses.cov_pos)[ok]
-    total += propagate_pose_covariance(res, None, poses.G_mount, mount.cov)[ok]
+    total += propagate_pose_covariance(res, None, poses.G_mount, cov_mount)[ok]
     total_grid = R_L_to_grid @ total @ T(R_L_to_grid)
     stats = error_stats(err)
     pred = _rms_sigma(total_grid)
@@ -153,7 +154,9 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
                                               for k in ("E", "N", "U", "2D", "3D")},
               "mean_flying_height_m": float(np.mean(poses.r_cam_L[:, 2] - X_L[:, 2].mean())),
               "mean_speed_m_s": float(np.mean(np.linalg.norm(poses.pos.v_L, axis=1))),
-              "magnitudes": _magnitudes(traj, mount, m)}
+              "magnitudes": _magnitudes(traj, mount, m),
+              "mounting_covariance": ("random part (calibration flight: its POS common-mode error is counted "
+                                      "once, in the POS term)") if cov_mount is not mount.cov else "full"}
     sig = np.sqrt(np.diagonal(total_grid, axis1=1, axis2=2))
     return CheckResult(ids, xyz_dg, xyz_ref, err, res.n_rays[ok], sig, stats,
                        asprs_2023(err, pts.sigma[[pid[k] for k in ids]]), budget, warnings)

@@ -371,5 +371,21 @@ class MountingResult:
         if abs(np.linalg.det(R) - 1) > 1e-3 or np.max(np.abs(R.T @ R - np.eye(3))) > 1e-3:
             raise InputError("boresight_R_cam_to_body is not a rotation matrix", source, field="boresight_R_cam_to_body")
         U, _, Vt = np.linalg.svd(R)
+        per_epoch = d.get("per_epoch") if isinstance(d.get("per_epoch"), dict) else {}
+        extra = {k: d[k] for k in ("pos_common_fraction", "covariance_random") if k in d}
         return cls(str(d.get("method", "unknown")), lever, U @ Vt, delay, cov, int(d.get("n_epochs", 0)),
-                   list(d.get("rejected_epochs", [])), list(d.get("warnings", [])))
+                   list(d.get("rejected_epochs", [])), list(d.get("warnings", [])), per_epoch, extra)
+
+    def covariance_for_flight(self, images) -> np.ndarray:
+        """Mounting covariance to use for DG of `images`.
+
+        The POS error common to the calibration flight is in the mounting covariance (see
+        `pos_common_fraction`) and in every image's POS covariance. On the calibration flight itself it
+        is counted once, through the per-image POS covariance (the mounting's random part only; a
+        slight overestimate, since the mounting absorbed that error); on any other flight both count.
+        """
+        f = float(self.extra.get("pos_common_fraction", 0.0))
+        cal_images = set(map(str, self.per_epoch.get("image", [])))
+        if f > 0 and "covariance_random" in self.extra and cal_images and set(map(str, images)) <= cal_images:
+            return np.array(self.extra["covariance_random"], float).reshape(7, 7)
+        return self.cov

@@ -214,6 +214,7 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
                       "sigma_random": np.sqrt(np.diag(cov_random)).tolist(),
                       "sigma_pos_common_mode": np.sqrt(np.diag(cov_common)).tolist(),
                       "pos_common_fraction": float(pos_common_fraction),
+                      "covariance_random": [[float(v) for v in row] for row in cov_random],
                       "covariance_model": "per-epoch EOP and POS errors (scaled by max(1, sigma0^2)) plus "
                                           "pos_common_fraction x the mean POS covariance as an error common to all epochs",
                       "boresight_parameterisation": "unit quaternion with minimal 3-parameter multiplicative update "

@@ -112,12 +112,6 @@ def test_dg_check_points_proposed_beats_traditional_iso_at_least_as_good(campaig
     assert chk["proposed"]["stats"]["n"] == 10
 
 
-@pytest.mark.xfail(reason="the predicted budget is now PESSIMISTIC (achieved/predicted 3D 0.41 here, 0.17-0.59 over "
-                          "seeds 3/5/7/11, 0.31 on the demo): with pos_common_fraction = 1 the boresight sigma carries "
-                          "the POS attitude sigma and the per-image POS attitude sigma is added again although the "
-                          "boresight absorbs that common part; and the smoother's roll/pitch sigmas allow for the "
-                          "ADIS16488's axis misalignment, which the campaign's IMU does not have (roll errors 0.3 "
-                          "sigma, pitch 0.6-1 sigma)", strict=False)
 def test_dg_rmse_agrees_with_predicted_budget(campaign):
     chk = json.loads((campaign["out"] / "check" / "check.json").read_text())["checks"]["proposed"]
     ratio = chk["budget"]["ratio_achieved_to_predicted"]["3D"]
