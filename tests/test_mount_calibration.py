@@ -176,3 +176,16 @@ def test_common_mode_pos_errors_need_the_common_fraction():
     rms_common = float(np.sqrt(np.mean(np.square(z_common))))
     assert rms_indep > 1.6, rms_indep
     assert 0.6 < rms_common < 1.4, rms_common
+
+
+def test_dg_covariance_counts_the_common_mode_once_on_the_calibration_flight():
+    from calib.mounting_common import MountingResult
+    s = simulate_mounting(2, calibration={"pos_common_fraction": 1.0})
+    c = s.calibration
+    res = calibrate_mounting(c.eop, MapGrid(s.crs), c.traj, c.events, "proposed", pos_common_fraction=1.0)
+    back = MountingResult.from_json(res.to_json())  # what `dgcal check` reads
+    own = list(c.events.image[:5])
+    cov_own = back.covariance_for_flight(own)
+    assert np.all(np.diag(cov_own) < np.diag(back.cov))  # the random part only
+    np.testing.assert_allclose(cov_own, np.array(res.extra["covariance_random"]))
+    np.testing.assert_allclose(back.covariance_for_flight(["another_flight.jpg"]), back.cov)
