@@ -12,7 +12,11 @@ Observations:
     C_i = r_imu,i + v_i dt + R_b,i Exp(omega_i dt) l_b,   R_cv_to_L,i = R_b,i Exp(omega_i dt) Exp(theta_b) R_hat,
   weighted by the POS covariance (position and attitude).
 Solved with scipy `least_squares` (trust region, sparse finite-difference Jacobian grouped by its sparsity);
-the covariance of the mounting comes from the full normal matrix, scaled by max(1, sigma0^2).
+the covariance of the mounting comes from the full normal matrix, scaled by max(1, sigma0^2), plus
+`pos_common_fraction` x the mean POS covariance taken as an error common to all epochs (bias-driven tilt,
+GNSS biases of a smoothed MEMS POS do not average down over one flight): its effect on the mounting is the
+sensitivity S = N^-1 J^T B of the estimate to a constant POS error (B: whitened POS residuals per unit
+position error in L and attitude error about body axes), computed with the same Schur elimination.
 """
 from __future__ import annotations
 
@@ -37,9 +41,14 @@ DEFAULT_GCP_SIGMA = 0.02
 
 def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, meas: Measurements, gcp: Points,
                   camera, *, fix_delay: bool = False, max_nfev: int = 30,
-                  refine_intrinsics: tuple[str, ...] = ()) -> MountingResult:
+                  refine_intrinsics: tuple[str, ...] = (), pos_common_fraction: float = 0.0) -> MountingResult:
     """ISO mounting calibration; `eop` (e.g. a bundle or DG result) only initialises the image poses.
-    `refine_intrinsics` names camera parameters (e.g. ("f", "cx", "cy")) estimated in the same adjustment."""
+    `refine_intrinsics` names camera parameters (e.g. ("f", "cx", "cy")) estimated in the same adjustment.
+    `pos_common_fraction` (0-1): share of the POS error variance common to all epochs of the flight (as in
+    `calibrate_proposed`; 0 = independent per photo)."""
+    if not 0.0 <= pos_common_fraction <= 1.0:
+        raise InputError(f"pos_common_fraction must be within 0..1, got {pos_common_fraction}",
+                         field="--pos-common-fraction")
     bad = [k for k in refine_intrinsics if k not in camera.PARAMS]
     if bad:
         raise InputError(f"camera model {camera.NAME} has no parameter {bad[0]!r} ({', '.join(camera.PARAMS)})",
@@ -142,15 +151,37 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
                         xtol=1e-10, ftol=1e-10)
     dof = n_res - len(sol.x)
     sigma0_sq = float(2 * sol.cost / max(dof, 1))
-    cov_glob = _global_covariance(csr_matrix(sol.jac), n_pose, K, len(free_m) + n_intr) * max(1.0, sigma0_sq)
-    cov = np.zeros((7, 7))
-    nf = len(free_m)
-    cov[np.ix_(free_m, free_m)] = cov_glob[:nf, :nf]
     C, d, X, mt = unpack(sol.x)
     R_final = so3_exp(mt[4:7]) @ R_hat
+    # d(whitened POS residual)/d(POS error common to all epochs), at the solution: the POS observation enters
+    # the residual as in `calibrate_proposed` (position in L, attitude about body axes)
+    R_bf = pos.R_body_to_L @ so3_exp(pos.omega_b * mt[0])
+    Gf = np.zeros((M, 6, 6))
+    Gf[:, :3, :3] = -np.eye(3)
+    Gf[:, :3, 3:] = R_bf @ skew(mt[1:4])
+    Gf[:, 3:, 3:] = -R_final.T
+    B = np.zeros((n_res, 6))
+    B[n_res - 6 * M:] = np.einsum("nij,njk->nik", W_pos, Gf).reshape(-1, 6)
+    cof_glob, sens_glob = _global_covariance(csr_matrix(sol.jac), n_pose, K, len(free_m) + n_intr, rhs=B)
+    cov_glob_random = cof_glob * max(1.0, sigma0_sq)
+    cov_glob_common = pos_common_fraction * sens_glob @ C_pos.mean(axis=0) @ sens_glob.T
+    cov_glob = cov_glob_random + cov_glob_common
+    cov = np.zeros((7, 7))
+    cov_random = np.zeros((7, 7))
+    cov_common = np.zeros((7, 7))
+    nf = len(free_m)
+    cov[np.ix_(free_m, free_m)] = cov_glob[:nf, :nf]
+    cov_random[np.ix_(free_m, free_m)] = cov_glob_random[:nf, :nf]
+    cov_common[np.ix_(free_m, free_m)] = cov_glob_common[:nf, :nf]
     rpx = fun(sol.x)[:2 * n_obs].reshape(-1, 2) * sig_uv
+    # POS residuals at the solution (as `proposed`); the image list also tells `covariance_for_flight` which
+    # photos are this flight's, whose POS errors already carry the common part
+    p_f = pos.r_imu_L + pos.v_L * mt[0] + np.einsum("nij,j->ni", R_bf, mt[1:4])
+    e_f = np.column_stack([C - p_f, so3_log(T(R_bf @ R_final) @ (R0 @ so3_exp(d)))])
+    per_epoch = {"image": img_names, "residual_position_m": e_f[:, :3].tolist(),
+                 "residual_rotation_deg": np.degrees(e_f[:, 3:]).tolist()}
     res = MountingResult("iso", mt[1:4].copy(), R_final, 0.0 if fix_delay else float(mt[0]), cov, M, [],
-                         list(ep.warnings) + observability_warnings(ep), {})
+                         list(ep.warnings) + observability_warnings(ep), per_epoch)
     corr = res.correlation()
     for i in range(7):
         for j in range(i + 1, 7):
@@ -161,6 +192,12 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
                       "covariance_scaled_by": float(max(1.0, sigma0_sq)), "n_image_observations": int(n_obs),
                       "n_control_points": int(ctrl.sum()), "n_tie_points": int(K - ctrl.sum()),
                       "image_rms_px": float(np.sqrt(np.mean(rpx**2))), "iterations": int(sol.nfev),
+                      "sigma_random": np.sqrt(np.diag(cov_random)).tolist(),
+                      "sigma_pos_common_mode": np.sqrt(np.diag(cov_common)).tolist(),
+                      "pos_common_fraction": float(pos_common_fraction),
+                      "covariance_random": [[float(v) for v in row] for row in cov_random],
+                      "covariance_model": "normal matrix of the bundle (scaled by max(1, sigma0^2)) plus "
+                                          "pos_common_fraction x the mean POS covariance as an error common to all epochs",
                       "boresight_parameterisation": "unit quaternion with minimal 3-parameter multiplicative update",
                       "initialisation": {"method": "proposed", "delay_s": init.delay_s,
                                          "lever_arm_m": init.lever_arm_m.tolist()},
@@ -174,9 +211,11 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     return res
 
 
-def _global_covariance(J, n_pose: int, n_points: int, n_glob: int) -> np.ndarray:
+def _global_covariance(J, n_pose: int, n_points: int, n_glob: int, rhs: np.ndarray | None = None):
     """Covariance (cofactor) of the global parameters (mounting, intrinsics: the last `n_glob` columns) from a
-    sparse Jacobian [poses | points | globals]: points eliminated by their 3x3 blocks, then poses (Schur)."""
+    sparse Jacobian [poses | points | globals]: points eliminated by their 3x3 blocks, then poses (Schur).
+    With `rhs` (residuals per unit of some disturbance, (n_res, k)) also returns the globals' sensitivity
+    (N^-1 J^T rhs)[globals], (n_glob, k), through the same elimination."""
     i_pt = n_pose
     i_gl = n_pose + 3 * n_points
     Jc = J[:, np.r_[0:i_pt, i_gl:i_gl + n_glob]]   # poses and globals
@@ -191,14 +230,21 @@ def _global_covariance(J, n_pose: int, n_points: int, n_glob: int) -> np.ndarray
     from scipy.sparse import block_diag
     Ainv = block_diag(list(inv), format="csr") if n_points else None
     Ncc = (Jc.T @ Jc).toarray()
+    bc = None if rhs is None else np.asarray(Jc.T @ rhs)
     if n_points:
         W = (Jp.T @ Jc).tocsr()
         Ncc = Ncc - (W.T @ (Ainv @ W)).toarray()
+        if rhs is not None:
+            bc = bc - W.T @ (Ainv @ np.asarray(Jp.T @ rhs))
     # poses then globals: eliminate the poses
     P = Ncc[:n_pose, :n_pose]
     G = Ncc[:n_pose, n_pose:]
-    S = Ncc[n_pose:, n_pose:] - G.T @ np.linalg.solve(P, G)
-    return np.linalg.inv(S)
+    PinvG = np.linalg.solve(P, G)
+    S = Ncc[n_pose:, n_pose:] - G.T @ PinvG
+    cof = np.linalg.inv(S)
+    if rhs is None:
+        return cof
+    return cof, cof @ (bc[n_pose:] - PinvG.T @ bc[:n_pose])
 
 
 def calibrate_iso_files(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, meas_path: Path,

@@ -15,7 +15,7 @@ Campaign file (TOML, paths relative to it)::
     [pos]             # mode lc|tc, imu, events, gnss | rinex_obs + rinex_nav, imu_grade, lever_arm_gnss, set;
                       # or trajectory + events (an external POS, no step)
     [mount]           # method (proposed), compare = [more methods], measurements (for iso),
-                      # pos_common_fraction (proposed: share of the POS error common to the flight)
+                      # pos_common_fraction (proposed, iso: share of the POS error common to the flight)
     [check]           # gcp, measurements, events, trajectory (a DG check flight; default: the calibration flight)
 Every section may add `args = [...]`: extra arguments of its verb.
 """
@@ -191,7 +191,7 @@ def plan(cfg: dict, out: Path) -> list[Step]:
                                      cfg["_path"], field="mount.compare")
                 a += ["--camera", str(cam_json), "--gcp", str(gcp), "--measurements", str(meas)]
                 ins += [cam_json, gcp, meas]
-            if m == "proposed" and "pos_common_fraction" in mnt:
+            if m in ("proposed", "iso") and "pos_common_fraction" in mnt:
                 a += ["--pos-common-fraction", str(float(mnt["pos_common_fraction"]))]
             a += [str(v) for v in mnt.get("args", [])]
             steps.append(Step(f"mount_{m}", a, ins, [out / f"mount_{m}" / "mounting.json"], after=dep))

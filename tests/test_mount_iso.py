@@ -49,3 +49,37 @@ def test_iso_refines_intrinsics(sim):
         err = r.extra["intrinsics"][k] - sim.camera.params[i]
         assert abs(err) < 3 * r.extra["intrinsics_sigma"][k] + 0.05, (k, err)
     assert abs(r.delay_s - sim.delay_s) < 0.002
+
+
+def test_iso_pos_common_mode_sigmas_honest():
+    """POS errors common to the whole flight: with pos_common_fraction=1 the mounting sigmas match the errors,
+    with 0 (independent POS errors per photo) they are several times too small."""
+    cal = {"pos_common_fraction": 1.0, "pos_sigma": (0.01, 0.01, 0.015, 0.01, 0.01, 0.03)}
+    z1, z0 = [], []
+    for seed in range(3):
+        s = simulate_mounting(seed, calibration=cal)
+        c = s.calibration
+        r = calibrate_iso(c.eop, MapGrid(s.crs), c.traj, c.events, c.measurements, s.ground, s.camera,
+                          pos_common_fraction=1.0)
+        e = np.r_[r.delay_s - s.delay_s, r.lever_arm_m - s.lever_arm_m,
+                  so3_log(r.R_cam_to_body @ s.R_cam_to_body.T)]
+        z1.append(e / r.sigmas)
+        z0.append(e / np.sqrt(np.diag(np.array(r.extra["covariance_random"]))))
+        assert r.extra["pos_common_fraction"] == 1.0
+    # on the calibration flight itself the common part is carried by the POS: only the random part is used
+    assert np.allclose(r.covariance_for_flight(c.eop.image), np.array(r.extra["covariance_random"]))
+    assert np.allclose(r.covariance_for_flight(["elsewhere"]), r.cov)
+    assert np.abs(np.array(r.per_epoch["residual_rotation_deg"])).max() < 0.2
+    rms1, rms0 = np.sqrt(np.mean(np.square(z1))), np.sqrt(np.mean(np.square(z0)))
+    assert 0.5 < rms1 < 1.5, rms1
+    assert rms0 > 2.5, rms0
+    # the boresight cannot be known better than the common POS attitude error
+    assert np.all(np.degrees(r.sigmas[4:]) > 0.9 * np.array([0.01, 0.01, 0.03]))
+
+
+def test_iso_rejects_bad_pos_common_fraction(sim):
+    from fields.errors import InputError
+    c = sim.calibration
+    with pytest.raises(InputError, match="pos_common_fraction"):
+        calibrate_iso(c.eop, MapGrid(sim.crs), c.traj, c.events, c.measurements, sim.ground, sim.camera,
+                      pos_common_fraction=1.5)

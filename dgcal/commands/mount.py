@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-reject", action="store_true", help="keep every epoch (no chi-square rejection)")
     p.add_argument("--fix-delay", action="store_true", help="proposed/iso: hold the delay at 0")
     p.add_argument("--pos-common-fraction", type=float, default=0.0, metavar="F",
-                   help="proposed: share (0-1) of the POS error variance common to the whole flight, added to the "
+                   help="proposed/iso: share (0-1) of the POS error variance common to the whole flight, added to the "
                         "sigmas (0: independent per photo, as in the seed; 1: conservative for a MEMS smoother)")
     p.add_argument("--measurements", type=Path, help="iso: image measurements of ground points (or gcp_list.txt)")
     p.add_argument("--gcp", type=Path, help="iso: ground control points CSV (role check points are not used)")
@@ -48,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
         from calib.mounting_iso import calibrate_iso_files
         refine = tuple(k.strip() for k in args.refine_intrinsics.split(",") if k.strip())
         res = calibrate_iso_files(eop, grid, traj, events, args.measurements, args.gcp, args.camera,
-                                  fix_delay=args.fix_delay, refine_intrinsics=refine)
+                                  fix_delay=args.fix_delay, refine_intrinsics=refine,
+                                  pos_common_fraction=args.pos_common_fraction)
     else:
         kw = {} if args.method == "traditional" else {"reject": not args.no_reject, "fix_delay": args.fix_delay,
                                                       "pos_common_fraction": args.pos_common_fraction}
