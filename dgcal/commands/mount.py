@@ -57,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
     main = res.to_json()
     others = {}
     if args.method == "iso":
-        others["proposed"] = calibrate_mounting(eop, grid, traj, events, "proposed").to_json()
+        others["proposed"] = calibrate_mounting(eop, grid, traj, events, "proposed",
+                                                pos_common_fraction=args.pos_common_fraction).to_json()
     if args.method != "traditional":
         others["traditional"] = calibrate_mounting(eop, grid, traj, events, "traditional").to_json()
     with staged_dir(args.out) as tmp:
