@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from calib.camera_diagnostics import diagnose, projection_difference
-from calib.camera_models import Fraser7
 from calib.intrinsic_ba import adjust
+from calib.opencv_baseline import calibrate_with_opencv
 from fields.target_field import TargetField
 from sim.camera_field import default_camera, plan_shots
 
@@ -37,22 +37,6 @@ def scene(seed, n_images=48, square_m=0.08, truth=None, field=None):
     return truth, pts, img, pts.ids[idx], xy
 
 
-def opencv_calibrate(pts, img, ids, xy, size):
-    """OpenCV calibrateCamera (5 coefficients) on the same measurements of a planar (z = 0) field."""
-    import cv2
-    index = {k: i for i, k in enumerate(pts.ids)}
-    objs, imgs = [], []
-    for name in dict.fromkeys(img.tolist()):
-        m = img == name
-        objs.append(pts.xyz[[index[k] for k in ids[m]]].astype(np.float32))
-        imgs.append(xy[m].astype(np.float32))
-    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    rms, K, dist, _, _ = cv2.calibrateCamera(objs, imgs, size, None, None, criteria=crit)
-    d = dist.ravel()
-    return rms, Fraser7(size, [K[1, 1], K[0, 2], K[1, 2], d[0], d[1], d[4], d[2], d[3], K[0, 0] - K[1, 1],
-                               K[0, 1]])
-
-
 def test_projection_accuracy_and_opencv_comparison():
     # the simulator's lens has a small skew B2, which OpenCV's model cannot represent
     truth, pts, img, ids, xy = scene(1)
@@ -60,7 +44,7 @@ def test_projection_accuracy_and_opencv_comparison():
     res = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7")
     rms, mx, _ = projection_difference(truth, res.camera)
     assert rms < 0.03 and mx < 0.08, (rms, mx)
-    cv_rms, cv_cam = opencv_calibrate(pts, img, ids, xy, SIZE)
+    cv_rms, cv_cam = calibrate_with_opencv(pts, img, ids, xy, SIZE)
     cv_diff, cv_max, _ = projection_difference(truth, cv_cam)
     assert rms < cv_diff and mx < cv_max, (rms, cv_diff, mx, cv_max)
     assert res.rms_px <= cv_rms  # same definition: sqrt(mean |v|^2) per point
@@ -78,7 +62,7 @@ def test_same_model_as_opencv_gives_the_same_accuracy():
     truth, pts, img, ids, xy = scene(2, truth=truth)
     res = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7", fixed=("B2",))
     rms, mx, _ = projection_difference(truth, res.camera)
-    cv_rms, cv_cam = opencv_calibrate(pts, img, ids, xy, SIZE)
+    cv_rms, cv_cam = calibrate_with_opencv(pts, img, ids, xy, SIZE)
     cv_diff, cv_max, _ = projection_difference(truth, cv_cam)
     assert rms < 0.03 and mx < 0.08, (rms, mx)
     # equal up to the few 4-sigma tail points the robust rejection removes from Gaussian noise
