@@ -14,23 +14,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def _errors(sol, traj):
-    st = traj.at(sol.t)
-    dp = sol.p_nav - sol.frame.from_ecef(st.p_ecef)
-    R_true = np.einsum("ji,kjl->kil", sol.frame.R_nav_to_ecef, st.R_body_to_ecef)
-    dth = Rotation.from_matrix(np.einsum("kji,kjl->kil", R_true, sol.R_body_to_nav)).as_rotvec()
-    sp = np.sqrt(np.einsum("kii->ki", sol.cov_p_nav))
-    sa = np.sqrt(np.einsum("kii->ki", sol.cov_pose[:, :3, :3]))
-    return dp, dth, sp, sa
 
 
 def _rms(x, axis=0):
@@ -40,7 +29,7 @@ def _rms(x, axis=0):
 def acceptance(seeds, duration, rate):
     from pos.pipeline import process
     from pos.spp import SppOptions
-    from sim.pos import simulate_pos
+    from sim.pos import navigation_errors, simulate_pos
     for seed in seeds:
         t0 = time.time()
         sim = simulate_pos(seed=seed, duration_s=duration, rate_hz=rate)
@@ -55,7 +44,7 @@ def acceptance(seeds, duration, rate):
                         events=sim.events)
             wall = time.time() - t0
             for name, sol in (("smoothed", r.smoothed), ("forward", r.forward)):
-                dp, dth, sp, sa = _errors(sol, sim.traj)
+                dp, dth, sp, sa = navigation_errors(sol, sim.traj)
                 inside = (sol.t >= t0_out) & (sol.t <= t1_out)
                 ev = ""
                 if name == "smoothed":

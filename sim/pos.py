@@ -90,6 +90,19 @@ def true_trajectory(traj, t) -> object:
     return Trajectory(t=st.t, lat=st.lat, lon=st.lon, h=st.h, v_ned=st.v_ned, rph=st.rph)
 
 
+def navigation_errors(sol, traj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Errors of a smoother solution against the true flight: position (K,3) m in nav axes, attitude (K,3) rad
+    as a body-frame rotation vector, and the solution's sigmas of both."""
+    from scipy.spatial.transform import Rotation
+    st = traj.at(sol.t)
+    dp = sol.p_nav - sol.frame.from_ecef(st.p_ecef)
+    R_true = np.einsum("ji,kjl->kil", sol.frame.R_nav_to_ecef, st.R_body_to_ecef)
+    dth = Rotation.from_matrix(np.einsum("kji,kjl->kil", R_true, sol.R_body_to_nav)).as_rotvec()
+    sp = np.sqrt(np.einsum("kii->ki", sol.cov_p_nav))
+    sa = np.sqrt(np.einsum("kii->ki", sol.cov_pose[:, :3, :3]))
+    return dp, dth, sp, sa
+
+
 def write_pos_dataset(out, sim: PosSimulation) -> dict:
     """Write the files of a simulated data set into `out` (staged: all or nothing); returns truth.json."""
     from fields.csvio import atomic_write, staged_dir

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 pytest.importorskip("gtsam")
+
+from sim.pos import navigation_errors  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -28,23 +29,12 @@ def flight():
     return out
 
 
-def errors(sol, traj):
-    """Position (K,3) m and attitude (K,3) rad errors (nav axes / body rotation vector) and their sigmas."""
-    st = traj.at(sol.t)
-    dp = sol.p_nav - sol.frame.from_ecef(st.p_ecef)
-    R_true = np.einsum("ji,kjl->kil", sol.frame.R_nav_to_ecef, st.R_body_to_ecef)
-    dth = Rotation.from_matrix(np.einsum("kji,kjl->kil", R_true, sol.R_body_to_nav)).as_rotvec()
-    sp = np.sqrt(np.einsum("kii->ki", sol.cov_p_nav))
-    sa = np.sqrt(np.einsum("kii->ki", sol.cov_pose[:, :3, :3]))
-    return dp, dth, sp, sa
-
-
 def rms(x, axis=0):
     return np.sqrt(np.mean(np.asarray(x) ** 2, axis=axis))
 
 
 def test_tc_accuracy(flight):
-    dp, dth, _, _ = errors(flight["tc"].smoothed, flight["sim"].traj)
+    dp, dth, _, _ = navigation_errors(flight["tc"].smoothed, flight["sim"].traj)
     assert np.sqrt(np.mean(np.sum(dp ** 2, axis=1))) <= 1.0
     att = np.degrees(rms(dth))  # about body x/y/z: ~roll/pitch/heading for a near-level UAV
     assert att[0] <= 0.05 and att[1] <= 0.05
@@ -67,7 +57,7 @@ def test_tc_event_attitude_in_rph(flight):
 
 @pytest.mark.parametrize("mode", ["tc", "lc"])
 def test_sigmas_cover_the_errors(flight, mode):
-    dp, dth, sp, sa = errors(flight[mode].smoothed, flight["sim"].traj)
+    dp, dth, sp, sa = navigation_errors(flight[mode].smoothed, flight["sim"].traj)
     nees_p = rms((dp / sp).ravel())
     nees_a = rms((dth / sa).ravel())
     assert 0.7 <= nees_p <= 1.4, nees_p
@@ -76,8 +66,8 @@ def test_sigmas_cover_the_errors(flight, mode):
 
 def test_smoother_beats_forward(flight):
     for mode in ("tc", "lc"):
-        s = errors(flight[mode].smoothed, flight["sim"].traj)
-        f = errors(flight[mode].forward, flight["sim"].traj)
+        s = navigation_errors(flight[mode].smoothed, flight["sim"].traj)
+        f = navigation_errors(flight[mode].forward, flight["sim"].traj)
         assert rms(np.linalg.norm(s[0], axis=1)) < 0.5 * rms(np.linalg.norm(f[0], axis=1))
         assert rms(np.linalg.norm(s[1], axis=1)) < 0.5 * rms(np.linalg.norm(f[1], axis=1))
         # the forward solution's own sigmas are honest too (it is a proper filter)
@@ -91,13 +81,13 @@ def test_outage_with_three_satellites(flight):
     inside = (tc.t >= t0 + 1) & (tc.t <= t1 - 1)
     assert inside.sum() >= 55
     assert np.all(tc.n_sat[inside] <= nmax) and np.all(tc.gnss_update[inside])  # TC still uses the 3
-    dp = errors(tc, sim.traj)[0]
+    dp = navigation_errors(tc, sim.traj)[0]
     assert np.max(np.linalg.norm(dp[inside], axis=1)) <= 3.0
     inside_lc = (lc.t >= t0 + 1) & (lc.t <= t1 - 1)
     assert not lc.gnss_update[inside_lc].any()  # SPP has no fix there: LC has no GNSS update
     # the forward TC filter stays bounded through the outage while forward LC drifts
-    f_tc = errors(flight["tc"].forward, sim.traj)[0]
-    f_lc = errors(flight["lc"].forward, sim.traj)[0]
+    f_tc = navigation_errors(flight["tc"].forward, sim.traj)[0]
+    f_lc = navigation_errors(flight["lc"].forward, sim.traj)[0]
     assert np.max(np.linalg.norm(f_tc[inside], axis=1)) < np.max(np.linalg.norm(f_lc[inside_lc], axis=1))
 
 
@@ -124,6 +114,6 @@ def test_initialisation_in_a_turn():
     opts = SppOptions(code_sigma_zenith_m=sim.sigma_pr, doppler_sigma_zenith_mps=sim.sigma_doppler,
                       model_errors=False, systems=("G", "E"))
     r = process("tc", imu, sim.grade, sim.lever_arm_b, raw_obs=obs, nav=sim.nav, spp_opts=opts, forward=False)
-    dp, dth, sp, sa = errors(r.smoothed, sim.traj)
+    dp, dth, sp, sa = navigation_errors(r.smoothed, sim.traj)
     assert np.sqrt(np.mean(np.sum(dp ** 2, axis=1))) < 1.0
     assert np.all(np.degrees(rms(dth))[:2] < 0.1)
