@@ -2,41 +2,78 @@
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import pkgutil
 import sys
 import traceback
+from pathlib import Path
 
 from fields.errors import InputError
 
 
-def _verb_modules(package: str):
+_ARGV: list[str] | None = None  # the command line being parsed; None builds every verb (slow, complete)
+
+
+def _verb_index(package: str):
+    """(NAME, HELP, module) of every verb module of `package`, read from the source without importing it.
+
+    Importing every verb (and every simulator) pulls in scipy, OpenCV and gtsam; `dgcal --help` and each
+    command only import the module they run.
+    """
     pkg = importlib.import_module(package)
     for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda i: i.name):
         if info.name.startswith("_"):
             continue
-        mod = importlib.import_module(f"{package}.{info.name}")
-        if hasattr(mod, "NAME") and hasattr(mod, "run"):
-            yield mod
+        path = Path(pkg.__path__[0]) / f"{info.name}.py"
+        if not path.is_file():
+            continue
+        consts, has_run = {}, False
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name) \
+                    and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str):
+                consts[node.targets[0].id] = node.value.value
+            has_run |= isinstance(node, ast.FunctionDef) and node.name == "run"
+        if "NAME" in consts and has_run:
+            yield consts["NAME"], consts.get("HELP", ""), f"{package}.{info.name}"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every verb found in dgcal.commands."""
+def rest_after(word: str) -> list[str] | None:
+    """The words of the command line after `word` (None when every verb is being built)."""
+    if _ARGV is None:
+        return None
+    return _ARGV[_ARGV.index(word) + 1:] if word in _ARGV else []
+
+
+def add_verbs(sub, package: str, argv: list[str] | None, run_key: str = "_run") -> None:
+    """Add the verbs of `package` to subparsers `sub`; only the one named first in `argv` is imported."""
+    word = None if argv is None else next((a for a in argv if not a.startswith("-")), None)
+    for name, help_text, modname in _verb_index(package):
+        if argv is not None and name != word:
+            sub.add_parser(name, help=help_text)  # listed by --help; loaded when chosen
+            continue
+        mod = importlib.import_module(modname)
+        p = sub.add_parser(name, help=help_text, description=getattr(mod, "__doc__", None))
+        mod.add_arguments(p)
+        p.set_defaults(**{run_key: mod.run})
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser: every verb of dgcal.commands (all loaded when `argv` is None, else the chosen one)."""
+    global _ARGV
+    _ARGV = None if argv is None else list(argv)
     parser = argparse.ArgumentParser(prog="dgcal", description="Calibrate UAV payloads for direct georeferencing.")
     parser.add_argument("--debug", action="store_true", help="show the full traceback on errors")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     sub.required = True
-    for mod in _verb_modules("dgcal.commands"):
-        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "__doc__", None))
-        mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+    add_verbs(sub, "dgcal.commands", _ARGV)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `dgcal` console script; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(argv).parse_args(argv)
     try:
         return int(args._run(args) or 0)
     except InputError as exc:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from dgcal.cli import _verb_modules
+from dgcal.cli import add_verbs, rest_after
 
 NAME = "simulate"
 HELP = "simulate a synthetic data set with known truth"
@@ -12,10 +12,7 @@ HELP = "simulate a synthetic data set with known truth"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="what", metavar="WHAT")
     sub.required = True
-    for mod in _verb_modules("sim"):
-        q = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "__doc__", None))
-        mod.add_arguments(q)
-        q.set_defaults(_sim_run=mod.run)
+    add_verbs(sub, "sim", rest_after(NAME), run_key="_sim_run")
 
 
 def run(args: argparse.Namespace) -> int:
