@@ -20,8 +20,8 @@ class ImuNoise:
     gyro_bias_rw / accel_bias_rw: bias random-walk densities, rad/s/sqrt(s) and m/s^2/sqrt(s);
     gyro_bias_sigma / accel_bias_sigma: turn-on bias sigma (prior on the first bias), rad/s and m/s^2.
     *_scale / *_misalign: residual scale-factor (fraction) and axis-misalignment (rad) sigmas; not estimated,
-    they act as a bias proportional to the rate / specific force and are absorbed by letting the bias
-    states move when the rates change (see `interval_params`).
+    they act as an error proportional to the rate / specific force during manoeuvres and are carried as
+    extra white noise there (see `interval_params`).
     """
 
     gyro_arw: float
@@ -112,14 +112,19 @@ def split_at_keyframes(t_imu: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t
     return ImuSegments(gyro[idx], accel[idx], dt, key_pos)
 
 
-def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_rotation: bool = True) -> list:
-    """Preintegration parameters per keyframe interval, with the scale/misalignment errors as bias motion.
+def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_rotation: bool = True,
+                    window_s: float = 10.0) -> list:
+    """Preintegration parameters per keyframe interval, with the scale/misalignment errors as turn noise.
 
-    A scale error s and misalignment m turn a rate change dw into an apparent bias change of variance
-    s^2 dw_i^2 + m^2 sum_{j!=i} dw_j^2 per axis (a change spread over neighbouring intervals counted as
-    one). That variance is added to the interval's bias random walk,
-    and a quarter of it (the bias is held at its start value within the interval) to the white noise.
-    Returns None entries where nothing is added (the shared base parameters are used).
+    A scale error s and misalignment m make an error s*d_i + m*sum_{j!=i} d_j proportional to the deviation d
+    of the rate (specific force) from its flight median: it lasts as long as the manoeuvre and vanishes
+    after it, so it is NOT a bias change (a bias allowed to jump at a turn entry stays wrong on the next
+    straight line, which spoiled pitch 3x and heading 10x at the end of a flight). It is added as white
+    noise whose integral over the manoeuvre has the variance of the correlated error: an interval with
+    deviation |d_k| gets density s^2 |d_k| A_k, A_k the integral of |d| within `window_s` s around it, so a
+    turn through an angle A within the window accumulates (s A)^2; a longer manoeuvre (continuous circling) is
+    taken as correlated over the window only (a 180 deg turn at 13 deg/s gets ~90 % of (s A)^2).
+    Returns None entries where nothing is added.
     """
     K = len(seg.start) - 1
     if not (noise.gyro_scale or noise.gyro_misalign or noise.accel_scale or noise.accel_misalign) or K < 2:
@@ -127,25 +132,22 @@ def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_ro
     T = np.add.reduceat(seg.dt, seg.start[:-1])
     wbar = np.add.reduceat(seg.gyro * seg.dt[:, None], seg.start[:-1]) / T[:, None]
     fbar = np.add.reduceat(seg.accel * seg.dt[:, None], seg.start[:-1]) / T[:, None]
+    t_mid = np.cumsum(T) - 0.5 * T
 
-    def jump_var(x, s, m, half_window: int = 3):
-        # a rate change spread over several intervals (a turn entry) is one correlated jump: give each
-        # interval |d_k| times the total change around it, so the variances add up to (s * total)^2
-        a = np.abs(np.diff(x, axis=0, append=x[-1:]))
-        c = np.cumsum(np.vstack([np.zeros((1, 3)), a]), axis=0)
-        idx = np.arange(len(a))
-        lo, hi = np.clip(idx - half_window, 0, len(a)), np.clip(idx + half_window + 1, 0, len(a))
+    def turn_density(x, s, m):
+        a = np.abs(x - np.median(x, axis=0))
+        c = np.vstack([np.zeros((1, 3)), np.cumsum(a * T[:, None], axis=0)])
+        lo = np.searchsorted(t_mid, t_mid - window_s, side="left")
+        hi = np.searchsorted(t_mid, t_mid + window_s, side="right")
         aw = a * (c[hi] - c[lo])
         return s ** 2 * aw + m ** 2 * (aw.sum(1, keepdims=True) - aw)
-    qg = jump_var(wbar, noise.gyro_scale, noise.gyro_misalign)
-    qa = jump_var(fbar, noise.accel_scale, noise.accel_misalign)
+    qg = turn_density(wbar, noise.gyro_scale, noise.gyro_misalign)
+    qa = turn_density(fbar, noise.accel_scale, noise.accel_misalign)
     out = []
     for k in range(K):
         p = preintegration_params(noise, frame, earth_rotation)
-        p.setBiasOmegaCovariance(np.diag(noise.gyro_bias_rw ** 2 + qg[k] / T[k]))
-        p.setBiasAccCovariance(np.diag(noise.accel_bias_rw ** 2 + qa[k] / T[k]))
-        p.setGyroscopeCovariance(np.diag(noise.gyro_arw ** 2 + qg[k] * T[k] / 4.0))
-        p.setAccelerometerCovariance(np.diag(noise.accel_vrw ** 2 + qa[k] * T[k] / 4.0))
+        p.setGyroscopeCovariance(np.diag(noise.gyro_arw ** 2 + qg[k]))
+        p.setAccelerometerCovariance(np.diag(noise.accel_vrw ** 2 + qa[k]))
         out.append(p)
     return out
 

@@ -205,3 +205,27 @@ def test_forward_pass_meets_the_smoother_at_the_last_epoch():
     tr_s = np.trace(Ps[:, 3:6, 3:6], axis1=1, axis2=2)
     assert np.all(tr_f >= tr_s * (1 - 1e-9))
     assert np.mean(tr_f) > 1.2 * np.mean(tr_s)
+
+
+def test_scale_and_misalignment_are_turn_noise_not_bias_jumps():
+    """A 180 deg turn between straight lines: the extra gyro noise integrates to (scale * 180 deg)^2 on the turn
+    axis, (misalignment * 180 deg)^2 on the others, nothing on the straights, and the bias walk is unchanged."""
+    from pos.smoother_imu import ImuNoise, ImuSegments, interval_params
+    dt = 0.5
+    t = np.arange(0.0, 120.0, dt)
+    w = np.where((t >= 50.0) & (t < 50.0 + np.pi / 0.4), 0.4, 0.0)  # 0.4 rad/s for pi rad, shorter than the window
+    n = len(t)
+    gyro = np.column_stack([np.zeros(n), np.zeros(n), w])
+    accel = np.tile([0.0, 0.0, -9.8], (n, 1))
+    seg = ImuSegments(gyro, accel, np.full(n, dt), np.arange(n + 1))
+    noise = ImuNoise(gyro_arw=1e-4, accel_vrw=5e-4, gyro_bias_rw=1e-6, accel_bias_rw=4e-5, gyro_bias_sigma=1e-4,
+                     accel_bias_sigma=2e-2, gyro_scale=5e-4, gyro_misalign=3e-4)
+    ps = interval_params(noise, NavFrame(23.0, 120.0, 0.0), seg, earth_rotation=False)
+    extra = np.array([np.diag(p.getGyroscopeCovariance()) - noise.gyro_arw ** 2 for p in ps])
+    total = (extra * dt).sum(0)
+    angle = (w * dt).sum()  # pi, to the sampling
+    assert total[2] == pytest.approx((5e-4 * angle) ** 2, rel=1e-6)
+    assert total[0] == pytest.approx((3e-4 * angle) ** 2, rel=1e-6)
+    assert np.all(extra[t < 45.0] == 0) and np.all(extra[t > 50.0 + np.pi / 0.4 + 11.0] == 0)
+    for p in ps:
+        assert np.allclose(np.diag(p.getBiasOmegaCovariance()), noise.gyro_bias_rw ** 2)
