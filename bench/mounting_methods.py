@@ -78,7 +78,8 @@ def main(seed: int = 7) -> None:
                   so3_log(r.R_cam_to_body @ sim.R_cam_to_body.T)]
         with np.errstate(divide="ignore", invalid="ignore"):
             z = np.where(r.sigmas > 0, np.abs(e) / r.sigmas, np.nan)
-        ck = check_points_dg(g, mp.traj, mp.events, r, sim.camera, mp.measurements, sim.ground, ("check", "control"))
+        ck = check_points_dg(g, mp.traj, mp.events, r, sim.camera, mp.measurements, sim.ground, ("check", "control"),
+                             pos_correlation_time_s=sim.noise["pos_error_kernel_s"])
         print(f"{name:12s} {dt:6.1f} {e[0] * 1e3:10.2f} {np.array2string(e[1:4] * 100, precision=2):>24s} "
               f"{np.array2string(np.degrees(e[4:]), precision=4):>24s} {np.nanmax(z):7.2f} "
               f"{ck.stats['rms']['3D']:11.3f} {ck.budget['predicted_rms']['3D']:7.3f}")

@@ -103,13 +103,23 @@ def intersect(camera, C_w: np.ndarray, R_cv_to_w: np.ndarray, obs_image: np.ndar
 
 
 def propagate_pose_covariance(res: IntersectionResult, pose_cov: np.ndarray | None = None,
-                              common_G: np.ndarray | None = None, common_cov: np.ndarray | None = None) -> np.ndarray:
-    """(K,3,3) point covariance from independent pose covariances (M,6,6) and common parameters (e.g. the
-    mounting) whose effect on the poses is `common_G` (M,6,q) with covariance `common_cov` (q,q)."""
+                              common_G: np.ndarray | None = None, common_cov: np.ndarray | None = None,
+                              pose_corr: np.ndarray | None = None) -> np.ndarray:
+    """(K,3,3) point covariance from pose covariances (M,6,6) and common parameters (e.g. the mounting) whose
+    effect on the poses is `common_G` (M,6,q) with covariance `common_cov` (q,q).
+
+    Pose errors are independent between images unless `pose_corr` (M,M) gives their correlation: the
+    cross-covariance of images m and n is then rho_mn S_m S_n^T with S the Cholesky factors of their
+    covariances (a navigation error that changes slowly does not average out over the rays of one strip)."""
     K = res.xyz.shape[0]
     out = np.zeros((K, 3, 3))
-    if pose_cov is not None:
+    if pose_cov is not None and pose_corr is None:
         out += np.einsum("kmij,mjl,kmnl->kin", res.dX_dpose, pose_cov, res.dX_dpose)
+    elif pose_cov is not None:
+        tiny = 1e-12 * np.trace(pose_cov, axis1=1, axis2=2).max() * np.eye(6)
+        S = np.linalg.cholesky(pose_cov + tiny)
+        A = np.einsum("kmij,mja->kmia", res.dX_dpose, S)
+        out += np.einsum("kmia,mn,knja->kij", A, pose_corr, A)
     if common_G is not None and common_cov is not None:
         A = np.einsum("kmij,mjq->kiq", res.dX_dpose, common_G)
         out += A @ common_cov @ np.swapaxes(A, -1, -2)

@@ -85,6 +85,24 @@ class CheckResult:
                                                        self.n_rays, self.sigma_pred)]}
 
 
+def straight_segment_time(traj: Trajectory, turn_rate_deg_s: float = 3.0, min_s: float = 5.0) -> float:
+    """Median duration (s) of the straight stretches of a trajectory, between turns faster than
+    `turn_rate_deg_s`; the whole span when it never turns.
+
+    A GNSS/INS attitude error is held by the sensor biases between manoeuvres and re-estimated in each turn,
+    so this is the correlation time of the POS errors along a photogrammetric flight."""
+    t = np.asarray(traj.t, float)
+    if len(t) < 3:
+        return float(t[-1] - t[0]) if len(t) else 0.0
+    psi = np.unwrap(np.radians(traj.rph[:, 2]))
+    rate = np.degrees(np.abs(np.gradient(psi, t)))
+    straight = rate < turn_rate_deg_s
+    edges = np.flatnonzero(np.diff(np.r_[0, straight.astype(int), 0]))
+    runs = [t[min(b, len(t)) - 1] - t[a] for a, b in zip(edges[::2], edges[1::2])]
+    runs = [r for r in runs if r >= min_s]
+    return float(np.median(runs)) if runs else float(t[-1] - t[0])
+
+
 def _rms_sigma(cov_grid: np.ndarray) -> dict:
     """RMS over points of the predicted sigma E, N, U, 2D, 3D (m) from (K,3,3) covariances in grid axes."""
     v = np.mean(np.diagonal(cov_grid, axis1=1, axis2=2), axis=0)
@@ -93,8 +111,13 @@ def _rms_sigma(cov_grid: np.ndarray) -> dict:
 
 
 def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: MountingResult, camera,
-                    meas: Measurements, points: Points, roles=("check",), min_rays: int = 2) -> CheckResult:
-    """Intersect measured check points from DG EOPs and compare with their reference coordinates (map CRS)."""
+                    meas: Measurements, points: Points, roles=("check",), min_rays: int = 2,
+                    pos_correlation_time_s: float | str | None = "auto") -> CheckResult:
+    """Intersect measured check points from DG EOPs and compare with their reference coordinates (map CRS).
+
+    `pos_correlation_time_s` (s): in the predicted budget the POS errors of two images dt apart are correlated
+    exp(-|dt|/tau); "auto" takes tau from the trajectory (`straight_segment_time`), None or 0 treats them as
+    independent (optimistic: the rays of one strip share its error, they do not average it out)."""
     sel = np.isin(points.role, roles)
     pts = points.subset(sel)
     if len(pts.ids) == 0:
@@ -128,13 +151,19 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
     # predicted covariances per source, rotated into grid axes
     cov_mount = mount.covariance_for_flight(images)
     parts = {"image_measurements": res.cov[ok]}
+    corr, tau = None, pos_correlation_time_s
+    if tau == "auto":
+        tau = straight_segment_time(traj)
+    if poses.cov_pos is not None and tau:
+        dt = np.abs(poses.t_exposure[:, None] - poses.t_exposure[None, :])
+        corr = np.exp(-dt / float(tau))
     if poses.cov_pos is not None:
         Cp = poses.pos.cov
         for name, sl in (("pos_position", slice(0, 3)), ("pos_attitude", slice(3, 6))):
             C = np.zeros_like(Cp)
             C[:, sl, sl] = Cp[:, sl, sl]
             Gp = _pos_to_pose(poses, mount)
-            parts[name] = propagate_pose_covariance(res, Gp @ C @ T(Gp))[ok]
+            parts[name] = propagate_pose_covariance(res, Gp @ C @ T(Gp), pose_corr=corr)[ok]
     for name, idx in (("delay", [0]), ("lever_arm", [1, 2, 3]), ("boresight", [4, 5, 6])):
         Cm = np.zeros((7, 7))
         Cm[np.ix_(idx, idx)] = cov_mount[np.ix_(idx, idx)]
@@ -143,7 +172,7 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
     # all sources together, with the mounting correlations
     total = res.cov[ok].copy()
     if poses.cov_pos is not None:
-        total += propagate_pose_covariance(res, poses.cov_pos)[ok]
+        total += propagate_pose_covariance(res, poses.cov_pos, pose_corr=corr)[ok]
     total += propagate_pose_covariance(res, None, poses.G_mount, cov_mount)[ok]
     total_grid = R_L_to_grid @ total @ T(R_L_to_grid)
     stats = error_stats(err)
@@ -155,6 +184,9 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
               "mean_flying_height_m": float(np.mean(poses.r_cam_L[:, 2] - X_L[:, 2].mean())),
               "mean_speed_m_s": float(np.mean(np.linalg.norm(poses.pos.v_L, axis=1))),
               "magnitudes": _magnitudes(traj, mount, m),
+              "pos_correlation_time_s": float(tau) if tau else None,
+              "pos_correlation_model": (f"exp(-|dt|/{float(tau):.0f} s) between images" if tau
+                                        else "independent between images"),
               "mounting_covariance": ("random part (calibration flight: its POS common-mode error is counted "
                                       "once, in the POS term)") if cov_mount is not mount.cov else "full"}
     sig = np.sqrt(np.diagonal(total_grid, axis1=1, axis2=2))

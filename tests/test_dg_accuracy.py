@@ -44,8 +44,9 @@ def test_proposed_beats_traditional_on_check_points_and_meets_budget(sim):
     stats = {}
     for m in ("traditional", "proposed"):
         r = calibrate_mounting(c.eop, g, c.traj, c.events, m)
+        # this simulator's POS errors are correlated over 0.3 s only: independent between the photos
         ck = check_points_dg(g, mp.traj, mp.events, r, sim.camera, mp.measurements, sim.ground,
-                             roles=("check", "control"))
+                             roles=("check", "control"), pos_correlation_time_s=sim.noise["pos_error_kernel_s"])
         stats[m] = ck.stats
         if m == "proposed":
             ratio = ck.budget["ratio_achieved_to_predicted"]["3D"]
@@ -72,3 +73,19 @@ def test_statistics_follow_seed_table_2_and_4():
     assert np.isclose(a["RMSE_H"], np.hypot(*np.sqrt(np.mean(e[:, :2] ** 2, axis=0))))
     assert a["product_RMSE_H"] > a["RMSE_H"] and not a["warnings"]
     assert asprs_2023(e[:20])["warnings"]  # fewer than 30 check points
+
+
+def test_straight_segment_time_of_a_racetrack():
+    from calib.dg_accuracy import straight_segment_time
+    from fields.formats import Trajectory
+    t = np.arange(0.0, 400.0, 0.1)
+    # 60 s straight, 180 deg turn in 15 s (12 deg/s), repeated
+    period = 75.0
+    ph = t % period
+    psi = 180.0 * (t // period) + np.where(ph < 60.0, 0.0, 12.0 * (ph - 60.0))
+    n = len(t)
+    traj = Trajectory(t, np.full(n, 23.7), np.full(n, 120.6), np.full(n, 400.0), np.zeros((n, 3)),
+                      np.column_stack([np.zeros(n), np.zeros(n), psi % 360.0]))
+    assert straight_segment_time(traj) == pytest.approx(60.0, abs=0.5)
+    still = Trajectory(t, np.full(n, 23.7), np.full(n, 120.6), np.full(n, 400.0), np.zeros((n, 3)), np.zeros((n, 3)))
+    assert straight_segment_time(still) == pytest.approx(t[-1] - t[0])

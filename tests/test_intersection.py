@@ -75,3 +75,28 @@ def test_single_ray_points_are_not_ok():
     keep = ~((pt == 0) & (img != img[pt == 0][0]))
     res = intersect(cam, C, R, img[keep], pt[keep], uv[keep], n_points=len(X))
     assert not res.ok[0] and np.isnan(res.xyz[0]).all() and res.ok[1:].all()
+
+
+def test_correlated_pose_errors():
+    cam, C, R, X, img, pt, uv = _scene(4)
+    res = intersect(cam, C, R, img, pt, uv, n_points=len(X))
+    M = len(C)
+    rng = np.random.default_rng(0)
+    cov = np.array([np.diag(rng.uniform(0.5, 2.0, 6)) * [1e-4, 1e-4, 1e-4, 1e-8, 1e-8, 1e-8] for _ in range(M)])
+    # identity correlation: the independent propagation
+    assert np.allclose(propagate_pose_covariance(res, cov, pose_corr=np.eye(M)), propagate_pose_covariance(res, cov))
+    # full correlation of equal covariances: one error common to all poses
+    same = np.repeat(cov[:1], M, axis=0)
+    G = np.repeat(np.eye(6)[None], M, axis=0)
+    assert np.allclose(propagate_pose_covariance(res, same, pose_corr=np.ones((M, M))),
+                       propagate_pose_covariance(res, None, G, same[0]), rtol=1e-6, atol=1e-14)
+    # and against a Monte Carlo of correlated errors
+    rho = np.exp(-np.abs(np.subtract.outer(np.arange(M), np.arange(M))) / 2.0)
+    Lr = np.linalg.cholesky(rho)
+    S = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
+    e = np.einsum("mn,snj->smj", Lr, rng.standard_normal((4000, M, 6))) * S  # (samples, M, 6)
+    dX = np.einsum("kmij,smj->ski", res.dX_dpose, e)
+    mc = np.einsum("ski,skj->kij", dX, dX) / len(e)
+    pred = propagate_pose_covariance(res, cov, pose_corr=rho)
+    ok = res.ok
+    assert np.allclose(np.diagonal(mc[ok], axis1=1, axis2=2), np.diagonal(pred[ok], axis1=1, axis2=2), rtol=0.1)

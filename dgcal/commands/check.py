@@ -20,6 +20,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", required=True, type=Path, help="camera file (camera.json, ...)")
     p.add_argument("--crs", required=True, help="CRS of the ground points")
     p.add_argument("--all-points", action="store_true", help="use control points as check points too")
+    p.add_argument("--pos-correlation-time", type=float, default=None, metavar="S",
+                   help="correlation time (s) of the POS errors between images in the predicted budget "
+                        "(default: the median straight-strip duration of the trajectory; 0: independent)")
     p.add_argument("--out", required=True, type=Path, help="output directory (check.json, check.html, check_points.csv)")
 
 
@@ -55,7 +58,9 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, json.JSONDecodeError) as exc:
             raise InputError(f"cannot read mounting file ({exc})", path) from None
         m = MountingResult.from_json(d, str(path))
-        checks[_label(Path(path), m.method, seen)] = check_points_dg(grid, traj, events, m, camera, meas, pts, roles)
+        tau = "auto" if args.pos_correlation_time is None else args.pos_correlation_time
+        checks[_label(Path(path), m.method, seen)] = check_points_dg(grid, traj, events, m, camera, meas, pts, roles,
+                                                                     pos_correlation_time_s=tau)
     names = list(checks)
     js = {k: v.to_json() for k, v in checks.items()}
     imp = improvement_table({k: v.stats for k, v in checks.items()}, names[0]) if len(names) > 1 else None
