@@ -403,7 +403,7 @@ lever_arm_gnss = [{", ".join(f"{v:g}" for v in lever_g)}]{extra}
 [mount]                       # system calibration: the method to use and the ones to compare
 method = "proposed"
 compare = ["traditional", "iso"]
-measurements = "flight/measurements_gcp.csv"   # iso: image measurements of the ground points
+# iso adjusts the triangulation's image measurements (tie and ground points) with the POS as observations
 pos_common_fraction = 1.0     # the smoother's attitude error is mostly a bias common to the flight
 
 [check]                       # DG accuracy on the check points (here: the calibration flight itself)
