@@ -98,7 +98,7 @@ def straight_segment_time(traj: Trajectory, turn_rate_deg_s: float = 3.0, min_s:
     rate = np.degrees(np.abs(np.gradient(psi, t)))
     straight = rate < turn_rate_deg_s
     edges = np.flatnonzero(np.diff(np.r_[0, straight.astype(int), 0]))
-    runs = [t[min(b, len(t)) - 1] - t[a] for a, b in zip(edges[::2], edges[1::2])]
+    runs = [t[b - 1] - t[a] for a, b in zip(edges[::2], edges[1::2])]
     runs = [r for r in runs if r >= min_s]
     return float(np.median(runs)) if runs else float(t[-1] - t[0])
 
@@ -159,10 +159,10 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
         corr = np.exp(-dt / float(tau))
     if poses.cov_pos is not None:
         Cp = poses.pos.cov
+        Gp = _pos_to_pose(poses, mount)
         for name, sl in (("pos_position", slice(0, 3)), ("pos_attitude", slice(3, 6))):
             C = np.zeros_like(Cp)
             C[:, sl, sl] = Cp[:, sl, sl]
-            Gp = _pos_to_pose(poses, mount)
             parts[name] = propagate_pose_covariance(res, Gp @ C @ T(Gp), pose_corr=corr)[ok]
     for name, idx in (("delay", [0]), ("lever_arm", [1, 2, 3]), ("boresight", [4, 5, 6])):
         Cm = np.zeros((7, 7))

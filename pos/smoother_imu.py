@@ -119,7 +119,7 @@ def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_ro
     A scale error s and misalignment m make an error s*d_i + m*sum_{j!=i} d_j proportional to the deviation d
     of the rate (specific force) from its flight median: it lasts as long as the manoeuvre and vanishes
     after it, so it is NOT a bias change (a bias allowed to jump at a turn entry stays wrong on the next
-    straight line, which spoiled pitch 3x and heading 10x at the end of a flight). It is added as white
+    straight line, which spoiled pitch 3x, and heading 30x on the last strip of a flight). It is added as white
     noise whose integral over the manoeuvre has the variance of the correlated error: an interval with
     deviation |d_k| gets density s^2 |d_k| A_k, A_k the integral of |d| within `window_s` s around it, so a
     turn through an angle A within the window accumulates (s A)^2; a longer manoeuvre (continuous circling) is
