@@ -105,3 +105,14 @@ def test_errors_name_the_bad_input(files, tmp_path, capsys):
     rot.write_text(good.read_text().replace("[0, 0, 1]]", "[0, 0, 2]]"))
     assert main(["compare", str(good), str(rot)]) == 2
     assert "rotation" in capsys.readouterr().err
+
+
+def test_check_rejects_a_negative_correlation_time(files, tmp_path, capsys):
+    m = files / "mapping"
+    rc = main(["check", "--mounting", str(tmp_path / "none.json"), "--trajectory", str(m / "trajectory.csv"),
+               "--events", str(m / "events.csv"), "--measurements", str(m / "measurements.csv"),
+               "--gcp", str(files / "ground.csv"), "--camera", str(files / "camera.json"), "--crs", "EPSG:32651",
+               "--pos-correlation-time", "-5", "--out", str(tmp_path / "check")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--pos-correlation-time" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "check").exists()

@@ -44,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
     from fields.formats import read_events, read_points, read_trajectory
     from reports.mount_report import check_report_html
 
+    if args.pos_correlation_time is not None and not args.pos_correlation_time >= 0:
+        raise InputError(f"must be a time >= 0 s, not {args.pos_correlation_time}", field="--pos-correlation-time")
     grid = MapGrid(args.crs)
     traj = read_trajectory(args.trajectory)
     events = read_events(args.events)
