@@ -23,10 +23,10 @@ def main() -> None:
     ap.add_argument("--tie", type=int, default=50000, help="simulated tie points")
     ap.add_argument("--out", help="keep the simulated data here")
     args = ap.parse_args()
-    from bundle.triangulation import TriangulationOptions, triangulate
-    from calib.camera_formats import load_camera
-    from fields.formats import read_eop, read_measurements, read_points
-    from sim.flight import simulate_flight
+    from dgcal.bundle.triangulation import TriangulationOptions, triangulate
+    from dgcal.calib.camera.files import load_camera
+    from dgcal.fields.io.formats import read_eop, read_measurements, read_points
+    from dgcal.sim.flight import simulate_flight
 
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="bench_bundle_"))
     t0 = time.perf_counter()

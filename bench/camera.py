@@ -13,8 +13,8 @@ import numpy as np
 
 def simulate(n_images: int, square_m: float, seed: int, size=(5472, 3648), noise_px=0.1):
     """Projected field corners (px) with Gaussian noise for a fraser7 truth; returns truth, points, image, id, xy."""
-    from fields.target_field import TargetField
-    from sim.camera_field import default_camera, plan_shots
+    from dgcal.fields.targets.plate import TargetField
+    from dgcal.sim.camera_field import default_camera, plan_shots
     rng = np.random.default_rng(seed)
     tf = TargetField(square_m=square_m, marker_m=0.75 * square_m)
     pts = tf.points()
@@ -34,15 +34,15 @@ def simulate(n_images: int, square_m: float, seed: int, size=(5472, 3648), noise
 
 def opencv_calibrate(pts, img, ids, xy, size, rational=False):
     """Time (s), RMS (px) and model of OpenCV calibrateCamera on the same measurements."""
-    from calib.opencv_baseline import calibrate_with_opencv
+    from dgcal.calib.selfcal.opencv_baseline import calibrate_with_opencv
     t0 = time.perf_counter()
     rms, cam = calibrate_with_opencv(pts, img, ids, xy, size, rational)
     return time.perf_counter() - t0, rms, cam
 
 
 def bench_adjustment(n_images: int, square_m: float, seed: int) -> None:
-    from calib.camera_diagnostics import projection_difference
-    from calib.intrinsic_ba import adjust
+    from dgcal.calib.selfcal.diagnostics import projection_difference
+    from dgcal.calib.selfcal.adjustment import adjust
     size = (5472, 3648)
     truth, pts, img, ids, xy = simulate(n_images, square_m, seed, size)
     n_img = len(set(img.tolist()))
@@ -71,8 +71,8 @@ def bench_adjustment(n_images: int, square_m: float, seed: int) -> None:
 
 
 def bench_detection(n_images: int) -> None:
-    from calib.detection import detect_folder
-    from sim.camera_field import simulate_camera_field
+    from dgcal.calib.selfcal.detection import detect_folder
+    from dgcal.sim.camera_field import simulate_camera_field
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
         simulate_camera_field(Path(d) / "sim", seed=1, n_images=n_images, image_size=(5472, 3648), progress=False)

@@ -23,7 +23,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=3)
     args = ap.parse_args()
     from dgcal.campaign import run_campaign
-    from sim.campaign import simulate_campaign
+    from dgcal.sim.campaign import simulate_campaign
 
     root = args.keep or Path(tempfile.mkdtemp(prefix="dgcal-bench-"))
     data, out = root / "data", root / "results"

@@ -25,10 +25,10 @@ def main() -> None:
 
     import cv2
 
-    from calib.detection import CharucoPlateDetector, detect_folder, read_gray
-    from fields.csvio import read_table
-    from fields.target_field import TargetField
-    from sim.camera_field import simulate_camera_field
+    from dgcal.calib.selfcal.detection import CharucoPlateDetector, detect_folder, read_gray
+    from dgcal.fields.io.csv_tables import read_table
+    from dgcal.fields.targets.plate import TargetField
+    from dgcal.sim.camera_field import simulate_camera_field
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(a.out or tmp)

@@ -21,8 +21,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true", help="shorter runs")
     args = ap.parse_args()
-    from sim.forward_camera import flow_attitude_study, format_table2, make_forward_camera_sim
-    from sim.lowcost_flight import (compare_ukf_smoother, format_accuracy_table, format_table6, georef_campaign,
+    from dgcal.sim.forward_camera import flow_attitude_study, format_table2, make_forward_camera_sim
+    from dgcal.sim.lowcost_flight import (compare_ukf_smoother, format_accuracy_table, format_table6, georef_campaign,
                                     simulate_lowcost_flight)
 
     dur = 120.0 if args.quick else 360.0

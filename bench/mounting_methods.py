@@ -19,10 +19,10 @@ sys.path.insert(0, str(_HERE.parent))
 
 def bundle_eop(sim, flight):
     """EOPs (map CRS, with full covariances) of a GCP-only bundle of the flight's image measurements."""
-    from bundle.adjustment import BundleInput, adjust
-    from bundle.intersection import intersect
-    from calib.dg import pose_cov_to_map
-    from fields.formats import EOP
+    from dgcal.bundle.adjustment import BundleInput, adjust
+    from dgcal.bundle.intersection import intersect
+    from dgcal.calib.dg.eop import pose_cov_to_map
+    from dgcal.fields.io.formats import EOP
     frame = flight.frame
     names = [str(s) for s in flight.eop.image]
     C0, R0 = frame.eop_to_L(flight.eop.xyz, flight.eop.opk)
@@ -42,7 +42,7 @@ def bundle_eop(sim, flight):
             prior[j] = frame.map_to_L(sim.ground.xyz[r][None])[0]
             psig[j] = sim.ground.sigma[r]
     inp = BundleInput(sim.camera, names, np.swapaxes(R0, -1, -2), C0, pts, X0, oi, op, m.xy, m.sigma, prior, psig)
-    from bundle.adjustment import BundleOptions
+    from dgcal.bundle.adjustment import BundleOptions
     res = adjust(inp, BundleOptions(loss="none"))
     R_cv = np.swapaxes(res.R_world_to_cv, -1, -2)
     xyz, opk = frame.L_to_eop(res.C_world, R_cv)
@@ -53,12 +53,12 @@ def bundle_eop(sim, flight):
 
 
 def main(seed: int = 7) -> None:
-    from calib.dg_accuracy import check_points_dg
-    from calib.mounting import calibrate_mounting
-    from calib.mounting_common import so3_log
-    from calib.mounting_iso import calibrate_iso
-    from fields.crs import MapGrid
-    from sim.mounting import simulate_mounting
+    from dgcal.calib.dg.accuracy import check_points_dg
+    from dgcal.calib.mounting.methods import calibrate_mounting
+    from dgcal.calib.mounting.common import so3_log
+    from dgcal.calib.mounting.integrated import calibrate_iso
+    from dgcal.fields.crs import MapGrid
+    from dgcal.sim.mounting import simulate_mounting
     sim = simulate_mounting(seed)
     c, mp, g = sim.calibration, sim.mapping, MapGrid(sim.crs)
     t = time.perf_counter()

@@ -27,9 +27,9 @@ def _rms(x, axis=0):
 
 
 def acceptance(seeds, duration, rate):
-    from pos.pipeline import process
-    from pos.spp import SppOptions
-    from sim.pos import navigation_errors, simulate_pos
+    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss.spp import SppOptions
+    from dgcal.sim.pos import navigation_errors, simulate_pos
     for seed in seeds:
         t0 = time.time()
         sim = simulate_pos(seed=seed, duration_s=duration, rate_hz=rate)
@@ -63,10 +63,10 @@ def acceptance(seeds, duration, rate):
 
 
 def benchmark(hours, rate, systems):
-    from pos.imu_io import ImuData
-    from pos.pipeline import process
-    from pos.spp import SppOptions
-    from sim.pos import simulate_pos
+    from dgcal.pos.ins.imu_data import ImuData
+    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss.spp import SppOptions
+    from dgcal.sim.pos import simulate_pos
     t0 = time.time()
     sim = simulate_pos(seed=0, duration_s=hours * 3600.0, rate_hz=rate, systems=systems, n_strips=10,
                        strip_length_m=1000.0, strip_spacing_m=100.0)

@@ -19,12 +19,12 @@ DATA = ROOT.parent / "shared" / "data" / "rinex-sept"
 REF_ECEF = np.array([-3962108.673, 3381309.574, 3668678.638])
 
 
-from pos.rtklib_bridge import rtklib_pntpos  # noqa: E402  (after the sys.path set-up)
+from dgcal.pos.gnss.rtklib import rtklib_pntpos  # noqa: E402  (after the sys.path set-up)
 
 
 def enu_errors(p_ecef: np.ndarray) -> np.ndarray:
-    from fields.crs import ecef_to_geodetic
-    from fields.frames import R_ecef_to_enu
+    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.fields.frames import R_ecef_to_enu
     lat, lon, _ = ecef_to_geodetic(REF_ECEF)
     return (p_ecef - REF_ECEF) @ R_ecef_to_enu(lat, lon).T
 
@@ -40,8 +40,8 @@ def summary(name: str, p: np.ndarray) -> str:
 def main() -> None:
     obs_path = sys.argv[1] if len(sys.argv) > 2 else str(DATA / "SEPT078M1.21O")
     nav_path = sys.argv[2] if len(sys.argv) > 2 else str(DATA / "SEPT078M.21P")
-    from pos.rinex import read_rinex_nav, read_rinex_obs
-    from pos.spp import SppOptions, spp
+    from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
+    from dgcal.pos.gnss.spp import SppOptions, spp
 
     t0 = time.perf_counter()
     nav = read_rinex_nav(nav_path)
@@ -70,7 +70,7 @@ def main() -> None:
         print("pyrtklib not installed: .venv/bin/pip install pyrtklib==0.2.7")
 
     # simulated: a 10-minute circle at 1 Hz
-    from sim.gnss import DEFAULT_T0_GPS, circle_trajectory, simulate_gnss
+    from dgcal.sim.gnss import DEFAULT_T0_GPS, circle_trajectory, simulate_gnss
     t = DEFAULT_T0_GPS + np.arange(0.0, 600.0)
     p, v = circle_trajectory(t, 35.3, 139.5, 100.0, 200.0, 15.0)
     t5 = time.perf_counter()

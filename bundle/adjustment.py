@@ -21,8 +21,8 @@ import scipy.sparse as sp
 from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial.transform import Rotation
 
-from calib.camera_models import CameraModel
-from fields.frames import skew
+from dgcal.calib.camera.models import CameraModel
+from dgcal.fields.frames import skew
 
 FIXED_SIGMA = 1e-6   # sigma (m) that stands for "fixed" coordinates: keeps one code path for weighted and fixed
 

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bundle.adjustment import BundleResult
+from dgcal.bundle.adjustment import BundleResult
 
 CRITICAL_W = 4.0   # |w| above this (two-sided, about 1e-4 false alarm per coordinate) marks a suspect
 

@@ -1,6 +1,6 @@
 """The link between a map CRS and the local Cartesian frame of the adjustment, for points and EOPs.
 
-The adjustment runs in a local ENU frame at the field centre (`fields.crs.LocalENU`). Map coordinates
+The adjustment runs in a local ENU frame at the field centre (`dgcal.fields.crs.LocalENU`). Map coordinates
 are (grid E, grid N, height); heights are ellipsoidal unless a geoid is given, in which case map
 heights are orthometric and `h = H + N` with N from a constant or a PROJ vertical grid.
 EOP angles (PATB omega/phi/kappa) refer to grid-level axes at the projection centre (docs/conventions.md):
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from fields.crs import LocalENU, MapGrid, parse_crs
-from fields.errors import InputError
-from fields.frames import R_cv_to_map_from_opk, R_enu_to_grid, opk_from_R_cv_to_map
+from dgcal.fields.crs import LocalENU, MapGrid, parse_crs
+from dgcal.fields.errors import InputError
+from dgcal.fields.frames import R_cv_to_map_from_opk, R_enu_to_grid, opk_from_R_cv_to_map
 
 
 class Georef:
@@ -93,7 +93,7 @@ class Georef:
         g = self.frame.to_geodetic(p)
         R_here_to_local = self.frame.R_enu_here_to_local(g[:, 0], g[:, 1])
         gamma = self.grid.convergence_deg(g[:, 0], g[:, 1])
-        # (N,1) angles: fields.frames.R_enu_to_grid passes them to scipy's from_euler as one axis each
+        # (N,1) angles: dgcal.fields.frames.R_enu_to_grid passes them to scipy's from_euler as one axis each
         return R_enu_to_grid(np.asarray(gamma)[:, None]).reshape(-1, 3, 3) @ np.swapaxes(R_here_to_local, -1, -2)
 
     # --- orientations -----------------------------------------------------------------------

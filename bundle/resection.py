@@ -1,12 +1,12 @@
 """Initial exterior orientation: PnP resection from known points and incremental growth through tie points.
 
-Frames as in `bundle.adjustment`: `R_world_to_cv`, `C_world` in a local Cartesian world frame (m).
+Frames as in `dgcal.bundle.adjustment`: `R_world_to_cv`, `C_world` in a local Cartesian world frame (m).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from calib.camera_models import CameraModel
+from dgcal.calib.camera.models import CameraModel
 
 
 def pnp(camera: CameraModel, uv: np.ndarray, X_world: np.ndarray, threshold_px: float = 4.0,

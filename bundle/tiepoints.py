@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fields.errors import InputError
-from fields.formats import Measurements
+from dgcal.fields.errors import InputError
+from dgcal.fields.io.formats import Measurements
 
 COLMAP_PIXEL_SHIFT = 0.5
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")

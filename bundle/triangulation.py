@@ -4,9 +4,9 @@
 1. sorts measured ids into control (role control), check (role check) and tie points (not in the ground
    point file), and warns about anything it cannot use (ids without measurements, points seen once,
    images without measurements or that cannot be oriented) instead of dropping it silently;
-2. moves everything into a local ENU frame at the control centroid (`bundle.georef.Georef`);
+2. moves everything into a local ENU frame at the control centroid (`dgcal.bundle.georef.Georef`);
 3. orients images by PnP from control and growing through tie points, or from approximate EOPs;
-4. runs the bundle adjustment (`bundle.adjustment`), tests GCP measurements for blunders (standardised
+4. runs the bundle adjustment (`dgcal.bundle.adjustment`), tests GCP measurements for blunders (standardised
    residuals), removes the worst one at a time while any exceeds the critical value, and re-adjusts;
 5. intersects check points from the adjusted images and reports their errors in E, N, Up;
 6. converts EOPs and their 6x6 covariances to the map CRS (grid-level PATB angles).
@@ -18,13 +18,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bundle.adjustment import BundleInput, BundleOptions, BundleResult, adjust
-from bundle.blunders import CRITICAL_W, Suspect, find_suspects, standardized
-from bundle.georef import Georef
-from bundle.resection import grow_orientation, relative_bootstrap
-from calib.camera_models import CameraModel
-from fields.errors import InputError
-from fields.formats import EOP, Measurements, Points
+from dgcal.bundle.adjustment import BundleInput, BundleOptions, BundleResult, adjust
+from dgcal.bundle.blunders import CRITICAL_W, Suspect, find_suspects, standardized
+from dgcal.bundle.georef import Georef
+from dgcal.bundle.resection import grow_orientation, relative_bootstrap
+from dgcal.calib.camera.models import CameraModel
+from dgcal.fields.errors import InputError
+from dgcal.fields.io.formats import EOP, Measurements, Points
 
 DEFAULT_SIGMA_PX = 0.5          # image measurement sigma when the file gives none
 DEFAULT_GCP_SIGMA_M = (0.02, 0.02, 0.03)
@@ -333,7 +333,7 @@ def _readjust(inp: BundleInput, active: np.ndarray, bopt: BundleOptions, prev: B
 
 
 def _pose_cov_right(cov_pose: np.ndarray) -> np.ndarray:
-    """Pose covariances in bundle.intersection's convention: [C, rotation as a right perturbation of
+    """Pose covariances in dgcal.bundle.intersection's convention: [C, rotation as a right perturbation of
     R_cv_to_world]. Ours perturb R_world_to_cv on the left by d, i.e. R_cv_to_world on the right by -d:
     the centre/rotation cross blocks change sign."""
     c = np.array(cov_pose, float)
@@ -344,9 +344,9 @@ def _pose_cov_right(cov_pose: np.ndarray) -> np.ndarray:
 
 def _check_points(camera, res: BundleResult, geo: Georef, points: Points, meas: Measurements,
                   is_check: np.ndarray, images_k: list[str], msgs: list[str], opt) -> list[dict]:
-    """Intersect check points from the adjusted images (bundle.intersection, pixel and pose covariance);
+    """Intersect check points from the adjusted images (dgcal.bundle.intersection, pixel and pose covariance);
     errors (intersected - given) and sigmas in grid E, N, Up."""
-    from bundle.intersection import intersect, propagate_pose_covariance
+    from dgcal.bundle.intersection import intersect, propagate_pose_covariance
     im_idx = {n: i for i, n in enumerate(images_k)}
     pidx = points.index()
     rows = np.array([r for r in np.nonzero(is_check)[0] if str(meas.image[r]) in im_idx], int)

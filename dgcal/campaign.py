@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from fields.errors import InputError
+from dgcal.fields.errors import InputError
 
 STATE = ".dgcal-state.json"
 
@@ -291,7 +291,7 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
         print(f"[{step.name}] done in {timings[step.name]:.1f} s", file=log, flush=True)
     result = {"steps": done, "timings_s": timings, "report": None}
     if report:
-        from reports.campaign_report import write_campaign_report
+        from dgcal.reports.campaign import write_campaign_report
         t0 = time.perf_counter()
         paths = write_campaign_report(cfg, out, steps=done, timings=timings)
         timings["report"] = time.perf_counter() - t0

@@ -9,7 +9,7 @@ import sys
 import traceback
 from pathlib import Path
 
-from fields.errors import InputError
+from dgcal.fields.errors import InputError
 
 
 _ARGV: list[str] | None = None  # the command line being parsed; None builds every verb (slow, complete)

@@ -7,8 +7,8 @@ from functools import cached_property
 import numpy as np
 import pyproj
 
-from fields.errors import InputError
-from fields.frames import R_ecef_to_enu, R_enu_to_grid
+from dgcal.fields.errors import InputError
+from dgcal.fields.frames import R_ecef_to_enu, R_enu_to_grid
 
 ECEF = "EPSG:4978"
 GEODETIC = "EPSG:4979"  # lat, lon, ellipsoidal height

@@ -70,7 +70,7 @@ def R_enu_to_grid(convergence_deg) -> np.ndarray:
     """Rotation from local ENU to grid-level axes (grid E, grid N, Up) given the meridian convergence.
 
     `convergence_deg` is the true azimuth of grid north (clockwise from true north), see
-    `fields.crs.MapGrid.convergence_deg`; a vector of true azimuth a has grid azimuth a - convergence.
+    `dgcal.fields.crs.MapGrid.convergence_deg`; a vector of true azimuth a has grid azimuth a - convergence.
     """
     c = np.asarray(convergence_deg, float)
     return Rotation.from_euler("z", c.reshape(-1, 1), degrees=True).as_matrix().reshape(c.shape + (3, 3))

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fields.errors import InputError
-from pos.smoother_init import GnssFixes
+from dgcal.fields.errors import InputError
+from dgcal.pos.smoother.initial import GnssFixes
 
 
 @dataclass
@@ -24,7 +24,7 @@ class PosResult:
     mode: str
     smoothed: object  # NavSolution
     forward: object | None
-    trajectory: object  # fields.formats.Trajectory at the output rate
+    trajectory: object  # dgcal.fields.io.formats.Trajectory at the output rate
     keyframes: object  # Trajectory at the keyframes
     forward_keyframes: object | None
     events: object | None
@@ -34,9 +34,9 @@ class PosResult:
 
 
 def fixes_from_spp(sol) -> GnssFixes:
-    """GnssFixes (antenna ECEF, NED sigmas) from a pos.spp.SppSolution's epochs with a fix."""
-    from fields.crs import ecef_to_geodetic
-    from fields.frames import R_ecef_to_ned
+    """GnssFixes (antenna ECEF, NED sigmas) from a dgcal.pos.gnss.spp.SppSolution's epochs with a fix."""
+    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.fields.frames import R_ecef_to_ned
     ok = sol.ok
     p = sol.p_ecef[ok]
     geo = ecef_to_geodetic(p)
@@ -53,9 +53,9 @@ def fixes_from_spp(sol) -> GnssFixes:
 
 def read_gnss_csv(path) -> GnssFixes:
     """LC input: gnss.csv of `dgcal pos --mode spp` (or any CSV with gps_week,gps_sow,x,y,z[,sx..,vx..])."""
-    from fields.crs import ecef_to_geodetic
-    from fields.csvio import read_table
-    from fields.frames import R_ecef_to_ned
+    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.fields.io.csv_tables import read_table
+    from dgcal.fields.frames import R_ecef_to_ned
     tab = read_table(path, ("gps_week", "gps_sow", "x", "y", "z"), ("sx", "sy", "sz", "vx", "vy", "vz",
                                                                      "svx", "svy", "svz"))
     for name in ("x", "y", "z"):
@@ -88,8 +88,8 @@ def read_gnss_csv(path) -> GnssFixes:
 def tc_epochs(raw, nav, spp_sol, opts):
     """GNSS epochs for the TC smoother: SPP's modelled epochs where it had a fix; elsewhere (fewer than four
     satellites, RAIM failure) the raw epoch modelled at the SPP track interpolated in time."""
-    from pos.gnss_types import GnssObservations
-    from pos.spp import prepare_epoch
+    from dgcal.pos.gnss.observations import GnssObservations
+    from dgcal.pos.gnss.spp import prepare_epoch
     ok = spp_sol.ok
     if ok.sum() < 2:
         raise InputError("fewer than two epochs with a GNSS fix: cannot initialise", raw.source or None)
@@ -112,11 +112,11 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
             lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool = True,
             smoother_opts=None, progress: bool = False) -> PosResult:
     """Run SPP (when RINEX is given), the smoother (TC or LC), the forward solution and the outputs in memory."""
-    from pos.forward_filter import forward_solution
-    from pos.interpolate import trajectory_at_events
-    from pos.smoother import SmootherOptions, smooth
-    from pos.smoother_output import densify, solution_trajectory
-    from pos.spp import SppOptions, spp
+    from dgcal.pos.smoother.forward_filter import forward_solution
+    from dgcal.pos.ins.interpolate import trajectory_at_events
+    from dgcal.pos.smoother.batch import SmootherOptions, smooth
+    from dgcal.pos.smoother.output import densify, solution_trajectory
+    from dgcal.pos.gnss.spp import SppOptions, spp
     if mode not in ("tc", "lc"):
         raise InputError(f"mode must be tc or lc, not {mode!r}", field="--mode")
     import time
@@ -193,7 +193,7 @@ def _stats(rows) -> dict:
 
 def load_imu(path, gps_week: int | None = None):
     """IMU file by extension: .csv = `gps_week,gps_sow,gx..az` increments, else KF-GINS text (sow dθ dv)."""
-    from pos.imu_io import read_imu_csv, read_kf_gins
+    from dgcal.pos.ins.imu_data import read_imu_csv, read_kf_gins
     path = Path(path)
     if not path.is_file():
         raise InputError("file not found", path)
@@ -235,16 +235,16 @@ def parse_settings(items) -> dict:
 def run_pos(args=None, report_writer=None, **kw) -> int:
     """CLI entry (`dgcal pos --mode tc|lc`): an argparse Namespace, or keyword arguments of the same names.
 
-    `report_writer(path, PosResult)` writes DIR/report.html (reports.pos_report.write_pos_report, handed
+    `report_writer(path, PosResult)` writes DIR/report.html (dgcal.reports.pos.write_pos_report, handed
     in by the command because `pos` must not import `reports`).
     """
     import argparse
     a = args if isinstance(args, argparse.Namespace) else argparse.Namespace(**kw)
     g = lambda name, default=None: getattr(a, name, default)  # noqa: E731
-    from fields.csvio import atomic_write, staged_dir
-    from fields.formats import read_events, write_trajectory
-    from pos.imu_grades import imu_grade
-    from pos.spp import SppOptions
+    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+    from dgcal.fields.io.formats import read_events, write_trajectory
+    from dgcal.pos.ins.error_model import imu_grade
+    from dgcal.pos.gnss.spp import SppOptions
     mode = g("mode")
     extra = parse_settings(g("extra") or [])
     if not g("imu"):
@@ -261,7 +261,7 @@ def run_pos(args=None, report_writer=None, **kw) -> int:
     spp_opts = None
     week = int(np.floor(events.t[0] / 604800.0)) if len(events) else None
     if g("rinex_obs") and g("rinex_nav"):
-        from pos.rinex import read_rinex_nav, read_rinex_obs
+        from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
         systems = tuple(s for s in str(g("systems", "GECJ")).upper() if s in "GECJ")
         spp_opts = SppOptions(elev_mask_deg=g("elev_mask", 10.0), code_sigma_zenith_m=g("code_sigma", 0.3),
                               doppler_sigma_zenith_mps=g("doppler_sigma", 0.1), systems=systems or ("G",),
@@ -278,7 +278,7 @@ def run_pos(args=None, report_writer=None, **kw) -> int:
         lc = read_gnss_csv(g("gnss"))
         week = int(np.floor(lc.t[0] / 604800.0))
     imu = load_imu(g("imu"), gps_week=week)
-    from pos.smoother import SmootherOptions
+    from dgcal.pos.smoother.batch import SmootherOptions
     rate = float(extra.pop("rate", 10.0))
     forward = bool(extra.pop("forward", True))
     sm = SmootherOptions(**extra)

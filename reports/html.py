@@ -8,7 +8,7 @@ import io
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from fields.csvio import atomic_write
+from dgcal.fields.io.csv_tables import atomic_write
 
 _STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;

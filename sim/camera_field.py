@@ -2,7 +2,7 @@
 
 The plate turns about its normal in equal steps; for every plate angle the camera takes one photo from each
 of a few stations (tilt 0, 30, 45 degrees, two distances, landscape and portrait) so the targets cover the
-whole frame, corners included. Images are rendered exactly through the camera model (sim.render), then
+whole frame, corners included. Images are rendered exactly through the camera model (dgcal.sim.render), then
 blurred, vignetted, noised and written as JPEG. Writes `images/*.jpg`, `field.csv` (+ `field.json`),
 `truth.json` (camera, poses R_plate_to_cam/t_plate_to_cam, noise, seed) and `truth_measurements.csv`
 (noise-free projections of every visible target; column `complete` = 1 when the target's four squares lie
@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.camera_models import CameraModel, Fraser7
-from fields.csvio import atomic_write, staged_dir, write_table
-from fields.target_field import TargetField, nonplanar_field, write_field
-from sim.render import Facet, RayGrid, facet_depth_at, render
+from dgcal.calib.camera.models import CameraModel, Fraser7
+from dgcal.fields.io.csv_tables import atomic_write, staged_dir, write_table
+from dgcal.fields.targets.plate import TargetField, nonplanar_field, write_field
+from dgcal.sim.render import Facet, RayGrid, facet_depth_at, render
 
 NAME = "camera-field"
 HELP = "rendered JPEG photos of the rotating coded-target plate with known fraser7 truth"
@@ -88,7 +88,7 @@ def plan_shots(n_images: int, camera: CameraModel, tf: TargetField, rng: np.rand
 
 def plate_facets(tf: TargetField, texel_m: float) -> list[Facet]:
     """The plate (and its raised blocks with grey side walls) as facets in the plate frame."""
-    from fields.field_print import plate_texture
+    from dgcal.fields.targets.printing import plate_texture
     grey, alpha = plate_texture(tf, texel_m)
     grey = np.rint(grey * 65535).astype(np.uint16)  # half the memory of float32, still 16-bit smooth
     alpha = np.rint(alpha * 255).astype(np.uint8)
@@ -170,7 +170,7 @@ def simulate_camera_field(out: str | Path, seed: int = 0, n_images: int = 48,
     import cv2
     from tqdm import tqdm
 
-    from calib.camera_formats import camera_json_dict
+    from dgcal.calib.camera.files import camera_json_dict
     rng = np.random.default_rng(seed)
     camera = default_camera(image_size) if camera is None else camera
     tf = field if field is not None else (nonplanar_field() if nonplanar else TargetField())
@@ -235,7 +235,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     camera = None
     if args.camera:
-        from calib.camera_formats import load_camera
+        from dgcal.calib.camera.files import load_camera
         camera = load_camera(args.camera)
     kw = dict(diameter_m=args.diameter, square_m=args.square, marker_m=args.marker, dictionary=args.dictionary)
     tf = nonplanar_field(**kw) if args.nonplanar else TargetField(**kw)

@@ -1,12 +1,12 @@
 """A complete synthetic calibration campaign like seed 003, from one consistent truth.
 
-Truth: a fixed-wing flight (`sim.trajectory.simulate_flight`: take-off, orbit climbs, strips in opposite
-headings at 300 m and 600 m above ground) -> its IMU data (`sim.imu.simulate_imu`, ADIS16488 grade) ->
+Truth: a fixed-wing flight (`dgcal.sim.trajectory.simulate_flight`: take-off, orbit climbs, strips in opposite
+headings at 300 m and 600 m above ground) -> its IMU data (`dgcal.sim.imu.simulate_imu`, ADIS16488 grade) ->
 GNSS antenna positions (cm-level, PPK-like; or RINEX pseudoranges with `gnss_mode="tc"`) -> camera
 events (`camera_events`, the exposure happening `delay_s` after the event) -> true camera poses at the
 exposure times (trajectory at t_event + delay, lever arm, boresight) -> image measurements of ground
 control, check and tie points through the true fraser7 camera (noisy, no rendering) -> plus the
-measurements of a rotating coded-target plate photographed by the same camera (`sim.camera_field`).
+measurements of a rotating coded-target plate photographed by the same camera (`dgcal.sim.camera_field`).
 
 `dgcal simulate campaign --out DIR --seed N` writes what a user has after such a campaign:
 
@@ -46,7 +46,7 @@ R_CAM_TO_BODY_NOMINAL = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 
 
 def default_camera():
     """A 20 mm lens on a 6000 x 4000 full-frame sensor (6 um pixels): f = 3333 px, mild barrel distortion."""
-    from calib.camera_models import Fraser7
+    from dgcal.calib.camera.models import Fraser7
     w, h = 6000, 4000
     return Fraser7((w, h), [20.0 / 0.006, (w - 1) / 2 + 11.0, (h - 1) / 2 - 7.0,
                             -0.045, 0.018, 0.0, 3e-5, -2e-5, 0.25, 0.05])
@@ -64,7 +64,7 @@ def terrain_up(e: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 
 class _SpeedProfile:
-    """A `sim.trajectory.FlightProfile` whose airspeed changes smoothly: V(t) = speed + sum of smooth steps.
+    """A `dgcal.sim.trajectory.FlightProfile` whose airspeed changes smoothly: V(t) = speed + sum of smooth steps.
 
     Only `controls` and `attitude` depend on the speed; they are redefined here with V(t) and its rates
     (the flight-path pitch uses V(t)), everything else (positions by quadrature, specific force, angular
@@ -73,7 +73,7 @@ class _SpeedProfile:
 
     @staticmethod
     def make(base, steps):
-        from sim.trajectory import FlightProfile
+        from dgcal.sim.trajectory import FlightProfile
 
         class Profile(FlightProfile):
             def controls(self, t):
@@ -109,10 +109,10 @@ class _SpeedProfile:
 
 
 def _flight_with_speeds(speeds, **kw):
-    """`sim.trajectory.simulate_flight` with airspeed speeds[i] on the strips of height i (changed smoothly
+    """`dgcal.sim.trajectory.simulate_flight` with airspeed speeds[i] on the strips of height i (changed smoothly
     during the orbit climb before them); heights fly at different ground speeds, which separates the
     exposure delay from the along-track lever arm."""
-    from sim.trajectory import SmoothSteps, _assemble, simulate_flight
+    from dgcal.sim.trajectory import SmoothSteps, _assemble, simulate_flight
     base = simulate_flight(speed=float(speeds[0]), **kw)
     climbs = [s for s in base.segments if s.kind == "climb"]
     a, T, d = [], [], []
@@ -135,11 +135,11 @@ def _flight_with_speeds(speeds, **kw):
 
 
 def _camera_field(out: Path, camera, rng, n_images: int, noise_px: float) -> dict:
-    """Target-plate measurements (no rendering): shots of sim.camera_field, projected, noisy."""
-    from fields.csvio import write_table
-    from fields.formats import Measurements, write_measurements
-    from fields.target_field import TargetField, write_field
-    from sim.camera_field import plan_shots, truth_projections
+    """Target-plate measurements (no rendering): shots of dgcal.sim.camera_field, projected, noisy."""
+    from dgcal.fields.io.csv_tables import write_table
+    from dgcal.fields.io.formats import Measurements, write_measurements
+    from dgcal.fields.targets.plate import TargetField, write_field
+    from dgcal.sim.camera_field import plan_shots, truth_projections
     tf = TargetField()
     shots = plan_shots(n_images, camera, tf, rng)
     rows_img, rows_id, uv_all = [], [], []
@@ -179,9 +179,9 @@ def _observe(camera, C_ecef, R_cv_to_ecef, names, ids, X_ecef, margin_px: float 
 
 def _gnss_rows(t, p_ant, v_ant, sig_enu, sig_v):
     """Rows of gnss.csv (the columns of `dgcal pos --mode spp`) for antenna positions with ENU sigmas."""
-    from fields.crs import ecef_to_geodetic
-    from fields.formats import week_sow
-    from fields.frames import R_ecef_to_enu
+    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.fields.io.formats import week_sow
+    from dgcal.fields.frames import R_ecef_to_enu
     llh = ecef_to_geodetic(p_ant)
     R = R_ecef_to_enu(llh[:, 0], llh[:, 1])                  # (N,3,3) ECEF -> ENU
     cov = np.einsum("nji,j,njk->nik", R, np.asarray(sig_enu) ** 2, R)   # ENU diag -> ECEF
@@ -206,17 +206,17 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
                       n_control: int = 12, n_check: int = 12, gcp_sigma=(0.01, 0.01, 0.02), n_tie: int = 1500,
                       field_images: int = 36, field_noise_px: float = 0.15, pos_extra: dict | None = None) -> dict:
     """Write a campaign into `out` (see the module doc); returns the truth dictionary (also truth.json)."""
-    from calib.camera_formats import camera_json_dict
-    from fields.crs import LocalENU, MapGrid
-    from fields.csvio import atomic_write, staged_dir
-    from fields.errors import InputError
-    from fields.formats import (EOP, Measurements, Points, week_sow, write_eop, write_events, write_measurements,
+    from dgcal.calib.camera.files import camera_json_dict
+    from dgcal.fields.crs import LocalENU, MapGrid
+    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+    from dgcal.fields.errors import InputError
+    from dgcal.fields.io.formats import (EOP, Measurements, Points, week_sow, write_eop, write_events, write_measurements,
                                 write_points, write_trajectory)
-    from fields.frames import opk_from_R_cv_to_map
-    from pos.imu_io import write_kf_gins
-    from sim.gnss import DEFAULT_T0_GPS
-    from sim.imu import simulate_imu
-    from sim.trajectory import camera_events
+    from dgcal.fields.frames import opk_from_R_cv_to_map
+    from dgcal.pos.ins.imu_data import write_kf_gins
+    from dgcal.sim.gnss import DEFAULT_T0_GPS
+    from dgcal.sim.imu import simulate_imu
+    from dgcal.sim.trajectory import camera_events
 
     if gnss_mode not in ("lc", "tc"):
         raise InputError(f"unknown GNSS mode {gnss_mode!r} (lc or tc)", field="gnss_mode")
@@ -286,7 +286,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     gp_map_obs = gp_map + rng.normal(0, 1.0, gp_map.shape) * sig  # surveyed coordinates carry their sigmas
     C_map = grid.from_ecef(C_ecef)
     # EOP angles: camera frame -> grid axes (ENU at the centre turned by the meridian convergence)
-    from fields.frames import R_ecef_to_enu, R_enu_to_grid
+    from dgcal.fields.frames import R_ecef_to_enu, R_enu_to_grid
     llh_c = grid.to_geodetic(C_map)
     gamma = grid.convergence_deg(llh_c[:, 0], llh_c[:, 1])
     R_cv_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ R_ecef_to_enu(llh_c[:, 0], llh_c[:, 1])
@@ -297,7 +297,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     t_gnss = np.arange(math.ceil(traj.t[0]), traj.t[-1] + 1e-9, 1.0 / gnss_rate_hz)
     g_at = traj.at(t_gnss)
     p_ant = g_at.p_ecef + np.einsum("nij,j->ni", g_at.R_body_to_ecef, lever_g)
-    from sim.strapdown import OMEGA_IE_E
+    from dgcal.sim.strapdown import OMEGA_IE_E
     w_eb_b = g_at.omega_ib_b - np.einsum("nji,j->ni", g_at.R_body_to_ecef, OMEGA_IE_E)
     v_ant = g_at.v_ecef + np.einsum("nij,nj->ni", g_at.R_body_to_ecef, np.cross(w_eb_b, lever_g))
 
@@ -315,8 +315,8 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
         write_events(fl / "events.csv", events)
         write_kf_gins(fl / "imu.txt", imu)
         if gnss_mode == "lc":
-            from fields.csvio import write_table
-            from pos.spp import GNSS_CSV_COLUMNS
+            from dgcal.fields.io.csv_tables import write_table
+            from dgcal.pos.gnss.spp import GNSS_CSV_COLUMNS
             sg = np.asarray(gnss_sigma_enu, float)
             llh = grid.to_geodetic(grid.from_ecef(p_ant))
             R_e2enu = R_ecef_to_enu(llh[:, 0], llh[:, 1])
@@ -328,8 +328,8 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
         else:
             import shutil
 
-            from pos.rinex import write_rinex_obs
-            from sim.gnss import DEFAULT_NAV, simulate_gnss
+            from dgcal.pos.gnss.rinex import write_rinex_obs
+            from dgcal.sim.gnss import DEFAULT_NAV, simulate_gnss
             obs = simulate_gnss(t_gnss, p_ant, v_ant, None, seed=seed + 2, sigma_pr=sigma_pr, systems=("G", "E"),
                                 prepare=False)
             write_rinex_obs(fl / "rover.obs", obs)
@@ -372,7 +372,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
 
 
 def _write_toml(path: Path, crs: str, image_size, gnss_mode: str, imu_grade: str, lever_g, pos_extra) -> None:
-    from fields.csvio import atomic_write
+    from dgcal.fields.io.csv_tables import atomic_write
     w, h = image_size
     gn = ('gnss = "flight/gnss.csv"' if gnss_mode == "lc"
           else 'rinex_obs = "flight/rover.obs"\nrinex_nav = "flight/nav.rnx"')

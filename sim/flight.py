@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.camera_formats import write_camera_json
-from calib.camera_models import Fraser7
-from fields.crs import LocalENU, MapGrid
-from fields.csvio import atomic_write, staged_dir
-from fields.formats import EOP, Measurements, Points, write_eop, write_measurements, write_points
-from fields.frames import R_CV_TO_PHOTO, R_enu_to_grid, opk_from_R_cv_to_map
+from dgcal.calib.camera.files import write_camera_json
+from dgcal.calib.camera.models import Fraser7
+from dgcal.fields.crs import LocalENU, MapGrid
+from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+from dgcal.fields.io.formats import EOP, Measurements, Points, write_eop, write_measurements, write_points
+from dgcal.fields.frames import R_CV_TO_PHOTO, R_enu_to_grid, opk_from_R_cv_to_map
 from scipy.spatial.transform import Rotation
 
 NAME = "flight"

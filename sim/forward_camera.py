@@ -1,8 +1,8 @@
 """Forward-looking camera image stream over textured flat terrain (seed 001's vision model), rendered with
-`sim.render` from a true flight (`sim.trajectory`), plus the GNSS/optic-flow attitude study of seed 001
+`dgcal.sim.render` from a true flight (`dgcal.sim.trajectory`), plus the GNSS/optic-flow attitude study of seed 001
 (Table 1 settings: 90 x 90 deg field of view, 300 s flight; Table 2: roll/pitch/yaw error statistics).
 
-World frame: local ENU at the site (`fields.crs.LocalENU` at lat0, lon0, h_ground); the ground is the
+World frame: local ENU at the site (`dgcal.fields.crs.LocalENU` at lat0, lon0, h_ground); the ground is the
 plane z = 0 textured with multi-octave noise (blobs and edges from 4 m to 60 m).
 """
 from __future__ import annotations
@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from fields.crs import LocalENU
-from fields.frames import R_NED_TO_ENU
-from pos.optic_flow import R_CAM_TO_BODY_FORWARD
-from sim.render import Facet, RayGrid, render
-from sim.trajectory import TrueTrajectory, simulate_flight
+from dgcal.fields.crs import LocalENU
+from dgcal.fields.frames import R_NED_TO_ENU
+from dgcal.pos.lowcost.optic_flow import R_CAM_TO_BODY_FORWARD
+from dgcal.sim.render import Facet, RayGrid, render
+from dgcal.sim.trajectory import TrueTrajectory, simulate_flight
 
 NAME = "forward-camera"
 HELP = "forward-camera image stream over textured terrain from a simulated flight (seed 001)"
@@ -46,7 +46,7 @@ def ground_texture(size_m: float = 6000.0, texel_m: float = 2.0, seed: int = 0) 
 
 def forward_camera(image_px: int = 240, fov_deg: float = 90.0):
     """A square pinhole camera (Fraser7, no distortion) with the given full field of view."""
-    from calib.camera_models import Fraser7
+    from dgcal.calib.camera.models import Fraser7
     f = 0.5 * image_px / np.tan(np.radians(fov_deg) / 2)
     c = (image_px - 1) / 2
     return Fraser7.from_dict((image_px, image_px), {"f": f, "cx": c, "cy": c})
@@ -112,8 +112,8 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
                         progress: bool = False) -> dict:
     """Seed 001 Table 2 on a simulated flight: per frame pair (every `pair_every_s` s once above `min_agl_m`)
     roll from pseudo-roll, pitch/yaw from pseudo attitude + FOE, AGL from flow; error statistics vs truth."""
-    from pos.optic_flow import flow_attitude
-    from pos.pseudo_attitude import pseudo_attitude
+    from dgcal.pos.lowcost.optic_flow import flow_attitude
+    from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude
     sim = sim or make_forward_camera_sim(seed=seed)
     tr = sim.truth
     tv, v = gnss_velocity(tr, seed=seed + 1)
@@ -206,7 +206,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import cv2
-    from fields.csvio import staged_dir
+    from dgcal.fields.io.csv_tables import staged_dir
     sim = make_forward_camera_sim(duration_s=args.duration, image_px=args.size, seed=args.seed)
     times = np.arange(sim.truth.t[0], sim.truth.t[-1], 1.0 / args.fps)
     rng = np.random.default_rng(args.seed)

@@ -4,7 +4,7 @@
 ``dgcal simulate gnss`` writes a static or circling receiver's RINEX 3 observations together with
 the navigation file used and ``truth.json``.
 
-Model (consistent with ``pos.spp.prepare_epoch``, so SPP on the output is unbiased)::
+Model (consistent with ``dgcal.pos.gnss.spp.prepare_epoch``, so SPP on the output is unbiased)::
 
     pr = c*tau + c*(dt_rx + isb[sys]) - c*dt_sat(t_tx) + I_klobuchar + T_saastamoinen + n_pr
     rr = d(rho)/dt + c*ddt_rx - c*ddt_sat + n_rr,     doppler_hz = -rr / wavelength
@@ -12,7 +12,7 @@ Model (consistent with ``pos.spp.prepare_epoch``, so SPP on the output is unbias
 where ``tau`` solves the light-time equation exactly (Earth rotation during travel included)
 and ``d(rho)/dt`` is the numerical derivative of that exact range. The receiver time tag is
 ``t_tag = t_true + dt_rx``: the antenna position at the tag is ``p(t_tag) - v * dt_rx``.
-Noise sigmas depend on elevation (``pos.gnss_corrections.code_sigma_m``).
+Noise sigmas depend on elevation (``dgcal.pos.gnss.corrections.code_sigma_m``).
 """
 from __future__ import annotations
 
@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pos.gnss_corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m,
+from dgcal.pos.gnss.corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m,
                                   saastamoinen_delay_m)
-from pos.gnss_types import C_LIGHT, OMEGA_E, GnssEpoch, GnssObservations
-from pos.rinex import BroadcastNav, signal_frequency_hz
+from dgcal.pos.gnss.observations import C_LIGHT, OMEGA_E, GnssEpoch, GnssObservations
+from dgcal.pos.gnss.rinex import BroadcastNav, signal_frequency_hz
 
 NAME = "gnss"
 HELP = "simulate RINEX 3 GNSS observations of a static or moving receiver from broadcast orbits"
@@ -63,7 +63,7 @@ def _load_nav(nav, t_span: tuple[float, float] | None = None, systems=("G", "E",
         if t_span is None:
             raise ValueError("a synthetic constellation needs the time span")
         return synthetic_nav(t_span[0], t_span[1], systems, seed)
-    from pos.rinex import read_rinex_nav
+    from dgcal.pos.gnss.rinex import read_rinex_nav
     return read_rinex_nav(nav)
 
 
@@ -173,10 +173,10 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
     ``DEFAULT_T0_GPS``; G, E and J are available). ``outages``:
     (t0, t1, max_sats) -- between t0 and t1 only the ``max_sats`` highest satellites are kept.
     ``sigma_pr``/``sigma_doppler``: zenith noise (m, m/s). With ``prepare`` the epochs are run
-    through ``pos.spp.prepare_epoch`` at the true positions (sigmas = the simulated noise, no
+    through ``dgcal.pos.gnss.spp.prepare_epoch`` at the true positions (sigmas = the simulated noise, no
     model-error budget), else they are raw. ``truth`` holds the true states per epoch:
     ``p_ecef``, ``v_ecef``, ``clk_m`` {sys: c*(dt_rx)+isb} (m), ``drift_mps``, ``t_gps``, and
-    ``nav`` (the ``BroadcastNav`` used, e.g. to run ``pos.spp.spp`` on raw output).
+    ``nav`` (the ``BroadcastNav`` used, e.g. to run ``dgcal.pos.gnss.spp.spp`` on raw output).
     """
     rng = np.random.default_rng(seed)
     t = np.asarray(traj_t_gps, float)
@@ -199,9 +199,9 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
 def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_doppler, outages,
                   systems, elev_mask_deg) -> list[GnssEpoch]:
     """Raw epochs, vectorised over all (epoch, satellite) pairs."""
-    from fields.crs import ecef_to_geodetic
-    from fields.frames import R_ecef_to_enu
-    from pos.ephemeris import satellite_states
+    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.fields.frames import R_ecef_to_enu
+    from dgcal.pos.gnss.ephemeris import satellite_states
 
     n_ep = len(t)
     t_true = t - bias                        # receiver tags run ahead of true time by dt_rx
@@ -279,7 +279,7 @@ def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_
 def prepare_simulated(obs: GnssObservations, nav: BroadcastNav, sigma_pr: float,
                       sigma_doppler: float, elev_mask_deg: float) -> list[GnssEpoch]:
     """Run the front end on simulated raw epochs at the true antenna positions."""
-    from pos.spp import SppOptions, prepare_epoch
+    from dgcal.pos.gnss.spp import SppOptions, prepare_epoch
     opts = SppOptions(elev_mask_deg=elev_mask_deg - 1e-6, code_sigma_zenith_m=sigma_pr,
                       doppler_sigma_zenith_mps=sigma_doppler, model_errors=False,
                       systems=tuple(obs.signals))
@@ -314,7 +314,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def circle_trajectory(t_gps: np.ndarray, lat: float, lon: float, h: float, radius: float,
                       speed: float) -> tuple[np.ndarray, np.ndarray]:
     """ECEF positions (m) and velocities (m/s) of a horizontal circle (or a static point)."""
-    from fields.crs import LocalENU
+    from dgcal.fields.crs import LocalENU
     enu = LocalENU(lat, lon, h)
     tt = t_gps - t_gps[0]
     if radius > 0:
@@ -329,8 +329,8 @@ def circle_trajectory(t_gps: np.ndarray, lat: float, lon: float, h: float, radiu
 def run(args: argparse.Namespace) -> int:
     import shutil
 
-    from fields.csvio import atomic_write, staged_dir
-    from pos.rinex import write_rinex_obs
+    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+    from dgcal.pos.gnss.rinex import write_rinex_obs
     systems = tuple(args.systems.upper())
     t0 = args.t0 if args.t0 is not None else DEFAULT_T0_GPS
     t = t0 + np.arange(0.0, args.duration + 1e-9, 1.0 / args.rate)

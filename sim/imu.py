@@ -1,4 +1,4 @@
-"""IMU simulator: true increments of a flight plus the errors of a grade (pos.imu_grades).
+"""IMU simulator: true increments of a flight plus the errors of a grade (dgcal.pos.ins.error_model).
 
 Per interval k of length dt (body FRD):
   dtheta_k = (I + S_g + M_g) dtheta_true_k + b_g(t_k) dt + arw * sqrt(dt) * n
@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter
 
-from pos.imu_grades import ImuGrade, imu_grade
-from pos.imu_io import ImuData
+from dgcal.pos.ins.error_model import ImuGrade, imu_grade
+from dgcal.pos.ins.imu_data import ImuData
 
 
 @dataclass
@@ -101,10 +101,10 @@ def simulate_imu_dataset(out: str | Path, seed: int = 0, grade: str = "adis16488
                          rate_hz: float = 200.0, truth_rate_hz: float = 10.0, event_distance_m: float = 100.0,
                          delay_s: float = 0.0, lat0: float = 23.0, lon0: float = 120.2) -> dict:
     """Write DIR/imu.txt (KF-GINS), trajectory_true.csv, events.csv and truth.json; returns the truth dict."""
-    from fields.csvio import atomic_write, staged_dir
-    from fields.formats import week_sow, write_events, write_trajectory
-    from pos.imu_io import write_kf_gins
-    from sim.trajectory import camera_events, simulate_flight
+    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+    from dgcal.fields.io.formats import week_sow, write_events, write_trajectory
+    from dgcal.pos.ins.imu_data import write_kf_gins
+    from dgcal.sim.trajectory import camera_events, simulate_flight
 
     truth = simulate_flight(kind, lat0=lat0, lon0=lon0, heights_agl=tuple(heights_agl), n_strips=n_strips,
                             rate_hz=rate_hz, duration_s=duration_s)

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from fields.csvio import staged_dir, write_table
-from fields.formats import week_sow
-from pos.exposure import pulse_response
-from pos.stream_align import synthetic_pps
+from dgcal.fields.io.csv_tables import staged_dir, write_table
+from dgcal.fields.io.formats import week_sow
+from dgcal.pos.lowcost.exposure import pulse_response
+from dgcal.pos.lowcost.stream_align import synthetic_pps
 
 NAME = "logger"
 HELP = "GNSS and logger streams with packet loss, PPS, photoresistor spikes and triggers (seed 000)"

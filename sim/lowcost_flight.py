@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from fields.csvio import staged_dir
-from fields.frames import R_ecef_to_ned
-from pos.imu_io import ImuData, write_imu_csv
-from pos.smoother_init import GnssFixes
-from sim.imu import ImuErrors, simulate_imu
-from sim.trajectory import TrueTrajectory, simulate_flight
+from dgcal.fields.io.csv_tables import staged_dir
+from dgcal.fields.frames import R_ecef_to_ned
+from dgcal.pos.ins.imu_data import ImuData, write_imu_csv
+from dgcal.pos.smoother.initial import GnssFixes
+from dgcal.sim.imu import ImuErrors, simulate_imu
+from dgcal.sim.trajectory import TrueTrajectory, simulate_flight
 
 NAME = "lowcost"
 HELP = "seed 000 low-cost payload flight: ADIS16405 IMU, 50 Hz GNSS, laser range (113 m, 26 m/s)"
@@ -135,9 +135,9 @@ def compare_ukf_smoother(flight: LowcostFlight, smoother_rate_hz: float = 10.0, 
     """Seed 000's UKF and the gtsam smoother (LC position+velocity factors, fixes decimated to
     `smoother_rate_hz`) on the same flight; attitude and position accuracy against truth at their common
     epochs after `skip_s` of filter convergence. Returns a JSON-ready report dict."""
-    from fields.frames import rph_from_R_body_to_ned
-    from pos.smoother import SmootherOptions, smooth
-    from pos.ukf import run_ukf
+    from dgcal.fields.frames import rph_from_R_body_to_ned
+    from dgcal.pos.smoother.batch import SmootherOptions, smooth
+    from dgcal.pos.lowcost.ukf import run_ukf
     fx = flight.fixes
     grade = flight.imu_errors.grade
     u = run_ukf(flight.imu, fx, grade, progress=progress)
@@ -191,7 +191,7 @@ R_CAM_TO_BODY_NADIR = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.
 
 def seed_camera(scale: float = 1.0):
     """The seed's still camera class: 4272 x 2848 px, 135.7 x 90.4 m footprint at 110 m, mild barrel distortion."""
-    from calib.camera_models import Fraser7
+    from dgcal.calib.camera.models import Fraser7
     w, h = int(round(4272 * scale)), int(round(2848 * scale))
     f = 0.5 * w / (0.5 * 135.7 / 110.0)
     return Fraser7.from_dict((w, h), {"f": f, "cx": (w - 1) / 2 + 6 * scale, "cy": (h - 1) / 2 - 4 * scale,
@@ -200,8 +200,8 @@ def seed_camera(scale: float = 1.0):
 
 def terrain_dem(center_w: np.ndarray, half_size_m: float = 600.0, step_m: float = 2.0, slope=(0.03, -0.02),
                 hill_m: float = 6.0, hill_sigma_m: float = 60.0):
-    """A synthetic DEM (calib.dem.Dem, world E/N/Up frame) around `center_w`: a gentle slope plus a hill."""
-    from calib.dem import Dem
+    """A synthetic DEM (dgcal.calib.dg.dem.Dem, world E/N/Up frame) around `center_w`: a gentle slope plus a hill."""
+    from dgcal.calib.dg.dem import Dem
     n = int(round(2 * half_size_m / step_m)) + 1
     x = center_w[0] - half_size_m + step_m * np.arange(n)
     y = center_w[1] + half_size_m - step_m * np.arange(n)  # north-up rows
@@ -213,7 +213,7 @@ def terrain_dem(center_w: np.ndarray, half_size_m: float = 600.0, step_m: float 
 
 
 def _ray_dem_hit(C, d, dem):
-    from calib.single_image import _intersect_dem
+    from dgcal.calib.dg.single_image import _intersect_dem
     X, ok = _intersect_dem(np.asarray(C, float), np.atleast_2d(d), dem, 0.0, 50, 1e-6)
     return X[0]
 
@@ -224,15 +224,15 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
     straight legs, georeferenced with raw data (level attitude, no distortion correction), with distortion
     removed, with the UKF attitude (known point height), with the laser range, and with a DEM; plus true
     poses. Returns the per-image table (seed Table 6), mean/std rows and the 15-image averages (Fig. 19)."""
-    from calib.single_image import average_estimates, georeference, pose_covariance_from_rph
-    from fields.frames import R_ENU_TO_NED, rph_from_R_body_to_ned
-    from pos.ukf import run_ukf
+    from dgcal.calib.dg.single_image import average_estimates, georeference, pose_covariance_from_rph
+    from dgcal.fields.frames import R_ENU_TO_NED, rph_from_R_body_to_ned
+    from dgcal.pos.lowcost.ukf import run_ukf
     truth = simulate_flight("fixed-wing", lat0=39.65, lon0=-79.95, h_ground=300.0, heights_agl=(113.0,),
                             n_strips=3, strip_length_m=500.0, strip_spacing_m=0.0, strip_heading_deg=225.0,
                             speed=26.0, bank_deg=25.0, climb_rate=4.0, aoa_deg=2.0, rate_hz=50.0)
     imu, err = simulate_imu(truth, "adis16405", seed=seed)
     fixes, _ = gnss_fixes(truth, 50.0, seed=seed + 1)
-    from pos.nav_frame import NavFrame
+    from dgcal.pos.ins.nav_frame import NavFrame
     frame = NavFrame.at_ecef(fixes.p_ecef.mean(axis=0))
     R_n2w = R_ENU_TO_NED.T  # world = ENU axes of the UKF's tangent frame
 
@@ -290,7 +290,7 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
     # GNSS errors are time-correlated: filtering white-noise-modelled 50 Hz fixes does not beat the
     # receiver's own accuracy, so the camera position covariance is at least the fix covariance
     gnss_cov = np.diag(fixes.sigma_ned[0][[1, 0, 2]] ** 2)
-    from calib.camera_models import Fraser7
+    from dgcal.calib.camera.models import Fraser7
     pinhole = Fraser7.from_dict(camera.image_size, {"f": camera["f"], "cx": camera["cx"], "cy": camera["cy"]})
     cases = {"raw": [], "distortion": [], "attitude": [], "laser": [], "dem": [], "truth": []}
     covs = {k: [] for k in cases}
@@ -358,12 +358,12 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
 
 
 def geodetic_to_ecef_np(lat, lon, h) -> np.ndarray:
-    from fields.crs import geodetic_to_ecef
+    from dgcal.fields.crs import geodetic_to_ecef
     return np.asarray(geodetic_to_ecef(lat, lon, h), float)
 
 
 def R_body_to_ned_from_rph_np(rph) -> np.ndarray:
-    from fields.frames import R_body_to_ned_from_rph
+    from dgcal.fields.frames import R_body_to_ned_from_rph
     return R_body_to_ned_from_rph(*np.asarray(rph, float))
 
 

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.camera_models import Fraser7
-from calib.mounting_common import BlockFrame, T
-from fields.crs import LocalENU, MapGrid
-from fields.formats import EOP, Events, Measurements, Points, Trajectory
+from dgcal.calib.camera.models import Fraser7
+from dgcal.calib.mounting.common import BlockFrame, T
+from dgcal.fields.crs import LocalENU, MapGrid
+from dgcal.fields.io.formats import EOP, Events, Measurements, Points, Trajectory
 
 NAME = "mounting"
 HELP = "a mounting-calibration flight and a mapping flight with known lever arm, boresight and delay"
@@ -102,7 +102,7 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
                     pixel_sigma: float = 0.5, t0: float = 2200 * 604800.0 + 300000.0, tau_s: float = 0.3,
                     pos_common_fraction: float = 0.0) -> FlightSim:
     """Simulate one flight of straight strips (alternating headings) in L; see the module docstring."""
-    from fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph
+    from dgcal.fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph
     wind = np.array([wind_en[0], wind_en[1], 0.0])
     t_all, p_all, v_all, R_all = [], [], [], []
     t_exp, strip_h = [], []
@@ -137,7 +137,7 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
     # truth at exposure times, analytically interpolated on the fine samples (rate_hz) would add error:
     # evaluate the strip model directly by re-sampling at exposure times
     def at(tq):
-        from calib.mounting_common import so3_exp, so3_log
+        from dgcal.calib.mounting.common import so3_exp, so3_log
         i = np.clip(np.searchsorted(t_s, tq) - 1, 0, len(t_s) - 2)
         s = (tq - t_s[i]) / (t_s[i + 1] - t_s[i])
         pq = p_L[i] + s[:, None] * (p_L[i + 1] - p_L[i])  # straight constant-velocity strips: linear is exact
@@ -220,9 +220,9 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
 
 def write_mounting_sim(sim: MountingSim, out: Path) -> None:
     """Write the simulated files: calibration/ and mapping/ flights, ground.csv, camera.json, truth.json."""
-    from fields.csvio import atomic_write, staged_dir
-    from calib.camera_formats import write_camera_json
-    from fields.formats import write_eop, write_events, write_measurements, write_points, write_trajectory
+    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+    from dgcal.calib.camera.files import write_camera_json
+    from dgcal.fields.io.formats import write_eop, write_events, write_measurements, write_points, write_trajectory
     with staged_dir(out) as tmp:
         for name, fl in (("calibration", sim.calibration), ("mapping", sim.mapping)):
             d = tmp / name

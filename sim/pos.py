@@ -1,9 +1,9 @@
 """`dgcal simulate pos`: a UAV flight with a realistic IMU, raw GNSS code + Doppler from broadcast orbits,
 an antenna lever arm, a partial outage (3 satellites for 60 s) and camera events, with the truth.
 
-Composes sim.trajectory (exact flight kinematics), sim.imu (grade presets of pos.imu_grades) and sim.gnss
+Composes dgcal.sim.trajectory (exact flight kinematics), dgcal.sim.imu (grade presets of dgcal.pos.ins.error_model) and dgcal.sim.gnss
 (pseudoranges from the real navigation file of ../shared/data/rinex-sept by default, so the flight is dated
-2021-03-19 around 12:00 GPS time). Files: imu.csv (increments, pos.imu_io), obs.rnx (RINEX 3), nav.rnx,
+2021-03-19 around 12:00 GPS time). Files: imu.csv (increments, dgcal.pos.ins.imu_data), obs.rnx (RINEX 3), nav.rnx,
 events.csv, truth_trajectory.csv (true IMU trajectory at 10 Hz), truth_events.csv, truth.json.
 """
 from __future__ import annotations
@@ -24,12 +24,12 @@ HELP = "simulate a UAV flight: raw IMU, RINEX code/Doppler with an outage, event
 class PosSimulation:
     """An in-memory simulated POS data set (see `simulate_pos`)."""
 
-    traj: object  # sim.trajectory.TrueTrajectory
-    imu: object  # pos.imu_io.ImuData (noisy)
-    imu_errors: object  # sim.imu.ImuErrors
-    obs: object  # pos.gnss_types.GnssObservations (raw epochs; obs.truth holds the receiver truth)
-    nav: object  # pos.rinex.BroadcastNav
-    events: object  # fields.formats.Events
+    traj: object  # dgcal.sim.trajectory.TrueTrajectory
+    imu: object  # dgcal.pos.ins.imu_data.ImuData (noisy)
+    imu_errors: object  # dgcal.sim.imu.ImuErrors
+    obs: object  # dgcal.pos.gnss.observations.GnssObservations (raw epochs; obs.truth holds the receiver truth)
+    nav: object  # dgcal.pos.gnss.rinex.BroadcastNav
+    events: object  # dgcal.fields.io.formats.Events
     lever_arm_b: np.ndarray
     outage: tuple
     grade: object
@@ -50,10 +50,10 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     The outage (`outage_sats` highest satellites kept) starts at `outage_start_s` after take-off (default:
     60 % of the flight, on a strip or turn). GNSS epochs are at whole GPS seconds at 1 Hz.
     """
-    from pos.imu_grades import imu_grade as grade_of
-    from sim.gnss import DEFAULT_T0_GPS, _load_nav, simulate_gnss
-    from sim.imu import simulate_imu
-    from sim.trajectory import camera_events, simulate_flight
+    from dgcal.pos.ins.error_model import imu_grade as grade_of
+    from dgcal.sim.gnss import DEFAULT_T0_GPS, _load_nav, simulate_gnss
+    from dgcal.sim.imu import simulate_imu
+    from dgcal.sim.trajectory import camera_events, simulate_flight
     nav = _load_nav(nav)
     week = int(DEFAULT_T0_GPS // 604800)
     sow = DEFAULT_T0_GPS - week * 604800 + 5.0
@@ -69,7 +69,7 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     st = traj.at(t_gnss)
     p_ant = st.p_ecef + np.einsum("kij,j->ki", st.R_body_to_ecef, lever)
     # antenna velocity: IMU velocity plus the lever arm's rotation (body rate relative to the earth)
-    from sim.strapdown import OMEGA_IE_E
+    from dgcal.sim.strapdown import OMEGA_IE_E
     w_eb_b = st.omega_ib_b - np.einsum("kji,j->ki", st.R_body_to_ecef, np.array(OMEGA_IE_E, float).ravel())
     v_ant = st.v_ecef + np.einsum("kij,kj->ki", st.R_body_to_ecef, np.cross(w_eb_b, lever))
     t0 = t_gnss[0] + (0.6 * (t_gnss[-1] - t_gnss[0]) if outage_start_s is None else outage_start_s)
@@ -84,8 +84,8 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
 
 
 def true_trajectory(traj, t) -> object:
-    """The true IMU trajectory at times t as a fields.formats.Trajectory (no sigmas)."""
-    from fields.formats import Trajectory
+    """The true IMU trajectory at times t as a dgcal.fields.io.formats.Trajectory (no sigmas)."""
+    from dgcal.fields.io.formats import Trajectory
     st = traj.at(np.asarray(t, float))
     return Trajectory(t=st.t, lat=st.lat, lon=st.lon, h=st.h, v_ned=st.v_ned, rph=st.rph)
 
@@ -105,10 +105,10 @@ def navigation_errors(sol, traj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
 
 def write_pos_dataset(out, sim: PosSimulation) -> dict:
     """Write the files of a simulated data set into `out` (staged: all or nothing); returns truth.json."""
-    from fields.csvio import atomic_write, staged_dir
-    from fields.formats import write_events, write_trajectory
-    from pos.imu_io import write_imu_csv
-    from pos.rinex import write_rinex_obs
+    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+    from dgcal.fields.io.formats import write_events, write_trajectory
+    from dgcal.pos.ins.imu_data import write_imu_csv
+    from dgcal.pos.gnss.rinex import write_rinex_obs
     t10 = np.arange(sim.traj.t[0], sim.traj.t[-1], 0.1)
     truth = {
         "kind": "pos", **sim.info, "lever_arm_gnss_m": sim.lever_arm_b.tolist(),
@@ -156,7 +156,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fields.errors import InputError
+    from dgcal.fields.errors import InputError
     try:
         sim = simulate_pos(seed=args.seed, duration_s=args.duration, kind=args.kind, imu_grade=args.imu_grade,
                            rate_hz=args.rate, lever_arm_b=args.lever_arm, nav=args.nav,

@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fields.crs import ecef_to_geodetic, geodetic_to_ecef
-from fields.formats import Events, Trajectory, gps_seconds
-from fields.frames import R_ecef_to_ned, rph_from_R_body_to_ned
-from sim.strapdown import OMEGA_IE_E, gravitation_ecef
+from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
+from dgcal.fields.io.formats import Events, Trajectory, gps_seconds
+from dgcal.fields.frames import R_ecef_to_ned, rph_from_R_body_to_ned
+from dgcal.sim.strapdown import OMEGA_IE_E, gravitation_ecef
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(4)
 _GL_X = 0.5 * (_GL_X + 1.0)  # nodes on [0, 1]
@@ -204,7 +204,7 @@ class TrueTrajectory:
         return [s for s in self.segments if s.kind == "strip"]
 
     def as_trajectory(self, step: int = 1) -> Trajectory:
-        """Every `step`-th sample as a `fields.formats.Trajectory` (e.g. to write the true trajectory CSV)."""
+        """Every `step`-th sample as a `dgcal.fields.io.formats.Trajectory` (e.g. to write the true trajectory CSV)."""
         sl = slice(None, None, step)
         return Trajectory(t=self.t[sl], lat=self.lat[sl], lon=self.lon[sl], h=self.h[sl], v_ned=self.v_ned[sl],
                           rph=self.rph[sl])

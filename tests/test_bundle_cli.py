@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from dgcal.cli import main
-from fields.formats import read_eop, read_measurements, read_points, write_measurements, write_points
-from sim.flight import simulate_flight
+from dgcal.fields.io.formats import read_eop, read_measurements, read_points, write_measurements, write_points
+from dgcal.sim.flight import simulate_flight
 
 
 @pytest.fixture(scope="module")
@@ -39,8 +39,8 @@ def test_cli_writes_eops_report_and_exports(small, tmp_path):
     assert "data:image/png;base64" in html and "Check points" in html
     for f in ("colmap/images.txt", "pix4d_external_orientation.txt", "metashape_opk.csv", "geo.txt"):
         assert (out / "exports" / f).is_file()
-    # every export reads back (reports.eop_exports readers) to the EOPs of eop.csv
-    from reports.eop_exports import read_colmap, read_metashape, read_odm_geo, read_pix4d
+    # every export reads back (dgcal.reports.exports.eop readers) to the EOPs of eop.csv
+    from dgcal.reports.exports.eop import read_colmap, read_metashape, read_odm_geo, read_pix4d
     ex = out / "exports"
     for back in (read_pix4d(ex / "pix4d_external_orientation.txt"), read_metashape(ex / "metashape_opk.csv"),
                  read_odm_geo(ex / "geo.txt")[0], read_colmap(ex / "colmap")[0]):
@@ -142,7 +142,7 @@ def test_approximate_eops_fixed_gcps_and_bad_refine(small, tmp_path, capsys):
     rng = np.random.default_rng(2)
     te.xyz = te.xyz + rng.normal(0, 2.0, te.xyz.shape)       # GNSS-grade approximate positions
     te.opk = te.opk + rng.normal(0, 1.0, te.opk.shape)
-    from fields.formats import write_eop
+    from dgcal.fields.io.formats import write_eop
     write_eop(tmp_path / "approx.csv", te)
     base = ["--camera", d / "camera.json", "--gcp", d / "gcp.csv", "--crs", truth["crs"], "--measurements",
             d / "measurements_all.csv"]
@@ -161,7 +161,7 @@ def test_approximate_eops_fixed_gcps_and_bad_refine(small, tmp_path, capsys):
 
 def test_odm_gcp_list_plus_tie_csv(small, tmp_path, capsys):
     """GCPs from an ODM gcp_list.txt (points and CRS inside), tie points from a CSV: the same EOPs."""
-    from fields.gcp_io import write_odm_gcp_list
+    from dgcal.fields.io.gcp_files import write_odm_gcp_list
     d, truth = small
     pts = read_points(d / "gcp.csv")
     ctrl = pts.subset(pts.role == "control")

@@ -2,8 +2,8 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bundle.datum_check import gcp_datum_step
-from calib.camera_models import Fraser7
+from dgcal.bundle.datum_check import gcp_datum_step
+from dgcal.calib.camera.models import Fraser7
 
 
 def _block(rng):

@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bundle.georef import Georef
-from bundle.resection import pnp, relative_bootstrap, similarity_umeyama
-from fields.crs import MapGrid
-from fields.errors import InputError
-from sim.flight import default_camera
+from dgcal.bundle.georef import Georef
+from dgcal.bundle.resection import pnp, relative_bootstrap, similarity_umeyama
+from dgcal.fields.crs import MapGrid
+from dgcal.fields.errors import InputError
+from dgcal.sim.flight import default_camera
 
 rng = np.random.default_rng(11)
 CENTRE = np.array([327000.0, 2655000.0, 120.0])     # UTM 51N, ~1.7 deg west of the central meridian
@@ -37,7 +37,7 @@ def test_eop_angles_follow_grid_axes_at_the_centre():
     P_map = C_map + [120.0, 250.0, -380.0]
     R_w2c, C_loc = np.eye(3)[None] @ Rotation.from_euler("x", [180.0], degrees=True).as_matrix(), g.to_local(C_map)
     xyz, opk = g.eop_to_map(R_w2c, C_loc)
-    from fields.frames import R_cv_to_map_from_opk
+    from dgcal.fields.frames import R_cv_to_map_from_opk
     R_cv_to_grid = R_cv_to_map_from_opk(*opk[0])
     # ray to P in the camera frame, computed in the adjustment frame
     ray_cv = R_w2c[0] @ (g.to_local(P_map)[0] - C_loc[0])

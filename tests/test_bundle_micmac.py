@@ -3,12 +3,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bundle.datum_check import gcp_datum_step
-from bundle.tiepoints import extract_tie_points
-from bundle.triangulation import TriangulationOptions, triangulate
-from calib.camera_formats import load_camera
-from fields.formats import Measurements
-from fields.gcp_io import read_micmac_measurements, read_micmac_orientation, read_micmac_points
+from dgcal.bundle.datum_check import gcp_datum_step
+from dgcal.bundle.tiepoints import extract_tie_points
+from dgcal.bundle.triangulation import TriangulationOptions, triangulate
+from dgcal.calib.camera.files import load_camera
+from dgcal.fields.io.formats import Measurements
+from dgcal.fields.io.gcp_files import read_micmac_measurements, read_micmac_orientation, read_micmac_points
 
 
 @pytest.fixture(scope="module")

@@ -1,11 +1,11 @@
 """The image path end to end: rendered flight -> pycolmap SIFT tie points -> triangulation vs truth."""
 import numpy as np
 
-from bundle.tiepoints import extract_tie_points, list_images
-from bundle.triangulation import triangulate
-from calib.camera_formats import load_camera
-from fields.formats import Measurements, read_eop, read_measurements, read_points
-from sim.flight import simulate_flight
+from dgcal.bundle.tiepoints import extract_tie_points, list_images
+from dgcal.bundle.triangulation import triangulate
+from dgcal.calib.camera.files import load_camera
+from dgcal.fields.io.formats import Measurements, read_eop, read_measurements, read_points
+from dgcal.sim.flight import simulate_flight
 
 
 def test_rendered_flight_with_sift_tie_points(tmp_path):
@@ -35,7 +35,7 @@ def test_rendered_flight_with_sift_tie_points(tmp_path):
 
 
 def test_aruco_gcp_targets_are_detected_where_they_project(tmp_path):
-    from bundle.targets import detect_gcp_targets
+    from dgcal.bundle.gcp_targets import detect_gcp_targets
     truth = simulate_flight(tmp_path, seed=8, render=True, heights=(80.0,), n_strips=(1,), n_images=(3,),
                             n_control=6, n_check=3, n_tie=10, targets="aruco")
     names = [im["image"] for im in truth["images"]]

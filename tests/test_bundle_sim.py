@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from bundle.triangulation import TriangulationOptions, triangulate
-from calib.camera_formats import load_camera
-from fields.formats import read_eop, read_measurements, read_points
-from sim.flight import simulate_flight
+from dgcal.bundle.triangulation import TriangulationOptions, triangulate
+from dgcal.calib.camera.files import load_camera
+from dgcal.fields.io.formats import read_eop, read_measurements, read_points
+from dgcal.sim.flight import simulate_flight
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,8 @@
 """Camera diagnostics on synthetic residuals: the poor-fit test, correlations, significance."""
 import numpy as np
 
-from calib.camera_diagnostics import high_correlations, residual_pattern, significance
-from calib.camera_models import Fraser7
+from dgcal.calib.selfcal.diagnostics import high_correlations, residual_pattern, significance
+from dgcal.calib.camera.models import Fraser7
 
 SIZE = (6000, 4000)
 rng = np.random.default_rng(4)

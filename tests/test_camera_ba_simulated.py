@@ -3,11 +3,11 @@ comparison, parameter errors within 3 sigma, honest sigmas over seeds, outliers,
 import numpy as np
 import pytest
 
-from calib.camera_diagnostics import diagnose, projection_difference
-from calib.intrinsic_ba import adjust
-from calib.opencv_baseline import calibrate_with_opencv
-from fields.target_field import TargetField
-from sim.camera_field import default_camera, plan_shots
+from dgcal.calib.selfcal.diagnostics import diagnose, projection_difference
+from dgcal.calib.selfcal.adjustment import adjust
+from dgcal.calib.selfcal.opencv_baseline import calibrate_with_opencv
+from dgcal.fields.targets.plate import TargetField
+from dgcal.sim.camera_field import default_camera, plan_shots
 
 SIZE = (6000, 4000)
 
@@ -120,7 +120,7 @@ def test_opencv8_model_on_simulated_fraser_truth():
 
 
 def test_too_few_images_is_an_input_error():
-    from fields.errors import InputError
+    from dgcal.fields.errors import InputError
     truth, pts, img, ids, xy = scene(10, n_images=6, square_m=0.16)
     keep = np.isin(img, sorted(set(img.tolist()))[:2])
     with pytest.raises(InputError, match="need 3 or more"):

@@ -1,10 +1,10 @@
 """Target refinement (free network with minimal datum, weighted by CSV sigmas) and non-planar fields."""
 import numpy as np
 
-from calib.camera_diagnostics import projection_difference
-from calib.intrinsic_ba import adjust
-from fields.target_field import TargetField, nonplanar_field
-from sim.camera_field import default_camera, plan_shots
+from dgcal.calib.selfcal.diagnostics import projection_difference
+from dgcal.calib.selfcal.adjustment import adjust
+from dgcal.fields.targets.plate import TargetField, nonplanar_field
+from dgcal.sim.camera_field import default_camera, plan_shots
 from test_camera_ba_simulated import SIZE, simulate_measurements
 
 

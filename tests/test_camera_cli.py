@@ -5,12 +5,12 @@ import re
 import numpy as np
 import pytest
 
-from calib.camera_diagnostics import projection_difference
-from calib.camera_formats import load_camera
+from dgcal.calib.selfcal.diagnostics import projection_difference
+from dgcal.calib.camera.files import load_camera
 from dgcal.cli import main
-from fields.formats import Measurements, write_measurements
-from fields.target_field import TargetField, write_field
-from sim.camera_field import default_camera, plan_shots
+from dgcal.fields.io.formats import Measurements, write_measurements
+from dgcal.fields.targets.plate import TargetField, write_field
+from dgcal.sim.camera_field import default_camera, plan_shots
 from test_camera_ba_simulated import SIZE, simulate_measurements
 
 
@@ -138,9 +138,9 @@ def test_missing_field_file(sim_dir, tmp_path, capsys):
 
 
 def test_camera_cli_from_rendered_images(tmp_path, capsys):
-    from calib.camera_formats import camera_from_json_dict
-    from fields.formats import read_measurements
-    from sim.camera_field import simulate_camera_field
+    from dgcal.calib.camera.files import camera_from_json_dict
+    from dgcal.fields.io.formats import read_measurements
+    from dgcal.sim.camera_field import simulate_camera_field
     sim = tmp_path / "sim"
     truth = simulate_camera_field(sim, seed=3, n_images=12, image_size=(1200, 800),
                                   field=TargetField(square_m=0.16, marker_m=0.12), supersample=1, progress=False)
@@ -157,7 +157,7 @@ def test_camera_cli_from_rendered_images(tmp_path, capsys):
 
 
 def test_camera_cli_options_refine_and_fix(sim_dir, tmp_path, capsys):
-    from fields.formats import read_points
+    from dgcal.fields.io.formats import read_points
     d, truth = sim_dir
     out = tmp_path / "out"
     rc, _, err = run_cli(["--field", d / "field.csv", "--measurements", d / "measurements.csv",
@@ -176,7 +176,7 @@ def test_camera_cli_options_refine_and_fix(sim_dir, tmp_path, capsys):
 
 
 def test_initial_camera_of_another_size_is_refused(sim_dir, tmp_path, capsys):
-    from calib.camera_formats import write_camera_json
+    from dgcal.calib.camera.files import write_camera_json
     d, truth = sim_dir
     other = default_camera((3000, 2000))
     write_camera_json(tmp_path / "start.json", other)

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from calib import camera_conversions as cc
-from calib.camera_models import Fraser7, OpenCV8
-from fields.errors import InputError
+from dgcal.calib.camera import conversions as cc
+from dgcal.calib.camera.models import Fraser7, OpenCV8
+from dgcal.fields.errors import InputError
 
 rng = np.random.default_rng(11)
 SIZE = (6000, 4000)

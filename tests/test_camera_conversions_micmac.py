@@ -4,9 +4,9 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from calib import camera_conversions as cc
-from calib.camera_formats import load_camera, parse_micmac, read_camera
-from fields.errors import InputError
+from dgcal.calib.camera import conversions as cc
+from dgcal.calib.camera.files import load_camera, parse_micmac, read_camera
+from dgcal.fields.errors import InputError
 
 IMAGES = ["IMGP4167.JPG", "IMGP4168.JPG", "IMGP4169.JPG", "IMGP4170.JPG"]
 

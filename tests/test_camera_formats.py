@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from calib import camera_conversions as cc
-from calib import camera_formats as cf
-from calib.camera_models import Fraser7, OpenCV8
-from fields.errors import InputError
+from dgcal.calib.camera import conversions as cc
+from dgcal.calib.camera import files as cf
+from dgcal.calib.camera.models import Fraser7, OpenCV8
+from dgcal.fields.errors import InputError
 
 rng = np.random.default_rng(5)
 

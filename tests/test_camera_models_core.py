@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from calib.camera_models import Fraser7, OpenCV8, model_class
-from fields.errors import InputError
+from dgcal.calib.camera.models import Fraser7, OpenCV8, model_class
+from dgcal.fields.errors import InputError
 
 rng = np.random.default_rng(2)
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from calib.camera_models import Fraser7, OpenCV8
+from dgcal.calib.camera.models import Fraser7, OpenCV8
 
 rng = np.random.default_rng(7)
 

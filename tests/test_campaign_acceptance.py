@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dgcal.campaign import run_campaign
-from sim.campaign import simulate_campaign
+from dgcal.sim.campaign import simulate_campaign
 
 # the demo's campaign itself: the acceptance numbers are about it (a smaller 88-image flight, seed 5, misses
 # the 0.02 deg heading boresight by 0.003 deg at 0.5 sigma and the budget by 9 %: see docs/campaign.md)
@@ -60,7 +60,7 @@ def test_every_step_ran_and_wrote_its_outputs(campaign):
 
 def test_simulated_eops_agree_with_the_triangulation(campaign):
     # the simulator's map-grid EOPs (meridian convergence -0.97 deg, curvature) and the bundle's agree
-    from fields.formats import read_eop
+    from dgcal.fields.io.formats import read_eop
     est = read_eop(campaign["out"] / "triangulation" / "eop.csv")
     tru = read_eop(campaign["data"] / "truth" / "eop.csv")
     idx = {k: i for i, k in enumerate(tru.image)}

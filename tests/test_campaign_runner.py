@@ -11,7 +11,7 @@ import pytest
 
 from dgcal.campaign import Step, load_campaign, plan, run_campaign
 from dgcal.cli import build_parser
-from fields.errors import InputError
+from dgcal.fields.errors import InputError
 
 TOML = """crs = "EPSG:32651"
 [camera]

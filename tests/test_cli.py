@@ -8,7 +8,7 @@ def test_help_lists_every_verb_and_simulator_without_importing_them():
     code = ("import sys; from dgcal.cli import build_parser\n"
             "p = build_parser(['mount', '--help'])\n"
             "h = p.format_help()\n"
-            "heavy = [m for m in ('gtsam', 'pycolmap', 'cv2', 'scipy.signal', 'sim.imu') if m in sys.modules]\n"
+            "heavy = [m for m in ('gtsam', 'pycolmap', 'cv2', 'scipy.signal', 'dgcal.sim.imu') if m in sys.modules]\n"
             "print(heavy); print(h)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.splitlines()[0] == "[]"

@@ -4,13 +4,13 @@ import shutil
 import numpy as np
 import pytest
 
-from calib.detection import CharucoPlateDetector, detect_folder, detect_image, read_gray
-from fields.csvio import read_table
-from fields.errors import InputError
-from fields.field_print import print_raster
-from fields.formats import read_measurements, write_measurements
-from fields.target_field import TargetField
-from sim.camera_field import simulate_camera_field
+from dgcal.calib.selfcal.detection import CharucoPlateDetector, detect_folder, detect_image, read_gray
+from dgcal.fields.io.csv_tables import read_table
+from dgcal.fields.errors import InputError
+from dgcal.fields.targets.printing import print_raster
+from dgcal.fields.io.formats import read_measurements, write_measurements
+from dgcal.fields.targets.plate import TargetField
+from dgcal.sim.camera_field import simulate_camera_field
 
 # small images need coarser squares than the default 0.08 m plate to keep > 30 px per square
 FIELD = TargetField(square_m=0.12, marker_m=0.09)
@@ -144,7 +144,7 @@ def test_border_and_homography_rejections():
     xy = np.array([ref[d.target_of_corner[k]] for k in cids])
     j = int(np.nonzero(cids == k2["C0405"])[0][0])
     xy[j] += [5.0, -2.0]
-    from calib.detection import fit_homography
+    from dgcal.calib.selfcal.detection import fit_homography
     H = [fit_homography(np.array([d.corner_board_xy[k] for k in cids]), xy)] * len(cids)
     bad = d._homography_outliers(cids, xy, np.full(len(cids), 80.0), H)
     assert bad[j] and bad.sum() == 1
@@ -152,7 +152,7 @@ def test_border_and_homography_rejections():
 
 @pytest.mark.parametrize("sigma", [1.0, 3.0, 6.0])
 def test_noise_estimate_on_a_textured_image(sigma):
-    from calib.detection import estimate_noise
+    from dgcal.calib.selfcal.detection import estimate_noise
     tf = TargetField(diameter_m=0.9, square_m=0.08, marker_m=0.06)
     clean = print_raster(tf, 25.4).astype(float) * 0.7 + 40  # strong edges over much of the image
     rng = np.random.default_rng(1)

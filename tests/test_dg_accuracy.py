@@ -2,13 +2,13 @@
 import numpy as np
 import pytest
 
-from calib.dg import dg_eop
-from calib.dg_accuracy import asprs_2023, check_points_dg, error_stats, improvement_rate, improvement_table
-from calib.mounting import calibrate_mounting
-from calib.mounting_common import MountingResult, so3_log
-from fields.crs import MapGrid
-from fields.frames import R_cv_to_map_from_opk
-from sim.mounting import simulate_mounting
+from dgcal.calib.dg.eop import dg_eop
+from dgcal.calib.dg.accuracy import asprs_2023, check_points_dg, error_stats, improvement_rate, improvement_table
+from dgcal.calib.mounting.methods import calibrate_mounting
+from dgcal.calib.mounting.common import MountingResult, so3_log
+from dgcal.fields.crs import MapGrid
+from dgcal.fields.frames import R_cv_to_map_from_opk
+from dgcal.sim.mounting import simulate_mounting
 
 
 @pytest.fixture(scope="module")
@@ -76,8 +76,8 @@ def test_statistics_follow_seed_table_2_and_4():
 
 
 def test_straight_segment_time_of_a_racetrack():
-    from calib.dg_accuracy import straight_segment_time
-    from fields.formats import Trajectory
+    from dgcal.calib.dg.accuracy import straight_segment_time
+    from dgcal.fields.io.formats import Trajectory
     t = np.arange(0.0, 400.0, 0.1)
     # 60 s straight, 180 deg turn in 15 s (12 deg/s), repeated
     period = 75.0

@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
-from calib.dg import dg_eop
-from calib.mounting_common import MountingResult
-from fields.crs import MapGrid
-from fields.errors import InputError
-from reports.eop_exports import (export_all, read_colmap, read_metashape, read_odm_geo, read_pix4d)
-from sim.mounting import simulate_mounting
+from dgcal.calib.dg.eop import dg_eop
+from dgcal.calib.mounting.common import MountingResult
+from dgcal.fields.crs import MapGrid
+from dgcal.fields.errors import InputError
+from dgcal.reports.exports.eop import (export_all, read_colmap, read_metashape, read_odm_geo, read_pix4d)
+from dgcal.sim.mounting import simulate_mounting
 
 
 @pytest.fixture(scope="module")
@@ -48,8 +48,8 @@ def test_colmap_round_trip_and_reprojection(data, tmp_path):
     rec = pycolmap.Reconstruction(str(tmp_path / "colmap"))
     assert rec.num_images() == len(eop.image) and rec.num_points3D() == len(set(mp.measurements.id))
     # pixels of the ground points through pycolmap vs dgcal's camera model with the same DG EOPs
-    from calib.mounting_common import BlockFrame
-    from fields.crs import LocalENU
+    from dgcal.calib.mounting.common import BlockFrame
+    from dgcal.fields.crs import LocalENU
     import json
     geo = json.loads((tmp_path / "colmap" / "georef.json").read_text())
     frame = BlockFrame(g, LocalENU(*geo["origin_lat_lon_h"]))

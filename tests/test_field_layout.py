@@ -5,10 +5,10 @@ import re
 import numpy as np
 import pytest
 
-from fields.errors import InputError
-from fields.field_print import plate_texture, print_raster
-from fields.formats import read_points
-from fields.target_field import TargetField, load_layout, nonplanar_field, write_field
+from dgcal.fields.errors import InputError
+from dgcal.fields.targets.printing import plate_texture, print_raster
+from dgcal.fields.io.formats import read_points
+from dgcal.fields.targets.plate import TargetField, load_layout, nonplanar_field, write_field
 
 
 def test_default_field_has_enough_unique_targets_on_the_plate():
@@ -99,7 +99,7 @@ def test_field_command_writes_true_scale_outputs(tmp_path):
 
 
 def test_printed_raster_is_detected_at_the_right_places():
-    from calib.detection import detect_image
+    from dgcal.calib.selfcal.detection import detect_image
     tf = TargetField(diameter_m=0.9, square_m=0.08, marker_m=0.06)
     img = print_raster(tf, 25.4)  # 1 mm pixels: square edges fall on pixel edges
     det = detect_image(img, tf)
@@ -116,7 +116,7 @@ def test_tiled_print_matches_the_plate():
 
     from PIL import Image
 
-    from fields.field_print import tile_figure, tile_grid
+    from dgcal.fields.targets.printing import tile_figure, tile_grid
     tf = TargetField(diameter_m=0.9)
     tiles = tile_grid(tf, "A4")
     ref = print_raster(tf, 25.4)

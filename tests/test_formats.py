@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from fields import formats as F
-from fields.errors import InputError
+from dgcal.fields.io import formats as F
+from dgcal.fields.errors import InputError
 
 rng = np.random.default_rng(3)
 

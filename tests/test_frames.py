@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fields import frames
-from fields.crs import LocalENU, MapGrid, ecef_to_geodetic, geodetic_to_ecef
+from dgcal.fields import frames
+from dgcal.fields.crs import LocalENU, MapGrid, ecef_to_geodetic, geodetic_to_ecef
 
 rng = np.random.default_rng(1)
 
@@ -91,7 +91,7 @@ def test_map_grid_round_trips():
 
 
 def test_bad_crs_is_input_error():
-    from fields.errors import InputError
+    from dgcal.fields.errors import InputError
     with pytest.raises(InputError, match="not a CRS"):
         MapGrid("EPSG:999999")
 

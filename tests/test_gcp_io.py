@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from fields.errors import InputError
-from fields.formats import Measurements, Points
-from fields.gcp_io import (is_odm_gcp_list, odm_crs_to_pyproj, read_any_measurements, read_micmac_measurements,
+from dgcal.fields.errors import InputError
+from dgcal.fields.io.formats import Measurements, Points
+from dgcal.fields.io.gcp_files import (is_odm_gcp_list, odm_crs_to_pyproj, read_any_measurements, read_micmac_measurements,
                            read_micmac_orientation, read_micmac_points, read_odm_gcp_list, write_odm_gcp_list)
 
 

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from pos.ephemeris import satellite_states, select_ephemeris, states_at_transmission
-from pos.gnss_corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m, sagnac_rotate,
+from dgcal.pos.gnss.ephemeris import satellite_states, select_ephemeris, states_at_transmission
+from dgcal.pos.gnss.corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m, sagnac_rotate,
                                   saastamoinen_delay_m)
-from pos.gnss_types import C_LIGHT, OMEGA_E
-from pos.rinex import gtime_from_gps_seconds, read_rinex_nav
+from dgcal.pos.gnss.observations import C_LIGHT, OMEGA_E
+from dgcal.pos.gnss.rinex import gtime_from_gps_seconds, read_rinex_nav
 
 T0 = 2149 * 604800.0 + 5 * 86400.0 + 12 * 3600.0   # 2021-03-19 12:00 GPS
 REF = np.array([-3962108.673, 3381309.574, 3668678.638])
@@ -49,7 +49,7 @@ def test_transmission_time_is_consistent(nav):
 
 
 def test_elevation_azimuth_directions():
-    from fields.crs import LocalENU
+    from dgcal.fields.crs import LocalENU
     enu = LocalENU(35.0, 139.0, 50.0)
     sats = enu.to_ecef(np.array([[0, 0, 2e7], [0, 2e7, 0.0], [2e7, 0, 0.0], [1e7, 0, 1e7]]))
     el, az = elevation_azimuth(enu.origin_ecef, sats)
@@ -113,7 +113,7 @@ def test_code_sigma_grows_towards_horizon():
 
 def test_beidou_geo_state_uses_cssrlib_geo_frame():
     from cssrlib.gnss import Eph, char2sys, gpst2time, prn2sat
-    from pos.rinex import BroadcastNav
+    from dgcal.pos.gnss.rinex import BroadcastNav
     week, toes = 2149, 475200.0
     eph = Eph(prn2sat(char2sys("C"), 1))
     eph.week, eph.toes = week, toes
@@ -129,7 +129,7 @@ def test_beidou_geo_state_uses_cssrlib_geo_frame():
     assert abs(np.linalg.norm(p[0]) - 42164.0e3) < 50e3
     assert np.linalg.norm(v[0]) < 400.0              # geosynchronous: slow in ECEF (MEO: ~3 km/s)
     # in ECEF a geosynchronous orbit repeats after one sidereal day
-    from pos.ephemeris import _geo_state
+    from dgcal.pos.gnss.ephemeris import _geo_state
     p1, *_ = _geo_state(eph, t + 86164.09)
     assert np.linalg.norm(p1 - p[0]) < 2e3
     assert clk[0] == pytest.approx(1e-4 + 1e-12 * 100.0, abs=3e-9)   # + relativistic term

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from fields.errors import InputError
-from pos.gnss_types import C_LIGHT
-from pos.rinex import (calendar_from_gps_seconds, gps_seconds_from_calendar, gps_seconds_from_gtime,
+from dgcal.fields.errors import InputError
+from dgcal.pos.gnss.observations import C_LIGHT
+from dgcal.pos.gnss.rinex import (calendar_from_gps_seconds, gps_seconds_from_calendar, gps_seconds_from_gtime,
                        gtime_from_gps_seconds, read_rinex_nav, read_rinex_obs, write_rinex_obs)
 
 OBS = "rinex-sept/SEPT078M1.21O"
@@ -81,7 +81,7 @@ def test_errors_name_file_and_line(shared_data, tmp_path):
 
 
 def test_writer_round_trip(shared_data, tmp_path):
-    from sim.gnss import DEFAULT_T0_GPS, circle_trajectory, simulate_gnss
+    from dgcal.sim.gnss import DEFAULT_T0_GPS, circle_trajectory, simulate_gnss
     nav = read_rinex_nav(shared_data / NAV)
     t = DEFAULT_T0_GPS + np.arange(0.0, 5.0)
     p, v = circle_trajectory(t, 35.3, 139.5, 80.0, 100.0, 10.0)

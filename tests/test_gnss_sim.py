@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from pos.gnss_types import CLOCK_GROUP
-from pos.rinex import read_rinex_nav
-from pos.spp import SppOptions, spp
-from sim.gnss import DEFAULT_T0_GPS, circle_trajectory, simulate_gnss, synthetic_nav
+from dgcal.pos.gnss.observations import CLOCK_GROUP
+from dgcal.pos.gnss.rinex import read_rinex_nav
+from dgcal.pos.gnss.spp import SppOptions, spp
+from dgcal.sim.gnss import DEFAULT_T0_GPS, circle_trajectory, simulate_gnss, synthetic_nav
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +89,7 @@ def test_synthetic_constellation_with_beidou():
 
 def test_cli_simulate_then_pos_end_to_end(tmp_path):
     from dgcal.cli import main
-    from fields.csvio import read_table
+    from dgcal.fields.io.csv_tables import read_table
     sim_dir, out = tmp_path / "sim", tmp_path / "pos"
     rc = main(["simulate", "gnss", "--out", str(sim_dir), "--seed", "4", "--duration", "30",
                "--radius", "80", "--speed", "8", "--systems", "GE"])
@@ -112,9 +112,9 @@ def test_cli_simulate_then_pos_end_to_end(tmp_path):
 def test_rtklib_reads_simulated_rinex_without_bias(nav, tmp_path):
     """An independent implementation (RTKLIB pntpos) positions our simulated RINEX near the truth."""
     pytest.importorskip("pyrtklib")
-    from pos.rinex import write_rinex_obs
-    from sim.gnss import DEFAULT_NAV
-    from pos.rtklib_bridge import rtklib_pntpos
+    from dgcal.pos.gnss.rinex import write_rinex_obs
+    from dgcal.sim.gnss import DEFAULT_NAV
+    from dgcal.pos.gnss.rtklib import rtklib_pntpos
     t = DEFAULT_T0_GPS + 1200.0 + np.arange(0.0, 40.0)
     p, v = circle_trajectory(t, 35.3, 139.5, 100.0, 0.0, 0.0)
     # GPS only: there RTKLIB's single-frequency models (TGD, Klobuchar, Saastamoinen) are ours;

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from pos.rinex import read_rinex_nav, read_rinex_obs
-from pos.spp import SppOptions, prepare_epoch, solve_epoch, spp
+from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
+from dgcal.pos.gnss.spp import SppOptions, prepare_epoch, solve_epoch, spp
 
 REF = np.array([-3962108.673, 3381309.574, 3668678.638])
 OBS = "rinex-sept/SEPT078M1.21O"
@@ -42,7 +42,7 @@ def test_real_spp_within_3m(real_sol):
 
 def test_real_spp_side_by_side_with_rtklib(real_sol, shared_data):
     pytest.importorskip("pyrtklib")
-    from pos.rtklib_bridge import rtklib_pntpos
+    from dgcal.pos.gnss.rtklib import rtklib_pntpos
     t, p = rtklib_pntpos(str(shared_data / OBS), str(shared_data / NAV))
     assert len(t) == 60
     rms_rtklib = np.sqrt(np.mean(np.sum((p - REF) ** 2, axis=1)))
@@ -86,7 +86,7 @@ def test_too_few_satellites_gives_no_fix(real):
 
 def test_cli_writes_gnss_csv(shared_data, tmp_path):
     from dgcal.cli import main
-    from fields.csvio import read_table
+    from dgcal.fields.io.csv_tables import read_table
     out = tmp_path / "out"
     rc = main(["pos", "--rinex-obs", str(shared_data / OBS), "--rinex-nav", str(shared_data / NAV),
                "--mode", "spp", "--out", str(out), "--no-progress"])

@@ -1,9 +1,9 @@
 """Multi-ray intersection: accuracy, honest covariance, pose sensitivities against finite differences."""
 import numpy as np
 
-from bundle.intersection import intersect, propagate_pose_covariance
-from calib.mounting_common import so3_exp
-from sim.mounting import default_camera
+from dgcal.bundle.intersection import intersect, propagate_pose_covariance
+from dgcal.calib.mounting.common import so3_exp
+from dgcal.sim.mounting import default_camera
 
 
 def _scene(seed=0, n_pts=30):

@@ -1,9 +1,9 @@
 """Real data: intersect micmac-saisies ground points from MicMac's own orientations and calibration."""
 import numpy as np
 
-from bundle.intersection import intersect
-from calib.camera_formats import load_camera
-from fields.gcp_io import read_micmac_measurements, read_micmac_orientation, read_micmac_points
+from dgcal.bundle.intersection import intersect
+from dgcal.calib.camera.files import load_camera
+from dgcal.fields.io.gcp_files import read_micmac_measurements, read_micmac_orientation, read_micmac_points
 
 
 def test_micmac_ground_points_from_micmac_orientations(shared_data):

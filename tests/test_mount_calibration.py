@@ -3,12 +3,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib.mounting import calibrate_mounting, prepare_epochs
-from calib.mounting_common import BlockFrame, so3_log
-from calib.mounting_diagnostics import observability_warnings
-from fields.crs import LocalENU, MapGrid
-from fields.formats import EOP, Trajectory
-from sim.mounting import simulate_mounting
+from dgcal.calib.mounting.methods import calibrate_mounting, prepare_epochs
+from dgcal.calib.mounting.common import BlockFrame, so3_log
+from dgcal.calib.mounting.observability import observability_warnings
+from dgcal.fields.crs import LocalENU, MapGrid
+from dgcal.fields.io.formats import EOP, Trajectory
+from dgcal.sim.mounting import simulate_mounting
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +49,7 @@ def test_block_frame_handles_convergence():
     assert np.allclose(opk[0, :2], 0, atol=1e-6)
     assert conv < 0 and abs(opk[0, 2] - conv) < 1e-6
     # and the sign: grid axes are true axes rotated by the convergence about Up
-    from fields.frames import R_cv_to_map_from_opk, R_enu_to_grid
+    from dgcal.fields.frames import R_cv_to_map_from_opk, R_enu_to_grid
     assert np.allclose(R_cv_to_map_from_opk(*opk[0]), R_enu_to_grid(conv) @ R_cv_to_enu, atol=1e-6)
 
 
@@ -143,7 +143,7 @@ def test_one_heading_one_height_warns():
 
 
 def test_too_few_epochs_is_an_input_error(sim):
-    from fields.errors import InputError
+    from dgcal.fields.errors import InputError
     c = sim.calibration
     eop = EOP(c.eop.image[:2], c.eop.xyz[:2], c.eop.opk[:2], c.eop.sigma[:2])
     with pytest.raises(InputError, match="at least 3"):
@@ -163,7 +163,7 @@ def test_other_map_crs(crs):
 def test_common_mode_pos_errors_need_the_common_fraction():
     """A smoother's POS errors partly repeat in every photo (bias-driven tilt, GNSS biases): treated as
     independent, the sigmas are too small; with pos_common_fraction they cover the errors again."""
-    from calib.mounting import calibrate_mounting
+    from dgcal.calib.mounting.methods import calibrate_mounting
     z_indep, z_common = [], []
     for seed in range(6):
         s = simulate_mounting(seed, calibration={"pos_common_fraction": 1.0,
@@ -179,7 +179,7 @@ def test_common_mode_pos_errors_need_the_common_fraction():
 
 
 def test_dg_covariance_counts_the_common_mode_once_on_the_calibration_flight():
-    from calib.mounting_common import MountingResult
+    from dgcal.calib.mounting.common import MountingResult
     s = simulate_mounting(2, calibration={"pos_common_fraction": 1.0})
     c = s.calibration
     res = calibrate_mounting(c.eop, MapGrid(s.crs), c.traj, c.events, "proposed", pos_common_fraction=1.0)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from dgcal.cli import main
-from sim.mounting import simulate_mounting, write_mounting_sim
+from dgcal.sim.mounting import simulate_mounting, write_mounting_sim
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,8 @@
 """dgcal compare: a significant mounting change is detected, an unchanged one is not."""
 import numpy as np
 
-from calib.mounting_common import MountingResult, so3_exp
-from calib.mounting_compare import compare_mountings
+from dgcal.calib.mounting.common import MountingResult, so3_exp
+from dgcal.calib.mounting.compare import compare_mountings
 
 
 def _m(delay, lever, rot, sig=(1e-3, 0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-4)):

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from calib.mounting_common import so3_log
-from calib.mounting_iso import calibrate_iso
+from dgcal.calib.mounting.common import so3_log
+from dgcal.calib.mounting.integrated import calibrate_iso
 from dgcal.cli import main
-from fields.crs import MapGrid
-from sim.mounting import simulate_mounting, write_mounting_sim
+from dgcal.fields.crs import MapGrid
+from dgcal.sim.mounting import simulate_mounting, write_mounting_sim
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +78,7 @@ def test_iso_pos_common_mode_sigmas_honest():
 
 
 def test_iso_rejects_bad_pos_common_fraction(sim):
-    from fields.errors import InputError
+    from dgcal.fields.errors import InputError
     c = sim.calibration
     with pytest.raises(InputError, match="pos_common_fraction"):
         calibrate_iso(c.eop, MapGrid(sim.crs), c.traj, c.events, c.measurements, sim.ground, sim.camera,

@@ -3,10 +3,10 @@ simulated 300 s flight with a rendered forward camera and OpenCV pyramidal Lucas
 import numpy as np
 import pytest
 
-from fields.frames import R_body_to_ned_from_rph
-from pos.optic_flow import (R_CAM_TO_BODY_FORWARD, depth_from_flow, exp_so3, focus_of_expansion, ground_homography,
+from dgcal.fields.frames import R_body_to_ned_from_rph
+from dgcal.pos.lowcost.optic_flow import (R_CAM_TO_BODY_FORWARD, depth_from_flow, exp_so3, focus_of_expansion, ground_homography,
                             height_above_ground, pitch_yaw_from_velocity)
-from sim.forward_camera import flow_attitude_study, format_table2, forward_camera, make_forward_camera_sim
+from dgcal.sim.forward_camera import flow_attitude_study, format_table2, forward_camera, make_forward_camera_sim
 
 
 def test_pitch_yaw_from_velocity_round_trip():

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fields.errors import InputError
-from fields.formats import Events, Trajectory, read_trajectory, write_trajectory
-from pos.interpolate import TrajectoryInterpolator, interpolate_trajectory, trajectory_at_events
-from sim.trajectory import camera_events, simulate_flight
+from dgcal.fields.errors import InputError
+from dgcal.fields.io.formats import Events, Trajectory, read_trajectory, write_trajectory
+from dgcal.pos.ins.interpolate import TrajectoryInterpolator, interpolate_trajectory, trajectory_at_events
+from dgcal.sim.trajectory import camera_events, simulate_flight
 
 
 @pytest.fixture(scope="module")

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from fields.errors import InputError
-from pos.imu_io import (ImuData, WEEK_S, read_imu_csv, read_imu_text, read_kf_gins, write_imu_csv,
+from dgcal.fields.errors import InputError
+from dgcal.pos.ins.imu_data import (ImuData, WEEK_S, read_imu_csv, read_imu_text, read_kf_gins, write_imu_csv,
                         write_kf_gins)
 
 

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from fields.errors import InputError
-from fields.formats import Trajectory, read_events, write_events
-from pos.event_marks import make_events, match_events_to_images, read_mrk, write_mrk
-from pos.sbet import (SBET_DTYPE, read_sbet, read_sbet_with_sigmas, read_smrmsg, write_sbet, write_smrmsg)
+from dgcal.fields.errors import InputError
+from dgcal.fields.io.formats import Trajectory, read_events, write_events
+from dgcal.pos.events import make_events, match_events_to_images, read_mrk, write_mrk
+from dgcal.pos.ins.sbet import (SBET_DTYPE, read_sbet, read_sbet_with_sigmas, read_smrmsg, write_sbet, write_smrmsg)
 
 WEEK = 2300
 

@@ -8,8 +8,8 @@ import pytest
 
 pytest.importorskip("gtsam")
 
-from fields.errors import InputError  # noqa: E402
-from fields.formats import read_trajectory  # noqa: E402
+from dgcal.fields.errors import InputError  # noqa: E402
+from dgcal.fields.io.formats import read_trajectory  # noqa: E402
 
 
 def _dgcal(argv) -> int:
@@ -58,7 +58,7 @@ def test_cli_writes_trajectory_and_events(dataset, tmp_path, mode):
     ev = read_trajectory(out / "events.csv")
     truth = read_trajectory(dataset / "truth_events.csv")
     assert list(ev.image) == list(truth.image)
-    from fields.crs import geodetic_to_ecef
+    from dgcal.fields.crs import geodetic_to_ecef
     dp = geodetic_to_ecef(ev.lat, ev.lon, ev.h) - geodetic_to_ecef(truth.lat, truth.lon, truth.h)
     assert np.sqrt(np.mean(np.sum(dp ** 2, axis=1))) < 1.0
     d = ev.rph - truth.rph
@@ -82,7 +82,7 @@ def test_cli_lc_from_gnss_csv(dataset, tmp_path):
     assert _dgcal(argv) == 0
     ev = read_trajectory(tmp_path / "lc" / "events.csv")
     truth = read_trajectory(dataset / "truth_events.csv")
-    from fields.crs import geodetic_to_ecef
+    from dgcal.fields.crs import geodetic_to_ecef
     dp = geodetic_to_ecef(ev.lat, ev.lon, ev.h) - geodetic_to_ecef(truth.lat, truth.lon, truth.h)
     assert np.sqrt(np.mean(np.sum(dp ** 2, axis=1))) < 3.0
 
@@ -96,7 +96,7 @@ def test_event_outside_the_flight_names_the_events_file(dataset, tmp_path):
     args = _pos_args(dataset, tmp_path / "o", "tc")
     args[args.index("--events") + 1] = str(bad)
     with pytest.raises(InputError) as exc:
-        from pos.pipeline import run_pos
+        from dgcal.pos.pipeline import run_pos
         import argparse
         from dgcal.commands import pos as cmd
         p = argparse.ArgumentParser()
@@ -108,7 +108,7 @@ def test_event_outside_the_flight_names_the_events_file(dataset, tmp_path):
 
 
 def test_bad_settings_and_missing_inputs(dataset, tmp_path):
-    from pos.pipeline import parse_settings, run_pos
+    from dgcal.pos.pipeline import parse_settings, run_pos
     with pytest.raises(InputError, match="--set"):
         parse_settings(["nonsense=3"])
     with pytest.raises(InputError, match="--set"):

@@ -4,9 +4,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pos.imu_grades import DEG, GRADES, G0, ImuGrade, imu_grade
-from sim.imu import gauss_markov, simulate_imu
-from sim.trajectory import simulate_flight
+from dgcal.pos.ins.error_model import DEG, GRADES, G0, ImuGrade, imu_grade
+from dgcal.sim.imu import gauss_markov, simulate_imu
+from dgcal.sim.trajectory import simulate_flight
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +82,7 @@ def test_seed_reproducible_and_distinct(truth):
 
 
 def test_smoother_reads_the_grade():
-    from pos.smoother_imu import imu_noise_from_grade
+    from dgcal.pos.smoother.preintegration import imu_noise_from_grade
     g = imu_grade("adis16488")
     n = imu_noise_from_grade(g)
     assert n.gyro_arw == pytest.approx(g.gyro_arw) and n.accel_vrw == pytest.approx(g.accel_vrw)
@@ -93,9 +93,9 @@ def test_smoother_reads_the_grade():
 def test_simulate_imu_dataset_files_read_back(tmp_path):
     import json
 
-    from fields.formats import read_events, read_trajectory
-    from pos.imu_io import read_kf_gins
-    from sim.imu import simulate_imu_dataset
+    from dgcal.fields.io.formats import read_events, read_trajectory
+    from dgcal.pos.ins.imu_data import read_kf_gins
+    from dgcal.sim.imu import simulate_imu_dataset
     info = simulate_imu_dataset(tmp_path / "out", seed=2, grade="consumer", heights_agl=(150.0,), n_strips=2,
                                 duration_s=120.0, rate_hz=50.0, delay_s=-0.05)
     d = tmp_path / "out"

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.strapdown import OMEGA_IE_E, gravity_ecef, integrate_strapdown_ecef
-from sim.trajectory import camera_events, simulate_flight
+from dgcal.sim.strapdown import OMEGA_IE_E, gravity_ecef, integrate_strapdown_ecef
+from dgcal.sim.trajectory import camera_events, simulate_flight
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +85,7 @@ def test_at_matches_samples_and_velocity_is_position_rate(flight):
 
 
 def test_as_trajectory_csv_round_trip(flight, tmp_path):
-    from fields.formats import read_trajectory, write_trajectory
+    from dgcal.fields.io.formats import read_trajectory, write_trajectory
     write_trajectory(tmp_path / "truth.csv", flight.as_trajectory(step=100))
     back = read_trajectory(tmp_path / "truth.csv")
     np.testing.assert_allclose(back.t, flight.t[::100], atol=1e-6)

@@ -14,11 +14,11 @@ pytest.importorskip("gtsam")
 
 
 def _lc_run(grade_name: str, seed: int):
-    from pos.imu_grades import imu_grade
-    from pos.smoother import SmootherOptions, smooth
-    from pos.smoother_init import GnssFixes
-    from sim.imu import simulate_imu
-    from sim.trajectory import simulate_flight
+    from dgcal.pos.ins.error_model import imu_grade
+    from dgcal.pos.smoother.batch import SmootherOptions, smooth
+    from dgcal.pos.smoother.initial import GnssFixes
+    from dgcal.sim.imu import simulate_imu
+    from dgcal.sim.trajectory import simulate_flight
     truth = simulate_flight("fixed-wing", heights_agl=(300.0,), n_strips=4, strip_length_m=700.0, rate_hz=100.0)
     grade = imu_grade(grade_name)
     imu, err = simulate_imu(truth, grade, seed=seed, misalignment=False)

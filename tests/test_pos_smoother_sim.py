@@ -1,6 +1,6 @@
 """Acceptance of the GNSS/INS smoother on a simulated UAV flight (issue 4), in a short version for the suite.
 
-ADIS16488-class IMU (pos.imu_grades, with scale factors and misalignments) at 100 Hz, code pseudoranges and
+ADIS16488-class IMU (dgcal.pos.ins.error_model, with scale factors and misalignments) at 100 Hz, code pseudoranges and
 Doppler of GPS + Galileo from the real broadcast orbits, a 60 s outage with only 3 satellites, 5 minutes.
 The 20-minute, 200 Hz version runs in bench/pos.py (`--acceptance`).
 """
@@ -11,14 +11,14 @@ import pytest
 
 pytest.importorskip("gtsam")
 
-from sim.pos import navigation_errors  # noqa: E402
+from dgcal.sim.pos import navigation_errors  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def flight():
-    from pos.pipeline import process
-    from pos.spp import SppOptions
-    from sim.pos import simulate_pos
+    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss.spp import SppOptions
+    from dgcal.sim.pos import simulate_pos
     sim = simulate_pos(seed=0, duration_s=300.0, rate_hz=100.0)
     opts = SppOptions(code_sigma_zenith_m=sim.sigma_pr, doppler_sigma_zenith_mps=sim.sigma_doppler,
                       model_errors=False, systems=("G", "E"))
@@ -50,7 +50,7 @@ def test_tc_event_attitude_in_rph(flight):
     d = ev.rph - te.rph
     d[:, 2] = (d[:, 2] + 180.0) % 360.0 - 180.0
     assert np.all(rms(d)[:2] <= 0.05) and rms(d)[2] <= 0.15
-    from fields.crs import geodetic_to_ecef
+    from dgcal.fields.crs import geodetic_to_ecef
     dp = geodetic_to_ecef(ev.lat, ev.lon, ev.h) - te.p_ecef
     assert rms(np.linalg.norm(dp, axis=1)) <= 1.0
 
@@ -103,10 +103,10 @@ def test_post_fit_residuals_match_their_sigmas(flight):
 def test_initialisation_in_a_turn():
     """Data that start in the middle of the climbing orbit (15 deg bank, no static alignment) still converge."""
 
-    from pos.gnss_types import GnssObservations
-    from pos.pipeline import process
-    from pos.spp import SppOptions
-    from sim.pos import simulate_pos
+    from dgcal.pos.gnss.observations import GnssObservations
+    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss.spp import SppOptions
+    from dgcal.sim.pos import simulate_pos
     sim = simulate_pos(seed=7, duration_s=150.0, rate_hz=50.0)
     t0 = sim.traj.t[0] + 25.0  # inside the orbit climb after the 10 s take-off run
     assert abs(sim.traj.at([t0]).rph[0, 0]) > 5.0

@@ -6,9 +6,9 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")
 
-from pos.gnss_types import C_LIGHT, GnssEpoch  # noqa: E402
-from pos.nav_frame import NavFrame  # noqa: E402
-from pos.smoother_factors import CLK, DRIFT, V, X, ZERO, doppler_factors, pseudorange_factors  # noqa: E402
+from dgcal.pos.gnss.observations import C_LIGHT, GnssEpoch  # noqa: E402
+from dgcal.pos.ins.nav_frame import NavFrame  # noqa: E402
+from dgcal.pos.smoother.factors import CLK, DRIFT, V, X, ZERO, doppler_factors, pseudorange_factors  # noqa: E402
 
 
 def test_nav_frame_round_trip_and_curvature():
@@ -23,7 +23,7 @@ def test_nav_frame_round_trip_and_curvature():
 
 
 def _epoch(frame, p_ant_nav, v_ant_nav, clk_s, drift, rng):
-    """A hand-built GnssEpoch (corrected-pseudorange convention of pos.gnss_types) for 6 satellites."""
+    """A hand-built GnssEpoch (corrected-pseudorange convention of dgcal.pos.gnss.observations) for 6 satellites."""
     r = frame.to_ecef(p_ant_nav)
     v_r = v_ant_nav @ frame.R_nav_to_ecef.T
     n = 6
@@ -81,7 +81,7 @@ def test_tc_factors_vanish_at_the_truth():
 
 
 def test_split_at_keyframes_keeps_the_increments():
-    from pos.smoother_imu import split_at_keyframes
+    from dgcal.pos.smoother.preintegration import split_at_keyframes
     rng = np.random.default_rng(0)
     t = 100.0 + np.arange(1, 1001) * 0.01
     g = rng.normal(size=(1000, 3))
@@ -103,8 +103,8 @@ def test_preintegration_is_exact_in_a_steady_turn():
     # body yawing at 13 deg/s with a constant horizontal specific force in nav (a coordinated turn's
     # centripetal part): the velocity increment over 1 s at 100 Hz must equal f_nav * T. Without the
     # rotation compensation gtsam rotates each sample's force by the start attitude: error w dt/2 * |f| * T
-    from pos.imu_grades import imu_grade
-    from pos.smoother_imu import (ImuSegments, imu_noise_from_grade, preintegrate, preintegration_params,
+    from dgcal.pos.ins.error_model import imu_grade
+    from dgcal.pos.smoother.preintegration import (ImuSegments, imu_noise_from_grade, preintegrate, preintegration_params,
                                   rotation_compensated_accel)
     import gtsam
     w, dt, n = 0.228, 0.01, 100
@@ -127,8 +127,8 @@ def test_preintegration_is_exact_in_a_steady_turn():
 
 
 def test_euler_rate_matrix_matches_numerical_derivative():
-    from fields.frames import R_body_to_ned_from_rph, rph_from_R_body_to_ned
-    from pos.smoother_output import euler_rate_matrix
+    from dgcal.fields.frames import R_body_to_ned_from_rph, rph_from_R_body_to_ned
+    from dgcal.pos.smoother.output import euler_rate_matrix
     rph = np.array([[12.0, -7.0, 250.0]])
     J = euler_rate_matrix(rph)[0]
     R0 = R_body_to_ned_from_rph(*rph[0])
@@ -144,7 +144,7 @@ def test_euler_rate_matrix_matches_numerical_derivative():
 
 
 def test_gravity_correction_tilts_with_distance():
-    from pos.smoother_imu import gravity_correction_b
+    from dgcal.pos.smoother.preintegration import gravity_correction_b
     f = NavFrame(35.0, 139.0, 50.0)
     t_key = np.array([0.0, 1.0])
     R = np.stack([np.eye(3), np.eye(3)])
@@ -157,10 +157,10 @@ def test_gravity_correction_tilts_with_distance():
 
 def _lc_problem(K=40, seed=0):
     """A small LC problem built from a straight simulated segment (no clocks, so gtsam.Marginals works)."""
-    from pos.imu_io import ImuData
-    from pos.smoother import SmootherOptions, build_problem, optimize
-    from pos.smoother_imu import ImuNoise
-    from pos.smoother_init import GnssFixes
+    from dgcal.pos.ins.imu_data import ImuData
+    from dgcal.pos.smoother.batch import SmootherOptions, build_problem, optimize
+    from dgcal.pos.smoother.preintegration import ImuNoise
+    from dgcal.pos.smoother.initial import GnssFixes
     rng = np.random.default_rng(seed)
     frame = NavFrame(30.0, 100.0, 0.0)
     rate = 50.0
@@ -179,7 +179,7 @@ def _lc_problem(K=40, seed=0):
 
 
 def test_block_covariances_equal_gtsam_marginals():
-    from pos.smoother_covariance import KeyframeBlocks, smoothed_covariances
+    from dgcal.pos.smoother.covariance import KeyframeBlocks, smoothed_covariances
     pr, vals = _lc_problem()
     P = smoothed_covariances(pr.graph, vals, KeyframeBlocks(len(pr.t_key), []))
     m = gtsam.Marginals(pr.graph, vals)
@@ -190,7 +190,7 @@ def test_block_covariances_equal_gtsam_marginals():
 
 def test_forward_pass_meets_the_smoother_at_the_last_epoch():
     """Filter and smoother agree at the final epoch (same information), and the filter is never tighter."""
-    from pos.smoother_covariance import KeyframeBlocks, forward_pass, smoothed_covariances
+    from dgcal.pos.smoother.covariance import KeyframeBlocks, forward_pass, smoothed_covariances
     pr, vals = _lc_problem()
     blocks = KeyframeBlocks(len(pr.t_key), [])
     dx, Pf = forward_pass(pr.graph, vals, blocks)
@@ -210,7 +210,7 @@ def test_forward_pass_meets_the_smoother_at_the_last_epoch():
 def test_scale_and_misalignment_are_turn_noise_not_bias_jumps():
     """A 180 deg turn between straight lines: the extra gyro noise integrates to (scale * 180 deg)^2 on the turn
     axis, (misalignment * 180 deg)^2 on the others, nothing on the straights, and the bias walk is unchanged."""
-    from pos.smoother_imu import ImuNoise, ImuSegments, interval_params
+    from dgcal.pos.smoother.preintegration import ImuNoise, ImuSegments, interval_params
     dt = 0.5
     t = np.arange(0.0, 120.0, dt)
     w = np.where((t >= 50.0) & (t < 50.0 + np.pi / 0.4), 0.4, 0.0)  # 0.4 rad/s for pi rad, shorter than the window

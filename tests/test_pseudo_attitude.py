@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from pos.pseudo_attitude import pseudo_attitude, time_derivative
-from sim.strapdown import OMEGA_IE_E
-from sim.trajectory import G_NOMINAL, simulate_flight
+from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude, time_derivative
+from dgcal.sim.strapdown import OMEGA_IE_E
+from dgcal.sim.trajectory import G_NOMINAL, simulate_flight
 
 
 @pytest.fixture(scope="module")

@@ -4,12 +4,12 @@ import json
 import numpy as np
 import pytest
 
-from calib.detection import detect_folder
-from fields.csvio import read_table
-from fields.formats import read_points
-from fields.target_field import TargetField, nonplanar_field
-from sim.camera_field import default_camera, plan_shots, plate_facets, truth_projections
-from sim.render import Facet, render
+from dgcal.calib.selfcal.detection import detect_folder
+from dgcal.fields.io.csv_tables import read_table
+from dgcal.fields.io.formats import read_points
+from dgcal.fields.targets.plate import TargetField, nonplanar_field
+from dgcal.sim.camera_field import default_camera, plan_shots, plate_facets, truth_projections
+from dgcal.sim.render import Facet, render
 
 
 def _look_down(tilt_deg, dist):
@@ -73,7 +73,7 @@ def test_cli_writes_images_and_consistent_truth(tmp_path):
     import cv2
 
     from dgcal.cli import main
-    from calib.camera_formats import camera_from_json_dict
+    from dgcal.calib.camera.files import camera_from_json_dict
     out = tmp_path / "sim"
     assert main(["simulate", "camera-field", "--out", str(out), "--seed", "5", "--n-images", "2",
                  "--image-size", "480", "320", "--square", "0.2", "--marker", "0.15"]) == 0
@@ -99,7 +99,7 @@ def test_cli_writes_images_and_consistent_truth(tmp_path):
 
 
 def test_nonplanar_plate_renders_blocks_and_hides_what_they_occlude(tmp_path):
-    from sim.camera_field import simulate_camera_field
+    from dgcal.sim.camera_field import simulate_camera_field
     tf = nonplanar_field(square_m=0.12, marker_m=0.09)
     simulate_camera_field(tmp_path, seed=11, n_images=2, image_size=(1200, 800), field=tf, progress=False)
     meas, _ = detect_folder(tmp_path / "images", tmp_path / "field.csv", workers=1, progress=False)

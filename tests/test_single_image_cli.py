@@ -2,13 +2,13 @@
 import numpy as np
 import pytest
 
-from calib.camera_formats import write_camera_json
-from calib.camera_models import Fraser7
-from calib.dem import Dem, write_geotiff_dem
+from dgcal.calib.camera.files import write_camera_json
+from dgcal.calib.camera.models import Fraser7
+from dgcal.calib.dg.dem import Dem, write_geotiff_dem
 from dgcal.cli import main
-from fields.csvio import read_table
-from fields.formats import EOP, Measurements, write_eop, write_measurements
-from fields.frames import R_cv_to_map_from_opk
+from dgcal.fields.io.csv_tables import read_table
+from dgcal.fields.io.formats import EOP, Measurements, write_eop, write_measurements
+from dgcal.fields.frames import R_cv_to_map_from_opk
 
 CRS = "EPSG:32617"
 

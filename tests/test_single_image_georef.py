@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
-from calib.camera_models import Fraser7
-from calib.dem import Dem, read_geotiff_dem, write_geotiff_dem
-from calib.single_image import (_solve, average_estimates, camera_pose_from_body, exp_so3, georeference, log_so3,
+from dgcal.calib.camera.models import Fraser7
+from dgcal.calib.dg.dem import Dem, read_geotiff_dem, write_geotiff_dem
+from dgcal.calib.dg.single_image import (_solve, average_estimates, camera_pose_from_body, exp_so3, georeference, log_so3,
                                 pose_covariance_from_rph, R_body_to_world_from_rph)
-from fields.errors import InputError
-from sim.lowcost_flight import R_CAM_TO_BODY_NADIR, format_table6, georef_campaign, terrain_dem
+from dgcal.fields.errors import InputError
+from dgcal.sim.lowcost_flight import R_CAM_TO_BODY_NADIR, format_table6, georef_campaign, terrain_dem
 
 
 @pytest.fixture(scope="module")

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from fields.errors import InputError
-from pos.exposure import detect_spikes, match_images, match_triggers
-from pos.stream_align import fit_clock_to_pps
-from pos.time_axis import restore_from_counter, restore_from_time_tags
-from sim.logger import simulate_logger
+from dgcal.fields.errors import InputError
+from dgcal.pos.lowcost.exposure import detect_spikes, match_images, match_triggers
+from dgcal.pos.lowcost.stream_align import fit_clock_to_pps
+from dgcal.pos.lowcost.time_axis import restore_from_counter, restore_from_time_tags
+from dgcal.sim.logger import simulate_logger
 
 
 @pytest.fixture(scope="module")
@@ -97,8 +97,8 @@ def test_sync_command_end_to_end(tmp_path):
     import json
 
     from dgcal.cli import main
-    from fields.formats import read_events
-    from sim.logger import write_logger_sim
+    from dgcal.fields.io.formats import read_events
+    from dgcal.sim.logger import write_logger_sim
 
     s = simulate_logger(seed=7, duration_s=300, n_bursts=2)
     write_logger_sim(tmp_path / "sim", s)

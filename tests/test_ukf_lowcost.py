@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from fields.frames import R_body_to_ned_from_rph
-from pos.ukf import SigmaPoints, _dcm, _mean_cov, euler_rates, wrap_pi
-from sim.lowcost_flight import compare_ukf_smoother, format_accuracy_table, simulate_lowcost_flight
+from dgcal.fields.frames import R_body_to_ned_from_rph
+from dgcal.pos.lowcost.ukf import SigmaPoints, _dcm, _mean_cov, euler_rates, wrap_pi
+from dgcal.sim.lowcost_flight import compare_ukf_smoother, format_accuracy_table, simulate_lowcost_flight
 
 
 def test_dcm_matches_frames_convention():
@@ -76,8 +76,8 @@ def test_ukf_sigmas_are_honest(report):
 
 
 def test_ukf_with_antenna_lever_arm():
-    from pos.ukf import UkfOptions, run_ukf
-    from sim.lowcost_flight import _rph_error, gnss_fixes
+    from dgcal.pos.lowcost.ukf import UkfOptions, run_ukf
+    from dgcal.sim.lowcost_flight import _rph_error, gnss_fixes
     f = simulate_lowcost_flight(duration_s=75.0, rate_hz=50.0, seed=2)
     lever = np.array([0.3, -0.2, -0.4])
     fixes, _ = gnss_fixes(f.truth, 50.0, seed=3, lever_arm_b=lever)
@@ -90,8 +90,8 @@ def test_ukf_with_antenna_lever_arm():
 
 
 def test_ukf_solution_as_trajectory_file(tmp_path):
-    from fields.formats import read_trajectory, write_trajectory
-    from pos.ukf import run_ukf
+    from dgcal.fields.io.formats import read_trajectory, write_trajectory
+    from dgcal.pos.lowcost.ukf import run_ukf
     f = simulate_lowcost_flight(duration_s=40.0, rate_hz=50.0, seed=5)
     u = run_ukf(f.imu, f.fixes, f.imu_errors.grade)
     tr = u.to_trajectory()

@@ -32,9 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from calib.camera_calibration import calibrate_camera, write_camera_outputs
-    from fields.csvio import staged_dir
-    from fields.errors import InputError
+    from dgcal.calib.selfcal.calibration import calibrate_camera, write_camera_outputs
+    from dgcal.fields.io.csv_tables import staged_dir
+    from dgcal.fields.errors import InputError
     if args.measurements is not None and args.image_size is None:
         raise InputError("--image-size W H is required with --measurements", args.measurements)
     cal = calibrate_camera(args.field, measurements=args.measurements, images=args.images,
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     with staged_dir(args.out) as tmp:
         write_camera_outputs(cal, tmp)
         if not args.no_report:
-            from reports.camera_report import write_camera_report
+            from dgcal.reports.camera import write_camera_report
             write_camera_report(cal, tmp / "report.html")
     ba = cal.ba
     print(f"{cal.camera.NAME}: RMS {ba.rms_px:.3f} px over {ba.n_observations} observations "

@@ -35,14 +35,14 @@ def _label(path: Path, method: str, seen: set) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from calib.camera_formats import load_camera
-    from calib.dg_accuracy import check_points_dg, improvement_table
-    from calib.mounting_common import MountingResult
-    from fields.crs import MapGrid
-    from fields.csvio import atomic_write, staged_dir, write_table
-    from fields.errors import InputError
-    from fields.formats import read_events, read_points, read_trajectory
-    from reports.mount_report import check_report_html
+    from dgcal.calib.camera.files import load_camera
+    from dgcal.calib.dg.accuracy import check_points_dg, improvement_table
+    from dgcal.calib.mounting.common import MountingResult
+    from dgcal.fields.crs import MapGrid
+    from dgcal.fields.io.csv_tables import atomic_write, staged_dir, write_table
+    from dgcal.fields.errors import InputError
+    from dgcal.fields.io.formats import read_events, read_points, read_trajectory
+    from dgcal.reports.mounting import check_report_html
 
     if args.pos_correlation_time is not None and not args.pos_correlation_time >= 0:
         raise InputError(f"must be a time >= 0 s, not {args.pos_correlation_time}", field="--pos-correlation-time")
@@ -87,9 +87,9 @@ def run(args: argparse.Namespace) -> int:
 
 def read_measurements_any(path: Path):
     """Image measurements from a dgcal CSV or an ODM gcp_list.txt."""
-    from fields.formats import read_measurements
+    from dgcal.fields.io.formats import read_measurements
     try:
-        from fields.gcp_io import is_odm_gcp_list, read_odm_gcp_list
+        from dgcal.fields.io.gcp_files import is_odm_gcp_list, read_odm_gcp_list
     except ImportError:
         return read_measurements(path)
     return read_odm_gcp_list(path)[2] if is_odm_gcp_list(path) else read_measurements(path)

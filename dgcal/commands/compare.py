@@ -18,8 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _load(path: Path):
-    from calib.mounting_common import MountingResult
-    from fields.errors import InputError
+    from dgcal.calib.mounting.common import MountingResult
+    from dgcal.fields.errors import InputError
     try:
         return MountingResult.from_json(json.loads(path.read_text()), str(path))
     except (OSError, json.JSONDecodeError) as exc:
@@ -27,8 +27,8 @@ def _load(path: Path):
 
 
 def run(args: argparse.Namespace) -> int:
-    from calib.mounting_compare import compare_mountings
-    from fields.csvio import atomic_write
+    from dgcal.calib.mounting.compare import compare_mountings
+    from dgcal.fields.io.csv_tables import atomic_write
     r = compare_mountings(_load(args.old), _load(args.new), args.alpha)
     d, s = r["difference"], r["combined_sigma"]
     print(f"delay     {d['delay_s']:+.5f} s  (sigma {s['delay_s']:.5f})")

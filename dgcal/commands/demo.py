@@ -22,7 +22,7 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from dgcal.campaign import run_campaign
-    from sim.campaign import simulate_campaign
+    from dgcal.sim.campaign import simulate_campaign
     data, results = args.out / "data", args.out / "results"
     t0 = time.perf_counter()
     stamp = data / "truth.json"

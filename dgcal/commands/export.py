@@ -21,13 +21,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from calib.dg import dg_eop
-    from calib.mounting_common import MountingResult
-    from fields.crs import MapGrid
-    from fields.errors import InputError
-    from fields.csvio import staged_dir
-    from fields.formats import read_events, read_trajectory
-    from reports.eop_exports import FORMATS, export_all
+    from dgcal.calib.dg.eop import dg_eop
+    from dgcal.calib.mounting.common import MountingResult
+    from dgcal.fields.crs import MapGrid
+    from dgcal.fields.errors import InputError
+    from dgcal.fields.io.csv_tables import staged_dir
+    from dgcal.fields.io.formats import read_events, read_trajectory
+    from dgcal.reports.exports.eop import FORMATS, export_all
 
     formats = [f.strip().lower() for f in args.formats.split(",") if f.strip()]
     bad = [f for f in formats if f not in FORMATS]
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("the COLMAP export needs --camera", field="--camera")
     camera = None
     if args.camera is not None:
-        from calib.camera_formats import load_camera
+        from dgcal.calib.camera.files import load_camera
         camera = load_camera(args.camera)
     try:
         mount = MountingResult.from_json(json.loads(args.mounting.read_text()), str(args.mounting))

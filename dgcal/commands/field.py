@@ -23,9 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fields.csvio import staged_dir
-    from fields.field_print import write_pdf, write_pdf_tiles, write_png
-    from fields.target_field import TargetField, nonplanar_field, write_field
+    from dgcal.fields.io.csv_tables import staged_dir
+    from dgcal.fields.targets.printing import write_pdf, write_pdf_tiles, write_png
+    from dgcal.fields.targets.plate import TargetField, nonplanar_field, write_field
     kw = dict(diameter_m=args.diameter, square_m=args.square, marker_m=args.marker, dictionary=args.dictionary,
               sigma_xy_m=args.sigma_xy, sigma_z_m=args.sigma_z)
     tf = nonplanar_field(**kw) if args.nonplanar else TargetField(**kw)

@@ -33,13 +33,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from calib.camera_formats import load_camera
-    from calib.dem import read_geotiff_dem
-    from calib.single_image import georeference_images
-    from fields.crs import MapGrid, parse_crs
-    from fields.csvio import atomic_write, read_table, staged_dir, write_table
-    from fields.errors import InputError
-    from fields.formats import read_eop, read_events, read_measurements, read_trajectory
+    from dgcal.calib.camera.files import load_camera
+    from dgcal.calib.dg.dem import read_geotiff_dem
+    from dgcal.calib.dg.single_image import georeference_images
+    from dgcal.fields.crs import MapGrid, parse_crs
+    from dgcal.fields.io.csv_tables import atomic_write, read_table, staged_dir, write_table
+    from dgcal.fields.errors import InputError
+    from dgcal.fields.io.formats import read_eop, read_events, read_measurements, read_trajectory
 
     grid = MapGrid(args.crs)
     camera = load_camera(args.camera)
@@ -47,8 +47,8 @@ def run(args: argparse.Namespace) -> int:
     if args.eop is not None:
         eop = read_eop(args.eop)
     elif args.trajectory and args.events and args.mounting:
-        from calib.dg import dg_eop
-        from calib.mounting_common import MountingResult
+        from dgcal.calib.dg.eop import dg_eop
+        from dgcal.calib.mounting.common import MountingResult
         try:
             d = json.loads(Path(args.mounting).read_text())
         except (OSError, json.JSONDecodeError) as exc:
@@ -100,7 +100,7 @@ def _html(res, args):
     """One-file report: per point the spread of its single-image estimates around the average (seed Fig. 19)."""
     import numpy as np
 
-    from reports.html import HtmlReport, new_figure
+    from dgcal.reports.html import HtmlReport, new_figure
     rep = HtmlReport("dgcal single-image georeferencing")
     src = "DEM " + str(args.dem) if args.dem else "laser ranges " + str(args.ranges) if args.ranges else \
         f"known height {args.height} m"

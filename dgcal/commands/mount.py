@@ -30,12 +30,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from calib.mounting import calibrate_mounting
-    from fields.crs import MapGrid
-    from fields.csvio import atomic_write, staged_dir
-    from fields.errors import InputError
-    from fields.formats import read_eop, read_events, read_trajectory
-    from reports.mount_report import mount_report_html
+    from dgcal.calib.mounting.methods import calibrate_mounting
+    from dgcal.fields.crs import MapGrid
+    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+    from dgcal.fields.errors import InputError
+    from dgcal.fields.io.formats import read_eop, read_events, read_trajectory
+    from dgcal.reports.mounting import mount_report_html
 
     grid = MapGrid(args.crs)
     eop = read_eop(args.eop)
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         missing = [o for o in ("measurements", "gcp", "camera") if getattr(args, o) is None]
         if missing:
             raise InputError(f"--method iso needs --{missing[0]}", field=f"--{missing[0]}")
-        from calib.mounting_iso import calibrate_iso_files
+        from dgcal.calib.mounting.integrated import calibrate_iso_files
         refine = tuple(k.strip() for k in args.refine_intrinsics.split(",") if k.strip())
         res = calibrate_iso_files(eop, grid, traj, events, args.measurements, args.gcp, args.camera,
                                   fix_delay=args.fix_delay, refine_intrinsics=refine,
@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_epochs(path: Path, d: dict) -> None:
     """Per-epoch values of mounting.json as CSV (lever arm m, boresight deg, residuals, rejection)."""
-    from fields.csvio import write_table
+    from dgcal.fields.io.csv_tables import write_table
     pe = d.get("per_epoch") or {}
     if "image" not in pe:
         return

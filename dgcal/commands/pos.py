@@ -5,7 +5,7 @@ gps_week,gps_sow,x,y,z (ECEF, m), vx,vy,vz (m/s), sx,sy,sz, svx,svy,svz (1-sigma
 lat,lon,h (deg, deg, m ellipsoidal), s_e,s_n,s_u (m), clk_G_m,clk_E_m,clk_C_m (receiver clock
 bias per clock group, metres = c*dt; QZSS shares GPS's), drift_mps (c*clock drift, m/s),
 n_sat, gdop,pdop,hdop,vdop, chi2_dof, rejected (satellites removed by RAIM, ';'-separated);
-DIR/gnss_summary.json and DIR/gnss_report.html. --mode tc|lc hand over to pos.pipeline.run_pos (trajectory.csv, events.csv).
+DIR/gnss_summary.json and DIR/gnss_report.html. --mode tc|lc hand over to dgcal.pos.pipeline.run_pos (trajectory.csv, events.csv).
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-from fields.errors import InputError
+from dgcal.fields.errors import InputError
 
 NAME = "pos"
 HELP = "GNSS single-point positioning or GNSS/INS smoothing (trajectory + events)"
@@ -40,17 +40,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="GNSS antenna lever arm in the IMU body frame, m (tc/lc)")
     p.add_argument("--imu-grade", default=None,
-                   help="IMU error model preset (tc/lc), see pos.imu_grades: navigation, adis16488, "
+                   help="IMU error model preset (tc/lc), see dgcal.pos.ins.error_model: navigation, adis16488, "
                    "adis16405, consumer")
     p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
-                   help="further smoother option for tc/lc (repeatable), passed to pos.pipeline")
+                   help="further smoother option for tc/lc (repeatable), passed to dgcal.pos.pipeline")
     p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="known antenna position (ECEF, m) for the spp report's error plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def spp_options_from_args(args: argparse.Namespace):
-    from pos.spp import SppOptions
+    from dgcal.pos.gnss.spp import SppOptions
     systems = tuple(s for s in args.systems.upper() if s in "GECJ")
     if not systems:
         raise InputError(f"no known constellation in '{args.systems}'", field="--systems")
@@ -62,10 +62,10 @@ def spp_options_from_args(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     if args.mode != "spp":
         try:
-            from pos.pipeline import run_pos
+            from dgcal.pos.pipeline import run_pos
         except ImportError:
             raise InputError(f"mode {args.mode} not available yet", field="--mode") from None
-        from reports.pos_report import write_pos_report
+        from dgcal.reports.pos import write_pos_report
         return int(run_pos(args, report_writer=write_pos_report) or 0)
     for name in ("rinex_obs", "rinex_nav"):
         if not getattr(args, name):
@@ -75,10 +75,10 @@ def run(args: argparse.Namespace) -> int:
 
 def run_spp(args: argparse.Namespace) -> int:
     """--mode spp: read RINEX, SPP every epoch, write gnss.csv and gnss_summary.json."""
-    from pos.rinex import read_rinex_nav, read_rinex_obs
-    from pos.spp import spp
-    from pos.spp import spp_summary, write_gnss_csv
-    from fields.csvio import atomic_write, staged_dir
+    from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
+    from dgcal.pos.gnss.spp import spp
+    from dgcal.pos.gnss.spp import spp_summary, write_gnss_csv
+    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
 
     opts = spp_options_from_args(args)
     nav = read_rinex_nav(args.rinex_nav[0], args.rinex_nav[1:])
@@ -97,7 +97,7 @@ def run_spp(args: argparse.Namespace) -> int:
             summary["rms_3d_vs_reference_m"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
         with atomic_write(Path(d) / "gnss_summary.json") as fh:
             json.dump(summary, fh, indent=2)
-        from reports.pos_gnss_report import write_spp_report
+        from dgcal.reports.gnss import write_spp_report
         write_spp_report(Path(d) / "gnss_report.html", sol, summary, args.reference)
     print(f"{Path(args.out) / 'gnss.csv'}: {summary['n_fixed']}/{summary['n_epochs']} epochs, "
           f"median sigma 3D {summary['median_sigma_3d_m']:.2f} m", file=sys.stderr)

@@ -12,7 +12,7 @@ HELP = "simulate a synthetic data set with known truth"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="what", metavar="WHAT")
     sub.required = True
-    add_verbs(sub, "sim", rest_after(NAME), run_key="_sim_run")
+    add_verbs(sub, "dgcal.sim", rest_after(NAME), run_key="_sim_run")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -23,10 +23,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fields.csvio import staged_dir
-    from fields.formats import write_events
-    from pos.sync_pipeline import synchronise_files
-    from reports.sync_report import write_sync_report
+    from dgcal.fields.io.csv_tables import staged_dir
+    from dgcal.fields.io.formats import write_events
+    from dgcal.pos.lowcost.sync import synchronise_files
+    from dgcal.reports.sync import write_sync_report
 
     res = synchronise_files(args.gnss_log, args.logger, args.images, rate_hz=args.rate, gnss_rate_hz=args.gnss_rate,
                             counter_bits=args.counter_bits or None, tau=args.tau, blackout_s=args.blackout)

@@ -43,15 +43,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from bundle.tiepoints import extract_tie_points, list_images, sequential_pairs, spatial_pairs
-    from bundle.triangulation import TriangulationOptions, triangulate
-    from calib.camera_formats import load_camera
-    from fields.crs import parse_crs
-    from fields.csvio import staged_dir, write_table
-    from fields.errors import InputError
-    from fields.formats import Measurements, read_eop, write_eop
-    from fields.gcp_io import read_any_measurements, read_any_points
-    from reports.bundle_report import write_bundle_report, write_summary_json
+    from dgcal.bundle.tiepoints import extract_tie_points, list_images, sequential_pairs, spatial_pairs
+    from dgcal.bundle.triangulation import TriangulationOptions, triangulate
+    from dgcal.calib.camera.files import load_camera
+    from dgcal.fields.crs import parse_crs
+    from dgcal.fields.io.csv_tables import staged_dir, write_table
+    from dgcal.fields.errors import InputError
+    from dgcal.fields.io.formats import Measurements, read_eop, write_eop
+    from dgcal.fields.io.gcp_files import read_any_measurements, read_any_points
+    from dgcal.reports.bundle import write_bundle_report, write_summary_json
 
     if not args.images and not args.measurements:
         raise InputError("give --images DIR or --measurements MEAS.csv (or both)", field="--measurements")
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             pairs = sequential_pairs(names, overlap=len(names) if len(names) <= 30 else 10)
         if args.targets:
-            from bundle.targets import detect_gcp_targets
+            from dgcal.bundle.gcp_targets import detect_gcp_targets
             det = detect_gcp_targets(args.images, names, args.targets, sigma_px=args.sigma_px)
             known = set(points.ids.astype(str))
             unknown = sorted(set(det.id) - known)
@@ -152,8 +152,8 @@ def run(args: argparse.Namespace) -> int:
                 res.warnings.append("COLMAP and ODM exports need a map CRS: skipped for --crs local")
             formats = kept
         if formats:
-            from fields.crs import MapGrid
-            from reports.eop_exports import export_all
+            from dgcal.fields.crs import MapGrid
+            from dgcal.reports.exports.eop import export_all
             ctrl = {g["id"]: g["xyz"] for g in res.gcp}
             obs = [(meas.image[i], meas.id[i], *meas.xy[i]) for i in range(len(meas)) if str(meas.id[i]) in ctrl]
             export_all(tmp / "exports", res.eop, None if local else MapGrid(args.crs), camera, formats,
@@ -179,8 +179,8 @@ def _merge(a, b):
     """Two measurement sets as one; a point measured twice in one image is an error naming the second file."""
     import numpy as np
 
-    from fields.errors import InputError
-    from fields.formats import Measurements
+    from dgcal.fields.errors import InputError
+    from dgcal.fields.io.formats import Measurements
     seen = set(zip(a.image.astype(str), a.id.astype(str)))
     for i, key in enumerate(zip(b.image.astype(str), b.id.astype(str))):
         if key in seen:
@@ -198,7 +198,7 @@ def _f(v) -> str:
 def _check_image_size(folder, name, camera) -> None:
     import cv2
 
-    from fields.errors import InputError
+    from dgcal.fields.errors import InputError
     from pathlib import Path
     img = cv2.imread(str(Path(folder) / name), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
     if img is None:

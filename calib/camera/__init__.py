@@ -1,0 +1,1 @@
+"""What a camera is: camera models, camera files of dgcal and other software, conversions between models."""

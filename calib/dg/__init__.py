@@ -1,0 +1,1 @@
+"""Direct georeferencing with a calibrated payload: DG EOPs, check-point accuracy, single-image georeferencing, DEMs."""

@@ -1,0 +1,229 @@
+"""Proposed mounting calibration (seed 003 eq. 10-11): exposure delay, lever arm and boresight in one weighted
+least-squares adjustment.
+
+Model per epoch i (block frame L; t_e = event time, dt = delay, POS propagated over the delay; with a full
+trajectory the POS is re-interpolated at t_e + dt between iterations, so the propagation only spans the last
+correction and the constant-rate approximation leaves no bias):
+    R_body_to_L(t_e + dt) = R_body_to_L,i Exp(omega_b,i dt)           (body angular rate from the POS)
+    r_imu_L(t_e + dt)     = r_imu_L,i + v_L,i dt                       (POS velocity)
+    r_cam_L,i   = r_imu_L(t_e + dt) + R_body_to_L(t_e + dt) l_b
+    R_cv_to_L,i = R_body_to_L(t_e + dt) R_cam_to_body
+Boresight: a unit quaternion updated with a minimal 3-parameter multiplicative (left, body-axes) correction,
+R_cam_to_body = Exp(theta_b) R_hat, so no unit-norm constraint is needed; the quaternion is reported.
+Observations: the 3 position and 3 rotation residuals of each epoch, weighted by the full 6x6 covariance of
+EOP (bundle) and POS (smoother) errors propagated through the model. Epochs failing a chi-square test
+(6 dof, 99.9 %) against the robust scale are rejected and listed. Covariance: N^-1 scaled by
+max(1, sigma0^2), so optimistic input sigmas do not give optimistic results, plus the effect of the POS
+error common to all epochs (`common_mode_covariance`, weighted by `pos_common_fraction`): POS errors
+driven by slowly varying states do not average down over one flight.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+from dgcal.calib.mounting.common import Epochs, MountingResult, T, so3_exp, so3_log
+from dgcal.calib.mounting.two_step import calibrate_traditional
+from dgcal.fields.errors import InputError
+from dgcal.fields.frames import skew
+
+DEFAULT_EOP_SIGMA = (0.05, np.radians(0.01))        # m, rad when the EOP file has no sigmas
+DEFAULT_POS_SIGMA = (0.10, np.radians(0.02), np.radians(0.05))  # m, roll/pitch rad, heading rad
+
+
+def _default_cov(n: int, sp: float, sa: tuple) -> np.ndarray:
+    C = np.zeros((n, 6, 6))
+    C[:, [0, 1, 2], [0, 1, 2]] = sp**2
+    C[:, [3, 4, 5], [3, 4, 5]] = np.asarray(sa, float) ** 2
+    return C
+
+
+def predict(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Predicted camera positions (N,3), `R_cv_to_L` (N,3,3) and body rotations at exposure for parameters
+    x = [dt, l_b(3), theta_b(3)] around boresight R_hat."""
+    dt, lever, theta = x[0], x[1:4], x[4:7]
+    ddt = dt - ep.dt_ref  # the POS of `ep` is already at t_event + dt_ref
+    R_b = ep.pos.R_body_to_L @ so3_exp(ep.pos.omega_b * ddt)
+    p = ep.pos.r_imu_L + ep.pos.v_L * ddt + np.einsum("nij,j->ni", R_b, lever)
+    return p, R_b @ (so3_exp(theta) @ R_hat), R_b
+
+
+def residuals(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
+    """(N,6) residuals: position (m, L) and rotation Log(R_pred^T R_obs) (rad, camera frame)."""
+    p, Rc, _ = predict(ep, x, R_hat)
+    return np.column_stack([ep.r_cam_L - p, so3_log(T(Rc) @ ep.R_cv_to_L)])
+
+
+def residual_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
+    """(N,6,6) covariance of the residuals from EOP and POS covariances (defaults when not given)."""
+    n = len(ep)
+    C_eop = ep.cov_eop if ep.cov_eop is not None else _default_cov(n, DEFAULT_EOP_SIGMA[0], (DEFAULT_EOP_SIGMA[1],) * 3)
+    C_pos = _pos_cov(ep)
+    G = pos_error_jacobian(ep, x, R_hat)
+    return C_eop + G @ C_pos @ T(G)
+
+
+def pos_error_jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
+    """(N,6,6) d(residual)/d(POS error): position error in L (m), attitude error about body axes (rad)."""
+    n = len(ep)
+    _, _, R_b = predict(ep, x, R_hat)
+    R_cb = so3_exp(x[4:7]) @ R_hat
+    G = np.zeros((n, 6, 6))
+    G[:, :3, :3] = -np.eye(3)
+    G[:, :3, 3:] = R_b @ skew(x[1:4])  # -(-R_b [l]x)
+    G[:, 3:, 3:] = -R_cb.T
+    return G
+
+
+def _pos_cov(ep: Epochs) -> np.ndarray:
+    if ep.pos.cov is not None:
+        return ep.pos.cov
+    return _default_cov(len(ep), DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2 + DEFAULT_POS_SIGMA[2:])
+
+
+def _jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray, W: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Whitened d(prediction)/d(free parameters), by central differences, (6N, len(free))."""
+    J = np.empty((6 * len(ep), len(free)))
+    for k, j in enumerate(free):
+        h = 1e-6 if j > 0 else 1e-5
+        dx = np.zeros(7)
+        dx[j] = h
+        rp = np.einsum("nij,nj->ni", W, residuals(ep, x + dx, R_hat)).ravel()
+        rm = np.einsum("nij,nj->ni", W, residuals(ep, x - dx, R_hat)).ravel()
+        J[:, k] = -(rp - rm) / (2 * h)  # residual = obs - pred, so d(pred)/dx = -d(residual)/dx
+    return J
+
+
+def common_mode_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray, fix_delay: bool) -> np.ndarray:
+    """(7,7) parameter covariance from the POS error that all epochs share.
+
+    A smoothed trajectory's errors are driven by slowly varying states (accelerometer bias -> tilt,
+    GNSS biases -> position), so they do not average down over the epochs of one flight the way the
+    per-epoch weighting assumes: a constant POS pitch error is indistinguishable from boresight pitch.
+    The mean POS covariance, taken as an error common to every epoch, is pushed through the
+    estimator (x = N^-1 J^T W r): a conservative bound, since part of the POS error is random.
+    """
+    free = np.arange(1 if fix_delay else 0, 7)
+    W = _whiten(residual_covariance(ep, x, R_hat))
+    J = _jacobian(ep, x, R_hat, W, free)
+    B = np.einsum("nij,njk->nik", W, pos_error_jacobian(ep, x, R_hat)).reshape(-1, 6)
+    S = np.linalg.solve(J.T @ J, J.T @ B)
+    C = np.zeros((7, 7))
+    C[np.ix_(free, free)] = S @ _pos_cov(ep).mean(axis=0) @ S.T
+    return C
+
+
+def _whiten(C: np.ndarray) -> np.ndarray:
+    """Per-epoch whitening matrices W with W C W^T = I."""
+    Lc = np.linalg.cholesky(C)
+    return np.linalg.inv(Lc)
+
+
+def _solve(ep: Epochs, R_hat: np.ndarray, x0: np.ndarray, fix_delay: bool, iters: int = 20):
+    x = x0.copy()
+    free = np.arange(1 if fix_delay else 0, 7)
+    for _ in range(iters):
+        W = _whiten(residual_covariance(ep, x, R_hat))
+        r = np.einsum("nij,nj->ni", W, residuals(ep, x, R_hat)).ravel()
+        J = _jacobian(ep, x, R_hat, W, free)
+        N = J.T @ J
+        step = np.linalg.solve(N, J.T @ r)
+        x[free] += step
+        R_hat = so3_exp(x[4:7]) @ R_hat
+        x[4:7] = 0.0
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    W = _whiten(residual_covariance(ep, x, R_hat))
+    e = residuals(ep, x, R_hat)
+    Tstat = np.einsum("ni,ni->n", np.einsum("nij,nj->ni", W, e), np.einsum("nij,nj->ni", W, e))
+    Ninv = np.zeros((7, 7))
+    Ninv[np.ix_(free, free)] = np.linalg.inv(N)
+    return x, R_hat, e, Tstat, Ninv
+
+
+def _solve_robust(ep, x0, R_hat, keep, fix_delay, reject, limit):
+    """Solve, test every epoch against the chi-square limit, re-solve until the kept set is stable."""
+    for _ in range(10):
+        sub = ep.subset(keep)
+        if len(sub) < 3:
+            raise InputError(f"only {len(sub)} usable epochs (images with both an EOP and an event) after "
+                             "rejection: the adjustment needs at least 3", field="image")
+        x, R_hat_s, e, Tstat, Ninv = _solve(sub, R_hat, x0, fix_delay)
+        scale = max(1.0, float(np.median(Tstat) / chi2.median(6)))
+        # test every epoch (also rejected ones, so a wrongly rejected epoch can come back)
+        W = _whiten(residual_covariance(ep, x, R_hat_s))
+        e_all = np.einsum("nij,nj->ni", W, residuals(ep, x, R_hat_s))
+        T_all = np.einsum("ni,ni->n", e_all, e_all)
+        new_keep = (T_all / scale <= limit) if reject else np.ones(len(ep), bool)
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+        x0, R_hat = x, R_hat_s
+    return x, R_hat_s, keep, Tstat, Ninv, T_all
+
+
+def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = True,
+                       confidence: float = 0.999, pos_common_fraction: float = 0.0) -> MountingResult:
+    """Delay, lever arm and boresight by weighted least squares with outlier rejection (see module docstring).
+
+    `pos_common_fraction` (0-1) is the share of the POS error variance common to all epochs of the
+    flight (bias-driven tilt, GNSS biases); 0 treats POS errors as independent between photos (the seed's
+    assumption), 1 as entirely common (conservative for a smoothed MEMS trajectory).
+    """
+    if not 0.0 <= pos_common_fraction <= 1.0:
+        raise InputError(f"pos_common_fraction must be within 0..1, got {pos_common_fraction}",
+                         field="--pos-common-fraction")
+    init = calibrate_traditional(ep)
+    x0 = np.r_[0.0, init.lever_arm_m, 0, 0, 0]
+    R_hat = init.R_cam_to_body
+    keep = np.ones(len(ep), bool)
+    limit = chi2.ppf(confidence, 6)
+    for _outer in range(5):
+        x, R_hat, keep, Tstat, Ninv, T_all = _solve_robust(ep, x0, R_hat, keep, fix_delay, reject, limit)
+        # re-interpolate the POS at the new exposure times so the linear propagation only spans the last step
+        if fix_delay or not ep.can_resample or abs(x[0] - ep.dt_ref) < 1e-5:
+            break
+        try:
+            ep = ep.at_delay(float(x[0]))
+        except InputError as exc:
+            # an exposure time beyond the trajectory's end: keep the linear propagation for this solution
+            ep.warnings.append(f"POS not re-interpolated at t_event + delay ({exc}); linear propagation used")
+            break
+        x0 = x
+    R_hat_s = R_hat
+    n = int(keep.sum())
+    dof = 6 * n - (6 if fix_delay else 7)
+    sigma0_sq = float(Tstat.sum() / max(dof, 1))
+    cov_random = Ninv * max(1.0, sigma0_sq)
+    cov_common = (pos_common_fraction * common_mode_covariance(ep.subset(keep), x, R_hat, fix_delay)
+                  if pos_common_fraction > 0 else np.zeros((7, 7)))
+    cov = cov_random + cov_common
+    # per-epoch values with the delay applied (seed Fig. 22): what each epoch says about l_b and the boresight
+    p_pred, Rc_pred, R_b = predict(ep, x, R_hat_s)
+    lever_i = np.einsum("nji,nj->ni", R_b, ep.r_cam_L - ep.pos.r_imu_L - ep.pos.v_L * (x[0] - ep.dt_ref))
+    ang_i = so3_log((T(R_b) @ ep.R_cv_to_L) @ R_hat_s.T)
+    e_full = residuals(ep, x, R_hat_s)
+    per_epoch = {"image": [str(s) for s in ep.image], "t_event": ep.t_event.tolist(),
+                 "lever_arm_m": lever_i.tolist(), "boresight_deg": np.degrees(ang_i).tolist(),
+                 "residual_position_m": e_full[:, :3].tolist(), "residual_rotation_deg": np.degrees(e_full[:, 3:]).tolist(),
+                 "test_statistic": T_all.tolist(), "rejected": (~keep).tolist()}
+    res = MountingResult("proposed", x[1:4].copy(), R_hat_s, 0.0 if fix_delay else float(x[0]), cov, n,
+                         [str(s) for s in ep.image[~keep]], list(ep.warnings), per_epoch)
+    res.extra.update({"sigma0": float(np.sqrt(sigma0_sq)), "redundancy": int(dof),
+                      "covariance_scaled_by": float(max(1.0, sigma0_sq)),
+                      "sigma_random": np.sqrt(np.diag(cov_random)).tolist(),
+                      "sigma_pos_common_mode": np.sqrt(np.diag(cov_common)).tolist(),
+                      "pos_common_fraction": float(pos_common_fraction),
+                      "covariance_random": [[float(v) for v in row] for row in cov_random],
+                      "covariance_model": "per-epoch EOP and POS errors (scaled by max(1, sigma0^2)) plus "
+                                          "pos_common_fraction x the mean POS covariance as an error common to all epochs",
+                      "boresight_parameterisation": "unit quaternion with minimal 3-parameter multiplicative update "
+                                                    "R_cam_to_body = Exp(theta_b) R_hat (theta about body axes)",
+                      "propagation": ("POS re-interpolated at t_event + delay (iterated); within an iteration "
+                                      "position propagated with the POS velocity, attitude with the body angular rate")
+                      if ep.can_resample else
+                      "position propagated with the POS velocity; attitude held fixed (no angular rate in an events file)",
+                      "rejection_limit_chi2_6dof": float(limit)})
+    if not reject:
+        res.extra["rejection"] = "off"
+    return res

@@ -1,0 +1,1 @@
+"""Readers and writers of dgcal's own files and of other software's ground-control files."""

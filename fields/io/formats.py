@@ -1,0 +1,321 @@
+"""Readers and writers of the dgcal file formats of INTERFACES.md (points, measurements, trajectory, events, EOP).
+
+Every reader checks columns and values and raises `InputError` naming file, line and field; every
+writer is atomic. Times are GPS week + seconds of week in files and continuous GPS seconds
+(`t = week * 604800 + sow`) in memory.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.fields.io.csv_tables import Table, read_table, write_table
+from dgcal.fields.errors import InputError
+
+SECONDS_PER_WEEK = 604800.0
+
+TRAJECTORY_COLUMNS = ("gps_week", "gps_sow", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "heading")
+TRAJECTORY_SIGMA_COLUMNS = ("s_lat_m", "s_lon_m", "s_h_m", "s_roll", "s_pitch", "s_heading")
+EOP_COLUMNS = ("image", "X", "Y", "Z", "omega", "phi", "kappa")
+EOP_SIGMA_COLUMNS = ("sX", "sY", "sZ", "somega", "sphi", "skappa")
+
+
+def gps_seconds(week, sow) -> np.ndarray:
+    """Continuous GPS seconds from GPS week and seconds of week."""
+    return np.asarray(week, float) * SECONDS_PER_WEEK + np.asarray(sow, float)
+
+
+def week_sow(t_gps) -> tuple[np.ndarray, np.ndarray]:
+    """GPS week (int) and seconds of week from continuous GPS seconds."""
+    t = np.asarray(t_gps, float)
+    week = np.floor(t / SECONDS_PER_WEEK).astype(int)
+    return week, t - week * SECONDS_PER_WEEK
+
+
+class _GpsTimed:
+    """GPS week and seconds of week of the continuous GPS seconds `t` of a record set."""
+
+    t: np.ndarray
+
+    @property
+    def week(self) -> np.ndarray:
+        return week_sow(self.t)[0]
+
+    @property
+    def sow(self) -> np.ndarray:
+        return week_sow(self.t)[1]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def _duplicates(values: np.ndarray) -> list:
+    uniq, counts = np.unique(values.astype(str), return_counts=True)
+    return [str(u) for u in uniq[counts > 1]]
+
+
+def _check_finite(tab: Table, names) -> None:
+    for n in names:
+        bad = ~np.isfinite(tab[n])
+        if bad.any():
+            raise InputError("not a finite number", tab.path, int(tab.lines[np.argmax(bad)]), n)
+
+
+def _check_positive(tab: Table, names) -> None:
+    for n in names:
+        if n in tab:
+            v = tab[n]
+            bad = np.isfinite(v) & (v <= 0)
+            if bad.any():
+                raise InputError("sigma must be positive", tab.path, int(tab.lines[np.argmax(bad)]), n)
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Points:
+    """Field or ground points: ids, coordinates (N,3) m, sigmas (N,3) m (NaN = not given), role per point."""
+
+    ids: np.ndarray
+    xyz: np.ndarray
+    sigma: np.ndarray
+    role: np.ndarray
+    lines: np.ndarray | None = None
+    path: Path | None = None
+
+    def index(self) -> dict[str, int]:
+        """Row of each point id."""
+        return {str(k): i for i, k in enumerate(self.ids)}
+
+    def subset(self, mask) -> "Points":
+        """The points where `mask` is true."""
+        return Points(self.ids[mask], self.xyz[mask], self.sigma[mask], self.role[mask],
+                      None if self.lines is None else self.lines[mask], self.path)
+
+
+def read_points(path: str | Path) -> Points:
+    """Read a field/ground point CSV `id,x,y,z[,sx,sy,sz][,role]` (m)."""
+    tab = read_table(path, ("id", "x", "y", "z"), ("sx", "sy", "sz", "role"))
+    _check_finite(tab, ("x", "y", "z"))
+    _check_positive(tab, ("sx", "sy", "sz"))
+    ids = tab["id"].astype(str)
+    dup = _duplicates(ids)
+    if dup:
+        line = int(tab.lines[list(ids).index(dup[0], list(ids).index(dup[0]) + 1)])
+        raise InputError(f"duplicate point id {dup[0]!r}", tab.path, line, "id")
+    n = len(tab)
+    sigma = np.column_stack([tab.get(c, np.full(n, np.nan)) for c in ("sx", "sy", "sz")])
+    role = tab.get("role", np.full(n, "", dtype=object)).astype(object)
+    role = np.array([(r or "control").lower() for r in role], dtype=object)
+    bad = ~np.isin(role, ["control", "check"])
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(f"role must be 'control' or 'check', got {role[i]!r}", tab.path, int(tab.lines[i]), "role")
+    xyz = np.column_stack([tab["x"], tab["y"], tab["z"]])
+    return Points(ids.astype(object), xyz, sigma, role, tab.lines, tab.path)
+
+
+def write_points(path: str | Path, pts: Points, with_role: bool | None = None) -> None:
+    """Write a point CSV; sigma columns when any sigma is given, `role` when any point is a check point."""
+    has_sigma = np.isfinite(pts.sigma).any()
+    with_role = bool(np.any(pts.role == "check")) if with_role is None else with_role
+    header = ["id", "x", "y", "z"] + (["sx", "sy", "sz"] if has_sigma else []) + (["role"] if with_role else [])
+    rows = []
+    for i in range(len(pts.ids)):
+        r = [pts.ids[i], *pts.xyz[i]]
+        if has_sigma:
+            r += list(pts.sigma[i])
+        if with_role:
+            r.append(pts.role[i])
+        rows.append(r)
+    write_table(path, header, rows, fmt="%.6f")
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Measurements:
+    """Image measurements: image label, point id, pixel xy (N,2), sigma (N,2) px (NaN = not given)."""
+
+    image: np.ndarray
+    id: np.ndarray
+    xy: np.ndarray
+    sigma: np.ndarray
+    lines: np.ndarray | None = None
+    path: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.id)
+
+    def images(self) -> list[str]:
+        """Image labels in order of first appearance."""
+        return list(dict.fromkeys(self.image.tolist()))
+
+    def subset(self, mask) -> "Measurements":
+        """The measurements where `mask` is true."""
+        return Measurements(self.image[mask], self.id[mask], self.xy[mask], self.sigma[mask],
+                            None if self.lines is None else self.lines[mask], self.path)
+
+
+def read_measurements(path: str | Path) -> Measurements:
+    """Read image measurements `image,id,x,y[,sx,sy]` (px, OpenCV pixel convention)."""
+    tab = read_table(path, ("image", "id", "x", "y"), ("sx", "sy"))
+    _check_finite(tab, ("x", "y"))
+    _check_positive(tab, ("sx", "sy"))
+    image, ids = tab["image"].astype(str), tab["id"].astype(str)
+    key = np.char.add(np.char.add(image.astype(str), "\x1f"), ids.astype(str))
+    dup = _duplicates(key)
+    if dup:
+        im, pid = dup[0].split("\x1f")
+        idx = np.nonzero(key == dup[0])[0][1]
+        raise InputError(f"point {pid!r} measured twice in image {im!r}", tab.path, int(tab.lines[idx]), "id")
+    n = len(tab)
+    sigma = np.column_stack([tab.get("sx", np.full(n, np.nan)), tab.get("sy", np.full(n, np.nan))])
+    return Measurements(image.astype(object), ids.astype(object), np.column_stack([tab["x"], tab["y"]]),
+                        sigma, tab.lines, tab.path)
+
+
+def write_measurements(path: str | Path, m: Measurements) -> None:
+    """Write image measurements; sigma columns when any sigma is given."""
+    has_sigma = np.isfinite(m.sigma).any()
+    header = ["image", "id", "x", "y"] + (["sx", "sy"] if has_sigma else [])
+    rows = ([m.image[i], m.id[i], *m.xy[i]] + (list(m.sigma[i]) if has_sigma else []) for i in range(len(m)))
+    write_table(path, header, rows, fmt="%.4f")
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Trajectory(_GpsTimed):
+    """Trajectory samples: GPS time, geodetic position (deg, m ellipsoidal), NED velocity, roll/pitch/heading (deg).
+
+    `sigma` is (N,6): s_lat_m, s_lon_m, s_h_m (m), s_roll, s_pitch, s_heading (deg), or None.
+    `image` holds event labels when the file is an events-at-trajectory file (first column `image`).
+    """
+
+    t: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    v_ned: np.ndarray
+    rph: np.ndarray
+    sigma: np.ndarray | None = None
+    image: np.ndarray | None = None
+    lines: np.ndarray | None = None
+    path: Path | None = None
+
+
+def read_trajectory(path: str | Path) -> Trajectory:
+    """Read a trajectory CSV (INTERFACES.md columns, optional sigma columns and leading `image`)."""
+    tab = read_table(path, TRAJECTORY_COLUMNS, TRAJECTORY_SIGMA_COLUMNS + ("image",))
+    _check_finite(tab, TRAJECTORY_COLUMNS)
+    t = gps_seconds(tab["gps_week"], tab["gps_sow"])
+    image = tab.get("image")
+    if image is None:
+        back = np.nonzero(np.diff(t) <= 0)[0]
+        if len(back):
+            raise InputError("time does not increase", tab.path, int(tab.lines[back[0] + 1]), "gps_sow")
+    sig = None
+    if all(c in tab for c in TRAJECTORY_SIGMA_COLUMNS):
+        sig = np.column_stack([tab[c] for c in TRAJECTORY_SIGMA_COLUMNS])
+    return Trajectory(t, tab["lat"], tab["lon"], tab["h"], np.column_stack([tab["vn"], tab["ve"], tab["vd"]]),
+                      np.column_stack([tab["roll"], tab["pitch"], tab["heading"]]), sig,
+                      None if image is None else image.astype(str).astype(object), tab.lines, tab.path)
+
+
+def write_trajectory(path: str | Path, tr: Trajectory) -> None:
+    """Write a trajectory CSV; with `tr.image` set, an events file whose first column is `image`."""
+    week, sow = week_sow(tr.t)
+    header = (["image"] if tr.image is not None else []) + list(TRAJECTORY_COLUMNS)
+    if tr.sigma is not None:
+        header += list(TRAJECTORY_SIGMA_COLUMNS)
+    rows = []
+    for i in range(len(tr.t)):
+        r = ([tr.image[i]] if tr.image is not None else []) + [int(week[i]), "%.6f" % sow[i],
+                                                               "%.10f" % tr.lat[i], "%.10f" % tr.lon[i], "%.4f" % tr.h[i]]
+        r += ["%.4f" % v for v in tr.v_ned[i]] + ["%.6f" % v for v in tr.rph[i]]
+        if tr.sigma is not None:
+            r += ["%.4f" % v for v in tr.sigma[i, :3]] + ["%.6f" % v for v in tr.sigma[i, 3:]]
+        rows.append(r)
+    write_table(path, header, rows)
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Events(_GpsTimed):
+    """Camera events: image label and recorded event (trigger) time in continuous GPS seconds."""
+
+    image: np.ndarray
+    t: np.ndarray
+    lines: np.ndarray | None = None
+    path: Path | None = None
+
+
+def read_events(path: str | Path) -> Events:
+    """Read an events CSV `image,gps_week,gps_sow`."""
+    tab = read_table(path, ("image", "gps_week", "gps_sow"))
+    _check_finite(tab, ("gps_week", "gps_sow"))
+    image = tab["image"].astype(str)
+    dup = _duplicates(image)
+    if dup:
+        idx = np.nonzero(image == dup[0])[0][1]
+        raise InputError(f"image {dup[0]!r} has two events", tab.path, int(tab.lines[idx]), "image")
+    return Events(image.astype(object), gps_seconds(tab["gps_week"], tab["gps_sow"]), tab.lines, tab.path)
+
+
+def write_events(path: str | Path, ev: Events) -> None:
+    """Write an events CSV."""
+    week, sow = week_sow(ev.t)
+    write_table(path, ["image", "gps_week", "gps_sow"],
+                ([ev.image[i], int(week[i]), "%.6f" % sow[i]] for i in range(len(ev.t))))
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class EOP:
+    """Exterior orientations: image, projection centre (N,3) in the map CRS (m), PATB omega/phi/kappa (deg).
+
+    `sigma` is (N,6): sX, sY, sZ (m), somega, sphi, skappa (deg), or None. `cov` optionally holds
+    full (N,6,6) covariances in the same order and units.
+    """
+
+    image: np.ndarray
+    xyz: np.ndarray
+    opk: np.ndarray
+    sigma: np.ndarray | None = None
+    cov: np.ndarray | None = field(default=None, repr=False)
+    lines: np.ndarray | None = None
+    path: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.image)
+
+
+def read_eop(path: str | Path) -> EOP:
+    """Read an EOP CSV `image,X,Y,Z,omega,phi,kappa[,sX,sY,sZ,somega,sphi,skappa]` (column names case-insensitive)."""
+    req = tuple(c.lower() for c in EOP_COLUMNS)
+    opt = tuple(c.lower() for c in EOP_SIGMA_COLUMNS)
+    tab = read_table(path, req, opt)
+    _check_finite(tab, req[1:])
+    image = tab["image"].astype(str)
+    dup = _duplicates(image)
+    if dup:
+        idx = np.nonzero(image == dup[0])[0][1]
+        raise InputError(f"image {dup[0]!r} appears twice", tab.path, int(tab.lines[idx]), "image")
+    sig = None
+    if all(c in tab for c in opt):
+        sig = np.column_stack([tab[c] for c in opt])
+        _check_positive(tab, opt)
+    return EOP(image.astype(object), np.column_stack([tab["x"], tab["y"], tab["z"]]),
+               np.column_stack([tab["omega"], tab["phi"], tab["kappa"]]), sig, None, tab.lines, tab.path)
+
+
+def write_eop(path: str | Path, eop: EOP) -> None:
+    """Write an EOP CSV (sigma columns when given)."""
+    header = list(EOP_COLUMNS) + (list(EOP_SIGMA_COLUMNS) if eop.sigma is not None else [])
+    rows = []
+    for i in range(len(eop.image)):
+        r = [eop.image[i]] + ["%.6f" % v for v in eop.xyz[i]] + ["%.9f" % v for v in eop.opk[i]]
+        if eop.sigma is not None:
+            r += ["%.5f" % v for v in eop.sigma[i, :3]] + ["%.7f" % v for v in eop.sigma[i, 3:]]
+        rows.append(r)
+    write_table(path, header, rows)

@@ -1,0 +1,258 @@
+"""Ground-control files of other software: ODM `gcp_list.txt` (read/write) and MicMac XML (read).
+
+- ODM/OpenDroneMap `gcp_list.txt`: first line the CRS (EPSG code, PROJ string or WGS84 UTM name), then
+  one measurement per line, whitespace separated: `geo_x geo_y geo_z im_x im_y image_name [gcp_name [extra]]`.
+  OpenSfM normalises pixels as `(x + 0.5 - w/2) / size`, i.e. pixel (0,0) is the centre of the top-left
+  pixel: the same convention as dgcal (no shift). Lines without a name get `gcp_<x>_<y>_<z>`.
+- MicMac `DicoAppuisFlottant` (ground points: `Pt`, `NamePt`, `Incertitude`) and
+  `SetOfMesureAppuisFlottants` (image measurements: `NameIm`, `NamePt`, `PtIm`). MicMac V1 measures
+  pixels from the top-left pixel's centre too (its calibration PP of an ideal camera is (w-1)/2), so no shift.
+"""
+from __future__ import annotations
+
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.errors import InputError
+from dgcal.fields.io.formats import Measurements, Points
+
+_WGS84_UTM = re.compile(r"^\s*WGS84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.I)
+
+
+def odm_crs_to_pyproj(text: str) -> str:
+    """The pyproj text of an ODM CRS line ('EPSG:32651', a PROJ string, or 'WGS84 UTM 51N')."""
+    m = _WGS84_UTM.match(text)
+    if m:
+        zone, hemi = int(m.group(1)), m.group(2).upper()
+        return f"EPSG:{32600 + zone if hemi == 'N' else 32700 + zone}"
+    return text.strip()
+
+
+def is_odm_gcp_list(path: str | Path) -> bool:
+    """True when a file looks like an ODM gcp_list.txt (a CRS line, then whitespace-separated rows)."""
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            first = fh.readline().strip()
+    except OSError:
+        return False
+    return bool(first) and "," not in first and (
+        first.upper().startswith("EPSG:") or first.startswith("+proj") or bool(_WGS84_UTM.match(first))
+        or first.upper().startswith(("PROJCS", "PROJCRS", "GEOGCS")))
+
+
+def read_odm_gcp_list(path: str | Path) -> tuple[str, Points, Measurements]:
+    """Read an ODM gcp_list.txt: (CRS text for pyproj, ground points, image measurements in px).
+
+    The same point name appearing with different coordinates is an error naming both lines.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", path)
+    lines = path.read_text(encoding="utf-8-sig").splitlines()
+    crs_line = None
+    pts: dict[str, tuple[np.ndarray, int]] = {}
+    img, pid, xy, ln = [], [], [], []
+    for no, raw in enumerate(lines, start=1):
+        s = raw.strip()
+        if not s or s.startswith("#"):
+            continue
+        if crs_line is None:
+            crs_line = odm_crs_to_pyproj(s)
+            continue
+        f = s.split()
+        if len(f) < 6:
+            raise InputError(f"expected 'geo_x geo_y geo_z im_x im_y image_name [gcp_name]', got {len(f)} fields",
+                             path, no)
+        try:
+            vals = [float(v) for v in f[:5]]
+        except ValueError:
+            bad = next(i for i, v in enumerate(f[:5]) if not _isfloat(v))
+            raise InputError(f"not a number: {f[bad]!r}", path, no,
+                             ("geo_x", "geo_y", "geo_z", "im_x", "im_y")[bad]) from None
+        X = np.array(vals[:3])
+        name = f[6] if len(f) > 6 else "gcp_%.3f_%.3f_%.3f" % tuple(X)
+        if name in pts and np.max(np.abs(pts[name][0] - X)) > 1e-6:
+            raise InputError(f"point {name!r} has other coordinates than on line {pts[name][1]}", path, no, "geo_x")
+        pts.setdefault(name, (X, no))
+        img.append(f[5]); pid.append(name); xy.append(vals[3:5]); ln.append(no)
+    if crs_line is None:
+        raise InputError("empty gcp_list.txt: the first line must be the CRS", path, 1)
+    if not img:
+        raise InputError("no measurements after the CRS line", path)
+    names = list(pts)
+    points = Points(np.array(names, dtype=object), np.array([pts[k][0] for k in names]),
+                    np.full((len(names), 3), np.nan), np.array(["control"] * len(names), dtype=object),
+                    np.array([pts[k][1] for k in names]), path)
+    meas = Measurements(np.array(img, dtype=object), np.array(pid, dtype=object), np.array(xy, float),
+                        np.full((len(img), 2), np.nan), np.array(ln), path)
+    _no_duplicate_measurements(meas)
+    return crs_line, points, meas
+
+
+def write_odm_gcp_list(path: str | Path, crs: str, points: Points, meas: Measurements) -> None:
+    """Write an ODM gcp_list.txt (atomic) for the measurements of points that have coordinates."""
+    idx = points.index()
+    with atomic_write(path) as fh:
+        fh.write(crs.strip() + "\n")
+        for i in range(len(meas)):
+            p = str(meas.id[i])
+            if p not in idx:
+                continue
+            X = points.xyz[idx[p]]
+            fh.write("%.6f %.6f %.6f %.4f %.4f %s %s\n" % (*X, *meas.xy[i], meas.image[i], p))
+
+
+def _isfloat(v: str) -> bool:
+    try:
+        float(v)
+        return True
+    except ValueError:
+        return False
+
+
+def _no_duplicate_measurements(meas: Measurements) -> None:
+    seen: dict[tuple[str, str], int] = {}
+    for i in range(len(meas)):
+        key = (str(meas.image[i]), str(meas.id[i]))
+        if key in seen:
+            raise InputError(f"point {key[1]!r} measured twice in image {key[0]!r}", meas.path,
+                             None if meas.lines is None else int(meas.lines[i]), "id")
+        seen[key] = i
+
+
+# ---------------------------------------------------------------------------------------------
+def _xml(path: Path, root_tag: str) -> tuple[ET.Element, str]:
+    if not path.is_file():
+        raise InputError("file not found", path)
+    text = path.read_text(encoding="utf-8", errors="replace")
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise InputError(f"invalid XML ({exc})", path, exc.position[0] if exc.position else None) from None
+    if root.tag != root_tag:
+        found = root.find(f".//{root_tag}")
+        if found is None:
+            raise InputError(f"expected a <{root_tag}> file, found <{root.tag}>", path, field=root_tag)
+        root = found
+    return root, text
+
+
+def _line_of(text: str, needle: str, start: int = 0) -> tuple[int | None, int]:
+    pos = text.find(needle, start)
+    return (None, start) if pos < 0 else (text.count("\n", 0, pos) + 1, pos + 1)
+
+
+def _numbers(el: ET.Element | None, n: int, path, line, field) -> np.ndarray:
+    if el is None or el.text is None:
+        raise InputError("missing value", path, line, field)
+    parts = el.text.split()
+    try:
+        vals = np.array([float(v) for v in parts])
+    except ValueError:
+        raise InputError(f"not a number in {el.text.strip()!r}", path, line, field) from None
+    if len(vals) != n:
+        raise InputError(f"expected {n} numbers, got {len(vals)}", path, line, field)
+    return vals
+
+
+def read_micmac_points(path: str | Path) -> Points:
+    """Read a MicMac `DicoAppuisFlottant` XML: ground points (m) with sigmas from `Incertitude`.
+
+    MicMac writes `Incertitude` as weights-ish placeholders (often `1 1 1`); they are kept as sigmas
+    in metres, so override them with `--gcp-sigma` when they are not real standard deviations.
+    """
+    path = Path(path)
+    root, text = _xml(path, "DicoAppuisFlottant")
+    ids, xyz, sig, lines = [], [], [], []
+    pos = 0
+    for el in root.findall("OneAppuisDAF"):
+        line, pos = _line_of(text, "<OneAppuisDAF", pos)
+        name = (el.findtext("NamePt") or "").strip()
+        if not name:
+            raise InputError("missing value", path, line, "NamePt")
+        if name in ids:
+            raise InputError(f"duplicate point id {name!r}", path, line, "NamePt")
+        xyz.append(_numbers(el.find("Pt"), 3, path, line, "Pt"))
+        inc = el.find("Incertitude")
+        sig.append(_numbers(inc, 3, path, line, "Incertitude") if inc is not None else np.full(3, np.nan))
+        ids.append(name)
+        lines.append(line or 0)
+    if not ids:
+        raise InputError("no <OneAppuisDAF> points", path)
+    return Points(np.array(ids, dtype=object), np.array(xyz), np.array(sig),
+                  np.array(["control"] * len(ids), dtype=object), np.array(lines), path)
+
+
+def read_micmac_measurements(path: str | Path) -> Measurements:
+    """Read a MicMac `SetOfMesureAppuisFlottants` XML: image measurements (px, top-left pixel centre = 0,0)."""
+    path = Path(path)
+    root, text = _xml(path, "SetOfMesureAppuisFlottants")
+    img, pid, xy, lines = [], [], [], []
+    pos = 0
+    for im in root.findall("MesureAppuiFlottant1Im"):
+        name = (im.findtext("NameIm") or "").strip()
+        _, pos = _line_of(text, "<MesureAppuiFlottant1Im", pos)
+        if not name:
+            raise InputError("missing value", path, text.count("\n", 0, pos) + 1, "NameIm")
+        for m in im.findall("OneMesureAF1I"):
+            line, pos = _line_of(text, "<OneMesureAF1I", pos)
+            p = (m.findtext("NamePt") or "").strip()
+            if not p:
+                raise InputError("missing value", path, line, "NamePt")
+            xy.append(_numbers(m.find("PtIm"), 2, path, line, "PtIm"))
+            img.append(name); pid.append(p); lines.append(line or 0)
+    if not img:
+        raise InputError("no <OneMesureAF1I> measurements", path)
+    meas = Measurements(np.array(img, dtype=object), np.array(pid, dtype=object), np.array(xy),
+                        np.full((len(img), 2), np.nan), np.array(lines), path)
+    _no_duplicate_measurements(meas)
+    return meas
+
+
+def read_any_points(path: str | Path) -> tuple[Points, str | None]:
+    """Ground points from a dgcal CSV or a MicMac XML; with the CRS when the file names one (else None)."""
+    from dgcal.fields.io.formats import read_points
+    p = Path(path)
+    head = p.read_text(encoding="utf-8", errors="replace")[:2000].lstrip() if p.is_file() else ""
+    if head.startswith("<"):
+        return read_micmac_points(p), None
+    if is_odm_gcp_list(p):
+        crs, pts, _ = read_odm_gcp_list(p)
+        return pts, crs
+    return read_points(p), None
+
+
+def read_any_measurements(path: str | Path) -> tuple[Measurements, str | None, Points | None]:
+    """Image measurements from a dgcal CSV, an ODM gcp_list.txt (with its CRS and points) or a MicMac XML."""
+    from dgcal.fields.io.formats import read_measurements
+    p = Path(path)
+    head = p.read_text(encoding="utf-8", errors="replace")[:2000].lstrip() if p.is_file() else ""
+    if head.startswith("<"):
+        return read_micmac_measurements(p), None, None
+    if is_odm_gcp_list(p):
+        crs, pts, meas = read_odm_gcp_list(p)
+        return meas, crs, pts
+    return read_measurements(p), None, None
+
+
+def read_micmac_orientation(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """MicMac V1 `Orientation-*.xml`: (R_cv_to_world (3,3), projection centre (3,)) in its ground frame.
+
+    MicMac's camera frame is x right, y down, z forward (as dgcal's); `CodageMatr` rows L1..L3 form the
+    camera-to-world rotation: X_world = Centre + CodageMatr X_cam.
+    """
+    path = Path(path)
+    root, _ = _xml(path, "OrientationConique")
+    ext = root.find("Externe")
+    if ext is None:
+        raise InputError("no <Externe>", path, field="Externe")
+    C = _numbers(ext.find("Centre"), 3, path, None, "Centre")
+    mat = ext.find("ParamRotation/CodageMatr")
+    if mat is None:
+        raise InputError("only <CodageMatr> rotations are supported", path, field="ParamRotation")
+    R = np.array([_numbers(mat.find(k), 3, path, None, k) for k in ("L1", "L2", "L3")])
+    return R, C

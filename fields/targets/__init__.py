@@ -1,0 +1,1 @@
+"""Target fields: the rotating coded-target plate, its printable sheet."""

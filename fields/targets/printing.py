@@ -1,0 +1,219 @@
+"""The printable field: black rectangles of the ChArUco plate, true-scale PDF (vector) and PNG (with DPI), and
+an anti-aliased texture of the plate (for rendering simulated photos)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.targets.plate import TargetField
+
+INCH_M = 0.0254
+
+
+def marker_cells(tf: TargetField, marker_id: int) -> np.ndarray:
+    """(B,B) bool: black cells of a marker including its one-cell black border, row 0 at the marker's top."""
+    import cv2
+    nbits = tf.cv_dictionary().markerSize
+    img = cv2.aruco.generateImageMarker(tf.cv_dictionary(), int(marker_id), nbits + 2, borderBits=1)
+    return img < 128
+
+
+def black_rectangles(tf: TargetField, rows: slice | None = None, cols: slice | None = None) -> np.ndarray:
+    """(K,4) black rectangles x0, y0, x1, y1 in the board frame (m, y down) of the printed plate.
+
+    Runs of black marker cells along a row are merged, so a vector print has few seams."""
+    black = tf.black_squares() & tf.square_printed()
+    n, s = tf.n_squares, tf.square_m
+    sel = np.zeros((n, n), bool)
+    sel[rows if rows is not None else slice(None), cols if cols is not None else slice(None)] = True
+    rects = []
+    r, c = np.nonzero(black & sel)
+    rects += [np.column_stack([c * s, r * s, (c + 1) * s, (r + 1) * s])]
+    ids, corners, printed = tf.markers()
+    for mid, cor, pr in zip(ids, corners, printed):
+        x0, y0 = cor.min(axis=0)
+        x1, y1 = cor.max(axis=0)
+        rc = (int((y0 + y1) / 2 // s), int((x0 + x1) / 2 // s))
+        if not pr or not sel[rc]:
+            continue
+        cells = marker_cells(tf, mid)
+        nb = cells.shape[0]
+        cw = (x1 - x0) / nb
+        for i in range(nb):
+            row = np.concatenate([[False], cells[i], [False]]).astype(int)
+            d = np.diff(row)
+            starts, ends = np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]
+            for a, b in zip(starts, ends):
+                rects.append(np.array([[x0 + a * cw, y0 + i * cw, x0 + b * cw, y0 + (i + 1) * cw]]))
+    return np.concatenate(rects, axis=0) if rects else np.zeros((0, 4))
+
+
+def _coverage(lo: float, hi: float) -> tuple[int, np.ndarray]:
+    """First texel index and the covered fraction of each texel of the interval [lo, hi) (texel units)."""
+    i0, i1 = int(math.floor(lo)), int(math.ceil(hi))
+    k = np.arange(i0, i1, dtype=float)
+    return i0, np.clip(np.minimum(hi, k + 1) - np.maximum(lo, k), 0.0, 1.0)
+
+
+def plate_texture(tf: TargetField, texel_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Anti-aliased plate texture over the board square: (grey, alpha) float32 (H,W), grey 1 = white,
+    alpha = plate-disk coverage. Texel (row i, col j) covers board [j t, (j+1) t) x [i t, (i+1) t) (m)."""
+    n_px = int(math.ceil(tf.board_size_m / texel_m - 1e-9))
+    grey = np.ones((n_px, n_px), np.float32)
+    for x0, y0, x1, y1 in black_rectangles(tf) / texel_m:
+        j0, cx = _coverage(x0, x1)
+        i0, cy = _coverage(y0, y1)
+        grey[i0:i0 + len(cy), j0:j0 + len(cx)] -= np.outer(cy, cx).astype(np.float32)
+    np.clip(grey, 0.0, 1.0, out=grey)
+    c = (((np.arange(n_px) + 0.5) * texel_m - tf.board_size_m / 2) / texel_m).astype(np.float32)
+    alpha = np.float32(0.5 + tf.diameter_m / 2 / texel_m) - np.hypot(c[:, None], c[None, :])
+    np.clip(alpha, 0.0, 1.0, out=alpha)
+    return grey, alpha
+
+
+def print_raster(tf: TargetField, dpi: float) -> np.ndarray:
+    """uint8 raster of the printed plate at `dpi` (white paper, black marks, grey cut circle)."""
+    import cv2
+    px = INCH_M / dpi
+    n_px = int(round(tf.board_size_m / px))
+    img = np.full((n_px, n_px), 255, np.uint8)
+    for x0, y0, x1, y1 in np.round(black_rectangles(tf) / px).astype(int):
+        img[y0:y1, x0:x1] = 0
+    c = n_px / 2 - 0.5
+    cv2.circle(img, (int(round(c * 16)), int(round(c * 16))), int(round(tf.diameter_m / 2 / px * 16)), 128,
+               thickness=max(1, int(round(0.001 / px))), lineType=cv2.LINE_AA, shift=4)
+    return img
+
+
+def _label(tf: TargetField) -> str:
+    ids, _, _ = tf.targets()
+    return (f"dgcal ChArUco plate  diameter {tf.diameter_m:g} m  square {tf.square_m * 1000:g} mm  "
+            f"marker {tf.marker_m * 1000:g} mm  {tf.dictionary}  {len(ids)} targets  "
+            f"board {tf.n_squares}x{tf.n_squares}{'  legacy' if tf.legacy_pattern else ''}")
+
+
+def write_pdf(path: str | Path, tf: TargetField) -> None:
+    """Vector PDF of the plate at true scale (page = the board square), with a 100 mm check bar."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+    from matplotlib.patches import Circle
+
+    S = tf.board_size_m
+    fig = plt.figure(figsize=(S / INCH_M, S / INCH_M))
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.set_xlim(0, S)
+    ax.set_ylim(S, 0)
+    ax.axis("off")
+    r = black_rectangles(tf)
+    polys = np.stack([r[:, [0, 1]], r[:, [2, 1]], r[:, [2, 3]], r[:, [0, 3]]], axis=1)
+    ax.add_collection(PolyCollection(polys, facecolors="black", edgecolors="none", antialiased=False))
+    ax.add_patch(Circle((S / 2, S / 2), tf.diameter_m / 2, fill=False, edgecolor="0.5", linewidth=1.0))
+    pt = 72 / INCH_M  # points per metre
+    ax.text(0.02 * S, 0.02 * S, _label(tf), fontsize=0.012 * pt, va="top", ha="left")
+    ax.text(0.02 * S, 0.04 * S, "print at 100 % (no scaling); the bar below the title must measure 100.0 mm",
+            fontsize=0.010 * pt, va="top", ha="left")
+    ax.add_patch(plt.Rectangle((0.02 * S, 0.06 * S), 0.1, 0.004, color="black"))
+    with atomic_write(path, "wb") as fh:
+        fig.savefig(fh, format="pdf")
+    plt.close(fig)
+
+
+def write_png(path: str | Path, tf: TargetField, dpi: float = 100.0) -> None:
+    """PNG raster of the plate at true scale with its DPI recorded (pHYs), for printing or viewing."""
+    from PIL import Image
+    img = print_raster(tf, dpi)
+    with atomic_write(path, "wb") as fh:
+        Image.fromarray(img).save(fh, format="PNG", dpi=(dpi, dpi))
+
+
+PAGES_MM = {"A4": (210, 297), "A3": (297, 420), "A2": (420, 594), "A1": (594, 841), "A0": (841, 1189)}
+
+
+def tile_grid(tf: TargetField, page: str = "A3", margin_m: float = 0.010, overlap_m: float = 0.010,
+              landscape: bool = True) -> list[tuple[int, int, float, float, float, float]]:
+    """Tiles (row, col, x0, y0, x1, y1 in the board frame, m) covering the plate on `page` sheets: each tile
+    is the printable area (page minus margins); neighbours overlap by `overlap_m`; empty tiles are left out."""
+    w_mm, h_mm = PAGES_MM[page]
+    if landscape:
+        w_mm, h_mm = h_mm, w_mm
+    tw, th = w_mm / 1000 - 2 * margin_m, h_mm / 1000 - 2 * margin_m
+    S, R = tf.board_size_m, tf.diameter_m / 2
+    nx = max(1, math.ceil((S - overlap_m) / (tw - overlap_m)))
+    ny = max(1, math.ceil((S - overlap_m) / (th - overlap_m)))
+    # centre the tile grid on the board
+    x_start = S / 2 - (nx * (tw - overlap_m) + overlap_m) / 2
+    y_start = S / 2 - (ny * (th - overlap_m) + overlap_m) / 2
+    tiles = []
+    for r in range(ny):
+        for c in range(nx):
+            x0, y0 = x_start + c * (tw - overlap_m), y_start + r * (th - overlap_m)
+            x1, y1 = x0 + tw, y0 + th
+            # nearest point of the tile to the plate centre: skip tiles off the plate
+            dx = max(x0 - S / 2, 0, S / 2 - x1)
+            dy = max(y0 - S / 2, 0, S / 2 - y1)
+            if math.hypot(dx, dy) < R:
+                tiles.append((r, c, x0, y0, x1, y1))
+    return tiles
+
+
+def tile_figure(tf: TargetField, tile: tuple, page: str = "A3", margin_m: float = 0.010,
+                overlap_m: float = 0.010, rects: np.ndarray | None = None):
+    """The matplotlib figure of one tile (from `tile_grid`) on a landscape `page` sheet at true scale."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+    from matplotlib.patches import Circle, Rectangle
+
+    r, c, x0, y0, x1, y1 = tile
+    w_mm, h_mm = PAGES_MM[page]
+    pw, ph = h_mm / 1000, w_mm / 1000  # landscape
+    rects = black_rectangles(tf) if rects is None else rects
+    S = tf.board_size_m
+    fig = plt.figure(figsize=(pw / INCH_M, ph / INCH_M))
+    ax = fig.add_axes((0, 0, 1, 1))
+    # the axes span the whole sheet: the tile sits inside the margins
+    ax.set_xlim(x0 - margin_m, x0 - margin_m + pw)
+    ax.set_ylim(y0 - margin_m + ph, y0 - margin_m)
+    ax.axis("off")
+    sel = (rects[:, 2] > x0) & (rects[:, 0] < x1) & (rects[:, 3] > y0) & (rects[:, 1] < y1)
+    rs = rects[sel]
+    polys = np.stack([rs[:, [0, 1]], rs[:, [2, 1]], rs[:, [2, 3]], rs[:, [0, 3]]], axis=1)
+    coll = PolyCollection(polys, facecolors="black", edgecolors="none", antialiased=False)
+    clip = Rectangle((x0, y0), x1 - x0, y1 - y0, transform=ax.transData)
+    coll.set_clip_path(clip)
+    ax.add_collection(coll)
+    circ = Circle((S / 2, S / 2), tf.diameter_m / 2, fill=False, edgecolor="0.5", linewidth=0.5)
+    circ.set_clip_path(clip)
+    ax.add_patch(circ)
+    ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="0.6", linewidth=0.3))
+    ax.add_patch(Rectangle((x0 + overlap_m, y0 + overlap_m), x1 - x0 - 2 * overlap_m, y1 - y0 - 2 * overlap_m,
+                           fill=False, edgecolor="0.8", linewidth=0.3, linestyle="--"))
+    ax.text(x0, y0 - margin_m / 2, f"tile row {r + 1} col {c + 1}  ({page}, print at 100 %, overlap "
+            f"{overlap_m * 1000:g} mm)  {_label(tf)}", fontsize=0.0025 * 72 / INCH_M, va="center", ha="left",
+            color="0.3")
+    return fig
+
+
+def write_pdf_tiles(path: str | Path, tf: TargetField, page: str = "A3", margin_m: float = 0.010,
+                    overlap_m: float = 0.010) -> int:
+    """Multi-page PDF of the plate on `page` sheets at true scale (landscape), one tile per page with its
+    row/column, the tile outline and overlap lines for assembling; returns the number of pages."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    rects = black_rectangles(tf)
+    tiles = tile_grid(tf, page, margin_m, overlap_m)
+    with atomic_write(path, "wb") as fh, PdfPages(fh) as pdf:
+        for tile in tiles:
+            fig = tile_figure(tf, tile, page, margin_m, overlap_m, rects)
+            pdf.savefig(fig)
+            plt.close(fig)
+    return len(tiles)

@@ -1,0 +1,144 @@
+"""Camera event marks beyond the events CSV: DJI `.MRK` timestamp files, and building Events from times.
+
+DJI `Timestamp.MRK` (Phantom 4 RTK, Matrice RTK payloads): one tab-separated line per photo:
+  `1  282401.669089  [2404]  101,N  107,E  129,V  22.77995359,Lat  114.10089118,Lon  139.231,Ellh
+   0.002967, 0.003104, 0.007622  50,Q`
+= photo index, GPS seconds of week, [GPS week], offsets of the camera (CMOS centre) from the antenna
+phase centre along North, East, Vertical in millimetres, the antenna's latitude, longitude (deg) and
+ellipsoidal height (m), its standard deviations N, E, V (m) and the RTK flag (50 fixed, 34 float,
+16 single). The time is the recorded trigger time (an event, in dgcal's delay convention).
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.errors import InputError
+from dgcal.fields.io.formats import Events, gps_seconds, week_sow
+
+_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+# the row's fields in order: (name used in errors, regex piece)
+_PARTS = (
+    ("index", r"^\s*(?P<idx>\d+)"),
+    ("seconds of week", rf"\s+(?P<sow>{_NUM})"),
+    ("[week]", r"\s+\[(?P<week>\d+)\]"),
+    ("N offset", rf"\s+(?P<n>{_NUM})\s*,\s*N"),
+    ("E offset", rf"\s+(?P<e>{_NUM})\s*,\s*E"),
+    ("V offset", rf"\s+(?P<v>{_NUM})\s*,\s*V"),
+    ("Lat", rf"\s+(?P<lat>{_NUM})\s*,\s*Lat"),
+    ("Lon", rf"\s+(?P<lon>{_NUM})\s*,\s*Lon"),
+    ("Ellh", rf"\s+(?P<h>{_NUM})\s*,\s*Ellh"),
+    ("sigmas", rf"\s+(?P<sn>{_NUM})\s*,\s*(?P<se>{_NUM})\s*,\s*(?P<sv>{_NUM})"),
+    ("Q", r"\s+(?P<q>\d+)\s*,\s*Q\s*$"),
+)
+_MRK = re.compile("".join(p for _, p in _PARTS))
+_PREFIXES = [re.compile("".join(p for _, p in _PARTS[:k + 1])) for k in range(len(_PARTS))]
+
+
+@dataclass
+class MrkRecords:
+    """DJI MRK rows: event time (GPS s), camera offsets from the antenna (N, E, V; m), antenna position and sigmas."""
+
+    index: np.ndarray
+    t: np.ndarray
+    offset_nev_m: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    sigma_nev_m: np.ndarray
+    quality: np.ndarray
+    lines: np.ndarray
+    path: Path | None = None
+
+    def events(self, name_pattern: str = "DJI_{index:04d}.JPG") -> Events:
+        """The marks as Events; image names from `name_pattern` (fields: index)."""
+        names = np.array([name_pattern.format(index=int(i)) for i in self.index], dtype=object)
+        return Events(image=names, t=self.t.copy(), lines=self.lines.copy(), path=self.path)
+
+
+def _diagnose(line: str) -> str:
+    """The first MRK field (in row order) that does not parse, for the error message."""
+    for (name, _), rx in zip(_PARTS, _PREFIXES):
+        if rx.match(line) is None:
+            return name
+    return "Q"
+
+
+def read_mrk(path: str | Path) -> MrkRecords:
+    """Read a DJI `.MRK` timestamp file; InputError naming file, line and field on malformed rows."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", path)
+    try:
+        text = path.read_text(encoding="utf-8-sig", errors="strict")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read: {exc}", path) from None
+    rows, lines = [], []
+    for ln, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        m = _MRK.match(line)
+        if m is None:
+            raise InputError(f"not a DJI MRK row: {line.strip()[:60]!r}", path, ln, _diagnose(line))
+        rows.append(m.groupdict())
+        lines.append(ln)
+    if not rows:
+        raise InputError("no MRK rows", path)
+
+    def col(k, typ=float):
+        return np.array([typ(r[k]) for r in rows])
+    week, sow = col("week", int), col("sow")
+    t = gps_seconds(week, sow)
+    lines_a = np.array(lines)
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        raise InputError("event time does not increase", path, int(lines_a[back[0] + 1]), "seconds of week")
+    idx = col("idx", int)
+    dup = np.flatnonzero(np.diff(np.sort(idx)) == 0)
+    if dup.size:
+        i = int(np.sort(idx)[dup[0]])
+        raise InputError(f"photo index {i} appears twice", path, int(lines_a[np.flatnonzero(idx == i)[1]]), "index")
+    return MrkRecords(index=idx, t=t, offset_nev_m=np.column_stack([col("n"), col("e"), col("v")]) * 1e-3,
+                      lat=col("lat"), lon=col("lon"), h=col("h"),
+                      sigma_nev_m=np.column_stack([col("sn"), col("se"), col("sv")]), quality=col("q", int),
+                      lines=lines_a, path=path)
+
+
+def write_mrk(path: str | Path, rec: MrkRecords) -> None:
+    """Write MRK rows in DJI's layout (for tests and simulated data sets), atomically."""
+    week, sow = week_sow(rec.t)
+    with atomic_write(path, newline="\n") as fh:
+        for i in range(len(rec.t)):
+            n, e, v = np.round(rec.offset_nev_m[i] * 1e3).astype(int)
+            sn, se, sv = rec.sigma_nev_m[i]
+            fh.write(f"{int(rec.index[i])}\t{sow[i]:.6f}\t[{int(week[i])}]\t{n:6d},N\t{e:6d},E\t{v:6d},V\t"
+                     f"{rec.lat[i]:.8f},Lat\t{rec.lon[i]:.8f},Lon\t{rec.h[i]:.3f},Ellh\t"
+                     f"{sn:.6f}, {se:.6f}, {sv:.6f}\t{int(rec.quality[i])},Q\n")
+
+
+def make_events(t_gps, names=None, prefix: str = "IMG_", suffix: str = ".JPG", start: int = 1) -> Events:
+    """Events at GPS times (s) with the given names or `prefix` + zero-padded counter + `suffix`."""
+    t = np.asarray(t_gps, float)
+    if names is None:
+        names = [f"{prefix}{k:04d}{suffix}" for k in range(start, start + len(t))]
+    names = np.asarray(names, dtype=object)
+    if len(names) != len(t):
+        raise ValueError("names and times differ in length")
+    return Events(image=names, t=t)
+
+
+def match_events_to_images(events: Events, image_names) -> Events:
+    """Events renamed to sorted image names one-to-one (cameras name files, triggers only count).
+
+    Raises InputError when the counts differ, naming the events file.
+    """
+    imgs = sorted(str(n) for n in image_names)
+    if len(imgs) != len(events.t):
+        raise InputError(f"{len(events.t)} events but {len(imgs)} images; cannot pair them in order",
+                         events.path, field="image")
+    return Events(image=np.array(imgs, dtype=object), t=np.asarray(events.t, float).copy(), lines=events.lines,
+                  path=events.path)

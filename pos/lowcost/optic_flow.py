@@ -1,0 +1,285 @@
+"""GNSS / optic-flow attitude of seed 001: a forward camera's flow, de-rotated with the GNSS pseudo-rates,
+gives the focus of expansion (FOE) = the velocity direction in the body frame; with the GNSS velocity and
+pseudo-roll that fixes pitch and yaw (angle of attack and drift angle); flow magnitudes give depth and
+height above ground (seed 001 eq. 9-12).
+
+Geometry (exact for two discrete frames, not only the instantaneous motion field): with R_c1, R_c2 the
+camera-to-NED rotations and T the camera displacement, a ground point's ray in frame 2 rotated into frame
+1 axes, d2' = dR d2 with dR = R_c1^T R_c2, satisfies d2' ~ P1 - t_c, t_c = R_c1^T T. So after de-rotation
+every flow line x1 -> x2' passes through the FOE e = t_c / t_c,z (normalised image coordinates), and by
+the law of sines the range to the point from camera 1 is |D1| = |T| sin(gamma2) / sin(Delta), gamma2 the
+angle between t_c and d2' and Delta the angle between d1 and d2' — seed eq. 11 (|D| = sin(gamma) |V| / Omega)
+in its finite-step form. Height above level ground: AGL = |D| sin(lambda), lambda the depression of the
+line of sight (eq. 12).
+Attitude: roll = pseudo-roll (seed 001); pitch and yaw solve R_body_to_ned(roll, pitch, yaw) v_b = v_ned/|v|
+for the body velocity direction v_b from the FOE (exactly; the seed adds the FOE offsets "normal to" and
+"tangential to" the roll angle, the same to first order).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dgcal.fields.frames import R_body_to_ned_from_rph
+
+# forward camera looking along body x: camera x = body y (right), camera y = body z (down), camera z = body x
+R_CAM_TO_BODY_FORWARD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def exp_so3(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (3,) rad."""
+    th = float(np.linalg.norm(w))
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if th < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th ** 2 * K @ K
+
+
+def track_features(img1: np.ndarray, img2: np.ndarray, mask: np.ndarray | None = None, max_corners: int = 500,
+                   quality: float = 0.005, min_distance: int = 6, win: int = 21, levels: int = 3,
+                   fb_max_px: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Pyramidal Lucas-Kanade tracks (px) of good features from img1 to img2, kept when the
+    forward-backward round trip closes within `fb_max_px`; ((M,2), (M,2))."""
+    import cv2
+    a = _to_u8(img1)
+    b = _to_u8(img2)
+    m = None if mask is None else mask.astype(np.uint8) * 255
+    p0 = cv2.goodFeaturesToTrack(a, max_corners, quality, min_distance, mask=m, blockSize=7)
+    if p0 is None:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, winSize=(win, win), maxLevel=levels, criteria=crit)
+    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, None, winSize=(win, win), maxLevel=levels, criteria=crit)
+    fb = np.linalg.norm((p0 - p0b).reshape(-1, 2), axis=1)
+    ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < fb_max_px)
+    return p0.reshape(-1, 2)[ok].astype(float), p1.reshape(-1, 2)[ok].astype(float)
+
+
+def _to_u8(img: np.ndarray) -> np.ndarray:
+    if img.dtype == np.uint8:
+        return img
+    x = np.asarray(img, np.float32)
+    return np.clip(np.rint(x * 255.0 if x.max() <= 1.0 + 1e-6 else x), 0, 255).astype(np.uint8)
+
+
+def derotate(camera, uv1: np.ndarray, uv2: np.ndarray, dR_c2_to_c1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit rays d1 (frame 1) and d2' (frame 2 rays rotated into frame 1 axes) of tracked pixels; (M,3) each."""
+    d1 = camera.ray(uv1)
+    d2 = camera.ray(uv2) @ np.asarray(dR_c2_to_c1, float).T
+    return d1, d2 / np.linalg.norm(d2, axis=1, keepdims=True)
+
+
+@dataclass
+class Foe:
+    """Focus of expansion in normalised image coordinates with its covariance, and the inlier mask."""
+
+    e: np.ndarray
+    cov: np.ndarray
+    inliers: np.ndarray
+    rms_rad: float
+    R_residual: np.ndarray = field(default_factory=lambda: np.eye(3))  # applied to frame-2 rays after dR
+    sigma_rotation_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def t_hat_cam(self) -> np.ndarray:
+        """Unit translation direction in the camera frame (forward, +z)."""
+        t = np.array([self.e[0], self.e[1], 1.0])
+        return t / np.linalg.norm(t)
+
+
+def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = "xyz", huber_k: float = 2.0,
+                       min_flow_rad: float = 1e-4) -> Foe:
+    """FOE of de-rotated flow (rays d1 -> d2') by weighted line intersection — the seed's weighted voting
+    done as robust least squares (Huber). Residual of a line: its flow vector's component perpendicular to
+    the direction from the FOE, L sin(angle), which has the same variance (the tracking noise) for every
+    line. The FOE is very sensitive to rotation left in the flow (a rotation error moves it by the error
+    times distance/flow length, ~10x), so the residual rotation of the GNSS pseudo-rates is estimated
+    jointly: about the optical axis ("z", the noisy pseudo roll-rate) it turns flow tangentially, which no
+    FOE shift can mimic; about "x"/"y" it is separable from translation because translational flow scales
+    with inverse depth and a forward camera over ground sees a wide range of depths."""
+    from scipy.optimize import least_squares
+    x1 = d1[:, :2] / d1[:, 2:3]
+    x2 = d2[:, :2] / d2[:, 2:3]
+    f = x2 - x1
+    L = np.linalg.norm(f, axis=1)
+    keep = L > min_flow_rad
+    x1, x2, L = x1[keep], x2[keep], L[keep]
+    if len(L) < 4:
+        raise ValueError("fewer than four flow vectors to locate the focus of expansion")
+
+    axes = ["xyz".index(a) for a in estimate_rotation]
+    D2 = d2[keep]
+
+    def rot(p):
+        w = np.zeros(3)
+        w[axes] = p[2:]
+        return exp_so3(w)
+
+    def res(p):
+        e = p[:2]
+        if axes:
+            d = D2 @ rot(p).T
+            xr = d[:, :2] / d[:, 2:3]
+        else:
+            xr = x2
+        g = xr - x1
+        q = x1 - e
+        rho = np.maximum(np.linalg.norm(q, axis=1), 1e-6)
+        return (g[:, 0] * q[:, 1] - g[:, 1] * q[:, 0]) / rho
+
+    # start: unweighted line intersection
+    n = np.column_stack([-(x2 - x1)[:, 1], (x2 - x1)[:, 0]]) / L[:, None]
+    e0 = np.linalg.lstsq(n, np.einsum("ij,ij->i", n, x1), rcond=None)[0]
+    p0 = np.r_[e0, np.zeros(len(axes))]
+    r0 = res(p0)
+    scale = max(1.4826 * float(np.median(np.abs(r0))), 1e-9)
+    sol = least_squares(res, p0, loss="huber", f_scale=huber_k * scale, x_scale="jac")
+    r = res(sol.x)
+    scale = max(1.4826 * float(np.median(np.abs(r))), 1e-12)
+    sol = least_squares(res, sol.x, loss="huber", f_scale=huber_k * scale, x_scale="jac")
+    r = res(sol.x)
+    inl = np.abs(r) < 3 * huber_k * scale
+    Jm = sol.jac[inl]
+    s2 = float(np.sum(r[inl] ** 2) / max(inl.sum() - len(sol.x), 1))
+    cov = np.linalg.inv(Jm.T @ Jm) * s2
+    mask = np.zeros(len(keep), bool)
+    mask[np.flatnonzero(keep)[inl]] = True
+    R_res = rot(sol.x) if axes else np.eye(3)
+    return Foe(e=sol.x[:2], cov=cov[:2, :2], inliers=mask, rms_rad=float(np.sqrt(s2)), R_residual=R_res,
+               sigma_rotation_rad=np.sqrt(np.diag(cov)[2:]))
+
+
+def pitch_yaw_from_velocity(v_hat_b: np.ndarray, v_ned: np.ndarray, roll_deg: float) -> tuple[float, float]:
+    """Pitch and yaw (deg) such that R_body_to_ned(roll, pitch, yaw) v_hat_b = v_ned / |v_ned|."""
+    n = np.asarray(v_ned, float) / np.linalg.norm(v_ned)
+    a = R_body_to_ned_from_rph(roll_deg, 0.0, 0.0) @ (np.asarray(v_hat_b, float) / np.linalg.norm(v_hat_b))
+    r = np.hypot(a[0], a[2])
+    beta = np.arctan2(a[2], a[0])
+    theta = beta - np.arcsin(np.clip(n[2] / r, -1.0, 1.0))  # z of Ry(theta) a = sin(beta - theta) r = n_D
+    b = R_body_to_ned_from_rph(0.0, np.degrees(theta), 0.0) @ a
+    psi = np.arctan2(n[1], n[0]) - np.arctan2(b[1], b[0])
+    return float(np.degrees(theta)), float(np.degrees(psi) % 360.0)
+
+
+def depth_from_flow(d1: np.ndarray, d2: np.ndarray, t_hat_c: np.ndarray, baseline_m: float) -> np.ndarray:
+    """Range (m) from camera 1 to each tracked point: seed eq. 9-11 in the finite-step (law of sines) form."""
+    delta = np.arccos(np.clip(np.einsum("ij,ij->i", d1, d2), -1.0, 1.0))
+    gamma2 = np.arccos(np.clip(d2 @ t_hat_c, -1.0, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return baseline_m * np.sin(gamma2) / np.sin(delta)
+
+
+def height_above_ground(ranges_m: np.ndarray, d1_ned: np.ndarray) -> np.ndarray:
+    """Seed eq. 12: AGL = |D| sin(lambda), lambda the depression of each line of sight (NED rays (M,3))."""
+    return ranges_m * d1_ned[:, 2] / np.linalg.norm(d1_ned, axis=1)
+
+
+@dataclass
+class FlowAttitude:
+    """Attitude of one frame pair (deg) at the first frame, with the FOE offsets and height above ground."""
+
+    roll: float
+    pitch: float
+    yaw: float
+    sigma_pitch: float
+    sigma_yaw: float
+    pitch_offset: float   # pitch - pseudo-pitch: angle of attack (+ wind)
+    yaw_offset: float     # yaw - pseudo-yaw: drift angle
+    agl_m: float
+    sigma_agl_m: float
+    n_tracks: int
+    n_inliers: int
+
+
+def ground_mask(camera, R_cam_to_ned: np.ndarray, min_depression_deg: float = 12.0, step: int = 1) -> np.ndarray:
+    """Pixels whose line of sight points at least `min_depression_deg` below the horizon (bool H x W)."""
+    w, h = camera.image_size
+    u, v = np.meshgrid(np.arange(0, w, step, dtype=float), np.arange(0, h, step, dtype=float))
+    d = camera.ray(np.column_stack([u.ravel(), v.ravel()])) @ np.asarray(R_cam_to_ned, float).T
+    m = (d[:, 2] > np.sin(np.radians(min_depression_deg))).reshape(u.shape)
+    if step > 1:
+        m = np.repeat(np.repeat(m, step, 0), step, 1)[:h, :w]
+    return m
+
+
+def ground_homography(K: np.ndarray, dR_c2_to_c1: np.ndarray, t_c1: np.ndarray, n_c1: np.ndarray,
+                       d_m: float) -> np.ndarray:
+    """Pixel homography frame 1 -> frame 2 induced by the ground plane n.X = d (cam-1 frame, n unit towards
+    the ground): X2 = dR^T (I - t n^T / d) X1 with t the camera-2 centre in cam-1 axes (m)."""
+    M = np.asarray(dR_c2_to_c1, float).T @ (np.eye(3) - np.outer(t_c1, n_c1) / d_m)
+    return K @ M @ np.linalg.inv(K)
+
+
+def _apply_h(H: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    p = np.column_stack([uv, np.ones(len(uv))]) @ H.T
+    return p[:, :2] / p[:, 2:3]
+
+
+def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_rph1_deg: np.ndarray,
+                  omega_b: np.ndarray, v_ned_mid: np.ndarray, R_cam_to_body: np.ndarray = R_CAM_TO_BODY_FORWARD,
+                  min_depression_deg: float = 10.0, max_corners: int = 600, refine: int = 1,
+                  agl_guess_m: float | None = None) -> FlowAttitude:
+    """Seed 001 attitude from one frame pair `dt` s apart: pseudo-roll (deg) at frame 1, pseudo body rates
+    `omega_b` (rad/s) over the pair for the de-rotation, GNSS velocity (NED m/s) at mid-pair (= the chord).
+
+    `refine` extra passes warp frame 2 by the ground-plane homography of the previous pass (attitude, FOE,
+    AGL) before tracking, so Lucas-Kanade measures only a small, locally uniform residual flow — plain LK
+    over-estimates the strongly non-uniform ground flow of a forward camera by a few per cent. The warp
+    uses the pinhole part of the camera (distortion is handled by `camera.ray` in the geometry)."""
+    import cv2
+    rph1 = np.asarray(pseudo_rph1_deg, float)
+    R_c1 = R_body_to_ned_from_rph(*rph1) @ R_cam_to_body
+    mask = ground_mask(camera, R_c1, min_depression_deg, step=4)
+    w_c = np.asarray(R_cam_to_body, float).T @ np.asarray(omega_b, float)
+    dR = exp_so3(w_c * dt)  # camera-2 axes -> camera-1 axes
+    speed = float(np.linalg.norm(v_ned_mid))
+    K = camera.pinhole_K()
+    H = None
+    if agl_guess_m is not None:
+        n_c1 = R_c1.T @ np.array([0.0, 0.0, 1.0])
+        H = ground_homography(K, dR, (R_c1.T @ v_ned_mid) * dt, n_c1, agl_guess_m)
+    for it in range(refine + 1):
+        if H is None:
+            uv1, uv2 = track_features(img1, img2, mask, max_corners=max_corners)
+        else:
+            w, h = camera.image_size
+            img2w = cv2.warpPerspective(np.asarray(img2, np.float32), H, (w, h),
+                                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+            uv1, uvw = track_features(img1, img2w, mask, max_corners=max_corners)
+            uv2 = _apply_h(H, uvw)
+        if len(uv1) < 8:
+            raise ValueError(f"only {len(uv1)} tracked ground features")
+        d1, d2 = derotate(camera, uv1, uv2, dR)
+        foe = focus_of_expansion(d1, d2)
+        d2 = d2 @ foe.R_residual.T
+        dR_used = foe.R_residual @ dR
+        t_c = foe.t_hat_cam
+        v_b = R_cam_to_body @ t_c
+        pitch, yaw = pitch_yaw_from_velocity(v_b, v_ned_mid, rph1[0])
+        inl = foe.inliers
+        D = depth_from_flow(d1[inl], d2[inl], t_c, speed * dt)
+        R_c1_est = R_body_to_ned_from_rph(rph1[0], pitch, yaw) @ R_cam_to_body
+        agl = height_above_ground(D, d1[inl] @ R_c1_est.T)
+        agl = agl[np.isfinite(agl) & (agl > 0)]
+        if len(agl) == 0:
+            raise ValueError("no ground ranges from the flow")
+        med = float(np.median(agl))
+        n_c1 = R_c1_est.T @ np.array([0.0, 0.0, 1.0])
+        H = ground_homography(K, dR_used, t_c * speed * dt, n_c1, med)
+    # sigma of pitch/yaw from the FOE covariance (numerical Jacobian)
+    J = np.zeros((2, 2))
+    for i in range(2):
+        de = np.zeros(2)
+        de[i] = 1e-5
+        t = np.array([foe.e[0] + de[0], foe.e[1] + de[1], 1.0])
+        p_i, y_i = pitch_yaw_from_velocity(R_cam_to_body @ t, v_ned_mid, rph1[0])
+        J[:, i] = [(p_i - pitch) / 1e-5, ((y_i - yaw + 180.0) % 360.0 - 180.0) / 1e-5]
+    C = J @ foe.cov @ J.T
+    sig_agl = float(1.4826 * np.median(np.abs(agl - med)) * 1.2533 / np.sqrt(len(agl)))
+    pp = np.degrees(np.arctan2(-v_ned_mid[2], np.hypot(v_ned_mid[0], v_ned_mid[1])))
+    py = np.degrees(np.arctan2(v_ned_mid[1], v_ned_mid[0]))
+    return FlowAttitude(roll=float(rph1[0]), pitch=pitch, yaw=yaw, sigma_pitch=float(np.sqrt(C[0, 0])),
+                        sigma_yaw=float(np.sqrt(C[1, 1])), pitch_offset=float(pitch - pp),
+                        yaw_offset=float((yaw - py + 180.0) % 360.0 - 180.0), agl_m=med, sigma_agl_m=sig_agl,
+                        n_tracks=int(len(uv1)), n_inliers=int(inl.sum()))

@@ -1,0 +1,402 @@
+"""Batch GNSS/INS smoother (gtsam): CombinedImuFactor between 1 Hz keyframes, TC pseudorange + Doppler or
+LC position + velocity factors, receiver clock process, Levenberg-Marquardt over the whole flight and
+covariances from `gtsam.Marginals`.
+
+Frames: states live in a fixed NED tangent frame at the flight centre (`dgcal.pos.ins.nav_frame.NavFrame`); the pose
+key holds R_body_to_nav (body FRD) and the IMU origin's position; the GNSS antenna sits at `lever_arm_b`.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dgcal.pos.ins.nav_frame import C_LIGHT, NavFrame
+from dgcal.pos.smoother.factors import (B, CLK, DRIFT, V, X, ZERO, clock_factors, doppler_factors, position_factor,
+                                  pseudorange_factors, velocity_factor)
+from dgcal.pos.smoother.preintegration import (ImuNoise, gravity_correction_b, imu_noise_from_grade, interval_params,
+                              preintegrate, preintegration_params, split_at_keyframes)
+from dgcal.pos.smoother.initial import (GnssFixes, anchor_attitude, initial_clocks, initial_track,
+                               propagate_attitude)
+
+
+@dataclass
+class SmootherOptions:
+    """Tuning of the smoother; defaults suit a code-only receiver on a UAV.
+
+    lever_arm_b: IMU origin -> GNSS antenna phase centre, body FRD, m.
+    clock_bias_rw_m / clock_drift_rw_mps: receiver clock process densities (m/sqrt(s), m/s/sqrt(s)).
+    huber_k: Huber threshold (in sigmas) of the GNSS factors; None for plain least squares.
+    """
+
+    lever_arm_b: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    use_doppler: bool = True
+    earth_rotation: bool = True
+    huber_k: float | None = 1.345
+    clock_bias_rw_m: float = 0.1
+    clock_drift_rw_mps: float = 0.2
+    prior_rot_sigma_deg: tuple = (10.0, 10.0, 30.0)
+    prior_pos_sigma_m: float = 20.0
+    prior_vel_sigma_mps: float = 2.0
+    lc_velocity: bool = True
+    max_iterations: int = 30
+    covariances: bool = True
+
+
+@dataclass
+class NavSolution:
+    """Keyframe states in the nav frame with covariances (gtsam tangent conventions, see docs/pos_smoother.md).
+
+    cov_pose (K,6,6): [rotation (body, rad), position (body axes, m)] as gtsam's Pose3; cov_vel (K,3,3) nav.
+    bias (K,6): accelerometer m/s^2 then gyro rad/s. clock: constellation -> (K,) s; drift (K,) s/s.
+    """
+
+    frame: NavFrame
+    t: np.ndarray
+    p_nav: np.ndarray
+    v_nav: np.ndarray
+    R_body_to_nav: np.ndarray
+    bias: np.ndarray
+    clock: dict
+    drift: np.ndarray
+    cov_pose: np.ndarray | None = None
+    cov_vel: np.ndarray | None = None
+    cov_block: np.ndarray | None = None
+    n_sat: np.ndarray | None = None
+    gnss_update: np.ndarray | None = None
+    residuals: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    problem: object = field(default=None, repr=False)  # the Problem it came from (forward pass, outputs)
+    values: object = field(default=None, repr=False)  # its gtsam Values (the linearisation point)
+
+    @property
+    def cov_p_nav(self) -> np.ndarray:
+        """Position covariance (K,3,3) in nav axes, m^2."""
+        R = self.R_body_to_nav
+        return R @ self.cov_pose[:, 3:, 3:] @ np.swapaxes(R, 1, 2)
+
+
+@dataclass
+class Problem:
+    """A built factor graph with its initial values and the bookkeeping needed to read it back."""
+
+    graph: object
+    values: object
+    frame: NavFrame
+    t_key: np.ndarray
+    systems: list
+    pims: list
+    epoch_factors: list  # per keyframe: list of (kind, sat, factor) GNSS factors
+    imu_factors: list
+    clock_factor_groups: list
+    prior_factors: list
+    n_sat: np.ndarray
+    gnss_update: np.ndarray
+    omega_b: np.ndarray
+    params: object = None
+    iterations: int = 0
+    accel: np.ndarray | None = None  # the (gravity-corrected) accelerometer rates the IMU factors used
+
+
+def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
+    i = np.clip(np.searchsorted(imu.t, t, side="left"), 0, len(imu.t) - 1)
+    return imu.gyro_rad_s[i]
+
+
+def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu_noise: ImuNoise,
+                  opts: SmootherOptions, mode: str = "tc", epochs_at_key: list | None = None,
+                  lc_fixes: GnssFixes | None = None) -> Problem:
+    """Assemble the factor graph: priors, IMU (zero biases), GNSS (TC epochs or LC fixes) and clock factors."""
+    import gtsam
+    K = len(t_key)
+    lever = np.asarray(opts.lever_arm_b, float)
+    params = preintegration_params(imu_noise, frame, opts.earth_rotation)
+    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, imu.accel_m_s2, t_key, imu.dt[0])
+    biases = [gtsam.imuBias.ConstantBias()] * (K - 1)
+    pims = preintegrate(params, seg, biases, interval_params(imu_noise, frame, seg, opts.earth_rotation))
+
+    p_ant, v_ant = initial_track(t_key, fixes, frame)
+    a, R_a = anchor_attitude(t_key, v_ant)
+    R = propagate_attitude(pims, a, R_a, p_ant, v_ant)
+    p_imu = p_ant - np.einsum("kij,j->ki", R, lever)
+    omega_b = _imu_rate_at(imu, t_key)
+
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for k in range(K):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R[k]), p_imu[k]))
+        values.insert(V(k), v_ant[k].copy())
+        values.insert(B(k), biases[min(k, K - 2)])
+
+    prior = []
+    rs = np.radians(opts.prior_rot_sigma_deg)
+    prior.append(gtsam.PriorFactorPose3(X(0), values.atPose3(X(0)), gtsam.noiseModel.Diagonal.Sigmas(
+        np.r_[rs, [opts.prior_pos_sigma_m] * 3])))
+    prior.append(gtsam.PriorFactorPoint3(V(0), v_ant[0], gtsam.noiseModel.Isotropic.Sigma(3, opts.prior_vel_sigma_mps)))
+    prior.append(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(
+        np.r_[[imu_noise.accel_bias_sigma] * 3, [imu_noise.gyro_bias_sigma] * 3])))
+
+    imu_factors = [gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
+                   for k in range(K - 1)]
+
+    epoch_factors: list = [[] for _ in range(K)]
+    clock_groups = []
+    n_sat = np.zeros(K, int)
+    gnss_update = np.zeros(K, bool)
+    systems: list = []
+    if mode == "tc":
+        systems = sorted({str(s) for ep in epochs_at_key if ep is not None for s in ep.system},
+                         key=lambda s: "GECJRIS".find(s))
+        ecef_T_nav = frame.ecef_T_nav()
+        clk, drift = initial_clocks(t_key, epochs_at_key, p_ant, frame, systems)
+        for k in range(K):
+            for s in systems:
+                values.insert(CLK(s, k), float(clk[s][k]))
+            values.insert(DRIFT(k), float(drift[k]))
+        for s in systems:
+            prior.append(gtsam.PriorFactorDouble(CLK(s, 0), float(clk[s][0]),
+                                                 gtsam.noiseModel.Isotropic.Sigma(1, 1e3 / C_LIGHT)))
+        prior.append(gtsam.PriorFactorDouble(DRIFT(0), float(drift[0]),
+                                             gtsam.noiseModel.Isotropic.Sigma(1, 100.0 / C_LIGHT)))
+        if opts.use_doppler:
+            values.insert(ZERO(), 0.0)
+            prior.append(gtsam.PriorFactorDouble(ZERO(), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, 1e-3 / C_LIGHT)))
+        for k in range(K - 1):
+            clock_groups.append(clock_factors(systems, k, t_key[k + 1] - t_key[k], opts.clock_bias_rw_m,
+                                              opts.clock_drift_rw_mps, values))
+        for k, ep in enumerate(epochs_at_key):
+            if ep is None or ep.n == 0:
+                continue
+            r_approx = frame.to_ecef(p_ant[k])
+            n_sat[k] = ep.n
+            gnss_update[k] = True
+            for f in pseudorange_factors(k, ep, r_approx, lever, ecef_T_nav, opts.huber_k):
+                epoch_factors[k].append(("pr", f))
+            if opts.use_doppler:
+                for f in doppler_factors(k, ep, r_approx, lever, omega_b[k], ecef_T_nav,
+                                         opts.huber_k):
+                    epoch_factors[k].append(("dop", f))
+    else:
+        lc = lc_fixes if lc_fixes is not None else fixes
+        idx = np.clip(np.searchsorted(t_key, lc.t - 1e-3), 0, K - 1)
+        for j, k in enumerate(idx):
+            if abs(t_key[k] - lc.t[j]) > 1e-3 or not np.all(np.isfinite(lc.p_ecef[j])):
+                continue
+            epoch_factors[k].append(("pos", position_factor(k, frame.from_ecef(lc.p_ecef[j]), lc.sigma_ned[j],
+                                                            lever, opts.huber_k)))
+            gnss_update[k] = True
+            n_sat[k] = 1
+            if opts.lc_velocity and lc.v_ecef is not None and np.all(np.isfinite(lc.v_ecef[j])):
+                v_nav = lc.v_ecef[j] @ frame.R_nav_to_ecef
+                v_lever = R[k] @ np.cross(omega_b[k], lever)
+                epoch_factors[k].append(("vel", velocity_factor(k, v_nav - v_lever, lc.sigma_v_ned[j])))
+
+    for f in prior + imu_factors:
+        graph.add(f)
+    for g in clock_groups:
+        for f in g:
+            graph.add(f)
+    for fl in epoch_factors:
+        for _, f in fl:
+            graph.add(f)
+    return Problem(graph, values, frame, t_key, systems, pims, epoch_factors, imu_factors, clock_groups, prior,
+                   n_sat, gnss_update, omega_b, params)
+
+
+def rebuild_imu(problem: Problem, imu, imu_noise: ImuNoise, opts: SmootherOptions, first: NavSolution) -> Problem:
+    """The same problem with the IMU factors re-preintegrated about `first`'s biases and with the gravity
+    correction of `first`'s trajectory (all other factors are reused)."""
+    import gtsam
+    t_key = problem.t_key
+    accel = imu.accel_m_s2 + gravity_correction_b(imu.t, first.t, first.R_body_to_nav, first.p_nav, problem.frame)
+    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_key, imu.dt[0])
+    biases = [gtsam.imuBias.ConstantBias(b[:3], b[3:]) for b in first.bias[:-1]]
+    pims = preintegrate(problem.params, seg, biases,
+                        interval_params(imu_noise, problem.frame, seg, opts.earth_rotation))
+    imu_factors = [gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
+                   for k in range(len(t_key) - 1)]
+    graph = gtsam.NonlinearFactorGraph()
+    for f in problem.prior_factors + imu_factors:
+        graph.add(f)
+    for g in problem.clock_factor_groups:
+        for f in g:
+            graph.add(f)
+    for fl in problem.epoch_factors:
+        for _, f in fl:
+            graph.add(f)
+    return dataclasses.replace(problem, graph=graph, pims=pims, imu_factors=imu_factors, accel=accel)
+
+
+def optimize(problem: Problem, max_iterations: int = 30):
+    """Levenberg-Marquardt over the whole graph; returns the optimised gtsam.Values."""
+    import gtsam
+    p = gtsam.LevenbergMarquardtParams()
+    p.setMaxIterations(max_iterations)
+    p.setRelativeErrorTol(1e-7)
+    p.setAbsoluteErrorTol(1e-7)
+    # a navigation-grade IMU makes the normal equations so stiff that only heavily damped steps succeed:
+    # let lambda grow past gtsam's default bound (1e5) instead of stopping without a single step
+    p.setlambdaUpperBound(1e12)
+    opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, p)
+    values = opt.optimize()
+    problem.iterations = opt.iterations()
+    return values
+
+
+def read_states(problem: Problem, values) -> NavSolution:
+    """Keyframe states from gtsam Values (no covariances)."""
+    K = len(problem.t_key)
+    p = np.empty((K, 3))
+    v = np.empty((K, 3))
+    R = np.empty((K, 3, 3))
+    b = np.empty((K, 6))
+    for k in range(K):
+        pose = values.atPose3(X(k))
+        p[k] = pose.translation()
+        R[k] = pose.rotation().matrix()
+        v[k] = values.atPoint3(V(k))
+        b[k] = values.atConstantBias(B(k)).vector()
+    clock = {s: np.array([values.atDouble(CLK(s, k)) for k in range(K)]) for s in problem.systems}
+    drift = (np.array([values.atDouble(DRIFT(k)) for k in range(K)]) if problem.systems
+             else np.zeros(K))
+    return NavSolution(problem.frame, problem.t_key.copy(), p, v, R, b, clock, drift,
+                       n_sat=problem.n_sat.copy(), gnss_update=problem.gnss_update.copy())
+
+
+def gnss_residuals(problem: Problem, values) -> dict:
+    """Post-fit residuals of the GNSS factors: kind -> (keyframe index (M,), residual (M,) m or m/s, sigma (M,))."""
+    out: dict = {}
+    for k, fl in enumerate(problem.epoch_factors):
+        for kind, f in fl:
+            e = np.atleast_1d(f.unwhitenedError(values))
+            w = np.atleast_1d(f.whitenedError(values))
+            for j in range(len(e)):
+                out.setdefault(kind, []).append((k, e[j], e[j] / w[j] if w[j] != 0 else np.nan))
+    return {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in out.items()}
+
+
+def add_marginals(sol: NavSolution, problem: Problem, values) -> None:
+    """Fill cov_pose / cov_vel (and the full keyframe block `cov_block`) from the linearised graph."""
+    from dgcal.pos.smoother.covariance import KeyframeBlocks, smoothed_covariances
+    blocks = KeyframeBlocks(len(sol.t), problem.systems)
+    P = smoothed_covariances(problem.graph, values, blocks)
+    sol.cov_pose = P[:, :6, :6].copy()
+    sol.cov_vel = P[:, 6:9, 6:9].copy()
+    sol.cov_block = P
+
+
+def solution_values(sol: NavSolution, problem: Problem):
+    """gtsam Values holding the states of a NavSolution (keys as in the problem)."""
+    import gtsam
+    vals = gtsam.Values()
+    for k in range(len(sol.t)):
+        vals.insert(X(k), gtsam.Pose3(gtsam.Rot3(sol.R_body_to_nav[k]), sol.p_nav[k]))
+        vals.insert(V(k), sol.v_nav[k].copy())
+        vals.insert(B(k), gtsam.imuBias.ConstantBias(sol.bias[k, :3], sol.bias[k, 3:]))
+        for s in problem.systems:
+            vals.insert(CLK(s, k), float(sol.clock[s][k]))
+        if problem.systems:
+            vals.insert(DRIFT(k), float(sol.drift[k]))
+    if problem.values.exists(ZERO()):
+        vals.insert(ZERO(), 0.0)
+    return vals
+
+
+# the IMU noise floor of the coarse first pass (ADIS16488-class): densities below it are raised to it
+_COARSE_FLOOR = dict(gyro_arw=8.7e-5, accel_vrw=4.8e-4, gyro_bias_rw=1.3e-6, accel_bias_rw=4.4e-5,
+                     gyro_bias_sigma=1.7e-4, accel_bias_sigma=2e-2)
+
+
+def _coarse_noise(noise: ImuNoise) -> ImuNoise | None:
+    """`noise` with every density raised to at least `_COARSE_FLOOR`, or None if it is not below it anywhere."""
+    low = {k: v for k, v in _COARSE_FLOOR.items() if getattr(noise, k) < 0.5 * v}
+    return dataclasses.replace(noise, **{k: max(getattr(noise, k), v) for k, v in _COARSE_FLOOR.items()}) \
+        if low else None
+
+
+def keyframe_times(imu, t_obs: np.ndarray) -> np.ndarray:
+    """Keyframes (GPS s): the GNSS epochs inside the IMU span, gaps filled at the median epoch interval."""
+    t0 = imu.t[0] - imu.dt[0]
+    t = np.unique(np.asarray(t_obs, float))
+    t = t[(t >= t0 + 1e-6) & (t <= imu.t[-1] + 1e-6)]
+    if len(t) < 2:
+        raise ValueError("fewer than two GNSS epochs inside the IMU time span")
+    dt = float(np.median(np.diff(t)))
+    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-6)) + 1)
+    near = _nearest_gap(grid, t)
+    return np.union1d(t, grid[near > 0.25 * dt])
+
+
+def _nearest_gap(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
+    i = np.clip(np.searchsorted(t, grid), 1, len(t) - 1)
+    return np.minimum(np.abs(grid - t[i - 1]), np.abs(grid - t[i]))
+
+
+def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mode: str = "tc",
+           gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
+           second_pass: bool = True) -> NavSolution:
+    """Smoothed trajectory over the whole flight.
+
+    imu: `dgcal.pos.ins.imu_data.ImuData` (body FRD increments). fixes: GNSS positions to initialise (SPP) and, in LC
+    mode, the measurements unless `lc_fixes` is given. gnss: `GnssObservations` (TC mode). grade: an
+    `ImuGrade` or `ImuNoise`. The keyframes are the GNSS epochs (TC) or fix times (LC) in the IMU span.
+    """
+    opts = opts or SmootherOptions()
+    noise = imu_noise_from_grade(grade)
+    if frame is None:
+        ok = np.all(np.isfinite(fixes.p_ecef), axis=1)
+        frame = NavFrame.at_ecef(fixes.p_ecef[ok].mean(axis=0))
+    if mode == "tc":
+        if gnss is None:
+            raise ValueError("TC mode needs GNSS observations")
+        t_all = gnss.t_gps
+        t_key = keyframe_times(imu, t_all)
+        j = np.clip(np.searchsorted(t_all, t_key), 0, len(t_all) - 1)
+        epochs = [gnss.epochs[i] if abs(t_all[i] - t) < 1e-3 else None for i, t in zip(j, t_key)]
+    elif mode == "lc":
+        t_key = keyframe_times(imu, (lc_fixes or fixes).t)
+        epochs = None
+    else:
+        raise ValueError(f"unknown mode {mode!r}")
+    import time
+    timing = {}
+    t0 = time.perf_counter()
+    problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes)
+    timing["build_s"] = time.perf_counter() - t0
+    iterations = []
+    coarse = _coarse_noise(noise)
+    if coarse is not None:
+        # a very precise IMU makes the initial attitude error (the pseudo-attitude's pitch misses the angle of
+        # attack by degrees) a huge, badly conditioned residual on which LM stalls at iteration 0: solve with
+        # tactical-grade noise first and start the real model from there
+        t0 = time.perf_counter()
+        p0 = build_problem(imu, frame, t_key, fixes, coarse, opts, mode, epochs, lc_fixes)
+        problem.values = optimize(p0, opts.max_iterations)
+        iterations.append(p0.iterations)
+        timing["coarse_pass_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    values = optimize(problem, opts.max_iterations)
+    timing["optimize_s"] = time.perf_counter() - t0
+    iterations.append(problem.iterations)
+    sol = read_states(problem, values)
+    if second_pass:
+        # re-preintegrate with the gravity correction and about the estimated biases, start from pass one
+        t0 = time.perf_counter()
+        problem = rebuild_imu(problem, imu, noise, opts, sol)
+        problem.values = values
+        values = optimize(problem, opts.max_iterations)
+        sol = read_states(problem, values)
+        timing["second_pass_s"] = time.perf_counter() - t0
+        iterations.append(problem.iterations)
+    sol.residuals = gnss_residuals(problem, values)
+    sol.info = {"mode": mode, "keyframes": len(t_key), "factors": problem.graph.size(),
+                "error_final": problem.graph.error(values), "systems": problem.systems,
+                "lm_iterations": iterations}
+    if opts.covariances:
+        t0 = time.perf_counter()
+        add_marginals(sol, problem, values)
+        timing["covariance_s"] = time.perf_counter() - t0
+    sol.info["timing"] = {k: round(v, 2) for k, v in timing.items()}
+    sol.problem, sol.values = problem, values
+    return sol

@@ -1,0 +1,149 @@
+"""gtsam factors of the GNSS/INS smoother: keys, TC pseudorange/Doppler, LC position/velocity, receiver clock.
+
+Units: the receiver clock bias variables are in seconds (gtsam's `PseudorangeFactorArm` convention), one
+per constellation and keyframe; the common clock drift variable is in s/s. The GNSS front end (dgcal.pos.gnss.observations)
+gives satellite positions already rotated for the Earth's rotation (Sagnac) and range measurements corrected
+for satellite clock, ionosphere and troposphere; gtsam's factors add their own Sagnac term, so the same
+term (evaluated at the approximate receiver position) is added to the measurement to cancel it.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from dgcal.pos.ins.nav_frame import C_LIGHT, OMEGA_EARTH
+
+_SYS_CHAR = {"G": "g", "E": "e", "C": "c", "J": "j", "R": "r", "I": "i", "S": "s"}
+
+
+def X(k: int) -> int:
+    """Key of the body pose (R_body_to_nav, p_nav of the IMU origin) at keyframe k."""
+    import gtsam
+    return gtsam.symbol("x", k)
+
+
+def V(k: int) -> int:
+    """Key of the IMU velocity in nav axes (m/s) at keyframe k."""
+    import gtsam
+    return gtsam.symbol("v", k)
+
+
+def B(k: int) -> int:
+    """Key of the IMU biases (accelerometer m/s^2, gyro rad/s) at keyframe k."""
+    import gtsam
+    return gtsam.symbol("b", k)
+
+
+def CLK(system: str, k: int) -> int:
+    """Key of the receiver clock bias (s) of a constellation at keyframe k."""
+    import gtsam
+    return gtsam.symbol(_SYS_CHAR[system], k)
+
+
+def DRIFT(k: int) -> int:
+    """Key of the receiver clock drift (s/s) at keyframe k."""
+    import gtsam
+    return gtsam.symbol("d", k)
+
+
+def ZERO() -> int:
+    """Key of a constant 0.0 (pinned by a tight prior): the 'previous clock' of the Doppler factors, see
+    `doppler_factors`."""
+    import gtsam
+    return gtsam.symbol("z", 0)
+
+
+def sagnac_m(sat_pos_ecef: np.ndarray, p_rx_ecef: np.ndarray) -> np.ndarray:
+    """Earth-rotation range correction (m) as gtsam's pseudorange factors compute it."""
+    s, r = np.atleast_2d(sat_pos_ecef), np.asarray(p_rx_ecef, float)
+    return OMEGA_EARTH / C_LIGHT * (s[:, 0] * r[1] - s[:, 1] * r[0])
+
+
+def sagnac_rate_mps(sat_pos_ecef, sat_vel_ecef, p_rx_ecef) -> np.ndarray:
+    """Time derivative (m/s) of `sagnac_m` for a static receiver (as gtsam's Doppler factors compute it)."""
+    s, v, r = np.atleast_2d(sat_pos_ecef), np.atleast_2d(sat_vel_ecef), np.asarray(p_rx_ecef, float)
+    return OMEGA_EARTH / C_LIGHT * (v[:, 0] * r[1] - v[:, 1] * r[0])
+
+
+def robust(sigma: float, dim: int = 1, huber_k: float | None = 1.345):
+    """Gaussian noise of `sigma`, wrapped in a Huber M-estimator unless `huber_k` is None."""
+    import gtsam
+    base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma))
+    if huber_k is None:
+        return base
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(huber_k)), base)
+
+
+def pseudorange_factors(k: int, epoch, p_approx_ecef, lever_arm_b, ecef_T_nav, huber_k=1.345,
+                        sigma_scale: float = 1.0) -> list:
+    """PseudorangeFactorArm per satellite of a `GnssEpoch` at keyframe k (one clock key per constellation)."""
+    import gtsam
+    pr = epoch.pr_corr_m + sagnac_m(epoch.sat_pos_ecef, p_approx_ecef)
+    out = []
+    for i in range(epoch.n):
+        if not np.isfinite(pr[i]):
+            continue
+        out.append(gtsam.PseudorangeFactorArm(
+            X(k), CLK(str(epoch.system[i]), k), float(pr[i]), epoch.sat_pos_ecef[i], lever_arm_b, ecef_T_nav,
+            0.0, robust(epoch.sigma_pr_m[i] * sigma_scale, 1, huber_k)))
+    return out
+
+
+def doppler_factors(k: int, epoch, p_approx_ecef, lever_arm_b, omega_b, ecef_T_nav, huber_k=1.345,
+                    sigma_scale: float = 1.0) -> list:
+    """DopplerFactorArm per satellite with Doppler at keyframe k, tied to the drift variable DRIFT(k).
+
+    gtsam's factor takes the receiver drift as (clock_curr - clock_prev) / dt; handing it (ZERO, DRIFT(k),
+    dt = 1 s) makes that the instantaneous drift state (s/s) rather than the mean over the epoch interval,
+    which would differ from it by the clock's random walk (~0.1-0.2 m/s for a TCXO, more than the noise).
+    """
+    import gtsam
+    rr = epoch.rr_corr_mps + sagnac_rate_mps(epoch.sat_pos_ecef, epoch.sat_vel_ecef, p_approx_ecef)
+    out = []
+    for i in range(epoch.n):
+        if not np.isfinite(rr[i]):
+            continue
+        # wavelength 1 m: the factor's measured range rate is -lambda*D, so D = -rr
+        out.append(gtsam.DopplerFactorArm(
+            X(k), V(k), ZERO(), DRIFT(k), float(-rr[i]), 1.0, epoch.sat_pos_ecef[i],
+            epoch.sat_vel_ecef[i], p_approx_ecef, lever_arm_b, ecef_T_nav, omega_b, 1.0, 0.0,
+            robust(epoch.sigma_rr_mps[i] * sigma_scale, 1, huber_k)))
+    return out
+
+
+def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: float, lin_values) -> list:
+    """Receiver clock process from keyframe k to k+1: b_s(k+1) = b_s(k) + d(k) dt + w, d(k+1) = d(k) + w'.
+
+    Densities: `bias_rw_m` m/sqrt(s) on each bias, `drift_rw_mps` m/s/sqrt(s) on the drift. The bias
+    equation is linear: a JacobianFactor wrapped as a nonlinear factor about `lin_values` (which must hold
+    the three clock keys; its right-hand side is set so that the error is exactly A x).
+    """
+    import gtsam
+    out = []
+    # the drift's own random walk integrates into the bias too (q_d dt^3 / 3)
+    sb = np.sqrt(bias_rw_m ** 2 * dt + drift_rw_mps ** 2 * dt ** 3 / 3.0) / C_LIGHT
+    d0 = lin_values.atDouble(DRIFT(k))
+    for s in systems:
+        x0 = lin_values.atDouble(CLK(s, k + 1)) - lin_values.atDouble(CLK(s, k)) - dt * d0
+        jf = gtsam.JacobianFactor(CLK(s, k + 1), np.array([[1.0]]), CLK(s, k), np.array([[-1.0]]),
+                                  DRIFT(k), np.array([[-float(dt)]]), np.array([-x0]),
+                                  gtsam.noiseModel.Isotropic.Sigma(1, sb))
+        out.append(gtsam.LinearContainerFactor(jf, lin_values))
+    out.append(gtsam.BetweenFactorDouble(DRIFT(k), DRIFT(k + 1), 0.0,
+                                         gtsam.noiseModel.Isotropic.Sigma(1, drift_rw_mps * np.sqrt(dt) / C_LIGHT)))
+    return out
+
+
+def position_factor(k: int, p_ant_nav, sigma_ned, lever_arm_b, huber_k=None):
+    """LC: antenna position (nav frame, m) with per-axis sigmas (m), through the lever arm."""
+    import gtsam
+    base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma_ned, float))
+    if huber_k is not None:
+        base = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(huber_k)), base)
+    return gtsam.GPSFactorArm(X(k), np.asarray(p_ant_nav, float), np.asarray(lever_arm_b, float), base)
+
+
+def velocity_factor(k: int, v_nav, sigma_ned):
+    """LC: IMU velocity (nav frame, m/s; the antenna's lever-arm rate already removed) with sigmas (m/s)."""
+    import gtsam
+    return gtsam.PriorFactorPoint3(V(k), np.asarray(v_nav, float),
+                                   gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma_ned, float)))

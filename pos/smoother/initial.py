@@ -1,0 +1,107 @@
+"""Initial values for the smoother in motion: positions/velocities from GNSS fixes, attitude from the GNSS
+velocity (pseudo-attitude) at one moving epoch propagated with the gyros, receiver clocks from the
+pseudoranges.
+
+No static alignment is needed: the smoother refines the coarse attitude (heading errors of several degrees
+converge because the turns of a flight make heading observable).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dgcal.fields.frames import R_body_to_ned_from_rph
+from dgcal.pos.ins.nav_frame import C_LIGHT, NavFrame
+
+
+@dataclass
+class GnssFixes:
+    """Antenna positions (and optionally velocities) from GNSS: SPP for initialisation, or the LC input.
+
+    t (N,) GPS s; p_ecef (N,3) m; sigma_ned (N,3) m; v_ecef (N,3) m/s or None; sigma_v_ned (N,3) m/s or None.
+    """
+
+    t: np.ndarray
+    p_ecef: np.ndarray
+    sigma_ned: np.ndarray
+    v_ecef: np.ndarray | None = None
+    sigma_v_ned: np.ndarray | None = None
+
+
+def interp_rows(t_new: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Linear interpolation of each column of y (N,d) at t_new (held constant outside)."""
+    return np.stack([np.interp(t_new, t, y[:, j]) for j in range(y.shape[1])], axis=1)
+
+
+def initial_track(t_key: np.ndarray, fixes: GnssFixes, frame: NavFrame):
+    """Antenna track at keyframes in nav (p (K,3) m, v (K,3) m/s), interpolated over gaps."""
+    ok = np.all(np.isfinite(fixes.p_ecef), axis=1)
+    if ok.sum() < 2:
+        raise ValueError("fewer than two GNSS fixes to initialise the trajectory")
+    p_nav = frame.from_ecef(fixes.p_ecef[ok])
+    p = interp_rows(t_key, fixes.t[ok], p_nav)
+    if fixes.v_ecef is not None and np.all(np.isfinite(fixes.v_ecef[ok])):
+        v = interp_rows(t_key, fixes.t[ok], fixes.v_ecef[ok] @ frame.R_nav_to_ecef)
+    else:
+        v = np.gradient(p, t_key, axis=0)
+    return p, v
+
+
+def anchor_attitude(t_key: np.ndarray, v_nav: np.ndarray, min_speed: float = 3.0) -> tuple[int, np.ndarray]:
+    """Keyframe index and coarse R_body_to_nav at the first moving epoch: the pseudo-attitude of the GNSS
+    velocity (dgcal.pos.gnss.pseudo_attitude: roll from the turn's centripetal acceleration, pitch = flight-path
+    angle, heading = course); level with heading = course if it cannot be formed."""
+    from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude
+    pa = pseudo_attitude(t_key, v_nav, window_s=0.0, min_speed=min_speed)
+    ok = np.flatnonzero(pa.valid & np.all(np.isfinite(pa.rph), axis=1))
+    if len(ok):
+        a = int(ok[0])
+        return a, R_body_to_ned_from_rph(*pa.rph[a])
+    vh = np.hypot(v_nav[:, 0], v_nav[:, 1])
+    moving = np.flatnonzero(vh > min_speed)
+    a = int(moving[0]) if len(moving) else 0
+    heading = np.degrees(np.arctan2(v_nav[a, 1], v_nav[a, 0]))
+    return a, R_body_to_ned_from_rph(0.0, 0.0, heading)
+
+
+def propagate_attitude(pims: list, anchor: int, R_anchor: np.ndarray, p_nav, v_nav) -> np.ndarray:
+    """R_body_to_nav at all keyframes by chaining the preintegrated rotations from the anchor (both ways)."""
+    import gtsam
+    K = len(pims) + 1
+    R = np.empty((K, 3, 3))
+    R[anchor] = R_anchor
+    zero = gtsam.imuBias.ConstantBias()
+    for k in range(anchor, K - 1):
+        ns = gtsam.NavState(gtsam.Rot3(R[k]), p_nav[k], v_nav[k])
+        R[k + 1] = pims[k].predict(ns, zero).attitude().matrix()
+    for k in range(anchor - 1, -1, -1):
+        R[k] = R[k + 1] @ pims[k].deltaRij().matrix().T
+    return R
+
+
+def initial_clocks(t_key, epochs_at_key, p_ant_nav, frame: NavFrame, systems) -> tuple[dict, np.ndarray]:
+    """Receiver clock bias per constellation (s) at keyframes from the pseudoranges at the initial track,
+    and the drift (s/s)."""
+    from dgcal.pos.smoother.factors import sagnac_m
+    K = len(t_key)
+    clk = {s: np.full(K, np.nan) for s in systems}
+    for k, ep in enumerate(epochs_at_key):
+        if ep is None or ep.n == 0:
+            continue
+        r = frame.to_ecef(p_ant_nav[k])
+        res = ep.pr_corr_m + sagnac_m(ep.sat_pos_ecef, r) - np.linalg.norm(ep.sat_pos_ecef - r, axis=1)
+        for s in systems:
+            m = (ep.system == s) & np.isfinite(res)
+            if m.any():
+                clk[s][k] = np.median(res[m]) / C_LIGHT
+    ref = None
+    for s in systems:
+        good = np.isfinite(clk[s])
+        if good.sum() == 0:
+            clk[s][:] = 0.0 if ref is None else clk[ref]
+            continue
+        clk[s] = np.interp(t_key, t_key[good], clk[s][good])
+        ref = ref or s
+    drift = np.gradient(clk[ref], t_key) if ref is not None and K > 1 else np.zeros(K)
+    return clk, drift

@@ -1,0 +1,105 @@
+"""From keyframe states to the trajectory file: IMU-rate densification between keyframes and the conversion
+of nav-frame states and covariances to geodetic position, local NED velocity, roll/pitch/heading and the
+INTERFACES.md sigma columns.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.fields.io.formats import Trajectory
+from dgcal.fields.frames import rph_from_R_body_to_ned
+from dgcal.pos.ins.nav_frame import NavFrame
+
+
+def euler_rate_matrix(rph_deg: np.ndarray) -> np.ndarray:
+    """d(roll, pitch, heading) / d(delta_theta_body) (N,3,3) for R_body_to_ned perturbed as R Exp(delta_theta)."""
+    r, p = np.radians(rph_deg[:, 0]), np.radians(rph_deg[:, 1])
+    sr, cr, tp, cp = np.sin(r), np.cos(r), np.tan(p), np.cos(p)
+    z, o = np.zeros_like(r), np.ones_like(r)
+    return np.stack([np.stack([o, sr * tp, cr * tp], -1),
+                     np.stack([z, cr, -sr], -1),
+                     np.stack([z, sr / cp, cr / cp], -1)], -2)
+
+
+def to_trajectory(frame: NavFrame, t: np.ndarray, p_nav: np.ndarray, v_nav: np.ndarray,
+                  R_body_to_nav: np.ndarray, cov_p_nav: np.ndarray | None = None,
+                  cov_rot_b: np.ndarray | None = None) -> Trajectory:
+    """Trajectory (geodetic, local NED velocity and attitude, sigmas in m and degrees) from nav-frame states.
+
+    cov_p_nav (N,3,3) m^2 in nav axes; cov_rot_b (N,3,3) rad^2, right (body) rotation perturbation.
+    """
+    R_nl = frame.R_nav_to_local_ned(p_nav)
+    geo = ecef_to_geodetic(frame.to_ecef(p_nav))
+    v_ned = np.einsum("nij,nj->ni", R_nl, v_nav)
+    R_bn = R_nl @ R_body_to_nav
+    rph = rph_from_R_body_to_ned(R_bn)
+    sigma = None
+    if cov_p_nav is not None and cov_rot_b is not None:
+        Cp = R_nl @ cov_p_nav @ np.swapaxes(R_nl, 1, 2)
+        J = euler_rate_matrix(rph)
+        Ca = J @ cov_rot_b @ np.swapaxes(J, 1, 2)
+        sigma = np.column_stack([np.sqrt(np.maximum(np.einsum("nii->ni", Cp), 0.0)),
+                                 np.degrees(np.sqrt(np.maximum(np.einsum("nii->ni", Ca), 0.0)))])
+    return Trajectory(t=np.asarray(t, float), lat=geo[:, 0], lon=geo[:, 1], h=geo[:, 2], v_ned=v_ned, rph=rph,
+                      sigma=sigma)
+
+
+def solution_trajectory(sol) -> Trajectory:
+    """The keyframe states of a NavSolution as a Trajectory (with sigmas when covariances are present)."""
+    cov_p = sol.cov_p_nav if sol.cov_pose is not None else None
+    cov_r = sol.cov_pose[:, :3, :3] if sol.cov_pose is not None else None
+    return to_trajectory(sol.frame, sol.t, sol.p_nav, sol.v_nav, sol.R_body_to_nav, cov_p, cov_r)
+
+
+def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
+    """The trajectory at `rate_hz` (plus the keyframes): IMU mechanisation from each keyframe with its
+    estimated biases, the small closure error at the next keyframe spread linearly over the interval;
+    sigmas interpolated linearly in variance between keyframes."""
+    import gtsam
+
+    from dgcal.pos.smoother.preintegration import gravity_correction_b, rotation_compensated_accel, split_at_keyframes
+    t_key = sol.t
+    step = 1.0 / rate_hz
+    grid = np.arange(np.ceil(t_key[0] / step) * step, t_key[-1], step)
+    t_out = np.union1d(t_key, grid[(grid > t_key[0]) & (grid < t_key[-1])])
+    t_out = t_out[np.concatenate([[True], np.diff(t_out) > 1e-6])]
+    accel = problem.accel if problem.accel is not None else (
+        imu.accel_m_s2 + gravity_correction_b(imu.t, t_key, sol.R_body_to_nav, sol.p_nav, sol.frame))
+    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_out, imu.dt[0])
+    acc_c = rotation_compensated_accel(seg.gyro, seg.accel, seg.dt)
+    params = problem.params
+    n = len(t_out)
+    P = np.empty((n, 3))
+    Vv = np.empty((n, 3))
+    R = np.empty((n, 3, 3))
+    key_of = np.searchsorted(t_out, t_key - 1e-9)
+    for k in range(len(t_key) - 1):
+        b = gtsam.imuBias.ConstantBias(sol.bias[k, :3], sol.bias[k, 3:])
+        ns0 = gtsam.NavState(gtsam.Rot3(sol.R_body_to_nav[k]), sol.p_nav[k], sol.v_nav[k])
+        pim = gtsam.PreintegratedCombinedMeasurements(params, b)
+        i0, i1 = key_of[k], key_of[k + 1]
+        P[i0], Vv[i0], R[i0] = sol.p_nav[k], sol.v_nav[k], sol.R_body_to_nav[k]
+        f = pim.integrateMeasurement
+        for i in range(i0, i1):
+            for j in range(seg.start[i], seg.start[i + 1]):
+                f(acc_c[j], seg.gyro[j], seg.dt[j])
+            ns = pim.predict(ns0, b)
+            P[i + 1], Vv[i + 1], R[i + 1] = ns.position(), ns.velocity(), ns.attitude().matrix()
+        # closure: spread the mismatch with the next keyframe linearly in time
+        dp = sol.p_nav[k + 1] - P[i1]
+        dv = sol.v_nav[k + 1] - Vv[i1]
+        dr = Rotation.from_matrix(R[i1].T @ sol.R_body_to_nav[k + 1]).as_rotvec()
+        w = (t_out[i0 + 1:i1 + 1] - t_key[k]) / (t_key[k + 1] - t_key[k])
+        P[i0 + 1:i1 + 1] += w[:, None] * dp
+        Vv[i0 + 1:i1 + 1] += w[:, None] * dv
+        R[i0 + 1:i1 + 1] = R[i0 + 1:i1 + 1] @ Rotation.from_rotvec(w[:, None] * dr).as_matrix()
+    cov_p = cov_r = None
+    if sol.cov_pose is not None:
+        cp, cr = sol.cov_p_nav, sol.cov_pose[:, :3, :3]
+        cov_p = np.stack([np.stack([np.interp(t_out, t_key, cp[:, i, j]) for j in range(3)], -1)
+                          for i in range(3)], -2)
+        cov_r = np.stack([np.stack([np.interp(t_out, t_key, cr[:, i, j]) for j in range(3)], -1)
+                          for i in range(3)], -2)
+    return to_trajectory(sol.frame, t_out, P, Vv, R, cov_p, cov_r)

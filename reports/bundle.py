@@ -1,0 +1,162 @@
+"""Aerial-triangulation report: one HTML file (footprints, GCP and check-point residual vectors, per-image
+sigmas, tables) and a JSON summary, from a `dgcal.bundle.triangulation.TriangulationResult`."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.reports.html import HtmlReport, new_figure
+
+
+def summary_dict(res) -> dict:
+    """The JSON summary: global figures, per-image EOP sigmas, GCP residuals, check-point errors."""
+    d = dict(res.summary)
+    d["images"] = [{**s, "X": res.eop.xyz[i].tolist(), "opk_deg": res.eop.opk[i].tolist()}
+                   for i, s in enumerate(res.image_stats)]
+    d["control_points"] = res.gcp
+    d["check_points"] = res.check
+    return _clean(d)
+
+
+def _clean(v):
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _clean(v.tolist())
+    if isinstance(v, (np.floating, float)):
+        return None if not np.isfinite(v) else float(v)
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (np.bool_,)):
+        return bool(v)
+    if isinstance(v, np.str_):
+        return str(v)
+    return v
+
+
+def write_summary_json(path: str | Path, res) -> dict:
+    """Write the JSON summary atomically; returns it."""
+    d = summary_dict(res)
+    with atomic_write(path) as fh:
+        json.dump(d, fh, indent=1)
+    return d
+
+
+def _footprints(res) -> list[np.ndarray]:
+    """Image corners projected to the mean control height, in grid E, N (m, map CRS)."""
+    cam = res.camera
+    w, h = cam.image_size
+    corners = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float)
+    rays = cam.ray(corners)
+    ctrl = np.array([res.bundle.X_world[j] for j, k in enumerate(res.point_kind) if k == "control"])
+    z0 = float(np.mean(ctrl[:, 2])) if len(ctrl) else 0.0
+    out = []
+    for i in range(len(res.images)):
+        d = rays @ res.R_world_to_cv[i]
+        C = res.C_local[i]
+        t = (z0 - C[2]) / np.where(np.abs(d[:, 2]) > 1e-9, d[:, 2], np.nan)
+        P = C + np.where(t[:, None] > 0, t[:, None], np.nan) * d
+        out.append(res.georef.to_map(P)[:, :2])
+    return out
+
+
+def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulation") -> Path:
+    """Write the HTML report (one self-contained file) and return its path."""
+    s = res.summary
+    rep = HtmlReport(title)
+    rep.heading("Summary")
+    chk = s["check_rmse_m"]
+    rep.kv_table([("map CRS", s["crs"]), ("images oriented / given", f"{s['n_oriented']} / {s['n_images']}"),
+                  ("control points used", s["n_control"]), ("tie points", s["n_tie_points"]),
+                  ("observations", s["n_observations"]), ("sigma0 (a posteriori)", s["sigma0"]),
+                  ("redundancy", s["redundancy"]), ("RMS reprojection (px)", s["rms_px"]),
+                  ("converged", s["converged"]),
+                  ("control RMSE E / N / U (m)", _triple(s["control_rmse_m"])),
+                  ("check RMSE E / N / U (m)", _triple(chk)), ("check points evaluated", chk["n"]),
+                  ("camera", f"{s['camera']['model']}, refined: {', '.join(s['camera']['refined']) or 'none (fixed)'}")])
+    rep.heading("Warnings")
+    rep.warnings(s["warnings"])
+    # --- map figure -------------------------------------------------------------------------
+    fig, ax = new_figure(8, 7)
+    for fp in _footprints(res):
+        if np.isfinite(fp).all():
+            ax.fill(fp[:, 0], fp[:, 1], fc="none", ec="0.75", lw=0.6)
+    ax.plot(res.eop.xyz[:, 0], res.eop.xyz[:, 1], ".", color="tab:blue", ms=4, label="projection centres")
+    scale = _arrow_scale(res)
+    if res.gcp:
+        g = np.array([c["xyz"] for c in res.gcp])
+        dg = np.array([c["dENU_m"] for c in res.gcp])
+        ax.plot(g[:, 0], g[:, 1], "^", color="tab:green", label="control")
+        ax.quiver(g[:, 0], g[:, 1], dg[:, 0], dg[:, 1], color="tab:green", angles="xy", scale_units="xy",
+                  scale=1 / scale, width=0.004)
+    ev = [c for c in res.check if c.get("evaluated")]
+    if ev:
+        c = np.array([x["xyz"] for x in ev])
+        dc = np.array([x["dENU_m"] for x in ev])
+        ax.plot(c[:, 0], c[:, 1], "s", color="tab:red", label="check")
+        ax.quiver(c[:, 0], c[:, 1], dc[:, 0], dc[:, 1], color="tab:red", angles="xy", scale_units="xy",
+                  scale=1 / scale, width=0.004)
+    ax.set_aspect("equal")
+    ax.set_xlabel("E (m)")
+    ax.set_ylabel("N (m)")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"image footprints and horizontal residual vectors (x{scale:.0f})")
+    rep.figure(fig, "Footprints at the mean control height (grey), control (green) and check (red) points "
+                    f"with their horizontal errors magnified {scale:.0f} times.")
+    # --- per-image sigmas -------------------------------------------------------------------
+    fig, axes = new_figure(9, 5, nrows=2, sharex=True)
+    k = np.arange(len(res.images))
+    for j, lab in enumerate(("sX", "sY", "sZ")):
+        axes[0].plot(k, res.eop.sigma[:, j] * 100, ".-", lw=0.7, label=lab)
+    for j, lab in enumerate(("s_omega", "s_phi", "s_kappa")):
+        axes[1].plot(k, res.eop.sigma[:, 3 + j] * 3600, ".-", lw=0.7, label=lab)
+    axes[0].set_ylabel("cm")
+    axes[1].set_ylabel("arcsec")
+    axes[1].set_xlabel("image index")
+    axes[0].legend(fontsize=8)
+    axes[1].legend(fontsize=8)
+    rep.figure(fig, "Standard deviations of each image's projection centre and angles (map CRS).")
+    # --- tables -----------------------------------------------------------------------------
+    rep.heading("Control points")
+    rep.table(["id", "images", "dE (m)", "dN (m)", "dU (m)", "RMS (px)", "max |w|"],
+              [[c["id"], c["n_images"], *c["dENU_m"], c["rms_px"],
+                max([m["w"] for m in c["measurements"]], default=float("nan"))] for c in res.gcp])
+    rep.heading("Check points")
+    rep.table(["id", "images", "dE (m)", "dN (m)", "dU (m)", "sE (m)", "sN (m)", "sU (m)"],
+              [[c["id"], c["n_images"], *(c["dENU_m"] if c.get("evaluated") else [float("nan")] * 3),
+                *(c["sigma_ENU_m"] if c.get("evaluated") else [float("nan")] * 3)] for c in res.check])
+    rep.heading("Suspect measurements (standardised residual test)")
+    if res.suspects:
+        rep.table(["image", "id", "rx (px)", "ry (px)", "|w|", "redundancy", "removed"],
+                  [[x.image, x.point, *x.residual_px, x.w, x.redundancy, x.removed] for x in res.suspects])
+    else:
+        rep.text("No GCP measurement exceeds the critical standardised residual.", cls="ok")
+    if s["unknown_points"]:
+        rep.heading("Measured points not in the ground point file (used as tie points)")
+        rep.table(["id", "images", "X", "Y", "Z"],
+                  [[u["id"], u["n_images"], *(u["xyz"] or [float("nan")] * 3)] for u in s["unknown_points"]
+                   if not str(u["id"]).startswith("tie_")][:200])
+    rep.heading("Images")
+    rep.table(["image", "obs", "control obs", "RMS (px)", "sX", "sY", "sZ", "s_omega", "s_phi", "s_kappa"],
+              [[st["image"], st["n_obs"], st["n_control"], st["rms_px"], *st["sigma"]] for st in res.image_stats])
+    return rep.write(path)
+
+
+def _triple(d: dict) -> str:
+    return " / ".join("–" if d.get(k) is None else f"{d[k]:.4f}" for k in ("E", "N", "U"))
+
+
+def _arrow_scale(res) -> float:
+    """A magnification that turns typical residuals into arrows of ~5 % of the block size."""
+    vals = [np.hypot(*c["dENU_m"][:2]) for c in res.gcp] + \
+           [np.hypot(*c["dENU_m"][:2]) for c in res.check if c.get("evaluated")]
+    span = float(np.ptp(res.eop.xyz[:, :2], axis=0).max()) if len(res.eop.xyz) > 1 else 1.0
+    typical = float(np.median(vals)) if vals else 0.0
+    if typical <= 0:
+        return 1.0
+    return float(10 ** np.round(np.log10(0.05 * max(span, 1e-3) / typical)))

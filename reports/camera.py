@@ -1,0 +1,189 @@
+"""The camera calibration report: one HTML file with the parameters and their sigmas, warnings, the
+residual vectors over the frame, distortion curves, the correlation matrix and per-image RMS."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.calib.selfcal.calibration import CameraCalibration
+from dgcal.calib.selfcal.diagnostics import residual_pattern
+from dgcal.reports.html import HtmlReport, new_figure
+
+
+def residual_vector_figure(cal: CameraCalibration, cells=(16, 11)):
+    """Mean residual vectors (px, exaggerated) in cells over the frame, over the observation coverage."""
+    ba = cal.ba
+    w, h = ba.camera.image_size
+    u = ba.used
+    pat = residual_pattern(ba.obs_xy[u], ba.residuals[u], (w, h), ba.camera.pinhole_K()[:2, 2], cells=cells,
+                           min_count=3)
+    fig, ax = new_figure(9, 9 * h / w + 0.8)
+    ax.plot(ba.obs_xy[u, 0], ba.obs_xy[u, 1], ",", color="0.7")
+    if (~u).any():
+        ax.plot(ba.obs_xy[~u, 0], ba.obs_xy[~u, 1], "x", color="tab:red", ms=3, label="rejected")
+        ax.legend(loc="upper right", fontsize=8)
+    ok = np.isfinite(pat.mean[:, 0])
+    mag = np.linalg.norm(pat.mean[ok], axis=1)
+    ref = float(np.percentile(mag, 90)) if mag.size else 1.0
+    ref = max(ref, 1e-3)
+    scale = (w / cells[0]) / ref  # the 90th percentile vector spans about one cell
+    q = ax.quiver(pat.centres[ok, 0], pat.centres[ok, 1], pat.mean[ok, 0], pat.mean[ok, 1], angles="xy",
+                  scale_units="xy", scale=1 / scale, color="tab:blue", width=0.003)
+    key = float(f"{ref:.1g}")
+    ax.quiverkey(q, 0.12, -0.06, key, f"{key:g} px", labelpos="E", coordinates="axes")
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    ax.set_aspect("equal")
+    ax.set_title("mean residual (projected - measured) per cell; grey: observations")
+    ax.set_xlabel("x (px)")
+    ax.set_ylabel("y (px)")
+    return fig
+
+
+def distortion_figure(cal: CameraCalibration):
+    """Radial and tangential distortion (distorted - ideal pinhole position, px) against the image radius,
+    along lines from the principal point to the right edge, the bottom edge and the farthest corner."""
+    cam = cal.camera
+    w, h = cam.image_size
+    K = cam.pinhole_K()
+    c = K[:2, 2]
+    corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], float)
+    far = corners[np.argmax(np.linalg.norm(corners - c, axis=1))]
+    ends = {"to right edge": np.array([w - 1, c[1]]), "to bottom edge": np.array([c[0], h - 1]),
+            "to farthest corner": far}
+    fig, (ax1, ax2) = new_figure(9, 4.2, ncols=2)
+    for (lab, end), style in zip(ends.items(), ("-", "--", ":")):
+        rmax = float(np.linalg.norm(end - c))
+        e = (end - c) / max(rmax, 1e-9)
+        r = np.linspace(0, rmax, 150)
+        uv = c + r[:, None] * e
+        ideal = cam.undistort_points(uv, K)
+        d = uv - ideal
+        radial = d @ e
+        tang = d[:, 0] * -e[1] + d[:, 1] * e[0]
+        ax1.plot(r, radial, style, label=lab)
+        ax2.plot(r, tang, style, label=lab)
+    for ax, t in ((ax1, "radial distortion (px)"), (ax2, "tangential distortion (px)")):
+        ax.set_xlabel("image radius from principal point (px)")
+        ax.set_title(t)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    return fig
+
+
+def correlation_figure(cal: CameraCalibration):
+    """The correlation matrix of the adjusted camera parameters."""
+    ba = cal.ba
+    idx = np.flatnonzero(ba.free)
+    names = [ba.camera.PARAMS[i] for i in idx]
+    C = ba.correlation[np.ix_(idx, idx)]
+    fig, ax = new_figure(6.5, 5.5)
+    im = ax.imshow(C, vmin=-1, vmax=1, cmap="RdBu_r")
+    ax.set_xticks(range(len(names)), names, rotation=90)
+    ax.set_yticks(range(len(names)), names)
+    for a in range(len(names)):
+        for b in range(len(names)):
+            if a != b and abs(C[a, b]) > 0.9:
+                ax.text(b, a, f"{C[a, b]:.2f}", ha="center", va="center", fontsize=6)
+    fig.colorbar(im, ax=ax, shrink=0.8)
+    ax.set_title("parameter correlations (|r| > 0.9 labelled)")
+    return fig
+
+
+def per_image_figure(cal: CameraCalibration):
+    """RMS residual (px) of every image."""
+    rms = cal.ba.per_image_rms()
+    names = list(rms)
+    vals = np.array([rms[n] for n in names])
+    fig, ax = new_figure(max(6, min(18, 0.12 * len(names) + 3)), 3.6)
+    ax.bar(range(len(names)), np.nan_to_num(vals), color="tab:blue")
+    ax.axhline(cal.ba.rms_px, color="tab:red", lw=1, label=f"overall {cal.ba.rms_px:.3f} px")
+    if len(names) <= 60:
+        ax.set_xticks(range(len(names)), names, rotation=90, fontsize=6)
+    ax.set_ylabel("RMS (px)")
+    ax.set_title("per-image RMS residual")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def radial_profile_figure(cal: CameraCalibration):
+    """Mean radial residual (px) against the distance from the principal point, with 2 sigma bars."""
+    p = cal.diagnostics.pattern
+    fig, ax = new_figure(7, 3.6)
+    ok = np.isfinite(p.radial_mean)
+    ax.errorbar(p.radial_centres[ok], p.radial_mean[ok], yerr=2 * p.radial_stderr[ok], fmt="o-", capsize=3)
+    ax.axhline(0, color="0.5", lw=0.8)
+    ax.set_xlabel("distance from principal point (px)")
+    ax.set_ylabel("mean radial residual (px)")
+    ax.set_title("radial residual profile (a lens the model cannot follow leaves a curve here)")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def stations_figure(cal: CameraCalibration):
+    """Projection centres of the used images around the targets: plan (x, y) and side (x, z) views, m."""
+    ba = cal.ba
+    C, _ = ba.camera_centres()
+    ok = np.isfinite(C[:, 0])
+    X = ba.points_xyz[np.unique(ba.obs_point[ba.used])]
+    fig, axes = new_figure(9, 4.2, ncols=2)
+    for ax, (a, b), lab in zip(axes, ((0, 1), (0, 2)), ("plan view (x, y)", "side view (x, z)")):
+        ax.plot(X[:, a], X[:, b], ".", ms=1.5, color="0.5", label="targets")
+        ax.plot(C[ok, a], C[ok, b], "^", color="tab:orange", ms=5, label="cameras")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(lab)
+        ax.set_xlabel("xyz"[a] + " (m)")
+        ax.set_ylabel("xyz"[b] + " (m)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    return fig
+
+
+def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calibration") -> HtmlReport:
+    """The report page (not yet written)."""
+    ba, cam = cal.ba, cal.camera
+    rep = HtmlReport(title)
+    rep.heading("Summary")
+    rep.kv_table([("model", cam.NAME), ("image size (px)", f"{cam.image_size[0]} x {cam.image_size[1]}"),
+                  ("images used", len(ba.image_names) - len(ba.dropped_images)),
+                  ("observations used", ba.n_observations), ("observations rejected", ba.n_rejected),
+                  ("RMS residual (px, per point)", ba.rms_px), ("sigma0 (a posteriori)", ba.sigma0),
+                  ("redundancy", ba.redundancy), ("targets", ba.refine_targets),
+                  ("converged", str(ba.converged))])
+    rep.heading("Warnings")
+    rep.warnings(cal.warnings)
+    rep.heading("Parameters")
+    sig = cal.diagnostics.significance
+    rows = []
+    for k, v, s, f in zip(cam.PARAMS, cam.params, cam.sigmas, ba.free):
+        rows.append([k, float(v), float(s) if f else "fixed", f"{sig[k]:.1f}" if k in sig else ""])
+    rep.table(["parameter", "value", "sigma", "t = value/sigma"], rows)
+    rep.text("Sigmas come from the adjustment covariance scaled by sigma0^2. Pixels: OpenCV convention.",
+             "small")
+    rep.heading("Residuals over the frame")
+    rep.figure(residual_vector_figure(cal), "Cell means of the residual vectors, exaggerated; a systematic "
+               "swirl or radial pattern means the model or the target coordinates do not fit.")
+    rep.figure(radial_profile_figure(cal))
+    rep.heading("Distortion")
+    rep.figure(distortion_figure(cal), "Distortion (distorted - ideal pinhole position of the same ray, same "
+               "focal length) along three lines from the principal point.")
+    rep.heading("Correlations")
+    rep.figure(correlation_figure(cal))
+    rep.heading("Per-image RMS")
+    rep.figure(per_image_figure(cal))
+    rep.heading("Camera stations")
+    rep.figure(stations_figure(cal), "Projection centres of the used images (poses.csv) in the field frame.")
+    if ba.rejected:
+        rep.heading("Rejected observations")
+        shown = sorted(ba.rejected, key=lambda r: -(r.residual_px if r.residual_px == r.residual_px else 0))[:200]
+        rep.table(["image", "id", "residual (px)", "reason"],
+                  [[r.image, r.id, r.residual_px, r.reason] for r in shown])
+        if len(ba.rejected) > len(shown):
+            rep.text(f"... and {len(ba.rejected) - len(shown)} more (all listed in camera.json).", "small")
+    return rep
+
+
+def write_camera_report(cal: CameraCalibration, path: str | Path) -> Path:
+    """Write the one-file HTML report."""
+    return build_camera_report(cal).write(path)

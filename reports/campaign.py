@@ -1,0 +1,465 @@
+"""The calibration report of a campaign (`dgcal run`): one printable HTML page and one JSON file with every
+number of the chain — camera, aerial triangulation, POS, mounting (each method, sigmas, correlations), DG
+accuracy on the check points against the predicted budget — and every warning, read from the JSON outputs
+of the steps; figures are embedded (base64 PNG) and the per-step reports are linked.
+
+With a simulation's `truth.json` (campaign key `truth`) the report also compares the estimates with the truth
+(errors and error/sigma ratios).
+"""
+from __future__ import annotations
+
+import datetime
+import json
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.reports.html import HtmlReport, new_figure
+
+_PRINT_CSS = """<style>
+@media print{body{max-width:none;margin:0;font-size:10pt}figure{page-break-inside:avoid}h2{page-break-after:avoid}
+a{color:#222;text-decoration:none}}
+.lead td,.lead th{font-size:1.05em}.nav a{margin-right:1em}
+</style>"""
+
+METHOD_ORDER = ("proposed", "iso", "traditional")
+
+
+def _load(path: Path) -> dict | None:
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def _rpy_deg(R) -> list[float]:
+    """Roll, pitch, yaw (deg) of a boresight R_cam_to_body = Rz(yaw) Ry(pitch) Rx(roll)."""
+    from scipy.spatial.transform import Rotation
+    return [float(v) for v in Rotation.from_matrix(np.asarray(R, float)).as_euler("ZYX", degrees=True)[::-1]]
+
+
+def collect(cfg: dict, out: Path, steps: dict | None = None, timings: dict | None = None) -> dict:
+    """Every number of the campaign's outputs in one dictionary (the content of report.json)."""
+    out = Path(out)
+    d: dict = {"campaign": str(cfg.get("_path", "")), "name": cfg.get("name", ""), "crs": cfg.get("crs"),
+               "generated_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+               "steps": steps or {}, "timings_s": timings or {}, "warnings": []}
+    cam = _load(out / "camera" / "camera.json")
+    if cam is None and cfg.get("camera", {}).get("camera_json"):
+        p = Path(cfg["camera"]["camera_json"])
+        cam = _load(p if p.is_absolute() else cfg["_base"] / p)
+    if cam is not None:
+        d["camera"] = {k: cam.get(k) for k in ("model", "image_size", "parameters", "sigmas", "rms_px",
+                                               "n_observations", "n_rejected", "n_images", "sigma0", "opencv",
+                                               "opencv_max_error_px", "fixed_parameters")}
+        d["warnings"] += [f"camera: {w}" for w in cam.get("warnings", [])]
+    tri = _load(out / "triangulation" / "summary.json")
+    if tri is not None:
+        d["triangulation"] = tri
+        d["warnings"] += [f"triangulation: {w}" for w in tri.get("warnings", [])]
+    pos = _load(out / "pos" / "pos_summary.json")
+    if pos is not None:
+        d["pos"] = pos
+    mounts = {}
+    mcfg = cfg.get("mount", {}) if isinstance(cfg.get("mount"), dict) else {}
+    wanted = [str(mcfg.get("method", "proposed"))] + [str(x) for x in mcfg.get("compare", [])]
+    for name in dict.fromkeys(wanted):
+        m = _load(out / f"mount_{name}" / "mounting.json")
+        if m is None:
+            continue
+        m = {k: v for k, v in m.items() if k != "per_epoch"}
+        m["boresight_rpy_deg"] = _rpy_deg(m["boresight_R_cam_to_body"])
+        mounts[name] = m
+        d["warnings"] += [f"mount {name}: {w}" for w in m.get("warnings", [])]
+    if mounts:
+        order = [k for k in METHOD_ORDER if k in mounts] + [k for k in mounts if k not in METHOD_ORDER]
+        d["mounting"] = {k: mounts[k] for k in order}
+        chosen = str(cfg.get("mount", {}).get("method", "proposed"))
+        d["mounting_method"] = chosen if chosen in mounts else order[0]
+    chk = _load(out / "check" / "check.json")
+    if chk is not None:
+        d["check"] = chk
+        for k, c in chk.get("checks", {}).items():
+            d["warnings"] += [f"check {k}: {w}" for w in c.get("warnings", [])]
+            d["warnings"] += [f"check {k} (ASPRS): {w}" for w in c.get("asprs_2023", {}).get("warnings", [])]
+    truth_path = cfg.get("truth")
+    if truth_path:
+        tp = Path(truth_path)
+        truth = _load(tp if tp.is_absolute() else cfg["_base"] / tp)
+        if truth is not None:
+            d["truth_comparison"] = compare_with_truth(d, truth)
+    return d
+
+
+def compare_with_truth(d: dict, truth: dict) -> dict:
+    """Errors of the estimated mounting (and camera) against a simulation's truth, with error/sigma ratios."""
+    from scipy.spatial.transform import Rotation
+    out = {"mounting": {}}
+    R_true = np.asarray(truth["boresight_R_cam_to_body"], float)
+    for k, m in d.get("mounting", {}).items():
+        cov = np.asarray(m.get("covariance", np.zeros((7, 7))), float)
+        s = np.sqrt(np.clip(np.diag(cov), 0, None))
+        dl = np.asarray(m["lever_arm_m"]) - np.asarray(truth["lever_arm_m"])
+        # boresight error as the small rotation Exp(theta) = R_est R_true^T (body axes), like the covariance
+        th = Rotation.from_matrix(np.asarray(m["boresight_R_cam_to_body"]) @ R_true.T).as_rotvec()
+        ddt = float(m["delay_s"]) - float(truth["delay_s"])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out["mounting"][k] = {
+                "delay_error_s": ddt, "delay_error_over_sigma": float(ddt / s[0]) if s[0] > 0 else None,
+                "lever_arm_error_m": dl.tolist(),
+                "lever_arm_error_over_sigma": [float(v) if np.isfinite(v) else None for v in dl / s[1:4]],
+                "boresight_error_deg": np.degrees(th).tolist(),
+                "boresight_error_over_sigma": [float(v) if np.isfinite(v) else None for v in th / s[4:7]],
+            }
+    cam, tcam = d.get("camera"), truth.get("camera")
+    if cam and tcam and cam.get("model") == tcam.get("model"):
+        p, tp_ = cam.get("parameters", {}), tcam.get("parameters", {})
+        sg = cam.get("sigmas", {}) or {}
+        out["camera"] = {k: {"error": float(p[k]) - float(tp_[k]),
+                             "error_over_sigma": (float(p[k]) - float(tp_[k])) / sg[k] if sg.get(k) else None}
+                         for k in p if k in tp_}
+    out["truth"] = {k: truth.get(k) for k in ("lever_arm_m", "delay_s", "boresight_R_cam_to_body",
+                                              "boresight_deg_about_nominal", "seed")}
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- figures
+def _fig_distortion(cam: dict):
+    from dgcal.calib.camera.files import camera_from_json_dict
+    model = camera_from_json_dict(cam)
+    w, h = model.image_size
+    r_max = 0.5 * np.hypot(w, h)
+    cx, cy = model.pinhole_K()[0, 2], model.pinhole_K()[1, 2]
+    ang = np.radians([0, 33.7, 90])
+    fig, ax = new_figure(7.0, 3.4)
+    for a in ang:
+        r = np.linspace(0, r_max, 200)
+        uv = np.column_stack([cx + r * np.cos(a), cy + r * np.sin(a)])
+        und = model.undistort_points(uv)
+        ax.plot(r, np.linalg.norm(uv - und, axis=1), label=f"{np.degrees(a):.0f}° from the x axis")
+    ax.set_xlabel("distance from the principal point (px)")
+    ax.set_ylabel("distortion (px)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _fig_block(out: Path, cfg: dict):
+    from dgcal.fields.io.formats import read_eop, read_points
+    eop_p = out / "triangulation" / "eop.csv"
+    if not eop_p.is_file():
+        return None
+    eop = read_eop(eop_p)
+    fig, ax = new_figure(7.0, 6.0)
+    sc = ax.scatter(eop.xyz[:, 0], eop.xyz[:, 1], c=eop.xyz[:, 2], s=12, cmap="viridis", label="images")
+    fig.colorbar(sc, ax=ax, label="projection-centre height (m)")
+    gcp = cfg.get("triangulation", {}).get("gcp")
+    if gcp:
+        gp = Path(gcp) if Path(gcp).is_absolute() else cfg["_base"] / gcp
+        try:
+            pts = read_points(gp)
+            for role, mk, col in (("control", "^", "red"), ("check", "o", "blue")):
+                sel = pts.role == role
+                if sel.any():
+                    ax.scatter(pts.xyz[sel, 0], pts.xyz[sel, 1], marker=mk, s=40, facecolors="none",
+                               edgecolors=col, label=f"{role} points")
+        except Exception:  # noqa: BLE001 - the figure is optional; the table reports the numbers
+            pass
+    ax.set_aspect("equal")
+    ax.set_xlabel("grid E (m)")
+    ax.set_ylabel("grid N (m)")
+    ax.legend(fontsize=8, loc="best")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    return fig
+
+
+def _fig_pos_sigma(out: Path):
+    from dgcal.fields.io.formats import read_trajectory
+    p = out / "pos" / "trajectory.csv"
+    if not p.is_file():
+        return None
+    tr = read_trajectory(p)
+    if tr.sigma is None:
+        return None
+    t = tr.t - tr.t[0]
+    fig, (a1, a2) = new_figure(8.0, 5.0, nrows=2, sharex=True)
+    for j, lab in enumerate(("north", "east", "height")):
+        a1.plot(t, tr.sigma[:, j] * 100, lw=0.8, label=lab)
+    for j, lab in enumerate(("roll", "pitch", "heading")):
+        a2.plot(t, tr.sigma[:, 3 + j], lw=0.8, label=lab)
+    a1.set_ylabel("position sigma (cm)")
+    a2.set_ylabel("attitude sigma (deg)")
+    a2.set_xlabel("time since start (s)")
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8, ncol=3)
+    return fig
+
+
+def _fig_correlation(m: dict):
+    C = np.array([[np.nan if v is None else v for v in row] for row in m["correlation"]], float)
+    names = ["dt", "lx", "ly", "lz", "bx", "by", "bz"]
+    fig, ax = new_figure(4.6, 4.0)
+    im = ax.imshow(C, vmin=-1, vmax=1, cmap="RdBu_r")
+    ax.set_xticks(range(7), names)
+    ax.set_yticks(range(7), names)
+    for i in range(7):
+        for j in range(7):
+            if np.isfinite(C[i, j]):
+                ax.text(j, i, f"{C[i, j]:.2f}", ha="center", va="center", fontsize=6,
+                        color="white" if abs(C[i, j]) > 0.6 else "black")
+    fig.colorbar(im, ax=ax, shrink=0.8)
+    return fig
+
+
+def _fig_per_epoch(out: Path):
+    m = _load(out / "mount_traditional" / "mounting.json")
+    pe = (m or {}).get("per_epoch") or {}
+    lev = pe.get("lever_arm_m")
+    if not lev:
+        return None
+    lev = np.asarray(lev, float)
+    fig, ax = new_figure(8.0, 3.4)
+    for j, lab in enumerate(("x (forward)", "y (right)", "z (down)")):
+        ax.plot(lev[:, j], ".", ms=4, label=lab)
+    ax.set_xlabel("epoch (image)")
+    ax.set_ylabel("per-epoch lever arm (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncol=3)
+    return fig
+
+
+def _fig_check(chk: dict):
+    checks = chk.get("checks", {})
+    if not checks:
+        return None
+    fig, axes = new_figure(8.0, 3.2 * len(checks), nrows=len(checks), squeeze=False, sharex=True)
+    for ax, (k, c) in zip(axes[:, 0], checks.items()):
+        pts = c.get("points", [])
+        ids = [p["id"] for p in pts]
+        e = np.array([p["err_enu"] for p in pts], float).reshape(-1, 3)
+        s = np.array([p["sigma_pred_enu"] for p in pts], float).reshape(-1, 3)
+        x = np.arange(len(ids))
+        for j, (lab, off) in enumerate((("E", -0.25), ("N", 0.0), ("U", 0.25))):
+            ax.bar(x + off, e[:, j], width=0.25, label=lab)
+            ax.errorbar(x + off, np.zeros(len(x)), yerr=s[:, j], fmt="none", ecolor="k", lw=0.6, capsize=1.5)
+        ax.set_title(f"{k}: DG errors on check points (bars) and predicted 1-sigma (whiskers)", fontsize=9)
+        ax.set_ylabel("m")
+        ax.grid(alpha=0.3, axis="y")
+        ax.set_xticks(x, ids, rotation=90, fontsize=7)
+        ax.legend(fontsize=8, ncol=3)
+    return fig
+
+
+# ----------------------------------------------------------------------------------------------- page
+def _link(rep: HtmlReport, out: Path, rel: str, text: str) -> None:
+    if (out / rel).is_file():
+        rep.raw(f'<p class="small">Detailed report: <a href="{rel}">{rel}</a> ({text})</p>')
+
+
+def _mount_rows(mounts: dict) -> list:
+    rows = []
+    for k, m in mounts.items():
+        ls, bs = m.get("lever_arm_sigma_m", [0, 0, 0]), m.get("boresight_sigma_deg", [0, 0, 0])
+        rows.append([k, f"{m['delay_s']:+.4f} ± {m.get('delay_sigma_s', 0):.4f}",
+                     *(f"{v:+.4f} ± {s:.4f}" for v, s in zip(m["lever_arm_m"], ls)),
+                     *(f"{v:+.4f}" for v in m["boresight_rpy_deg"]),
+                     ", ".join(f"{s:.4f}" for s in bs), m.get("n_epochs", ""), len(m.get("rejected_epochs", []))])
+    return rows
+
+
+def build_html(d: dict, out: Path, cfg: dict) -> str:
+    """The report page (one self-contained HTML string)."""
+    rep = HtmlReport(f"Calibration report{(' — ' + d['name']) if d.get('name') else ''}")
+    rep.raw(_PRINT_CSS)
+    rep.raw('<p class="nav small"><a href="#summary">Summary</a><a href="#camera">Camera</a>'
+            '<a href="#triangulation">Triangulation</a><a href="#pos">POS</a><a href="#mounting">Mounting</a>'
+            '<a href="#dg">DG accuracy</a><a href="#warnings">Warnings</a></p>')
+    rep.kv_table([("campaign file", d["campaign"]), ("map CRS", d.get("crs")), ("generated (UTC)", d["generated_utc"])])
+    rep.raw('<h2 id="summary">Summary</h2>')
+    mounts = d.get("mounting", {})
+    chosen = d.get("mounting_method")
+    if chosen:
+        m = mounts[chosen]
+        rep.text(f"System calibration by the '{chosen}' method: the values to use for direct georeferencing.")
+        rep.raw('<div class="lead">')
+        rep.kv_table([
+            ("exposure delay (s)", f"{m['delay_s']:+.4f} ± {m.get('delay_sigma_s', 0):.4f}"),
+            ("lever arm IMU → camera, body FRD (m)",
+             ", ".join(f"{v:+.4f} ± {s:.4f}" for v, s in zip(m["lever_arm_m"], m["lever_arm_sigma_m"]))),
+            ("boresight roll, pitch, yaw of R_cam_to_body (deg)",
+             ", ".join(f"{v:+.4f}" for v in m["boresight_rpy_deg"])),
+            ("boresight sigmas about body x, y, z (deg)", ", ".join(f"{s:.4f}" for s in m["boresight_sigma_deg"])),
+            ("boresight R_cam_to_body", "; ".join(", ".join(f"{v:+.6f}" for v in row)
+                                                   for row in m["boresight_R_cam_to_body"])),
+        ])
+        rep.raw("</div>")
+    chk = d.get("check", {}).get("checks", {})
+    if chk:
+        rep.table(["method", "check points", "RMS E (m)", "RMS N (m)", "RMS U (m)", "RMS 2D (m)", "RMS 3D (m)",
+                   "predicted 3D (m)", "achieved / predicted 3D"],
+                  [[k, c["stats"]["n"], *(_m(c["stats"]["rms"][a]) for a in ("E", "N", "U", "2D", "3D")),
+                    _m(c["budget"]["predicted_rms"]["3D"]), _m(c["budget"]["ratio_achieved_to_predicted"]["3D"], 2)]
+                   for k, c in chk.items()])
+    if d.get("steps"):
+        rep.table(["step", "status", "time (s)"],
+                  [[k, v, _m(d["timings_s"].get(k), 1)] for k, v in d["steps"].items()])
+    tc = d.get("truth_comparison")
+    if tc:
+        rep.heading("Against the simulation truth")
+        rows = []
+        for k, e in tc["mounting"].items():
+            rows.append([k, f"{e['delay_error_s'] * 1e3:+.2f} ms ({_ratio(e['delay_error_over_sigma'])})",
+                         *(f"{v * 100:+.2f} cm ({_ratio(r)})" for v, r in zip(e["lever_arm_error_m"],
+                                                                           e["lever_arm_error_over_sigma"])),
+                         *(f"{v:+.4f}° ({_ratio(r)})" for v, r in zip(e["boresight_error_deg"],
+                                                                    e["boresight_error_over_sigma"]))])
+        rep.table(["method", "delay", "lever x", "lever y", "lever z", "boresight x", "boresight y", "boresight z"],
+                  rows)
+        rep.text("Errors are estimate − truth; in brackets the error in units of the reported sigma.", cls="small")
+
+    rep.raw('<h2 id="camera">Camera</h2>')
+    cam = d.get("camera")
+    if cam:
+        rep.kv_table([("model", cam["model"]), ("image size (px)", " × ".join(map(str, cam["image_size"]))),
+                      ("RMS residual (px)", cam.get("rms_px")), ("observations", cam.get("n_observations")),
+                      ("rejected", cam.get("n_rejected")), ("images", cam.get("n_images")),
+                      ("sigma0", cam.get("sigma0"))])
+        sig = cam.get("sigmas") or {}
+        truth_cam = (tc or {}).get("camera", {})
+        hdr = ["parameter", "value", "sigma"] + (["error vs truth", "error / sigma"] if truth_cam else [])
+        rows = []
+        for k, v in (cam.get("parameters") or {}).items():
+            r = [k, v, sig.get(k, float("nan"))]
+            if truth_cam:
+                e = truth_cam.get(k, {})
+                r += [e.get("error", float("nan")), _ratio(e.get("error_over_sigma"))]
+            rows.append(r)
+        rep.table(hdr, rows)
+        try:
+            rep.figure(_fig_distortion(cam), "Distortion magnitude (image displacement) along three directions.")
+        except Exception as exc:  # noqa: BLE001 - a missing figure must not lose the report
+            rep.text(f"(distortion plot unavailable: {exc})", cls="small")
+        _link(rep, out, "camera/report.html", "residuals, correlations, coverage")
+    else:
+        rep.text("No camera step in this campaign.")
+
+    rep.raw('<h2 id="triangulation">Aerial triangulation</h2>')
+    tri = d.get("triangulation")
+    if tri:
+        pairs = [(k, tri[k]) for k in ("n_images", "n_oriented", "sigma0", "n_observations", "n_points", "n_control",
+                                       "n_check", "n_rejected") if k in tri and not isinstance(tri[k], (dict, list))]
+        rep.kv_table(pairs)
+        for key, label in (("check_rmse_m", "check-point RMSE (m)"), ("control_rmse_m", "control-point RMSE (m)")):
+            if isinstance(tri.get(key), dict):
+                rep.kv_table([(f"{label} {a}", v if a == "n" else _m(v)) for a, v in tri[key].items()])
+        fig = _fig_block(out, cfg)
+        if fig is not None:
+            rep.figure(fig, "Projection centres (colour: height) and ground points of the calibration flight.")
+        _link(rep, out, "triangulation/report.html", "residuals, EOP sigmas, footprints")
+    else:
+        rep.text("No triangulation step in this campaign.")
+
+    rep.raw('<h2 id="pos">POS (GNSS/INS smoothing)</h2>')
+    pos = d.get("pos")
+    if pos:
+        rep.kv_table([(k, _short(v)) for k, v in pos.items() if not isinstance(v, dict)])
+        for k, v in (pos.get("residuals") or {}).items():
+            rep.kv_table([(f"{k} residuals {a}", b) for a, b in v.items()])
+        fig = _fig_pos_sigma(out)
+        if fig is not None:
+            rep.figure(fig, "Smoothed trajectory: 1-sigma of position and attitude over the flight.")
+        _link(rep, out, "pos/report.html", "smoother details")
+    else:
+        rep.text("No POS step in this campaign (an external trajectory was used).")
+
+    rep.raw('<h2 id="mounting">Mounting: lever arm, boresight, exposure delay</h2>')
+    if mounts:
+        rep.table(["method", "delay (s)", "lever x (m)", "lever y (m)", "lever z (m)", "roll (°)", "pitch (°)",
+                   "yaw (°)", "boresight sigmas x,y,z (°)", "epochs", "rejected"], _mount_rows(mounts))
+        rep.text("Lever arm: IMU origin → camera perspective centre in the body frame (x forward, y right, z down). "
+                 "Boresight: R_cam_to_body = Rz(yaw) Ry(pitch) Rx(roll); its sigmas are small rotations about the "
+                 "body axes. Delay: t_exposure − t_event.", cls="small")
+        m = mounts[chosen]
+        rep.figure(_fig_correlation(m), f"Correlations of the '{chosen}' estimate (delay, lever arm, boresight).")
+        fig = _fig_per_epoch(out)
+        if fig is not None:
+            rep.figure(fig, "Per-epoch lever arms of the traditional method (seed 003 Fig. 22): a non-zero delay "
+                            "shows as a shift that depends on the speed and heading.")
+        for k in mounts:
+            _link(rep, out, f"mount_{k}/report.html", f"{k}: per-epoch plots, residuals")
+    else:
+        rep.text("No mounting step in this campaign.")
+
+    rep.raw('<h2 id="dg">Direct georeferencing accuracy on check points</h2>')
+    if chk:
+        for k, c in chk.items():
+            rep.heading(f"{k}", 3)
+            st = c["stats"]
+            rep.table(["statistic", "E (m)", "N (m)", "U (m)", "2D (m)", "3D (m)"],
+                      [[s.upper(), *(_m(st[s][a]) for a in ("E", "N", "U", "2D", "3D"))]
+                       for s in ("avg", "std", "rms")])
+            b = c["budget"]
+            rep.table(["predicted RMS from", "E (m)", "N (m)", "U (m)", "2D (m)", "3D (m)"],
+                      [[src, *(_m(v[a]) for a in ("E", "N", "U", "2D", "3D"))] for src, v in b["sources"].items()]
+                      + [["all sources", *(_m(b["predicted_rms"][a]) for a in ("E", "N", "U", "2D", "3D"))],
+                         ["achieved", *(_m(b["achieved_rms"][a]) for a in ("E", "N", "U", "2D", "3D"))]])
+            a = c.get("asprs_2023", {})
+            rep.kv_table([(f"ASPRS 2023 {key} (m)" if key != "n_checkpoints" else "ASPRS 2023 check points",
+                           _m(v) if key != "n_checkpoints" else v) for key, v in a.items() if not isinstance(v, list)])
+        imp = {k: v for k, v in d["check"].items() if k.startswith("improvement_over_") and v}
+        for k, v in imp.items():
+            rep.heading(f"Improvement rates over {k[len('improvement_over_'):]} (seed Tables 4–5, %)", 3)
+            rep.table(["method", "2D (%)", "3D (%)"], [[m_, _m(r["2D"], 1), _m(r["3D"], 1)] for m_, r in v.items()])
+        fig = _fig_check(d["check"])
+        if fig is not None:
+            rep.figure(fig, "Check-point errors of direct georeferencing per method.")
+        _link(rep, out, "check/check.html", "per-point table")
+    else:
+        rep.text("No DG check in this campaign.")
+
+    rep.raw('<h2 id="warnings">Warnings</h2>')
+    rep.warnings(d.get("warnings", []))
+    return rep.render()
+
+
+def _m(v, nd: int = 4) -> str:
+    """A number with `nd` decimals (metres to 0.1 mm), '–' for missing values."""
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return "–"
+    return "–" if not np.isfinite(v) else f"{v:.{nd}f}"
+
+
+def _ratio(v) -> str:
+    return "–" if v is None else f"{v:+.1f}σ"
+
+
+def _short(v):
+    if isinstance(v, list):
+        return ", ".join(f"{x:.5g}" if isinstance(x, float) else str(x) for x in v)
+    return v
+
+
+def write_campaign_report(cfg: dict, out: Path, steps: dict | None = None, timings: dict | None = None) -> dict:
+    """Write DIR/report.json and DIR/report.html for the campaign outputs in `out`; returns their paths."""
+    import matplotlib
+    matplotlib.use("Agg")
+    out = Path(out)
+    d = collect(cfg, out, steps, timings)
+    page = build_html(d, out, cfg)
+    with atomic_write(out / "report.json") as fh:
+        json.dump(d, fh, indent=1, default=_json_default)
+    with atomic_write(out / "report.html", encoding="utf-8") as fh:
+        fh.write(page)
+    return {"html": out / "report.html", "json": out / "report.json"}
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)

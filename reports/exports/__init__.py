@@ -1,0 +1,1 @@
+"""Exports of dgcal results in the files and conventions of mapping software."""

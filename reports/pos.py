@@ -1,0 +1,146 @@
+"""HTML report of a GNSS/INS smoothing run (`dgcal pos --mode tc|lc`): trajectory map, satellites used,
+post-fit residuals, sigma envelopes, smoother vs forward, innovation statistics. One self-contained file."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.reports.html import HtmlReport, new_figure
+
+
+def _map(res):
+    fig, ax = new_figure(7.5, 6.5)
+    sol = res.smoothed
+    p = sol.p_nav
+    ax.plot(p[:, 1], p[:, 0], "-", lw=0.8, color="#345", label="smoothed (IMU)")
+    gap = ~sol.gnss_update
+    if gap.any():
+        ax.plot(p[gap, 1], p[gap, 0], ".", ms=3, color="#d33", label="no GNSS update")
+    if res.mode == "tc" and sol.n_sat is not None:
+        few = sol.gnss_update & (sol.n_sat < 4)
+        if few.any():
+            ax.plot(p[few, 1], p[few, 0], ".", ms=3, color="#e90", label="< 4 satellites")
+    if res.events is not None:
+        ev = sol.frame.from_ecef(_ecef(res.events))
+        ax.plot(ev[:, 1], ev[:, 0], "^", ms=3, color="#393", label="events")
+    ax.set_xlabel("East (m, nav frame)")
+    ax.set_ylabel("North (m)")
+    ax.set_aspect("equal", "datalim")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def _ecef(tr):
+    from dgcal.fields.crs import geodetic_to_ecef
+    return geodetic_to_ecef(tr.lat, tr.lon, tr.h)
+
+
+def _sigmas(res):
+    fig, axs = new_figure(9, 6, nrows=2, sharex=True)
+    kt = res.keyframes
+    t = kt.t - kt.t[0]
+    for j, name in enumerate(("north", "east", "down")):
+        axs[0].plot(t, kt.sigma[:, j], lw=0.9, label=f"{name} smoothed")
+    if res.forward_keyframes is not None:
+        fs = res.forward_keyframes.sigma
+        axs[0].plot(t, np.linalg.norm(fs[:, :3], axis=1), "--", lw=0.8, color="grey", label="3D forward")
+    axs[0].set_ylabel("position sigma (m)")
+    axs[0].set_yscale("log")
+    axs[0].legend(fontsize=8, ncol=2)
+    for j, name in enumerate(("roll", "pitch", "heading")):
+        axs[1].plot(t, kt.sigma[:, 3 + j], lw=0.9, label=name)
+    axs[1].set_ylabel("attitude sigma (deg)")
+    axs[1].set_yscale("log")
+    axs[1].set_xlabel("time since start (s)")
+    axs[1].legend(fontsize=8)
+    for a in axs:
+        a.grid(alpha=0.3)
+    return fig
+
+
+def _satellites(res):
+    fig, ax = new_figure(9, 2.8)
+    sol = res.smoothed
+    t = sol.t - sol.t[0]
+    ax.step(t, sol.n_sat, where="mid", lw=0.9)
+    ax.axhline(4, color="#d33", lw=0.6, ls=":")
+    ax.set_ylabel("satellites used" if res.mode == "tc" else "GNSS fix (1/0)")
+    ax.set_xlabel("time since start (s)")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def _residuals(res, which: str):
+    rows = (res.smoothed.residuals if which == "post-fit" else res.forward.residuals)
+    kinds = [k for k in ("pr", "dop", "pos", "vel") if k in rows]
+    fig, axs = new_figure(9, 2.6 * max(len(kinds), 1), nrows=max(len(kinds), 1), squeeze=False)
+    t = res.smoothed.t - res.smoothed.t[0]
+    unit = {"pr": "pseudorange (m)", "dop": "range rate (m/s)", "pos": "position (m)", "vel": "velocity (m/s)"}
+    for ax, kind in zip(axs[:, 0], kinds):
+        k, e, s = rows[kind]
+        ax.plot(t[k.astype(int)], e, ".", ms=1.5, alpha=0.6)
+        ax.set_ylabel(unit[kind])
+        ax.grid(alpha=0.3)
+    axs[-1, 0].set_xlabel("time since start (s)")
+    return fig
+
+
+def _smooth_vs_forward(res):
+    fig, ax = new_figure(9, 3)
+    d = res.forward.p_nav - res.smoothed.p_nav
+    t = res.smoothed.t - res.smoothed.t[0]
+    ax.plot(t, np.linalg.norm(d, axis=1), lw=0.8, label="|forward - smoothed| position (m)")
+    ax.plot(t, np.linalg.norm(res.forward_keyframes.sigma[:, :3], axis=1), "--", lw=0.8,
+            label="forward 3D sigma (m)")
+    ax.plot(t, np.linalg.norm(res.keyframes.sigma[:, :3], axis=1), lw=0.8, label="smoothed 3D sigma (m)")
+    ax.set_yscale("log")
+    ax.set_xlabel("time since start (s)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def write_pos_report(path: str | Path, res) -> Path:
+    """Write DIR/report.html for a dgcal.pos.pipeline.PosResult."""
+    s = res.summary
+    rep = HtmlReport(f"GNSS/INS trajectory ({res.mode.upper()} smoother)")
+    rep.kv_table([("mode", res.mode.upper()), ("keyframes (1 per GNSS epoch)", s["keyframes"]),
+                  ("duration (s)", round(s["t_end_gps"] - s["t_start_gps"], 1)),
+                  ("epochs with a GNSS update", s["epochs_with_gnss"]),
+                  ("epochs without GNSS update", s["epochs_without_gnss_update"]),
+                  ("constellations", ", ".join(s["systems"]) or "-"),
+                  ("median sigma N/E/D (m)", s["median_sigma_m"]), ("max sigma N/E/D (m)", s["max_sigma_m"]),
+                  ("median sigma roll/pitch/heading (deg)", s["median_sigma_deg"]),
+                  ("gyro bias mean x/y/z (deg/h)", s["gyro_bias_deg_h_mean"]),
+                  ("accelerometer bias mean x/y/z (mg)", s["accel_bias_mg_mean"]),
+                  ("events", s["events"]),
+                  ("nav frame origin (lat, lon, h)", s["nav_frame_origin_deg_m"])])
+    warn = []
+    for kind, st in s.get("residuals", {}).items():
+        if st["rms_normalised"] > 2.0:
+            warn.append(f"{kind} residuals are {st['rms_normalised']:.1f} times their sigma: check the noise settings")
+    if s["epochs_without_gnss_update"] > 0:
+        warn.append(f"{s['epochs_without_gnss_update']} keyframes without a GNSS update (IMU only there)")
+    rep.warnings(warn)
+    rep.heading("Trajectory").figure(_map(res), "Smoothed IMU track in the nav frame (NED at the flight centre)")
+    rep.figure(_satellites(res), "Satellites used per epoch (TC) or GNSS fixes (LC)")
+    rep.heading("Sigma envelopes").figure(_sigmas(res), "1-sigma of the smoothed solution (from the "
+                                          "adjustment covariance)")
+    rep.heading("Residuals")
+    rep.table(["factor", "n", "RMS", "RMS / sigma", "max |e|", "share > 3 sigma"],
+              [[k, v["n"], round(v["rms"], 4), round(v["rms_normalised"], 3), round(v["max_abs"], 3),
+                round(v["share_beyond_3sigma"], 4)] for k, v in s.get("residuals", {}).items()])
+    rep.figure(_residuals(res, "post-fit"), "Post-fit residuals of the GNSS factors")
+    if res.forward is not None:
+        rep.heading("Forward-only solution and innovations")
+        rep.text("The forward solution uses each epoch's data and everything before it (a Kalman filter on "
+                 "the same factors); innovations are the GNSS errors at the IMU prediction from the previous "
+                 "epoch, normalised by the measurement sigma only.")
+        rep.table(["factor", "n", "RMS", "RMS / sigma", "max |e|", "share > 3 sigma"],
+                  [[k, v["n"], round(v["rms"], 4), round(v["rms_normalised"], 3), round(v["max_abs"], 3),
+                    round(v["share_beyond_3sigma"], 4)] for k, v in s.get("innovations", {}).items()])
+        rep.figure(_smooth_vs_forward(res), "Forward minus smoothed position, and the two sigma envelopes")
+        rep.figure(_residuals(res, "innovations"), "Innovations")
+    return rep.write(path)
