@@ -23,7 +23,7 @@ def simulate(n_images: int, square_m: float, seed: int, size=(5472, 3648), noise
     w, h = size
     img, ids, xy = [], [], []
     for s in plan_shots(n_images, truth, tf, rng):
-        Xc = pts.xyz @ s.R_plate_to_cam.T + s.t_plate_to_cam
+        Xc = pts.xyz @ s.R_field_to_cam.T + s.t_field_to_cam
         uv = truth.project(Xc)
         ok = (Xc[:, 2] > 0) & (uv[:, 0] >= 2) & (uv[:, 0] <= w - 3) & (uv[:, 1] >= 2) & (uv[:, 1] <= h - 3)
         img += [s.image] * int(ok.sum())

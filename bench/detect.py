@@ -25,7 +25,7 @@ def main() -> None:
 
     import cv2
 
-    from dgcal.calib.selfcal.detection import CharucoPlateDetector, detect_folder, read_gray
+    from dgcal.calib.selfcal.detection import CharucoFieldDetector, detect_folder, read_gray
     from dgcal.fields.io.csv_tables import read_table
     from dgcal.fields.targets.plate import TargetField
     from dgcal.sim.camera_field import simulate_camera_field
@@ -36,7 +36,7 @@ def main() -> None:
         simulate_camera_field(out, seed=a.seed, n_images=a.n_images, image_size=tuple(a.image_size))
         t_render = (time.perf_counter() - t0) / a.n_images
         tf = TargetField()
-        det = CharucoPlateDetector(tf)
+        det = CharucoFieldDetector(tf)
         names = sorted(p.name for p in (out / "images").iterdir())
         t_serial = []
         for n in names:

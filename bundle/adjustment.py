@@ -7,8 +7,8 @@ is exact and fast: the reduced camera system is dense (6 per image + refined int
 3x3 blocks eliminated in closed form, and the same matrices give the covariance.
 
 Frames: `world` is a local Cartesian frame (metres; dgcal uses ENU at the field centre). Each image holds
-`R_world_to_cv` (world vectors into the OpenCV camera frame: x right, y down, z forward) and its
-projection centre `C_world`. A camera-frame point is `X_cv = R_world_to_cv (X_world - C_world)`.
+`R_world_to_cam` (world vectors into the OpenCV camera frame: x right, y down, z forward) and its
+projection centre `C_world`. A camera-frame point is `X_cam = R_world_to_cam (X_world - C_world)`.
 Pose updates are left perturbations `R <- Exp(d_theta) R` (d_theta in the camera frame, radians), so a
 pose covariance is ordered [C_world (3, m), d_theta (3, rad)].
 """
@@ -33,7 +33,7 @@ class BundleInput:
 
     camera: CameraModel
     images: list[str]
-    R_world_to_cv: np.ndarray          # (n,3,3) initial rotations
+    R_world_to_cam: np.ndarray          # (n,3,3) initial rotations
     C_world: np.ndarray                # (n,3) initial projection centres, m
     point_ids: list[str]
     X_world: np.ndarray                # (m,3) initial points, m
@@ -68,7 +68,7 @@ class BundleResult:
     """Adjusted orientation, points and camera with covariances, residuals and quality figures."""
 
     camera: CameraModel
-    R_world_to_cv: np.ndarray
+    R_world_to_cam: np.ndarray
     C_world: np.ndarray
     X_world: np.ndarray
     cov_pose: np.ndarray               # (n,6,6) [C (m), d_theta (rad, camera frame)]
@@ -291,7 +291,7 @@ def adjust(inp: BundleInput, options: BundleOptions | None = None) -> BundleResu
     """Run the bundle adjustment (pixels, metres, radians inside) and return orientation with covariance."""
     opt = options or BundleOptions()
     pb = _Problem(inp, opt)
-    state = (np.asarray(inp.R_world_to_cv, float).copy(), np.asarray(inp.C_world, float).copy(),
+    state = (np.asarray(inp.R_world_to_cam, float).copy(), np.asarray(inp.C_world, float).copy(),
              np.asarray(inp.X_world, float).copy(), inp.camera.params[pb.ref_idx].copy())
     cost, _ = pb.cost(state)
     history = [cost]

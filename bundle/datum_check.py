@@ -1,6 +1,6 @@
 """Is a given block (e.g. another program's answer) at the least-squares datum of a set of control points?
 
-Frames: cameras as projection centres `C_w` (M,3) and rotations `R_cv_to_w` (M,3,3) in a Cartesian world
+Frames: cameras as projection centres `C_w` (M,3) and rotations `R_cam_to_world` (M,3,3) in a Cartesian world
 frame w; control points `X_w` (n,3) observed at OpenCV pixels `uv` (n,2). The block's shape is kept: only a
 7-parameter similarity of the whole block (rotation and scale about the centroid of the centres, then a
 translation) is fitted to the control-point pixel residuals. Tie points do not enter: their image residuals
@@ -23,7 +23,7 @@ class DatumStep:
 
     rotvec_rad (3,) in w about `centre_w`, translation_m (3,), log_scale; cov (7,7) of
     [rotvec, translation, log_scale] from the pixel sigmas scaled by the fit's sigma0^2 when above 1;
-    chi2 = step' cov^-1 step (7 dof); RMS pixel residuals before/after; the moved block R_cv_to_w, C_w."""
+    chi2 = step' cov^-1 step (7 dof); RMS pixel residuals before/after; the moved block R_cam_to_world, C_w."""
 
     rotvec_rad: np.ndarray
     translation_m: np.ndarray
@@ -33,7 +33,7 @@ class DatumStep:
     chi2: float
     rms_before_px: float
     rms_after_px: float
-    R_cv_to_w: np.ndarray
+    R_cam_to_world: np.ndarray
     C_w: np.ndarray
 
     @property
@@ -42,17 +42,17 @@ class DatumStep:
         return float(np.degrees(np.linalg.norm(self.rotvec_rad)))
 
 
-def _apply(p: np.ndarray, R_cv_to_w: np.ndarray, C_w: np.ndarray, centre: np.ndarray):
+def _apply(p: np.ndarray, R_cam_to_world: np.ndarray, C_w: np.ndarray, centre: np.ndarray):
     R_s = Rotation.from_rotvec(p[:3]).as_matrix()
     C = centre + np.exp(p[6]) * (C_w - centre) @ R_s.T + p[3:6]
-    return np.einsum("ij,njk->nik", R_s, R_cv_to_w), C
+    return np.einsum("ij,njk->nik", R_s, R_cam_to_world), C
 
 
-def gcp_datum_step(camera, R_cv_to_w: np.ndarray, C_w: np.ndarray, obs_image: np.ndarray, X_w: np.ndarray,
+def gcp_datum_step(camera, R_cam_to_world: np.ndarray, C_w: np.ndarray, obs_image: np.ndarray, X_w: np.ndarray,
                    uv: np.ndarray, sigma_px: np.ndarray | float = 1.0) -> DatumStep:
     """Similarity (rad, m, log-scale) taking the block to the least-squares datum of control points `X_w`
     (n,3, fixed) measured at pixels `uv` (n,2) in images `obs_image` (n,), pixel sigmas `sigma_px`."""
-    R_cv_to_w = np.asarray(R_cv_to_w, float)
+    R_cam_to_world = np.asarray(R_cam_to_world, float)
     C_w = np.asarray(C_w, float)
     k = np.asarray(obs_image, int)
     X_w = np.asarray(X_w, float).reshape(-1, 3)
@@ -61,7 +61,7 @@ def gcp_datum_step(camera, R_cv_to_w: np.ndarray, C_w: np.ndarray, obs_image: np
     centre = C_w.mean(0)
 
     def residual(p):
-        R, C = _apply(p, R_cv_to_w, C_w, centre)
+        R, C = _apply(p, R_cam_to_world, C_w, centre)
         X_cam = np.einsum("nji,nj->ni", R[k], X_w - C[k])
         return ((camera.project(X_cam) - uv) / sig).ravel()
 
@@ -72,7 +72,7 @@ def gcp_datum_step(camera, R_cv_to_w: np.ndarray, C_w: np.ndarray, obs_image: np
     dof = max(r0.size - 7, 1)
     s0sq = float(sol.fun @ sol.fun) / dof
     cov = np.linalg.pinv(J.T @ J) * max(s0sq, 1.0)
-    R, C = _apply(sol.x, R_cv_to_w, C_w, centre)
+    R, C = _apply(sol.x, R_cam_to_world, C_w, centre)
     chi2 = float(sol.x @ np.linalg.solve(cov, sol.x))
     px = lambda r: float(np.sqrt(np.mean((r.reshape(-1, 2) * sig) ** 2)))
     return DatumStep(sol.x[:3].copy(), sol.x[3:6].copy(), float(sol.x[6]), centre, cov, chi2,

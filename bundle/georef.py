@@ -4,7 +4,7 @@ The adjustment runs in a local ENU frame at the field centre (`dgcal.fields.crs.
 are (grid E, grid N, height); heights are ellipsoidal unless a geoid is given, in which case map
 heights are orthometric and `h = H + N` with N from a constant or a PROJ vertical grid.
 EOP angles (PATB omega/phi/kappa) refer to grid-level axes at the projection centre (docs/conventions.md):
-`R_cv_to_grid(C) = R_enu_to_grid(gamma(C)) @ R_enu(C)_to_local^T @ R_cv_to_local`, which carries both
+`R_cam_to_grid(C) = R_enu_to_grid(gamma(C)) @ R_enu(C)_to_local^T @ R_cam_to_world`, which carries both
 meridian convergence and earth curvature. With `crs=None` the map frame *is* the local frame (an
 engineering frame such as a MicMac ground frame), shifted only to keep numbers small.
 """
@@ -16,7 +16,7 @@ import numpy as np
 
 from dgcal.fields.crs import LocalENU, MapGrid, parse_crs
 from dgcal.fields.errors import InputError
-from dgcal.fields.frames import R_cv_to_map_from_opk, R_enu_to_grid, opk_from_R_cv_to_map
+from dgcal.fields.frames import R_cam_to_map_from_opk, R_enu_to_grid, opk_from_R_cam_to_map
 
 
 class Georef:
@@ -71,7 +71,7 @@ class Georef:
         return xyz
 
     # --- points -----------------------------------------------------------------------------
-    def to_local(self, xyz_map: np.ndarray) -> np.ndarray:
+    def to_world(self, xyz_map: np.ndarray) -> np.ndarray:
         """Local ENU (m) of map points (m)."""
         xyz = np.atleast_2d(np.asarray(xyz_map, float))
         if self.local_only:
@@ -85,7 +85,7 @@ class Georef:
             return p + self.centre_map
         return self._from_ellipsoidal(self.grid.from_ecef(self.frame.to_ecef(p)))
 
-    def R_local_to_grid_at(self, p_local: np.ndarray) -> np.ndarray:
+    def R_world_to_grid_at(self, p_local: np.ndarray) -> np.ndarray:
         """Rotation (N,3,3) from local-frame axes to grid-level axes (grid E, grid N, Up) at local points."""
         p = np.atleast_2d(np.asarray(p_local, float))
         if self.local_only:
@@ -97,28 +97,28 @@ class Georef:
         return R_enu_to_grid(np.asarray(gamma)[:, None]).reshape(-1, 3, 3) @ np.swapaxes(R_here_to_local, -1, -2)
 
     # --- orientations -----------------------------------------------------------------------
-    def eop_to_map(self, R_world_to_cv: np.ndarray, C_local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def eop_to_map(self, R_world_to_cam: np.ndarray, C_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Map projection centres (N,3) and PATB omega/phi/kappa (N,3, deg) from local orientations."""
-        C = np.atleast_2d(C_local)
-        R_cv_to_local = np.swapaxes(np.asarray(R_world_to_cv).reshape(-1, 3, 3), -1, -2)
-        R_cv_to_grid = self.R_local_to_grid_at(C) @ R_cv_to_local
-        return self.to_map(C), np.atleast_2d(opk_from_R_cv_to_map(R_cv_to_grid))
+        C = np.atleast_2d(C_world)
+        R_cam_to_world = np.swapaxes(np.asarray(R_world_to_cam).reshape(-1, 3, 3), -1, -2)
+        R_cam_to_grid = self.R_world_to_grid_at(C) @ R_cam_to_world
+        return self.to_map(C), np.atleast_2d(opk_from_R_cam_to_map(R_cam_to_grid))
 
-    def eop_to_local(self, xyz_map: np.ndarray, opk_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Local orientations (R_world_to_cv (N,3,3), C_local (N,3)) from map EOPs."""
-        C = self.to_local(xyz_map)
+    def eop_to_world(self, xyz_map: np.ndarray, opk_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Local orientations (R_world_to_cam (N,3,3), C_world (N,3)) from map EOPs."""
+        C = self.to_world(xyz_map)
         o = np.atleast_2d(opk_deg)
-        R_cv_to_grid = R_cv_to_map_from_opk(o[:, 0], o[:, 1], o[:, 2])
-        R_cv_to_local = np.swapaxes(self.R_local_to_grid_at(C), -1, -2) @ R_cv_to_grid
-        return np.swapaxes(R_cv_to_local, -1, -2), C
+        R_cam_to_grid = R_cam_to_map_from_opk(o[:, 0], o[:, 1], o[:, 2])
+        R_cam_to_world = np.swapaxes(self.R_world_to_grid_at(C), -1, -2) @ R_cam_to_grid
+        return np.swapaxes(R_cam_to_world, -1, -2), C
 
-    def eop_covariance_to_map(self, R_world_to_cv: np.ndarray, C_local: np.ndarray, cov_pose: np.ndarray,
+    def eop_covariance_to_map(self, R_world_to_cam: np.ndarray, C_world: np.ndarray, cov_pose: np.ndarray,
                               ) -> np.ndarray:
         """6x6 covariances of (X, Y, Z m, omega, phi, kappa deg) from adjustment covariances
-        [C_local (m), d_theta (rad, left perturbation in the camera frame)], by numerical Jacobians."""
+        [C_world (m), d_theta (rad, left perturbation in the camera frame)], by numerical Jacobians."""
         from scipy.spatial.transform import Rotation
-        R = np.asarray(R_world_to_cv).reshape(-1, 3, 3)
-        C = np.atleast_2d(C_local)
+        R = np.asarray(R_world_to_cam).reshape(-1, 3, 3)
+        C = np.atleast_2d(C_world)
         n = len(C)
         xyz0, opk0 = self.eop_to_map(R, C)
         J = np.zeros((n, 6, 6))

@@ -1,6 +1,6 @@
 """Multi-ray intersection of image measurements with known exterior orientations, with covariance.
 
-Frames: camera poses are given as projection centres `C_w` (M,3) and rotations `R_cv_to_w` (M,3,3) into any
+Frames: camera poses are given as projection centres `C_w` (M,3) and rotations `R_cam_to_world` (M,3,3) into any
 Cartesian world frame w (use a local level frame, not a map grid); pixels follow OpenCV. The point is found
 by Gauss-Newton on the pixel reprojection errors (started from the linear least-squares ray intersection),
 its covariance from the pixel sigmas, and the sensitivities dX/d(pose) of every point to every pose
@@ -34,12 +34,12 @@ def _skew(v):
                      np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
 
 
-def intersect(camera, C_w: np.ndarray, R_cv_to_w: np.ndarray, obs_image: np.ndarray, obs_point: np.ndarray,
+def intersect(camera, C_w: np.ndarray, R_cam_to_world: np.ndarray, obs_image: np.ndarray, obs_point: np.ndarray,
               uv: np.ndarray, sigma_uv: np.ndarray | None = None, n_points: int | None = None,
               min_rays: int = 2, iterations: int = 10) -> IntersectionResult:
     """Intersect points from pixels `uv` (n,2) observed in images `obs_image` (n,) of points `obs_point` (n,)."""
     C_w = np.asarray(C_w, float)
-    R = np.asarray(R_cv_to_w, float)
+    R = np.asarray(R_cam_to_world, float)
     obs_image = np.asarray(obs_image, int)
     obs_point = np.asarray(obs_point, int)
     uv = np.asarray(uv, float).reshape(-1, 2)

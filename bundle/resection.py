@@ -1,6 +1,6 @@
 """Initial exterior orientation: PnP resection from known points and incremental growth through tie points.
 
-Frames as in `dgcal.bundle.adjustment`: `R_world_to_cv`, `C_world` in a local Cartesian world frame (m).
+Frames as in `dgcal.bundle.adjustment`: `R_world_to_cam`, `C_world` in a local Cartesian world frame (m).
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from dgcal.calib.camera.models import CameraModel
 
 def pnp(camera: CameraModel, uv: np.ndarray, X_world: np.ndarray, threshold_px: float = 4.0,
         ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Resect one image from >= 4 pixel/world correspondences: (R_world_to_cv, C_world, inlier mask) or None.
+    """Resect one image from >= 4 pixel/world correspondences: (R_world_to_cam, C_world, inlier mask) or None.
 
     Pixels are undistorted to ideal normalised coordinates first, so PnP runs on an identity camera.
     RANSAC (threshold in pixels) when there are 6 or more points, then Levenberg-Marquardt refinement.
@@ -71,7 +71,7 @@ def grow_orientation(camera: CameraModel, n_images: int, obs_image: np.ndarray, 
     `X_known` (m,3) holds coordinates of control points (NaN for tie points). Images with known
     approximate orientation (`R0`, `C0`, NaN where unknown) start oriented; the others are resected
     (PnP) from control and from tie points triangulated in already oriented images, repeatedly.
-    Returns (R_world_to_cv (n,3,3), C_world (n,3), oriented mask (n,), X (m,3), point known mask (m,)).
+    Returns (R_world_to_cam (n,3,3), C_world (n,3), oriented mask (n,), X (m,3), point known mask (m,)).
     """
     oi, op = np.asarray(obs_image, int), np.asarray(obs_point, int)
     m = len(X_known)

@@ -68,8 +68,8 @@ class TriangulationResult:
     warnings: list[str]
     unknown_ids: list[str]                     # measured ids absent from the ground point file
     summary: dict = field(default_factory=dict)
-    R_world_to_cv: np.ndarray | None = None
-    C_local: np.ndarray | None = None
+    R_world_to_cam: np.ndarray | None = None
+    C_world: np.ndarray | None = None
 
 
 def _warn(msgs: list[str], text: str, verbose: bool) -> None:
@@ -128,12 +128,12 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
         raise InputError("none of the control points is measured in any image", meas.path, field="id")
     centre = points.xyz[ctrl_mask].mean(0)
     geo = Georef(crs, centre, opt.geoid, points.path)
-    P_local = geo.to_local(points.xyz)
-    if not np.isfinite(P_local).all():
-        bad = int(np.argmax(~np.isfinite(P_local).all(1)))
+    P_world = geo.to_world(points.xyz)
+    if not np.isfinite(P_world).all():
+        bad = int(np.argmax(~np.isfinite(P_world).all(1)))
         raise InputError(f"point {points.ids[bad]} is not a valid coordinate in CRS {crs}", points.path,
                          None if points.lines is None else int(points.lines[bad]), "x")
-    spread = np.ptp(P_local[ctrl_mask], axis=0)
+    spread = np.ptp(P_world[ctrl_mask], axis=0)
     if ctrl_mask.sum() > 2 and max(spread[:2]) > 5e4:
         raise InputError(f"control points span {max(spread[:2]) / 1e3:.0f} km in CRS {crs}: wrong CRS or "
                          "coordinate order?", points.path, field="--crs")
@@ -166,7 +166,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     for j, p in enumerate(point_ids):
         if kind[j] == "control":
             r = pidx[p]
-            Xprior[j] = P_local[r]
+            Xprior[j] = P_world[r]
             s = points.sigma[r]
             Sprior[j] = 0.0 if opt.fixed_gcps else np.where(np.isfinite(s), s, opt.gcp_sigma_m)
     # --- initial orientation --------------------------------------------------------------------
@@ -178,7 +178,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
         a_idx = {str(k): i for i, k in enumerate(approx.image)}
         for name, i in img_index.items():
             if name in a_idx:
-                Ra, Ca = geo.eop_to_local(approx.xyz[a_idx[name]][None], approx.opk[a_idx[name]][None])
+                Ra, Ca = geo.eop_to_world(approx.xyz[a_idx[name]][None], approx.opk[a_idx[name]][None])
                 R0[i], C0[i] = Ra[0], Ca[0]
     clock["prepared"] = time.perf_counter()
     R, C, oriented, X0, okpt = grow_orientation(camera, n, oi, op, uv, Xprior, R0, C0)
@@ -221,7 +221,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
         for i, name in enumerate(images_k):
             if name in c_idx:
                 r = c_idx[name]
-                cprior[i] = geo.to_local(centre_priors.xyz[r][None])[0]
+                cprior[i] = geo.to_world(centre_priors.xyz[r][None])[0]
                 csig[i] = centre_priors.sigma[r, :3] if centre_priors.sigma is not None else 0.05
     inp = BundleInput(camera, images_k, R[img_keep], C[img_keep], pids_k, X0[pt_keep], oi2, op2, uv2, sig2,
                       Xprior[pt_keep], Sprior[pt_keep], cprior, csig, tuple(opt.refine))
@@ -259,8 +259,8 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
         res = _readjust(inp, active, bopt, res)
     clock["cleaned"] = time.perf_counter()
     # --- outputs ----------------------------------------------------------------------------
-    geo_xyz, geo_opk = geo.eop_to_map(res.R_world_to_cv, res.C_world)
-    cov_map = geo.eop_covariance_to_map(res.R_world_to_cv, res.C_world, res.cov_pose)
+    geo_xyz, geo_opk = geo.eop_to_map(res.R_world_to_cam, res.C_world)
+    cov_map = geo.eop_covariance_to_map(res.R_world_to_cam, res.C_world, res.cov_pose)
     sig_map = np.sqrt(np.clip(np.diagonal(cov_map, axis1=1, axis2=2), 0, None))
     eop = EOP(np.array(images_k, dtype=object), geo_xyz, geo_opk, sig_map, cov_map)
     a_oi, a_op = res._inp.obs_image, res._inp.obs_point   # observations of the final adjustment
@@ -282,8 +282,8 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
         r = pidx[pid]
         kk = np.nonzero(a_op == j)[0]
         pos = np.searchsorted(ctrl_rows, kk)
-        dloc = res.X_world[j] - P_local[r]
-        R_lg = geo.R_local_to_grid_at(res.X_world[j][None])[0]
+        dloc = res.X_world[j] - P_world[r]
+        R_lg = geo.R_world_to_grid_at(res.X_world[j][None])[0]
         gcp_rep.append({"id": pid, "n_images": int(len(kk)), "xyz": points.xyz[r].tolist(),
                         "adjusted": X_map[j].tolist(), "dENU_m": (R_lg @ dloc).tolist(),
                         "rms_px": float(np.sqrt(np.mean(np.sum(res.residuals_px[kk] ** 2, 1)))),
@@ -311,7 +311,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     if opt.verbose:
         print(f"sigma0 {res.sigma0:.3f}, {len(images_k)} images, {len(pids_k)} points, redundancy {res.redundancy}")
     return TriangulationResult(eop, geo, res, res.camera, images_k, pids_k, kind_k, gcp_rep, check_rep, image_stats,
-                               suspects, msgs, unknown_ids, summary, res.R_world_to_cv, res.C_world)
+                               suspects, msgs, unknown_ids, summary, res.R_world_to_cam, res.C_world)
 
 
 def _readjust(inp: BundleInput, active: np.ndarray, bopt: BundleOptions, prev: BundleResult) -> BundleResult:
@@ -325,7 +325,7 @@ def _readjust(inp: BundleInput, active: np.ndarray, bopt: BundleOptions, prev: B
         if not lone.any():
             break
         active &= ~lone
-    sub = BundleInput(inp.camera, inp.images, prev.R_world_to_cv, prev.C_world, inp.point_ids, prev.X_world,
+    sub = BundleInput(inp.camera, inp.images, prev.R_world_to_cam, prev.C_world, inp.point_ids, prev.X_world,
                       inp.obs_image[active], inp.obs_point[active], inp.obs_uv[active], inp.obs_sigma[active],
                       inp.point_prior, inp.point_prior_sigma, inp.center_prior, inp.center_prior_sigma, inp.refine,
                       inp.intrinsic_prior_sigma)
@@ -334,7 +334,7 @@ def _readjust(inp: BundleInput, active: np.ndarray, bopt: BundleOptions, prev: B
 
 def _pose_cov_right(cov_pose: np.ndarray) -> np.ndarray:
     """Pose covariances in dgcal.bundle.intersection's convention: [C, rotation as a right perturbation of
-    R_cv_to_world]. Ours perturb R_world_to_cv on the left by d, i.e. R_cv_to_world on the right by -d:
+    R_cam_to_world]. Ours perturb R_world_to_cam on the left by d, i.e. R_cam_to_world on the right by -d:
     the centre/rotation cross blocks change sign."""
     c = np.array(cov_pose, float)
     c[:, :3, 3:] *= -1
@@ -357,7 +357,7 @@ def _check_points(camera, res: BundleResult, geo: Georef, points: Points, meas: 
         oi = np.array([im_idx[str(meas.image[r])] for r in rows])
         op = np.array([pid_of[str(meas.id[r])] for r in rows])
         sig = np.where(np.isfinite(meas.sigma[rows]), meas.sigma[rows], opt.sigma_px)
-        R_c2w = np.swapaxes(res.R_world_to_cv, -1, -2)
+        R_c2w = np.swapaxes(res.R_world_to_cam, -1, -2)
         ir = intersect(camera, res.C_world, R_c2w, oi, op, meas.xy[rows], sig, n_points=len(ids))
         cov = ir.cov + propagate_pose_covariance(ir, _pose_cov_right(res.cov_pose))
     for j, pid in enumerate(ids):
@@ -369,8 +369,8 @@ def _check_points(camera, res: BundleResult, geo: Georef, points: Points, meas: 
             out.append({"id": pid, "n_images": n_rays, "evaluated": False})
             continue
         X = ir.xyz[j]
-        given = geo.to_local(points.xyz[pidx[pid]][None])[0]
-        R_lg = geo.R_local_to_grid_at(X[None])[0]
+        given = geo.to_world(points.xyz[pidx[pid]][None])[0]
+        R_lg = geo.R_world_to_grid_at(X[None])[0]
         d = R_lg @ (X - given)
         s = np.sqrt(np.clip(np.diag(R_lg @ cov[j] @ R_lg.T), 0, None))
         out.append({"id": pid, "n_images": n_rays, "evaluated": True, "xyz": points.xyz[pidx[pid]].tolist(),

@@ -5,7 +5,7 @@ Names say what a matrix does: `R_a_to_b @ v_a = v_b`.
   `R_body_to_ned = Rz(heading) Ry(pitch) Rx(roll)`.
 - EOP angles (omega, phi, kappa), degrees, PATB: `M = Rx(omega) Ry(phi) Rz(kappa)` is
   `R_photo_to_map`, with photogrammetric camera axes (x right, y up, z back) and map axes (E, N, Up).
-- Camera frame of the computer-vision convention (x right, y down, z forward): `R_cv_to_photo = diag(1,-1,-1)`.
+- Camera frame of the computer-vision convention (x right, y down, z forward): `R_cam_to_photo = diag(1,-1,-1)`.
 """
 from __future__ import annotations
 
@@ -42,14 +42,14 @@ def opk_from_R_photo_to_map(R_photo_to_map: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R_photo_to_map).as_euler("XYZ", degrees=True)
 
 
-def R_cv_to_map_from_opk(omega_deg, phi_deg, kappa_deg) -> np.ndarray:
+def R_cam_to_map_from_opk(omega_deg, phi_deg, kappa_deg) -> np.ndarray:
     """Rotation from the CV camera frame (x right, y down, z forward) to map (E,N,Up), from PATB angles."""
     return R_photo_to_map_from_opk(omega_deg, phi_deg, kappa_deg) @ R_CV_TO_PHOTO
 
 
-def opk_from_R_cv_to_map(R_cv_to_map: np.ndarray) -> np.ndarray:
+def opk_from_R_cam_to_map(R_cam_to_map: np.ndarray) -> np.ndarray:
     """PATB omega, phi, kappa (degrees) from the CV-camera-to-map rotation(s)."""
-    return opk_from_R_photo_to_map(R_cv_to_map @ R_CV_TO_PHOTO)
+    return opk_from_R_photo_to_map(R_cam_to_map @ R_CV_TO_PHOTO)
 
 
 def R_ecef_to_enu(lat_deg, lon_deg) -> np.ndarray:

@@ -57,8 +57,8 @@ def _footprints(res) -> list[np.ndarray]:
     z0 = float(np.mean(ctrl[:, 2])) if len(ctrl) else 0.0
     out = []
     for i in range(len(res.images)):
-        d = rays @ res.R_world_to_cv[i]
-        C = res.C_local[i]
+        d = rays @ res.R_world_to_cam[i]
+        C = res.C_world[i]
         t = (z0 - C[2]) / np.where(np.abs(d[:, 2]) > 1e-9, d[:, 2], np.nan)
         P = C + np.where(t[:, None] > 0, t[:, None], np.nan) * d
         out.append(res.georef.to_map(P)[:, :2])

@@ -4,7 +4,7 @@ The plate turns about its normal in equal steps; for every plate angle the camer
 of a few stations (tilt 0, 30, 45 degrees, two distances, landscape and portrait) so the targets cover the
 whole frame, corners included. Images are rendered exactly through the camera model (dgcal.sim.render), then
 blurred, vignetted, noised and written as JPEG. Writes `images/*.jpg`, `field.csv` (+ `field.json`),
-`truth.json` (camera, poses R_plate_to_cam/t_plate_to_cam, noise, seed) and `truth_measurements.csv`
+`truth.json` (camera, poses R_field_to_cam/t_field_to_cam, noise, seed) and `truth_measurements.csv`
 (noise-free projections of every visible target; column `complete` = 1 when the target's four squares lie
 wholly inside the frame, i.e. a detector can be expected to find it).
 """
@@ -44,8 +44,8 @@ class Shot:
     """One simulated photo: plate-to-camera pose and how it was taken."""
 
     image: str
-    R_plate_to_cam: np.ndarray
-    t_plate_to_cam: np.ndarray
+    R_field_to_cam: np.ndarray
+    t_field_to_cam: np.ndarray
     rotation_deg: float
     tilt_deg: float
     distance_m: float
@@ -80,16 +80,16 @@ def plan_shots(n_images: int, camera: CameraModel, tf: TargetField, rng: np.rand
         # nadir camera (x east, y south, z down) tilted about its x axis, then rolled about its z axis
         R_world_to_cam = _rz(math.radians(roll_j)) @ _rx(math.radians(tilt_j)) @ np.diag([1.0, -1.0, -1.0])
         C_w = look - dist * R_world_to_cam[2]  # camera z axis in the world is row 2 of R_world_to_cam
-        R_plate_to_cam = R_world_to_cam @ _rz(math.radians(rot))
+        R_field_to_cam = R_world_to_cam @ _rz(math.radians(rot))
         t = -R_world_to_cam @ C_w
-        shots.append(Shot(f"IMG_{k + 1:04d}.jpg", R_plate_to_cam, t, rot % 360.0, tilt_j, dist, roll_j))
+        shots.append(Shot(f"IMG_{k + 1:04d}.jpg", R_field_to_cam, t, rot % 360.0, tilt_j, dist, roll_j))
     return shots
 
 
-def plate_facets(tf: TargetField, texel_m: float) -> list[Facet]:
+def field_facets(tf: TargetField, texel_m: float) -> list[Facet]:
     """The plate (and its raised blocks with grey side walls) as facets in the plate frame."""
-    from dgcal.fields.targets.printing import plate_texture
-    grey, alpha = plate_texture(tf, texel_m)
+    from dgcal.fields.targets.printing import field_texture
+    grey, alpha = field_texture(tf, texel_m)
     grey = np.rint(grey * 65535).astype(np.uint16)  # half the memory of float32, still 16-bit smooth
     alpha = np.rint(alpha * 255).astype(np.uint8)
     half = tf.board_size_m / 2
@@ -121,7 +121,7 @@ def truth_projections(camera: CameraModel, tf: TargetField, shot: Shot, facets: 
     """Ids, noise-free pixels and `complete` flags of the targets visible in one shot (in frame, facing the
     camera within `max_incidence_deg`, not hidden by a block)."""
     ids, _, xyz = tf.targets()
-    R, t = shot.R_plate_to_cam, shot.t_plate_to_cam
+    R, t = shot.R_field_to_cam, shot.t_field_to_cam
     X = xyz @ R.T + t
     w, h = camera.image_size
     n_cam = R[:, 2]  # plate normal in the camera frame
@@ -180,7 +180,7 @@ def simulate_camera_field(out: str | Path, seed: int = 0, n_images: int = 48,
         w, h = camera.image_size
         texel_m = 0.9 * tf.diameter_m / math.hypot(w, h)
     texel_m = tf.square_m / max(1, round(tf.square_m / texel_m))
-    facets = plate_facets(tf, texel_m)
+    facets = field_facets(tf, texel_m)
     shots = plan_shots(n_images, camera, tf, rng)
     rays = RayGrid(camera)
     rows_meas = []
@@ -188,7 +188,7 @@ def simulate_camera_field(out: str | Path, seed: int = 0, n_images: int = 48,
         (tmp / "images").mkdir()
         write_field(tmp / "field.csv", tf)
         for shot in tqdm(shots, desc="render", unit="img", disable=not progress):
-            rad = render(camera, shot.R_plate_to_cam, shot.t_plate_to_cam, facets, background=0.3,
+            rad = render(camera, shot.R_field_to_cam, shot.t_field_to_cam, facets, background=0.3,
                          supersample=supersample, rays=rays)
             img = _finish(rad, rng, blur_px, noise_dn)
             ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
@@ -205,8 +205,8 @@ def simulate_camera_field(out: str | Path, seed: int = 0, n_images: int = 48,
                       "supersample": int(supersample), "texel_m": texel_m},
             "frames": "X_cam = R_plate_to_cam @ X_plate + t_plate_to_cam; camera x right, y down, z forward; "
                       "plate x right, y up on the print, z out of the printed face",
-            "images": [{"image": s.image, "R_plate_to_cam": s.R_plate_to_cam.tolist(),
-                        "t_plate_to_cam": s.t_plate_to_cam.tolist(), "plate_rotation_deg": s.rotation_deg,
+            "images": [{"image": s.image, "R_plate_to_cam": s.R_field_to_cam.tolist(),
+                        "t_plate_to_cam": s.t_field_to_cam.tolist(), "plate_rotation_deg": s.rotation_deg,
                         "tilt_deg": s.tilt_deg, "distance_m": s.distance_m, "roll_deg": s.roll_deg}
                        for s in shots],
         }

@@ -112,7 +112,7 @@ def _flight_with_speeds(speeds, **kw):
     """`dgcal.sim.trajectory.simulate_flight` with airspeed speeds[i] on the strips of height i (changed smoothly
     during the orbit climb before them); heights fly at different ground speeds, which separates the
     exposure delay from the along-track lever arm."""
-    from dgcal.sim.trajectory import SmoothSteps, _assemble, simulate_flight
+    from dgcal.sim.trajectory import SmoothSteps, assemble_trajectory, simulate_flight
     base = simulate_flight(speed=float(speeds[0]), **kw)
     climbs = [s for s in base.segments if s.kind == "climb"]
     a, T, d = [], [], []
@@ -129,7 +129,7 @@ def _flight_with_speeds(speeds, **kw):
     p_l = np.zeros((len(t), 3))
     p_l[:, :2] = prof.p0_l[:2] + np.vstack([np.zeros(2), np.cumsum(inc, axis=0)])
     p_l[:, 2] = prof.p0_l[2] - prof.climb.evaluate(t - prof.t0)[0]
-    traj = _assemble(prof, t, p_l, with_increments=True, rate_hz=base.rate_hz)
+    traj = assemble_trajectory(prof, t, p_l, with_increments=True, rate_hz=base.rate_hz)
     traj.segments = base.segments
     return traj
 
@@ -159,12 +159,12 @@ def _camera_field(out: Path, camera, rng, n_images: int, noise_px: float) -> dic
     return {"n_images": len(shots), "n_observations": int(len(uv)), "noise_px": noise_px}
 
 
-def _observe(camera, C_ecef, R_cv_to_ecef, names, ids, X_ecef, margin_px: float = 10.0):
+def _observe(camera, C_ecef, R_cam_to_ecef, names, ids, X_ecef, margin_px: float = 10.0):
     """Noise-free projections of points X_ecef into every image: (image, id, uv) rows."""
     w, h = camera.image_size
     rows_img, rows_id, uv_all = [], [], []
     for k in range(len(names)):
-        Xc = (X_ecef - C_ecef[k]) @ R_cv_to_ecef[k]
+        Xc = (X_ecef - C_ecef[k]) @ R_cam_to_ecef[k]
         ok = Xc[:, 2] > 1.0
         uv = np.full((len(X_ecef), 2), np.nan)
         uv[ok] = camera.project(Xc[ok])
@@ -212,7 +212,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     from dgcal.fields.errors import InputError
     from dgcal.fields.io.formats import (EOP, Measurements, Points, week_sow, write_eop, write_events, write_measurements,
                                 write_points, write_trajectory)
-    from dgcal.fields.frames import opk_from_R_cv_to_map
+    from dgcal.fields.frames import opk_from_R_cam_to_map
     from dgcal.pos.ins.imu_data import write_kf_gins
     from dgcal.sim.gnss import DEFAULT_T0_GPS
     from dgcal.sim.imu import simulate_imu
@@ -242,7 +242,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     t_exp = events.t + delay_s
     at = traj.at(t_exp)
     C_ecef = at.p_ecef + np.einsum("nij,j->ni", at.R_body_to_ecef, lever)
-    R_cv_to_ecef = at.R_body_to_ecef @ R_cb
+    R_cam_to_ecef = at.R_body_to_ecef @ R_cb
     names = np.asarray(events.image, dtype=object)
 
     # 2. ground points on the terrain: control and check points over the low block, tie points everywhere
@@ -273,8 +273,8 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     tie_ids = np.array([f"T{i + 1:05d}" for i in range(n_tie)], dtype=object)
     gp_ecef, tie_ecef = enu.to_ecef(gp_enu), enu.to_ecef(tie_enu)
 
-    gi, gid, guv = _observe(camera, C_ecef, R_cv_to_ecef, names, gp_ids, gp_ecef)
-    ti, tid, tuv = _observe(camera, C_ecef, R_cv_to_ecef, names, tie_ids, tie_ecef)
+    gi, gid, guv = _observe(camera, C_ecef, R_cam_to_ecef, names, gp_ids, gp_ecef)
+    ti, tid, tuv = _observe(camera, C_ecef, R_cam_to_ecef, names, tie_ids, tie_ecef)
     uniq, cnt = np.unique(tid, return_counts=True)
     keep = np.isin(tid, uniq[cnt >= 2])
     ti, tid, tuv = ti[keep], tid[keep], tuv[keep]
@@ -289,9 +289,9 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     from dgcal.fields.frames import R_ecef_to_enu, R_enu_to_grid
     llh_c = grid.to_geodetic(C_map)
     gamma = grid.convergence_deg(llh_c[:, 0], llh_c[:, 1])
-    R_cv_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ R_ecef_to_enu(llh_c[:, 0], llh_c[:, 1])
-                    @ R_cv_to_ecef)
-    opk = opk_from_R_cv_to_map(R_cv_to_grid)
+    R_cam_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ R_ecef_to_enu(llh_c[:, 0], llh_c[:, 1])
+                    @ R_cam_to_ecef)
+    opk = opk_from_R_cam_to_map(R_cam_to_grid)
 
     # 3. GNSS antenna: PPK-like positions (lc) or pseudoranges (tc)
     t_gnss = np.arange(math.ceil(traj.t[0]), traj.t[-1] + 1e-9, 1.0 / gnss_rate_hz)

@@ -22,7 +22,7 @@ from dgcal.calib.camera.models import Fraser7
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir
 from dgcal.fields.io.formats import EOP, Measurements, Points, write_eop, write_measurements, write_points
-from dgcal.fields.frames import R_CV_TO_PHOTO, R_enu_to_grid, opk_from_R_cv_to_map
+from dgcal.fields.frames import R_CV_TO_PHOTO, R_enu_to_grid, opk_from_R_cam_to_map
 from scipy.spatial.transform import Rotation
 
 NAME = "flight"
@@ -84,11 +84,11 @@ def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, rend
         C = np.array([p["e"], p["n"], p["height"]]) + rng.normal(0, [1.0, 1.0, 0.5])
         # camera: nadir, image top to the heading direction, plus a few degrees of jitter
         kappa = -p["heading"]
-        R_cv_to_enu = (Rotation.from_euler("xyz", rng.normal(0, [1.5, 1.5, 2.0]), degrees=True).as_matrix()
+        R_cam_to_enu = (Rotation.from_euler("xyz", rng.normal(0, [1.5, 1.5, 2.0]), degrees=True).as_matrix()
                        @ Rotation.from_euler("z", kappa, degrees=True).as_matrix() @ R_CV_TO_PHOTO)
         names.append(f"IMG_{k:04d}.png")
         C_loc.append(C)
-        R_w2c.append(R_cv_to_enu.T)
+        R_w2c.append(R_cam_to_enu.T)
     C_loc, R_w2c = np.array(C_loc), np.array(R_w2c)
     # ground points: control and check spread over the low-flight block, inset from its edge
     half_fp = 0.3 * min(heights) * np.array(cam.image_size, float)[::-1] / cam["f"]   # N-S strips: x across
@@ -146,9 +146,9 @@ def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, rend
     g = frame.to_geodetic(C_loc)
     R_here_to_local = frame.R_enu_here_to_local(g[:, 0], g[:, 1])
     gamma = grid.convergence_deg(g[:, 0], g[:, 1])
-    R_cv_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ np.swapaxes(R_here_to_local, -1, -2)
+    R_cam_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ np.swapaxes(R_here_to_local, -1, -2)
                     @ np.swapaxes(R_w2c, -1, -2))
-    opk = opk_from_R_cv_to_map(R_cv_to_grid)
+    opk = opk_from_R_cam_to_map(R_cam_to_grid)
     gsd = {f"{H:g}": float((H - 0.0) / cam["f"]) for H in heights}
 
     out = Path(out)
@@ -207,14 +207,14 @@ def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: i
     size = tex.shape[0]
     w, h = cam.image_size
     uu, vv = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
-    rays_cv = cam.ray(np.column_stack([uu.ravel(), vv.ravel()]))
+    rays_cam = cam.ray(np.column_stack([uu.ravel(), vv.ravel()]))
     target_r = 0.5
     markers = None
     if targets == "aruco":
         dic = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
         markers = [cv2.aruco.generateImageMarker(dic, j, 120, borderBits=1) for j in range(len(gp_loc))]
     for i, name in enumerate(names):
-        d = rays_cv @ R_w2c[i]          # world directions
+        d = rays_cam @ R_w2c[i]          # world directions
         C = C_loc[i]
         z = np.full(len(d), terrain_height(np.array([C[0]]), np.array([C[1]]))[0])
         for _ in range(5):

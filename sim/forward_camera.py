@@ -65,7 +65,7 @@ class ForwardCameraSim:
     sky: float = 0.85
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Camera centre (m, ENU) and R_cv_to_enu at GPS time t (camera at the IMU origin)."""
+        """Camera centre (m, ENU) and R_cam_to_enu at GPS time t (camera at the IMU origin)."""
         s = self.truth.at(t)
         C = self.enu.from_ecef(s.p_ecef[0])
         R_b2enu = R_NED_TO_ENU @ s.R_body_to_ned[0]

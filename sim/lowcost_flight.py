@@ -213,8 +213,8 @@ def terrain_dem(center_w: np.ndarray, half_size_m: float = 600.0, step_m: float 
 
 
 def _ray_dem_hit(C, d, dem):
-    from dgcal.calib.dg.single_image import _intersect_dem
-    X, ok = _intersect_dem(np.asarray(C, float), np.atleast_2d(d), dem, 0.0, 50, 1e-6)
+    from dgcal.calib.dg.single_image import intersect_dem
+    X, ok = intersect_dem(np.asarray(C, float), np.atleast_2d(d), dem, 0.0, 50, 1e-6)
     return X[0]
 
 

@@ -94,7 +94,7 @@ def _strips(heights, n_strips, length_m, spacing_m, azimuth_deg):
     return out
 
 
-def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, delay_s: float, ground_L: np.ndarray,
+def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, delay_s: float, ground_world: np.ndarray,
                     ground_ids, *, heights=(300.0, 600.0), n_strips: int = 4, length_m: float = 1200.0,
                     spacing_m: float = 180.0, azimuth_deg: float = 30.0, airspeed: float = 30.0,
                     wind_en=(4.0, 5.0), photo_interval_s: float = 1.5, rate_hz: float = 20.0,
@@ -131,7 +131,7 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
         t_exp.append(t + te)
         strip_h.append(np.full(len(te), h))
         t += ts[-1] + 30.0  # the turn is not simulated: a gap in the trajectory
-    t_s, p_L, v_L, R_bL = (np.concatenate(x) for x in (t_all, p_all, v_all, R_all))
+    t_s, p_world, v_world, R_bL = (np.concatenate(x) for x in (t_all, p_all, v_all, R_all))
     t_exp, heights_img = np.concatenate(t_exp), np.concatenate(strip_h)
 
     # truth at exposure times, analytically interpolated on the fine samples (rate_hz) would add error:
@@ -140,42 +140,42 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
         from dgcal.calib.mounting.common import so3_exp, so3_log
         i = np.clip(np.searchsorted(t_s, tq) - 1, 0, len(t_s) - 2)
         s = (tq - t_s[i]) / (t_s[i + 1] - t_s[i])
-        pq = p_L[i] + s[:, None] * (p_L[i + 1] - p_L[i])  # straight constant-velocity strips: linear is exact
+        pq = p_world[i] + s[:, None] * (p_world[i + 1] - p_world[i])  # straight constant-velocity strips: linear is exact
         Rq = R_bL[i] @ so3_exp(s[:, None] * so3_log(T(R_bL[i]) @ R_bL[i + 1]))
         return pq, Rq
 
     p_e, R_e = at(t_exp)
     r_cam = p_e + np.einsum("nij,j->ni", R_e, lever_arm_m)
-    R_cv_to_L = R_e @ R_cam_to_body
+    R_cam_to_world = R_e @ R_cam_to_body
     names = np.array([f"IMG_{k:04d}.JPG" for k in range(len(t_exp))], dtype=object)
-    xyz, opk = frame.L_to_eop(r_cam, R_cv_to_L)
+    xyz, opk = frame.world_to_eop(r_cam, R_cam_to_world)
     eop_true = EOP(names, xyz, opk)
     es = np.tile(np.asarray(eop_sigma, float), (len(names), 1))
     es *= (heights_img / heights[0])[:, None]  # bundle accuracy degrades with height
     # position noise in metres along grid E, N, Up (also right for a geographic CRS, whose X, Y are degrees)
     n_grid = rng.normal(0, 1, xyz.shape) * es[:, :3]
-    xyz_noisy = frame.L_to_map(r_cam + np.einsum("nij,nj->ni", frame.R_grid_to_L_at(xyz), n_grid))
+    xyz_noisy = frame.world_to_map(r_cam + np.einsum("nij,nj->ni", frame.R_grid_to_world_at(xyz), n_grid))
     eop = EOP(names, xyz_noisy, opk + rng.normal(0, 1, opk.shape) * es[:, 3:], es)
     events = Events(names, t_exp - delay_s)
 
-    lat, lon, hh, v_ned, rph = frame.L_to_pos(p_L, v_L, R_bL)
+    lat, lon, hh, v_ned, rph = frame.world_to_pos(p_world, v_world, R_bL)
     traj_true = Trajectory(t_s, lat, lon, hh, v_ned, rph)
     # smoother-like errors: a part common to the whole flight (bias-driven tilt, GNSS biases: it does not
     # average down over the photos) and a smooth part correlated over ~tau_s, independent between photos
     f = float(pos_common_fraction)
     err = (np.sqrt(1 - f) * _smooth_noise(rng, len(t_s), 1.0 / rate_hz, tau_s, np.asarray(pos_sigma, float))
            + np.sqrt(f) * rng.normal(0, 1, 6) * np.asarray(pos_sigma, float))
-    p_noisy = p_L + err[:, [1, 0, 2]]  # s_lat_m is north, s_lon_m east (L is ENU, level at the block)
-    lat_n, lon_n, h_n, _, _ = frame.L_to_pos(p_noisy, v_L, R_bL)
+    p_noisy = p_world + err[:, [1, 0, 2]]  # s_lat_m is north, s_lon_m east (L is ENU, level at the block)
+    lat_n, lon_n, h_n, _, _ = frame.world_to_pos(p_noisy, v_world, R_bL)
     traj = Trajectory(t_s, lat_n, lon_n, h_n, v_ned + rng.normal(0, 0.02, v_ned.shape), rph + err[:, 3:],
                       np.tile(np.asarray(pos_sigma, float), (len(t_s), 1)))
 
     # image measurements of ground points from the true poses
     rows_im, rows_id, uv_all = [], [], []
     for k in range(len(names)):
-        X_c = (ground_L - r_cam[k]) @ R_cv_to_L[k]
+        X_c = (ground_world - r_cam[k]) @ R_cam_to_world[k]
         ok = X_c[:, 2] > 1.0
-        uv = np.full((len(ground_L), 2), np.nan)
+        uv = np.full((len(ground_world), 2), np.nan)
         uv[ok] = camera.project(X_c[ok])
         w, hgt = camera.image_size
         ok &= (uv[:, 0] > 20) & (uv[:, 0] < w - 20) & (uv[:, 1] > 20) & (uv[:, 1] < hgt - 20)
@@ -202,16 +202,16 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     k = int(round(np.sqrt(n_ground)))
     g = np.linspace(-450, 450, k)
     gx, gy = np.meshgrid(g, g)
-    ground_L = np.column_stack([gx.ravel(), gy.ravel(), rng.uniform(-5, 15, gx.size)])
-    ground_L[:, :2] += rng.normal(0, 20, (gx.size, 2))
-    ids = np.array([f"P{k:03d}" for k in range(len(ground_L))], dtype=object)
+    ground_world = np.column_stack([gx.ravel(), gy.ravel(), rng.uniform(-5, 15, gx.size)])
+    ground_world[:, :2] += rng.normal(0, 20, (gx.size, 2))
+    ids = np.array([f"P{k:03d}" for k in range(len(ground_world))], dtype=object)
     role = np.array(["control" if (i % 4 == 0) else "check" for i in range(len(ids))], dtype=object)
-    ground = Points(ids, frame.L_to_map(ground_L), np.full((len(ids), 3), 0.01), role)
-    cal = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_L, ids, **(calibration or {}))
+    ground = Points(ids, frame.world_to_map(ground_world), np.full((len(ids), 3), 0.01), role)
+    cal = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_world, ids, **(calibration or {}))
     mp = dict(heights=(450.0,), n_strips=4, spacing_m=250.0, azimuth_deg=100.0, wind_en=(-3.0, 6.0),
               t0=2200 * 604800.0 + 310000.0)
     mp.update(mapping or {})
-    mapf = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_L, ids, **mp)
+    mapf = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_world, ids, **mp)
     noise = {"pos_sigma": [0.05, 0.05, 0.08, 0.01, 0.01, 0.03], "eop_sigma_300m": [0.03, 0.03, 0.04, 0.003, 0.003, 0.002],
              "pixel_sigma": 0.5, "pos_error_kernel_s": 0.3,
              "pos_common_fraction": (calibration or {}).get("pos_common_fraction", 0.0)}

@@ -51,10 +51,10 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     60 % of the flight, on a strip or turn). GNSS epochs are at whole GPS seconds at 1 Hz.
     """
     from dgcal.pos.ins.error_model import imu_grade as grade_of
-    from dgcal.sim.gnss import DEFAULT_T0_GPS, _load_nav, simulate_gnss
+    from dgcal.sim.gnss import DEFAULT_T0_GPS, load_nav, simulate_gnss
     from dgcal.sim.imu import simulate_imu
     from dgcal.sim.trajectory import camera_events, simulate_flight
-    nav = _load_nav(nav)
+    nav = load_nav(nav)
     week = int(DEFAULT_T0_GPS // 604800)
     sow = DEFAULT_T0_GPS - week * 604800 + 5.0
     traj = simulate_flight(kind, lat0=lat0, lon0=lon0, h_ground=h_ground, heights_agl=(height_agl,),

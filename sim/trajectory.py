@@ -219,7 +219,7 @@ class TrueTrajectory:
         p_l[:, :2] += self.profile.horizontal_increment(self.t[k], ts)
         integ = self.profile.climb.evaluate(ts - self.profile.t0)[0]
         p_l[:, 2] = self.profile.p0_l[2] - integ
-        out = _assemble(self.profile, ts, p_l, with_increments=False, rate_hz=self.rate_hz)
+        out = assemble_trajectory(self.profile, ts, p_l, with_increments=False, rate_hz=self.rate_hz)
         inv = np.empty_like(o)
         inv[o] = np.arange(len(o))
         for name in ("t", "lat", "lon", "h", "p_ecef", "v_ecef", "v_ned", "R_body_to_ned", "R_body_to_ecef",
@@ -238,8 +238,9 @@ def _kinematics_chunked(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, 
     return {k: np.concatenate(v) for k, v in out.items()}
 
 
-def _assemble(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, with_increments: bool, rate_hz: float,
+def assemble_trajectory(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, with_increments: bool, rate_hz: float,
               chunk: int = 50000) -> TrueTrajectory:
+    """The true trajectory (state, specific force, rates; increments optionally) of a profile at times t (s) and local positions p_l (m)."""
     n = len(t)
     keys = ("p_ecef", "v_ecef", "R_body_to_ecef", "f_b", "omega_ib_b", "v_l")
     arr = _kinematics_chunked(profile, t, p_l, keys, chunk)
@@ -415,7 +416,7 @@ def simulate_flight(kind: str = "fixed-wing", lat0: float = 23.0, lon0: float = 
     p_l[:, :2] = p0_l[:2] + np.vstack([np.zeros(2), np.cumsum(inc, axis=0)])
     integ = cl.evaluate(t - t0)[0]
     p_l[:, 2] = p0_l[2] - integ
-    traj = _assemble(profile, t, p_l, with_increments=True, rate_hz=rate_hz)
+    traj = assemble_trajectory(profile, t, p_l, with_increments=True, rate_hz=rate_hz)
     traj.segments = [Segment(s.kind, s.t_start + t0, min(s.t_end, total) + t0, s.index, s.height_agl,
                              s.heading_deg) for s in pl.segments if s.t_start < total]
     return traj

@@ -9,16 +9,16 @@ from dgcal.calib.camera.models import Fraser7
 def _block(rng):
     cam = Fraser7((1200, 800), np.array([1000.0, 600, 400, -0.05, 0.01, 0, 0, 0, 0, 0]))
     C = np.array([[x, y, 30.0] for x in (-10.0, 0, 10) for y in (-5.0, 5)])
-    R_cv_to_w = np.array([Rotation.from_euler("xyz", [180 + rng.normal(0, 2), rng.normal(0, 2), rng.normal(0, 5)],
+    R_cam_to_world = np.array([Rotation.from_euler("xyz", [180 + rng.normal(0, 2), rng.normal(0, 2), rng.normal(0, 5)],
                                               degrees=True).as_matrix() for _ in C])
     X = np.column_stack([rng.uniform(-15, 15, 12), rng.uniform(-10, 10, 12), rng.uniform(-1, 1, 12)])
     k, Xo, uv = [], [], []
     for i in range(len(C)):
-        Xc = (X - C[i]) @ R_cv_to_w[i]
+        Xc = (X - C[i]) @ R_cam_to_world[i]
         p = cam.project(Xc)
         vis = (Xc[:, 2] > 0) & (p[:, 0] > 0) & (p[:, 0] < 1200) & (p[:, 1] > 0) & (p[:, 1] < 800)
         k += [i] * int(vis.sum()); Xo.append(X[vis]); uv.append(p[vis])
-    return cam, R_cv_to_w, C, np.array(k), np.vstack(Xo), np.vstack(uv)
+    return cam, R_cam_to_world, C, np.array(k), np.vstack(Xo), np.vstack(uv)
 
 
 def test_known_similarity_is_undone():
@@ -31,7 +31,7 @@ def test_known_similarity_is_undone():
     R_off = np.einsum("ij,njk->nik", R_s, R)
     step = gcp_datum_step(cam, R_off, C_off, k, X, uv)
     assert np.abs(step.C_w - C).max() < 1e-6
-    for a, b in zip(step.R_cv_to_w, R):
+    for a, b in zip(step.R_cam_to_world, R):
         assert Rotation.from_matrix(a.T @ b).magnitude() < 1e-8
     assert step.rms_after_px < 1e-6 < step.rms_before_px
     assert gcp_datum_step(cam, R, C, k, X, uv).angle_deg < 1e-8

@@ -20,10 +20,10 @@ def _random_R(n):
 def test_points_and_eops_round_trip():
     g = Georef("EPSG:32651", CENTRE)
     P = CENTRE + rng.uniform(-2000, 2000, (20, 3)) * [1, 1, 0.05]
-    np.testing.assert_allclose(g.to_map(g.to_local(P)), P, atol=1e-6)
-    R, C = _random_R(20), g.to_local(P)
+    np.testing.assert_allclose(g.to_map(g.to_world(P)), P, atol=1e-6)
+    R, C = _random_R(20), g.to_world(P)
     xyz, opk = g.eop_to_map(R, C)
-    R2, C2 = g.eop_to_local(xyz, opk)
+    R2, C2 = g.eop_to_world(xyz, opk)
     np.testing.assert_allclose(R2, R, atol=1e-12)
     np.testing.assert_allclose(C2, C, atol=1e-4)
 
@@ -35,13 +35,13 @@ def test_eop_angles_follow_grid_axes_at_the_centre():
     grid = MapGrid("EPSG:32651")
     C_map = CENTRE + [1500.0, -800.0, 400.0]       # far from the frame origin: curvature and convergence differ
     P_map = C_map + [120.0, 250.0, -380.0]
-    R_w2c, C_loc = np.eye(3)[None] @ Rotation.from_euler("x", [180.0], degrees=True).as_matrix(), g.to_local(C_map)
+    R_w2c, C_loc = np.eye(3)[None] @ Rotation.from_euler("x", [180.0], degrees=True).as_matrix(), g.to_world(C_map)
     xyz, opk = g.eop_to_map(R_w2c, C_loc)
-    from dgcal.fields.frames import R_cv_to_map_from_opk
-    R_cv_to_grid = R_cv_to_map_from_opk(*opk[0])
+    from dgcal.fields.frames import R_cam_to_map_from_opk
+    R_cam_to_grid = R_cam_to_map_from_opk(*opk[0])
     # ray to P in the camera frame, computed in the adjustment frame
-    ray_cv = R_w2c[0] @ (g.to_local(P_map)[0] - C_loc[0])
-    d_grid = R_cv_to_grid @ ray_cv
+    ray_cam = R_w2c[0] @ (g.to_world(P_map)[0] - C_loc[0])
+    d_grid = R_cam_to_grid @ ray_cam
     # the same direction from map coordinates: grid E/N differences scaled back to metres on the ground
     lat, lon, _ = grid.to_geodetic(C_map)
     k = _scale_factor(grid, C_map)
@@ -49,8 +49,8 @@ def test_eop_angles_follow_grid_axes_at_the_centre():
     cosang = d_grid @ d_map / np.linalg.norm(d_grid) / np.linalg.norm(d_map)
     assert np.degrees(np.arccos(min(1, cosang))) < 0.003   # vs ~0.7 deg convergence and 0.01 deg curvature
     # and a nadir camera looking straight down at its own centre with top to grid north has opk ~ 0
-    R_nadir_cv_to_grid = np.diag([1.0, -1.0, -1.0])
-    R_w2c_n = (np.swapaxes(g.R_local_to_grid_at(C_loc), -1, -2)[0] @ R_nadir_cv_to_grid).T
+    R_nadir_cam_to_grid = np.diag([1.0, -1.0, -1.0])
+    R_w2c_n = (np.swapaxes(g.R_world_to_grid_at(C_loc), -1, -2)[0] @ R_nadir_cam_to_grid).T
     np.testing.assert_allclose(g.eop_to_map(R_w2c_n[None], C_loc)[1], [[0, 0, 0]], atol=1e-9)
     # while in the local frame it is rotated by the convergence (~-0.7 deg) plus the curvature
     kappa_local = np.degrees(np.arctan2(R_w2c_n[0, 1], R_w2c_n[0, 0]))
@@ -84,8 +84,8 @@ def test_geoid_constant_undulation():
     g = Georef("EPSG:32651", CENTRE, geoid=20.0)
     e = Georef("EPSG:32651", CENTRE + [0, 0, 20.0])
     P = CENTRE + [[10.0, 20.0, 5.0]]
-    np.testing.assert_allclose(g.to_local(P), e.to_local(P + [0, 0, 20.0]), atol=1e-6)
-    np.testing.assert_allclose(g.to_map(g.to_local(P)), P, atol=1e-6)
+    np.testing.assert_allclose(g.to_world(P), e.to_world(P + [0, 0, 20.0]), atol=1e-6)
+    np.testing.assert_allclose(g.to_map(g.to_world(P)), P, atol=1e-6)
 
 
 def test_bad_crs_and_local_frame():
@@ -93,10 +93,10 @@ def test_bad_crs_and_local_frame():
         Georef("EPSG:4326", CENTRE)
     loc = Georef("local", np.array([10.0, 20.0, 3.0]))
     P = np.array([[11.0, 22.0, 4.0]])
-    np.testing.assert_allclose(loc.to_local(P), [[1.0, 2.0, 1.0]])
+    np.testing.assert_allclose(loc.to_world(P), [[1.0, 2.0, 1.0]])
     R = _random_R(1)
-    xyz, opk = loc.eop_to_map(R, loc.to_local(P))
-    R2, _ = loc.eop_to_local(xyz, opk)
+    xyz, opk = loc.eop_to_map(R, loc.to_world(P))
+    R2, _ = loc.eop_to_world(xyz, opk)
     np.testing.assert_allclose(R2, R, atol=1e-12)
 
 

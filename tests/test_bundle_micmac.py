@@ -37,9 +37,9 @@ def _agreement(d, res) -> tuple[np.ndarray, np.ndarray]:
     """Centre distance (m) and rotation angle (deg) of every adjusted image to MicMac's Ori-Ground_mm3d."""
     dC, dR = [], []
     for i, name in enumerate(res.images):
-        R_cv_to_world, C = read_micmac_orientation(d / "Ori-Ground_mm3d" / f"Orientation-{name}.xml")
+        R_cam_to_world, C = read_micmac_orientation(d / "Ori-Ground_mm3d" / f"Orientation-{name}.xml")
         dC.append(np.linalg.norm(res.eop.xyz[i] - C))
-        dR.append(np.degrees(Rotation.from_matrix(R_cv_to_world.T @ res.R_world_to_cv[i].T).magnitude()))
+        dR.append(np.degrees(Rotation.from_matrix(R_cam_to_world.T @ res.R_world_to_cam[i].T).magnitude()))
     return np.array(dC), np.array(dR)
 
 
@@ -60,7 +60,7 @@ def test_micmac_positions_agree_and_relative_orientations(micmac):
     dC, dR = _agreement(d, res)
     assert np.all(dC < 0.05)
     # relative orientations (the block's shape, from the tie points) agree far better than the datum
-    R = [res.R_world_to_cv[i] for i in range(4)]
+    R = [res.R_world_to_cam[i] for i in range(4)]
     Rm = [read_micmac_orientation(d / "Ori-Ground_mm3d" / f"Orientation-{n}.xml")[0].T for n in res.images]
     for i in range(4):
         for j in range(i + 1, 4):
@@ -78,7 +78,7 @@ def test_micmac_orientation_gap_is_micmacs_datum(micmac):
         # with the GCPs at 5 mm our rotation sigmas are 0.37/0.38/0.16 deg: MicMac's answer is inside 1 sigma
         sig_deg = np.degrees(np.sqrt(np.diag(res.bundle.cov_pose[i])[3:]))
         assert np.sum(sig_deg > 0.3) == 2
-        d_theta = Rotation.from_matrix(ori[i][0].T @ res.R_world_to_cv[i].T).as_rotvec()
+        d_theta = Rotation.from_matrix(ori[i][0].T @ res.R_world_to_cam[i].T).as_rotvec()
         assert d_theta @ np.linalg.solve(res.bundle.cov_pose[i][3:, 3:], d_theta) < 3.5   # chi2(3) at 68 %
     # MicMac's own orientations fit the GCP measurements worse than ours (its RMS 1.01 px, ours 0.66 px)
     ids = list(pts.ids)
@@ -103,7 +103,7 @@ def test_micmac_orientation_gap_is_micmacs_datum(micmac):
     # MicMac's block moved to that datum agrees with ours far inside the acceptance (0.08-0.11 deg, < 1 cm)
     for i, name in enumerate(names):
         assert np.linalg.norm(step.C_w[i] - res.eop.xyz[i]) < 0.015
-        assert np.degrees(Rotation.from_matrix(step.R_cv_to_w[i].T @ res.R_world_to_cv[i].T).magnitude()) < 0.15
+        assert np.degrees(Rotation.from_matrix(step.R_cam_to_world[i].T @ res.R_world_to_cam[i].T).magnitude()) < 0.15
 
 
 def test_unknown_point_is_a_tie_point_and_reported(micmac):

@@ -17,7 +17,7 @@ def simulate_measurements(camera, xyz, shots, noise_px, rng, margin_px=2.0):
     w, h = camera.image_size
     img, idx, xy = [], [], []
     for s in shots:
-        Xc = xyz @ s.R_plate_to_cam.T + s.t_plate_to_cam
+        Xc = xyz @ s.R_field_to_cam.T + s.t_field_to_cam
         uv = camera.project(Xc)
         ok = (Xc[:, 2] > 0) & (uv[:, 0] >= margin_px) & (uv[:, 0] <= w - 1 - margin_px) \
             & (uv[:, 1] >= margin_px) & (uv[:, 1] <= h - 1 - margin_px)
@@ -137,9 +137,9 @@ def test_camera_centres_and_their_sigmas_are_honest():
     z = []
     for i, name in enumerate(res.image_names):
         s = shots[name]
-        C_true = -s.R_plate_to_cam.T @ s.t_plate_to_cam
+        C_true = -s.R_field_to_cam.T @ s.t_field_to_cam
         z.append((C[i] - C_true) / sC[i])
-        dR = Rotation.from_matrix(res.R_field_to_cam[i] @ s.R_plate_to_cam.T).as_rotvec()
+        dR = Rotation.from_matrix(res.R_field_to_cam[i] @ s.R_field_to_cam.T).as_rotvec()
         assert np.all(np.abs(np.degrees(dR)) < 4 * res.pose_sigma[i, :3] + 1e-9)
     z = np.array(z)
     assert np.all(np.abs(z) < 4.5) and 0.5 < np.sqrt(np.mean(z**2)) < 1.6, np.sqrt(np.mean(z**2))

@@ -19,7 +19,7 @@ def helmert_residual(a, b):
     return float(np.sqrt(np.mean(np.sum((B - s * A @ R.T) ** 2, axis=1))))
 
 
-def warped_plate_scene(seed=21):
+def warped_field_scene(seed=21):
     rng = np.random.default_rng(seed)
     tf = TargetField(square_m=0.16, marker_m=0.12)
     pts = tf.points()
@@ -33,7 +33,7 @@ def warped_plate_scene(seed=21):
 
 
 def test_free_network_recovers_a_warped_plate():
-    truth, ids, nominal, true_xyz, img, mid, xy = warped_plate_scene()
+    truth, ids, nominal, true_xyz, img, mid, xy = warped_field_scene()
     fixed_run = adjust(ids, nominal, img, mid, xy, SIZE, "fraser7")
     free_run = adjust(ids, nominal, img, mid, xy, SIZE, "fraser7", refine_targets="free")
     assert fixed_run.sigma0 > 2 * free_run.sigma0
@@ -51,7 +51,7 @@ def test_free_network_recovers_a_warped_plate():
 
 
 def test_weighted_targets_follow_their_sigmas():
-    truth, ids, nominal, true_xyz, img, mid, xy = warped_plate_scene(22)
+    truth, ids, nominal, true_xyz, img, mid, xy = warped_field_scene(22)
     sig = np.tile([0.005, 0.005, 0.005], (len(ids), 1))   # 5 mm: loose enough to let the plate bend
     res = adjust(ids, nominal, img, mid, xy, SIZE, "fraser7", field_sigma=sig, refine_targets="weighted")
     assert abs(res.sigma0 - 0.1) < 0.015

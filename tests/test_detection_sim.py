@@ -4,7 +4,7 @@ import shutil
 import numpy as np
 import pytest
 
-from dgcal.calib.selfcal.detection import CharucoPlateDetector, detect_folder, detect_image, read_gray
+from dgcal.calib.selfcal.detection import CharucoFieldDetector, detect_folder, detect_image, read_gray
 from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.errors import InputError
 from dgcal.fields.targets.printing import print_raster
@@ -110,13 +110,13 @@ def _printed(tf, pad=60):
 def test_duplicated_markers_are_rejected():
     tf = TargetField(diameter_m=0.9, square_m=0.08, marker_m=0.06)
     img, pad = _printed(tf, pad=100)
-    base = CharucoPlateDetector(tf).detect(img)
+    base = CharucoFieldDetector(tf).detect(img)
     ids, corners, printed = tf.markers()
     m = int(ids[printed][len(ids[printed]) // 2])
     x0, y0 = (corners[list(ids).index(m)].min(axis=0) * 1000).astype(int) + pad
     patch = img[y0 - 10:y0 + 70, x0 - 10:x0 + 70].copy()
     img[5:85, 5:85] = patch  # a second copy of marker m in the white margin
-    det = CharucoPlateDetector(tf).detect(img)
+    det = CharucoFieldDetector(tf).detect(img)
     assert det.stats["rejected_duplicate_marker"] == 2
     lost = set(base.ids) - set(det.ids)
     assert lost and set(det.ids) < set(base.ids)
@@ -130,15 +130,15 @@ def test_duplicated_markers_are_rejected():
 def test_border_and_homography_rejections():
     tf = TargetField(diameter_m=0.9, square_m=0.08, marker_m=0.06)
     img, pad = _printed(tf)
-    full = CharucoPlateDetector(tf).detect(img)
+    full = CharucoFieldDetector(tf).detect(img)
     cut = img[:, : img.shape[1] // 2 + 20]  # cuts through a column of squares
-    det = CharucoPlateDetector(tf).detect(cut)
+    det = CharucoFieldDetector(tf).detect(cut)
     assert 0 < len(det.ids) < len(full.ids)
     assert det.xy[:, 0].max() < cut.shape[1] - 4
     ref = dict(zip(full.ids, full.xy))
     assert max(np.abs(ref[i] - p).max() for i, p in zip(det.ids, det.xy)) < 0.05
     # a corner moved by 5 px (tolerance 0.04 square = 3.2 px) is caught by its neighbours' homography, the others are not
-    d = CharucoPlateDetector(tf)
+    d = CharucoFieldDetector(tf)
     cids = np.array(sorted(d.target_of_corner))
     k2 = {v: k for k, v in d.target_of_corner.items()}
     xy = np.array([ref[d.target_of_corner[k]] for k in cids])

@@ -7,7 +7,7 @@ from dgcal.calib.dg.accuracy import asprs_2023, check_points_dg, error_stats, im
 from dgcal.calib.mounting.methods import calibrate_mounting
 from dgcal.calib.mounting.common import MountingResult, so3_log
 from dgcal.fields.crs import MapGrid
-from dgcal.fields.frames import R_cv_to_map_from_opk
+from dgcal.fields.frames import R_cam_to_map_from_opk
 from dgcal.sim.mounting import simulate_mounting
 
 
@@ -26,7 +26,7 @@ def test_dg_with_true_mounting_reproduces_true_eops(sim):
     eop, poses, frame = dg_eop(MapGrid(sim.crs), traj, mp.events, _truth_mount(sim))
     assert list(eop.image) == list(mp.eop_true.image)
     assert np.max(np.abs(eop.xyz - mp.eop_true.xyz)) < 2e-3
-    dR = R_cv_to_map_from_opk(*eop.opk.T) @ np.swapaxes(R_cv_to_map_from_opk(*mp.eop_true.opk.T), -1, -2)
+    dR = R_cam_to_map_from_opk(*eop.opk.T) @ np.swapaxes(R_cam_to_map_from_opk(*mp.eop_true.opk.T), -1, -2)
     assert np.degrees(np.max(np.linalg.norm(so3_log(dR), axis=1))) < 2e-3
 
 

@@ -53,17 +53,17 @@ def test_colmap_round_trip_and_reprojection(data, tmp_path):
     import json
     geo = json.loads((tmp_path / "colmap" / "georef.json").read_text())
     frame = BlockFrame(g, LocalENU(*geo["origin_lat_lon_h"]))
-    C_L, R_L = frame.eop_to_L(eop.xyz, eop.opk)
-    X_L = frame.map_to_L(sim.ground.xyz)
+    C_world, R_cam_to_world = frame.eop_to_world(eop.xyz, eop.opk)
+    X_world = frame.map_to_world(sim.ground.xyz)
     worst = 0.0
     n = 0
     for img in rec.images.values():
         k = [str(s) for s in eop.image].index(img.name)
-        Xc = (X_L - C_L[k]) @ R_L[k]
+        Xc = (X_world - C_world[k]) @ R_cam_to_world[k]
         ours = sim.camera.project(Xc)
         inside = (Xc[:, 2] > 0) & (ours[:, 0] > 0) & (ours[:, 0] < 5616) & (ours[:, 1] > 0) & (ours[:, 1] < 3744)
         for j in np.nonzero(inside)[0]:
-            theirs = img.project_point(X_L[j])
+            theirs = img.project_point(X_world[j])
             worst = max(worst, float(np.max(np.abs(np.asarray(theirs) - 0.5 - ours[j]))))
             n += 1
     assert n > 100 and worst < 1e-6

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dgcal.fields.errors import InputError
-from dgcal.fields.targets.printing import plate_texture, print_raster
+from dgcal.fields.targets.printing import field_texture, print_raster
 from dgcal.fields.io.formats import read_points
 from dgcal.fields.targets.plate import TargetField, load_layout, nonplanar_field, write_field
 
@@ -37,7 +37,7 @@ def test_ids_are_stable_for_the_same_board():
 
 def test_texture_matches_opencv_board_image():
     tf = TargetField(diameter_m=0.3, square_m=0.029, marker_m=0.021)  # 29 px squares, 3 px marker cells
-    grey, alpha = plate_texture(tf, 0.001)
+    grey, alpha = field_texture(tf, 0.001)
     ref = tf.board().generateImage((grey.shape[1], grey.shape[0]), marginSize=0, borderBits=1) / 255.0
     printed = np.kron(tf.square_printed(), np.ones((29, 29), bool))
     assert printed.sum() > 0.4 * printed.size

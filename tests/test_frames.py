@@ -24,10 +24,10 @@ def test_opk_round_trip_and_nadir_identity():
     opk = np.column_stack([rng.uniform(-30, 30, 50), rng.uniform(-30, 30, 50), rng.uniform(-179, 179, 50)])
     M = frames.R_photo_to_map_from_opk(*opk.T)
     np.testing.assert_allclose(frames.opk_from_R_photo_to_map(M), opk, atol=1e-9)
-    Rcv = frames.R_cv_to_map_from_opk(*opk.T)
-    np.testing.assert_allclose(frames.opk_from_R_cv_to_map(Rcv), opk, atol=1e-9)
+    Rcv = frames.R_cam_to_map_from_opk(*opk.T)
+    np.testing.assert_allclose(frames.opk_from_R_cam_to_map(Rcv), opk, atol=1e-9)
     # nadir image, top to north: CV z (view) points down, CV -y (image top) points north
-    R0 = frames.R_cv_to_map_from_opk(0, 0, 0)
+    R0 = frames.R_cam_to_map_from_opk(0, 0, 0)
     np.testing.assert_allclose(R0 @ [0, 0, 1], [0, 0, -1], atol=1e-12)
     np.testing.assert_allclose(R0 @ [0, -1, 0], [0, 1, 0], atol=1e-12)
     # M = Rx Ry Rz with the usual right-handed matrices

@@ -25,16 +25,16 @@ def _errors(res, sim):
 def test_block_frame_round_trips():
     frame = BlockFrame(MapGrid("EPSG:32651"), LocalENU(23.0, 120.3, 30.0))
     rng = np.random.default_rng(0)
-    p_L = rng.uniform(-3000, 3000, (20, 3))
+    p_world = rng.uniform(-3000, 3000, (20, 3))
     R = Rotation.random(20, random_state=1).as_matrix()
-    xyz, opk = frame.L_to_eop(p_L, R)
-    p2, R2 = frame.eop_to_L(xyz, opk)
-    assert np.max(np.abs(p2 - p_L)) < 1e-6
+    xyz, opk = frame.world_to_eop(p_world, R)
+    p2, R2 = frame.eop_to_world(xyz, opk)
+    assert np.max(np.abs(p2 - p_world)) < 1e-6
     assert np.max(np.abs(R2 - R)) < 1e-9
     v = rng.normal(0, 20, (20, 3))
-    lat, lon, h, v_ned, rph = frame.L_to_pos(p_L, v, R)
-    p3, v3, R3 = frame.pos_to_L(lat, lon, h, v_ned, rph)
-    assert np.max(np.abs(p3 - p_L)) < 1e-6 and np.max(np.abs(v3 - v)) < 1e-9 and np.max(np.abs(R3 - R)) < 1e-9
+    lat, lon, h, v_ned, rph = frame.world_to_pos(p_world, v, R)
+    p3, v3, R3 = frame.pos_to_world(lat, lon, h, v_ned, rph)
+    assert np.max(np.abs(p3 - p_world)) < 1e-6 and np.max(np.abs(v3 - v)) < 1e-9 and np.max(np.abs(R3 - R)) < 1e-9
 
 
 def test_block_frame_handles_convergence():
@@ -42,15 +42,15 @@ def test_block_frame_handles_convergence():
     north (convergence < 0), i.e. a clockwise kappa equal to the convergence."""
     grid = MapGrid("EPSG:32651")
     frame = BlockFrame(grid, LocalENU(23.0, 120.3, 30.0))
-    R_cv_to_enu = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # x east, y south (image down), z down
-    xyz, opk = frame.L_to_eop(np.zeros((1, 3)), R_cv_to_enu[None])
+    R_cam_to_enu = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # x east, y south (image down), z down
+    xyz, opk = frame.world_to_eop(np.zeros((1, 3)), R_cam_to_enu[None])
     conv = float(grid.convergence_deg(23.0, 120.3))
     assert abs(conv) > 0.9  # 2.7 deg west of 123 E
     assert np.allclose(opk[0, :2], 0, atol=1e-6)
     assert conv < 0 and abs(opk[0, 2] - conv) < 1e-6
     # and the sign: grid axes are true axes rotated by the convergence about Up
-    from dgcal.fields.frames import R_cv_to_map_from_opk, R_enu_to_grid
-    assert np.allclose(R_cv_to_map_from_opk(*opk[0]), R_enu_to_grid(conv) @ R_cv_to_enu, atol=1e-6)
+    from dgcal.fields.frames import R_cam_to_map_from_opk, R_enu_to_grid
+    assert np.allclose(R_cam_to_map_from_opk(*opk[0]), R_enu_to_grid(conv) @ R_cam_to_enu, atol=1e-6)
 
 
 def test_proposed_recovers_truth_within_tolerance_and_sigma(sim):
@@ -98,7 +98,7 @@ def test_events_at_trajectory_file_works(sim):
     """`--trajectory` may be the events.csv of `dgcal pos` (one row per event, no angular rate)."""
     c = sim.calibration
     frame, ep = prepare_epochs(c.eop, MapGrid(sim.crs), c.traj, c.events)
-    lat, lon, h, v_ned, rph = frame.L_to_pos(ep.pos.r_imu_L, ep.pos.v_L, ep.pos.R_body_to_L)
+    lat, lon, h, v_ned, rph = frame.world_to_pos(ep.pos.r_imu_world, ep.pos.v_world, ep.pos.R_body_to_world)
     ev_traj = Trajectory(ep.t_event, lat, lon, h, v_ned, rph, np.tile(c.traj.sigma[0], (len(lat), 1)),
                          image=ep.image)
     res = calibrate_mounting(c.eop, MapGrid(sim.crs), ev_traj, c.events, "proposed")

@@ -8,7 +8,7 @@ from dgcal.calib.selfcal.detection import detect_folder
 from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.io.formats import read_points
 from dgcal.fields.targets.plate import TargetField, nonplanar_field
-from dgcal.sim.camera_field import default_camera, plan_shots, plate_facets, truth_projections
+from dgcal.sim.camera_field import default_camera, plan_shots, field_facets, truth_projections
 from dgcal.sim.render import Facet, render
 
 
@@ -45,7 +45,7 @@ def test_shots_cover_the_whole_frame_including_corners():
     cam = default_camera((3000, 2000))
     tf = TargetField()
     shots = plan_shots(48, cam, tf, np.random.default_rng(0))
-    facets = plate_facets(tf, 0.004)
+    facets = field_facets(tf, 0.004)
     hits = np.zeros((4, 6), int)  # images with complete targets in each cell of a 6x4 grid over the frame
     tilts = set()
     for sh in shots:
@@ -65,8 +65,8 @@ def test_seed_makes_the_plan_reproducible():
     a = plan_shots(6, cam, tf, np.random.default_rng(7))
     b = plan_shots(6, cam, tf, np.random.default_rng(7))
     c = plan_shots(6, cam, tf, np.random.default_rng(8))
-    assert all(np.array_equal(x.R_plate_to_cam, y.R_plate_to_cam) for x, y in zip(a, b))
-    assert not np.allclose(a[0].t_plate_to_cam, c[0].t_plate_to_cam)
+    assert all(np.array_equal(x.R_field_to_cam, y.R_field_to_cam) for x, y in zip(a, b))
+    assert not np.allclose(a[0].t_field_to_cam, c[0].t_field_to_cam)
 
 
 def test_cli_writes_images_and_consistent_truth(tmp_path):
@@ -114,7 +114,7 @@ def test_nonplanar_plate_renders_blocks_and_hides_what_they_occlude(tmp_path):
     # the tilted views hide some plate targets behind the blocks (compare with the blocks' faces left out)
     cam = default_camera((1200, 800))
     shots = plan_shots(2, cam, tf, np.random.default_rng(11))
-    with_blocks, plate_only = plate_facets(tf, 0.004), plate_facets(TargetField(square_m=0.12, marker_m=0.09), 0.004)
+    with_blocks, plate_only = field_facets(tf, 0.004), field_facets(TargetField(square_m=0.12, marker_m=0.09), 0.004)
     hidden = sum(len(set(truth_projections(cam, tf, sh, plate_only)[0]) - set(truth_projections(cam, tf, sh, with_blocks)[0]))
                  for sh in shots)
     assert hidden > 0

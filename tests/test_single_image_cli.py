@@ -8,7 +8,7 @@ from dgcal.calib.dg.dem import Dem, write_geotiff_dem
 from dgcal.cli import main
 from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.io.formats import EOP, Measurements, write_eop, write_measurements
-from dgcal.fields.frames import R_cv_to_map_from_opk
+from dgcal.fields.frames import R_cam_to_map_from_opk
 
 CRS = "EPSG:32617"
 
@@ -26,7 +26,7 @@ def campaign(tmp_path):
         names.append(f"IMG_{k}.JPG")
         xyz.append(C)
         opk.append(a)
-        R = R_cv_to_map_from_opk(*a)
+        R = R_cam_to_map_from_opk(*a)
         for pid, X in P.items():
             uv = cam.project(((X - C) @ R)[None])[0]
             rows_img.append(names[-1])
@@ -70,7 +70,7 @@ def test_georef_ranges_and_errors(campaign, capsys):
     # level ground at 301.5 m: ranges along each optical axis
     lines = ["image,range_m"]
     for name, C, a in zip(eop.image, eop.xyz, eop.opk):
-        dz = R_cv_to_map_from_opk(*a)[:, 2]
+        dz = R_cam_to_map_from_opk(*a)[:, 2]
         lines.append(f"{name},{(301.5 - C[2]) / dz[2]:.4f}")
     (d / "ranges.csv").write_text("\n".join(lines) + "\n")
     assert main(["georef", "--camera", str(d / "camera.json"), "--measurements", str(d / "pix.csv"), "--crs", CRS,

@@ -134,7 +134,7 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
     img_idx = {k: j for j, k in enumerate(images)}
     ids_used = list(dict.fromkeys(str(k) for k in m.id))
     pt_idx = {k: j for j, k in enumerate(ids_used)}
-    res = intersect(camera, poses.r_cam_L, poses.R_cv_to_L, np.array([img_idx[str(k)] for k in m.image]),
+    res = intersect(camera, poses.C_world, poses.R_cam_to_world, np.array([img_idx[str(k)] for k in m.image]),
                     np.array([pt_idx[str(k)] for k in m.id]), m.xy, m.sigma, len(ids_used), min_rays)
     ok = res.ok
     warnings = []
@@ -142,10 +142,10 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
         warnings.append(f"{int((~ok).sum())} check points seen in fewer than {min_rays} images: "
                         + ", ".join(np.array(ids_used)[~ok][:10]))
     ids = np.array(ids_used, dtype=object)[ok]
-    X_L = res.xyz[ok]
-    xyz_dg = frame.L_to_map(X_L)
+    X_world = res.xyz[ok]
+    xyz_dg = frame.world_to_map(X_world)
     xyz_ref = pts.xyz[[pid[k] for k in ids]]
-    R_L_to_grid = T(frame.R_grid_to_L_at(xyz_dg))
+    R_world_to_grid = T(frame.R_grid_to_world_at(xyz_dg))
     # errors as differences of map coordinates (grid E, N, height)
     err = xyz_dg - xyz_ref
     # predicted covariances per source, rotated into grid axes
@@ -168,21 +168,21 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
         Cm = np.zeros((7, 7))
         Cm[np.ix_(idx, idx)] = cov_mount[np.ix_(idx, idx)]
         parts[name] = propagate_pose_covariance(res, None, poses.G_mount, Cm)[ok]
-    parts_grid = {k: R_L_to_grid @ v @ T(R_L_to_grid) for k, v in parts.items()}
+    parts_grid = {k: R_world_to_grid @ v @ T(R_world_to_grid) for k, v in parts.items()}
     # all sources together, with the mounting correlations
     total = res.cov[ok].copy()
     if poses.cov_pos is not None:
         total += propagate_pose_covariance(res, poses.cov_pos, pose_corr=corr)[ok]
     total += propagate_pose_covariance(res, None, poses.G_mount, cov_mount)[ok]
-    total_grid = R_L_to_grid @ total @ T(R_L_to_grid)
+    total_grid = R_world_to_grid @ total @ T(R_world_to_grid)
     stats = error_stats(err)
     pred = _rms_sigma(total_grid)
     budget = {"sources": {k: _rms_sigma(v) for k, v in parts_grid.items()}, "predicted_rms": pred,
               "achieved_rms": stats["rms"],
               "ratio_achieved_to_predicted": {k: stats["rms"][k] / pred[k] if pred[k] > 0 else None
                                               for k in ("E", "N", "U", "2D", "3D")},
-              "mean_flying_height_m": float(np.mean(poses.r_cam_L[:, 2] - X_L[:, 2].mean())),
-              "mean_speed_m_s": float(np.mean(np.linalg.norm(poses.pos.v_L, axis=1))),
+              "mean_flying_height_m": float(np.mean(poses.C_world[:, 2] - X_world[:, 2].mean())),
+              "mean_speed_m_s": float(np.mean(np.linalg.norm(poses.pos.v_world, axis=1))),
               "magnitudes": _magnitudes(traj, mount, m),
               "pos_correlation_time_s": float(tau) if tau else None,
               "pos_correlation_model": (f"exp(-|dt|/{float(tau):.0f} s) between images" if tau
@@ -214,6 +214,6 @@ def _pos_to_pose(poses, mount: MountingResult) -> np.ndarray:
     n = len(poses.image)
     G = np.zeros((n, 6, 6))
     G[:, :3, :3] = np.eye(3)
-    G[:, :3, 3:] = -poses.pos.R_body_to_L @ skew(mount.lever_arm_m)
+    G[:, :3, 3:] = -poses.pos.R_body_to_world @ skew(mount.lever_arm_m)
     G[:, 3:, 3:] = mount.R_cam_to_body.T
     return G

@@ -1,8 +1,8 @@
 """Direct georeferencing: events -> exposure times -> interpolated POS -> camera pose (block frame L and map CRS).
 
     t_exposure   = t_event + delay_s
-    r_cam_L      = r_imu_L(t_exposure) + R_body_to_L(t_exposure) l_b
-    R_cv_to_L    = R_body_to_L(t_exposure) R_cam_to_body
+    C_world      = r_imu_world(t_exposure) + R_body_to_world(t_exposure) l_b
+    R_cam_to_world    = R_body_to_world(t_exposure) R_cam_to_body
 Covariances: POS errors (per image, independent) and mounting errors (common to all images, returned as
 the sensitivity G = d pose / d [delay, lever arm, boresight angles] so correlations can be propagated).
 Pose errors are [centre (m, L), camera rotation (rad, right perturbation in the camera frame)].
@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dgcal.calib.mounting.common import (BlockFrame, MountingResult, PoseAt, T, numeric_rot_jacobian, pos_covariance_L,
+from dgcal.calib.mounting.common import (BlockFrame, MountingResult, PoseAt, T, numeric_rot_jacobian, pos_covariance_world,
                                    pose_at_times)
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, Events, Trajectory
-from dgcal.fields.frames import R_cv_to_map_from_opk, skew
+from dgcal.fields.frames import R_cam_to_map_from_opk, skew
 
 
 @dataclass
@@ -27,8 +27,8 @@ class DGPoses:
 
     image: np.ndarray
     t_exposure: np.ndarray
-    r_cam_L: np.ndarray
-    R_cv_to_L: np.ndarray
+    C_world: np.ndarray
+    R_cam_to_world: np.ndarray
     cov_pos: np.ndarray | None
     G_mount: np.ndarray
     cov_mount: np.ndarray
@@ -49,20 +49,20 @@ def dg_poses(frame: BlockFrame, traj: Trajectory, events: Events, mount: Mountin
         # events-at-trajectory file: propagate over the delay with the velocity (attitude held)
         tidx = {str(k): j for j, k in enumerate(traj.image)}
         tr = np.array([tidx[k] for k in names], int)
-        p, v, R = frame.pos_to_L(traj.lat[tr], traj.lon[tr], traj.h[tr], traj.v_ned[tr], traj.rph[tr])
+        p, v, R = frame.pos_to_world(traj.lat[tr], traj.lon[tr], traj.h[tr], traj.v_ned[tr], traj.rph[tr])
         p = p + v * (t_x - traj.t[tr])[:, None]
-        cov = None if traj.sigma is None else pos_covariance_L(frame, traj.lat[tr], traj.lon[tr], traj.h[tr],
+        cov = None if traj.sigma is None else pos_covariance_world(frame, traj.lat[tr], traj.lon[tr], traj.h[tr],
                                                                traj.rph[tr], traj.sigma[tr])
         pos = PoseAt(t_x, p, v, R, np.zeros((len(tr), 3)), cov)
     else:
         pos = pose_at_times(frame, traj, t_x, names)
     l_b, R_cb = mount.lever_arm_m, mount.R_cam_to_body
-    R_b = pos.R_body_to_L
-    r_cam = pos.r_imu_L + np.einsum("nij,j->ni", R_b, l_b)
+    R_b = pos.R_body_to_world
+    r_cam = pos.r_imu_world + np.einsum("nij,j->ni", R_b, l_b)
     R_cv = R_b @ R_cb
     n = len(rows)
     G = np.zeros((n, 6, 7))
-    G[:, :3, 0] = pos.v_L + np.einsum("nij,nj->ni", R_b, np.cross(pos.omega_b, l_b))
+    G[:, :3, 0] = pos.v_world + np.einsum("nij,nj->ni", R_b, np.cross(pos.omega_b, l_b))
     G[:, :3, 1:4] = R_b
     G[:, 3:, 0] = pos.omega_b @ R_cb  # R_cb^T omega_b
     G[:, 3:, 4:7] = R_cb.T
@@ -76,15 +76,15 @@ def dg_poses(frame: BlockFrame, traj: Trajectory, events: Events, mount: Mountin
     return DGPoses(np.array(names, dtype=object), t_x, r_cam, R_cv, cov_pos, G, mount.cov, pos)
 
 
-def pose_cov_to_map(frame: BlockFrame, xyz: np.ndarray, opk: np.ndarray, cov_L: np.ndarray) -> np.ndarray:
+def pose_cov_to_map(frame: BlockFrame, xyz: np.ndarray, opk: np.ndarray, cov_world: np.ndarray) -> np.ndarray:
     """(N,6,6) covariance of map [X, Y, Z (m), omega, phi, kappa (deg)] from [centre L, camera rotation rad]."""
-    Jr = numeric_rot_jacobian(lambda a: frame.R_grid_to_L_at(xyz) @ R_cv_to_map_from_opk(a[:, 0], a[:, 1], a[:, 2]),
-                               opk, frame.R_grid_to_L_at(xyz) @ R_cv_to_map_from_opk(opk[:, 0], opk[:, 1], opk[:, 2]),
+    Jr = numeric_rot_jacobian(lambda a: frame.R_grid_to_world_at(xyz) @ R_cam_to_map_from_opk(a[:, 0], a[:, 1], a[:, 2]),
+                               opk, frame.R_grid_to_world_at(xyz) @ R_cam_to_map_from_opk(opk[:, 0], opk[:, 1], opk[:, 2]),
                                1e-5)
     H = np.zeros((len(xyz), 6, 6))
-    H[:, :3, :3] = T(frame.R_grid_to_L_at(xyz))
+    H[:, :3, :3] = T(frame.R_grid_to_world_at(xyz))
     H[:, 3:, 3:] = np.linalg.inv(Jr)
-    return H @ cov_L @ T(H)
+    return H @ cov_world @ T(H)
 
 
 def dg_eop(grid: MapGrid, traj: Trajectory, events: Events, mount: MountingResult,
@@ -93,11 +93,11 @@ def dg_eop(grid: MapGrid, traj: Trajectory, events: Events, mount: MountingResul
     if frame is None:
         frame = BlockFrame(grid, _first_local(traj))  # any level frame near the block works
     poses = dg_poses(frame, traj, events, mount, images)
-    xyz, opk = frame.L_to_eop(poses.r_cam_L, poses.R_cv_to_L)
-    cov_L = np.einsum("nij,jk,nlk->nil", poses.G_mount, poses.cov_mount, poses.G_mount)
+    xyz, opk = frame.world_to_eop(poses.C_world, poses.R_cam_to_world)
+    cov_world = np.einsum("nij,jk,nlk->nil", poses.G_mount, poses.cov_mount, poses.G_mount)
     if poses.cov_pos is not None:
-        cov_L = cov_L + poses.cov_pos
-    cov = pose_cov_to_map(frame, xyz, opk, cov_L)
+        cov_world = cov_world + poses.cov_pos
+    cov = pose_cov_to_map(frame, xyz, opk, cov_world)
     sigma = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
     return EOP(poses.image, xyz, opk, sigma, cov), poses, frame
 

@@ -6,7 +6,7 @@ any local Cartesian frame with z up (ENU). Over the few hundred metres of one im
 Cartesian (the scale-factor and curvature effects are millimetres at 100 m height).
 
 Camera: a calibrated `dgcal.calib.camera.models.CameraModel`; `ray(uv)` gives the collinearity ray in the CV camera
-frame, rotated into the world by `R_cv_to_w` from the centre `C_w`:  X = C_w + s R_cv_to_w d(u, v).
+frame, rotated into the world by `R_cam_to_world` from the centre `C_w`:  X = C_w + s R_cam_to_world d(u, v).
 Height sources:
 - a known ground height h:  s = (h - C_z) / d_z  (seed eq. 25 for the image centre);
 - a DEM (`dgcal.calib.dg.dem.Dem`): Newton iteration on f(s) = C_z + s d_z - H(C_xy + s d_xy) with the DEM slope;
@@ -58,7 +58,7 @@ def log_so3(R: np.ndarray) -> np.ndarray:
 
 def camera_pose_from_body(C_imu_w: np.ndarray, R_body_to_w: np.ndarray, lever_arm_b: np.ndarray,
                           R_cam_to_body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera centre (m, world) and R_cv_to_w from the IMU position/attitude and the mounting."""
+    """Camera centre (m, world) and R_cam_to_world from the IMU position/attitude and the mounting."""
     R_body_to_w = np.asarray(R_body_to_w, float)
     C = np.asarray(C_imu_w, float) + R_body_to_w @ np.asarray(lever_arm_b, float)
     return C, R_body_to_w @ np.asarray(R_cam_to_body, float)
@@ -74,7 +74,7 @@ def pose_covariance_from_rph(rph_deg, cov_rph_deg2, cov_pos_w, R_cam_to_body: np
                              R_enu_to_w: np.ndarray | None = None) -> np.ndarray:
     """6x6 pose covariance [centre m, camera-frame rotation rad] from the covariance of roll/pitch/heading
     (3x3 deg^2, or (3,) sigmas in deg) and of the world position (3x3 m^2, or (3,) sigmas in m), by
-    differentiating R_cv_to_w with respect to the angles."""
+    differentiating R_cam_to_world with respect to the angles."""
     rph = np.asarray(rph_deg, float)
     Ca = np.asarray(cov_rph_deg2, float)
     Ca = np.diag(Ca ** 2) if Ca.ndim == 1 else Ca
@@ -100,7 +100,8 @@ def _intersect_height(C: np.ndarray, d: np.ndarray, h) -> tuple[np.ndarray, np.n
     return C + s[:, None] * d, s > 0
 
 
-def _intersect_dem(C: np.ndarray, d: np.ndarray, dem, dh: float, max_iter: int, tol: float):
+def intersect_dem(C: np.ndarray, d: np.ndarray, dem, dh: float, max_iter: int, tol: float):
+    """Ground points (N,3) of rays from C (3,) along d (N,3) on a DEM raised by dh (m), by Newton along each ray; and ok (N,)."""
     # start on the level surface through the DEM height below the camera (or the DEM mean)
     h0 = dem.height(C[0], C[1])
     h0 = float(np.nanmean(dem.heights)) if not np.isfinite(h0) else float(h0)
@@ -133,7 +134,7 @@ def _solve(camera, uv: np.ndarray, C: np.ndarray, R: np.ndarray, source: str, va
         return _intersect_height(C, d, value)
     if source == "dem":
         dem, dh = value
-        return _intersect_dem(C, d, dem, dh, max_iter, tol)
+        return intersect_dem(C, d, dem, dh, max_iter, tol)
     if source == "range":
         dl = R @ (np.asarray(laser_dir_cam, float) / np.linalg.norm(laser_dir_cam))
         h_c = C[2] + float(value) * dl[2]
@@ -141,7 +142,7 @@ def _solve(camera, uv: np.ndarray, C: np.ndarray, R: np.ndarray, source: str, va
     raise ValueError(f"unknown height source {source!r}")
 
 
-def georeference(camera, uv, C_w, R_cv_to_w, *, height=None, dem=None, range_m=None,
+def georeference(camera, uv, C_w, R_cam_to_world, *, height=None, dem=None, range_m=None,
                  laser_dir_cam=(0.0, 0.0, 1.0), pose_cov: np.ndarray | None = None, sigma_px: float = 0.5,
                  sigma_height: float = 0.0, sigma_range: float = 0.0) -> GroundEstimate:
     """Ground points (world) of pixels `uv` (N,2) in one image, with covariance from the pose covariance
@@ -154,7 +155,7 @@ def georeference(camera, uv, C_w, R_cv_to_w, *, height=None, dem=None, range_m=N
         raise ValueError("give exactly one of height, dem or range_m")
     uv = np.atleast_2d(np.asarray(uv, float))
     C0 = np.asarray(C_w, float).ravel()
-    R0 = np.asarray(R_cv_to_w, float)
+    R0 = np.asarray(R_cam_to_world, float)
     if height is not None:
         source, val, s_val, method = "height", np.broadcast_to(np.asarray(height, float), (len(uv),)), \
             sigma_height, "known height"
@@ -233,18 +234,18 @@ def average_estimates(xy: np.ndarray, cov: np.ndarray, common_cov: np.ndarray | 
 
 def pose_covariance_from_opk(opk_deg, cov_eop: np.ndarray) -> np.ndarray:
     """6x6 pose covariance [centre m, camera-frame rotation rad] from an EOP covariance [X, Y, Z (m),
-    omega, phi, kappa (deg)] (6x6, or (6,) sigmas), PATB angles (`dgcal.fields.frames.R_cv_to_map_from_opk`)."""
-    from dgcal.fields.frames import R_cv_to_map_from_opk
+    omega, phi, kappa (deg)] (6x6, or (6,) sigmas), PATB angles (`dgcal.fields.frames.R_cam_to_map_from_opk`)."""
+    from dgcal.fields.frames import R_cam_to_map_from_opk
     C = np.asarray(cov_eop, float)
     C = np.diag(C ** 2) if C.ndim == 1 else C
     opk = np.asarray(opk_deg, float)
-    R0 = R_cv_to_map_from_opk(*opk)
+    R0 = R_cam_to_map_from_opk(*opk)
     J = np.empty((3, 3))
     eps = 1e-6
     for i in range(3):
         d = np.zeros(3)
         d[i] = eps
-        J[:, i] = log_so3(R0.T @ R_cv_to_map_from_opk(*(opk + d))) / eps
+        J[:, i] = log_so3(R0.T @ R_cam_to_map_from_opk(*(opk + d))) / eps
     H = np.zeros((6, 6))
     H[:3, :3] = np.eye(3)
     H[3:, 3:] = J
@@ -271,7 +272,7 @@ def georeference_images(camera, meas, eop, *, height: float | None = None, dem=N
     id the covariance-weighted average over its images. Height source: `height` (m), `dem` or `ranges`
     (image -> (range m, sigma m or NaN)). Measurement sigmas (sx, sy) override `sigma_px`."""
     from dgcal.fields.errors import InputError
-    from dgcal.fields.frames import R_cv_to_map_from_opk
+    from dgcal.fields.frames import R_cam_to_map_from_opk
     idx = {str(k): j for j, k in enumerate(eop.image)}
     rows_img, rows_id, X, Cv, OK = [], [], [], [], []
     for img in dict.fromkeys(str(x) for x in meas.image):
@@ -280,7 +281,7 @@ def georeference_images(camera, meas, eop, *, height: float | None = None, dem=N
         j = idx[img]
         sel = np.flatnonzero(meas.image.astype(str) == img)
         C = eop.xyz[j]
-        R = R_cv_to_map_from_opk(*eop.opk[j])
+        R = R_cam_to_map_from_opk(*eop.opk[j])
         if eop.cov is not None:
             P = pose_covariance_from_opk(eop.opk[j], eop.cov[j])
         elif eop.sigma is not None and np.all(np.isfinite(eop.sigma[j])):

@@ -8,7 +8,7 @@ Frames (docs/conventions.md, docs/mounting.md):
 - map: the EOP CRS; EOP angles are PATB relative to grid-level axes (grid E, grid N, Up) at the projection centre.
 - body: IMU FRD; camera: CV (x right, y down, z forward).
 Rotation errors are right perturbations: `R_obs = R_true Exp(delta)` with `delta` in the rotated frame's source
-axes (camera frame for `R_cv_to_L`, body frame for `R_body_to_L`).
+axes (camera frame for `R_cam_to_world`, body frame for `R_body_to_world`).
 """
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ from scipy.spatial.transform import Rotation
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, Events, Trajectory
-from dgcal.fields.frames import (R_NED_TO_ENU, R_ENU_TO_NED, R_body_to_ned_from_rph, R_cv_to_map_from_opk,
-                           opk_from_R_cv_to_map, rph_from_R_body_to_ned)
+from dgcal.fields.frames import (R_NED_TO_ENU, R_ENU_TO_NED, R_body_to_ned_from_rph, R_cam_to_map_from_opk,
+                           opk_from_R_cam_to_map, rph_from_R_body_to_ned)
 
 
 # --- SO(3) -------------------------------------------------------------------------------------
@@ -61,7 +61,7 @@ class BlockFrame:
         return cls(grid, grid.local_frame(np.mean(np.asarray(xyz_map, float).reshape(-1, 3), axis=0)))
 
     # map <-> L
-    def R_grid_to_L_at(self, xyz_map: np.ndarray) -> np.ndarray:
+    def R_grid_to_world_at(self, xyz_map: np.ndarray) -> np.ndarray:
         """Rotation from grid-level axes at map points to L (convergence, then curvature); (N,3,3)."""
         xyz = np.atleast_2d(np.asarray(xyz_map, float))
         geo = self.grid.to_geodetic(xyz)
@@ -70,44 +70,44 @@ class BlockFrame:
         R_enu_to_grid = Rotation.from_euler("z", conv, degrees=True).as_matrix().reshape(-1, 3, 3)
         return self.local.R_enu_here_to_local(geo[:, 0], geo[:, 1]) @ T(R_enu_to_grid)
 
-    def map_to_L(self, xyz_map: np.ndarray) -> np.ndarray:
+    def map_to_world(self, xyz_map: np.ndarray) -> np.ndarray:
         """L coordinates (m) of map points."""
         return self.local.from_ecef(self.grid.to_ecef(np.atleast_2d(np.asarray(xyz_map, float))))
 
-    def L_to_map(self, p_L: np.ndarray) -> np.ndarray:
+    def world_to_map(self, p_world: np.ndarray) -> np.ndarray:
         """Map coordinates of L points (m)."""
-        return self.grid.from_ecef(self.local.to_ecef(np.atleast_2d(np.asarray(p_L, float))))
+        return self.grid.from_ecef(self.local.to_ecef(np.atleast_2d(np.asarray(p_world, float))))
 
-    def eop_to_L(self, xyz_map: np.ndarray, opk_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Projection centres in L (N,3) and `R_cv_to_L` (N,3,3) from map EOPs (PATB degrees)."""
+    def eop_to_world(self, xyz_map: np.ndarray, opk_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Projection centres in L (N,3) and `R_cam_to_world` (N,3,3) from map EOPs (PATB degrees)."""
         xyz = np.atleast_2d(np.asarray(xyz_map, float))
         opk = np.atleast_2d(np.asarray(opk_deg, float))
-        R_cv_to_grid = R_cv_to_map_from_opk(opk[:, 0], opk[:, 1], opk[:, 2])
-        return self.map_to_L(xyz), self.R_grid_to_L_at(xyz) @ R_cv_to_grid
+        R_cam_to_grid = R_cam_to_map_from_opk(opk[:, 0], opk[:, 1], opk[:, 2])
+        return self.map_to_world(xyz), self.R_grid_to_world_at(xyz) @ R_cam_to_grid
 
-    def L_to_eop(self, p_L: np.ndarray, R_cv_to_L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def world_to_eop(self, p_world: np.ndarray, R_cam_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Map projection centres (N,3) and PATB omega/phi/kappa (N,3) degrees from L poses."""
-        xyz = self.L_to_map(p_L)
-        R_cv_to_grid = T(self.R_grid_to_L_at(xyz)) @ np.asarray(R_cv_to_L, float).reshape(-1, 3, 3)
-        return xyz, opk_from_R_cv_to_map(R_cv_to_grid)
+        xyz = self.world_to_map(p_world)
+        R_cam_to_grid = T(self.R_grid_to_world_at(xyz)) @ np.asarray(R_cam_to_world, float).reshape(-1, 3, 3)
+        return xyz, opk_from_R_cam_to_map(R_cam_to_grid)
 
     # geodetic POS <-> L
-    def pos_to_L(self, lat, lon, h, v_ned, rph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """IMU position in L (N,3), velocity in L (N,3) and `R_body_to_L` (N,3,3) from geodetic POS samples."""
+    def pos_to_world(self, lat, lon, h, v_ned, rph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """IMU position in L (N,3), velocity in L (N,3) and `R_body_to_world` (N,3,3) from geodetic POS samples."""
         lat, lon, h = (np.atleast_1d(np.asarray(a, float)) for a in (lat, lon, h))
-        R_here_to_L = self.local.R_enu_here_to_local(lat, lon).reshape(-1, 3, 3)
+        R_here_to_world = self.local.R_enu_here_to_local(lat, lon).reshape(-1, 3, 3)
         rph = np.atleast_2d(np.asarray(rph, float))
         R_body_to_ned = R_body_to_ned_from_rph(rph[:, 0], rph[:, 1], rph[:, 2]).reshape(-1, 3, 3)
-        R_body_to_L = R_here_to_L @ R_NED_TO_ENU @ R_body_to_ned
-        v_L = np.einsum("nij,nj->ni", R_here_to_L, np.atleast_2d(np.asarray(v_ned, float)) @ R_NED_TO_ENU.T)
-        return self.local.from_geodetic(lat, lon, h).reshape(-1, 3), v_L, R_body_to_L
+        R_body_to_world = R_here_to_world @ R_NED_TO_ENU @ R_body_to_ned
+        v_world = np.einsum("nij,nj->ni", R_here_to_world, np.atleast_2d(np.asarray(v_ned, float)) @ R_NED_TO_ENU.T)
+        return self.local.from_geodetic(lat, lon, h).reshape(-1, 3), v_world, R_body_to_world
 
-    def L_to_pos(self, p_L, v_L, R_body_to_L) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """lat, lon (deg), h (m), v_ned (N,3), rph (N,3) deg from L samples (inverse of `pos_to_L`)."""
-        geo = self.local.to_geodetic(np.atleast_2d(np.asarray(p_L, float)))
-        R_L_to_here = T(self.local.R_enu_here_to_local(geo[:, 0], geo[:, 1]).reshape(-1, 3, 3))
-        R_body_to_ned = R_ENU_TO_NED @ R_L_to_here @ np.asarray(R_body_to_L, float).reshape(-1, 3, 3)
-        v_ned = np.einsum("nij,nj->ni", R_L_to_here, np.atleast_2d(np.asarray(v_L, float))) @ R_ENU_TO_NED.T
+    def world_to_pos(self, p_world, v_world, R_body_to_world) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """lat, lon (deg), h (m), v_ned (N,3), rph (N,3) deg from L samples (inverse of `pos_to_world`)."""
+        geo = self.local.to_geodetic(np.atleast_2d(np.asarray(p_world, float)))
+        R_world_to_here = T(self.local.R_enu_here_to_local(geo[:, 0], geo[:, 1]).reshape(-1, 3, 3))
+        R_body_to_ned = R_ENU_TO_NED @ R_world_to_here @ np.asarray(R_body_to_world, float).reshape(-1, 3, 3)
+        v_ned = np.einsum("nij,nj->ni", R_world_to_here, np.atleast_2d(np.asarray(v_world, float))) @ R_ENU_TO_NED.T
         return geo[:, 0], geo[:, 1], geo[:, 2], v_ned, rph_from_R_body_to_ned(R_body_to_ned)
 
 
@@ -122,7 +122,7 @@ def numeric_rot_jacobian(fun, x0: np.ndarray, R0: np.ndarray, step: float = 1e-6
     return J
 
 
-def eop_covariance_L(frame: BlockFrame, eop: EOP, rows: np.ndarray) -> np.ndarray | None:
+def eop_covariance_world(frame: BlockFrame, eop: EOP, rows: np.ndarray) -> np.ndarray | None:
     """(N,6,6) covariance of [position in L (m), camera-frame rotation error (rad)] of EOP rows, or None."""
     if eop.cov is None and eop.sigma is None:
         return None
@@ -132,26 +132,26 @@ def eop_covariance_L(frame: BlockFrame, eop: EOP, rows: np.ndarray) -> np.ndarra
     else:
         C_map = np.zeros((len(rows), 6, 6))
         C_map[:, np.arange(6), np.arange(6)] = eop.sigma[rows] ** 2
-    _, R0 = frame.eop_to_L(xyz, opk)
+    _, R0 = frame.eop_to_world(xyz, opk)
     # d(rotation error, rad)/d(omega, phi, kappa, deg): the angle covariance is in deg^2
-    Jr = numeric_rot_jacobian(lambda a: frame.eop_to_L(xyz, a)[1], opk, R0, 1e-5)
+    Jr = numeric_rot_jacobian(lambda a: frame.eop_to_world(xyz, a)[1], opk, R0, 1e-5)
     G = np.zeros((len(rows), 6, 6))
-    G[:, :3, :3] = frame.R_grid_to_L_at(xyz)
+    G[:, :3, :3] = frame.R_grid_to_world_at(xyz)
     G[:, 3:, 3:] = Jr
     return G @ C_map @ T(G)
 
 
-def pos_covariance_L(frame: BlockFrame, lat, lon, h, rph, sigma: np.ndarray) -> np.ndarray:
+def pos_covariance_world(frame: BlockFrame, lat, lon, h, rph, sigma: np.ndarray) -> np.ndarray:
     """(N,6,6) covariance of [IMU position in L (m), body-frame rotation error (rad)] from POS sigmas.
 
     `sigma` (N,6): s_lat_m (north), s_lon_m (east), s_h_m (m), s_roll, s_pitch, s_heading (deg)."""
     lat, lon, h = (np.atleast_1d(np.asarray(a, float)) for a in (lat, lon, h))
     rph = np.atleast_2d(np.asarray(rph, float))
-    R_here_to_L = frame.local.R_enu_here_to_local(lat, lon).reshape(-1, 3, 3)
+    R_here_to_world = frame.local.R_enu_here_to_local(lat, lon).reshape(-1, 3, 3)
     C = np.zeros((len(lat), 6, 6))
     C_enu = np.zeros((len(lat), 3, 3))
     C_enu[:, 0, 0], C_enu[:, 1, 1], C_enu[:, 2, 2] = sigma[:, 1] ** 2, sigma[:, 0] ** 2, sigma[:, 2] ** 2
-    C[:, :3, :3] = R_here_to_L @ C_enu @ T(R_here_to_L)
+    C[:, :3, :3] = R_here_to_world @ C_enu @ T(R_here_to_world)
 
     def R_of(a):
         return R_body_to_ned_from_rph(a[:, 0], a[:, 1], a[:, 2]).reshape(-1, 3, 3)
@@ -170,9 +170,9 @@ class PoseAt:
     covariance (N,6,6) of [position, body rotation error] or None."""
 
     t: np.ndarray
-    r_imu_L: np.ndarray
-    v_L: np.ndarray
-    R_body_to_L: np.ndarray
+    r_imu_world: np.ndarray
+    v_world: np.ndarray
+    R_body_to_world: np.ndarray
     omega_b: np.ndarray
     cov: np.ndarray | None = None
     geo: np.ndarray | None = None  # lat, lon, h
@@ -185,9 +185,9 @@ def pose_at_times(frame: BlockFrame, traj: Trajectory, t_query: np.ndarray, name
     rate, variance-linear sigmas), expressed in L."""
     from dgcal.pos.ins.interpolate import interpolate_trajectory
     st = interpolate_trajectory(traj, np.asarray(t_query, float), names, max_gap_s=max_gap_s)
-    r, v, R = frame.pos_to_L(st.lat, st.lon, st.h, st.v_ned, st.rph)
-    cov = None if st.sigma is None else pos_covariance_L(frame, st.lat, st.lon, st.h, st.rph, st.sigma)
-    # omega_eb_b: body rate relative to the earth in body axes, the rate of R_body_to_L (L is earth-fixed)
+    r, v, R = frame.pos_to_world(st.lat, st.lon, st.h, st.v_ned, st.rph)
+    cov = None if st.sigma is None else pos_covariance_world(frame, st.lat, st.lon, st.h, st.rph, st.sigma)
+    # omega_eb_b: body rate relative to the earth in body axes, the rate of R_body_to_world (L is earth-fixed)
     return PoseAt(st.t, r, v, R, np.asarray(st.omega_eb_b, float), cov, np.column_stack([st.lat, st.lon, st.h]),
                   st.rph)
 
@@ -198,12 +198,12 @@ def pose_at_events(frame: BlockFrame, traj: Trajectory, images: np.ndarray, t_ev
         return pose_at_times(frame, traj, t_event, images)
     idx = {str(k): j for j, k in enumerate(traj.image)}
     rows = np.array([idx[str(im)] for im in images], int)
-    p_L, v_L, R_bL = frame.pos_to_L(traj.lat[rows], traj.lon[rows], traj.h[rows], traj.v_ned[rows], traj.rph[rows])
+    p_world, v_world, R_bL = frame.pos_to_world(traj.lat[rows], traj.lon[rows], traj.h[rows], traj.v_ned[rows], traj.rph[rows])
     cov = None
     if traj.sigma is not None:
-        cov = pos_covariance_L(frame, traj.lat[rows], traj.lon[rows], traj.h[rows], traj.rph[rows], traj.sigma[rows])
+        cov = pos_covariance_world(frame, traj.lat[rows], traj.lon[rows], traj.h[rows], traj.rph[rows], traj.sigma[rows])
     geo = np.column_stack([traj.lat[rows], traj.lon[rows], traj.h[rows]])
-    return PoseAt(traj.t[rows], p_L, v_L, R_bL, np.zeros((len(rows), 3)), cov, geo, traj.rph[rows])
+    return PoseAt(traj.t[rows], p_world, v_world, R_bL, np.zeros((len(rows), 3)), cov, geo, traj.rph[rows])
 
 
 # --- epochs -------------------------------------------------------------------------------------
@@ -213,8 +213,8 @@ class Epochs:
 
     image: np.ndarray
     t_event: np.ndarray
-    r_cam_L: np.ndarray
-    R_cv_to_L: np.ndarray
+    C_world: np.ndarray
+    R_cam_to_world: np.ndarray
     cov_eop: np.ndarray | None
     pos: PoseAt
     has_rate: bool
@@ -235,16 +235,16 @@ class Epochs:
     def at_delay(self, dt: float) -> "Epochs":
         """The epochs with the POS re-interpolated at t_event + dt (s)."""
         pos = pose_at_times(self.frame, self.traj, self.t_event + dt, self.image)
-        return Epochs(self.image, self.t_event, self.r_cam_L, self.R_cv_to_L, self.cov_eop, pos, self.has_rate,
+        return Epochs(self.image, self.t_event, self.C_world, self.R_cam_to_world, self.cov_eop, pos, self.has_rate,
                       list(self.warnings), dict(self.skipped), float(dt), self.frame, self.traj)
 
     def subset(self, mask: np.ndarray) -> "Epochs":
         """Epochs where `mask` is true."""
         p = self.pos
-        pos = PoseAt(p.t[mask], p.r_imu_L[mask], p.v_L[mask], p.R_body_to_L[mask], p.omega_b[mask],
+        pos = PoseAt(p.t[mask], p.r_imu_world[mask], p.v_world[mask], p.R_body_to_world[mask], p.omega_b[mask],
                      None if p.cov is None else p.cov[mask], None if p.geo is None else p.geo[mask],
                      None if p.rph is None else p.rph[mask])
-        return Epochs(self.image[mask], self.t_event[mask], self.r_cam_L[mask], self.R_cv_to_L[mask],
+        return Epochs(self.image[mask], self.t_event[mask], self.C_world[mask], self.R_cam_to_world[mask],
                       None if self.cov_eop is None else self.cov_eop[mask], pos, self.has_rate,
                       list(self.warnings), dict(self.skipped), self.dt_ref, self.frame, self.traj)
 
@@ -281,13 +281,13 @@ def match_images(eop: EOP, events: Events, traj: Trajectory) -> tuple[np.ndarray
 def build_epochs(frame: BlockFrame, eop: EOP, events: Events, traj: Trajectory) -> Epochs:
     """Match EOPs, events and POS by image name and express all of them in the block frame L."""
     r_eop, r_ev, warnings, skipped = match_images(eop, events, traj)
-    r_cam_L, R_cv_to_L = frame.eop_to_L(eop.xyz[r_eop], eop.opk[r_eop])
+    C_world, R_cam_to_world = frame.eop_to_world(eop.xyz[r_eop], eop.opk[r_eop])
     images = eop.image[r_eop]
     pos = pose_at_events(frame, traj, images, events.t[r_ev])
     has_rate = traj.image is None
     if not has_rate:
         warnings.append("trajectory has one row per event: no angular rate, attitude is held fixed over the delay")
-    return Epochs(images, events.t[r_ev], r_cam_L, R_cv_to_L, eop_covariance_L(frame, eop, r_eop), pos,
+    return Epochs(images, events.t[r_ev], C_world, R_cam_to_world, eop_covariance_world(frame, eop, r_eop), pos,
                   has_rate, warnings, skipped, 0.0, frame, traj)
 
 

@@ -2,14 +2,14 @@
 observations, estimating the lever arm, boresight and exposure delay in the same adjustment.
 
 Unknowns (block frame L): per image the projection centre C_i and a rotation correction d_i
-(R_cv_to_L,i = R0_i Exp(d_i)), the ground points (control points weighted by their sigmas, all others free
+(R_cam_to_world,i = R0_i Exp(d_i)), the ground points (control points weighted by their sigmas, all others free
 tie points; points with role `check` are never control), and the mounting x = [dt, l_b, theta_b].
 Observations:
 - image measurements (px, collinearity with the camera model, weighted by the pixel sigmas); selected
   intrinsics (`refine_intrinsics`) may be estimated too;
 - control point coordinates (m);
 - POS at every event, propagated over the delay as in the `proposed` method:
-    C_i = r_imu,i + v_i dt + R_b,i Exp(omega_i dt) l_b,   R_cv_to_L,i = R_b,i Exp(omega_i dt) Exp(theta_b) R_hat,
+    C_i = r_imu,i + v_i dt + R_b,i Exp(omega_i dt) l_b,   R_cam_to_world,i = R_b,i Exp(omega_i dt) Exp(theta_b) R_hat,
   weighted by the POS covariance (position and attitude).
 Solved with scipy `least_squares` (trust region, sparse finite-difference Jacobian grouped by its sparsity);
 the covariance of the mounting comes from the full normal matrix, scaled by max(1, sigma0^2), plus
@@ -29,7 +29,7 @@ from scipy.sparse import csr_matrix, lil_matrix
 from dgcal.bundle.intersection import intersect
 from dgcal.calib.mounting.common import BlockFrame, MountingResult, T, build_epochs, so3_exp, so3_log
 from dgcal.calib.mounting.observability import observability_warnings
-from dgcal.calib.mounting.joint import DEFAULT_POS_SIGMA, _default_cov, calibrate_proposed
+from dgcal.calib.mounting.joint import DEFAULT_POS_SIGMA, default_cov, calibrate_proposed
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, Events, Measurements, Points, Trajectory
@@ -74,25 +74,25 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
         raise InputError(f"ISO needs at least 3 measured control points, found {int(ctrl.sum())}", gcp.path,
                          field="role")
     ctrl_rows = np.array([gid[k] for k in np.array(pt_names)[ctrl]], int)
-    X_ctrl = frame.map_to_L(gcp.xyz[ctrl_rows])
+    X_ctrl = frame.map_to_world(gcp.xyz[ctrl_rows])
     s_ctrl = np.where(np.isfinite(gcp.sigma[ctrl_rows]), gcp.sigma[ctrl_rows], DEFAULT_GCP_SIGMA)
     M, K = len(img_names), len(pt_names)
     # initial points: control from the file, the others intersected from the initial poses
-    res0 = intersect(camera, ep.r_cam_L, ep.R_cv_to_L, obs_img, obs_pt, m.xy, sig_uv, K)
+    res0 = intersect(camera, ep.C_world, ep.R_cam_to_world, obs_img, obs_pt, m.xy, sig_uv, K)
     X0 = np.where(res0.ok[:, None], res0.xyz, 0.0)
     X0[ctrl] = X_ctrl
     lonely = ~res0.ok & ~ctrl
     if lonely.any():
         raise InputError(f"{int(lonely.sum())} points are seen in fewer than 2 images (e.g. {np.array(pt_names)[lonely][0]!r})",
                          meas.path, field="id")
-    R0 = ep.R_cv_to_L.copy()
+    R0 = ep.R_cam_to_world.copy()
     R_hat = init.R_cam_to_body.copy()
     pos = ep.pos
-    C_pos = pos.cov if pos.cov is not None else _default_cov(M, DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2
+    C_pos = pos.cov if pos.cov is not None else default_cov(M, DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2
                                                              + DEFAULT_POS_SIGMA[2:])
     # POS residual weights, from the POS covariance through the model at the initial mounting
     G = np.zeros((M, 6, 6))
-    R_b0 = pos.R_body_to_L @ so3_exp(pos.omega_b * init.delay_s)
+    R_b0 = pos.R_body_to_world @ so3_exp(pos.omega_b * init.delay_s)
     G[:, :3, :3] = -np.eye(3)
     G[:, :3, 3:] = R_b0 @ skew(init.lever_arm_m)
     G[:, 3:, 3:] = -R_hat.T
@@ -119,8 +119,8 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
         r_img = ((cam.project(Xc) - m.xy) / sig_uv).ravel()
         r_gcp = ((X[ctrl] - X_ctrl) / s_ctrl).ravel()
         dt, lever, theta = mt[0], mt[1:4], mt[4:7]
-        R_b = pos.R_body_to_L @ so3_exp(pos.omega_b * dt)
-        p = pos.r_imu_L + pos.v_L * dt + np.einsum("nij,j->ni", R_b, lever)
+        R_b = pos.R_body_to_world @ so3_exp(pos.omega_b * dt)
+        p = pos.r_imu_world + pos.v_world * dt + np.einsum("nij,j->ni", R_b, lever)
         Rc = R_b @ (so3_exp(theta) @ R_hat)
         e = np.column_stack([C - p, so3_log(T(Rc) @ R)])
         r_pos = np.einsum("nij,nj->ni", W_pos, e).ravel()
@@ -145,7 +145,7 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
         S[row:row + 6, 6 * i:6 * i + 6] = 1
         S[row:row + 6, i_mnt:i_mnt + len(free_m)] = 1
         row += 6
-    x0 = np.concatenate([np.column_stack([ep.r_cam_L, np.zeros((M, 3))]).ravel(), X0.ravel(),
+    x0 = np.concatenate([np.column_stack([ep.C_world, np.zeros((M, 3))]).ravel(), X0.ravel(),
                          np.r_[init.delay_s, init.lever_arm_m, 0, 0, 0][free_m], camera.params[i_intr]])
     sol = least_squares(fun, x0, jac_sparsity=S.tocsr(), method="trf", x_scale="jac", max_nfev=max_nfev,
                         xtol=1e-10, ftol=1e-10)
@@ -155,7 +155,7 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     R_final = so3_exp(mt[4:7]) @ R_hat
     # d(whitened POS residual)/d(POS error common to all epochs), at the solution: the POS observation enters
     # the residual as in `calibrate_proposed` (position in L, attitude about body axes)
-    R_bf = pos.R_body_to_L @ so3_exp(pos.omega_b * mt[0])
+    R_bf = pos.R_body_to_world @ so3_exp(pos.omega_b * mt[0])
     Gf = np.zeros((M, 6, 6))
     Gf[:, :3, :3] = -np.eye(3)
     Gf[:, :3, 3:] = R_bf @ skew(mt[1:4])
@@ -176,7 +176,7 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     rpx = fun(sol.x)[:2 * n_obs].reshape(-1, 2) * sig_uv
     # POS residuals at the solution (as `proposed`); the image list also tells `covariance_for_flight` which
     # photos are this flight's, whose POS errors already carry the common part
-    p_f = pos.r_imu_L + pos.v_L * mt[0] + np.einsum("nij,j->ni", R_bf, mt[1:4])
+    p_f = pos.r_imu_world + pos.v_world * mt[0] + np.einsum("nij,j->ni", R_bf, mt[1:4])
     e_f = np.column_stack([C - p_f, so3_log(T(R_bf @ R_final) @ (R0 @ so3_exp(d)))])
     per_epoch = {"image": img_names, "residual_position_m": e_f[:, :3].tolist(),
                  "residual_rotation_deg": np.degrees(e_f[:, 3:]).tolist()}
@@ -206,7 +206,7 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
         res.extra["intrinsics"] = {k: float(v) for k, v in zip(refine_intrinsics, sol.x[i_mnt + nf:])}
         res.extra["intrinsics_sigma"] = {k: float(v) for k, v in
                                          zip(refine_intrinsics, np.sqrt(np.diag(cov_glob)[nf:]))}
-    xyz_map, opk = frame.L_to_eop(C, R0 @ so3_exp(d))
+    xyz_map, opk = frame.world_to_eop(C, R0 @ so3_exp(d))
     res.extra["adjusted_eop"] = {"image": img_names, "xyz": xyz_map.tolist(), "opk_deg": opk.tolist()}
     return res
 

@@ -4,10 +4,10 @@ least-squares adjustment.
 Model per epoch i (block frame L; t_e = event time, dt = delay, POS propagated over the delay; with a full
 trajectory the POS is re-interpolated at t_e + dt between iterations, so the propagation only spans the last
 correction and the constant-rate approximation leaves no bias):
-    R_body_to_L(t_e + dt) = R_body_to_L,i Exp(omega_b,i dt)           (body angular rate from the POS)
-    r_imu_L(t_e + dt)     = r_imu_L,i + v_L,i dt                       (POS velocity)
-    r_cam_L,i   = r_imu_L(t_e + dt) + R_body_to_L(t_e + dt) l_b
-    R_cv_to_L,i = R_body_to_L(t_e + dt) R_cam_to_body
+    R_body_to_world(t_e + dt) = R_body_to_world,i Exp(omega_b,i dt)           (body angular rate from the POS)
+    r_imu_world(t_e + dt)     = r_imu_world,i + v_world,i dt                       (POS velocity)
+    C_world,i   = r_imu_world(t_e + dt) + R_body_to_world(t_e + dt) l_b
+    R_cam_to_world,i = R_body_to_world(t_e + dt) R_cam_to_body
 Boresight: a unit quaternion updated with a minimal 3-parameter multiplicative (left, body-axes) correction,
 R_cam_to_body = Exp(theta_b) R_hat, so no unit-norm constraint is needed; the quaternion is reported.
 Observations: the 3 position and 3 rotation residuals of each epoch, weighted by the full 6x6 covariance of
@@ -31,7 +31,8 @@ DEFAULT_EOP_SIGMA = (0.05, np.radians(0.01))        # m, rad when the EOP file h
 DEFAULT_POS_SIGMA = (0.10, np.radians(0.02), np.radians(0.05))  # m, roll/pitch rad, heading rad
 
 
-def _default_cov(n: int, sp: float, sa: tuple) -> np.ndarray:
+def default_cov(n: int, sp: float, sa: tuple) -> np.ndarray:
+    """(n,6,6) diagonal covariance: position sigma sp (m), rotation sigmas sa (3, rad)."""
     C = np.zeros((n, 6, 6))
     C[:, [0, 1, 2], [0, 1, 2]] = sp**2
     C[:, [3, 4, 5], [3, 4, 5]] = np.asarray(sa, float) ** 2
@@ -39,25 +40,25 @@ def _default_cov(n: int, sp: float, sa: tuple) -> np.ndarray:
 
 
 def predict(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Predicted camera positions (N,3), `R_cv_to_L` (N,3,3) and body rotations at exposure for parameters
+    """Predicted camera positions (N,3), `R_cam_to_world` (N,3,3) and body rotations at exposure for parameters
     x = [dt, l_b(3), theta_b(3)] around boresight R_hat."""
     dt, lever, theta = x[0], x[1:4], x[4:7]
     ddt = dt - ep.dt_ref  # the POS of `ep` is already at t_event + dt_ref
-    R_b = ep.pos.R_body_to_L @ so3_exp(ep.pos.omega_b * ddt)
-    p = ep.pos.r_imu_L + ep.pos.v_L * ddt + np.einsum("nij,j->ni", R_b, lever)
+    R_b = ep.pos.R_body_to_world @ so3_exp(ep.pos.omega_b * ddt)
+    p = ep.pos.r_imu_world + ep.pos.v_world * ddt + np.einsum("nij,j->ni", R_b, lever)
     return p, R_b @ (so3_exp(theta) @ R_hat), R_b
 
 
 def residuals(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
     """(N,6) residuals: position (m, L) and rotation Log(R_pred^T R_obs) (rad, camera frame)."""
     p, Rc, _ = predict(ep, x, R_hat)
-    return np.column_stack([ep.r_cam_L - p, so3_log(T(Rc) @ ep.R_cv_to_L)])
+    return np.column_stack([ep.C_world - p, so3_log(T(Rc) @ ep.R_cam_to_world)])
 
 
 def residual_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
     """(N,6,6) covariance of the residuals from EOP and POS covariances (defaults when not given)."""
     n = len(ep)
-    C_eop = ep.cov_eop if ep.cov_eop is not None else _default_cov(n, DEFAULT_EOP_SIGMA[0], (DEFAULT_EOP_SIGMA[1],) * 3)
+    C_eop = ep.cov_eop if ep.cov_eop is not None else default_cov(n, DEFAULT_EOP_SIGMA[0], (DEFAULT_EOP_SIGMA[1],) * 3)
     C_pos = _pos_cov(ep)
     G = pos_error_jacobian(ep, x, R_hat)
     return C_eop + G @ C_pos @ T(G)
@@ -78,7 +79,7 @@ def pos_error_jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarr
 def _pos_cov(ep: Epochs) -> np.ndarray:
     if ep.pos.cov is not None:
         return ep.pos.cov
-    return _default_cov(len(ep), DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2 + DEFAULT_POS_SIGMA[2:])
+    return default_cov(len(ep), DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2 + DEFAULT_POS_SIGMA[2:])
 
 
 def _jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray, W: np.ndarray, free: np.ndarray) -> np.ndarray:
@@ -200,8 +201,8 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
     cov = cov_random + cov_common
     # per-epoch values with the delay applied (seed Fig. 22): what each epoch says about l_b and the boresight
     p_pred, Rc_pred, R_b = predict(ep, x, R_hat_s)
-    lever_i = np.einsum("nji,nj->ni", R_b, ep.r_cam_L - ep.pos.r_imu_L - ep.pos.v_L * (x[0] - ep.dt_ref))
-    ang_i = so3_log((T(R_b) @ ep.R_cv_to_L) @ R_hat_s.T)
+    lever_i = np.einsum("nji,nj->ni", R_b, ep.C_world - ep.pos.r_imu_world - ep.pos.v_world * (x[0] - ep.dt_ref))
+    ang_i = so3_log((T(R_b) @ ep.R_cam_to_world) @ R_hat_s.T)
     e_full = residuals(ep, x, R_hat_s)
     per_epoch = {"image": [str(s) for s in ep.image], "t_event": ep.t_event.tolist(),
                  "lever_arm_m": lever_i.tolist(), "boresight_deg": np.degrees(ang_i).tolist(),

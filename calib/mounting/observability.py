@@ -8,10 +8,10 @@ from dgcal.calib.mounting.common import Epochs, MountingResult
 MIN_EPOCHS = 10
 
 
-def _heading_groups(v_L: np.ndarray, speed_min: float = 2.0) -> np.ndarray:
+def _heading_groups(v_world: np.ndarray, speed_min: float = 2.0) -> np.ndarray:
     """Track azimuths (deg) of moving epochs."""
-    moving = np.linalg.norm(v_L[:, :2], axis=1) > speed_min
-    return np.degrees(np.arctan2(v_L[moving, 0], v_L[moving, 1])) % 360
+    moving = np.linalg.norm(v_world[:, :2], axis=1) > speed_min
+    return np.degrees(np.arctan2(v_world[moving, 0], v_world[moving, 1])) % 360
 
 
 def observability_warnings(ep: Epochs, result: MountingResult | None = None,
@@ -21,7 +21,7 @@ def observability_warnings(ep: Epochs, result: MountingResult | None = None,
     n = len(ep)
     if n < MIN_EPOCHS:
         out.append(f"only {n} epochs: at least {MIN_EPOCHS} are needed for a meaningful calibration")
-    az = _heading_groups(ep.pos.v_L)
+    az = _heading_groups(ep.pos.v_world)
     if len(az):
         # circular spread: one heading when all tracks lie within +-30 deg of their mean direction
         c = np.exp(1j * np.radians(az))
@@ -31,13 +31,13 @@ def observability_warnings(ep: Epochs, result: MountingResult | None = None,
             out.append("all strips fly one heading: the exposure delay and the along-track lever arm are not "
                        "separable (fly strips in opposite headings, ideally with different ground speeds)")
     # what separates delay from lever arm is the variation of the body-frame velocity (and angular rate)
-    v_b = np.einsum("nji,nj->ni", ep.pos.R_body_to_L, ep.pos.v_L)
+    v_b = np.einsum("nji,nj->ni", ep.pos.R_body_to_world, ep.pos.v_world)
     spread = float(np.std(v_b[:, 0])) if n > 1 else 0.0
     rate = float(np.degrees(np.std(np.linalg.norm(ep.pos.omega_b, axis=1)))) if n > 1 else 0.0
     if spread < 1.0 and rate < 0.5:
         out.append(f"the forward ground speed varies by only {spread:.2f} m/s (std) over the epochs: the delay is "
                    "nearly inseparable from the along-track lever arm")
-    z = ep.r_cam_L[:, 2]
+    z = ep.C_world[:, 2]
     if n > 1 and np.ptp(z) < 0.25 * max(np.median(np.abs(z)), 1.0):
         out.append("one flying height only: boresight errors and POS attitude errors, and the vertical lever arm "
                    "and height-dependent bundle errors, are hard to tell apart (fly two heights, e.g. 300 m and 600 m)")

@@ -2,8 +2,8 @@
 EVENT time (delay assumed 0), then their robust mean.
 
 Per epoch i, in the block frame L:
-    l_b,i        = R_body_to_L,i^T (r_cam_L,i - r_imu_L,i)
-    R_cam_to_body,i = R_body_to_L,i^T R_cv_to_L,i
+    l_b,i        = R_body_to_world,i^T (C_world,i - r_imu_world,i)
+    R_cam_to_body,i = R_body_to_world,i^T R_cam_to_world,i
 Mean: lever arm by the mean after rejecting epochs further than 4 sigmas from the mean (iterated);
 boresight by chordal rotation averaging after the same test on the angular distance from a first mean.
 Sigmas: spread / sqrt(n) (the per-epoch values are treated as independent samples).
@@ -17,9 +17,9 @@ from dgcal.calib.mounting.common import Epochs, MountingResult, T, rotation_mean
 
 def per_epoch_values(ep: Epochs) -> tuple[np.ndarray, np.ndarray]:
     """Per-epoch lever arms (N,3) m in body and boresights `R_cam_to_body` (N,3,3) at event time."""
-    R_bL = ep.pos.R_body_to_L
-    lever = np.einsum("nji,nj->ni", R_bL, ep.r_cam_L - ep.pos.r_imu_L)
-    return lever, T(R_bL) @ ep.R_cv_to_L
+    R_bL = ep.pos.R_body_to_world
+    lever = np.einsum("nji,nj->ni", R_bL, ep.C_world - ep.pos.r_imu_world)
+    return lever, T(R_bL) @ ep.R_cam_to_world
 
 
 def _clip_outliers(x: np.ndarray, k: float = 4.0, rounds: int = 5) -> np.ndarray:

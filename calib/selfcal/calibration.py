@@ -178,7 +178,7 @@ def write_poses(path: str | Path, ba: IntrinsicBAResult) -> None:
     """Per-image poses in the field frame: projection centre X,Y,Z (m) and PATB omega, phi, kappa (deg) of
     R_photo_to_field, their sigmas (centre m; rotation deg about the camera axes), RMS (px) and count."""
     from dgcal.fields.io.csv_tables import write_table
-    from dgcal.fields.frames import opk_from_R_cv_to_map
+    from dgcal.fields.frames import opk_from_R_cam_to_map
     C, sC = ba.camera_centres()
     rms = ba.per_image_rms()
     n = np.bincount(ba.obs_image[ba.used], minlength=len(ba.image_names))
@@ -186,7 +186,7 @@ def write_poses(path: str | Path, ba: IntrinsicBAResult) -> None:
     for i, name in enumerate(ba.image_names):
         if name in ba.dropped_images:
             continue
-        opk = opk_from_R_cv_to_map(ba.R_field_to_cam[i].T)
+        opk = opk_from_R_cam_to_map(ba.R_field_to_cam[i].T)
         rows.append([name, *C[i], *opk, *sC[i], *ba.pose_sigma[i, :3], rms[name], int(n[i])])
     write_table(path, ["image", "X", "Y", "Z", "omega", "phi", "kappa", "sX", "sY", "sZ", "s_rx_deg",
                        "s_ry_deg", "s_rz_deg", "rms_px", "n_obs"], rows, fmt="%.8g")

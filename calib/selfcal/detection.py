@@ -102,7 +102,7 @@ def estimate_noise(img: np.ndarray) -> float:
     return float(1.4826 * med / 6.0)
 
 
-class CharucoPlateDetector:
+class CharucoFieldDetector:
     """Detector for one TargetField; reusable across images (holds the OpenCV objects)."""
 
     def __init__(self, tf: TargetField, keep_ids: set | None = None):
@@ -324,7 +324,7 @@ def _corner_sigmas(img: np.ndarray, xy: np.ndarray, half: np.ndarray, noise_dn: 
 def detect_image(img: np.ndarray, field: TargetField | str | Path) -> Detection:
     """Targets in one grey image (uint8 array)."""
     tf, keep, _ = resolve_field(field)
-    return CharucoPlateDetector(tf, keep).detect(img)
+    return CharucoFieldDetector(tf, keep).detect(img)
 
 
 _WORKER: dict = {}
@@ -335,7 +335,7 @@ def _detect_file(path: str, tf_dict: dict, keep: set | None):
     key = (repr(tf_dict), None if keep is None else tuple(sorted(keep)))
     det = _WORKER.get("det")
     if det is None or _WORKER.get("key") != key:  # one detector per process, reused for its images
-        det = CharucoPlateDetector(TargetField.from_dict(tf_dict), keep)
+        det = CharucoFieldDetector(TargetField.from_dict(tf_dict), keep)
         _WORKER.update(det=det, key=key)
     try:
         img = read_gray(path)

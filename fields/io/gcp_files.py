@@ -240,7 +240,7 @@ def read_any_measurements(path: str | Path) -> tuple[Measurements, str | None, P
 
 
 def read_micmac_orientation(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """MicMac V1 `Orientation-*.xml`: (R_cv_to_world (3,3), projection centre (3,)) in its ground frame.
+    """MicMac V1 `Orientation-*.xml`: (R_cam_to_world (3,3), projection centre (3,)) in its ground frame.
 
     MicMac's camera frame is x right, y down, z forward (as dgcal's); `CodageMatr` rows L1..L3 form the
     camera-to-world rotation: X_world = Centre + CodageMatr X_cam.

@@ -58,7 +58,7 @@ def _coverage(lo: float, hi: float) -> tuple[int, np.ndarray]:
     return i0, np.clip(np.minimum(hi, k + 1) - np.maximum(lo, k), 0.0, 1.0)
 
 
-def plate_texture(tf: TargetField, texel_m: float) -> tuple[np.ndarray, np.ndarray]:
+def field_texture(tf: TargetField, texel_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Anti-aliased plate texture over the board square: (grey, alpha) float32 (H,W), grey 1 = white,
     alpha = plate-disk coverage. Texel (row i, col j) covers board [j t, (j+1) t) x [i t, (i+1) t) (m)."""
     n_px = int(math.ceil(tf.board_size_m / texel_m - 1e-9))

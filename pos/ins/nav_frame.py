@@ -2,7 +2,7 @@
 
 Poses in the factor graph are `R_body_to_nav`, `p_nav` with nav = NED axes at the origin. Because the
 plane is fixed, local level tilts away from it by distance/R_earth (0.009 deg per km); outputs are
-rotated into the local NED frame of each point (`to_local`). Gravity is taken constant (normal gravity at
+rotated into the local NED frame of each point (`to_world`). Gravity is taken constant (normal gravity at
 the origin along nav Down), which is exact at the origin and drifts by g*d/R (0.15 mg per km) away from
 it — flights are expected to span a few km at most (see docs/pos_smoother.md).
 """

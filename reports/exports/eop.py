@@ -34,14 +34,14 @@ def write_colmap(out_dir: Path, eop: EOP, grid: MapGrid, camera, points_map: dic
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     frame = BlockFrame.at_map_points(grid, eop.xyz)
-    C_L, R_cv_to_L = frame.eop_to_L(eop.xyz, eop.opk)
+    C_world, R_cam_to_world = frame.eop_to_world(eop.xyz, eop.opk)
     cams_txt, err = colmap_cameras_txt_string(camera, 1)
     pid = {}
-    pts_L = None
+    pts_world = None
     if points_map:
         keys = list(points_map)
         pid = {k: j + 1 for j, k in enumerate(keys)}
-        pts_L = frame.map_to_L(np.array([points_map[k] for k in keys], float))
+        pts_world = frame.map_to_world(np.array([points_map[k] for k in keys], float))
     obs_by_image: dict[str, list] = {}
     tracks: dict[int, list] = {}
     for im, i, x, y in (observations or []):
@@ -52,8 +52,8 @@ def write_colmap(out_dir: Path, eop: EOP, grid: MapGrid, camera, points_map: dic
              "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
              "#   POINTS2D[] as (X, Y, POINT3D_ID)", f"# Number of images: {len(eop.image)}"]
     for k, name in enumerate(eop.image):
-        R_w2c = R_cv_to_L[k].T
-        t = -R_w2c @ C_L[k]
+        R_w2c = R_cam_to_world[k].T
+        t = -R_w2c @ C_world[k]
         q = Rotation.from_matrix(R_w2c).as_quat()  # x, y, z, w
         lines.append(" ".join([str(k + 1)] + [repr(float(v)) for v in (q[3], q[0], q[1], q[2])]
                               + [repr(float(v)) for v in t] + ["1", str(name)]))
@@ -64,13 +64,13 @@ def write_colmap(out_dir: Path, eop: EOP, grid: MapGrid, camera, points_map: dic
             tracks.setdefault(p, []).append((k + 1, j))
     pts_lines = ["# 3D point list with one line of data per point:",
                  "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"]
-    if pts_L is not None:
+    if pts_world is not None:
         for k, key in enumerate(pid):
             p = pid[key]
             tr = tracks.get(p, [])
             if not tr:
                 continue  # COLMAP cannot load a point without a track
-            pts_lines.append(" ".join([str(p)] + [repr(float(v)) for v in pts_L[k]] + ["255", "0", "0", "0"]
+            pts_lines.append(" ".join([str(p)] + [repr(float(v)) for v in pts_world[k]] + ["255", "0", "0", "0"]
                                       + [f"{a} {b}" for a, b in tr]))
     with atomic_write(out_dir / "cameras.txt") as fh:
         fh.write(cams_txt)
@@ -111,7 +111,7 @@ def read_colmap(in_dir: Path) -> tuple[EOP, MapGrid]:
         names.append(" ".join(tok[9:]))
         R.append(R_w2c.T)
         C.append(-R_w2c.T @ np.array([tx, ty, tz]))
-    xyz, opk = frame.L_to_eop(np.array(C), np.array(R))
+    xyz, opk = frame.world_to_eop(np.array(C), np.array(R))
     return EOP(np.array(names, dtype=object), xyz, opk), grid
 
 
