@@ -86,6 +86,16 @@ class BundleResult:
     _cache: dict = field(repr=False, default_factory=dict)
 
     @property
+    def obs_image(self) -> np.ndarray:
+        """(k,) image index of each observation of the adjustment."""
+        return self._inp.obs_image
+
+    @property
+    def obs_point(self) -> np.ndarray:
+        """(k,) point index of each observation of the adjustment."""
+        return self._inp.obs_point
+
+    @property
     def scale2(self) -> float:
         return max(self.sigma0 ** 2, 1.0) if self._cache.get("aposteriori", True) else 1.0
 
