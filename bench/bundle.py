@@ -26,12 +26,12 @@ def main() -> None:
     from dgcal.bundle.triangulation import TriangulationOptions, triangulate
     from dgcal.calib.camera.files import load_camera
     from dgcal.fields.io.formats import read_eop, read_measurements, read_points
-    from dgcal.sim.flight import simulate_flight
+    from dgcal.sim.flight import simulate_block_flight
 
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="bench_bundle_"))
     t0 = time.perf_counter()
-    truth = simulate_flight(out, seed=1, render=False, heights=(80.0, 120.0), n_strips=(6, 4), n_images=(30, 30),
-                            n_control=20, n_check=16, n_tie=args.tie)
+    truth = simulate_block_flight(out, seed=1, render=False, heights=(80.0, 120.0), n_strips=(6, 4), n_images=(30, 30),
+                                  n_control=20, n_check=16, n_tie=args.tie)
     t1 = time.perf_counter()
     cam = load_camera(out / "camera.json")
     pts = read_points(out / "gcp.csv")

@@ -14,11 +14,11 @@ import numpy as np
 def simulate(n_images: int, square_m: float, seed: int, size=(5472, 3648), noise_px=0.1):
     """Projected field corners (px) with Gaussian noise for a fraser7 truth; returns truth, points, image, id, xy."""
     from dgcal.fields.targets.plate import TargetField
-    from dgcal.sim.camera_field import default_camera, plan_shots
+    from dgcal.sim.camera_field import calibration_field_camera, plan_shots
     rng = np.random.default_rng(seed)
     tf = TargetField(square_m=square_m, marker_m=0.75 * square_m)
     pts = tf.points()
-    truth = default_camera(size)
+    truth = calibration_field_camera(size)
     truth.params[9] = 0.0  # no skew, so OpenCV's model can represent the truth
     w, h = size
     img, ids, xy = [], [], []

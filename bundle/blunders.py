@@ -47,7 +47,6 @@ def find_suspects(result: BundleResult, obs_idx: np.ndarray, image_names, point_
             continue
         wk = float(np.max(np.abs(w[n][testable])))
         if wk > critical:
-            inp = result._inp
-            out.append(Suspect(str(image_names[inp.obs_image[k]]), str(point_ids[inp.obs_point[k]]),
+            out.append(Suspect(str(image_names[result.obs_image[k]]), str(point_ids[result.obs_point[k]]),
                                tuple(result.residuals_px[k]), wk, float(r[n].min())))
     return sorted(out, key=lambda s: -s.w)

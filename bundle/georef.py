@@ -114,8 +114,8 @@ class Georef:
 
     def eop_covariance_to_map(self, R_world_to_cam: np.ndarray, C_world: np.ndarray, cov_pose: np.ndarray,
                               ) -> np.ndarray:
-        """6x6 covariances of (X, Y, Z m, omega, phi, kappa deg) from adjustment covariances
-        [C_world (m), d_theta (rad, left perturbation in the camera frame)], by numerical Jacobians."""
+        """6x6 covariances of (X, Y, Z m, omega, phi, kappa deg) from pose covariances [C_world (m), dtheta (rad)]
+        (dgcal.fields.pose: dtheta a right perturbation of R_cam_to_world), by numerical Jacobians."""
         from scipy.spatial.transform import Rotation
         R = np.asarray(R_world_to_cam).reshape(-1, 3, 3)
         C = np.atleast_2d(C_world)
@@ -132,8 +132,9 @@ class Georef:
             J[:, 3:, j] = _wrap(op_ - om) / (2 * h_pos)
             d = np.zeros(3)
             d[j] = h_rot
-            Rp = Rotation.from_rotvec(d).as_matrix() @ R
-            Rm = Rotation.from_rotvec(-d).as_matrix() @ R
+            # R_cam_to_world Exp(+-d)  <=>  R_world_to_cam <- Exp(-+d) R_world_to_cam
+            Rp = Rotation.from_rotvec(-d).as_matrix() @ R
+            Rm = Rotation.from_rotvec(d).as_matrix() @ R
             xp, op_ = self.eop_to_map(Rp, C)
             xm, om = self.eop_to_map(Rm, C)
             J[:, :3, 3 + j] = (xp - xm) / (2 * h_rot)

@@ -241,7 +241,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     suspects: list[Suspect] = []
     for _ in range(opt.max_rejections if opt.reject_blunders else 1):
         act_idx = np.nonzero(active)[0]                  # full index of each observation of `res`
-        ctrl_obs = np.nonzero(kind_k[res._inp.obs_point] == "control")[0]
+        ctrl_obs = np.nonzero(kind_k[res.obs_point] == "control")[0]
         found = find_suspects(res, ctrl_obs, images_k, pids_k, opt.critical_w)
         if not found:
             break
@@ -249,8 +249,8 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
             suspects.extend(found)
             break
         worst = found[0]
-        k_sub = next(k for k in ctrl_obs if images_k[res._inp.obs_image[k]] == worst.image
-                     and pids_k[res._inp.obs_point[k]] == worst.point)
+        k_sub = next(k for k in ctrl_obs if images_k[res.obs_image[k]] == worst.image
+                     and pids_k[res.obs_point[k]] == worst.point)
         worst.removed = True
         suspects.append(worst)
         active[act_idx[k_sub]] = False
@@ -263,7 +263,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     cov_map = geo.eop_covariance_to_map(res.R_world_to_cam, res.C_world, res.cov_pose)
     sig_map = np.sqrt(np.clip(np.diagonal(cov_map, axis1=1, axis2=2), 0, None))
     eop = EOP(np.array(images_k, dtype=object), geo_xyz, geo_opk, sig_map, cov_map)
-    a_oi, a_op = res._inp.obs_image, res._inp.obs_point   # observations of the final adjustment
+    a_oi, a_op = res.obs_image, res.obs_point   # observations of the final adjustment
     image_stats = []
     for i, name in enumerate(images_k):
         kk = np.nonzero(a_oi == i)[0]
@@ -332,16 +332,6 @@ def _readjust(inp: BundleInput, active: np.ndarray, bopt: BundleOptions, prev: B
     return adjust(sub, bopt)
 
 
-def _pose_cov_right(cov_pose: np.ndarray) -> np.ndarray:
-    """Pose covariances in dgcal.bundle.intersection's convention: [C, rotation as a right perturbation of
-    R_cam_to_world]. Ours perturb R_world_to_cam on the left by d, i.e. R_cam_to_world on the right by -d:
-    the centre/rotation cross blocks change sign."""
-    c = np.array(cov_pose, float)
-    c[:, :3, 3:] *= -1
-    c[:, 3:, :3] *= -1
-    return c
-
-
 def _check_points(camera, res: BundleResult, geo: Georef, points: Points, meas: Measurements,
                   is_check: np.ndarray, images_k: list[str], msgs: list[str], opt) -> list[dict]:
     """Intersect check points from the adjusted images (dgcal.bundle.intersection, pixel and pose covariance);
@@ -359,7 +349,7 @@ def _check_points(camera, res: BundleResult, geo: Georef, points: Points, meas: 
         sig = np.where(np.isfinite(meas.sigma[rows]), meas.sigma[rows], opt.sigma_px)
         R_c2w = np.swapaxes(res.R_world_to_cam, -1, -2)
         ir = intersect(camera, res.C_world, R_c2w, oi, op, meas.xy[rows], sig, n_points=len(ids))
-        cov = ir.cov + propagate_pose_covariance(ir, _pose_cov_right(res.cov_pose))
+        cov = ir.cov + propagate_pose_covariance(ir, res.cov_pose)
     for j, pid in enumerate(ids):
         n_rays = int(ir.n_rays[j]) if len(rows) else 0
         if not len(rows) or not ir.ok[j]:

@@ -53,7 +53,7 @@ def add_verbs(sub, package: str, argv: list[str] | None, run_key: str = "_run") 
             sub.add_parser(name, help=help_text)  # listed by --help; loaded when chosen
             continue
         mod = importlib.import_module(modname)
-        p = sub.add_parser(name, help=help_text, description=getattr(mod, "__doc__", None))
+        p = sub.add_parser(name, help=help_text, description=getattr(mod, "DESCRIPTION", None) or mod.__doc__)
         mod.add_arguments(p)
         p.set_defaults(**{run_key: mod.run})
 

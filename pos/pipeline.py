@@ -1,20 +1,33 @@
-"""`dgcal pos --mode tc|lc`: IMU + RINEX (or GNSS positions) + events -> smoothed trajectory, events, report.
+"""`dgcal pos`: RINEX -> SPP antenna positions; IMU + RINEX (or GNSS positions) + events -> smoothed trajectory.
 
-`process(...)` works on in-memory data (tests, simulator); `run_pos(...)` reads the files, runs it and
-writes DIR/trajectory.csv, DIR/events.csv, DIR/trajectory_forward.csv, DIR/pos_summary.json (and
-DIR/report.html through the writer the command hands in) via a staged directory (nothing half-written).
+`process(...)` works on in-memory data (tests, simulator); `run_pos(PosOptions)` reads the files and runs
+it, `run_spp(PosOptions)` is `--mode spp`; dgcal.reports.pos.write_pos_outputs and
+dgcal.reports.gnss.write_spp_outputs write their files.
 """
 from __future__ import annotations
 
-import json
-import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from dgcal.fields.constants import G0, SECONDS_PER_WEEK
+from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.errors import InputError
+from dgcal.fields.frames import R_ecef_to_ned
+from dgcal.fields.io.csv_tables import read_table
+from dgcal.fields.io.formats import read_events
+from dgcal.pos.gnss.observations import GnssObservations
+from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
+from dgcal.pos.gnss.spp import SppOptions, prepare_epoch, spp, spp_summary
+from dgcal.pos.ins.error_model import imu_grade
+from dgcal.pos.ins.imu_data import read_imu_csv, read_kf_gins
+from dgcal.pos.ins.interpolate import trajectory_at_events
+from dgcal.pos.smoother.batch import SmootherOptions, smooth
+from dgcal.pos.smoother.forward_filter import forward_solution
 from dgcal.pos.smoother.initial import GnssFixes
+from dgcal.pos.smoother.output import densify, solution_trajectory
 
 
 @dataclass
@@ -35,8 +48,6 @@ class PosResult:
 
 def fixes_from_spp(sol) -> GnssFixes:
     """GnssFixes (antenna ECEF, NED sigmas) from a dgcal.pos.gnss.spp.SppSolution's epochs with a fix."""
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.frames import R_ecef_to_ned
     ok = sol.ok
     p = sol.p_ecef[ok]
     geo = ecef_to_geodetic(p)
@@ -53,16 +64,13 @@ def fixes_from_spp(sol) -> GnssFixes:
 
 def read_gnss_csv(path) -> GnssFixes:
     """LC input: gnss.csv of `dgcal pos --mode spp` (or any CSV with gps_week,gps_sow,x,y,z[,sx..,vx..])."""
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.io.csv_tables import read_table
-    from dgcal.fields.frames import R_ecef_to_ned
     tab = read_table(path, ("gps_week", "gps_sow", "x", "y", "z"), ("sx", "sy", "sz", "vx", "vy", "vz",
                                                                      "svx", "svy", "svz"))
     for name in ("x", "y", "z"):
         bad = np.flatnonzero(~np.isfinite(tab[name]))
         if len(bad):
             raise InputError("not a finite number", tab.path, int(tab.lines[bad[0]]), name)
-    t = tab["gps_week"] * 604800.0 + tab["gps_sow"]
+    t = tab["gps_week"] * SECONDS_PER_WEEK + tab["gps_sow"]
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         raise InputError("time does not increase", tab.path, int(tab.lines[back[0] + 1]), "gps_sow")
@@ -88,8 +96,6 @@ def read_gnss_csv(path) -> GnssFixes:
 def tc_epochs(raw, nav, spp_sol, opts):
     """GNSS epochs for the TC smoother: SPP's modelled epochs where it had a fix; elsewhere (fewer than four
     satellites, RAIM failure) the raw epoch modelled at the SPP track interpolated in time."""
-    from dgcal.pos.gnss.observations import GnssObservations
-    from dgcal.pos.gnss.spp import prepare_epoch
     ok = spp_sol.ok
     if ok.sum() < 2:
         raise InputError("fewer than two epochs with a GNSS fix: cannot initialise", raw.source or None)
@@ -112,14 +118,8 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
             lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool = True,
             smoother_opts=None, progress: bool = False) -> PosResult:
     """Run SPP (when RINEX is given), the smoother (TC or LC), the forward solution and the outputs in memory."""
-    from dgcal.pos.smoother.forward_filter import forward_solution
-    from dgcal.pos.ins.interpolate import trajectory_at_events
-    from dgcal.pos.smoother.batch import SmootherOptions, smooth
-    from dgcal.pos.smoother.output import densify, solution_trajectory
-    from dgcal.pos.gnss.spp import SppOptions, spp
     if mode not in ("tc", "lc"):
         raise InputError(f"mode must be tc or lc, not {mode!r}", field="--mode")
-    import time
     opts = smoother_opts or SmootherOptions()
     opts.lever_arm_b = np.asarray(lever_arm_b, float)
     spp_sol = fixes = gnss = None
@@ -172,7 +172,7 @@ def summarize(res: PosResult) -> dict:
         "median_sigma_deg": np.median(s[:, 3:], axis=0).round(5).tolist() if s is not None else None,
         "max_sigma_m": np.max(s[:, :3], axis=0).round(3).tolist() if s is not None else None,
         "gyro_bias_deg_h_mean": np.degrees(sol.bias[:, 3:].mean(0) * 3600).round(3).tolist(),
-        "accel_bias_mg_mean": (sol.bias[:, :3].mean(0) / 9.80665e-3).round(4).tolist(),
+        "accel_bias_mg_mean": (sol.bias[:, :3].mean(0) / (G0 * 1e-3)).round(4).tolist(),
         "residuals": {k: _stats(v) for k, v in sol.residuals.items()},
         "events": int(len(res.events.t)) if res.events is not None else 0,
     }
@@ -193,7 +193,6 @@ def _stats(rows) -> dict:
 
 def load_imu(path, gps_week: int | None = None):
     """IMU file by extension: .csv = `gps_week,gps_sow,gx..az` increments, else KF-GINS text (sow dθ dv)."""
-    from dgcal.pos.ins.imu_data import read_imu_csv, read_kf_gins
     path = Path(path)
     if not path.is_file():
         raise InputError("file not found", path)
@@ -232,75 +231,109 @@ def parse_settings(items) -> dict:
     return out
 
 
-def run_pos(args=None, report_writer=None, **kw) -> int:
-    """CLI entry (`dgcal pos --mode tc|lc`): an argparse Namespace, or keyword arguments of the same names.
+@dataclass
+class PosOptions:
+    """Inputs and settings of `dgcal pos` in every mode: spp (RINEX -> antenna positions), tc or lc (GNSS/INS
+    smoothing of IMU + RINEX, or IMU + gnss.csv for lc, with camera events)."""
 
-    `report_writer(path, PosResult)` writes DIR/report.html (dgcal.reports.pos.write_pos_report, handed
-    in by the command because `pos` must not import `reports`).
-    """
-    import argparse
-    a = args if isinstance(args, argparse.Namespace) else argparse.Namespace(**kw)
-    g = lambda name, default=None: getattr(a, name, default)  # noqa: E731
-    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
-    from dgcal.fields.io.formats import read_events, write_trajectory
-    from dgcal.pos.ins.error_model import imu_grade
-    from dgcal.pos.gnss.spp import SppOptions
-    mode = g("mode")
-    extra = parse_settings(g("extra") or [])
-    if not g("imu"):
+    mode: str = "spp"                       # spp | tc | lc
+    rinex_obs: Path | None = None           # RINEX observations of the rover
+    rinex_nav: tuple[Path, ...] = ()        # broadcast navigation file(s)
+    imu: Path | None = None                 # tc/lc: IMU file (.csv increments or KF-GINS text)
+    events: Path | None = None              # tc/lc: camera events image,gps_week,gps_sow
+    gnss: Path | None = None                # lc: antenna positions (gnss.csv of --mode spp)
+    systems: str = "GECJ"                   # constellation letters of G, E, C, J
+    elev_mask_deg: float = 10.0
+    code_sigma_m: float = 0.3               # code noise at zenith
+    doppler_sigma_mps: float = 0.1          # range-rate noise at zenith
+    raim: bool = True                       # satellite outlier rejection
+    t_start: float | None = None            # continuous GPS seconds
+    t_end: float | None = None
+    lever_arm_m: tuple[float, float, float] | None = None  # tc/lc: GNSS antenna in the IMU body frame (FRD)
+    imu_grade: str | None = None            # tc/lc: error-model preset (default adis16488)
+    settings: tuple[str, ...] = ()          # tc/lc: smoother settings KEY=VALUE (`parse_settings`)
+    reference_ecef: tuple[float, float, float] | None = None  # spp: known antenna position (m) for the report
+    progress: bool = True
+
+
+def _spp_options(opts: PosOptions, model_errors: bool = True, strict: bool = True):
+    """The SPP settings of `opts`; `strict`: no known constellation in `systems` is an input error (else GPS)."""
+    systems = tuple(s for s in str(opts.systems).upper() if s in "GECJ")
+    if not systems and strict:
+        raise InputError(f"no known constellation in '{opts.systems}'", field="--systems")
+    return SppOptions(elev_mask_deg=opts.elev_mask_deg, code_sigma_zenith_m=opts.code_sigma_m,
+                      doppler_sigma_zenith_mps=opts.doppler_sigma_mps, systems=systems or ("G",),
+                      raim=opts.raim, model_errors=model_errors)
+
+
+@dataclass
+class SppRun:
+    """`dgcal pos --mode spp`: the SPP solution of every epoch, its summary and the reference position (m)."""
+
+    solution: object                     # dgcal.pos.gnss.spp.SppSolution
+    summary: dict
+    reference_ecef: np.ndarray | None = None
+
+
+def run_spp(opts: PosOptions) -> SppRun:
+    """Read the RINEX files of `opts`, position every epoch (SPP, ECEF m) and summarise (with the 3D RMS
+    against `reference_ecef` when given)."""
+    for name, val in (("rinex-obs", opts.rinex_obs), ("rinex-nav", opts.rinex_nav)):
+        if not val:
+            raise InputError("required for --mode spp", field="--" + name)
+    sopts = _spp_options(opts)
+    nav = read_rinex_nav(opts.rinex_nav[0], list(opts.rinex_nav[1:]))
+    obs = read_rinex_obs(opts.rinex_obs, systems=sopts.systems, t_start=opts.t_start, t_end=opts.t_end)
+    sol = spp(obs, nav, sopts, progress=opts.progress)
+    if not sol.ok.any():
+        raise InputError("no epoch could be positioned (too few satellites with ephemeris?)", opts.rinex_obs)
+    summary = spp_summary(sol, obs, nav, sopts)
+    ref = None
+    if opts.reference_ecef is not None:
+        ref = np.asarray(opts.reference_ecef, float)
+        err = sol.p_ecef[sol.ok] - ref
+        summary["rms_3d_vs_reference_m"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+    return SppRun(sol, summary, ref)
+
+
+def run_pos(opts: PosOptions) -> PosResult:
+    """`dgcal pos --mode tc|lc`: read the IMU, GNSS (RINEX or gnss.csv) and events of `opts` and smooth them
+    (see `process`); the result holds the trajectory, the events' poses and the summary."""
+    mode = opts.mode
+    if mode not in ("tc", "lc"):
+        raise InputError(f"mode must be tc or lc, not {mode!r}", field="--mode")
+    extra = parse_settings(opts.settings)
+    if not opts.imu:
         raise InputError(f"required for --mode {mode}", field="--imu")
-    if not g("events"):
+    if not opts.events:
         raise InputError(f"required for --mode {mode}", field="--events")
     try:
-        grade = imu_grade(g("imu_grade") or "adis16488")
+        grade = imu_grade(opts.imu_grade or "adis16488")
     except ValueError as exc:
         raise InputError(str(exc), field="--imu-grade") from None
-    lever = np.asarray(g("lever_arm") or (0.0, 0.0, 0.0), float)
-    events = read_events(g("events"))
+    lever = np.asarray(opts.lever_arm_m or (0.0, 0.0, 0.0), float)
+    events = read_events(opts.events)
     raw = nav = lc = None
     spp_opts = None
-    week = int(np.floor(events.t[0] / 604800.0)) if len(events) else None
-    if g("rinex_obs") and g("rinex_nav"):
-        from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
-        systems = tuple(s for s in str(g("systems", "GECJ")).upper() if s in "GECJ")
-        spp_opts = SppOptions(elev_mask_deg=g("elev_mask", 10.0), code_sigma_zenith_m=g("code_sigma", 0.3),
-                              doppler_sigma_zenith_mps=g("doppler_sigma", 0.1), systems=systems or ("G",),
-                              raim=not g("no_raim", False), model_errors=bool(extra.pop("model_errors", True)))
-        navs = g("rinex_nav")
-        navs = [navs] if isinstance(navs, (str, Path)) else list(navs)
+    week = int(np.floor(events.t[0] / SECONDS_PER_WEEK)) if len(events) else None
+    if opts.rinex_obs and opts.rinex_nav:
+        spp_opts = _spp_options(opts, model_errors=bool(extra.pop("model_errors", True)), strict=False)
+        navs = [opts.rinex_nav] if isinstance(opts.rinex_nav, (str, Path)) else list(opts.rinex_nav)
         nav = read_rinex_nav(navs[0], navs[1:])
-        raw = read_rinex_obs(g("rinex_obs"), systems=spp_opts.systems, t_start=g("t_start"), t_end=g("t_end"))
+        raw = read_rinex_obs(opts.rinex_obs, systems=spp_opts.systems, t_start=opts.t_start, t_end=opts.t_end)
         if len(raw.epochs):
-            week = int(np.floor(raw.epochs[0].t_gps / 604800.0))
+            week = int(np.floor(raw.epochs[0].t_gps / SECONDS_PER_WEEK))
     elif mode == "tc":
         raise InputError("tc mode needs --rinex-obs and --rinex-nav", field="--rinex-obs")
-    if g("gnss"):
-        lc = read_gnss_csv(g("gnss"))
-        week = int(np.floor(lc.t[0] / 604800.0))
-    imu = load_imu(g("imu"), gps_week=week)
-    from dgcal.pos.smoother.batch import SmootherOptions
+    if opts.gnss:
+        lc = read_gnss_csv(opts.gnss)
+        week = int(np.floor(lc.t[0] / SECONDS_PER_WEEK))
+    imu = load_imu(opts.imu, gps_week=week)
     rate = float(extra.pop("rate", 10.0))
     forward = bool(extra.pop("forward", True))
     sm = SmootherOptions(**extra)
     try:
-        res = process(mode, imu, grade, lever, raw_obs=raw, nav=nav, spp_opts=spp_opts, lc_fixes=lc,
-                      events=events, rate_hz=rate, forward=forward, smoother_opts=sm,
-                      progress=not g("no_progress", False))
+        return process(mode, imu, grade, lever, raw_obs=raw, nav=nav, spp_opts=spp_opts, lc_fixes=lc,
+                       events=events, rate_hz=rate, forward=forward, smoother_opts=sm, progress=opts.progress)
     except ValueError as exc:
-        raise InputError(str(exc), g("imu")) from None
-    with staged_dir(g("out")) as d:
-        d = Path(d)
-        write_trajectory(d / "trajectory.csv", res.trajectory)
-        if res.events is not None:
-            write_trajectory(d / "events.csv", res.events)
-        if res.forward_keyframes is not None:
-            write_trajectory(d / "trajectory_forward.csv", res.forward_keyframes)
-        with atomic_write(d / "pos_summary.json") as fh:
-            json.dump(res.summary, fh, indent=2)
-        if report_writer is not None:
-            report_writer(d / "report.html", res)
-    s = res.summary
-    print(f"{Path(g('out')) / 'trajectory.csv'}: {mode.upper()} {s['keyframes']} keyframes, "
-          f"{s['events']} events, median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg",
-          file=sys.stderr)
-    return 0
+        raise InputError(str(exc), opts.imu) from None

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dgcal.calib.selfcal.calibration import CameraCalibration
+from dgcal.calib.selfcal.calibration import CameraCalibration, write_camera_outputs
 from dgcal.calib.selfcal.diagnostics import residual_pattern
 from dgcal.reports.html import HtmlReport, new_figure
 
@@ -187,3 +187,13 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
 def write_camera_report(cal: CameraCalibration, path: str | Path) -> Path:
     """Write the one-file HTML report."""
     return build_camera_report(cal).write(path)
+
+
+def write_camera_files(out_dir: str | Path, cal: CameraCalibration, names: dict[str, str],
+                       report: bool = True) -> dict[str, Path]:
+    """`dgcal camera`'s files in `out_dir`, named by role in `names`: the camera and its conversions
+    (`write_camera_outputs`) and, with `report`, the HTML report (role report); returns the paths by role."""
+    paths = write_camera_outputs(cal, out_dir, names)
+    if report:
+        paths["report"] = write_camera_report(cal, Path(out_dir) / names["report"])
+    return paths

@@ -13,8 +13,12 @@ import json
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from dgcal.calib.camera.files import camera_from_json_dict
+from dgcal.calib.mounting.methods import canonical_method
 from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.io.formats import read_eop, read_points, read_trajectory
 from dgcal.reports.html import HtmlReport, new_figure
 
 _PRINT_CSS = """<style>
@@ -23,10 +27,12 @@ a{color:#222;text-decoration:none}}
 .lead td,.lead th{font-size:1.05em}.nav a{margin-right:1em}
 </style>"""
 
-METHOD_ORDER = ("proposed", "iso", "traditional")
+METHOD_ORDER = ("joint", "iso", "two-step")  # canonical names (dgcal.calib.mounting.methods)
 
 
-def _load(path: Path) -> dict | None:
+def _load(path: Path | None) -> dict | None:
+    if path is None:
+        return None
     try:
         return json.loads(Path(path).read_text())
     except (OSError, json.JSONDecodeError):
@@ -35,37 +41,32 @@ def _load(path: Path) -> dict | None:
 
 def _rpy_deg(R) -> list[float]:
     """Roll, pitch, yaw (deg) of a boresight R_cam_to_body = Rz(yaw) Ry(pitch) Rx(roll)."""
-    from scipy.spatial.transform import Rotation
     return [float(v) for v in Rotation.from_matrix(np.asarray(R, float)).as_euler("ZYX", degrees=True)[::-1]]
 
 
-def collect(cfg: dict, out: Path, steps: dict | None = None, timings: dict | None = None) -> dict:
-    """Every number of the campaign's outputs in one dictionary (the content of report.json)."""
+def collect(cfg: dict, out: Path, files: dict, steps: dict | None = None, timings: dict | None = None) -> dict:
+    """Every number of the campaign's outputs in one dictionary (the content of report.json), read from the
+    step files `files` (see `write_campaign_report`)."""
     out = Path(out)
     d: dict = {"campaign": str(cfg.get("_path", "")), "name": cfg.get("name", ""), "crs": cfg.get("crs"),
                "generated_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
                "steps": steps or {}, "timings_s": timings or {}, "warnings": []}
-    cam = _load(out / "camera" / "camera.json")
-    if cam is None and cfg.get("camera", {}).get("camera_json"):
-        p = Path(cfg["camera"]["camera_json"])
-        cam = _load(p if p.is_absolute() else cfg["_base"] / p)
+    cam = _load(files["camera"].get("camera"))
     if cam is not None:
         d["camera"] = {k: cam.get(k) for k in ("model", "image_size", "parameters", "sigmas", "rms_px",
                                                "n_observations", "n_rejected", "n_images", "sigma0", "opencv",
                                                "opencv_max_error_px", "fixed_parameters")}
         d["warnings"] += [f"camera: {w}" for w in cam.get("warnings", [])]
-    tri = _load(out / "triangulation" / "summary.json")
+    tri = _load(files["triangulation"].get("summary"))
     if tri is not None:
         d["triangulation"] = tri
         d["warnings"] += [f"triangulation: {w}" for w in tri.get("warnings", [])]
-    pos = _load(out / "pos" / "pos_summary.json")
+    pos = _load(files["pos"].get("summary"))
     if pos is not None:
         d["pos"] = pos
     mounts = {}
-    mcfg = cfg.get("mount", {}) if isinstance(cfg.get("mount"), dict) else {}
-    wanted = [str(mcfg.get("method", "proposed"))] + [str(x) for x in mcfg.get("compare", [])]
-    for name in dict.fromkeys(wanted):
-        m = _load(out / f"mount_{name}" / "mounting.json")
+    for name, mfiles in files["mounts"].items():
+        m = _load(mfiles.get("mounting"))
         if m is None:
             continue
         m = {k: v for k, v in m.items() if k != "per_epoch"}
@@ -73,11 +74,13 @@ def collect(cfg: dict, out: Path, steps: dict | None = None, timings: dict | Non
         mounts[name] = m
         d["warnings"] += [f"mount {name}: {w}" for w in m.get("warnings", [])]
     if mounts:
-        order = [k for k in METHOD_ORDER if k in mounts] + [k for k in mounts if k not in METHOD_ORDER]
+        rank = {k: METHOD_ORDER.index(_canonical(k, m)) if _canonical(k, m) in METHOD_ORDER else len(METHOD_ORDER)
+                for k, m in mounts.items()}
+        order = sorted(mounts, key=rank.get)
         d["mounting"] = {k: mounts[k] for k in order}
-        chosen = str(cfg.get("mount", {}).get("method", "proposed"))
+        chosen = next(iter(files["mounts"]))  # the campaign's method; the others are compared with it
         d["mounting_method"] = chosen if chosen in mounts else order[0]
-    chk = _load(out / "check" / "check.json")
+    chk = _load(files["check"].get("check"))
     if chk is not None:
         d["check"] = chk
         for k, c in chk.get("checks", {}).items():
@@ -94,7 +97,6 @@ def collect(cfg: dict, out: Path, steps: dict | None = None, timings: dict | Non
 
 def compare_with_truth(d: dict, truth: dict) -> dict:
     """Errors of the estimated mounting (and camera) against a simulation's truth, with error/sigma ratios."""
-    from scipy.spatial.transform import Rotation
     out = {"mounting": {}}
     R_true = np.asarray(truth["boresight_R_cam_to_body"], float)
     for k, m in d.get("mounting", {}).items():
@@ -126,7 +128,6 @@ def compare_with_truth(d: dict, truth: dict) -> dict:
 
 # ----------------------------------------------------------------------------------------------- figures
 def _fig_distortion(cam: dict):
-    from dgcal.calib.camera.files import camera_from_json_dict
     model = camera_from_json_dict(cam)
     w, h = model.image_size
     r_max = 0.5 * np.hypot(w, h)
@@ -145,10 +146,13 @@ def _fig_distortion(cam: dict):
     return fig
 
 
-def _fig_block(out: Path, cfg: dict):
-    from dgcal.fields.io.formats import read_eop, read_points
-    eop_p = out / "triangulation" / "eop.csv"
-    if not eop_p.is_file():
+def _canonical(name: str, m: dict) -> str:
+    """The registry name of a mounting record's method (`method_canonical`, else from its name)."""
+    return m.get("method_canonical") or canonical_method(m.get("method", name))
+
+
+def _fig_block(eop_p: Path | None, cfg: dict):
+    if eop_p is None or not eop_p.is_file():
         return None
     eop = read_eop(eop_p)
     fig, ax = new_figure(7.0, 6.0)
@@ -174,10 +178,8 @@ def _fig_block(out: Path, cfg: dict):
     return fig
 
 
-def _fig_pos_sigma(out: Path):
-    from dgcal.fields.io.formats import read_trajectory
-    p = out / "pos" / "trajectory.csv"
-    if not p.is_file():
+def _fig_pos_sigma(p: Path | None):
+    if p is None or not p.is_file():
         return None
     tr = read_trajectory(p)
     if tr.sigma is None:
@@ -213,8 +215,9 @@ def _fig_correlation(m: dict):
     return fig
 
 
-def _fig_per_epoch(out: Path):
-    m = _load(out / "mount_traditional" / "mounting.json")
+def _fig_per_epoch(mount_files: dict):
+    two_step = [f.get("mounting") for k, f in mount_files.items() if canonical_method(k) == "two-step"]
+    m = _load(two_step[0]) if two_step else None
     pe = (m or {}).get("per_epoch") or {}
     lev = pe.get("lever_arm_m")
     if not lev:
@@ -253,8 +256,12 @@ def _fig_check(chk: dict):
 
 
 # ----------------------------------------------------------------------------------------------- page
-def _link(rep: HtmlReport, out: Path, rel: str, text: str) -> None:
-    if (out / rel).is_file():
+def _link(rep: HtmlReport, out: Path, path: Path | None, text: str) -> None:
+    if path is not None and Path(path).is_file():
+        try:
+            rel = Path(path).resolve().relative_to(Path(out).resolve()).as_posix()
+        except ValueError:
+            rel = Path(path).resolve().as_uri()
         rep.raw(f'<p class="small">Detailed report: <a href="{rel}">{rel}</a> ({text})</p>')
 
 
@@ -269,7 +276,7 @@ def _mount_rows(mounts: dict) -> list:
     return rows
 
 
-def build_html(d: dict, out: Path, cfg: dict) -> str:
+def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
     """The report page (one self-contained HTML string)."""
     rep = HtmlReport(f"Calibration report{(' — ' + d['name']) if d.get('name') else ''}")
     rep.raw(_PRINT_CSS)
@@ -341,7 +348,7 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
             rep.figure(_fig_distortion(cam), "Distortion magnitude (image displacement) along three directions.")
         except Exception as exc:  # noqa: BLE001 - a missing figure must not lose the report
             rep.text(f"(distortion plot unavailable: {exc})", cls="small")
-        _link(rep, out, "camera/report.html", "residuals, correlations, coverage")
+        _link(rep, out, files["camera"].get("report"), "residuals, correlations, coverage")
     else:
         rep.text("No camera step in this campaign.")
 
@@ -354,10 +361,10 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
         for key, label in (("check_rmse_m", "check-point RMSE (m)"), ("control_rmse_m", "control-point RMSE (m)")):
             if isinstance(tri.get(key), dict):
                 rep.kv_table([(f"{label} {a}", v if a == "n" else _m(v)) for a, v in tri[key].items()])
-        fig = _fig_block(out, cfg)
+        fig = _fig_block(files["triangulation"].get("eop"), cfg)
         if fig is not None:
             rep.figure(fig, "Projection centres (colour: height) and ground points of the calibration flight.")
-        _link(rep, out, "triangulation/report.html", "residuals, EOP sigmas, footprints")
+        _link(rep, out, files["triangulation"].get("report"), "residuals, EOP sigmas, footprints")
     else:
         rep.text("No triangulation step in this campaign.")
 
@@ -367,10 +374,10 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
         rep.kv_table([(k, _short(v)) for k, v in pos.items() if not isinstance(v, dict)])
         for k, v in (pos.get("residuals") or {}).items():
             rep.kv_table([(f"{k} residuals {a}", b) for a, b in v.items()])
-        fig = _fig_pos_sigma(out)
+        fig = _fig_pos_sigma(files["pos"].get("trajectory"))
         if fig is not None:
             rep.figure(fig, "Smoothed trajectory: 1-sigma of position and attitude over the flight.")
-        _link(rep, out, "pos/report.html", "smoother details")
+        _link(rep, out, files["pos"].get("report"), "smoother details")
     else:
         rep.text("No POS step in this campaign (an external trajectory was used).")
 
@@ -383,12 +390,12 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
                  "body axes. Delay: t_exposure − t_event.", cls="small")
         m = mounts[chosen]
         rep.figure(_fig_correlation(m), f"Correlations of the '{chosen}' estimate (delay, lever arm, boresight).")
-        fig = _fig_per_epoch(out)
+        fig = _fig_per_epoch(files["mounts"])
         if fig is not None:
-            rep.figure(fig, "Per-epoch lever arms of the traditional method (seed 003 Fig. 22): a non-zero delay "
-                            "shows as a shift that depends on the speed and heading.")
+            rep.figure(fig, "Per-epoch lever arms of the two-step (traditional) method (seed 003 Fig. 22): a "
+                            "non-zero delay shows as a shift that depends on the speed and heading.")
         for k in mounts:
-            _link(rep, out, f"mount_{k}/report.html", f"{k}: per-epoch plots, residuals")
+            _link(rep, out, files["mounts"].get(k, {}).get("report"), f"{k}: per-epoch plots, residuals")
     else:
         rep.text("No mounting step in this campaign.")
 
@@ -415,7 +422,7 @@ def build_html(d: dict, out: Path, cfg: dict) -> str:
         fig = _fig_check(d["check"])
         if fig is not None:
             rep.figure(fig, "Check-point errors of direct georeferencing per method.")
-        _link(rep, out, "check/check.html", "per-point table")
+        _link(rep, out, files["check"].get("report"), "per-point table")
     else:
         rep.text("No DG check in this campaign.")
 
@@ -443,13 +450,17 @@ def _short(v):
     return v
 
 
-def write_campaign_report(cfg: dict, out: Path, steps: dict | None = None, timings: dict | None = None) -> dict:
-    """Write DIR/report.json and DIR/report.html for the campaign outputs in `out`; returns their paths."""
-    import matplotlib
-    matplotlib.use("Agg")
+def write_campaign_report(cfg: dict, out: Path, files: dict, steps: dict | None = None,
+                          timings: dict | None = None) -> dict:
+    """Write DIR/report.json and DIR/report.html for the campaign outputs in `out`; returns their paths.
+
+    `files` are the step files the verbs declare (dgcal.campaign.report_files): "camera", "triangulation",
+    "pos", "check" (role -> path) and "mounts" (method as the campaign names it -> role -> path; the first
+    is the campaign's method).
+    """
     out = Path(out)
-    d = collect(cfg, out, steps, timings)
-    page = build_html(d, out, cfg)
+    d = collect(cfg, out, files, steps, timings)
+    page = build_html(d, out, cfg, files)
     with atomic_write(out / "report.json") as fh:
         json.dump(d, fh, indent=1, default=_json_default)
     with atomic_write(out / "report.html", encoding="utf-8") as fh:

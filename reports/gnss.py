@@ -1,18 +1,22 @@
 """HTML report of a GNSS single-point positioning run: track, sigma envelopes, satellites, DOP, residuals."""
 from __future__ import annotations
 
+import json
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
+from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.fields.frames import R_ecef_to_enu
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.pos.gnss.spp import enu_sigmas, write_gnss_csv
+from dgcal.pos.pipeline import SppRun
 from dgcal.reports.html import HtmlReport, new_figure
 
 
 def _enu(sol, ref_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """ENU coordinates (m) of the fixes about ``ref_ecef`` and their ENU sigmas."""
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.frames import R_ecef_to_enu
-    from dgcal.pos.gnss.spp import enu_sigmas
     lat, lon, _ = ecef_to_geodetic(ref_ecef)
     R = R_ecef_to_enu(lat, lon)
     ok = sol.ok
@@ -99,3 +103,15 @@ def write_spp_report(path: str | Path, sol, summary: dict, ref_ecef: np.ndarray 
         ax.set_ylim(0, 90)
         rep.figure(fig, "Sky plot of the satellites used (radius = zenith angle, degrees).")
     return rep.write(path)
+
+
+def write_spp_outputs(out_dir: str | Path, run: SppRun, names: Mapping[str, str]) -> dict[str, Path]:
+    """`dgcal pos --mode spp`'s files in `out_dir`, named by role in `names`: gnss (gnss.csv, ECEF m),
+    gnss_summary (JSON) and gnss_report (HTML); returns the paths by role."""
+    out = Path(out_dir)
+    paths = {role: out / names[role] for role in ("gnss", "gnss_summary", "gnss_report")}
+    write_gnss_csv(paths["gnss"], run.solution)
+    with atomic_write(paths["gnss_summary"]) as fh:
+        json.dump(run.summary, fh, indent=2)
+    write_spp_report(paths["gnss_report"], run.solution, run.summary, run.reference_ecef)
+    return paths

@@ -8,7 +8,12 @@ import io
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from dgcal.fields.io.csv_tables import atomic_write
+import matplotlib
+
+matplotlib.use("Agg")  # reports render PNGs without a display: the one place dgcal picks matplotlib's backend
+import matplotlib.pyplot as plt  # noqa: E402  (after the backend choice)
+
+from dgcal.fields.io.csv_tables import atomic_write  # noqa: E402
 
 _STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;
@@ -25,7 +30,6 @@ figure{margin:1em 0}figcaption{font-size:.9em;color:#555}img{max-width:100%}
 
 def figure_png(fig, dpi: int = 110) -> bytes:
     """PNG bytes of a matplotlib figure (the figure is closed)."""
-    import matplotlib.pyplot as plt
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     plt.close(fig)
@@ -34,9 +38,6 @@ def figure_png(fig, dpi: int = 110) -> bytes:
 
 def new_figure(w_in: float = 8.0, h_in: float = 5.0, **kw):
     """A matplotlib (figure, axes) on the Agg backend, for embedding."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     return plt.subplots(figsize=(w_in, h_in), **kw)
 
 

@@ -3,17 +3,20 @@ from __future__ import annotations
 
 import base64
 import html
-import io
+import json
+from collections.abc import Mapping
+from pathlib import Path
 
 import numpy as np
 
+from dgcal.calib.dg.accuracy import DgCheck
+from dgcal.calib.mounting.methods import MountingRun
+from dgcal.fields.io.csv_tables import atomic_write, write_table
+from dgcal.reports.html import figure_png, new_figure
+
 
 def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-    plt.close(fig)
-    return f'<img alt="plot" src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
+    return f'<img alt="plot" src="data:image/png;base64,{base64.b64encode(figure_png(fig, dpi=90)).decode()}">'
 
 
 def _table(header, rows) -> str:
@@ -33,11 +36,8 @@ def _page(title: str, parts: list[str]) -> str:
 
 
 def _per_epoch_plots(results: dict) -> list[str]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     out = []
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    fig, axes = new_figure(10, 7, nrows=3, ncols=1, sharex=True)
     for name, res in results.items():
         pe = res.get("per_epoch") or {}
         if "lever_arm_m" not in pe:
@@ -51,7 +51,7 @@ def _per_epoch_plots(results: dict) -> list[str]:
     axes[-1].set_xlabel("epoch")
     fig.suptitle("Lever arm per epoch (seed 003 Fig. 22): an uncalibrated delay shows as a speed-dependent bias")
     out.append(_png(fig))
-    fig, axes = plt.subplots(3, 1, figsize=(10, 6), sharex=True)
+    fig, axes = new_figure(10, 6, nrows=3, ncols=1, sharex=True)
     for name, res in results.items():
         pe = res.get("per_epoch") or {}
         if "boresight_deg" not in pe:
@@ -69,7 +69,7 @@ def _per_epoch_plots(results: dict) -> list[str]:
         if "residual_position_m" in pe:
             rp, rr = np.array(pe["residual_position_m"]), np.array(pe["residual_rotation_deg"])
             rej = np.array(pe.get("rejected", [False] * len(rp)))
-            fig, axes = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
+            fig, axes = new_figure(10, 5, nrows=2, ncols=1, sharex=True)
             for k in range(3):
                 axes[0].plot(rp[:, k], ".", ms=3, label="ENU"[k])
                 axes[1].plot(rr[:, k], ".", ms=3, label=f"cam {'xyz'[k]}")
@@ -122,9 +122,6 @@ def mount_report_html(main: dict, others: dict | None = None) -> str:
 
 def check_report_html(checks: dict, improvement: dict | None = None) -> str:
     """DG check-point report: seed Table 2 per method, improvement rates, ASPRS 2023, predicted budget, plot."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     parts = []
     rows = []
     for name, c in checks.items():
@@ -158,7 +155,7 @@ def check_report_html(checks: dict, improvement: dict | None = None) -> str:
                        f"{b['mean_speed_m_s']:.1f} m/s</p>")
         for w in c.get("warnings", []) + c["asprs_2023"].get("warnings", []):
             parts.append(f"<p class='warn'>{html.escape(w)}</p>")
-    fig, axes = plt.subplots(1, len(checks), figsize=(5 * len(checks), 4.8), squeeze=False)
+    fig, axes = new_figure(5 * len(checks), 4.8, nrows=1, ncols=len(checks), squeeze=False)
     # one arrow scale for all methods, so the panels compare
     emax = max(max(np.hypot(p["err_enu"][0], p["err_enu"][1]) for p in c["points"]) for c in checks.values())
     ref_all = np.array([p["ref"] for c in checks.values() for p in c["points"]])
@@ -176,3 +173,65 @@ def check_report_html(checks: dict, improvement: dict | None = None) -> str:
     fig.suptitle(f"arrows: {emax:.3f} m error drawn as {0.15 * span:.0f} m (same scale in every panel)", fontsize=9)
     parts.append(_png(fig))
     return _page("dgcal DG check points", parts)
+
+
+# ----------------------------------------------------------------------------------------------- outputs
+def write_mount_outputs(out_dir: str | Path, run: MountingRun, names: Mapping[str, str]) -> dict[str, Path]:
+    """Write `dgcal mount`'s files into `out_dir` under `names` (roles mounting, report, epochs): mounting.json,
+    the HTML report (with the reference methods) and the per-epoch CSV; returns the paths by role."""
+    out = Path(out_dir)
+    main = run.result.to_json()
+    paths = {role: out / names[role] for role in ("mounting", "report", "epochs")}
+    with atomic_write(paths["mounting"]) as fh:
+        json.dump(main, fh, indent=2)
+        fh.write("\n")
+    with atomic_write(paths["report"]) as fh:
+        fh.write(mount_report_html(main, {k: r.to_json() for k, r in run.references.items()}))
+    if not write_epochs_csv(paths["epochs"], main):
+        del paths["epochs"]
+    return paths
+
+
+def write_epochs_csv(path: Path, d: dict) -> bool:
+    """Per-epoch values of a mounting.json record as CSV (lever arm m, boresight deg, residuals, rejection);
+    False (nothing written) when the record has no per-epoch values."""
+    pe = d.get("per_epoch") or {}
+    if "image" not in pe:
+        return False
+    cols = [("lever_x", "lever_arm_m", 0), ("lever_y", "lever_arm_m", 1), ("lever_z", "lever_arm_m", 2),
+            ("bore_x_deg", "boresight_deg", 0), ("bore_y_deg", "boresight_deg", 1), ("bore_z_deg", "boresight_deg", 2),
+            ("res_e_m", "residual_position_m", 0), ("res_n_m", "residual_position_m", 1),
+            ("res_u_m", "residual_position_m", 2), ("res_rx_deg", "residual_rotation_deg", 0),
+            ("res_ry_deg", "residual_rotation_deg", 1), ("res_rz_deg", "residual_rotation_deg", 2)]
+    cols = [c for c in cols if c[1] in pe]
+    rows = []
+    for i, im in enumerate(pe["image"]):
+        rows.append([im] + [pe[k][i][j] for _, k, j in cols] + [int(bool(pe.get("rejected", [False] * (i + 1))[i]))])
+    write_table(path, ["image"] + [c[0] for c in cols] + ["rejected"], rows, fmt="%.6f")
+    return True
+
+
+def write_check_outputs(out_dir: str | Path, res: DgCheck, names: Mapping[str, str]) -> dict[str, Path]:
+    """Write `dgcal check`'s files into `out_dir` under `names` (roles check, report, points): the JSON record
+    (per method, and the improvement over the first), the HTML report and the per-point CSV (m)."""
+    out = Path(out_dir)
+    paths = {role: out / names[role] for role in ("check", "report", "points")}
+    js = {k: v.to_json() for k, v in res.checks.items()}
+    with atomic_write(paths["check"]) as fh:
+        json.dump({"checks": js, "improvement_over_" + res.reference: res.improvement}, fh, indent=2)
+    with atomic_write(paths["report"]) as fh:
+        fh.write(check_report_html(js, res.improvement))
+    rows = []
+    for k, c in res.checks.items():
+        for i in range(len(c.ids)):
+            rows.append([k, c.ids[i], *c.xyz_dg[i], *c.err_enu[i], *c.sigma_pred[i], int(c.n_rays[i])])
+    write_table(paths["points"], ["method", "id", "x", "y", "z", "dE", "dN", "dU", "sE_pred", "sN_pred", "sU_pred",
+                                  "n_rays"], rows, fmt="%.4f")
+    return paths
+
+
+def write_comparison_json(path: str | Path, comparison: dict) -> Path:
+    """Write the result of dgcal.calib.mounting.compare.compare_mountings as JSON (atomically)."""
+    with atomic_write(path) as fh:
+        json.dump(comparison, fh, indent=2)
+    return Path(path)

@@ -2,10 +2,16 @@
 post-fit residuals, sigma envelopes, smoother vs forward, innovation statistics. One self-contained file."""
 from __future__ import annotations
 
+import json
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
+from dgcal.fields.crs import geodetic_to_ecef
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.io.formats import write_trajectory
+from dgcal.pos.pipeline import PosResult
 from dgcal.reports.html import HtmlReport, new_figure
 
 
@@ -33,7 +39,6 @@ def _map(res):
 
 
 def _ecef(tr):
-    from dgcal.fields.crs import geodetic_to_ecef
     return geodetic_to_ecef(tr.lat, tr.lon, tr.h)
 
 
@@ -144,3 +149,23 @@ def write_pos_report(path: str | Path, res) -> Path:
         rep.figure(_smooth_vs_forward(res), "Forward minus smoothed position, and the two sigma envelopes")
         rep.figure(_residuals(res, "innovations"), "Innovations")
     return rep.write(path)
+
+
+def write_pos_outputs(out_dir: str | Path, res: PosResult, names: Mapping[str, str]) -> dict[str, Path]:
+    """`dgcal pos --mode tc|lc`'s files in `out_dir`, named by role in `names`: trajectory (output rate),
+    events (one row per event), trajectory_forward (keyframes of the forward solution), summary (JSON)
+    and report (HTML); returns the paths written by role."""
+    out = Path(out_dir)
+    paths = {"trajectory": out / names["trajectory"]}
+    write_trajectory(paths["trajectory"], res.trajectory)
+    if res.events is not None:
+        paths["events"] = out / names["events"]
+        write_trajectory(paths["events"], res.events)
+    if res.forward_keyframes is not None:
+        paths["trajectory_forward"] = out / names["trajectory_forward"]
+        write_trajectory(paths["trajectory_forward"], res.forward_keyframes)
+    paths["summary"] = out / names["summary"]
+    with atomic_write(paths["summary"]) as fh:
+        json.dump(res.summary, fh, indent=2)
+    paths["report"] = write_pos_report(out / names["report"], res)
+    return paths

@@ -1,10 +1,13 @@
 """HTML report of the time synchronisation: packet loss, PPS clock fit, exposure spikes, laser vs GNSS height."""
 from __future__ import annotations
 
+import json
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
+from dgcal.fields.io.formats import write_events
 from dgcal.reports.html import HtmlReport, new_figure
 
 
@@ -47,3 +50,14 @@ def write_sync_report(path: Path, res) -> Path:
         ax.legend()
         rep.figure(fig, "Laser range against GNSS height after alignment (seed 000 Fig. 7)")
     return rep.write(path)
+
+
+def write_sync_outputs(out_dir: str | Path, res, names: Mapping[str, str]) -> dict[str, Path]:
+    """`dgcal sync`'s files in `out_dir`, named by role in `names`: events (CSV image,gps_week,gps_sow),
+    summary (sync.json) and report (HTML) of a dgcal.pos.lowcost.sync.SyncResult; returns the paths by role."""
+    out = Path(out_dir)
+    paths = {role: out / names[role] for role in ("events", "summary", "report")}
+    write_events(paths["events"], res.events)
+    paths["summary"].write_text(json.dumps(res.summary(), indent=1))
+    write_sync_report(paths["report"], res)
+    return paths

@@ -1,5 +1,4 @@
-"""Simulators of calibration data sets with known truth.
-
-Each module that defines `NAME`, `HELP`, `add_arguments(parser)` and `run(args)` becomes a
-`dgcal simulate NAME` sub-command; every simulator also has a plain Python entry point.
+"""Simulators of calibration data sets with known truth: plain library functions that simulate a data set
+and write it (with `truth.json`) to a folder. Their command line, `dgcal simulate NAME`, is in
+dgcal.simulators (one module per sub-command).
 """

@@ -10,28 +10,29 @@ wholly inside the frame, i.e. a detector can be expected to find it).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
+from dgcal.calib.camera.files import camera_json_dict
 from dgcal.calib.camera.models import CameraModel, Fraser7
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir, write_table
 from dgcal.fields.targets.plate import TargetField, nonplanar_field, write_field
+from dgcal.fields.targets.printing import field_texture
 from dgcal.sim.render import Facet, RayGrid, facet_depth_at, render
 
-NAME = "camera-field"
-HELP = "rendered JPEG photos of the rotating coded-target plate with known fraser7 truth"
 
 # (tilt deg, distance factor, roll deg): distance factor 1 = the plate diameter fills the image diagonal
 STATIONS = ((0.0, 0.95, 0.0), (30.0, 1.05, 90.0), (45.0, 1.2, 0.0),
             (0.0, 1.3, 90.0), (30.0, 1.3, 0.0), (45.0, 1.45, 90.0))
 
 
-def default_camera(image_size: tuple[int, int] = (3000, 2000)) -> Fraser7:
+def calibration_field_camera(image_size: tuple[int, int] = (3000, 2000)) -> Fraser7:
     """The simulator's truth camera: f = image width (53 deg across), ~2 % radial distortion in the corners."""
     w, h = image_size
     s = w / 3000.0
@@ -88,7 +89,6 @@ def plan_shots(n_images: int, camera: CameraModel, tf: TargetField, rng: np.rand
 
 def field_facets(tf: TargetField, texel_m: float) -> list[Facet]:
     """The plate (and its raised blocks with grey side walls) as facets in the plate frame."""
-    from dgcal.fields.targets.printing import field_texture
     grey, alpha = field_texture(tf, texel_m)
     grey = np.rint(grey * 65535).astype(np.uint16)  # half the memory of float32, still 16-bit smooth
     alpha = np.rint(alpha * 255).astype(np.uint8)
@@ -149,7 +149,6 @@ def truth_projections(camera: CameraModel, tf: TargetField, shot: Shot, facets: 
 
 def _finish(radiance: np.ndarray, rng: np.random.Generator, blur_px: float, noise_dn: float) -> np.ndarray:
     """Photometric part: exposure, vignetting, optical blur, noise, 8-bit quantisation."""
-    import cv2
     h, w = radiance.shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     r2 = ((xx - w / 2) ** 2 + (yy - h / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
@@ -167,12 +166,9 @@ def simulate_camera_field(out: str | Path, seed: int = 0, n_images: int = 48,
                           noise_dn: float = 2.0, jpeg_quality: int = 95, supersample: int = 2,
                           texel_m: float | None = None, progress: bool = True) -> dict:
     """Render the data set into `out` (see module doc); returns the truth dict written to truth.json."""
-    import cv2
-    from tqdm import tqdm
 
-    from dgcal.calib.camera.files import camera_json_dict
     rng = np.random.default_rng(seed)
-    camera = default_camera(image_size) if camera is None else camera
+    camera = calibration_field_camera(image_size) if camera is None else camera
     tf = field if field is not None else (nonplanar_field() if nonplanar else TargetField())
     if texel_m is None:
         # about the finest pixel footprint on the plate (the texture is area-filtered and sampled at
@@ -198,7 +194,7 @@ def simulate_camera_field(out: str | Path, seed: int = 0, n_images: int = 48,
             rows_meas += [(shot.image, i, *p, int(c)) for i, p, c in zip(ids, uv, complete)]
         write_table(tmp / "truth_measurements.csv", ["image", "id", "x", "y", "complete"], rows_meas, fmt="%.5f")
         truth = {
-            "simulator": NAME, "seed": int(seed), "n_images": len(shots),
+            "simulator": "camera-field", "seed": int(seed), "n_images": len(shots),
             "camera": camera_json_dict(camera),
             "field": tf.to_dict(),
             "noise": {"blur_px": blur_px, "noise_dn": noise_dn, "jpeg_quality": int(jpeg_quality),
@@ -213,33 +209,3 @@ def simulate_camera_field(out: str | Path, seed: int = 0, n_images: int = 48,
         with atomic_write(tmp / "truth.json") as fh:
             json.dump(truth, fh, indent=1)
     return truth
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--n-images", type=int, default=48)
-    p.add_argument("--image-size", type=int, nargs=2, default=(3000, 2000), metavar=("W", "H"),
-                   help="image size in pixels (default 3000 2000; 5472 3648 for a 20 MP camera)")
-    p.add_argument("--camera", help="truth camera.json (default: a built-in fraser7 lens for the image size)")
-    p.add_argument("--nonplanar", action="store_true", help="plate with four raised blocks (0.1 m, 0.2 m)")
-    p.add_argument("--diameter", type=float, default=2.4, help="plate diameter (m)")
-    p.add_argument("--square", type=float, default=0.08, help="chessboard square (m)")
-    p.add_argument("--marker", type=float, default=0.06, help="ArUco marker side (m)")
-    p.add_argument("--dictionary", default="DICT_5X5_1000")
-    p.add_argument("--blur", type=float, default=0.8, help="Gaussian optical blur sigma (px)")
-    p.add_argument("--noise", type=float, default=2.0, help="Gaussian noise sigma (8-bit DN)")
-    p.add_argument("--jpeg-quality", type=int, default=95)
-
-
-def run(args: argparse.Namespace) -> int:
-    camera = None
-    if args.camera:
-        from dgcal.calib.camera.files import load_camera
-        camera = load_camera(args.camera)
-    kw = dict(diameter_m=args.diameter, square_m=args.square, marker_m=args.marker, dictionary=args.dictionary)
-    tf = nonplanar_field(**kw) if args.nonplanar else TargetField(**kw)
-    simulate_camera_field(args.out, args.seed, args.n_images, tuple(args.image_size), camera, tf,
-                          blur_px=args.blur, noise_dn=args.noise, jpeg_quality=args.jpeg_quality)
-    print(f"wrote {args.n_images} images, field.csv, truth.json and truth_measurements.csv to {args.out}")
-    return 0

@@ -1,6 +1,6 @@
 """A complete synthetic calibration campaign like seed 003, from one consistent truth.
 
-Truth: a fixed-wing flight (`dgcal.sim.trajectory.simulate_flight`: take-off, orbit climbs, strips in opposite
+Truth: a fixed-wing flight (`dgcal.sim.trajectory.simulate_true_trajectory`: take-off, orbit climbs, strips in opposite
 headings at 300 m and 600 m above ground) -> its IMU data (`dgcal.sim.imu.simulate_imu`, ADIS16488 grade) ->
 GNSS antenna positions (cm-level, PPK-like; or RINEX pseudoranges with `gnss_mode="tc"`) -> camera
 events (`camera_events`, the exposure happening `delay_s` after the event) -> true camera poses at the
@@ -26,15 +26,33 @@ and delay (2 ms) accuracy of a calibration needs PPK-quality antenna positions, 
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-NAME = "campaign"
-HELP = "a complete calibration campaign (camera field, control-field flight, IMU, GNSS, events) with truth"
+from dgcal.calib.camera.files import camera_json_dict
+from dgcal.calib.camera.models import Fraser7
+from dgcal.fields.constants import OMEGA_IE_E
+from dgcal.fields.crs import LocalENU, MapGrid, ecef_to_geodetic
+from dgcal.fields.errors import InputError
+from dgcal.fields.frames import R_ecef_to_enu, R_enu_to_grid, opk_from_R_cam_to_map
+from dgcal.fields.io.csv_tables import atomic_write, staged_dir, write_table
+from dgcal.fields.io.formats import (EOP, Measurements, Points, week_sow, write_eop, write_events, write_measurements,
+                                     write_points, write_trajectory)
+from dgcal.fields.targets.plate import TargetField, write_field
+from dgcal.pos.gnss.rinex import write_rinex_obs
+from dgcal.pos.gnss.spp import GNSS_CSV_COLUMNS
+from dgcal.pos.ins.imu_data import write_kf_gins
+from dgcal.sim.camera_field import plan_shots, truth_projections
+from dgcal.sim.gnss import DEFAULT_NAV, DEFAULT_T0_GPS, simulate_gnss
+from dgcal.sim.imu import simulate_imu
+from dgcal.sim.trajectory import (FlightProfile, SmoothSteps, assemble_trajectory, camera_events,
+                                  simulate_true_trajectory)
+
 
 DEFAULT_CRS = "EPSG:32651"           # UTM 51N; the site lies 2.4 deg west of its central meridian (123 E)
 SITE = (23.70, 120.60, 40.0)         # lat, lon (deg), ellipsoidal ground height (m): western Taiwan
@@ -44,9 +62,8 @@ LEVER_ARM_GNSS_M = (0.05, 0.0, -0.35)  # IMU -> GNSS antenna, body FRD (m), surv
 R_CAM_TO_BODY_NOMINAL = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # image top forward
 
 
-def default_camera():
+def campaign_camera() -> Fraser7:
     """A 20 mm lens on a 6000 x 4000 full-frame sensor (6 um pixels): f = 3333 px, mild barrel distortion."""
-    from dgcal.calib.camera.models import Fraser7
     w, h = 6000, 4000
     return Fraser7((w, h), [20.0 / 0.006, (w - 1) / 2 + 11.0, (h - 1) / 2 - 7.0,
                             -0.045, 0.018, 0.0, 3e-5, -2e-5, 0.25, 0.05])
@@ -54,7 +71,6 @@ def default_camera():
 
 def boresight_matrix(deg=BORESIGHT_DEG) -> np.ndarray:
     """R_cam_to_body: the nominal down-looking, image-top-forward mounting turned by small angles (deg)."""
-    from scipy.spatial.transform import Rotation
     return Rotation.from_euler("xyz", deg, degrees=True).as_matrix() @ R_CAM_TO_BODY_NOMINAL
 
 
@@ -73,8 +89,6 @@ class _SpeedProfile:
 
     @staticmethod
     def make(base, steps):
-        from dgcal.sim.trajectory import FlightProfile
-
         class Profile(FlightProfile):
             def controls(self, t):
                 tau = np.asarray(t, float) - self.t0
@@ -109,11 +123,10 @@ class _SpeedProfile:
 
 
 def _flight_with_speeds(speeds, **kw):
-    """`dgcal.sim.trajectory.simulate_flight` with airspeed speeds[i] on the strips of height i (changed smoothly
-    during the orbit climb before them); heights fly at different ground speeds, which separates the
+    """`dgcal.sim.trajectory.simulate_true_trajectory` with airspeed speeds[i] on the strips of height i (changed
+    smoothly during the orbit climb before them); heights fly at different ground speeds, which separates the
     exposure delay from the along-track lever arm."""
-    from dgcal.sim.trajectory import SmoothSteps, assemble_trajectory, simulate_flight
-    base = simulate_flight(speed=float(speeds[0]), **kw)
+    base = simulate_true_trajectory(speed=float(speeds[0]), **kw)
     climbs = [s for s in base.segments if s.kind == "climb"]
     a, T, d = [], [], []
     for i in range(1, len(speeds)):
@@ -136,10 +149,6 @@ def _flight_with_speeds(speeds, **kw):
 
 def _camera_field(out: Path, camera, rng, n_images: int, noise_px: float) -> dict:
     """Target-plate measurements (no rendering): shots of dgcal.sim.camera_field, projected, noisy."""
-    from dgcal.fields.io.csv_tables import write_table
-    from dgcal.fields.io.formats import Measurements, write_measurements
-    from dgcal.fields.targets.plate import TargetField, write_field
-    from dgcal.sim.camera_field import plan_shots, truth_projections
     tf = TargetField()
     shots = plan_shots(n_images, camera, tf, rng)
     rows_img, rows_id, uv_all = [], [], []
@@ -179,9 +188,6 @@ def _observe(camera, C_ecef, R_cam_to_ecef, names, ids, X_ecef, margin_px: float
 
 def _gnss_rows(t, p_ant, v_ant, sig_enu, sig_v):
     """Rows of gnss.csv (the columns of `dgcal pos --mode spp`) for antenna positions with ENU sigmas."""
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.io.formats import week_sow
-    from dgcal.fields.frames import R_ecef_to_enu
     llh = ecef_to_geodetic(p_ant)
     R = R_ecef_to_enu(llh[:, 0], llh[:, 1])                  # (N,3,3) ECEF -> ENU
     cov = np.einsum("nji,j,njk->nik", R, np.asarray(sig_enu) ** 2, R)   # ENU diag -> ECEF
@@ -206,17 +212,6 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
                       n_control: int = 12, n_check: int = 12, gcp_sigma=(0.01, 0.01, 0.02), n_tie: int = 1500,
                       field_images: int = 36, field_noise_px: float = 0.15, pos_extra: dict | None = None) -> dict:
     """Write a campaign into `out` (see the module doc); returns the truth dictionary (also truth.json)."""
-    from dgcal.calib.camera.files import camera_json_dict
-    from dgcal.fields.crs import LocalENU, MapGrid
-    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
-    from dgcal.fields.errors import InputError
-    from dgcal.fields.io.formats import (EOP, Measurements, Points, week_sow, write_eop, write_events, write_measurements,
-                                write_points, write_trajectory)
-    from dgcal.fields.frames import opk_from_R_cam_to_map
-    from dgcal.pos.ins.imu_data import write_kf_gins
-    from dgcal.sim.gnss import DEFAULT_T0_GPS
-    from dgcal.sim.imu import simulate_imu
-    from dgcal.sim.trajectory import camera_events
 
     if gnss_mode not in ("lc", "tc"):
         raise InputError(f"unknown GNSS mode {gnss_mode!r} (lc or tc)", field="gnss_mode")
@@ -224,7 +219,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     lat0, lon0, h0 = site
     grid = MapGrid(crs)
     enu = LocalENU(lat0, lon0, h0)
-    camera = default_camera()
+    camera = campaign_camera()
     R_cb = boresight_matrix(boresight_deg)
     lever = np.asarray(lever_arm_m, float)
     lever_g = np.asarray(lever_arm_gnss_m, float)
@@ -286,7 +281,6 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     gp_map_obs = gp_map + rng.normal(0, 1.0, gp_map.shape) * sig  # surveyed coordinates carry their sigmas
     C_map = grid.from_ecef(C_ecef)
     # EOP angles: camera frame -> grid axes (ENU at the centre turned by the meridian convergence)
-    from dgcal.fields.frames import R_ecef_to_enu, R_enu_to_grid
     llh_c = grid.to_geodetic(C_map)
     gamma = grid.convergence_deg(llh_c[:, 0], llh_c[:, 1])
     R_cam_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ R_ecef_to_enu(llh_c[:, 0], llh_c[:, 1])
@@ -297,7 +291,6 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     t_gnss = np.arange(math.ceil(traj.t[0]), traj.t[-1] + 1e-9, 1.0 / gnss_rate_hz)
     g_at = traj.at(t_gnss)
     p_ant = g_at.p_ecef + np.einsum("nij,j->ni", g_at.R_body_to_ecef, lever_g)
-    from dgcal.sim.strapdown import OMEGA_IE_E
     w_eb_b = g_at.omega_ib_b - np.einsum("nji,j->ni", g_at.R_body_to_ecef, OMEGA_IE_E)
     v_ant = g_at.v_ecef + np.einsum("nij,nj->ni", g_at.R_body_to_ecef, np.cross(w_eb_b, lever_g))
 
@@ -315,8 +308,6 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
         write_events(fl / "events.csv", events)
         write_kf_gins(fl / "imu.txt", imu)
         if gnss_mode == "lc":
-            from dgcal.fields.io.csv_tables import write_table
-            from dgcal.pos.gnss.spp import GNSS_CSV_COLUMNS
             sg = np.asarray(gnss_sigma_enu, float)
             llh = grid.to_geodetic(grid.from_ecef(p_ant))
             R_e2enu = R_ecef_to_enu(llh[:, 0], llh[:, 1])
@@ -326,10 +317,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
             write_table(fl / "gnss.csv", GNSS_CSV_COLUMNS, _gnss_rows(t_gnss, p_obs, v_obs, sg, gnss_sigma_v),
                         fmt="%.12g")
         else:
-            import shutil
 
-            from dgcal.pos.gnss.rinex import write_rinex_obs
-            from dgcal.sim.gnss import DEFAULT_NAV, simulate_gnss
             obs = simulate_gnss(t_gnss, p_ant, v_ant, None, seed=seed + 2, sigma_pr=sigma_pr, systems=("G", "E"),
                                 prepare=False)
             write_rinex_obs(fl / "rover.obs", obs)
@@ -342,7 +330,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
         with atomic_write(tr / "camera.json") as fh:
             json.dump(camera_json_dict(camera), fh, indent=1)
         truth = {
-            "simulator": NAME, "seed": int(seed), "crs": crs, "site": {"lat": lat0, "lon": lon0, "h_ground": h0},
+            "simulator": "campaign", "seed": int(seed), "crs": crs, "site": {"lat": lat0, "lon": lon0, "h_ground": h0},
             "convergence_deg": float(grid.convergence_deg(lat0, lon0)),
             "lever_arm_m": lever.tolist(), "boresight_R_cam_to_body": R_cb.tolist(),
             "boresight_deg_about_nominal": list(boresight_deg), "delay_s": float(delay_s),
@@ -372,7 +360,6 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
 
 
 def _write_toml(path: Path, crs: str, image_size, gnss_mode: str, imu_grade: str, lever_g, pos_extra) -> None:
-    from dgcal.fields.io.csv_tables import atomic_write
     w, h = image_size
     gn = ('gnss = "flight/gnss.csv"' if gnss_mode == "lc"
           else 'rinex_obs = "flight/rover.obs"\nrinex_nav = "flight/nav.rnx"')
@@ -413,26 +400,3 @@ events = "flight/events.csv"
 """
     with atomic_write(path) as fh:
         fh.write(text)
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--crs", default=DEFAULT_CRS, help="map CRS of the ground points (default %(default)s)")
-    p.add_argument("--gnss-mode", choices=("lc", "tc"), default="lc",
-                   help="lc: cm-level antenna positions (PPK-like, default); tc: RINEX pseudoranges (metre-level)")
-    p.add_argument("--delay", type=float, default=-0.14, help="exposure delay t_exposure - t_event (s)")
-    p.add_argument("--heights", type=float, nargs="+", default=[300.0, 600.0], help="flying heights above ground (m)")
-    p.add_argument("--strips", type=int, default=4, help="strips per height (alternating headings)")
-    p.add_argument("--n-tie", type=int, default=1500, help="number of simulated tie points")
-    p.add_argument("--field-images", type=int, default=36, help="photos of the target plate")
-
-
-def run(args: argparse.Namespace) -> int:
-    truth = simulate_campaign(args.out, args.seed, crs=args.crs, gnss_mode=args.gnss_mode, delay_s=args.delay,
-                              heights_agl=tuple(args.heights), n_strips=args.strips, n_tie=args.n_tie,
-                              field_images=args.field_images)
-    print(f"simulated {truth['flight']['n_images']} images over {truth['n_control']} control and "
-          f"{truth['n_check']} check points, {truth['flight']['duration_s']:.0f} s flight -> "
-          f"{Path(args.out) / 'campaign.toml'}")
-    return 0

@@ -11,10 +11,10 @@ overlap, with small random attitude and position jitter.
 """
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from dgcal.calib.camera.files import write_camera_json
@@ -25,14 +25,12 @@ from dgcal.fields.io.formats import EOP, Measurements, Points, write_eop, write_
 from dgcal.fields.frames import R_CV_TO_PHOTO, R_enu_to_grid, opk_from_R_cam_to_map
 from scipy.spatial.transform import Rotation
 
-NAME = "flight"
-HELP = "a control-field flight: terrain, GCP targets, two heights, images, truth EOPs"
 
 DEFAULT_CRS = "EPSG:32651"
 CENTRE_LAT, CENTRE_LON, CENTRE_H = 24.0, 121.3, 120.0   # west of UTM 51's central meridian: convergence ~ -0.7 deg
 
 
-def default_camera(width: int = 1200, height: int = 800) -> Fraser7:
+def block_flight_camera(width: int = 1200, height: int = 800) -> Fraser7:
     """The simulated payload camera (fraser7, px): f ~ 0.83 w, mild barrel distortion, small affinity."""
     s = width / 1200.0
     return Fraser7((width, height), np.array([1000.0 * s, (width - 1) / 2 + 4.0 * s, (height - 1) / 2 - 3.0 * s,
@@ -64,17 +62,17 @@ def _flight_plan(camera: Fraser7, heights, n_strips, n_images, rng):
     return plan
 
 
-def simulate_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, render: bool = True,
-                    heights=(80.0, 120.0), n_strips=(3, 2), n_images=(14, 10), n_control: int = 12,
-                    n_check: int = 10, n_tie: int = 1500, noise_px: float = 0.3,
-                    gcp_sigma=(0.01, 0.01, 0.02), image_size=(1200, 800), targets: str = "disc",
-                    target_size_m: float = 2.0) -> dict:
+def simulate_block_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS, render: bool = True,
+                          heights=(80.0, 120.0), n_strips=(3, 2), n_images=(14, 10), n_control: int = 12,
+                          n_check: int = 10, n_tie: int = 1500, noise_px: float = 0.3,
+                          gcp_sigma=(0.01, 0.01, 0.02), image_size=(1200, 800), targets: str = "disc",
+                          target_size_m: float = 2.0) -> dict:
     """Write a simulated flight to `out` and return the truth dictionary (also in `truth.json`).
 
     `targets`: "disc" (quartered discs, ids GCPnn/CHKnn) or "aruco" (DICT_4X4_50 markers of
     `target_size_m`, top to grid north, point ids = marker ids "0", "1", ...)."""
     rng = np.random.default_rng(seed)
-    cam = default_camera(*image_size)
+    cam = block_flight_camera(*image_size)
     grid = MapGrid(crs)
     frame = LocalENU(CENTRE_LAT, CENTRE_LON, CENTRE_H)
     plan = _flight_plan(cam, heights, n_strips, n_images, rng)
@@ -201,7 +199,6 @@ def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: i
                 texel_m: float = 0.07, targets: str = "disc", target_size_m: float = 2.0) -> None:
     """Render each image: ray -> terrain intersection (fixed-point on height) -> texture, plus GCP targets
     (a white disc of 1 m radius with a black-and-white quartered centre of 0.5 m radius)."""
-    import cv2
     folder.mkdir(parents=True, exist_ok=True)
     tex = _texture(seed)
     size = tex.shape[0]
@@ -259,20 +256,3 @@ def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: i
                 sub[(r < target_r) & ((dx > 0) == (dy > 0))] = 245.0
         img = cv2.GaussianBlur(img, (0, 0), 0.6)
         cv2.imwrite(str(folder / name), np.clip(img, 0, 255).astype(np.uint8))
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--seed", type=int, default=0, help="random seed")
-    p.add_argument("--crs", default=DEFAULT_CRS, help="map CRS of gcp.csv and truth_eop.csv (default %(default)s)")
-    p.add_argument("--no-render", action="store_true", help="write measurements only, no images")
-    p.add_argument("--noise-px", type=float, default=0.3, help="image measurement noise (px)")
-    p.add_argument("--targets", choices=("disc", "aruco"), default="disc",
-                   help="GCP targets: quartered discs, or ArUco DICT_4X4_50 markers named by their ids")
-
-
-def run(args: argparse.Namespace) -> int:
-    truth = simulate_flight(args.out, args.seed, crs=args.crs, render=not args.no_render, noise_px=args.noise_px,
-                            targets=args.targets)
-    print(f"simulated {len(truth['images'])} images, {len(truth['ground_points'])} ground points -> {args.out}")
-    return 0

@@ -7,26 +7,26 @@ plane z = 0 textured with multi-octave noise (blobs and edges from 4 m to 60 m).
 """
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
+from dgcal.calib.camera.models import Fraser7
 from dgcal.fields.crs import LocalENU
 from dgcal.fields.frames import R_NED_TO_ENU
-from dgcal.pos.lowcost.optic_flow import R_CAM_TO_BODY_FORWARD
+from dgcal.fields.io.csv_tables import staged_dir
+from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude
+from dgcal.pos.lowcost.optic_flow import R_CAM_TO_BODY_FORWARD, flow_attitude
 from dgcal.sim.render import Facet, RayGrid, render
-from dgcal.sim.trajectory import TrueTrajectory, simulate_flight
-
-NAME = "forward-camera"
-HELP = "forward-camera image stream over textured terrain from a simulated flight (seed 001)"
+from dgcal.sim.trajectory import TrueTrajectory, simulate_true_trajectory
 
 
 def ground_texture(size_m: float = 6000.0, texel_m: float = 2.0, seed: int = 0) -> Facet:
     """A square textured ground facet (z = 0, centred on the origin) of multi-octave smoothed noise."""
-    import cv2
     n = int(round(size_m / texel_m))
     rng = np.random.default_rng(seed)
     tex = np.zeros((n, n), np.float32)
@@ -46,7 +46,6 @@ def ground_texture(size_m: float = 6000.0, texel_m: float = 2.0, seed: int = 0) 
 
 def forward_camera(image_px: int = 240, fov_deg: float = 90.0):
     """A square pinhole camera (Fraser7, no distortion) with the given full field of view."""
-    from dgcal.calib.camera.models import Fraser7
     f = 0.5 * image_px / np.tan(np.radians(fov_deg) / 2)
     c = (image_px - 1) / 2
     return Fraser7.from_dict((image_px, image_px), {"f": f, "cx": c, "cy": c})
@@ -89,10 +88,10 @@ def make_forward_camera_sim(duration_s: float = 300.0, height_agl: float = 60.0,
                             seed: int = 0) -> ForwardCameraSim:
     """Seed 001-style flight (racetrack + orbits, coordinated turns, angle of attack and a wind crab angle)
     with a forward camera along the body x axis."""
-    truth = simulate_flight("fixed-wing", lat0=lat0, lon0=lon0, h_ground=h_ground, heights_agl=(height_agl,),
-                            n_strips=2, strip_length_m=1200.0, strip_spacing_m=500.0, speed=speed,
-                            bank_deg=bank_deg, climb_rate=3.0, aoa_deg=aoa_deg, crab_deg=crab_deg,
-                            rate_hz=rate_hz, duration_s=duration_s)
+    truth = simulate_true_trajectory("fixed-wing", lat0=lat0, lon0=lon0, h_ground=h_ground, heights_agl=(height_agl,),
+                                     n_strips=2, strip_length_m=1200.0, strip_spacing_m=500.0, speed=speed,
+                                     bank_deg=bank_deg, climb_rate=3.0, aoa_deg=aoa_deg, crab_deg=crab_deg,
+                                     rate_hz=rate_hz, duration_s=duration_s)
     cam = forward_camera(image_px, fov_deg)
     return ForwardCameraSim(truth, cam, ground_texture(seed=seed), LocalENU(lat0, lon0, h_ground),
                             R_CAM_TO_BODY_FORWARD, RayGrid(cam))
@@ -112,8 +111,6 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
                         progress: bool = False) -> dict:
     """Seed 001 Table 2 on a simulated flight: per frame pair (every `pair_every_s` s once above `min_agl_m`)
     roll from pseudo-roll, pitch/yaw from pseudo attitude + FOE, AGL from flow; error statistics vs truth."""
-    from dgcal.pos.lowcost.optic_flow import flow_attitude
-    from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude
     sim = sim or make_forward_camera_sim(seed=seed)
     tr = sim.truth
     tv, v = gnss_velocity(tr, seed=seed + 1)
@@ -126,7 +123,6 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
     rows = []
     it = times
     if progress:
-        from tqdm import tqdm
         it = tqdm(times, desc="flow pairs", unit="pair", leave=False)
     for t1 in it:
         t2 = t1 + frame_dt
@@ -196,36 +192,24 @@ def format_table2(rep: dict) -> str:
     return "\n".join(out)
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, type=Path, help="output directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=300.0, help="flight length (s)")
-    p.add_argument("--fps", type=float, default=5.0, help="frame rate (Hz)")
-    p.add_argument("--size", type=int, default=240, help="image width = height (px)")
-
-
-def run(args: argparse.Namespace) -> int:
-    import cv2
-    from dgcal.fields.io.csv_tables import staged_dir
-    sim = make_forward_camera_sim(duration_s=args.duration, image_px=args.size, seed=args.seed)
-    times = np.arange(sim.truth.t[0], sim.truth.t[-1], 1.0 / args.fps)
-    rng = np.random.default_rng(args.seed)
-    with staged_dir(args.out) as d:
+def write_forward_camera_dataset(out: str | Path, seed: int = 0, duration_s: float = 300.0, fps: float = 5.0,
+                                 image_px: int = 240) -> int:
+    """Render the forward camera's frames at `fps` (Hz) over a `duration_s` flight into out/frames with
+    frames.csv (image,t_gps), gnss_velocity.csv (NED m/s), truth_trajectory.csv and truth.json; returns the
+    number of frames."""
+    sim = make_forward_camera_sim(duration_s=duration_s, image_px=image_px, seed=seed)
+    times = np.arange(sim.truth.t[0], sim.truth.t[-1], 1.0 / fps)
+    rng = np.random.default_rng(seed)
+    with staged_dir(out) as d:
         d = Path(d)
         (d / "frames").mkdir()
         rows = []
-        it = times
-        try:
-            from tqdm import tqdm
-            it = tqdm(times, desc="frames", unit="frame")
-        except ImportError:
-            pass
-        for k, t in enumerate(it):
+        for k, t in enumerate(tqdm(times, desc="frames", unit="frame")):
             name = f"frame_{k:05d}.png"
             cv2.imwrite(str(d / "frames" / name), np.rint(sim.frame(t, 0.005, rng) * 255).astype(np.uint8))
             rows.append(f"{name},{t:.4f}")
         (d / "frames.csv").write_text("image,t_gps\n" + "\n".join(rows) + "\n")
-        tv, v = gnss_velocity(sim.truth, seed=args.seed + 1)
+        tv, v = gnss_velocity(sim.truth, seed=seed + 1)
         np.savetxt(d / "gnss_velocity.csv", np.column_stack([tv, v]), delimiter=",", fmt="%.4f",
                    header="t_gps,vn,ve,vd", comments="")
         tr = sim.truth
@@ -233,7 +217,6 @@ def run(args: argparse.Namespace) -> int:
                    delimiter=",", fmt="%.9f", header="t_gps,lat,lon,h,vn,ve,vd,roll,pitch,heading", comments="")
         (d / "truth.json").write_text(json.dumps({"camera": sim.camera.as_dict(), "image_size":
                                                   list(sim.camera.image_size),
-                                                  "R_cam_to_body": sim.R_cam_to_body.tolist(), "seed": args.seed},
+                                                  "R_cam_to_body": sim.R_cam_to_body.tolist(), "seed": seed},
                                                  indent=1))
-    print(f"wrote {len(times)} frames to {args.out}/frames and frames.csv, gnss_velocity.csv, truth.json")
-    return 0
+    return len(times)

@@ -16,26 +16,29 @@ Noise sigmas depend on elevation (``dgcal.pos.gnss.corrections.code_sigma_m``).
 """
 from __future__ import annotations
 
-import argparse
 import json
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from cssrlib.gnss import Eph, char2sys, gpst2time, prn2sat
 
-from dgcal.pos.gnss.corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m,
-                                  saastamoinen_delay_m)
-from dgcal.pos.gnss.observations import C_LIGHT, OMEGA_E, GnssEpoch, GnssObservations
-from dgcal.pos.gnss.rinex import BroadcastNav, signal_frequency_hz
+from dgcal.fields.constants import C_LIGHT, GM_GPS, OMEGA_EARTH, SECONDS_PER_DAY, SECONDS_PER_WEEK
+from dgcal.fields.crs import LocalENU, ecef_to_geodetic
+from dgcal.fields.frames import R_ecef_to_enu
+from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+from dgcal.pos.gnss.corrections import code_sigma_m, klobuchar_delay_m, saastamoinen_delay_m
+from dgcal.pos.gnss.ephemeris import satellite_states
+from dgcal.pos.gnss.observations import GnssEpoch, GnssObservations
+from dgcal.pos.gnss.rinex import BroadcastNav, read_rinex_nav, signal_frequency_hz, write_rinex_obs
+from dgcal.pos.gnss.spp import SppOptions, prepare_epoch
 
-NAME = "gnss"
-HELP = "simulate RINEX 3 GNSS observations of a static or moving receiver from broadcast orbits"
 
 DEFAULT_NAV = Path(__file__).resolve().parents[2] / "shared" / "data" / "rinex-sept" / "SEPT078M.21P"
 # 2021-03-19 12:00:00 GPS time, inside the validity of DEFAULT_NAV
-DEFAULT_T0_GPS = 2149 * 604800.0 + 5 * 86400.0 + 12 * 3600.0
+DEFAULT_T0_GPS = 2149 * SECONDS_PER_WEEK + 5 * SECONDS_PER_DAY + 12 * 3600.0
 SIGNAL = {"G": "C1C", "J": "C1C", "E": "C1C", "C": "C2I"}
-MU_GPS = 3.986005e14
 
 
 @dataclass
@@ -63,7 +66,6 @@ def _load_nav(nav, t_span: tuple[float, float] | None = None, systems=("G", "E",
         if t_span is None:
             raise ValueError("a synthetic constellation needs the time span")
         return synthetic_nav(t_span[0], t_span[1], systems, seed)
-    from dgcal.pos.gnss.rinex import read_rinex_nav
     return read_rinex_nav(nav)
 
 
@@ -81,7 +83,6 @@ def synthetic_nav(t0_gps: float, t1_gps: float, systems=("G", "E", "C"), seed: i
     in 3 planes (55 deg); near-circular orbits, small random clock offsets and drifts, no TGD.
     Ephemerides are issued every 2 hours; the same orbit is continuous across issues.
     """
-    from cssrlib.gnss import Eph, char2sys, gpst2time, prn2sat
 
     rng = np.random.default_rng(seed)
     spec = {"G": (26559.7e3, 55.0, 6, 4), "E": (29600.0e3, 56.0, 3, 8), "C": (27906.1e3, 55.0, 3, 8)}
@@ -89,7 +90,7 @@ def synthetic_nav(t0_gps: float, t1_gps: float, systems=("G", "E", "C"), seed: i
     eph_all, by_sat = [], {}
     for s in systems:
         a, inc, n_planes, per_plane = spec[s]
-        n_mot = np.sqrt(MU_GPS / a ** 3)
+        n_mot = np.sqrt(GM_GPS / a ** 3)
         prn = 0
         for pl in range(n_planes):
             for k in range(per_plane):
@@ -100,16 +101,16 @@ def synthetic_nav(t0_gps: float, t1_gps: float, systems=("G", "E", "C"), seed: i
                 af0, af1 = rng.normal(0, 2e-4), rng.normal(0, 3e-12)
                 sid = f"{s}{prn:02d}"
                 for toe in toes:
-                    week = int(np.floor(toe / 604800.0))
+                    week = int(np.floor(toe / SECONDS_PER_WEEK))
                     eph = Eph(prn2sat(char2sys(s), prn))
-                    eph.toes = toe - week * 604800.0
+                    eph.toes = toe - week * SECONDS_PER_WEEK
                     eph.week = week
                     eph.toe = gpst2time(week, eph.toes)
                     eph.toc = eph.toe
                     eph.tot = eph.toe
                     eph.A, eph.e, eph.i0, eph.omg = a, ecc, np.radians(inc), omg
                     eph.M0 = np.mod(m_ref + n_mot * toe, 2 * np.pi)
-                    eph.OMG0 = np.mod(raan - OMEGA_E * week * 604800.0, 2 * np.pi)
+                    eph.OMG0 = np.mod(raan - OMEGA_EARTH * week * SECONDS_PER_WEEK, 2 * np.pi)
                     eph.deln = eph.OMGd = eph.idot = 0.0
                     eph.crs = eph.crc = eph.cus = eph.cuc = eph.cis = eph.cic = 0.0
                     eph.af0, eph.af1, eph.af2 = af0 + af1 * (toe - toes[0]), af1, 0.0
@@ -137,8 +138,8 @@ def _clock_series(t: np.ndarray, clk: RxClock, rng) -> tuple[np.ndarray, np.ndar
 
 def _ecef_acceleration(p: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Satellite acceleration in the rotating ECEF frame: gravity, Coriolis and centrifugal."""
-    w = np.array([0.0, 0.0, OMEGA_E])
-    grav = -MU_GPS * p / np.linalg.norm(p, axis=1, keepdims=True) ** 3
+    w = np.array([0.0, 0.0, OMEGA_EARTH])
+    grav = -GM_GPS * p / np.linalg.norm(p, axis=1, keepdims=True) ** 3
     return grav - 2.0 * np.cross(w, v) - np.cross(w, np.cross(w, p))
 
 
@@ -151,7 +152,7 @@ def _range_at(p_s0, v_s0, a_s0, t_s0, p_rx, t_rx):
     for _ in range(4):
         dt = (t_rx - tau - t_s0)[:, None]
         ps = p_s0 + v_s0 * dt + 0.5 * a_s0 * dt ** 2
-        th = OMEGA_E * tau
+        th = OMEGA_EARTH * tau
         c, s = np.cos(th), np.sin(th)
         prot = np.stack([c * ps[:, 0] + s * ps[:, 1], -s * ps[:, 0] + c * ps[:, 1], ps[:, 2]], axis=1)
         rho = np.linalg.norm(prot - p_rx, axis=1)
@@ -199,9 +200,6 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
 def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_doppler, outages,
                   systems, elev_mask_deg) -> list[GnssEpoch]:
     """Raw epochs, vectorised over all (epoch, satellite) pairs."""
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.frames import R_ecef_to_enu
-    from dgcal.pos.gnss.ephemeris import satellite_states
 
     n_ep = len(t)
     t_true = t - bias                        # receiver tags run ahead of true time by dt_rx
@@ -279,7 +277,6 @@ def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_
 def prepare_simulated(obs: GnssObservations, nav: BroadcastNav, sigma_pr: float,
                       sigma_doppler: float, elev_mask_deg: float) -> list[GnssEpoch]:
     """Run the front end on simulated raw epochs at the true antenna positions."""
-    from dgcal.pos.gnss.spp import SppOptions, prepare_epoch
     opts = SppOptions(elev_mask_deg=elev_mask_deg - 1e-6, code_sigma_zenith_m=sigma_pr,
                       doppler_sigma_zenith_mps=sigma_doppler, model_errors=False,
                       systems=tuple(obs.signals))
@@ -291,30 +288,9 @@ def prepare_simulated(obs: GnssObservations, nav: BroadcastNav, sigma_pr: float,
     return out
 
 
-# --------------------------------------------------------------------------------------- CLI
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: the bundled "
-                   "SEPT078M.21P, i.e. 2021-03-19); it is copied to DIR/nav.rnx")
-    p.add_argument("--t0", type=float, default=None,
-                   help="start, continuous GPS seconds (default 2021-03-19 12:00 GPS)")
-    p.add_argument("--duration", type=float, default=300.0, help="s")
-    p.add_argument("--rate", type=float, default=1.0, help="Hz")
-    p.add_argument("--lat", type=float, default=35.3, help="deg (default: near the SEPT station)")
-    p.add_argument("--lon", type=float, default=139.5, help="deg")
-    p.add_argument("--height", type=float, default=100.0, help="m, ellipsoidal")
-    p.add_argument("--radius", type=float, default=0.0, help="circle radius (m); 0 = static")
-    p.add_argument("--speed", type=float, default=10.0, help="m/s along the circle")
-    p.add_argument("--sigma-pr", type=float, default=0.5, help="zenith code noise, m")
-    p.add_argument("--sigma-doppler", type=float, default=0.05, help="zenith range-rate noise, m/s")
-    p.add_argument("--systems", default="GE", help="constellation letters, e.g. GEC")
-
-
 def circle_trajectory(t_gps: np.ndarray, lat: float, lon: float, h: float, radius: float,
                       speed: float) -> tuple[np.ndarray, np.ndarray]:
     """ECEF positions (m) and velocities (m/s) of a horizontal circle (or a static point)."""
-    from dgcal.fields.crs import LocalENU
     enu = LocalENU(lat, lon, h)
     tt = t_gps - t_gps[0]
     if radius > 0:
@@ -326,27 +302,28 @@ def circle_trajectory(t_gps: np.ndarray, lat: float, lon: float, h: float, radiu
     return enu.to_ecef(p), v @ enu.R_ecef_to_enu
 
 
-def run(args: argparse.Namespace) -> int:
-    import shutil
-
-    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
-    from dgcal.pos.gnss.rinex import write_rinex_obs
-    systems = tuple(args.systems.upper())
-    t0 = args.t0 if args.t0 is not None else DEFAULT_T0_GPS
-    t = t0 + np.arange(0.0, args.duration + 1e-9, 1.0 / args.rate)
-    p, v = circle_trajectory(t, args.lat, args.lon, args.height, args.radius, args.speed)
-    nav = _load_nav(args.nav)
-    obs = simulate_gnss(t, p, v, nav, seed=args.seed, sigma_pr=args.sigma_pr,
-                        sigma_doppler=args.sigma_doppler, systems=systems, prepare=False)
-    with staged_dir(args.out) as d:
+def simulate_gnss_dataset(out: str | Path, seed: int = 0, nav: str | Path | None = None,
+                          t0_gps: float | None = None, duration_s: float = 300.0, rate_hz: float = 1.0,
+                          lat: float = 35.3, lon: float = 139.5, height: float = 100.0, radius_m: float = 0.0,
+                          speed_mps: float = 10.0, sigma_pr: float = 0.5, sigma_doppler: float = 0.05,
+                          systems: tuple[str, ...] = ("G", "E")) -> Path:
+    """Simulate RINEX 3 observations of a receiver static at (lat, lon deg, height m ellipsoidal) or on a
+    horizontal circle (`radius_m`, `speed_mps`) from `duration_s` at `rate_hz` (t0: continuous GPS s, default
+    DEFAULT_T0_GPS) into out/sim.obs, with the navigation file (default DEFAULT_NAV) as out/nav.rnx and the
+    truth (positions, clocks) in out/truth.json; returns the observation file's path."""
+    t0 = t0_gps if t0_gps is not None else DEFAULT_T0_GPS
+    t = t0 + np.arange(0.0, duration_s + 1e-9, 1.0 / rate_hz)
+    p, v = circle_trajectory(t, lat, lon, height, radius_m, speed_mps)
+    obs = simulate_gnss(t, p, v, _load_nav(nav), seed=seed, sigma_pr=sigma_pr, sigma_doppler=sigma_doppler,
+                        systems=tuple(systems), prepare=False)
+    with staged_dir(out) as d:
         write_rinex_obs(Path(d) / "sim.obs", obs)
-        shutil.copyfile(args.nav or DEFAULT_NAV, Path(d) / "nav.rnx")
-        truth = {"kind": "gnss", "seed": args.seed, "systems": list(systems),
-                 "sigma_pr_m": args.sigma_pr, "sigma_doppler_mps": args.sigma_doppler,
+        shutil.copyfile(nav or DEFAULT_NAV, Path(d) / "nav.rnx")
+        truth = {"kind": "gnss", "seed": seed, "systems": list(systems),
+                 "sigma_pr_m": sigma_pr, "sigma_doppler_mps": sigma_doppler,
                  "t_gps": t.tolist(), "p_ecef": p.tolist(), "v_ecef": v.tolist(),
                  "clk_m": {s: c.tolist() for s, c in obs.truth["clk_m"].items()},
                  "drift_mps": obs.truth["drift_mps"].tolist()}
         with atomic_write(Path(d) / "truth.json") as fh:
             json.dump(truth, fh)
-    print(Path(args.out) / "sim.obs")
-    return 0
+    return Path(out) / "sim.obs"

@@ -9,7 +9,6 @@ with S diagonal scale factors, M skew-free (off-diagonal) misalignments, and b =
 """
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,13 +16,17 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter
 
-from dgcal.pos.ins.error_model import ImuGrade, imu_grade
-from dgcal.pos.ins.imu_data import ImuData
+from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+from dgcal.fields.io.formats import week_sow, write_events, write_trajectory
+from dgcal.pos.ins.error_model import ImuErrorModel, imu_grade
+from dgcal.pos.ins.imu_data import ImuData, write_kf_gins
+from dgcal.sim.trajectory import camera_events, simulate_true_trajectory
 
 
 @dataclass
-class ImuErrors:
-    """The true error state of a simulated IMU: biases over time (rad/s, m/s^2) and fixed matrices."""
+class ImuErrorRealisation:
+    """The errors drawn for one simulated IMU from its `ImuErrorModel`: biases over time (rad/s, m/s^2) and
+    the fixed scale-factor / misalignment matrices (body FRD)."""
 
     t: np.ndarray
     gyro_bias: np.ndarray
@@ -34,7 +37,7 @@ class ImuErrors:
     accel_scale: np.ndarray
     gyro_matrix: np.ndarray  # I + S + M applied to the true gyro increments
     accel_matrix: np.ndarray
-    grade: ImuGrade
+    grade: ImuErrorModel  # the model they were drawn from
 
     def as_dict(self) -> dict:
         """Summary for truth.json (SI units; biases at the first and last sample and their means)."""
@@ -71,8 +74,8 @@ def _matrix(scale_sigma: float, misalign_sigma: float, rng: np.random.Generator)
     return s, np.eye(3) + np.diag(s) + M
 
 
-def simulate_imu(truth, grade: str | ImuGrade | dict = "adis16488", seed: int = 0,
-                 misalignment: bool = True) -> tuple[ImuData, ImuErrors]:
+def simulate_imu(truth, grade: str | ImuErrorModel | dict = "adis16488", seed: int = 0,
+                 misalignment: bool = True) -> tuple[ImuData, ImuErrorRealisation]:
     """Noisy IMU increments (ImuData, body FRD) from a TrueTrajectory's exact increments, and the true errors."""
     g = imu_grade(grade)
     rng = np.random.default_rng(seed)
@@ -88,12 +91,8 @@ def simulate_imu(truth, grade: str | ImuGrade | dict = "adis16488", seed: int = 
     dth = truth.dtheta @ Mg.T + bg * dt + rng.standard_normal((n, 3)) * g.gyro_arw * np.sqrt(dt)
     dv = truth.dvel @ Ma.T + ba * dt + rng.standard_normal((n, 3)) * g.accel_vrw * np.sqrt(dt)
     imu = ImuData(t=t.copy(), dtheta=dth, dvel=dv, rate_hz=float(truth.rate_hz))
-    return imu, ImuErrors(t=t.copy(), gyro_bias=bg, accel_bias=ba, gyro_turn_on=bg0, accel_turn_on=ba0,
-                          gyro_scale=sg, accel_scale=sa, gyro_matrix=Mg, accel_matrix=Ma, grade=g)
-
-
-NAME = "imu"
-HELP = "simulate a UAV flight's IMU data (KF-GINS text), true trajectory, camera events and truth.json"
+    return imu, ImuErrorRealisation(t=t.copy(), gyro_bias=bg, accel_bias=ba, gyro_turn_on=bg0, accel_turn_on=ba0,
+                                    gyro_scale=sg, accel_scale=sa, gyro_matrix=Mg, accel_matrix=Ma, grade=g)
 
 
 def simulate_imu_dataset(out: str | Path, seed: int = 0, grade: str = "adis16488", kind: str = "fixed-wing",
@@ -101,13 +100,8 @@ def simulate_imu_dataset(out: str | Path, seed: int = 0, grade: str = "adis16488
                          rate_hz: float = 200.0, truth_rate_hz: float = 10.0, event_distance_m: float = 100.0,
                          delay_s: float = 0.0, lat0: float = 23.0, lon0: float = 120.2) -> dict:
     """Write DIR/imu.txt (KF-GINS), trajectory_true.csv, events.csv and truth.json; returns the truth dict."""
-    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
-    from dgcal.fields.io.formats import week_sow, write_events, write_trajectory
-    from dgcal.pos.ins.imu_data import write_kf_gins
-    from dgcal.sim.trajectory import camera_events, simulate_flight
-
-    truth = simulate_flight(kind, lat0=lat0, lon0=lon0, heights_agl=tuple(heights_agl), n_strips=n_strips,
-                            rate_hz=rate_hz, duration_s=duration_s)
+    truth = simulate_true_trajectory(kind, lat0=lat0, lon0=lon0, heights_agl=tuple(heights_agl),
+                                     n_strips=n_strips, rate_hz=rate_hz, duration_s=duration_s)
     imu, err = simulate_imu(truth, grade, seed=seed)
     events = camera_events(truth, distance_m=event_distance_m, delay_s=delay_s)
     week0 = int(week_sow(truth.t[0])[0])
@@ -127,27 +121,3 @@ def simulate_imu_dataset(out: str | Path, seed: int = 0, grade: str = "adis16488
         with atomic_write(d / "truth.json") as fh:
             json.dump(info, fh, indent=1, default=float)
     return info
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--grade", default="adis16488", help="navigation | adis16488 | adis16405 | consumer")
-    p.add_argument("--platform", default="fixed-wing", choices=["fixed-wing", "multirotor"])
-    p.add_argument("--heights", type=float, nargs="+", default=[300.0], help="flying heights above ground, m")
-    p.add_argument("--strips", type=int, default=4, help="strips per height")
-    p.add_argument("--duration", type=float, default=None, help="s (default: the flight plan's length)")
-    p.add_argument("--rate", type=float, default=200.0, help="IMU rate, Hz")
-    p.add_argument("--event-distance", type=float, default=100.0, help="camera trigger spacing on strips, m")
-    p.add_argument("--delay", type=float, default=0.0, help="exposure delay t_exposure - t_event, s")
-    p.add_argument("--lat", type=float, default=23.0, help="site latitude, deg")
-    p.add_argument("--lon", type=float, default=120.2, help="site longitude, deg")
-
-
-def run(args: argparse.Namespace) -> int:
-    info = simulate_imu_dataset(args.out, seed=args.seed, grade=args.grade, kind=args.platform,
-                                heights_agl=tuple(args.heights), n_strips=args.strips, duration_s=args.duration,
-                                rate_hz=args.rate, event_distance_m=args.event_distance, delay_s=args.delay,
-                                lat0=args.lat, lon0=args.lon)
-    print(Path(args.out) / "truth.json", f"({len(info['segments'])} flight segments)")
-    return 0

@@ -2,20 +2,17 @@
 loss, a recorded PPS, a photoresistor channel with exposure spikes, trigger commands and a laser range."""
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.io.csv_tables import staged_dir, write_table
 from dgcal.fields.io.formats import week_sow
 from dgcal.pos.lowcost.exposure import pulse_response
 from dgcal.pos.lowcost.stream_align import synthetic_pps
-
-NAME = "logger"
-HELP = "GNSS and logger streams with packet loss, PPS, photoresistor spikes and triggers (seed 000)"
 
 
 @dataclass
@@ -41,7 +38,7 @@ def simulate_logger(seed: int = 0, duration_s: float = 720.0, rate_hz: float = 5
     """Simulate the streams of one flight; truth holds the clock, lost packets, exposures and skipped triggers."""
     rng = np.random.default_rng(seed)
     dt = 1.0 / rate_hz
-    t0_gps = 2150 * 604800.0 + 345600.0 + rng.uniform(0, 1)  # logger time 0 in GPS time
+    t0_gps = 2150 * SECONDS_PER_WEEK + 345600.0 + rng.uniform(0, 1)  # logger time 0 in GPS time
     n_log = int(duration_s * rate_hz)
     k = np.arange(n_log)
     t_log = k * dt
@@ -113,15 +110,3 @@ def write_logger_sim(out: Path, sim: LoggerSim) -> None:
         write_table(tmp / "images.csv", ["image", "camera_time_s"],
                     ([n, "%.3f" % c] for n, c in zip(sim.images, sim.image_clock)))
         (tmp / "truth.json").write_text(json.dumps(sim.truth, indent=1))
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, type=Path, help="output directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=720.0, help="flight length (s)")
-
-
-def run(args: argparse.Namespace) -> int:
-    write_logger_sim(args.out, simulate_logger(seed=args.seed, duration_s=args.duration))
-    print(f"wrote {args.out}/logger.csv, gnss_log.csv, images.csv, truth.json")
-    return 0

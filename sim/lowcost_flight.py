@@ -7,22 +7,25 @@ about 1.5 m horizontal RMS) plus a little white noise; velocities carry white no
 """
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from dgcal.calib.camera.models import Fraser7
+from dgcal.calib.dg.dem import Dem
+from dgcal.calib.dg.single_image import average_estimates, georeference, intersect_dem, pose_covariance_from_rph
+from dgcal.fields.crs import geodetic_to_ecef
 from dgcal.fields.io.csv_tables import staged_dir
-from dgcal.fields.frames import R_ecef_to_ned
+from dgcal.fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph, R_ecef_to_ned, rph_from_R_body_to_ned
 from dgcal.pos.ins.imu_data import ImuData, write_imu_csv
+from dgcal.pos.ins.nav_frame import NavFrame
+from dgcal.pos.lowcost.ukf import run_ukf
+from dgcal.pos.smoother.batch import SmootherOptions, smooth
 from dgcal.pos.smoother.initial import GnssFixes
-from dgcal.sim.imu import ImuErrors, simulate_imu
-from dgcal.sim.trajectory import TrueTrajectory, simulate_flight
-
-NAME = "lowcost"
-HELP = "seed 000 low-cost payload flight: ADIS16405 IMU, 50 Hz GNSS, laser range (113 m, 26 m/s)"
+from dgcal.sim.imu import ImuErrorRealisation, simulate_imu
+from dgcal.sim.trajectory import TrueTrajectory, simulate_true_trajectory
 
 
 @dataclass
@@ -31,7 +34,7 @@ class LowcostFlight:
 
     truth: TrueTrajectory
     imu: ImuData
-    imu_errors: ImuErrors
+    imu_errors: ImuErrorRealisation
     fixes: GnssFixes
     gnss_error_ned: np.ndarray  # true position error of each fix (N,3) m
     h_ground: float
@@ -73,10 +76,10 @@ def simulate_lowcost_flight(duration_s: float = 180.0, rate_hz: float = 100.0, g
                             lon0: float = -79.95, h_ground: float = 300.0, grade: str = "adis16405",
                             seed: int = 0) -> LowcostFlight:
     """The seed 000 flight (Phastball: 113 m AGL, 26 m/s, NASCAR loop) with IMU and 50 Hz GNSS; truth body FRD."""
-    truth = simulate_flight("fixed-wing", lat0=lat0, lon0=lon0, h_ground=h_ground, heights_agl=(height_agl,),
-                            n_strips=2, strip_length_m=leg_length_m, strip_spacing_m=loop_width_m,
-                            strip_heading_deg=225.0, speed=speed, bank_deg=bank_deg, climb_rate=4.0,
-                            aoa_deg=2.0, rate_hz=rate_hz, duration_s=duration_s)
+    truth = simulate_true_trajectory("fixed-wing", lat0=lat0, lon0=lon0, h_ground=h_ground, heights_agl=(height_agl,),
+                                     n_strips=2, strip_length_m=leg_length_m, strip_spacing_m=loop_width_m,
+                                     strip_heading_deg=225.0, speed=speed, bank_deg=bank_deg, climb_rate=4.0,
+                                     aoa_deg=2.0, rate_hz=rate_hz, duration_s=duration_s)
     imu, err = simulate_imu(truth, grade, seed=seed)
     fixes, e = gnss_fixes(truth, gnss_hz, seed=seed + 1)
     return LowcostFlight(truth, imu, err, fixes, e, h_ground)
@@ -91,15 +94,10 @@ def laser_ranges(truth: TrueTrajectory, t: np.ndarray, ground_height, axis_b=(0.
     return (s.h - np.asarray(ground_height, float)) / d_ned[:, 2] + rng.standard_normal(len(t)) * sigma_m
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, type=Path, help="output directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=360.0, help="flight length (s)")
-
-
-def run(args: argparse.Namespace) -> int:
-    f = simulate_lowcost_flight(duration_s=args.duration, seed=args.seed)
-    with staged_dir(args.out) as d:
+def write_lowcost_dataset(out: str | Path, f: LowcostFlight, seed: int = 0) -> None:
+    """Write a simulated low-cost flight into `out`: imu.csv, gnss_fixes.csv (t_gps, ECEF m and m/s, NED
+    sigmas), truth_trajectory.csv (t_gps, lat, lon, h, NED velocity, roll/pitch/heading deg), truth.json."""
+    with staged_dir(out) as d:
         write_imu_csv(Path(d) / "imu.csv", f.imu)
         fx = f.fixes
         rows = np.column_stack([fx.t, fx.p_ecef, fx.v_ecef, fx.sigma_ned, fx.sigma_v_ned])
@@ -110,12 +108,7 @@ def run(args: argparse.Namespace) -> int:
         np.savetxt(Path(d) / "truth_trajectory.csv", rows, delimiter=",", fmt="%.9f",
                    header="t_gps,lat,lon,h,vn,ve,vd,roll,pitch,heading", comments="")
         (Path(d) / "truth.json").write_text(json.dumps({"imu_errors": f.imu_errors.as_dict(),
-                                                       "h_ground": f.h_ground, "seed": args.seed}, indent=1))
-    print(f"wrote {args.out}/imu.csv, gnss_fixes.csv, truth_trajectory.csv, truth.json")
-    return 0
-
-
-
+                                                       "h_ground": f.h_ground, "seed": seed}, indent=1))
 def attitude_error_stats(err_deg: np.ndarray) -> dict:
     """Mean, std and RMS (deg) of roll/pitch/heading errors (N,3) — the rows of seed 000 / 001 accuracy tables."""
     e = np.asarray(err_deg, float)
@@ -135,9 +128,6 @@ def compare_ukf_smoother(flight: LowcostFlight, smoother_rate_hz: float = 10.0, 
     """Seed 000's UKF and the gtsam smoother (LC position+velocity factors, fixes decimated to
     `smoother_rate_hz`) on the same flight; attitude and position accuracy against truth at their common
     epochs after `skip_s` of filter convergence. Returns a JSON-ready report dict."""
-    from dgcal.fields.frames import rph_from_R_body_to_ned
-    from dgcal.pos.smoother.batch import SmootherOptions, smooth
-    from dgcal.pos.lowcost.ukf import run_ukf
     fx = flight.fixes
     grade = flight.imu_errors.grade
     u = run_ukf(flight.imu, fx, grade, progress=progress)
@@ -191,7 +181,6 @@ R_CAM_TO_BODY_NADIR = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.
 
 def seed_camera(scale: float = 1.0):
     """The seed's still camera class: 4272 x 2848 px, 135.7 x 90.4 m footprint at 110 m, mild barrel distortion."""
-    from dgcal.calib.camera.models import Fraser7
     w, h = int(round(4272 * scale)), int(round(2848 * scale))
     f = 0.5 * w / (0.5 * 135.7 / 110.0)
     return Fraser7.from_dict((w, h), {"f": f, "cx": (w - 1) / 2 + 6 * scale, "cy": (h - 1) / 2 - 4 * scale,
@@ -201,7 +190,6 @@ def seed_camera(scale: float = 1.0):
 def terrain_dem(center_w: np.ndarray, half_size_m: float = 600.0, step_m: float = 2.0, slope=(0.03, -0.02),
                 hill_m: float = 6.0, hill_sigma_m: float = 60.0):
     """A synthetic DEM (dgcal.calib.dg.dem.Dem, world E/N/Up frame) around `center_w`: a gentle slope plus a hill."""
-    from dgcal.calib.dg.dem import Dem
     n = int(round(2 * half_size_m / step_m)) + 1
     x = center_w[0] - half_size_m + step_m * np.arange(n)
     y = center_w[1] + half_size_m - step_m * np.arange(n)  # north-up rows
@@ -213,7 +201,6 @@ def terrain_dem(center_w: np.ndarray, half_size_m: float = 600.0, step_m: float 
 
 
 def _ray_dem_hit(C, d, dem):
-    from dgcal.calib.dg.single_image import intersect_dem
     X, ok = intersect_dem(np.asarray(C, float), np.atleast_2d(d), dem, 0.0, 50, 1e-6)
     return X[0]
 
@@ -224,15 +211,11 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
     straight legs, georeferenced with raw data (level attitude, no distortion correction), with distortion
     removed, with the UKF attitude (known point height), with the laser range, and with a DEM; plus true
     poses. Returns the per-image table (seed Table 6), mean/std rows and the 15-image averages (Fig. 19)."""
-    from dgcal.calib.dg.single_image import average_estimates, georeference, pose_covariance_from_rph
-    from dgcal.fields.frames import R_ENU_TO_NED, rph_from_R_body_to_ned
-    from dgcal.pos.lowcost.ukf import run_ukf
-    truth = simulate_flight("fixed-wing", lat0=39.65, lon0=-79.95, h_ground=300.0, heights_agl=(113.0,),
-                            n_strips=3, strip_length_m=500.0, strip_spacing_m=0.0, strip_heading_deg=225.0,
-                            speed=26.0, bank_deg=25.0, climb_rate=4.0, aoa_deg=2.0, rate_hz=50.0)
+    truth = simulate_true_trajectory("fixed-wing", lat0=39.65, lon0=-79.95, h_ground=300.0, heights_agl=(113.0,),
+                                     n_strips=3, strip_length_m=500.0, strip_spacing_m=0.0, strip_heading_deg=225.0,
+                                     speed=26.0, bank_deg=25.0, climb_rate=4.0, aoa_deg=2.0, rate_hz=50.0)
     imu, err = simulate_imu(truth, "adis16405", seed=seed)
     fixes, _ = gnss_fixes(truth, 50.0, seed=seed + 1)
-    from dgcal.pos.ins.nav_frame import NavFrame
     frame = NavFrame.at_ecef(fixes.p_ecef.mean(axis=0))
     R_n2w = R_ENU_TO_NED.T  # world = ENU axes of the UKF's tangent frame
 
@@ -290,7 +273,6 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
     # GNSS errors are time-correlated: filtering white-noise-modelled 50 Hz fixes does not beat the
     # receiver's own accuracy, so the camera position covariance is at least the fix covariance
     gnss_cov = np.diag(fixes.sigma_ned[0][[1, 0, 2]] ** 2)
-    from dgcal.calib.camera.models import Fraser7
     pinhole = Fraser7.from_dict(camera.image_size, {"f": camera["f"], "cx": camera["cx"], "cy": camera["cy"]})
     cases = {"raw": [], "distortion": [], "attitude": [], "laser": [], "dem": [], "truth": []}
     covs = {k: [] for k in cases}
@@ -358,12 +340,10 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
 
 
 def geodetic_to_ecef_np(lat, lon, h) -> np.ndarray:
-    from dgcal.fields.crs import geodetic_to_ecef
     return np.asarray(geodetic_to_ecef(lat, lon, h), float)
 
 
 def R_body_to_ned_from_rph_np(rph) -> np.ndarray:
-    from dgcal.fields.frames import R_body_to_ned_from_rph
     return R_body_to_ned_from_rph(*np.asarray(rph, float))
 
 

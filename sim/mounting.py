@@ -7,31 +7,33 @@ ground points (control and check) and their image measurements.
 """
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from dgcal.calib.camera.files import write_camera_json
 from dgcal.calib.camera.models import Fraser7
-from dgcal.calib.mounting.common import BlockFrame, T
+from dgcal.calib.mounting.common import BlockFrame, T, so3_exp, so3_log
+from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.crs import LocalENU, MapGrid
-from dgcal.fields.io.formats import EOP, Events, Measurements, Points, Trajectory
+from dgcal.fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph
+from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+from dgcal.fields.io.formats import (EOP, Events, Measurements, Points, Trajectory, write_eop, write_events,
+                                     write_measurements, write_points, write_trajectory)
 
-NAME = "mounting"
-HELP = "a mounting-calibration flight and a mapping flight with known lever arm, boresight and delay"
 
 R_CAM_TO_BODY_NOMINAL = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # image top forward
 
 
 def default_boresight() -> np.ndarray:
     """A nominal down-looking camera (image top forward) misaligned by about a degree (like seed Table 1)."""
-    from scipy.spatial.transform import Rotation
     return Rotation.from_euler("xyz", [1.3, -0.7, 0.4], degrees=True).as_matrix() @ R_CAM_TO_BODY_NOMINAL
 
 
-def default_camera() -> Fraser7:
+def mounting_flight_camera() -> Fraser7:
     """A 20 mm lens on a 5616 x 3744 full-frame sensor (6.4 um pixels), like seed 003's EOS 5D Mark II."""
     return Fraser7((5616, 3744), np.array([3125.0, 2815.0, 1868.0, -0.02, 0.01, 0, 1e-5, -1e-5, 0, 0]))
 
@@ -94,15 +96,15 @@ def _strips(heights, n_strips, length_m, spacing_m, azimuth_deg):
     return out
 
 
-def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, delay_s: float, ground_world: np.ndarray,
-                    ground_ids, *, heights=(300.0, 600.0), n_strips: int = 4, length_m: float = 1200.0,
-                    spacing_m: float = 180.0, azimuth_deg: float = 30.0, airspeed: float = 30.0,
-                    wind_en=(4.0, 5.0), photo_interval_s: float = 1.5, rate_hz: float = 20.0,
-                    pos_sigma=(0.05, 0.05, 0.08, 0.01, 0.01, 0.03), eop_sigma=(0.03, 0.03, 0.04, 0.003, 0.003, 0.002),
-                    pixel_sigma: float = 0.5, t0: float = 2200 * 604800.0 + 300000.0, tau_s: float = 0.3,
-                    pos_common_fraction: float = 0.0) -> FlightSim:
+def simulate_mounting_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, delay_s: float,
+                             ground_world: np.ndarray, ground_ids, *, heights=(300.0, 600.0), n_strips: int = 4,
+                             length_m: float = 1200.0, spacing_m: float = 180.0, azimuth_deg: float = 30.0,
+                             airspeed: float = 30.0, wind_en=(4.0, 5.0), photo_interval_s: float = 1.5,
+                             rate_hz: float = 20.0, pos_sigma=(0.05, 0.05, 0.08, 0.01, 0.01, 0.03),
+                             eop_sigma=(0.03, 0.03, 0.04, 0.003, 0.003, 0.002), pixel_sigma: float = 0.5,
+                             t0: float = 2200 * SECONDS_PER_WEEK + 300000.0, tau_s: float = 0.3,
+                             pos_common_fraction: float = 0.0) -> FlightSim:
     """Simulate one flight of straight strips (alternating headings) in L; see the module docstring."""
-    from dgcal.fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph
     wind = np.array([wind_en[0], wind_en[1], 0.0])
     t_all, p_all, v_all, R_all = [], [], [], []
     t_exp, strip_h = [], []
@@ -137,7 +139,6 @@ def simulate_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, 
     # truth at exposure times, analytically interpolated on the fine samples (rate_hz) would add error:
     # evaluate the strip model directly by re-sampling at exposure times
     def at(tq):
-        from dgcal.calib.mounting.common import so3_exp, so3_log
         i = np.clip(np.searchsorted(t_s, tq) - 1, 0, len(t_s) - 2)
         s = (tq - t_s[i]) / (t_s[i + 1] - t_s[i])
         pq = p_world[i] + s[:, None] * (p_world[i + 1] - p_world[i])  # straight constant-velocity strips: linear is exact
@@ -196,7 +197,7 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     rng = np.random.default_rng(seed)
     grid = MapGrid(crs)
     frame = BlockFrame(grid, LocalENU(lat0, lon0, h0))
-    camera = default_camera()
+    camera = mounting_flight_camera()
     R_cb = default_boresight() if R_cam_to_body is None else np.asarray(R_cam_to_body, float)
     lever = np.asarray(lever_arm_m, float)
     k = int(round(np.sqrt(n_ground)))
@@ -207,11 +208,12 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     ids = np.array([f"P{k:03d}" for k in range(len(ground_world))], dtype=object)
     role = np.array(["control" if (i % 4 == 0) else "check" for i in range(len(ids))], dtype=object)
     ground = Points(ids, frame.world_to_map(ground_world), np.full((len(ids), 3), 0.01), role)
-    cal = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_world, ids, **(calibration or {}))
+    cal = simulate_mounting_flight(rng, frame, camera, lever, R_cb, delay_s, ground_world, ids,
+                                   **(calibration or {}))
     mp = dict(heights=(450.0,), n_strips=4, spacing_m=250.0, azimuth_deg=100.0, wind_en=(-3.0, 6.0),
-              t0=2200 * 604800.0 + 310000.0)
+              t0=2200 * SECONDS_PER_WEEK + 310000.0)
     mp.update(mapping or {})
-    mapf = simulate_flight(rng, frame, camera, lever, R_cb, delay_s, ground_world, ids, **mp)
+    mapf = simulate_mounting_flight(rng, frame, camera, lever, R_cb, delay_s, ground_world, ids, **mp)
     noise = {"pos_sigma": [0.05, 0.05, 0.08, 0.01, 0.01, 0.03], "eop_sigma_300m": [0.03, 0.03, 0.04, 0.003, 0.003, 0.002],
              "pixel_sigma": 0.5, "pos_error_kernel_s": 0.3,
              "pos_common_fraction": (calibration or {}).get("pos_common_fraction", 0.0)}
@@ -220,9 +222,6 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
 
 def write_mounting_sim(sim: MountingSim, out: Path) -> None:
     """Write the simulated files: calibration/ and mapping/ flights, ground.csv, camera.json, truth.json."""
-    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
-    from dgcal.calib.camera.files import write_camera_json
-    from dgcal.fields.io.formats import write_eop, write_events, write_measurements, write_points, write_trajectory
     with staged_dir(out) as tmp:
         for name, fl in (("calibration", sim.calibration), ("mapping", sim.mapping)):
             d = tmp / name
@@ -236,19 +235,3 @@ def write_mounting_sim(sim: MountingSim, out: Path) -> None:
         write_camera_json(tmp / "camera.json", sim.camera)
         with atomic_write(tmp / "truth.json") as fh:
             json.dump(sim.truth(), fh, indent=2)
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, type=Path, help="output directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--delay", type=float, default=-0.14, help="exposure delay t_exposure - t_event (s)")
-    p.add_argument("--lever-arm", type=float, nargs=3, default=(-0.30, 0.12, 0.20), metavar=("X", "Y", "Z"),
-                   help="lever arm IMU -> camera in body FRD (m)")
-    p.add_argument("--crs", default="EPSG:32651", help="map CRS of the EOPs and ground points")
-
-
-def run(args: argparse.Namespace) -> int:
-    sim = simulate_mounting(args.seed, lever_arm_m=args.lever_arm, delay_s=args.delay, crs=args.crs)
-    write_mounting_sim(sim, args.out)
-    print(args.out / "truth.json")
-    return 0

@@ -8,16 +8,23 @@ events.csv, truth_trajectory.csv (true IMU trajectory at 10 Hz), truth_events.cs
 """
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-NAME = "pos"
-HELP = "simulate a UAV flight: raw IMU, RINEX code/Doppler with an outage, events, truth"
+from dgcal.fields.constants import OMEGA_IE_E, SECONDS_PER_WEEK
+from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+from dgcal.fields.io.formats import Trajectory, write_events, write_trajectory
+from dgcal.pos.gnss.rinex import write_rinex_obs
+from dgcal.pos.ins.error_model import imu_grade as grade_of
+from dgcal.pos.ins.imu_data import write_imu_csv
+from dgcal.sim.gnss import DEFAULT_T0_GPS, load_nav, simulate_gnss
+from dgcal.sim.imu import simulate_imu
+from dgcal.sim.trajectory import camera_events, simulate_true_trajectory
 
 
 @dataclass
@@ -26,7 +33,7 @@ class PosSimulation:
 
     traj: object  # dgcal.sim.trajectory.TrueTrajectory
     imu: object  # dgcal.pos.ins.imu_data.ImuData (noisy)
-    imu_errors: object  # dgcal.sim.imu.ImuErrors
+    imu_errors: object  # dgcal.sim.imu.ImuErrorRealisation
     obs: object  # dgcal.pos.gnss.observations.GnssObservations (raw epochs; obs.truth holds the receiver truth)
     nav: object  # dgcal.pos.gnss.rinex.BroadcastNav
     events: object  # dgcal.fields.io.formats.Events
@@ -50,16 +57,12 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     The outage (`outage_sats` highest satellites kept) starts at `outage_start_s` after take-off (default:
     60 % of the flight, on a strip or turn). GNSS epochs are at whole GPS seconds at 1 Hz.
     """
-    from dgcal.pos.ins.error_model import imu_grade as grade_of
-    from dgcal.sim.gnss import DEFAULT_T0_GPS, load_nav, simulate_gnss
-    from dgcal.sim.imu import simulate_imu
-    from dgcal.sim.trajectory import camera_events, simulate_flight
     nav = load_nav(nav)
-    week = int(DEFAULT_T0_GPS // 604800)
-    sow = DEFAULT_T0_GPS - week * 604800 + 5.0
-    traj = simulate_flight(kind, lat0=lat0, lon0=lon0, h_ground=h_ground, heights_agl=(height_agl,),
-                           n_strips=n_strips, strip_length_m=strip_length_m, strip_spacing_m=strip_spacing_m,
-                           rate_hz=rate_hz, gps_week=week, gps_sow=sow, duration_s=duration_s)
+    week = int(DEFAULT_T0_GPS // SECONDS_PER_WEEK)
+    sow = DEFAULT_T0_GPS - week * SECONDS_PER_WEEK + 5.0
+    traj = simulate_true_trajectory(kind, lat0=lat0, lon0=lon0, h_ground=h_ground, heights_agl=(height_agl,),
+                                    n_strips=n_strips, strip_length_m=strip_length_m, strip_spacing_m=strip_spacing_m,
+                                    rate_hz=rate_hz, gps_week=week, gps_sow=sow, duration_s=duration_s)
     grade = grade_of(imu_grade)
     imu, err = simulate_imu(traj, grade, seed=seed + 1, misalignment=misalignment)
     # the first sample's increment covers the interval before the flight start: drop it
@@ -69,7 +72,6 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     st = traj.at(t_gnss)
     p_ant = st.p_ecef + np.einsum("kij,j->ki", st.R_body_to_ecef, lever)
     # antenna velocity: IMU velocity plus the lever arm's rotation (body rate relative to the earth)
-    from dgcal.sim.strapdown import OMEGA_IE_E
     w_eb_b = st.omega_ib_b - np.einsum("kji,j->ki", st.R_body_to_ecef, np.array(OMEGA_IE_E, float).ravel())
     v_ant = st.v_ecef + np.einsum("kij,kj->ki", st.R_body_to_ecef, np.cross(w_eb_b, lever))
     t0 = t_gnss[0] + (0.6 * (t_gnss[-1] - t_gnss[0]) if outage_start_s is None else outage_start_s)
@@ -85,7 +87,6 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
 
 def true_trajectory(traj, t) -> object:
     """The true IMU trajectory at times t as a dgcal.fields.io.formats.Trajectory (no sigmas)."""
-    from dgcal.fields.io.formats import Trajectory
     st = traj.at(np.asarray(t, float))
     return Trajectory(t=st.t, lat=st.lat, lon=st.lon, h=st.h, v_ned=st.v_ned, rph=st.rph)
 
@@ -93,7 +94,6 @@ def true_trajectory(traj, t) -> object:
 def navigation_errors(sol, traj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Errors of a smoother solution against the true flight: position (K,3) m in nav axes, attitude (K,3) rad
     as a body-frame rotation vector, and the solution's sigmas of both."""
-    from scipy.spatial.transform import Rotation
     st = traj.at(sol.t)
     dp = sol.p_nav - sol.frame.from_ecef(st.p_ecef)
     R_true = np.einsum("ji,kjl->kil", sol.frame.R_nav_to_ecef, st.R_body_to_ecef)
@@ -105,10 +105,6 @@ def navigation_errors(sol, traj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
 
 def write_pos_dataset(out, sim: PosSimulation) -> dict:
     """Write the files of a simulated data set into `out` (staged: all or nothing); returns truth.json."""
-    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
-    from dgcal.fields.io.formats import write_events, write_trajectory
-    from dgcal.pos.ins.imu_data import write_imu_csv
-    from dgcal.pos.gnss.rinex import write_rinex_obs
     t10 = np.arange(sim.traj.t[0], sim.traj.t[-1], 0.1)
     truth = {
         "kind": "pos", **sim.info, "lever_arm_gnss_m": sim.lever_arm_b.tolist(),
@@ -140,28 +136,3 @@ def write_pos_dataset(out, sim: PosSimulation) -> dict:
         with atomic_write(d / "truth.json") as fh:
             json.dump(truth, fh, indent=2)
     return truth
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=1200.0, help="flight duration, s")
-    p.add_argument("--kind", default="multirotor", choices=("multirotor", "fixed-wing"))
-    p.add_argument("--imu-grade", default="adis16488", help="navigation, adis16488, adis16405, consumer")
-    p.add_argument("--rate", type=float, default=200.0, help="IMU rate, Hz")
-    p.add_argument("--lever-arm", type=float, nargs=3, default=(0.05, -0.10, -0.30), metavar=("X", "Y", "Z"),
-                   help="GNSS antenna lever arm, body FRD, m")
-    p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: ../shared/data/rinex-sept)")
-    p.add_argument("--outage-sats", type=int, default=3, help="satellites kept during the 60 s outage")
-
-
-def run(args: argparse.Namespace) -> int:
-    from dgcal.fields.errors import InputError
-    try:
-        sim = simulate_pos(seed=args.seed, duration_s=args.duration, kind=args.kind, imu_grade=args.imu_grade,
-                           rate_hz=args.rate, lever_arm_b=args.lever_arm, nav=args.nav,
-                           outage_sats=args.outage_sats)
-    except ValueError as exc:
-        raise InputError(str(exc), field="--imu-grade") from None
-    write_pos_dataset(args.out, sim)
-    return 0

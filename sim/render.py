@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from dgcal.calib.camera.models import CameraModel
@@ -71,7 +72,6 @@ def _opaque(shape: tuple[int, int], col: np.ndarray, row: np.ndarray) -> np.ndar
 
 def _sample(tex: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
     """Bilinear texture lookup scaled to 0..1 (float32), 0 outside the texture."""
-    import cv2
     if tex.dtype not in _SCALE:
         tex = tex.astype(np.float32)
     out = cv2.remap(tex, col, row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
@@ -82,7 +82,6 @@ def render(camera: CameraModel, R_world_to_cam: np.ndarray, t_world_to_cam: np.n
            background: float = 0.0, supersample: int = 2, rays: RayGrid | None = None,
            rows_per_block: int = 128) -> np.ndarray:
     """Radiance image (float32, H x W) of `facets` seen by `camera` with X_cam = R_world_to_cam X_w + t (m)."""
-    import cv2
     w, h = camera.image_size
     rays = RayGrid(camera) if rays is None else rays
     R = np.asarray(R_world_to_cam, float)

@@ -11,11 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-GM = 3.986004418e14  # m^3/s^2
-J2 = 1.082626684e-3
-A_WGS84 = 6378137.0
-OMEGA_EARTH = 7.2921151467e-5  # rad/s
-OMEGA_IE_E = np.array([0.0, 0.0, OMEGA_EARTH])
+from dgcal.fields.constants import A_WGS84, GM_WGS84, J2_WGS84, OMEGA_EARTH, OMEGA_IE_E
 
 
 def gravitation_ecef(p_ecef: np.ndarray) -> np.ndarray:
@@ -24,8 +20,8 @@ def gravitation_ecef(p_ecef: np.ndarray) -> np.ndarray:
     r2 = np.sum(p * p, axis=-1)
     r = np.sqrt(r2)
     z2r2 = p[..., 2] ** 2 / r2
-    k = 1.5 * J2 * A_WGS84 ** 2 / r2
-    f = -GM / (r2 * r)
+    k = 1.5 * J2_WGS84 * A_WGS84 ** 2 / r2
+    f = -GM_WGS84 / (r2 * r)
     g = np.empty_like(p)
     g[..., 0] = f * (1 + k * (1 - 5 * z2r2)) * p[..., 0]
     g[..., 1] = f * (1 + k * (1 - 5 * z2r2)) * p[..., 1]

@@ -16,10 +16,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dgcal.fields.constants import OMEGA_IE_E
 from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
-from dgcal.fields.io.formats import Events, Trajectory, gps_seconds
 from dgcal.fields.frames import R_ecef_to_ned, rph_from_R_body_to_ned
-from dgcal.sim.strapdown import OMEGA_IE_E, gravitation_ecef
+from dgcal.fields.io.formats import Events, Trajectory, gps_seconds
+from dgcal.sim.strapdown import gravitation_ecef
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(4)
 _GL_X = 0.5 * (_GL_X + 1.0)  # nodes on [0, 1]
@@ -345,13 +346,14 @@ PRESETS = {
 }
 
 
-def simulate_flight(kind: str = "fixed-wing", lat0: float = 23.0, lon0: float = 120.2, h_ground: float = 30.0,
-                    heights_agl: tuple[float, ...] = (300.0,), n_strips: int = 4, strip_length_m: float = 1000.0,
-                    strip_spacing_m: float = 200.0, strip_heading_deg: float = 0.0, speed: float | None = None,
-                    bank_deg: float | None = None, climb_rate: float | None = None, aoa_deg: float | None = None,
-                    crab_deg: float = 0.0, margin_m: float = 150.0, rate_hz: float = 200.0,
-                    gps_week: int = 2300, gps_sow: float = 200000.0, duration_s: float | None = None
-                    ) -> TrueTrajectory:
+def simulate_true_trajectory(kind: str = "fixed-wing", lat0: float = 23.0, lon0: float = 120.2,
+                             h_ground: float = 30.0, heights_agl: tuple[float, ...] = (300.0,), n_strips: int = 4,
+                             strip_length_m: float = 1000.0, strip_spacing_m: float = 200.0,
+                             strip_heading_deg: float = 0.0, speed: float | None = None,
+                             bank_deg: float | None = None, climb_rate: float | None = None,
+                             aoa_deg: float | None = None, crab_deg: float = 0.0, margin_m: float = 150.0,
+                             rate_hz: float = 200.0, gps_week: int = 2300, gps_sow: float = 200000.0,
+                             duration_s: float | None = None) -> TrueTrajectory:
     """A true UAV flight: take-off, orbit climb, parallel strips in alternating headings at each height.
 
     Strip lines are centred on (lat0, lon0) at `strip_heading_deg` (true), `strip_spacing_m` apart; the

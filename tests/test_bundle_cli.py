@@ -6,14 +6,14 @@ import pytest
 
 from dgcal.cli import main
 from dgcal.fields.io.formats import read_eop, read_measurements, read_points, write_measurements, write_points
-from dgcal.sim.flight import simulate_flight
+from dgcal.sim.flight import simulate_block_flight
 
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     d = tmp_path_factory.mktemp("sim")
-    truth = simulate_flight(d, seed=3, render=False, heights=(80.0,), n_strips=(3,), n_images=(7,), n_control=8,
-                            n_check=6, n_tie=250)
+    truth = simulate_block_flight(d, seed=3, render=False, heights=(80.0,), n_strips=(3,), n_images=(7,), n_control=8,
+                                  n_check=6, n_tie=250)
     return d, truth
 
 

@@ -7,7 +7,7 @@ from dgcal.bundle.georef import Georef
 from dgcal.bundle.resection import pnp, relative_bootstrap, similarity_umeyama
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
-from dgcal.sim.flight import default_camera
+from dgcal.sim.flight import block_flight_camera
 
 rng = np.random.default_rng(11)
 CENTRE = np.array([327000.0, 2655000.0, 120.0])     # UTM 51N, ~1.7 deg west of the central meridian
@@ -74,10 +74,14 @@ def test_covariance_to_map_matches_monte_carlo():
     J = g.eop_covariance_to_map(R, C, cov[None])[0]
     xyz0, opk0 = g.eop_to_map(R, C)
     s = rng.multivariate_normal(np.zeros(6), cov, 4000)
-    Rs = Rotation.from_rotvec(s[:, 3:]).as_matrix() @ R
+    # the pose rule of dgcal.fields.pose: R_cam_to_world <- R_cam_to_world Exp(dtheta)
+    Rs = Rotation.from_rotvec(-s[:, 3:]).as_matrix() @ R
     xyz, opk = g.eop_to_map(Rs, C + s[:, :3])
     emp = np.cov(np.column_stack([xyz - xyz0, opk - opk0]).T)
     np.testing.assert_allclose(np.sqrt(np.diag(emp)), np.sqrt(np.diag(J)), rtol=0.08)
+    # the position-angle cross terms too (they change sign with the perturbation side)
+    sd = np.sqrt(np.diag(J))
+    np.testing.assert_allclose(emp / np.outer(sd, sd), J / np.outer(sd, sd), atol=0.1)
 
 
 def test_geoid_constant_undulation():
@@ -101,7 +105,7 @@ def test_bad_crs_and_local_frame():
 
 
 def test_pnp_and_umeyama():
-    cam = default_camera()
+    cam = block_flight_camera()
     X = rng.uniform([-40, -30, -3], [40, 30, 3], (12, 3))
     R = Rotation.from_euler("xyz", [182.0, -3.0, 30.0], degrees=True).as_matrix()
     C = np.array([2.0, -1.0, 80.0])

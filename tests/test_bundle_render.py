@@ -5,12 +5,12 @@ from dgcal.bundle.tiepoints import extract_tie_points, list_images
 from dgcal.bundle.triangulation import triangulate
 from dgcal.calib.camera.files import load_camera
 from dgcal.fields.io.formats import Measurements, read_eop, read_measurements, read_points
-from dgcal.sim.flight import simulate_flight
+from dgcal.sim.flight import simulate_block_flight
 
 
 def test_rendered_flight_with_sift_tie_points(tmp_path):
-    truth = simulate_flight(tmp_path, seed=5, render=True, heights=(80.0,), n_strips=(2,), n_images=(5,),
-                            n_control=8, n_check=4, n_tie=10, image_size=(600, 400))
+    truth = simulate_block_flight(tmp_path, seed=5, render=True, heights=(80.0,), n_strips=(2,), n_images=(5,),
+                                  n_control=8, n_check=4, n_tie=10, image_size=(600, 400))
     cam = load_camera(tmp_path / "camera.json")
     names = list_images(tmp_path / "images")
     assert len(names) == 10
@@ -36,8 +36,8 @@ def test_rendered_flight_with_sift_tie_points(tmp_path):
 
 def test_aruco_gcp_targets_are_detected_where_they_project(tmp_path):
     from dgcal.bundle.gcp_targets import detect_gcp_targets
-    truth = simulate_flight(tmp_path, seed=8, render=True, heights=(80.0,), n_strips=(1,), n_images=(3,),
-                            n_control=6, n_check=3, n_tie=10, targets="aruco")
+    truth = simulate_block_flight(tmp_path, seed=8, render=True, heights=(80.0,), n_strips=(1,), n_images=(3,),
+                                  n_control=6, n_check=3, n_tie=10, targets="aruco")
     names = [im["image"] for im in truth["images"]]
     det = detect_gcp_targets(tmp_path / "images", names, "DICT_4X4_50")
     exact = read_measurements(tmp_path / "measurements_exact.csv")

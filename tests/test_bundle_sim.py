@@ -7,13 +7,13 @@ import pytest
 from dgcal.bundle.triangulation import TriangulationOptions, triangulate
 from dgcal.calib.camera.files import load_camera
 from dgcal.fields.io.formats import read_eop, read_measurements, read_points
-from dgcal.sim.flight import simulate_flight
+from dgcal.sim.flight import simulate_block_flight
 
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
     out = tmp_path_factory.mktemp("flight")
-    truth = simulate_flight(out, seed=7, render=False, n_tie=900)
+    truth = simulate_block_flight(out, seed=7, render=False, n_tie=900)
     return out, truth
 
 

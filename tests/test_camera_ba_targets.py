@@ -4,7 +4,7 @@ import numpy as np
 from dgcal.calib.selfcal.diagnostics import projection_difference
 from dgcal.calib.selfcal.adjustment import adjust
 from dgcal.fields.targets.plate import TargetField, nonplanar_field
-from dgcal.sim.camera_field import default_camera, plan_shots
+from dgcal.sim.camera_field import calibration_field_camera, plan_shots
 from test_camera_ba_simulated import SIZE, simulate_measurements
 
 
@@ -25,7 +25,7 @@ def warped_field_scene(seed=21):
     pts = tf.points()
     true_xyz = pts.xyz.copy()
     true_xyz[:, 2] += 0.004 * (true_xyz[:, 0] ** 2 + true_xyz[:, 1] ** 2) / 1.44   # 4 mm sag at the rim
-    truth = default_camera(SIZE)
+    truth = calibration_field_camera(SIZE)
     shots = plan_shots(30, truth, tf, rng)
     img, idx, xy = simulate_measurements(truth, true_xyz, shots, 0.1, rng)
     nominal = pts.xyz * 1.002                                                    # printed 0.2 % large, flat
@@ -69,7 +69,7 @@ def test_nonplanar_field_initialises_and_calibrates():
     tf = nonplanar_field(square_m=0.16, marker_m=0.12)
     pts = tf.points()
     assert np.ptp(pts.xyz[:, 2]) > 0.15
-    truth = default_camera(SIZE)
+    truth = calibration_field_camera(SIZE)
     shots = plan_shots(30, truth, tf, rng)
     img, idx, xy = simulate_measurements(truth, pts.xyz, shots, 0.1, rng)
     res = adjust(pts.ids, pts.xyz, img, pts.ids[idx], xy, SIZE, "fraser7")

@@ -10,7 +10,7 @@ from dgcal.calib.camera.files import load_camera
 from dgcal.cli import main
 from dgcal.fields.io.formats import Measurements, write_measurements
 from dgcal.fields.targets.plate import TargetField, write_field
-from dgcal.sim.camera_field import default_camera, plan_shots
+from dgcal.sim.camera_field import calibration_field_camera, plan_shots
 from test_camera_ba_simulated import SIZE, simulate_measurements
 
 
@@ -20,7 +20,7 @@ def sim_dir(tmp_path_factory):
     rng = np.random.default_rng(5)
     tf = TargetField(square_m=0.16, marker_m=0.12)
     pts = write_field(d / "field.csv", tf)
-    truth = default_camera(SIZE)
+    truth = calibration_field_camera(SIZE)
     shots = plan_shots(24, truth, tf, rng)
     img, idx, xy = simulate_measurements(truth, pts.xyz, shots, 0.1, rng)
     write_measurements(d / "measurements.csv", Measurements(img, pts.ids[idx], xy, np.full_like(xy, 0.1)))
@@ -178,7 +178,7 @@ def test_camera_cli_options_refine_and_fix(sim_dir, tmp_path, capsys):
 def test_initial_camera_of_another_size_is_refused(sim_dir, tmp_path, capsys):
     from dgcal.calib.camera.files import write_camera_json
     d, truth = sim_dir
-    other = default_camera((3000, 2000))
+    other = calibration_field_camera((3000, 2000))
     write_camera_json(tmp_path / "start.json", other)
     out = tmp_path / "out"
     rc, _, err = run_cli(["--field", d / "field.csv", "--measurements", d / "measurements.csv",

@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
-from dgcal.fields.io import formats as F
+from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import formats as F
 
 rng = np.random.default_rng(3)
 
@@ -49,7 +50,7 @@ def test_measurements_round_trip_and_duplicates(tmp_path):
 
 def test_trajectory_and_events_round_trip(tmp_path):
     n = 5
-    t = 2150 * F.SECONDS_PER_WEEK + 300000.0 + np.arange(n) * 0.5
+    t = 2150 * SECONDS_PER_WEEK + 300000.0 + np.arange(n) * 0.5
     tr = F.Trajectory(t, 23 + rng.uniform(0, 0.01, n), 120 + rng.uniform(0, 0.01, n), 300 + rng.normal(size=n),
                       rng.normal(size=(n, 3)), rng.uniform(-10, 10, (n, 3)) + [0, 0, 180], np.full((n, 6), 0.02))
     F.write_trajectory(tmp_path / "t.csv", tr)

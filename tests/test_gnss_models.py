@@ -2,13 +2,13 @@
 import numpy as np
 import pytest
 
+from dgcal.fields.constants import C_LIGHT, OMEGA_EARTH, SECONDS_PER_DAY, SECONDS_PER_WEEK
 from dgcal.pos.gnss.ephemeris import satellite_states, select_ephemeris, states_at_transmission
 from dgcal.pos.gnss.corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m, sagnac_rotate,
                                   saastamoinen_delay_m)
-from dgcal.pos.gnss.observations import C_LIGHT, OMEGA_E
 from dgcal.pos.gnss.rinex import gtime_from_gps_seconds, read_rinex_nav
 
-T0 = 2149 * 604800.0 + 5 * 86400.0 + 12 * 3600.0   # 2021-03-19 12:00 GPS
+T0 = 2149 * SECONDS_PER_WEEK + 5 * SECONDS_PER_DAY + 12 * 3600.0   # 2021-03-19 12:00 GPS
 REF = np.array([-3962108.673, 3381309.574, 3668678.638])
 
 
@@ -95,7 +95,7 @@ def test_sagnac_rotation_and_its_rate():
     np.testing.assert_allclose(pr[:, 2], p[:, 2])
     np.testing.assert_allclose(np.linalg.norm(pr, axis=1), np.linalg.norm(p, axis=1), rtol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(pr - p, axis=1),
-                               OMEGA_E * 0.07 * np.linalg.norm(p[:, :2], axis=1), rtol=1e-6)
+                               OMEGA_EARTH * 0.07 * np.linalg.norm(p[:, :2], axis=1), rtol=1e-6)
     # velocity is d/dt_rx of the rotated position when tau changes at rate tau_dot
     tau_dot = np.full(5, 2e-6)
     _, vr = sagnac_rotate(p, v, tau, tau_dot)
@@ -123,7 +123,7 @@ def test_beidou_geo_state_uses_cssrlib_geo_frame():
     eph.cuc = eph.cus = eph.crc = eph.crs = eph.cic = eph.cis = eph.idot = eph.deln = 0.0
     eph.af0, eph.af1 = 1e-4, 1e-12
     nav = BroadcastNav(eph=[eph], by_sat={"C01": [eph]}, ion_gps=None, ion_bds=None, leap_seconds=18)
-    t = week * 604800.0 + toes + 100.0
+    t = week * SECONDS_PER_WEEK + toes + 100.0
     p, v, clk, drift, ura, ok = satellite_states(nav, ["C01"], t)
     assert ok[0]
     assert abs(np.linalg.norm(p[0]) - 42164.0e3) < 50e3

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
+from dgcal.fields.constants import C_LIGHT, SECONDS_PER_DAY, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
-from dgcal.pos.gnss.observations import C_LIGHT
 from dgcal.pos.gnss.rinex import (calendar_from_gps_seconds, gps_seconds_from_calendar, gps_seconds_from_gtime,
                        gtime_from_gps_seconds, read_rinex_nav, read_rinex_obs, write_rinex_obs)
 
@@ -13,7 +13,7 @@ NAV = "rinex-sept/SEPT078M.21P"
 
 def test_time_conversions_round_trip():
     t = gps_seconds_from_calendar(2021, 3, 19, 12, 0, 0.5)
-    assert t == pytest.approx(2149 * 604800 + 5 * 86400 + 12 * 3600 + 0.5)
+    assert t == pytest.approx(2149 * SECONDS_PER_WEEK + 5 * SECONDS_PER_DAY + 12 * 3600 + 0.5)
     y, mo, d, h, mi, s = calendar_from_gps_seconds(t)
     assert (y, mo, d, h, mi) == (2021, 3, 19, 12, 0) and s == pytest.approx(0.5)
     assert gps_seconds_from_gtime(gtime_from_gps_seconds(t + 0.123)) == pytest.approx(t + 0.123, abs=1e-9)

@@ -4,6 +4,7 @@ import json
 import numpy as np
 import pytest
 
+from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.pos.gnss.observations import CLOCK_GROUP
 from dgcal.pos.gnss.rinex import read_rinex_nav
 from dgcal.pos.gnss.spp import SppOptions, spp
@@ -73,7 +74,7 @@ def test_spp_on_simulated_flight_is_unbiased_and_honest(flight, nav):
 
 
 def test_synthetic_constellation_with_beidou():
-    t = 2300 * 604800.0 + 3600.0 + np.arange(0.0, 20.0)
+    t = 2300 * SECONDS_PER_WEEK + 3600.0 + np.arange(0.0, 20.0)
     p, v = circle_trajectory(t, 47.0, 8.0, 500.0, 0.0, 0.0)
     nav = synthetic_nav(t[0], t[-1], systems=("G", "E", "C"), seed=1)
     obs = simulate_gnss(t, p, v, nav, seed=3, sigma_pr=0.3, systems=("G", "E", "C"))
@@ -100,7 +101,7 @@ def test_cli_simulate_then_pos_end_to_end(tmp_path):
     assert rc == 0
     tab = read_table(out / "gnss.csv", ["gps_week", "gps_sow", "x", "y", "z", "vx", "vy", "vz"])
     assert len(tab) == 31
-    t = tab["gps_week"] * 604800.0 + tab["gps_sow"]
+    t = tab["gps_week"] * SECONDS_PER_WEEK + tab["gps_sow"]
     np.testing.assert_allclose(t, truth["t_gps"], atol=1e-6)
     p = np.column_stack([tab["x"], tab["y"], tab["z"]])
     err = p - np.array(truth["p_ecef"])

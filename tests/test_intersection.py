@@ -3,12 +3,12 @@ import numpy as np
 
 from dgcal.bundle.intersection import intersect, propagate_pose_covariance
 from dgcal.calib.mounting.common import so3_exp
-from dgcal.sim.mounting import default_camera
+from dgcal.sim.mounting import mounting_flight_camera
 
 
 def _scene(seed=0, n_pts=30):
     rng = np.random.default_rng(seed)
-    cam = default_camera()
+    cam = mounting_flight_camera()
     C = np.array([[x, y, 300.0 + rng.normal(0, 5)] for x in (-80.0, 0.0, 80.0) for y in (-60.0, 60.0)])
     R_down = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])
     R = so3_exp(rng.normal(0, 0.02, (len(C), 3))) @ R_down

@@ -3,16 +3,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from dgcal.fields.constants import OMEGA_IE_E
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import Events, Trajectory, read_trajectory, write_trajectory
 from dgcal.pos.ins.interpolate import TrajectoryInterpolator, interpolate_trajectory, trajectory_at_events
-from dgcal.sim.trajectory import camera_events, simulate_flight
+from dgcal.sim.trajectory import camera_events, simulate_true_trajectory
 
 
 @pytest.fixture(scope="module")
 def truth():
-    return simulate_flight(heights_agl=(250.0,), n_strips=2, strip_length_m=600.0, rate_hz=100.0,
-                           duration_s=300.0)
+    return simulate_true_trajectory(heights_agl=(250.0,), n_strips=2, strip_length_m=600.0, rate_hz=100.0,
+                                    duration_s=300.0)
 
 
 def _sampled(truth, hz, sigma=None):
@@ -41,7 +42,7 @@ def test_interpolation_matches_truth_between_samples(truth):
             on |= (tq > s.t_start + 1) & (tq < s.t_end - 1)
         assert _angle_deg(st.R_body_to_ned[on], ref.R_body_to_ned[on]).max() < 1e-4
     st = interpolate_trajectory(_sampled(truth, 50.0), tq)
-    w_eb = ref.omega_ib_b - np.einsum("nji,j->ni", ref.R_body_to_ecef, [0, 0, 7.2921151467e-5])
+    w_eb = ref.omega_ib_b - np.einsum("nji,j->ni", ref.R_body_to_ecef, OMEGA_IE_E)
     assert np.abs(st.omega_eb_b - w_eb).max() < 2e-3
 
 

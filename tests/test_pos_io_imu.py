@@ -2,14 +2,15 @@
 import numpy as np
 import pytest
 
+from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
-from dgcal.pos.ins.imu_data import (ImuData, WEEK_S, read_imu_csv, read_imu_text, read_kf_gins, write_imu_csv,
+from dgcal.pos.ins.imu_data import (ImuData, read_imu_csv, read_imu_text, read_kf_gins, write_imu_csv,
                         write_kf_gins)
 
 
 def _imu(n=2000, rate=200.0, week=2150, sow0=302000.0, seed=1):
     rng = np.random.default_rng(seed)
-    t = week * WEEK_S + sow0 + np.arange(1, n + 1) / rate
+    t = week * SECONDS_PER_WEEK + sow0 + np.arange(1, n + 1) / rate
     g = rng.normal(0, 0.2, (n, 3))
     a = rng.normal(0, 1.0, (n, 3)) + [0, 0, -9.8]
     return ImuData.from_rates(t, g, a, rate)
@@ -40,7 +41,7 @@ def test_csv_round_trip_rates_and_increments(tmp_path):
 
 def test_generic_text_units_columns_and_axes(tmp_path):
     imu = _imu(300)
-    sow = imu.t - 2150 * WEEK_S
+    sow = imu.t - 2150 * SECONDS_PER_WEEK
     # rates in deg/s and g, columns shuffled, axes right-forward-up (RFU)
     R_frd_to_rfu = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]])
     g_rfu = np.degrees(imu.gyro_rad_s) @ R_frd_to_rfu.T
@@ -59,11 +60,11 @@ def test_generic_text_units_columns_and_axes(tmp_path):
 
 def test_week_rollover_inside_file(tmp_path):
     p = tmp_path / "imu.txt"
-    sows = [WEEK_S - 0.01, WEEK_S - 0.005, 0.0, 0.005]
+    sows = [SECONDS_PER_WEEK - 0.01, SECONDS_PER_WEEK - 0.005, 0.0, 0.005]
     p.write_text("".join(f"{s:.3f} 0 0 0 0 0 -0.049\n" for s in sows))
     imu = read_kf_gins(p, gps_week=100)
     np.testing.assert_allclose(np.diff(imu.t), 0.005, atol=1e-6)
-    assert imu.t[2] == pytest.approx(101 * WEEK_S)
+    assert imu.t[2] == pytest.approx(101 * SECONDS_PER_WEEK)
 
 
 @pytest.mark.parametrize("content, line, word", [

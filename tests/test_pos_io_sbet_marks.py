@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import Trajectory, read_events, write_events
 from dgcal.pos.events import make_events, match_events_to_images, read_mrk, write_mrk
@@ -12,7 +13,7 @@ WEEK = 2300
 
 def _traj(n=500, seed=0):
     rng = np.random.default_rng(seed)
-    t = WEEK * 604800.0 + 604790.0 + np.arange(n) * 0.05  # crosses the week boundary
+    t = WEEK * SECONDS_PER_WEEK + 604790.0 + np.arange(n) * 0.05  # crosses the week boundary
     return Trajectory(t=t, lat=23.0 + rng.normal(0, 1e-3, n), lon=120.2 + rng.normal(0, 1e-3, n),
                       h=300 + rng.normal(0, 5, n), v_ned=rng.normal(0, 20, (n, 3)),
                       rph=np.column_stack([rng.normal(0, 10, n), rng.normal(0, 5, n), rng.uniform(0, 360, n)]),
@@ -87,7 +88,7 @@ def test_mrk_parse_and_round_trip(tmp_path):
     p.write_text(MRK)
     m = read_mrk(p)
     assert list(m.index) == [1, 2, 3] and list(m.lines) == [1, 2, 4]
-    assert m.t[0] == pytest.approx(2404 * 604800 + 282401.669089)
+    assert m.t[0] == pytest.approx(2404 * SECONDS_PER_WEEK + 282401.669089)
     np.testing.assert_allclose(m.offset_nev_m[0], [0.101, 0.107, 0.129])
     np.testing.assert_allclose(m.sigma_nev_m[2], [0.013, 0.0131, 0.0277])
     assert list(m.quality) == [50, 50, 34] and m.lat[1] == pytest.approx(22.77999001)

@@ -101,14 +101,14 @@ def test_event_outside_the_flight_names_the_events_file(dataset, tmp_path):
         from dgcal.commands import pos as cmd
         p = argparse.ArgumentParser()
         cmd.add_arguments(p)
-        run_pos(p.parse_args(args[1:]))
+        run_pos(cmd.pos_options(p.parse_args(args[1:])))
     msg = str(exc.value)
     assert "events_bad.csv" in msg and f":{len(lines)}" in msg
     assert not (tmp_path / "o" / "trajectory.csv").exists()
 
 
 def test_bad_settings_and_missing_inputs(dataset, tmp_path):
-    from dgcal.pos.pipeline import parse_settings, run_pos
+    from dgcal.pos.pipeline import PosOptions, parse_settings, run_pos
     with pytest.raises(InputError, match="--set"):
         parse_settings(["nonsense=3"])
     with pytest.raises(InputError, match="--set"):
@@ -116,9 +116,9 @@ def test_bad_settings_and_missing_inputs(dataset, tmp_path):
     assert parse_settings(["rate=20", "use_doppler=false", "huber_k=none"]) == {
         "rate": 20.0, "use_doppler": False, "huber_k": None}
     with pytest.raises(InputError, match="--imu"):
-        run_pos(mode="tc", imu=None, events=str(dataset / "events.csv"), out=str(tmp_path / "x"))
+        run_pos(PosOptions(mode="tc", imu=None, events=str(dataset / "events.csv")))
     with pytest.raises(InputError, match="--imu-grade"):
-        run_pos(mode="tc", imu=str(dataset / "imu.csv"), events=str(dataset / "events.csv"), imu_grade="potato",
-                out=str(tmp_path / "x"))
+        run_pos(PosOptions(mode="tc", imu=str(dataset / "imu.csv"), events=str(dataset / "events.csv"),
+                           imu_grade="potato"))
     assert _dgcal(["pos", "--mode", "tc", "--imu", str(dataset / "imu.csv"), "--events",
                    str(dataset / "events.csv"), "--out", str(tmp_path / "y")]) == 2

@@ -4,15 +4,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dgcal.pos.ins.error_model import DEG, GRADES, G0, ImuGrade, imu_grade
+from dgcal.fields.constants import G0
+from dgcal.pos.ins.error_model import DEG, GRADES, ImuErrorModel, imu_grade
 from dgcal.sim.imu import gauss_markov, simulate_imu
-from dgcal.sim.trajectory import simulate_flight
+from dgcal.sim.trajectory import simulate_true_trajectory
 
 
 @pytest.fixture(scope="module")
 def truth():
-    return simulate_flight(heights_agl=(200.0,), n_strips=2, strip_length_m=600.0, rate_hz=100.0,
-                           duration_s=400.0)
+    return simulate_true_trajectory(heights_agl=(200.0,), n_strips=2, strip_length_m=600.0, rate_hz=100.0,
+                                    duration_s=400.0)
 
 
 def test_datasheet_round_trip_and_presets():
@@ -23,7 +24,7 @@ def test_datasheet_round_trip_and_presets():
     assert ds["accel_vrw_m_s_rt_h"] == pytest.approx(0.029)
     assert ds["accel_bias_instability_mg"] == pytest.approx(0.1)
     assert g.gyro_arw == pytest.approx(0.3 * DEG / 60)
-    assert ImuGrade.from_dict(g.as_dict()) == g
+    assert ImuErrorModel.from_dict(g.as_dict()) == g
     assert imu_grade("tactical") is GRADES["adis16488"] and imu_grade("ADIS-16405").name == "adis16405"
     # presets are ordered by quality (the old ADIS16405 is noisier than today's consumer parts)
     order = ["navigation", "adis16488", "consumer"]
@@ -82,9 +83,8 @@ def test_seed_reproducible_and_distinct(truth):
 
 
 def test_smoother_reads_the_grade():
-    from dgcal.pos.smoother.preintegration import imu_noise_from_grade
     g = imu_grade("adis16488")
-    n = imu_noise_from_grade(g)
+    n = g.smoother_noise()
     assert n.gyro_arw == pytest.approx(g.gyro_arw) and n.accel_vrw == pytest.approx(g.accel_vrw)
     assert n.gyro_bias_sigma >= g.gyro_bias_sigma and n.accel_bias_sigma >= g.accel_bias_sigma
     assert G0 == pytest.approx(9.80665)

@@ -3,17 +3,18 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dgcal.sim.strapdown import OMEGA_IE_E, gravity_ecef, integrate_strapdown_ecef
-from dgcal.sim.trajectory import camera_events, simulate_flight
+from dgcal.fields.constants import OMEGA_IE_E
+from dgcal.sim.strapdown import gravity_ecef, integrate_strapdown_ecef
+from dgcal.sim.trajectory import camera_events, simulate_true_trajectory
 
 
 @pytest.fixture(scope="module")
 def flight():
-    return simulate_flight(heights_agl=(300.0, 500.0), n_strips=3, strip_length_m=800.0, rate_hz=100.0)
+    return simulate_true_trajectory(heights_agl=(300.0, 500.0), n_strips=3, strip_length_m=800.0, rate_hz=100.0)
 
 
 def test_strapdown_of_noise_free_imu_reproduces_truth_10_min_200hz():
-    tr = simulate_flight(heights_agl=(300.0,), n_strips=4, duration_s=600.0, rate_hz=200.0)
+    tr = simulate_true_trajectory(heights_agl=(300.0,), n_strips=4, duration_s=600.0, rate_hz=200.0)
     assert tr.t[-1] - tr.t[0] == pytest.approx(600.0)
     assert np.ptp(tr.rph[:, 0]) > 40.0  # turns at +-25 deg bank were flown
     p, v, R = integrate_strapdown_ecef(tr.t, tr.dtheta, tr.dvel, tr.p_ecef[0], tr.v_ecef[0], tr.R_body_to_ecef[0])
@@ -107,8 +108,8 @@ def test_camera_events_on_strips_with_delay(flight):
 
 
 def test_multirotor_preset_and_duration():
-    tr = simulate_flight(kind="multirotor", heights_agl=(80.0,), n_strips=2, strip_length_m=200.0,
-                         strip_spacing_m=40.0, rate_hz=50.0, duration_s=200.0)
+    tr = simulate_true_trajectory(kind="multirotor", heights_agl=(80.0,), n_strips=2, strip_length_m=200.0,
+                                  strip_spacing_m=40.0, rate_hz=50.0, duration_s=200.0)
     assert tr.t[-1] - tr.t[0] == pytest.approx(200.0)
     assert np.median(np.linalg.norm(tr.v_ned[:, :2], axis=1)) == pytest.approx(10.0, abs=0.1)
     assert tr.h.max() == pytest.approx(110.0, abs=0.5)

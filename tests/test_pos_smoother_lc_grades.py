@@ -18,8 +18,9 @@ def _lc_run(grade_name: str, seed: int):
     from dgcal.pos.smoother.batch import SmootherOptions, smooth
     from dgcal.pos.smoother.initial import GnssFixes
     from dgcal.sim.imu import simulate_imu
-    from dgcal.sim.trajectory import simulate_flight
-    truth = simulate_flight("fixed-wing", heights_agl=(300.0,), n_strips=4, strip_length_m=700.0, rate_hz=100.0)
+    from dgcal.sim.trajectory import simulate_true_trajectory
+    truth = simulate_true_trajectory("fixed-wing", heights_agl=(300.0,), n_strips=4, strip_length_m=700.0,
+                                     rate_hz=100.0)
     grade = imu_grade(grade_name)
     imu, err = simulate_imu(truth, grade, seed=seed, misalignment=False)
     rng = np.random.default_rng(seed + 100)

@@ -6,7 +6,8 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")
 
-from dgcal.pos.gnss.observations import C_LIGHT, GnssEpoch  # noqa: E402
+from dgcal.fields.constants import C_LIGHT  # noqa: E402
+from dgcal.pos.gnss.observations import GnssEpoch  # noqa: E402
 from dgcal.pos.ins.nav_frame import NavFrame  # noqa: E402
 from dgcal.pos.smoother.factors import CLK, DRIFT, V, X, ZERO, doppler_factors, pseudorange_factors  # noqa: E402
 
@@ -104,8 +105,8 @@ def test_preintegration_is_exact_in_a_steady_turn():
     # centripetal part): the velocity increment over 1 s at 100 Hz must equal f_nav * T. Without the
     # rotation compensation gtsam rotates each sample's force by the start attitude: error w dt/2 * |f| * T
     from dgcal.pos.ins.error_model import imu_grade
-    from dgcal.pos.smoother.preintegration import (ImuSegments, imu_noise_from_grade, preintegrate, preintegration_params,
-                                  rotation_compensated_accel)
+    from dgcal.pos.smoother.preintegration import (ImuSegments, preintegrate, preintegration_params,
+                                                   rotation_compensated_accel)
     import gtsam
     w, dt, n = 0.228, 0.01, 100
     f_nav = np.array([4.5, 0.0, -9.8])
@@ -115,7 +116,7 @@ def test_preintegration_is_exact_in_a_steady_turn():
                     np.full(n, f_nav[2])], 1)  # mean body specific force of each sample
     gyro = np.tile([0.0, 0.0, w], (n, 1))
     seg = ImuSegments(gyro, f_b, np.full(n, dt), np.array([0, n]))
-    params = preintegration_params(imu_noise_from_grade(imu_grade("adis16488")), NavFrame(23.0, 120.0, 0.0),
+    params = preintegration_params(imu_grade("adis16488").smoother_noise(), NavFrame(23.0, 120.0, 0.0),
                                    earth_rotation=False)
     pim = preintegrate(params, seg, [gtsam.imuBias.ConstantBias()])[0]
     assert np.abs(pim.deltaVij() - f_nav * n * dt).max() < 2e-5
@@ -159,7 +160,7 @@ def _lc_problem(K=40, seed=0):
     """A small LC problem built from a straight simulated segment (no clocks, so gtsam.Marginals works)."""
     from dgcal.pos.ins.imu_data import ImuData
     from dgcal.pos.smoother.batch import SmootherOptions, build_problem, optimize
-    from dgcal.pos.smoother.preintegration import ImuNoise
+    from dgcal.pos.ins.error_model import ImuErrorModel
     from dgcal.pos.smoother.initial import GnssFixes
     rng = np.random.default_rng(seed)
     frame = NavFrame(30.0, 100.0, 0.0)
@@ -173,7 +174,8 @@ def _lc_problem(K=40, seed=0):
     p = np.column_stack([5.0 * (tk - 1000.0), np.zeros_like(tk), np.zeros_like(tk)])
     fx = GnssFixes(tk, frame.to_ecef(p + rng.normal(0, 0.5, p.shape)), np.full(p.shape, 0.5),
                    np.tile([5.0, 0.0, 0.0], (len(tk), 1)) @ frame.R_nav_to_ecef.T, np.full(p.shape, 0.1))
-    noise = ImuNoise(1e-3, 1e-2, 1e-5, 1e-4, 1e-3, 1e-2)
+    noise = ImuErrorModel("test", gyro_arw=1e-3, accel_vrw=1e-2, gyro_bias_rw=1e-5, accel_bias_rw=1e-4,
+                          gyro_bias_sigma=1e-3, accel_bias_sigma=1e-2)
     pr = build_problem(imu, frame, tk, fx, noise, SmootherOptions(earth_rotation=False), "lc", None, fx)
     return pr, optimize(pr)
 
@@ -210,7 +212,8 @@ def test_forward_pass_meets_the_smoother_at_the_last_epoch():
 def test_scale_and_misalignment_are_turn_noise_not_bias_jumps():
     """A 180 deg turn between straight lines: the extra gyro noise integrates to (scale * 180 deg)^2 on the turn
     axis, (misalignment * 180 deg)^2 on the others, nothing on the straights, and the bias walk is unchanged."""
-    from dgcal.pos.smoother.preintegration import ImuNoise, ImuSegments, interval_params
+    from dgcal.pos.ins.error_model import ImuErrorModel
+    from dgcal.pos.smoother.preintegration import ImuSegments, interval_params
     dt = 0.5
     t = np.arange(0.0, 120.0, dt)
     w = np.where((t >= 50.0) & (t < 50.0 + np.pi / 0.4), 0.4, 0.0)  # 0.4 rad/s for pi rad, shorter than the window
@@ -218,8 +221,8 @@ def test_scale_and_misalignment_are_turn_noise_not_bias_jumps():
     gyro = np.column_stack([np.zeros(n), np.zeros(n), w])
     accel = np.tile([0.0, 0.0, -9.8], (n, 1))
     seg = ImuSegments(gyro, accel, np.full(n, dt), np.arange(n + 1))
-    noise = ImuNoise(gyro_arw=1e-4, accel_vrw=5e-4, gyro_bias_rw=1e-6, accel_bias_rw=4e-5, gyro_bias_sigma=1e-4,
-                     accel_bias_sigma=2e-2, gyro_scale=5e-4, gyro_misalign=3e-4)
+    noise = ImuErrorModel("test", gyro_arw=1e-4, accel_vrw=5e-4, gyro_bias_rw=1e-6, accel_bias_rw=4e-5,
+                          gyro_bias_sigma=1e-4, accel_bias_sigma=2e-2, gyro_scale_sigma=5e-4, gyro_misalign_sigma=3e-4)
     ps = interval_params(noise, NavFrame(23.0, 120.0, 0.0), seg, earth_rotation=False)
     extra = np.array([np.diag(p.getGyroscopeCovariance()) - noise.gyro_arw ** 2 for p in ps])
     total = (extra * dt).sum(0)

@@ -2,14 +2,14 @@
 import numpy as np
 import pytest
 
+from dgcal.fields.constants import OMEGA_IE_E
 from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude, time_derivative
-from dgcal.sim.strapdown import OMEGA_IE_E
-from dgcal.sim.trajectory import G_NOMINAL, simulate_flight
+from dgcal.sim.trajectory import G_NOMINAL, simulate_true_trajectory
 
 
 @pytest.fixture(scope="module")
 def truth():
-    return simulate_flight(heights_agl=(200.0,), n_strips=3, strip_length_m=500.0, rate_hz=50.0, aoa_deg=0.0)
+    return simulate_true_trajectory(heights_agl=(200.0,), n_strips=3, strip_length_m=500.0, rate_hz=50.0, aoa_deg=0.0)
 
 
 def _wrap(d):

@@ -8,7 +8,7 @@ from dgcal.calib.selfcal.detection import detect_folder
 from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.io.formats import read_points
 from dgcal.fields.targets.plate import TargetField, nonplanar_field
-from dgcal.sim.camera_field import default_camera, plan_shots, field_facets, truth_projections
+from dgcal.sim.camera_field import calibration_field_camera, plan_shots, field_facets, truth_projections
 from dgcal.sim.render import Facet, render
 
 
@@ -21,7 +21,7 @@ def _look_down(tilt_deg, dist):
 
 @pytest.mark.parametrize("axis", [0, 1])
 def test_render_is_exact_through_the_distortion_model(axis):
-    cam = default_camera((300, 200))
+    cam = calibration_field_camera((300, 200))
     R, t = _look_down(25.0, 1.5)
     n, texel = 4000, 0.001
     ramp = np.linspace(0.0, 1.0, n, dtype=np.float32)
@@ -42,7 +42,7 @@ def test_render_is_exact_through_the_distortion_model(axis):
 
 
 def test_shots_cover_the_whole_frame_including_corners():
-    cam = default_camera((3000, 2000))
+    cam = calibration_field_camera((3000, 2000))
     tf = TargetField()
     shots = plan_shots(48, cam, tf, np.random.default_rng(0))
     facets = field_facets(tf, 0.004)
@@ -61,7 +61,7 @@ def test_shots_cover_the_whole_frame_including_corners():
 
 
 def test_seed_makes_the_plan_reproducible():
-    cam, tf = default_camera((600, 400)), TargetField()
+    cam, tf = calibration_field_camera((600, 400)), TargetField()
     a = plan_shots(6, cam, tf, np.random.default_rng(7))
     b = plan_shots(6, cam, tf, np.random.default_rng(7))
     c = plan_shots(6, cam, tf, np.random.default_rng(8))
@@ -80,7 +80,7 @@ def test_cli_writes_images_and_consistent_truth(tmp_path):
     truth = json.loads((out / "truth.json").read_text())
     assert truth["seed"] == 5 and len(truth["images"]) == 2
     cam = camera_from_json_dict(truth["camera"])
-    assert np.allclose(cam.params, default_camera((480, 320)).params)
+    assert np.allclose(cam.params, calibration_field_camera((480, 320)).params)
     pts = read_points(out / "field.csv")
     xyz = dict(zip(pts.ids, pts.xyz))
     tm = read_table(out / "truth_measurements.csv", ["image", "id", "x", "y", "complete"])
@@ -112,7 +112,7 @@ def test_nonplanar_plate_renders_blocks_and_hides_what_they_occlude(tmp_path):
     assert levels == {0.0, 0.1, 0.2}
     assert np.sqrt(np.mean(err ** 2)) < 0.08
     # the tilted views hide some plate targets behind the blocks (compare with the blocks' faces left out)
-    cam = default_camera((1200, 800))
+    cam = calibration_field_camera((1200, 800))
     shots = plan_shots(2, cam, tf, np.random.default_rng(11))
     with_blocks, plate_only = field_facets(tf, 0.004), field_facets(TargetField(square_m=0.12, marker_m=0.09), 0.004)
     hidden = sum(len(set(truth_projections(cam, tf, sh, plate_only)[0]) - set(truth_projections(cam, tf, sh, with_blocks)[0]))

@@ -115,14 +115,16 @@ class CameraModel:
         """The 3x3 pinhole matrix of the model's linear part (skew dropped)."""
         raise NotImplementedError
 
-    def project_with_jacobians(self, X_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pixels (N,2) of camera-frame points (N,3) with d(uv)/d(params) (N,2,P) and d(uv)/d(X_cam) (N,2,3)."""
+    def project_with_jacobians(self, X_cam: np.ndarray, params: bool = True
+                               ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+        """Pixels (N,2) of camera-frame points (N,3) with d(uv)/d(params) (N,2,P) (None when `params` is False)
+        and d(uv)/d(X_cam) (N,2,3)."""
         X = np.atleast_2d(np.asarray(X_cam, float))
         iz = 1.0 / X[:, 2]
         xy = X[:, :2] * iz[:, None]
         xyd = self.distort(xy)
         uv = self.to_pixels(xyd)
-        J_params = self._param_jacobian(xy, xyd)
+        J_params = self._param_jacobian(xy, xyd) if params else None
         # chain rule: pixels <- distorted <- ideal normalised <- camera-frame point
         J_xy = self.pixel_jacobian()[None] @ self.distort_jacobian(xy)
         J_norm = np.zeros((len(X), 2, 3))

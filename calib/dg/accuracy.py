@@ -6,15 +6,18 @@ Errors are map-grid differences (E, N, Up) of DG-intersected check points minus 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from dgcal.bundle.intersection import intersect, propagate_pose_covariance
+from dgcal.calib.camera.files import load_camera
 from dgcal.calib.dg.eop import dg_poses
-from dgcal.calib.mounting.common import BlockFrame, MountingResult, T
+from dgcal.calib.mounting.common import BlockFrame, MountingResult, T, read_mounting_json
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.formats import Events, Measurements, Points, Trajectory
+from dgcal.fields.io.formats import Events, Measurements, Points, Trajectory, read_events, read_points, read_trajectory
+from dgcal.fields.io.gcp_files import read_any_measurements
 
 ASPRS_MIN_CHECKPOINTS = 30
 
@@ -217,3 +220,53 @@ def _pos_to_pose(poses, mount: MountingResult) -> np.ndarray:
     G[:, :3, 3:] = -poses.pos.R_body_to_world @ skew(mount.lever_arm_m)
     G[:, 3:, 3:] = mount.R_cam_to_body.T
     return G
+
+
+@dataclass
+class CheckOptions:
+    """Inputs and settings of `dgcal check`: mounting files (the first is the reference of the improvement
+    rates), the flight's trajectory and events, check-point measurements, ground points, camera, map CRS."""
+
+    mounting: tuple[Path, ...]
+    trajectory: Path
+    events: Path
+    measurements: Path                 # dgcal CSV, ODM gcp_list.txt or MicMac XML
+    gcp: Path                          # ground points; role `check` ones are used
+    camera: Path
+    crs: str
+    all_points: bool = False           # control points are check points too
+    pos_correlation_time_s: float | None = None  # s; None: from the trajectory (straight-strip duration)
+
+
+@dataclass
+class DgCheck:
+    """DG check-point results per mounting (labelled by method) and the improvement rates over the first."""
+
+    checks: dict[str, CheckResult]
+    reference: str
+    improvement: dict | None = None
+
+
+def check_dg_files(opts: CheckOptions) -> DgCheck:
+    """`dgcal check`: DG of the measured check points with every mounting file, errors (m, map E/N/U), seed
+    Table 2 statistics, ASPRS 2023 and the predicted budget; improvement rates (%) over the first mounting."""
+    tau = opts.pos_correlation_time_s
+    if tau is not None and not tau >= 0:
+        raise InputError(f"must be a time >= 0 s, not {tau}", field="--pos-correlation-time")
+    grid = MapGrid(opts.crs)
+    traj, events = read_trajectory(opts.trajectory), read_events(opts.events)
+    meas = read_any_measurements(opts.measurements)[0]
+    pts = read_points(opts.gcp)
+    camera = load_camera(opts.camera)
+    roles = ("check", "control") if opts.all_points else ("check",)
+    checks: dict[str, CheckResult] = {}
+    for path in opts.mounting:
+        m = read_mounting_json(path)
+        label = m.method
+        if label in checks:
+            label = f"{m.method} ({Path(path).parent.name or Path(path).name})"
+        checks[label] = check_points_dg(grid, traj, events, m, camera, meas, pts, roles,
+                                        pos_correlation_time_s="auto" if tau is None else tau)
+    names = list(checks)
+    imp = improvement_table({k: v.stats for k, v in checks.items()}, names[0]) if len(names) > 1 else None
+    return DgCheck(checks, names[0], imp)

@@ -10,14 +10,17 @@ Pose errors are [centre (m, L), camera rotation (rad, right perturbation in the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from dgcal.calib.camera.files import load_camera
+from dgcal.calib.camera.models import CameraModel
 from dgcal.calib.mounting.common import (BlockFrame, MountingResult, PoseAt, T, numeric_rot_jacobian, pos_covariance_world,
-                                   pose_at_times)
+                                   pose_at_times, read_mounting_json)
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.formats import EOP, Events, Trajectory
+from dgcal.fields.io.formats import EOP, Events, Trajectory, read_events, read_trajectory
 from dgcal.fields.frames import R_cam_to_map_from_opk, skew
 
 
@@ -105,3 +108,32 @@ def dg_eop(grid: MapGrid, traj: Trajectory, events: Events, mount: MountingResul
 def _first_local(traj: Trajectory) -> LocalENU:
     return LocalENU(float(np.mean(traj.lat)), float(np.mean(traj.lon)), float(np.mean(traj.h)))
 
+
+@dataclass
+class ExportOptions:
+    """Inputs of `dgcal export`: a mounting.json, the mapping flight's trajectory and events, the map CRS and
+    (for COLMAP) a camera file."""
+
+    mounting: Path
+    trajectory: Path
+    events: Path
+    crs: str
+    camera: Path | None = None
+
+
+@dataclass
+class DgFlight:
+    """DG EOPs of a flight in the map CRS (PATB, m and deg, with covariances), its grid and camera."""
+
+    eop: EOP
+    grid: MapGrid
+    camera: CameraModel | None = None
+
+
+def dg_eop_files(opts: ExportOptions) -> DgFlight:
+    """`dgcal export`: DG exterior orientations of every event from the files of `opts` (see `dg_eop`)."""
+    camera = load_camera(opts.camera) if opts.camera is not None else None
+    mount = read_mounting_json(opts.mounting)
+    grid = MapGrid(opts.crs)
+    eop, _, _ = dg_eop(grid, read_trajectory(opts.trajectory), read_events(opts.events), mount)
+    return DgFlight(eop, grid, camera)

@@ -18,10 +18,19 @@ R = R0 Exp(dtheta))], as `dgcal.calib.dg.eop`. Propagation is by central differe
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from dgcal.fields.frames import R_NED_TO_ENU, R_body_to_ned_from_rph, skew
+from dgcal.calib.camera.files import load_camera
+from dgcal.calib.dg.dem import Dem, read_geotiff_dem
+from dgcal.calib.dg.eop import dg_eop
+from dgcal.calib.mounting.common import read_mounting_json
+from dgcal.fields.crs import MapGrid, parse_crs
+from dgcal.fields.errors import InputError
+from dgcal.fields.frames import R_NED_TO_ENU, R_body_to_ned_from_rph, R_cam_to_map_from_opk, skew
+from dgcal.fields.io.csv_tables import read_table
+from dgcal.fields.io.formats import read_eop, read_events, read_measurements, read_trajectory
 
 
 @dataclass
@@ -235,7 +244,6 @@ def average_estimates(xy: np.ndarray, cov: np.ndarray, common_cov: np.ndarray | 
 def pose_covariance_from_opk(opk_deg, cov_eop: np.ndarray) -> np.ndarray:
     """6x6 pose covariance [centre m, camera-frame rotation rad] from an EOP covariance [X, Y, Z (m),
     omega, phi, kappa (deg)] (6x6, or (6,) sigmas), PATB angles (`dgcal.fields.frames.R_cam_to_map_from_opk`)."""
-    from dgcal.fields.frames import R_cam_to_map_from_opk
     C = np.asarray(cov_eop, float)
     C = np.diag(C ** 2) if C.ndim == 1 else C
     opk = np.asarray(opk_deg, float)
@@ -271,8 +279,6 @@ def georeference_images(camera, meas, eop, *, height: float | None = None, dem=N
     EOP (`dgcal.fields.io.formats.EOP`, map CRS, PATB), with covariances from the EOP covariance/sigmas, and per point
     id the covariance-weighted average over its images. Height source: `height` (m), `dem` or `ranges`
     (image -> (range m, sigma m or NaN)). Measurement sigmas (sx, sy) override `sigma_px`."""
-    from dgcal.fields.errors import InputError
-    from dgcal.fields.frames import R_cam_to_map_from_opk
     idx = {str(k): j for j, k in enumerate(eop.image)}
     rows_img, rows_id, X, Cv, OK = [], [], [], [], []
     for img in dict.fromkeys(str(x) for x in meas.image):
@@ -319,3 +325,73 @@ def georeference_images(camera, meas, eop, *, height: float | None = None, dem=N
         cov2 = Cv[m][:, :2, :2] + np.eye(2) * 1e-12
         averages[pid] = (average_estimates(X[m][:, :2], cov2), float(np.mean(X[m][:, 2])))
     return ImageGeoref(np.array(rows_img), ids, X, Cv, OK, averages)
+
+
+@dataclass
+class GeorefOptions:
+    """Inputs and settings of `dgcal georef`: camera, pixels, map CRS, the images' orientation (an EOP file,
+    or trajectory + events + mounting for DG) and one height source (known height m, GeoTIFF DEM in `crs`,
+    or laser ranges CSV image,range_m[,s_range_m]); sigmas in px and m."""
+
+    camera: Path
+    measurements: Path
+    crs: str
+    eop: Path | None = None
+    trajectory: Path | None = None
+    events: Path | None = None
+    mounting: Path | None = None
+    height: float | None = None
+    dem: Path | None = None
+    ranges: Path | None = None
+    sigma_px: float = 0.5
+    sigma_height: float = 0.0
+    sigma_range: float = 0.5
+
+    def height_source(self) -> str:
+        """dem, ranges or height: where the ground height comes from."""
+        return "dem" if self.dem is not None else "ranges" if self.ranges is not None else "height"
+
+
+@dataclass
+class GeorefRun:
+    """`georeference_files`' result: the per-pixel ground points and averages, with the options used."""
+
+    result: ImageGeoref
+    options: GeorefOptions
+
+
+def read_laser_ranges(path: Path) -> dict:
+    """Laser ranges CSV image,range_m[,s_range_m] (m) -> {image: (range m, sigma m or NaN)}."""
+    tab = read_table(path, ("image", "range_m"), ("s_range_m",))
+    r = np.asarray(tab["range_m"], float)
+    bad = np.flatnonzero(~np.isfinite(r) | (r <= 0))
+    if len(bad):
+        raise InputError("range must be a positive number", path, line=int(tab.lines[bad[0]]), field="range_m")
+    s = np.asarray(tab["s_range_m"], float) if "s_range_m" in tab else np.full(len(r), np.nan)
+    return {str(k): (float(a), float(b)) for k, a, b in zip(tab["image"], r, s)}
+
+
+def georeference_files(opts: GeorefOptions) -> GeorefRun:
+    """`dgcal georef`: read the files of `opts`, take the EOPs from the EOP file or by DG (POS + mounting),
+    and run `georeference_images` with the chosen height source."""
+    grid = MapGrid(opts.crs)
+    camera = load_camera(opts.camera)
+    meas = read_measurements(opts.measurements)
+    if opts.eop is not None:
+        eop = read_eop(opts.eop)
+    elif opts.trajectory and opts.events and opts.mounting:
+        eop = dg_eop(grid, read_trajectory(opts.trajectory), read_events(opts.events),
+                     read_mounting_json(opts.mounting))[0]
+    else:
+        raise InputError("give --eop, or --trajectory with --events and --mounting", field="--eop")
+    dem: Dem | None = None
+    ranges = None
+    if opts.dem is not None:
+        dem = read_geotiff_dem(opts.dem)
+        if dem.crs is not None and parse_crs(dem.crs, str(opts.dem)) != grid.crs:
+            raise InputError(f"DEM CRS {dem.crs} differs from --crs {opts.crs}", opts.dem, field="CRS")
+    if opts.ranges is not None:
+        ranges = read_laser_ranges(opts.ranges)
+    res = georeference_images(camera, meas, eop, height=opts.height, dem=dem, ranges=ranges, sigma_px=opts.sigma_px,
+                              sigma_height=opts.sigma_height, sigma_range=opts.sigma_range)
+    return GeorefRun(res, opts)

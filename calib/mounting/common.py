@@ -12,7 +12,9 @@ axes (camera frame for `R_cam_to_world`, body frame for `R_body_to_world`).
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -306,6 +308,7 @@ class MountingResult:
     warnings: list[str] = field(default_factory=list)
     per_epoch: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+    method_canonical: str = ""  # the registry name of `method` (dgcal.calib.mounting.methods), when known
 
     PARAM_NAMES = ("delay", "lever_x", "lever_y", "lever_z", "boresight_x", "boresight_y", "boresight_z")
 
@@ -328,6 +331,7 @@ class MountingResult:
         corr = self.correlation()
         return {
             "method": self.method,
+            **({"method_canonical": self.method_canonical} if self.method_canonical else {}),
             "lever_arm_m": [float(v) for v in self.lever_arm_m],
             "boresight_R_cam_to_body": [[float(v) for v in row] for row in R],
             "delay_s": float(self.delay_s),
@@ -374,7 +378,8 @@ class MountingResult:
         per_epoch = d.get("per_epoch") if isinstance(d.get("per_epoch"), dict) else {}
         extra = {k: d[k] for k in ("pos_common_fraction", "covariance_random") if k in d}
         return cls(str(d.get("method", "unknown")), lever, U @ Vt, delay, cov, int(d.get("n_epochs", 0)),
-                   list(d.get("rejected_epochs", [])), list(d.get("warnings", [])), per_epoch, extra)
+                   list(d.get("rejected_epochs", [])), list(d.get("warnings", [])), per_epoch, extra,
+                   str(d.get("method_canonical", "")))
 
     def covariance_for_flight(self, images) -> np.ndarray:
         """Mounting covariance to use for DG of `images`.
@@ -389,3 +394,12 @@ class MountingResult:
         if f > 0 and "covariance_random" in self.extra and cal_images and set(map(str, images)) <= cal_images:
             return np.array(self.extra["covariance_random"], float).reshape(7, 7)
         return self.cov
+
+
+def read_mounting_json(path: str | Path) -> MountingResult:
+    """A mounting calibration from a `mounting.json` file (of `dgcal mount`); InputError naming the file."""
+    try:
+        d = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot read mounting file ({exc})", path) from None
+    return MountingResult.from_json(d, str(path))

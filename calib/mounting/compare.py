@@ -1,10 +1,22 @@
 """Has the mounting changed? Differences of two calibrations against their combined covariance (chi-square)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+
 import numpy as np
 from scipy.stats import chi2
 
-from dgcal.calib.mounting.common import MountingResult, so3_log
+from dgcal.calib.mounting.common import MountingResult, read_mounting_json, so3_log
+
+
+@dataclass
+class CompareOptions:
+    """Inputs of `dgcal compare`: an earlier and a newer mounting.json, and the test's significance level."""
+
+    old: Path
+    new: Path
+    alpha: float = 0.01
 
 
 def compare_mountings(old: MountingResult, new: MountingResult, alpha: float = 0.01) -> dict:
@@ -32,3 +44,8 @@ def compare_mountings(old: MountingResult, new: MountingResult, alpha: float = 0
         "not_tested": unfixed,
         "methods": [old.method, new.method],
     }
+
+
+def compare_mounting_files(opts: CompareOptions) -> dict:
+    """`dgcal compare`: `compare_mountings` of the two mounting.json files of `opts`."""
+    return compare_mountings(read_mounting_json(opts.old), read_mounting_json(opts.new), opts.alpha)

@@ -187,39 +187,70 @@ def write_poses(path: str | Path, ba: IntrinsicBAResult) -> None:
         if name in ba.dropped_images:
             continue
         opk = opk_from_R_cam_to_map(ba.R_field_to_cam[i].T)
-        rows.append([name, *C[i], *opk, *sC[i], *ba.pose_sigma[i, :3], rms[name], int(n[i])])
+        rows.append([name, *C[i], *opk, *sC[i], *ba.pose_sigma[i, 3:], rms[name], int(n[i])])
     write_table(path, ["image", "X", "Y", "Z", "omega", "phi", "kappa", "sX", "sY", "sZ", "s_rx_deg",
                        "s_ry_deg", "s_rz_deg", "rms_px", "n_obs"], rows, fmt="%.8g")
 
 
-def write_camera_outputs(cal: CameraCalibration, out_dir: str | Path) -> dict[str, Path]:
+CAMERA_FILES = {"camera": "camera.json", "opencv": "opencv.yaml", "colmap": "cameras.txt", "metashape": "metashape.xml",
+                "poses": "poses.csv", "measurements": "measurements.csv", "field_refined": "field_refined.csv"}
+
+
+def write_camera_outputs(cal: CameraCalibration, out_dir: str | Path,
+                         names: dict[str, str] | None = None) -> dict[str, Path]:
     """Write camera.json, opencv.yaml, cameras.txt (COLMAP), metashape.xml, poses.csv, measurements.csv (when
-    detected) and field_refined.csv (when targets were refined) into `out_dir`; returns the paths by name."""
+    detected) and field_refined.csv (when targets were refined) into `out_dir`, named by role in `names`
+    (default `CAMERA_FILES`; `dgcal camera` passes its declared OUTPUTS); returns the paths by role."""
     from dgcal.calib.camera.files import write_colmap_cameras_txt, write_metashape_xml, write_opencv_yaml
     from dgcal.fields.io.csv_tables import atomic_write
     out = Path(out_dir)
+    path = {role: out / name for role, name in (names or CAMERA_FILES).items()}
     paths = {}
     d = cal.camera_json()
-    with atomic_write(out / "camera.json") as fh:
+    with atomic_write(path["camera"]) as fh:
         json.dump(d, fh, indent=2, allow_nan=False)
         fh.write("\n")
-    paths["camera.json"] = out / "camera.json"
-    write_opencv_yaml(out / "opencv.yaml", cal.camera)
-    paths["opencv.yaml"] = out / "opencv.yaml"
-    write_colmap_cameras_txt(out / "cameras.txt", cal.camera)
-    paths["cameras.txt"] = out / "cameras.txt"
-    write_metashape_xml(out / "metashape.xml", cal.camera)
-    paths["metashape.xml"] = out / "metashape.xml"
-    write_poses(out / "poses.csv", cal.ba)
-    paths["poses.csv"] = out / "poses.csv"
+    write_opencv_yaml(path["opencv"], cal.camera)
+    write_colmap_cameras_txt(path["colmap"], cal.camera)
+    write_metashape_xml(path["metashape"], cal.camera)
+    write_poses(path["poses"], cal.ba)
+    paths.update({k: path[k] for k in ("camera", "opencv", "colmap", "metashape", "poses")})
     if cal.detected:
-        write_measurements(out / "measurements.csv", cal.measurements)
-        paths["measurements.csv"] = out / "measurements.csv"
+        write_measurements(path["measurements"], cal.measurements)
+        paths["measurements"] = path["measurements"]
     if cal.ba.refine_targets != "none":
         from dgcal.fields.io.formats import write_points
         # held (datum) and unobserved coordinates have no sigma: NaN, which read_points accepts as "not given"
         sig = np.where(cal.ba.points_free, cal.ba.points_sigma, np.nan)
         refined = Points(cal.field.ids, cal.ba.points_xyz, sig, cal.field.role)
-        write_points(out / "field_refined.csv", refined)
-        paths["field_refined.csv"] = out / "field_refined.csv"
+        write_points(path["field_refined"], refined)
+        paths["field_refined"] = path["field_refined"]
     return paths
+
+
+@dataclass
+class CameraOptions:
+    """Inputs and settings of `dgcal camera`: the target field, measurements (with the image size) or an
+    image folder, the model and what to hold or refine (see `calibrate_camera`)."""
+
+    field: Path                              # target field CSV id,x,y,z[,sx,sy,sz] (m)
+    measurements: Path | None = None         # image,id,x,y[,sx,sy] (px); or
+    images: Path | None = None               # a folder of images (targets detected)
+    image_size: tuple[int, int] | None = None  # (width, height) px; required with measurements
+    model: str = "fraser7"
+    fixed: tuple[str, ...] = ()              # parameters held at their initial values
+    refine_targets: str = "none"             # none | free | weighted
+    reject_k: float = 4.0                    # reject beyond k robust sigmas
+    workers: int | None = None               # detection processes
+    initial: Path | None = None              # camera file to start from
+    progress: bool = False                   # progress bars (detection)
+
+
+def calibrate_camera_files(opts: CameraOptions) -> CameraCalibration:
+    """`dgcal camera`: `calibrate_camera` with the inputs and settings of `opts`."""
+    if opts.measurements is not None and opts.image_size is None:
+        raise InputError("--image-size W H is required with --measurements", opts.measurements)
+    return calibrate_camera(opts.field, measurements=opts.measurements, images=opts.images,
+                            image_size=opts.image_size, model=opts.model, fixed=opts.fixed,
+                            refine_targets=opts.refine_targets, reject_k=opts.reject_k, progress=opts.progress,
+                            workers=opts.workers, initial=opts.initial)

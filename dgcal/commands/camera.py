@@ -6,8 +6,14 @@ from __future__ import annotations
 import argparse
 import sys
 
+from dgcal.steps import Campaign
+
 NAME = "camera"
 HELP = "calibrate camera intrinsics from a target field (fraser7 or opencv8)"
+SECTION = "camera"
+OUTPUTS = {"camera": "camera.json", "report": "report.html", "opencv": "opencv.yaml", "colmap": "cameras.txt",
+           "metashape": "metashape.xml", "poses": "poses.csv", "measurements": "measurements.csv",
+           "field_refined": "field_refined.csv"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -32,20 +38,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dgcal.calib.selfcal.calibration import calibrate_camera, write_camera_outputs
+    from dgcal.calib.selfcal.calibration import CameraOptions, calibrate_camera_files
     from dgcal.fields.io.csv_tables import staged_dir
-    from dgcal.fields.errors import InputError
-    if args.measurements is not None and args.image_size is None:
-        raise InputError("--image-size W H is required with --measurements", args.measurements)
-    cal = calibrate_camera(args.field, measurements=args.measurements, images=args.images,
-                           image_size=args.image_size, model=args.model, fixed=args.fix,
-                           refine_targets=args.refine_targets, reject_k=args.reject,
-                           progress=sys.stderr.isatty(), workers=args.workers, initial=args.initial)
+    from dgcal.reports.camera import write_camera_files
+
+    opts = CameraOptions(field=args.field, measurements=args.measurements, images=args.images,
+                         image_size=None if args.image_size is None else tuple(args.image_size), model=args.model,
+                         fixed=tuple(args.fix), refine_targets=args.refine_targets, reject_k=args.reject,
+                         workers=args.workers, initial=args.initial, progress=sys.stderr.isatty())
+    cal = calibrate_camera_files(opts)
     with staged_dir(args.out) as tmp:
-        write_camera_outputs(cal, tmp)
-        if not args.no_report:
-            from dgcal.reports.camera import write_camera_report
-            write_camera_report(cal, tmp / "report.html")
+        write_camera_files(tmp, cal, OUTPUTS, report=not args.no_report)
     ba = cal.ba
     print(f"{cal.camera.NAME}: RMS {ba.rms_px:.3f} px over {ba.n_observations} observations "
           f"({ba.n_rejected} rejected), {len(ba.image_names) - len(ba.dropped_images)} images")
@@ -53,5 +56,31 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {k:3s} {v: .8g}" + (f" +- {s:.3g}" if f else " (fixed)"))
     for w in cal.warnings:
         print(f"dgcal camera: warning: {w}", file=sys.stderr)
-    print(f"wrote {args.out}/camera.json" + ("" if args.no_report else f" and {args.out}/report.html"))
+    print(f"wrote {args.out}/{OUTPUTS['camera']}" + ("" if args.no_report else f" and {args.out}/{OUTPUTS['report']}"))
     return 0
+
+
+def campaign_steps(c: Campaign) -> None:
+    """[camera] -> `dgcal camera`: `field`, `measurements` + `image_size` or `images`, `model`, `args`; with
+    `camera_json` an existing camera file is used and no step runs."""
+    cam = c.section(SECTION)
+    if cam is None:
+        return
+    cam_json = c.path(SECTION, "camera_json", required=False)
+    if cam_json is not None:
+        c.provide("camera", cam_json)
+        return
+    field_csv = c.path(SECTION, "field")
+    out = c.out / "camera"
+    a = [NAME, "--field", str(field_csv), "--model", str(cam.get("model", "fraser7")), "--out", str(out)]
+    ins = [field_csv]
+    if "images" in cam:
+        a += ["--images", str(c.path(SECTION, "images"))]
+        ins.append(c.path(SECTION, "images"))
+    else:
+        a += ["--measurements", str(c.path(SECTION, "measurements")), "--image-size",
+              *map(str, c.image_size(SECTION))]
+        ins.append(c.path(SECTION, "measurements"))
+    a += c.extra_args(SECTION)
+    step = c.add(NAME, a, ins, out, OUTPUTS, required=("camera",))
+    c.provide("camera", step.files["camera"])

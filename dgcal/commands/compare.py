@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 NAME = "compare"
 HELP = "compare two mounting calibrations (chi-square test of change)"
+OUTPUTS: dict[str, str] = {}  # writes only the --out file it is given
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -17,19 +17,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fail-on-change", action="store_true", help="exit 1 when the change is significant")
 
 
-def _load(path: Path):
-    from dgcal.calib.mounting.common import MountingResult
-    from dgcal.fields.errors import InputError
-    try:
-        return MountingResult.from_json(json.loads(path.read_text()), str(path))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot read mounting file ({exc})", path) from None
-
-
 def run(args: argparse.Namespace) -> int:
-    from dgcal.calib.mounting.compare import compare_mountings
-    from dgcal.fields.io.csv_tables import atomic_write
-    r = compare_mountings(_load(args.old), _load(args.new), args.alpha)
+    from dgcal.calib.mounting.compare import CompareOptions, compare_mounting_files
+    from dgcal.reports.mounting import write_comparison_json
+
+    r = compare_mounting_files(CompareOptions(args.old, args.new, args.alpha))
     d, s = r["difference"], r["combined_sigma"]
     print(f"delay     {d['delay_s']:+.5f} s  (sigma {s['delay_s']:.5f})")
     print("lever arm " + ", ".join(f"{v:+.4f}" for v in d["lever_arm_m"]) + " m  (sigma "
@@ -39,6 +31,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"chi2 {r['chi2']:.2f} with {r['dof']} dof, p = {r['p_value']:.4g}: "
           + ("CHANGED significantly" if r["changed"] else "no significant change") + f" at alpha {args.alpha}")
     if args.out:
-        with atomic_write(args.out) as fh:
-            json.dump(r, fh, indent=2)
+        write_comparison_json(args.out, r)
     return 1 if (args.fail_on_change and r["changed"]) else 0

@@ -17,21 +17,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    import sys
-    import time
-
-    from dgcal.campaign import run_campaign
-    from dgcal.sim.campaign import simulate_campaign
-    data, results = args.out / "data", args.out / "results"
-    t0 = time.perf_counter()
-    stamp = data / "truth.json"
-    if args.force or not stamp.is_file() or json.loads(stamp.read_text()).get("seed") != args.seed:
-        print(f"[simulate] campaign (seed {args.seed}) -> {data}", file=sys.stderr, flush=True)
-        simulate_campaign(data, args.seed)
-    else:
-        print(f"[simulate] {data} already there, kept", file=sys.stderr)
-    res = run_campaign(data / "campaign.toml", results, force=args.force)
-    print(f"demo finished in {time.perf_counter() - t0:.0f} s; calibration report:")
+    from dgcal.campaign import DemoOptions, run_demo
+    res = run_demo(DemoOptions(args.out, args.seed, args.force))
+    print(f"demo finished in {res['elapsed_s']:.0f} s; calibration report:")
     print(res["report"])
     return 0

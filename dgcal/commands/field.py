@@ -5,6 +5,8 @@ import argparse
 
 NAME = "field"
 HELP = "write a printable ChArUco target plate (PDF, PNG) and its field CSV"
+OUTPUTS = {"field": "field.csv", "pdf": "field.pdf", "png": "field.png", "tiles": "field_tiles_{page}.pdf"}
+# (the layout field.json is written beside field.csv)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -24,19 +26,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from dgcal.fields.io.csv_tables import staged_dir
-    from dgcal.fields.targets.printing import write_pdf, write_pdf_tiles, write_png
-    from dgcal.fields.targets.plate import TargetField, nonplanar_field, write_field
-    kw = dict(diameter_m=args.diameter, square_m=args.square, marker_m=args.marker, dictionary=args.dictionary,
-              sigma_xy_m=args.sigma_xy, sigma_z_m=args.sigma_z)
-    tf = nonplanar_field(**kw) if args.nonplanar else TargetField(**kw)
+    from dgcal.fields.targets.plate import FieldOptions, make_target_field
+    from dgcal.fields.targets.printing import write_field_files
+
+    tf = make_target_field(FieldOptions(diameter_m=args.diameter, square_m=args.square, marker_m=args.marker,
+                                        dictionary=args.dictionary, nonplanar=args.nonplanar,
+                                        sigma_xy_m=args.sigma_xy, sigma_z_m=args.sigma_z))
     with staged_dir(args.out) as tmp:
-        pts = write_field(tmp / "field.csv", tf)
-        write_pdf(tmp / "field.pdf", tf)
-        if not args.no_png:
-            write_png(tmp / "field.png", tf, args.dpi)
-        if args.tiles:
-            pages = write_pdf_tiles(tmp / f"field_tiles_{args.tiles}.pdf", tf, args.tiles)
-            print(f"field_tiles_{args.tiles}.pdf: {pages} pages")
-    print(f"{len(pts.ids)} targets, {tf.n_printed_markers()} markers on a {tf.diameter_m:g} m plate: "
+        paths = write_field_files(tmp, tf, OUTPUTS, png_dpi=None if args.no_png else args.dpi, tiles=args.tiles)
+    if args.tiles:
+        print(f"{paths['tiles'].name}: {paths['tile_pages']} pages")
+    print(f"{len(tf.points().ids)} targets, {tf.n_printed_markers()} markers on a {tf.diameter_m:g} m plate: "
           f"wrote field.csv, field.json, field.pdf{'' if args.no_png else ', field.png'} to {args.out}")
     return 0

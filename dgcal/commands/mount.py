@@ -1,12 +1,20 @@
-"""Calibrate lever arm, boresight and exposure delay from bundle EOPs, the POS trajectory and the events."""
+"""Calibrate lever arm, boresight and exposure delay from bundle EOPs, the POS trajectory and the events.
+
+Methods: two-step (per-epoch lever arm and boresight, delay 0; the seed's "traditional"), joint (delay,
+lever arm and boresight together; the seed's "proposed", the default) and iso (one bundle adjustment of
+the image measurements). mounting.json's `method` is the name given, `method_canonical` the method's name.
+"""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
+from dgcal.steps import Campaign
+
 NAME = "mount"
-HELP = "system calibration: lever arm, boresight, exposure delay (traditional | proposed | iso)"
+HELP = "system calibration: lever arm, boresight, exposure delay (methods two-step, joint, iso)"
+SECTION = "mount"
+OUTPUTS = {"mounting": "mounting.json", "report": "report.html", "epochs": "epochs.csv"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -15,12 +23,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trajectory", required=True, type=Path,
                    help="trajectory.csv, or the events.csv of `dgcal pos` (one row per event)")
     p.add_argument("--events", required=True, type=Path, help="events CSV image,gps_week,gps_sow")
-    p.add_argument("--method", default="proposed", choices=("traditional", "proposed", "iso"))
+    p.add_argument("--method", default=None, metavar="METHOD",
+                   help="two-step, joint (default) or iso; the seed paper's names traditional (= two-step) and "
+                        "proposed (= joint) are accepted too")
     p.add_argument("--out", required=True, type=Path, help="output directory (mounting.json, report.html)")
     p.add_argument("--no-reject", action="store_true", help="keep every epoch (no chi-square rejection)")
-    p.add_argument("--fix-delay", action="store_true", help="proposed/iso: hold the delay at 0")
+    p.add_argument("--fix-delay", action="store_true", help="joint/iso: hold the delay at 0")
     p.add_argument("--pos-common-fraction", type=float, default=0.0, metavar="F",
-                   help="proposed/iso: share (0-1) of the POS error variance common to the whole flight, added to the "
+                   help="joint/iso: share (0-1) of the POS error variance common to the whole flight, added to the "
                         "sigmas (0: independent per photo, as in the seed; 1: conservative for a MEMS smoother)")
     p.add_argument("--measurements", type=Path, help="iso: image measurements of ground points (or gcp_list.txt)")
     p.add_argument("--gcp", type=Path, help="iso: ground control points CSV (role check points are not used)")
@@ -30,67 +40,59 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dgcal.calib.mounting.methods import calibrate_mounting
-    from dgcal.fields.crs import MapGrid
-    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
-    from dgcal.fields.errors import InputError
-    from dgcal.fields.io.formats import read_eop, read_events, read_trajectory
-    from dgcal.reports.mounting import mount_report_html
+    from dgcal.calib.mounting.methods import DEFAULT_METHOD, MountOptions, calibrate_mounting_files
+    from dgcal.fields.io.csv_tables import staged_dir
+    from dgcal.reports.mounting import write_mount_outputs
 
-    grid = MapGrid(args.crs)
-    eop = read_eop(args.eop)
-    traj = read_trajectory(args.trajectory)
-    events = read_events(args.events)
-    if args.method == "iso":
-        missing = [o for o in ("measurements", "gcp", "camera") if getattr(args, o) is None]
-        if missing:
-            raise InputError(f"--method iso needs --{missing[0]}", field=f"--{missing[0]}")
-        from dgcal.calib.mounting.integrated import calibrate_iso_files
-        refine = tuple(k.strip() for k in args.refine_intrinsics.split(",") if k.strip())
-        res = calibrate_iso_files(eop, grid, traj, events, args.measurements, args.gcp, args.camera,
-                                  fix_delay=args.fix_delay, refine_intrinsics=refine,
-                                  pos_common_fraction=args.pos_common_fraction)
-    else:
-        kw = {} if args.method == "traditional" else {"reject": not args.no_reject, "fix_delay": args.fix_delay,
-                                                      "pos_common_fraction": args.pos_common_fraction}
-        res = calibrate_mounting(eop, grid, traj, events, args.method, **kw)
-    main = res.to_json()
-    others = {}
-    if args.method == "iso":
-        others["proposed"] = calibrate_mounting(eop, grid, traj, events, "proposed",
-                                                pos_common_fraction=args.pos_common_fraction).to_json()
-    if args.method != "traditional":
-        others["traditional"] = calibrate_mounting(eop, grid, traj, events, "traditional").to_json()
+    opts = MountOptions(eop=args.eop, crs=args.crs, trajectory=args.trajectory, events=args.events,
+                        method=args.method or DEFAULT_METHOD, reject=not args.no_reject, fix_delay=args.fix_delay,
+                        pos_common_fraction=args.pos_common_fraction, measurements=args.measurements, gcp=args.gcp,
+                        camera=args.camera,
+                        refine_intrinsics=tuple(k.strip() for k in args.refine_intrinsics.split(",") if k.strip()))
+    cal = calibrate_mounting_files(opts)
     with staged_dir(args.out) as tmp:
-        with atomic_write(tmp / "mounting.json") as fh:
-            json.dump(main, fh, indent=2)
-            fh.write("\n")
-        with atomic_write(tmp / "report.html") as fh:
-            fh.write(mount_report_html(main, others))
-        _write_epochs(tmp / "epochs.csv", main)
-    s = res.sigmas
+        write_mount_outputs(tmp, cal, OUTPUTS)
+    res, s = cal.result, cal.result.sigmas
     print(f"{res.method}: delay {res.delay_s:+.4f} ± {s[0]:.4f} s, lever arm "
           + ", ".join(f"{v:+.3f}±{e:.3f}" for v, e in zip(res.lever_arm_m, s[1:4])) + " m, "
           + f"{res.n_epochs} epochs, {len(res.rejected)} rejected")
     for w in res.warnings:
         print(f"warning: {w}")
-    print(args.out / "mounting.json")
+    print(args.out / OUTPUTS["mounting"])
     return 0
 
 
-def _write_epochs(path: Path, d: dict) -> None:
-    """Per-epoch values of mounting.json as CSV (lever arm m, boresight deg, residuals, rejection)."""
-    from dgcal.fields.io.csv_tables import write_table
-    pe = d.get("per_epoch") or {}
-    if "image" not in pe:
+def campaign_steps(c: Campaign) -> None:
+    """[mount] -> one `dgcal mount` per method: `method` (default joint), `compare` = [more methods],
+    `measurements` (iso; default the triangulation's), `pos_common_fraction` (joint, iso), `args`."""
+    mnt = c.section(SECTION)
+    if mnt is None:
         return
-    cols = [("lever_x", "lever_arm_m", 0), ("lever_y", "lever_arm_m", 1), ("lever_z", "lever_arm_m", 2),
-            ("bore_x_deg", "boresight_deg", 0), ("bore_y_deg", "boresight_deg", 1), ("bore_z_deg", "boresight_deg", 2),
-            ("res_e_m", "residual_position_m", 0), ("res_n_m", "residual_position_m", 1),
-            ("res_u_m", "residual_position_m", 2), ("res_rx_deg", "residual_rotation_deg", 0),
-            ("res_ry_deg", "residual_rotation_deg", 1), ("res_rz_deg", "residual_rotation_deg", 2)]
-    cols = [c for c in cols if c[1] in pe]
-    rows = []
-    for i, im in enumerate(pe["image"]):
-        rows.append([im] + [pe[k][i][j] for _, k, j in cols] + [int(bool(pe.get("rejected", [False] * (i + 1))[i]))])
-    write_table(path, ["image"] + [c[0] for c in cols] + ["rejected"], rows, fmt="%.6f")
+    eop, traj, events = (c.provided.get(k) for k in ("eop", "trajectory", "events"))
+    if eop is None or traj is None or events is None:
+        raise c.error("[mount] needs [triangulation] (or its eop) and [pos] (or its trajectory and events)", "mount")
+    from dgcal.calib.mounting.methods import DEFAULT_METHOD, METHOD_NAMES, mounting_method
+    method = str(mnt.get("method", DEFAULT_METHOD))
+    methods = [method] + [str(m) for m in mnt.get("compare", []) if m != method]
+    for m in methods:
+        if m.strip().lower() not in METHOD_NAMES:
+            raise c.error(f"unknown mounting method {m!r} ({', '.join(METHOD_NAMES)})", "mount.method")
+    dep = c.step_names()
+    for m in methods:
+        info = mounting_method(m)
+        out = c.out / f"mount_{m}"
+        a = [NAME, "--eop", str(eop), "--crs", c.crs, "--trajectory", str(traj), "--events", str(events),
+             "--method", m, "--out", str(out)]
+        ins = [eop, traj, events]
+        if info.needs_image_measurements:
+            meas = c.path(SECTION, "measurements", required=False) or c.provided.get("measurements")
+            gcp, cam = c.provided.get("gcp"), c.provided.get("camera")
+            if meas is None or gcp is None or cam is None:
+                raise c.error(f"mount method {m} needs the triangulation's gcp and measurements and a camera",
+                              "mount.compare")
+            a += ["--camera", str(cam), "--gcp", str(gcp), "--measurements", str(meas)]
+            ins += [cam, gcp, meas]
+        if info.uses_pos_common_fraction and "pos_common_fraction" in mnt:
+            a += ["--pos-common-fraction", str(float(mnt["pos_common_fraction"]))]
+        a += c.extra_args(SECTION)
+        c.add(f"mount_{m}", a, ins, out, OUTPUTS, required=("mounting",), after=dep, label=m)

@@ -10,14 +10,22 @@ DIR/gnss_summary.json and DIR/gnss_report.html. --mode tc|lc hand over to dgcal.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from dgcal.fields.errors import InputError
+from dgcal.steps import Campaign
+
+if TYPE_CHECKING:
+    from dgcal.pos.pipeline import PosOptions
 
 NAME = "pos"
 HELP = "GNSS single-point positioning or GNSS/INS smoothing (trajectory + events)"
+SECTION = "pos"
+SPP_OUTPUTS = {"gnss": "gnss.csv", "gnss_summary": "gnss_summary.json", "gnss_report": "gnss_report.html"}
+INS_OUTPUTS = {"trajectory": "trajectory.csv", "events": "events.csv", "trajectory_forward": "trajectory_forward.csv",
+               "summary": "pos_summary.json", "report": "report.html"}  # --mode tc|lc
+OUTPUTS = {**SPP_OUTPUTS, **INS_OUTPUTS}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -49,56 +57,79 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
-def spp_options_from_args(args: argparse.Namespace):
-    from dgcal.pos.gnss.spp import SppOptions
-    systems = tuple(s for s in args.systems.upper() if s in "GECJ")
-    if not systems:
-        raise InputError(f"no known constellation in '{args.systems}'", field="--systems")
-    return SppOptions(elev_mask_deg=args.elev_mask, code_sigma_zenith_m=args.code_sigma,
-                      doppler_sigma_zenith_mps=args.doppler_sigma, systems=systems,
-                      raim=not args.no_raim)
+def pos_options(args: argparse.Namespace) -> PosOptions:
+    """The dgcal.pos.pipeline.PosOptions of a parsed `dgcal pos` command line."""
+    from dgcal.pos.pipeline import PosOptions
+    tup = lambda v: None if v is None else tuple(v)  # noqa: E731
+    return PosOptions(mode=args.mode, rinex_obs=args.rinex_obs, rinex_nav=tuple(args.rinex_nav or ()), imu=args.imu,
+                      events=args.events, gnss=args.gnss, systems=args.systems, elev_mask_deg=args.elev_mask,
+                      code_sigma_m=args.code_sigma, doppler_sigma_mps=args.doppler_sigma, raim=not args.no_raim,
+                      t_start=args.t_start, t_end=args.t_end, lever_arm_m=tup(args.lever_arm),
+                      imu_grade=args.imu_grade, settings=tuple(args.extra), reference_ecef=tup(args.reference),
+                      progress=not args.no_progress)
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.mode != "spp":
-        try:
-            from dgcal.pos.pipeline import run_pos
-        except ImportError:
-            raise InputError(f"mode {args.mode} not available yet", field="--mode") from None
-        from dgcal.reports.pos import write_pos_report
-        return int(run_pos(args, report_writer=write_pos_report) or 0)
-    for name in ("rinex_obs", "rinex_nav"):
-        if not getattr(args, name):
-            raise InputError("required for --mode spp", field="--" + name.replace("_", "-"))
-    return run_spp(args)
-
-
-def run_spp(args: argparse.Namespace) -> int:
-    """--mode spp: read RINEX, SPP every epoch, write gnss.csv and gnss_summary.json."""
-    from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
-    from dgcal.pos.gnss.spp import spp
-    from dgcal.pos.gnss.spp import spp_summary, write_gnss_csv
-    from dgcal.fields.io.csv_tables import atomic_write, staged_dir
-
-    opts = spp_options_from_args(args)
-    nav = read_rinex_nav(args.rinex_nav[0], args.rinex_nav[1:])
-    obs = read_rinex_obs(args.rinex_obs, systems=opts.systems, t_start=args.t_start, t_end=args.t_end)
-    sol = spp(obs, nav, opts, progress=not args.no_progress)
-    if not sol.ok.any():
-        raise InputError("no epoch could be positioned (too few satellites with ephemeris?)",
-                         args.rinex_obs)
-    summary = spp_summary(sol, obs, nav, opts)
-    with staged_dir(args.out) as d:
-        write_gnss_csv(Path(d) / "gnss.csv", sol)
-        if args.reference is not None:
-            import numpy as np
-            ok = sol.ok
-            err = sol.p_ecef[ok] - np.asarray(args.reference)
-            summary["rms_3d_vs_reference_m"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
-        with atomic_write(Path(d) / "gnss_summary.json") as fh:
-            json.dump(summary, fh, indent=2)
-        from dgcal.reports.gnss import write_spp_report
-        write_spp_report(Path(d) / "gnss_report.html", sol, summary, args.reference)
-    print(f"{Path(args.out) / 'gnss.csv'}: {summary['n_fixed']}/{summary['n_epochs']} epochs, "
-          f"median sigma 3D {summary['median_sigma_3d_m']:.2f} m", file=sys.stderr)
+    from dgcal.fields.io.csv_tables import staged_dir
+    opts = pos_options(args)
+    if opts.mode == "spp":
+        from dgcal.pos.pipeline import run_spp
+        from dgcal.reports.gnss import write_spp_outputs
+        sp = run_spp(opts)
+        with staged_dir(args.out) as tmp:
+            write_spp_outputs(tmp, sp, SPP_OUTPUTS)
+        s = sp.summary
+        print(f"{Path(args.out) / SPP_OUTPUTS['gnss']}: {s['n_fixed']}/{s['n_epochs']} epochs, "
+              f"median sigma 3D {s['median_sigma_3d_m']:.2f} m", file=sys.stderr)
+        return 0
+    from dgcal.pos.pipeline import run_pos
+    from dgcal.reports.pos import write_pos_outputs
+    res = run_pos(opts)
+    with staged_dir(args.out) as tmp:
+        write_pos_outputs(tmp, res, INS_OUTPUTS)
+    s = res.summary
+    print(f"{Path(args.out) / INS_OUTPUTS['trajectory']}: {opts.mode.upper()} {s['keyframes']} keyframes, "
+          f"{s['events']} events, median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg", file=sys.stderr)
     return 0
+
+
+def campaign_steps(c: Campaign) -> None:
+    """[pos] -> `dgcal pos --mode lc|tc`: `imu`, `events`, `gnss` (lc) or `rinex_obs` + `rinex_nav`,
+    `imu_grade`, `lever_arm_gnss`, `set` = [KEY=VALUE], `args`; with `trajectory` (+ `events`) an external
+    POS is used and no step runs. Provides the trajectory and events to later steps."""
+    pos = c.section(SECTION)
+    if pos is None:
+        return
+    traj = c.path(SECTION, "trajectory", required=False)
+    if traj is not None:
+        c.provide("trajectory", traj)
+        events = c.path(SECTION, "events", required=False)
+        if events is not None:
+            c.provide("events", events)
+        return
+    mode = str(pos.get("mode", "lc"))
+    if mode not in ("lc", "tc"):
+        raise c.error(f"[pos] mode must be lc or tc, not {mode!r}", "pos.mode")
+    imu, events = c.path(SECTION, "imu"), c.path(SECTION, "events")
+    out = c.out / "pos"
+    a = [NAME, "--mode", mode, "--imu", str(imu), "--events", str(events), "--out", str(out), "--no-progress"]
+    ins = [imu, events]
+    if mode == "lc" and "gnss" in pos:
+        a += ["--gnss", str(c.path(SECTION, "gnss"))]
+        ins.append(c.path(SECTION, "gnss"))
+    elif "rinex_obs" in pos or mode == "tc":
+        obs, nav = c.path(SECTION, "rinex_obs"), c.path(SECTION, "rinex_nav")
+        a += ["--rinex-obs", str(obs), "--rinex-nav", str(nav)]
+        ins += [obs, nav]
+    else:
+        raise c.error("[pos] mode lc needs 'gnss' (or rinex_obs and rinex_nav)", "pos.gnss")
+    if "imu_grade" in pos:
+        a += ["--imu-grade", str(pos["imu_grade"])]
+    if "lever_arm_gnss" in pos:
+        a += ["--lever-arm", *map(str, c.vec3(SECTION, "lever_arm_gnss"))]
+    for kv in pos.get("set", []):
+        a += ["--set", str(kv)]
+    a += c.extra_args(SECTION)
+    step = c.add(NAME, a, ins, out, INS_OUTPUTS, required=("trajectory", "events"))
+    c.provide("trajectory", step.files["trajectory"])
+    c.provide("events", events)

@@ -1,4 +1,4 @@
-"""Simulate a data set with known truth (`truth.json`); the sub-commands are the modules of `sim`."""
+"""Simulate a data set with known truth (`truth.json`); the sub-commands are the modules of dgcal.simulators."""
 from __future__ import annotations
 
 import argparse
@@ -12,7 +12,7 @@ HELP = "simulate a synthetic data set with known truth"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="what", metavar="WHAT")
     sub.required = True
-    add_verbs(sub, "dgcal.sim", rest_after(NAME), run_key="_sim_run")
+    add_verbs(sub, "dgcal.simulators", rest_after(NAME), run_key="_sim_run")
 
 
 def run(args: argparse.Namespace) -> int:

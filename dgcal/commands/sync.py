@@ -3,11 +3,11 @@ find exposure times from the photoresistor channel, match triggers and images; w
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 NAME = "sync"
 HELP = "restore and align logger streams, find exposure times, write events.csv"
+OUTPUTS = {"events": "events.csv", "summary": "sync.json", "report": "report.html"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -24,17 +24,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from dgcal.fields.io.csv_tables import staged_dir
-    from dgcal.fields.io.formats import write_events
-    from dgcal.pos.lowcost.sync import synchronise_files
-    from dgcal.reports.sync import write_sync_report
+    from dgcal.pos.lowcost.sync import SyncOptions, synchronise_logger_files
+    from dgcal.reports.sync import write_sync_outputs
 
-    res = synchronise_files(args.gnss_log, args.logger, args.images, rate_hz=args.rate, gnss_rate_hz=args.gnss_rate,
-                            counter_bits=args.counter_bits or None, tau=args.tau, blackout_s=args.blackout)
+    res = synchronise_logger_files(SyncOptions(args.gnss_log, args.logger, args.images, rate_hz=args.rate,
+                                               gnss_rate_hz=args.gnss_rate, counter_bits=args.counter_bits or None,
+                                               tau=args.tau, blackout_s=args.blackout))
     with staged_dir(args.out) as tmp:
-        write_events(tmp / "events.csv", res.events)
-        (tmp / "sync.json").write_text(json.dumps(res.summary(), indent=1))
-        write_sync_report(tmp / "report.html", res)
+        write_sync_outputs(tmp, res, OUTPUTS)
     s = res.summary()
     print(f"{s['n_events']} events; clock drift {s['clock_drift'] * 1e6:.1f} ppm, bound {s['clock_max_error_s'] * 1e3:.2f} ms; "
-          f"skipped triggers {len(s['skipped_triggers'])}; report {args.out / 'report.html'}")
+          f"skipped triggers {len(s['skipped_triggers'])}; report {args.out / OUTPUTS['report']}")
     return 0

@@ -11,10 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from dgcal.fields.io.csv_tables import Table, read_table, write_table
+from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
-
-SECONDS_PER_WEEK = 604800.0
+from dgcal.fields.io.csv_tables import Table, read_table, write_table
 
 TRAJECTORY_COLUMNS = ("gps_week", "gps_sow", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "heading")
 TRAJECTORY_SIGMA_COLUMNS = ("s_lat_m", "s_lon_m", "s_h_m", "s_roll", "s_pitch", "s_heading")

@@ -18,7 +18,7 @@ import numpy as np
 
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.formats import Measurements, Points
+from dgcal.fields.io.formats import Measurements, Points, read_measurements, read_points
 
 _WGS84_UTM = re.compile(r"^\s*WGS84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.I)
 
@@ -215,7 +215,6 @@ def read_micmac_measurements(path: str | Path) -> Measurements:
 
 def read_any_points(path: str | Path) -> tuple[Points, str | None]:
     """Ground points from a dgcal CSV or a MicMac XML; with the CRS when the file names one (else None)."""
-    from dgcal.fields.io.formats import read_points
     p = Path(path)
     head = p.read_text(encoding="utf-8", errors="replace")[:2000].lstrip() if p.is_file() else ""
     if head.startswith("<"):
@@ -228,7 +227,6 @@ def read_any_points(path: str | Path) -> tuple[Points, str | None]:
 
 def read_any_measurements(path: str | Path) -> tuple[Measurements, str | None, Points | None]:
     """Image measurements from a dgcal CSV, an ODM gcp_list.txt (with its CRS and points) or a MicMac XML."""
-    from dgcal.fields.io.formats import read_measurements
     p = Path(path)
     head = p.read_text(encoding="utf-8", errors="replace")[:2000].lstrip() if p.is_file() else ""
     if head.startswith("<"):

@@ -21,9 +21,11 @@ import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import Points, write_points
 
 DICTIONARIES = ("DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000", "DICT_7X7_1000", "DICT_4X4_250",
@@ -87,14 +89,12 @@ class TargetField:
     # --- cv2 objects ---------------------------------------------------------------------
     def cv_dictionary(self):
         """The OpenCV ArUco dictionary."""
-        import cv2
         return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
 
     def board(self):
         """The OpenCV CharucoBoard of the whole N x N square. Marker ids are compact: the printed markers
         (white squares wholly on the plate) get 0 .. P-1 row by row, the unprinted ones P and up, so a
         detector need only search the first P codes of the dictionary."""
-        import cv2
         n = self.n_squares
         args = ((n, n), float(self.square_m), float(self.marker_m), self.cv_dictionary())
         b = cv2.aruco.CharucoBoard(*args)
@@ -116,7 +116,6 @@ class TargetField:
 
     def detection_dictionary(self):
         """The dictionary cut to the printed markers' codes (ArUco identification time grows with its size)."""
-        import cv2
         d = self.cv_dictionary()
         p = self.n_printed_markers()
         return cv2.aruco.Dictionary(d.bytesList[:p].copy(), d.markerSize, d.maxCorrectionBits)
@@ -213,6 +212,27 @@ def nonplanar_field(**kw) -> TargetField:
     return TargetField(**{**kw, "blocks": blocks})
 
 
+@dataclass
+class FieldOptions:
+    """The printable plate of `dgcal field`: diameter, chessboard square and ArUco marker side (m), OpenCV
+    dictionary, raised blocks, and the target sigmas in and across the plate plane (m)."""
+
+    diameter_m: float = 2.4
+    square_m: float = 0.08
+    marker_m: float = 0.06
+    dictionary: str = "DICT_5X5_1000"
+    nonplanar: bool = False          # four raised blocks (0.10 m and 0.20 m)
+    sigma_xy_m: float = 0.0002
+    sigma_z_m: float = 0.0005
+
+
+def make_target_field(opts: FieldOptions) -> TargetField:
+    """The target field (plate layout) of `opts`; InputError on an impossible layout."""
+    kw = dict(diameter_m=opts.diameter_m, square_m=opts.square_m, marker_m=opts.marker_m,
+              dictionary=opts.dictionary, sigma_xy_m=opts.sigma_xy_m, sigma_z_m=opts.sigma_z_m)
+    return nonplanar_field(**kw) if opts.nonplanar else TargetField(**kw)
+
+
 def layout_path(field_csv: str | Path) -> Path:
     """The layout JSON written beside a field CSV (`field.csv` -> `field.json`)."""
     p = Path(field_csv)
@@ -223,7 +243,6 @@ def write_field(field_csv: str | Path, tf: TargetField) -> Points:
     """Write the field CSV `id,x,y,z,sx,sy,sz` (plate frame, m) and its layout JSON beside it."""
     pts = tf.points()
     write_points(field_csv, pts)
-    from dgcal.fields.io.csv_tables import atomic_write
     with atomic_write(layout_path(field_csv)) as fh:
         json.dump(tf.to_dict(), fh, indent=2)
     return pts

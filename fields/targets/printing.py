@@ -5,17 +5,22 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.collections import PolyCollection
+from matplotlib.figure import Figure
+from matplotlib.patches import Circle, Rectangle
+from PIL import Image
 
 from dgcal.fields.io.csv_tables import atomic_write
-from dgcal.fields.targets.plate import TargetField
+from dgcal.fields.targets.plate import TargetField, layout_path, write_field
 
 INCH_M = 0.0254
 
 
 def marker_cells(tf: TargetField, marker_id: int) -> np.ndarray:
     """(B,B) bool: black cells of a marker including its one-cell black border, row 0 at the marker's top."""
-    import cv2
     nbits = tf.cv_dictionary().markerSize
     img = cv2.aruco.generateImageMarker(tf.cv_dictionary(), int(marker_id), nbits + 2, borderBits=1)
     return img < 128
@@ -76,7 +81,6 @@ def field_texture(tf: TargetField, texel_m: float) -> tuple[np.ndarray, np.ndarr
 
 def print_raster(tf: TargetField, dpi: float) -> np.ndarray:
     """uint8 raster of the printed plate at `dpi` (white paper, black marks, grey cut circle)."""
-    import cv2
     px = INCH_M / dpi
     n_px = int(round(tf.board_size_m / px))
     img = np.full((n_px, n_px), 255, np.uint8)
@@ -97,14 +101,8 @@ def _label(tf: TargetField) -> str:
 
 def write_pdf(path: str | Path, tf: TargetField) -> None:
     """Vector PDF of the plate at true scale (page = the board square), with a 100 mm check bar."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import PolyCollection
-    from matplotlib.patches import Circle
-
     S = tf.board_size_m
-    fig = plt.figure(figsize=(S / INCH_M, S / INCH_M))
+    fig = Figure(figsize=(S / INCH_M, S / INCH_M))  # a bare Figure: no pyplot state, no GUI backend
     ax = fig.add_axes((0, 0, 1, 1))
     ax.set_xlim(0, S)
     ax.set_ylim(S, 0)
@@ -117,15 +115,13 @@ def write_pdf(path: str | Path, tf: TargetField) -> None:
     ax.text(0.02 * S, 0.02 * S, _label(tf), fontsize=0.012 * pt, va="top", ha="left")
     ax.text(0.02 * S, 0.04 * S, "print at 100 % (no scaling); the bar below the title must measure 100.0 mm",
             fontsize=0.010 * pt, va="top", ha="left")
-    ax.add_patch(plt.Rectangle((0.02 * S, 0.06 * S), 0.1, 0.004, color="black"))
+    ax.add_patch(Rectangle((0.02 * S, 0.06 * S), 0.1, 0.004, color="black"))
     with atomic_write(path, "wb") as fh:
         fig.savefig(fh, format="pdf")
-    plt.close(fig)
 
 
 def write_png(path: str | Path, tf: TargetField, dpi: float = 100.0) -> None:
     """PNG raster of the plate at true scale with its DPI recorded (pHYs), for printing or viewing."""
-    from PIL import Image
     img = print_raster(tf, dpi)
     with atomic_write(path, "wb") as fh:
         Image.fromarray(img).save(fh, format="PNG", dpi=(dpi, dpi))
@@ -164,18 +160,12 @@ def tile_grid(tf: TargetField, page: str = "A3", margin_m: float = 0.010, overla
 def tile_figure(tf: TargetField, tile: tuple, page: str = "A3", margin_m: float = 0.010,
                 overlap_m: float = 0.010, rects: np.ndarray | None = None):
     """The matplotlib figure of one tile (from `tile_grid`) on a landscape `page` sheet at true scale."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import PolyCollection
-    from matplotlib.patches import Circle, Rectangle
-
     r, c, x0, y0, x1, y1 = tile
     w_mm, h_mm = PAGES_MM[page]
     pw, ph = h_mm / 1000, w_mm / 1000  # landscape
     rects = black_rectangles(tf) if rects is None else rects
     S = tf.board_size_m
-    fig = plt.figure(figsize=(pw / INCH_M, ph / INCH_M))
+    fig = Figure(figsize=(pw / INCH_M, ph / INCH_M))  # a bare Figure: no pyplot state, no GUI backend
     ax = fig.add_axes((0, 0, 1, 1))
     # the axes span the whole sheet: the tile sits inside the margins
     ax.set_xlim(x0 - margin_m, x0 - margin_m + pw)
@@ -204,16 +194,29 @@ def write_pdf_tiles(path: str | Path, tf: TargetField, page: str = "A3", margin_
                     overlap_m: float = 0.010) -> int:
     """Multi-page PDF of the plate on `page` sheets at true scale (landscape), one tile per page with its
     row/column, the tile outline and overlap lines for assembling; returns the number of pages."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.backends.backend_pdf import PdfPages
-
     rects = black_rectangles(tf)
     tiles = tile_grid(tf, page, margin_m, overlap_m)
     with atomic_write(path, "wb") as fh, PdfPages(fh) as pdf:
         for tile in tiles:
             fig = tile_figure(tf, tile, page, margin_m, overlap_m, rects)
             pdf.savefig(fig)
-            plt.close(fig)
     return len(tiles)
+
+
+def write_field_files(out_dir: str | Path, tf: TargetField, names: dict[str, str], png_dpi: float | None = 100.0,
+                      tiles: str | None = None) -> dict[str, Path]:
+    """`dgcal field`'s files in `out_dir`, named by role in `names`: field (CSV, with its layout JSON beside it),
+    pdf (true scale), png (at `png_dpi`; None: none) and, with a page size `tiles`, the tiled PDF (role
+    tiles, a name with `{page}`); returns the paths by role and the number of tile pages (key tile_pages)."""
+    out = Path(out_dir)
+    paths: dict = {"field": out / names["field"], "pdf": out / names["pdf"]}
+    write_field(paths["field"], tf)
+    paths["layout"] = layout_path(paths["field"])
+    write_pdf(paths["pdf"], tf)
+    if png_dpi is not None:
+        paths["png"] = out / names["png"]
+        write_png(paths["png"], tf, png_dpi)
+    if tiles:
+        paths["tiles"] = out / names["tiles"].format(page=tiles)
+        paths["tile_pages"] = write_pdf_tiles(paths["tiles"], tf, tiles)
+    return paths

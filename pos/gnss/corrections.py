@@ -6,11 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from dgcal.fields.constants import C_LIGHT, F_L1, OMEGA_EARTH, SECONDS_PER_DAY, SECONDS_PER_WEEK
 from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
-from dgcal.pos.gnss.observations import C_LIGHT, OMEGA_E
-
-F_L1 = 1575.42e6  # Hz; Klobuchar delays are for GPS L1
 
 
 def elevation_azimuth(p_rx_ecef: np.ndarray, p_sat_ecef: np.ndarray,
@@ -44,8 +42,8 @@ def klobuchar_delay_m(t_gps: float, lat_deg: float, lon_deg: float, elev: np.nda
     phi_i = np.clip(lat_deg / 180.0 + psi * np.cos(azim), -0.416, 0.416)
     lam_i = lon_deg / 180.0 + psi * np.sin(azim) / np.cos(phi_i * np.pi)
     phi_m = phi_i + 0.064 * np.cos((lam_i - 1.617) * np.pi)
-    sow = np.mod(t_gps, 604800.0)
-    t_local = np.mod(43200.0 * lam_i + sow, 86400.0)
+    sow = np.mod(t_gps, SECONDS_PER_WEEK)
+    t_local = np.mod(43200.0 * lam_i + sow, SECONDS_PER_DAY)
     slant = 1.0 + 16.0 * (0.53 - el_sc) ** 3
     pw = phi_m[..., None] ** np.arange(4)
     amp = np.maximum(pw @ alpha, 0.0)
@@ -85,13 +83,13 @@ def sagnac_rotate(p_sat_ecef: np.ndarray, v_sat_ecef: np.ndarray, tau_s: np.ndar
     (= range rate / c). Returns the position and the velocity with respect to reception time,
     ``d/dt_rx [Rz(w tau) p_sat(t_rx - tau)]``, including the light-time rate terms.
     """
-    th = OMEGA_E * np.asarray(tau_s, float)
+    th = OMEGA_EARTH * np.asarray(tau_s, float)
     c, s = np.cos(th), np.sin(th)
     x, y, z = p_sat_ecef[:, 0], p_sat_ecef[:, 1], p_sat_ecef[:, 2]
     vx, vy, vz = v_sat_ecef[:, 0], v_sat_ecef[:, 1], v_sat_ecef[:, 2]
     p = np.stack([c * x + s * y, -s * x + c * y, z], axis=1)
     k = 1.0 - np.asarray(tau_dot, float)                    # d t_tx / d t_rx
-    w = OMEGA_E * np.asarray(tau_dot, float)
+    w = OMEGA_EARTH * np.asarray(tau_dot, float)
     v = np.stack([k * (c * vx + s * vy) + w * (-s * x + c * y),
                   k * (-s * vx + c * vy) + w * (-c * x - s * y),
                   k * vz], axis=1)

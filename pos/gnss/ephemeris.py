@@ -6,8 +6,10 @@ ECEF frame of that time (no Sagnac rotation here, see ``gnss_corrections.sagnac_
 from __future__ import annotations
 
 import numpy as np
+from cssrlib.ephemeris import eph2pos
+from cssrlib.gnss import timeadd
 
-from dgcal.pos.gnss.observations import C_LIGHT
+from dgcal.fields.constants import C_LIGHT, GM_GPS, OMEGA_EARTH
 from dgcal.pos.gnss.rinex import BroadcastNav, gps_seconds_from_gtime, gtime_from_gps_seconds
 
 MAX_AGE_S = {"G": 7200.0, "J": 7200.0, "E": 10800.0, "C": 3900.0}   # |t - toe| allowed
@@ -58,8 +60,10 @@ def _is_bds_geo(sid: str) -> bool:
     return sid[0] == "C" and (prn <= 5 or prn >= 59)
 
 
-_MU = {"G": 3.9860050e14, "J": 3.9860050e14, "E": 3.986004418e14, "C": 3.986004418e14}
-_OMGE = {"G": 7.2921151467e-5, "J": 7.2921151467e-5, "E": 7.2921151467e-5, "C": 7.292115e-5}
+# GM (m^3/s^2) and earth rate (rad/s) of each system's interface specification (Galileo's and BeiDou's GM
+# happen to equal WGS84's; BeiDou's CGCS2000 earth rate is rounded)
+_MU = {"G": GM_GPS, "J": GM_GPS, "E": 3.986004418e14, "C": 3.986004418e14}
+_OMGE = {"G": OMEGA_EARTH, "J": OMEGA_EARTH, "E": OMEGA_EARTH, "C": 7.292115e-5}
 _SELECT_BUCKET_S = 300.0
 
 
@@ -186,8 +190,6 @@ def satellite_states(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray
 
 def _geo_state(eph, t_gps: float):
     """BeiDou GEO state with cssrlib (velocity by central difference of positions)."""
-    from cssrlib.ephemeris import eph2pos
-    from cssrlib.gnss import timeadd
     t = gtime_from_gps_seconds(t_gps)
     rs, dts = eph2pos(t, eph)
     ra, ca = eph2pos(timeadd(t, -0.5), eph)

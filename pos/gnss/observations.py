@@ -38,9 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-C_LIGHT = 299792458.0          # m/s
-OMEGA_E = 7.2921151467e-5      # rad/s, WGS84 Earth rotation rate
-SECONDS_PER_WEEK = 604800.0
+from dgcal.fields.constants import C_LIGHT, SECONDS_PER_WEEK
 SYSTEMS = ("G", "E", "C", "J")  # GPS, Galileo, BeiDou, QZSS
 # Receiver clock parameter of each system: QZSS L1 C/A is interoperable with GPS and shares its
 # receiver clock bias (as in RTKLIB); Galileo and BeiDou have their own (inter-system bias).

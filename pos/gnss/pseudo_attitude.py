@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_filter
 
+from dgcal.fields.constants import G0
 from dgcal.fields.frames import R_body_to_ned_from_rph
 
 
@@ -59,7 +60,7 @@ def time_derivative(t: np.ndarray, y: np.ndarray, window_s: float = 0.0) -> np.n
     return np.gradient(y, t, axis=0)
 
 
-def pseudo_attitude(t: np.ndarray, v_ned: np.ndarray, a_ned: np.ndarray | None = None, g: float = 9.80665,
+def pseudo_attitude(t: np.ndarray, v_ned: np.ndarray, a_ned: np.ndarray | None = None, g: float = G0,
                     window_s: float = 0.8, min_speed: float = 3.0) -> PseudoAttitude:
     """Pseudo attitude (seed 001 eq. 1-8) from GNSS NED velocity (m/s) at GPS times t (s).
 

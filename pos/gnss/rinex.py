@@ -9,14 +9,19 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import gzip
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
+from cssrlib.gnss import Nav, char2sys, gpst2time, rSigRnx, sat2id, sat2prn, sys2char, time2gpst, uTYP
+from cssrlib.rinex import rnxdec
 
+from dgcal.fields.constants import C_LIGHT, SECONDS_PER_DAY, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
-from dgcal.pos.gnss.observations import C_LIGHT, SYSTEMS, GnssEpoch, GnssObservations
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.pos.gnss.observations import SYSTEMS, GnssEpoch, GnssObservations
 
 # Preferred code observations per system, best first (RINEX 3 codes).
 CODE_PRIORITY = {
@@ -50,7 +55,7 @@ def gps_seconds_from_calendar(year: int, month: int, day: int, hour: int, minute
                               sec: float) -> float:
     """Calendar date in GPS time scale -> continuous GPS seconds (week*604800 + sow)."""
     d = _dt.datetime(year, month, day, hour, minute) - GPS_EPOCH
-    return d.days * 86400.0 + d.seconds + float(sec)
+    return d.days * SECONDS_PER_DAY + d.seconds + float(sec)
 
 
 def calendar_from_gps_seconds(t_gps: float) -> tuple[int, int, int, int, int, float]:
@@ -62,16 +67,14 @@ def calendar_from_gps_seconds(t_gps: float) -> tuple[int, int, int, int, int, fl
 
 def gtime_from_gps_seconds(t_gps: float):
     """Continuous GPS seconds -> cssrlib ``gtime_t``."""
-    from cssrlib.gnss import gpst2time
-    week = int(np.floor(t_gps / 604800.0))
-    return gpst2time(week, float(t_gps - week * 604800.0))
+    week = int(np.floor(t_gps / SECONDS_PER_WEEK))
+    return gpst2time(week, float(t_gps - week * SECONDS_PER_WEEK))
 
 
 def gps_seconds_from_gtime(t) -> float:
     """cssrlib ``gtime_t`` -> continuous GPS seconds."""
-    from cssrlib.gnss import time2gpst
     week, tow = time2gpst(t)
-    return week * 604800.0 + tow
+    return week * SECONDS_PER_WEEK + tow
 
 
 class _LineCounter:
@@ -105,7 +108,6 @@ def _open_text(path: Path):
     if not path.is_file():
         raise InputError("file not found", path)
     if path.suffix.lower() in (".gz", ".z"):
-        import gzip
         return gzip.open(path, "rt", encoding="ascii", errors="replace")
     return open(path, "rt", encoding="ascii", errors="replace")
 
@@ -178,8 +180,6 @@ def _parse_ion_header(path: Path) -> tuple[np.ndarray | None, np.ndarray | None,
 
 def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> BroadcastNav:
     """Read one or more RINEX 3 (mixed) navigation files into ``BroadcastNav`` via cssrlib."""
-    from cssrlib.gnss import Nav, sat2id
-    from cssrlib.rinex import rnxdec
 
     all_paths = [Path(path)] + [Path(p) for p in paths]
     nav = Nav()
@@ -245,8 +245,6 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
     signal by central differences between neighbouring epochs (no loss-of-lock flag, gap <= 1.5
     epoch intervals); ``doppler_hz`` is then the equivalent Doppler. Times are GPS time.
     """
-    from cssrlib.gnss import char2sys, rSigRnx, sat2id
-    from cssrlib.rinex import rnxdec
 
     path = Path(path)
     _check_version(path, "obs")
@@ -290,14 +288,12 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
 
 
 def _sys_letter(gns) -> str:
-    from cssrlib.gnss import sys2char
     return sys2char(gns)
 
 
 def _decode_obs_body(dec, fh: _LineCounter, path: Path, signals, obs_types, t_start, t_end,
                      decimate_s) -> list[tuple[float, np.ndarray, dict]]:
     """Decode epochs with cssrlib; returns (t_gps, sats, {typ: values}) per epoch."""
-    from cssrlib.gnss import char2sys, sat2prn, sys2char, uTYP
     letter_cache: dict[int, str] = {}
 
     def letter_of(sat: int) -> str:
@@ -416,7 +412,6 @@ def write_rinex_obs(path: str | Path, obs: GnssObservations, marker: str = "DGCA
     Per system the codes of ``obs.signals`` are written with their Doppler ('D..') and signal
     strength ('S..'); values that are NaN are left blank.
     """
-    from dgcal.fields.io.csv_tables import atomic_write
 
     systems = obs.systems
     types = {}

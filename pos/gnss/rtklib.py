@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from dgcal.fields.constants import SECONDS_PER_WEEK
+
 
 def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
                   systems: str = "GEJ") -> tuple[np.ndarray, np.ndarray]:
     """RTKLIB pntpos per epoch (Klobuchar, Saastamoinen, broadcast orbits): (t_gps, p_ecef)."""
-    import pyrtklib as rk
+    import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
 
     obs, nav, sta = rk.obs_t(), rk.nav_t(), rk.sta_t()
     rk.readrnx(obs_path, 1, "", obs, nav, sta)
@@ -37,7 +39,7 @@ def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
         if ok:
             week = rk.Arr1Dint(1)
             tow = rk.time2gpst(sol.time, week)
-            ts.append(week[0] * 604800.0 + tow)
+            ts.append(week[0] * SECONDS_PER_WEEK + tow)
             ps.append([sol.rr[0], sol.rr[1], sol.rr[2]])
         i += m
     return np.array(ts), np.array(ps)

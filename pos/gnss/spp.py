@@ -12,14 +12,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import chdtri  # scipy.stats would cost seconds of import time
+from tqdm import tqdm
 
+from dgcal.fields.constants import C_LIGHT
+from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.fields.frames import R_ecef_to_enu
+from dgcal.fields.io.csv_tables import write_table
 from dgcal.pos.gnss.ephemeris import states_at_transmission
 from dgcal.pos.gnss.corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m, model_sigma_m,
                                   sagnac_rotate, saastamoinen_delay_m)
-from dgcal.pos.gnss.observations import C_LIGHT, CLOCK_GROUP, SYSTEMS, GnssEpoch, GnssObservations
-from dgcal.pos.gnss.rinex import BroadcastNav
-
-F_L1 = 1575.42e6
+from dgcal.pos.gnss.observations import CLOCK_GROUP, SYSTEMS, GnssEpoch, GnssObservations, split_gps_time
+from dgcal.pos.gnss.rinex import BroadcastNav, read_rinex_nav, read_rinex_obs
 
 
 @dataclass
@@ -75,7 +79,6 @@ def prepare_epoch(raw: GnssEpoch, nav: BroadcastNav, p_rx_ecef: np.ndarray | Non
     p_rot, v_rot = sagnac_rotate(p, v, tau, tau_dot)
     n = ep.n
     if known:
-        from dgcal.fields.crs import ecef_to_geodetic
         lat, lon, h = ecef_to_geodetic(p_rx_ecef)
         elev, azim = elevation_azimuth(p_rx_ecef, p_rot, (lat, lon))
         freq = C_LIGHT / ep.wavelength_m
@@ -161,8 +164,6 @@ def _solve_position(ep: GnssEpoch, x0: np.ndarray, systems: list[str], iters: in
 
 def _dops(H_geom: np.ndarray, p_ecef: np.ndarray) -> dict[str, float]:
     """GDOP/PDOP/HDOP/VDOP of the line-of-sight geometry (one clock column per system)."""
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.frames import R_ecef_to_enu
     try:
         Q = np.linalg.inv(H_geom.T @ H_geom)
     except np.linalg.LinAlgError:
@@ -175,7 +176,6 @@ def _dops(H_geom: np.ndarray, p_ecef: np.ndarray) -> dict[str, float]:
 
 
 def _chi2_limit(dof: int, alpha: float) -> float:
-    from scipy.special import chdtri  # scipy.stats would cost seconds of import time
     return float(chdtri(dof, alpha))
 
 
@@ -290,7 +290,6 @@ def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions = SppOptions(
     guess = obs.p_approx_ecef if _has_position(obs.p_approx_ecef) else None
     it = obs.epochs
     if progress:
-        from tqdm import tqdm
         it = tqdm(it, desc="SPP", unit="epoch", leave=False)
     for raw in it:
         s = solve_epoch(raw, nav, guess, opts)
@@ -326,7 +325,6 @@ def load_gnss(obs_path, nav_path, opts: SppOptions = SppOptions(), progress: boo
     used by SPP (mask applied, RAIM rejections removed) with all front-end fields filled.
     This is the input a tightly coupled smoother needs.
     """
-    from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
     nav = read_rinex_nav(nav_path)
     raw = read_rinex_obs(obs_path, systems=opts.systems)
     sol = spp(raw, nav, opts, progress=progress)
@@ -345,8 +343,6 @@ GNSS_CSV_COLUMNS = ["gps_week", "gps_sow", "x", "y", "z", "vx", "vy", "vz", "sx"
 
 def enu_sigmas(p_ecef: np.ndarray, cov_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Geodetic (lat, lon deg, h m) of ECEF points (N,3) and their E/N/U sigmas (N,3) in metres."""
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.frames import R_ecef_to_enu
     llh = ecef_to_geodetic(p_ecef)
     R = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(-1, 3, 3)
     cov_enu = R @ cov_p @ np.swapaxes(R, 1, 2)
@@ -355,8 +351,6 @@ def enu_sigmas(p_ecef: np.ndarray, cov_p: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def write_gnss_csv(path, sol: SppSolution) -> None:
     """Write the epochs with a fix as gnss.csv (columns ``GNSS_CSV_COLUMNS``, see docs/gnss.md)."""
-    from dgcal.fields.io.csv_tables import write_table
-    from dgcal.pos.gnss.observations import split_gps_time
     k = np.nonzero(sol.ok)[0]
     week, sow = split_gps_time(sol.t_gps[k])
     sp = np.sqrt(np.diagonal(sol.cov_p[k], axis1=1, axis2=2))

@@ -1,11 +1,14 @@
-"""IMU error models by grade: noise densities, bias processes, turn-on biases, scale and misalignment.
+"""The IMU error model, `ImuErrorModel`: noise densities, bias processes, turn-on biases, scale and misalignment.
 
-All fields are SI (rad, m, s): white noise as random-walk densities (gyro_arw rad/sqrt(s), accel_vrw
+One type serves everyone: the presets (`GRADES`, `imu_grade(name)`), the simulator
+(`dgcal.sim.imu.simulate_imu` draws one realisation of it) and the smoother and UKF, which carry
+`model.smoother_noise()` (the same type with the Gauss-Markov instability folded into the bias random walks).
+
+All fields are SI (rad, m, s), body FRD: white noise as random-walk densities (gyro_arw rad/sqrt(s), accel_vrw
 m/s/sqrt(s)); in-run bias instability as a first-order Gauss-Markov process (sigma and correlation
 time); bias random walks (rad/s/sqrt(s), m/s^2/sqrt(s)); turn-on bias sigmas (rad/s, m/s^2); scale
-factor and misalignment sigmas (fraction, rad). `ImuGrade.from_datasheet` takes the usual datasheet
-units (deg/sqrt(h), deg/h, m/s/sqrt(h), mg, ppm, deg). The smoother reads these through
-`dgcal.pos.smoother.preintegration.imu_noise_from_grade`.
+factor and misalignment sigmas (fraction, rad). `ImuErrorModel.from_datasheet` takes the usual datasheet
+units (deg/sqrt(h), deg/h, m/s/sqrt(h), mg, ppm, deg).
 """
 from __future__ import annotations
 
@@ -13,21 +16,22 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-G0 = 9.80665
+from dgcal.fields.constants import G0
+
 DEG = np.pi / 180.0
 
 
 @dataclass(frozen=True)
-class ImuGrade:
-    """An IMU error model in SI units (see module docstring for the meaning of each field)."""
+class ImuErrorModel:
+    """An IMU error model in SI units, body FRD (see the module docstring for the meaning of each field)."""
 
     name: str
     gyro_arw: float
     accel_vrw: float
-    gyro_bias_instability: float
-    gyro_bias_tau_s: float
-    accel_bias_instability: float
-    accel_bias_tau_s: float
+    gyro_bias_instability: float = 0.0
+    gyro_bias_tau_s: float = 1000.0
+    accel_bias_instability: float = 0.0
+    accel_bias_tau_s: float = 1000.0
     gyro_bias_rw: float = 0.0
     accel_bias_rw: float = 0.0
     gyro_bias_sigma: float = 0.0
@@ -44,8 +48,8 @@ class ImuGrade:
                        gyro_turn_on_deg_s: float = 0.0, accel_turn_on_mg: float = 0.0,
                        gyro_rrw_deg_h_rt_h: float = 0.0, accel_rrw_m_s2_rt_h: float = 0.0,
                        gyro_scale_ppm: float = 0.0, accel_scale_ppm: float = 0.0,
-                       gyro_misalign_deg: float = 0.0, accel_misalign_deg: float = 0.0) -> "ImuGrade":
-        """A grade from datasheet units: deg/sqrt(h), deg/h, m/s/sqrt(h), mg, deg/s, ppm, deg."""
+                       gyro_misalign_deg: float = 0.0, accel_misalign_deg: float = 0.0) -> "ImuErrorModel":
+        """A model from datasheet units: deg/sqrt(h), deg/h, m/s/sqrt(h), mg, deg/s, ppm, deg."""
         return cls(name=name,
                    gyro_arw=gyro_arw_deg_rt_h * DEG / 60.0,
                    accel_vrw=accel_vrw_m_s_rt_h / 60.0,
@@ -61,7 +65,7 @@ class ImuGrade:
                    gyro_misalign_sigma=gyro_misalign_deg * DEG, accel_misalign_sigma=accel_misalign_deg * DEG)
 
     def datasheet(self) -> dict:
-        """The grade in datasheet units (for reports)."""
+        """The model in datasheet units (for reports)."""
         return {
             "name": self.name,
             "gyro_arw_deg_rt_h": self.gyro_arw / DEG * 60.0,
@@ -82,37 +86,67 @@ class ImuGrade:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ImuGrade":
+    def from_dict(cls, d: dict) -> "ImuErrorModel":
         """Inverse of `as_dict`."""
         return cls(**d)
 
-    def scaled(self, factor: float) -> "ImuGrade":
-        """The same grade with every stochastic error multiplied by `factor` (e.g. 0 for a perfect IMU)."""
+    def scaled(self, factor: float) -> "ImuErrorModel":
+        """The same model with every stochastic error multiplied by `factor` (e.g. 0 for a perfect IMU)."""
         kw = {k: v * factor for k, v in asdict(self).items() if k != "name" and not k.endswith("_tau_s")}
         return replace(self, name=f"{self.name}x{factor:g}", **kw)
+
+    def smoother_noise(self) -> "ImuErrorModel":
+        """The model as the smoother and the UKF carry it (SI, body FRD): no Gauss-Markov state.
+
+        A first-order Gauss-Markov bias instability b with correlation time T (at least 1 s) becomes a random
+        walk of density b*sqrt(2/T), which matches its variance growth over one correlation time, added in
+        quadrature to the bias random walk; the turn-on sigmas (the prior on the first bias) are at least the
+        instability; small floors keep the bias covariances positive. White noise, scale factor and
+        misalignment sigmas are unchanged (the smoother carries the last two as turn noise). Idempotent.
+        """
+        tau_g = max(float(self.gyro_bias_tau_s), 1.0)
+        tau_a = max(float(self.accel_bias_tau_s), 1.0)
+        gbi, abi = float(self.gyro_bias_instability), float(self.accel_bias_instability)
+        grw, arw_b = float(self.gyro_bias_rw), float(self.accel_bias_rw)
+        gyro_bias_rw = np.hypot(grw, gbi * np.sqrt(2.0 / tau_g)) if gbi else grw
+        accel_bias_rw = np.hypot(arw_b, abi * np.sqrt(2.0 / tau_a)) if abi else arw_b
+        return replace(self, gyro_arw=float(self.gyro_arw), accel_vrw=float(self.accel_vrw),
+                       gyro_bias_instability=0.0, accel_bias_instability=0.0,
+                       gyro_bias_rw=max(float(gyro_bias_rw), 1e-9), accel_bias_rw=max(float(accel_bias_rw), 1e-8),
+                       gyro_bias_sigma=max(float(self.gyro_bias_sigma), gbi, 1e-7),
+                       accel_bias_sigma=max(float(self.accel_bias_sigma), abi, 1e-6),
+                       gyro_scale_sigma=float(self.gyro_scale_sigma),
+                       gyro_misalign_sigma=float(self.gyro_misalign_sigma),
+                       accel_scale_sigma=float(self.accel_scale_sigma),
+                       accel_misalign_sigma=float(self.accel_misalign_sigma))
+
+    @property
+    def has_gauss_markov_bias(self) -> bool:
+        """True if the model has an in-run bias instability (the smoother needs `smoother_noise()` first)."""
+        return bool(self.gyro_bias_instability or self.accel_bias_instability)
 
 
 # Datasheet-class numbers. ADIS16488A: gyro in-run bias 5.1 deg/h, ARW 0.26 deg/sqrt(h); accel in-run
 # bias 0.07 mg, VRW 0.029 m/s/sqrt(h) (rounded up a little for margin). ADIS16405 (the seed 000 unit):
 # 25.2 deg/h, 2.0 deg/sqrt(h), 0.2 mg, 0.2 m/s/sqrt(h). Turn-on biases are the residuals after the
 # factory calibration a user would see (smaller than the datasheet's worst-case repeatability).
-GRADES: dict[str, ImuGrade] = {
-    "navigation": ImuGrade.from_datasheet(
+GRADES: dict[str, ImuErrorModel] = {
+    "navigation": ImuErrorModel.from_datasheet(
         "navigation", gyro_arw_deg_rt_h=0.002, gyro_bias_instability_deg_h=0.003, accel_vrw_m_s_rt_h=0.0006,
         accel_bias_instability_mg=0.01, gyro_bias_tau_s=3600.0, accel_bias_tau_s=3600.0,
         gyro_turn_on_deg_s=0.005 / 3600.0, accel_turn_on_mg=0.025, gyro_scale_ppm=5.0, accel_scale_ppm=100.0,
         gyro_misalign_deg=0.001, accel_misalign_deg=0.001),
-    "adis16488": ImuGrade.from_datasheet(
+    "adis16488": ImuErrorModel.from_datasheet(
         "adis16488", gyro_arw_deg_rt_h=0.3, gyro_bias_instability_deg_h=6.0, accel_vrw_m_s_rt_h=0.029,
         accel_bias_instability_mg=0.1, gyro_bias_tau_s=1000.0, accel_bias_tau_s=1000.0,
         gyro_turn_on_deg_s=0.01, accel_turn_on_mg=2.0, gyro_scale_ppm=500.0, accel_scale_ppm=500.0,
         gyro_misalign_deg=0.02, accel_misalign_deg=0.02),
-    "adis16405": ImuGrade.from_datasheet(
+    "adis16405": ImuErrorModel.from_datasheet(
         "adis16405", gyro_arw_deg_rt_h=2.0, gyro_bias_instability_deg_h=25.2, accel_vrw_m_s_rt_h=0.2,
         accel_bias_instability_mg=0.2, gyro_bias_tau_s=500.0, accel_bias_tau_s=500.0,
         gyro_turn_on_deg_s=0.05, accel_turn_on_mg=5.0, gyro_scale_ppm=2000.0, accel_scale_ppm=2000.0,
         gyro_misalign_deg=0.05, accel_misalign_deg=0.05),
-    "consumer": ImuGrade.from_datasheet(
+    "consumer": ImuErrorModel.from_datasheet(
         "consumer", gyro_arw_deg_rt_h=0.6, gyro_bias_instability_deg_h=30.0, accel_vrw_m_s_rt_h=0.09,
         accel_bias_instability_mg=0.5, gyro_bias_tau_s=100.0, accel_bias_tau_s=100.0,
         gyro_turn_on_deg_s=0.2, accel_turn_on_mg=20.0, gyro_scale_ppm=3000.0, accel_scale_ppm=3000.0,
@@ -120,12 +154,12 @@ GRADES: dict[str, ImuGrade] = {
 }
 
 
-def imu_grade(grade: str | ImuGrade | dict) -> ImuGrade:
-    """A grade by preset name ('navigation', 'adis16488', 'adis16405', 'consumer'), dict or instance."""
-    if isinstance(grade, ImuGrade):
+def imu_grade(grade: str | ImuErrorModel | dict) -> ImuErrorModel:
+    """An error model by preset name ('navigation', 'adis16488', 'adis16405', 'consumer'), dict or instance."""
+    if isinstance(grade, ImuErrorModel):
         return grade
     if isinstance(grade, dict):
-        return ImuGrade.from_dict(grade)
+        return ImuErrorModel.from_dict(grade)
     key = str(grade).lower().replace("-", "").replace("_", "")
     aliases = {"tactical": "adis16488", "mems": "consumer", "nav": "navigation"}
     key = aliases.get(key, key)

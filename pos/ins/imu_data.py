@@ -16,15 +16,14 @@ from typing import Sequence
 
 import numpy as np
 
-from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.constants import G0, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
-
-WEEK_S = 604800.0
+from dgcal.fields.io.csv_tables import atomic_write
 
 # factors to rad (increments) / rad/s (rates), m/s (increments) / m/s^2 (rates)
 _GYRO_UNITS = {"rad": 1.0, "deg": np.pi / 180.0, "rad/s": 1.0, "deg/s": np.pi / 180.0,
                "deg/h": np.pi / 180.0 / 3600.0}
-_ACC_UNITS = {"m/s": 1.0, "m/s2": 1.0, "m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3}
+_ACC_UNITS = {"m/s": 1.0, "m/s2": 1.0, "m/s^2": 1.0, "g": G0, "mg": G0 * 1e-3}
 
 
 @dataclass
@@ -152,12 +151,12 @@ def _to_gps_time(path: Path, lines: np.ndarray, time: np.ndarray, gps_week: int 
         return time
     if time_kind != "sow":
         raise InputError(f"unknown time kind {time_kind!r} (use 'sow' or 'gps')", path)
-    bad = np.flatnonzero((time < 0) | (time >= WEEK_S))
+    bad = np.flatnonzero((time < 0) | (time >= SECONDS_PER_WEEK))
     if bad.size:
         raise InputError(f"seconds of week out of range: {time[bad[0]]}", path, int(lines[bad[0]]), "sow")
     # a week rollover inside the file shows as a drop of about one week
-    roll = np.concatenate([[0.0], np.cumsum(np.diff(time) < -WEEK_S / 2)]) * WEEK_S
-    return time + roll + (0.0 if gps_week is None else gps_week * WEEK_S)
+    roll = np.concatenate([[0.0], np.cumsum(np.diff(time) < -SECONDS_PER_WEEK / 2)]) * SECONDS_PER_WEEK
+    return time + roll + (0.0 if gps_week is None else gps_week * SECONDS_PER_WEEK)
 
 
 def _check_time(path: Path, lines: np.ndarray, t: np.ndarray) -> None:
@@ -233,7 +232,7 @@ def read_imu_text(path: str | Path, columns: Sequence[str | int] | None = None, 
 
 def write_kf_gins(path: str | Path, imu: ImuData) -> None:
     """Write KF-GINS/OB_GINS IMU text (`sow dθxyz dvxyz`, rad and m/s, FRD), atomically."""
-    sow = np.mod(imu.t, WEEK_S)
+    sow = np.mod(imu.t, SECONDS_PER_WEEK)
     arr = np.column_stack([sow, imu.dtheta, imu.dvel])
     with atomic_write(path) as fh:
         np.savetxt(fh, arr, fmt=["%.6f"] + ["%.12e"] * 6)  # us: the float64 GPS time holds 0.24 us
@@ -241,8 +240,8 @@ def write_kf_gins(path: str | Path, imu: ImuData) -> None:
 
 def write_imu_csv(path: str | Path, imu: ImuData, kind: str = "increments") -> None:
     """Write a CSV with header `gps_week,gps_sow,gx,gy,gz,ax,ay,az` (increments rad, m/s or rates rad/s, m/s^2)."""
-    week = np.floor(imu.t / WEEK_S)
-    sow = imu.t - week * WEEK_S
+    week = np.floor(imu.t / SECONDS_PER_WEEK)
+    sow = imu.t - week * SECONDS_PER_WEEK
     if kind == "increments":
         g, a = imu.dtheta, imu.dvel
     elif kind == "rates":
@@ -266,5 +265,5 @@ def read_imu_csv(path: str | Path, kind: str = "increments", rate_hz: float | No
         raise InputError(f"missing column(s) {', '.join(missing)}", path, header_line or None)
     idx = [names.index(c) for c in need]
     arr = _parse_numeric(path, rows, lines, max(idx) + 1, ",")
-    t = arr[:, idx[0]] * WEEK_S + arr[:, idx[1]]
+    t = arr[:, idx[0]] * SECONDS_PER_WEEK + arr[:, idx[1]]
     return _finish(path, lines, t, arr[:, idx[2:5]], arr[:, idx[5:8]], kind, rate_hz, None)

@@ -11,21 +11,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
+import gtsam
 import numpy as np
 
+from dgcal.fields.constants import A_WGS84, OMEGA_EARTH
 from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
 from dgcal.fields.frames import R_ecef_to_ned
-
-OMEGA_EARTH = 7.2921151467e-5  # rad/s, WGS84
-C_LIGHT = 299792458.0  # m/s
 
 
 def normal_gravity(lat_deg: float, h_m: float) -> float:
     """Normal gravity magnitude (m/s^2) on the WGS84 ellipsoid (Somigliana) with free-air height term."""
     s2 = np.sin(np.radians(lat_deg)) ** 2
     g0 = 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - 0.00669437999013 * s2)
-    return float(g0 * (1 - 2 * h_m / 6378137.0 * (1 + 1 / 298.257223563 + 0.00344978600308
-                                                     - 2 / 298.257223563 * s2) + 3 * h_m ** 2 / 6378137.0 ** 2))
+    return float(g0 * (1 - 2 * h_m / A_WGS84 * (1 + 1 / 298.257223563 + 0.00344978600308
+                                                  - 2 / 298.257223563 * s2) + 3 * h_m ** 2 / A_WGS84 ** 2))
 
 
 @dataclass(frozen=True)
@@ -63,7 +62,6 @@ class NavFrame:
 
     def ecef_T_nav(self):
         """gtsam Pose3 taking nav coordinates to ECEF (for the GNSS factors)."""
-        import gtsam
         return gtsam.Pose3(gtsam.Rot3(self.R_nav_to_ecef), self.origin_ecef)
 
     def to_ecef(self, p_nav) -> np.ndarray:

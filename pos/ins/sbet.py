@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import Trajectory
 
-WEEK_S = 604800.0
 SBET_FIELDS = ("time", "lat", "lon", "alt", "vx", "vy", "vz", "roll", "pitch", "heading", "wander",
                "ax", "ay", "az", "wx", "wy", "wz")
 SBET_DTYPE = np.dtype([(n, "<f8") for n in SBET_FIELDS])
@@ -60,8 +60,8 @@ def _read_records(path: Path, dtype: np.dtype, what: str) -> np.ndarray:
 def _gps_time(path: Path, sow: np.ndarray, gps_week: int | None) -> np.ndarray:
     if gps_week is None:  # already continuous GPS seconds
         return sow.astype(float)
-    roll = np.concatenate([[0.0], np.cumsum(np.diff(sow) < -WEEK_S / 2)]) * WEEK_S
-    t = gps_week * WEEK_S + sow + roll
+    roll = np.concatenate([[0.0], np.cumsum(np.diff(sow) < -SECONDS_PER_WEEK / 2)]) * SECONDS_PER_WEEK
+    t = gps_week * SECONDS_PER_WEEK + sow + roll
     back = np.flatnonzero(np.diff(t) <= 0)
     if back.size:
         raise InputError(f"time does not increase at record {back[0] + 2}", path, field="time")
@@ -89,7 +89,7 @@ def write_sbet(path: str | Path, traj: Trajectory, accel_b: np.ndarray | None = 
     """Write a trajectory as an SBET (seconds of week, wander 0), atomically."""
     n = len(traj.t)
     rec = np.zeros(n, dtype=SBET_DTYPE)
-    rec["time"] = np.mod(np.asarray(traj.t, float), WEEK_S)
+    rec["time"] = np.mod(np.asarray(traj.t, float), SECONDS_PER_WEEK)
     rec["lat"], rec["lon"], rec["alt"] = np.radians(traj.lat), np.radians(traj.lon), traj.h
     rec["vx"], rec["vy"], rec["vz"] = traj.v_ned[:, 0], traj.v_ned[:, 1], traj.v_ned[:, 2]
     rec["roll"], rec["pitch"], rec["heading"] = (np.radians(traj.rph[:, i]) for i in range(3))
@@ -117,7 +117,7 @@ def write_smrmsg(path: str | Path, traj: Trajectory, sigma_v: np.ndarray | None 
         raise ValueError("trajectory has no sigmas to write")
     n = len(traj.t)
     rec = np.zeros(n, dtype=SMRMSG_DTYPE)
-    rec["time"] = np.mod(np.asarray(traj.t, float), WEEK_S)
+    rec["time"] = np.mod(np.asarray(traj.t, float), SECONDS_PER_WEEK)
     s = np.asarray(traj.sigma, float)
     rec["s_north"], rec["s_east"], rec["s_down"] = s[:, 0], s[:, 1], s[:, 2]
     if sigma_v is not None:

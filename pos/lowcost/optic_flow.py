@@ -19,7 +19,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
+from scipy.optimize import least_squares
 
 from dgcal.fields.frames import R_body_to_ned_from_rph
 
@@ -41,7 +43,6 @@ def track_features(img1: np.ndarray, img2: np.ndarray, mask: np.ndarray | None =
                    fb_max_px: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
     """Pyramidal Lucas-Kanade tracks (px) of good features from img1 to img2, kept when the
     forward-backward round trip closes within `fb_max_px`; ((M,2), (M,2))."""
-    import cv2
     a = _to_u8(img1)
     b = _to_u8(img2)
     m = None if mask is None else mask.astype(np.uint8) * 255
@@ -98,7 +99,6 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     jointly: about the optical axis ("z", the noisy pseudo roll-rate) it turns flow tangentially, which no
     FOE shift can mimic; about "x"/"y" it is separable from translation because translational flow scales
     with inverse depth and a forward camera over ground sees a wide range of depths."""
-    from scipy.optimize import least_squares
     x1 = d1[:, :2] / d1[:, 2:3]
     x2 = d2[:, :2] / d2[:, 2:3]
     f = x2 - x1
@@ -227,7 +227,6 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
     AGL) before tracking, so Lucas-Kanade measures only a small, locally uniform residual flow — plain LK
     over-estimates the strongly non-uniform ground flow of a forward camera by a few per cent. The warp
     uses the pinhole part of the camera (distortion is handled by `camera.ray` in the geometry)."""
-    import cv2
     rph1 = np.asarray(pseudo_rph1_deg, float)
     R_c1 = R_body_to_ned_from_rph(*rph1) @ R_cam_to_body
     mask = ground_mask(camera, R_c1, min_depression_deg, step=4)

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import linprog
 
 from dgcal.fields.errors import InputError
 
@@ -102,7 +103,6 @@ def _chebyshev_clock(lo: np.ndarray, hi: np.ndarray, target: np.ndarray, base: f
     random here (they sweep linearly with time), which is why plain least squares on edge
     midpoints would bias the drift.
     """
-    from scipy.optimize import linprog
 
     tm = 0.5 * (lo[0] + hi[-1])
     T = max(1.0, float(hi[-1] - lo[0]))

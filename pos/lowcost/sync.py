@@ -67,6 +67,28 @@ def synchronise(gnss_t: np.ndarray, logger_counter: np.ndarray, pps: np.ndarray,
                       None if gnss_h is None else g_ax.fill(gnss_h), None if laser is None else l_ax.fill(laser))
 
 
+@dataclass
+class SyncOptions:
+    """Inputs and settings of `dgcal sync`: the GNSS packet log, the logger stream, the images (folder or CSV)
+    and the logger's rates (Hz), counter width, light-sensor time constant and blackout (s)."""
+
+    gnss_log: Path
+    logger: Path
+    images: Path
+    rate_hz: float = 50.0
+    gnss_rate_hz: float | None = None       # default: rate_hz
+    counter_bits: int | None = 16           # None: no wrap-around
+    tau: float = 0.05
+    blackout_s: float = 0.06
+
+
+def synchronise_logger_files(opts: SyncOptions) -> SyncResult:
+    """`dgcal sync`: `synchronise_files` with the files and settings of `opts`."""
+    return synchronise_files(opts.gnss_log, opts.logger, opts.images, rate_hz=opts.rate_hz,
+                             gnss_rate_hz=opts.gnss_rate_hz, counter_bits=opts.counter_bits, tau=opts.tau,
+                             blackout_s=opts.blackout_s)
+
+
 def synchronise_files(gnss_log: Path, logger_log: Path, images: Path, **kw) -> SyncResult:
     """`synchronise` on files: GNSS log CSV `gps_week,gps_sow[,h]`, logger CSV `counter,pps,photo[,trigger][,laser]`,
     and an image list CSV `image[,camera_time_s]` or a folder of images (sorted by name)."""

@@ -19,8 +19,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm import tqdm
 
-from dgcal.fields.frames import R_body_to_ned_from_rph
+from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.fields.frames import R_body_to_ned_from_rph, rph_from_R_body_to_ned
+from dgcal.fields.io.formats import Trajectory
+from dgcal.pos.ins.error_model import ImuErrorModel, imu_grade
 from dgcal.pos.ins.nav_frame import NavFrame
 
 N_STATE = 15
@@ -77,9 +81,6 @@ class UkfSolution:
     def to_trajectory(self):
         """The filtered states as a `dgcal.fields.io.formats.Trajectory` (geodetic, local-NED velocity and attitude,
         sigmas from the filter covariance) for the trajectory CSV and the DG / mounting tools."""
-        from dgcal.fields.crs import ecef_to_geodetic
-        from dgcal.fields.io.formats import Trajectory
-        from dgcal.fields.frames import rph_from_R_body_to_ned
         R_loc = self.frame.R_nav_to_local_ned(self.p_nav)  # nav axes -> local NED (earth curvature)
         geo = ecef_to_geodetic(self.frame.to_ecef(self.p_nav))
         v = np.einsum("kij,kj->ki", R_loc, self.v_nav)
@@ -176,7 +177,7 @@ def _mean_cov(chi: np.ndarray, sp: SigmaPoints, ang: slice | None) -> tuple[np.n
 class StrapdownUkf:
     """The filter: `predict(dtheta, dvel, dt)` over a block of IMU samples, `update(z, R)` with a GNSS fix."""
 
-    def __init__(self, frame: NavFrame, x0: np.ndarray, P0: np.ndarray, noise, opts: UkfOptions):
+    def __init__(self, frame: NavFrame, x0: np.ndarray, P0: np.ndarray, noise: ImuErrorModel, opts: UkfOptions):
         self.frame, self.opts, self.noise = frame, opts, noise
         self.x = np.asarray(x0, float).copy()
         self.P = np.asarray(P0, float).copy()
@@ -259,17 +260,17 @@ class StrapdownUkf:
         return nu, float(nu @ np.linalg.solve(Pyy, nu))
 
 
-def run_ukf(imu, fixes, grade, opts: UkfOptions | None = None, frame: NavFrame | None = None,
+def run_ukf(imu, fixes, grade: str | ImuErrorModel, opts: UkfOptions | None = None, frame: NavFrame | None = None,
             progress: bool = False) -> UkfSolution:
     """Run the 15-state UKF over an IMU record with GNSS fixes; states at every GNSS epoch (and IMU end).
 
     imu: `dgcal.pos.ins.imu_data.ImuData` (body FRD increments, GPS s). fixes: `dgcal.pos.smoother.initial.GnssFixes` (antenna
-    ECEF positions, optional velocities, sigmas in NED). grade: `ImuGrade` or `ImuNoise` (noise densities).
+    ECEF positions, optional velocities, sigmas in NED). grade: `ImuErrorModel` or preset name (carried as
+    its `smoother_noise()`).
     The filter starts at the first fix with level attitude and heading = GNSS course.
     """
-    from dgcal.pos.smoother.preintegration import imu_noise_from_grade
     opts = opts or UkfOptions()
-    noise = imu_noise_from_grade(grade)
+    noise = imu_grade(grade).smoother_noise()
     ok = np.all(np.isfinite(fixes.p_ecef), axis=1)
     if ok.sum() < 2:
         raise ValueError("the UKF needs at least two GNSS fixes")
@@ -302,7 +303,6 @@ def run_ukf(imu, fixes, grade, opts: UkfOptions | None = None, frame: NavFrame |
         rr = np.hstack([sp_fix, sv_fix]) ** 2
     it = range(j0 + 1, len(t_fix))
     if progress:
-        from tqdm import tqdm
         it = tqdm(it, desc="ukf", unit="fix", leave=False)
     for j in it:
         tj = t_fix[j]

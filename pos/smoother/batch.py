@@ -8,15 +8,20 @@ key holds R_body_to_nav (body FRD) and the IMU origin's position; the GNSS anten
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass, field
 
+import gtsam
 import numpy as np
 
-from dgcal.pos.ins.nav_frame import C_LIGHT, NavFrame
+from dgcal.fields.constants import C_LIGHT
+from dgcal.pos.ins.error_model import ImuErrorModel, imu_grade
+from dgcal.pos.ins.nav_frame import NavFrame
+from dgcal.pos.smoother.covariance import KeyframeBlocks, smoothed_covariances
 from dgcal.pos.smoother.factors import (B, CLK, DRIFT, V, X, ZERO, clock_factors, doppler_factors, position_factor,
                                   pseudorange_factors, velocity_factor)
-from dgcal.pos.smoother.preintegration import (ImuNoise, gravity_correction_b, imu_noise_from_grade, interval_params,
-                              preintegrate, preintegration_params, split_at_keyframes)
+from dgcal.pos.smoother.preintegration import (gravity_correction_b, interval_params, preintegrate,
+                                               preintegration_params, split_at_keyframes)
 from dgcal.pos.smoother.initial import (GnssFixes, anchor_attitude, initial_clocks, initial_track,
                                propagate_attitude)
 
@@ -104,11 +109,10 @@ def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
     return imu.gyro_rad_s[i]
 
 
-def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu_noise: ImuNoise,
+def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu_noise: ImuErrorModel,
                   opts: SmootherOptions, mode: str = "tc", epochs_at_key: list | None = None,
                   lc_fixes: GnssFixes | None = None) -> Problem:
     """Assemble the factor graph: priors, IMU (zero biases), GNSS (TC epochs or LC fixes) and clock factors."""
-    import gtsam
     K = len(t_key)
     lever = np.asarray(opts.lever_arm_b, float)
     params = preintegration_params(imu_noise, frame, opts.earth_rotation)
@@ -204,10 +208,9 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
                    n_sat, gnss_update, omega_b, params)
 
 
-def rebuild_imu(problem: Problem, imu, imu_noise: ImuNoise, opts: SmootherOptions, first: NavSolution) -> Problem:
+def rebuild_imu(problem: Problem, imu, imu_noise: ImuErrorModel, opts: SmootherOptions, first: NavSolution) -> Problem:
     """The same problem with the IMU factors re-preintegrated about `first`'s biases and with the gravity
     correction of `first`'s trajectory (all other factors are reused)."""
-    import gtsam
     t_key = problem.t_key
     accel = imu.accel_m_s2 + gravity_correction_b(imu.t, first.t, first.R_body_to_nav, first.p_nav, problem.frame)
     seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_key, imu.dt[0])
@@ -230,7 +233,6 @@ def rebuild_imu(problem: Problem, imu, imu_noise: ImuNoise, opts: SmootherOption
 
 def optimize(problem: Problem, max_iterations: int = 30):
     """Levenberg-Marquardt over the whole graph; returns the optimised gtsam.Values."""
-    import gtsam
     p = gtsam.LevenbergMarquardtParams()
     p.setMaxIterations(max_iterations)
     p.setRelativeErrorTol(1e-7)
@@ -278,7 +280,6 @@ def gnss_residuals(problem: Problem, values) -> dict:
 
 def add_marginals(sol: NavSolution, problem: Problem, values) -> None:
     """Fill cov_pose / cov_vel (and the full keyframe block `cov_block`) from the linearised graph."""
-    from dgcal.pos.smoother.covariance import KeyframeBlocks, smoothed_covariances
     blocks = KeyframeBlocks(len(sol.t), problem.systems)
     P = smoothed_covariances(problem.graph, values, blocks)
     sol.cov_pose = P[:, :6, :6].copy()
@@ -288,7 +289,6 @@ def add_marginals(sol: NavSolution, problem: Problem, values) -> None:
 
 def solution_values(sol: NavSolution, problem: Problem):
     """gtsam Values holding the states of a NavSolution (keys as in the problem)."""
-    import gtsam
     vals = gtsam.Values()
     for k in range(len(sol.t)):
         vals.insert(X(k), gtsam.Pose3(gtsam.Rot3(sol.R_body_to_nav[k]), sol.p_nav[k]))
@@ -308,7 +308,7 @@ _COARSE_FLOOR = dict(gyro_arw=8.7e-5, accel_vrw=4.8e-4, gyro_bias_rw=1.3e-6, acc
                      gyro_bias_sigma=1.7e-4, accel_bias_sigma=2e-2)
 
 
-def _coarse_noise(noise: ImuNoise) -> ImuNoise | None:
+def _coarse_noise(noise: ImuErrorModel) -> ImuErrorModel | None:
     """`noise` with every density raised to at least `_COARSE_FLOOR`, or None if it is not below it anywhere."""
     low = {k: v for k, v in _COARSE_FLOOR.items() if getattr(noise, k) < 0.5 * v}
     return dataclasses.replace(noise, **{k: max(getattr(noise, k), v) for k, v in _COARSE_FLOOR.items()}) \
@@ -333,17 +333,18 @@ def _nearest_gap(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.minimum(np.abs(grid - t[i - 1]), np.abs(grid - t[i]))
 
 
-def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mode: str = "tc",
-           gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
+def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOptions | None = None,
+           mode: str = "tc", gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
            second_pass: bool = True) -> NavSolution:
     """Smoothed trajectory over the whole flight.
 
     imu: `dgcal.pos.ins.imu_data.ImuData` (body FRD increments). fixes: GNSS positions to initialise (SPP) and, in LC
     mode, the measurements unless `lc_fixes` is given. gnss: `GnssObservations` (TC mode). grade: an
-    `ImuGrade` or `ImuNoise`. The keyframes are the GNSS epochs (TC) or fix times (LC) in the IMU span.
+    `ImuErrorModel` or a preset name (the smoother carries its `smoother_noise()`). The keyframes are the
+    GNSS epochs (TC) or fix times (LC) in the IMU span.
     """
     opts = opts or SmootherOptions()
-    noise = imu_noise_from_grade(grade)
+    noise = imu_grade(grade).smoother_noise()
     if frame is None:
         ok = np.all(np.isfinite(fixes.p_ecef), axis=1)
         frame = NavFrame.at_ecef(fixes.p_ecef[ok].mean(axis=0))
@@ -359,7 +360,6 @@ def smooth(imu, fixes: GnssFixes, grade, opts: SmootherOptions | None = None, mo
         epochs = None
     else:
         raise ValueError(f"unknown mode {mode!r}")
-    import time
     timing = {}
     t0 = time.perf_counter()
     problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes)

@@ -11,9 +11,11 @@ Covariances are in gtsam's local coordinates: Pose3 = [rotation (body, rad), pos
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
+import scipy.sparse as sp
 
-from dgcal.pos.ins.nav_frame import C_LIGHT
+from dgcal.fields.constants import C_LIGHT
 from dgcal.pos.smoother.factors import B, CLK, DRIFT, V, X, ZERO
 
 
@@ -66,7 +68,6 @@ def _assemble_sparse(graph, values, blocks: KeyframeBlocks):
     Rows touching two keyframes are split into the part on the earlier keyframe (A_lo) and on the later
     one (A_hi): Dn = A_lo'A_lo, U = A_lo'A_hi, and A_hi'A_hi goes to D with the single-keyframe rows.
     """
-    import scipy.sparse as sp
     K, n = blocks.K, blocks.n
     lin = graph.linearize(values)
     ijs = lin.sparseJacobian_()
@@ -128,7 +129,6 @@ def _assemble_sparse(graph, values, blocks: KeyframeBlocks):
 
 
 def _key_dim(values, key) -> int:
-    import gtsam
     sym = gtsam.Symbol(key).chr()
     return {ord("x"): 6, ord("v"): 3, ord("b"): 6}.get(sym, 1)
 

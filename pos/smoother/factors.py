@@ -8,47 +8,42 @@ term (evaluated at the approximate receiver position) is added to the measuremen
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
-from dgcal.pos.ins.nav_frame import C_LIGHT, OMEGA_EARTH
+from dgcal.fields.constants import C_LIGHT, OMEGA_EARTH
 
 _SYS_CHAR = {"G": "g", "E": "e", "C": "c", "J": "j", "R": "r", "I": "i", "S": "s"}
 
 
 def X(k: int) -> int:
     """Key of the body pose (R_body_to_nav, p_nav of the IMU origin) at keyframe k."""
-    import gtsam
     return gtsam.symbol("x", k)
 
 
 def V(k: int) -> int:
     """Key of the IMU velocity in nav axes (m/s) at keyframe k."""
-    import gtsam
     return gtsam.symbol("v", k)
 
 
 def B(k: int) -> int:
     """Key of the IMU biases (accelerometer m/s^2, gyro rad/s) at keyframe k."""
-    import gtsam
     return gtsam.symbol("b", k)
 
 
 def CLK(system: str, k: int) -> int:
     """Key of the receiver clock bias (s) of a constellation at keyframe k."""
-    import gtsam
     return gtsam.symbol(_SYS_CHAR[system], k)
 
 
 def DRIFT(k: int) -> int:
     """Key of the receiver clock drift (s/s) at keyframe k."""
-    import gtsam
     return gtsam.symbol("d", k)
 
 
 def ZERO() -> int:
     """Key of a constant 0.0 (pinned by a tight prior): the 'previous clock' of the Doppler factors, see
     `doppler_factors`."""
-    import gtsam
     return gtsam.symbol("z", 0)
 
 
@@ -66,7 +61,6 @@ def sagnac_rate_mps(sat_pos_ecef, sat_vel_ecef, p_rx_ecef) -> np.ndarray:
 
 def robust(sigma: float, dim: int = 1, huber_k: float | None = 1.345):
     """Gaussian noise of `sigma`, wrapped in a Huber M-estimator unless `huber_k` is None."""
-    import gtsam
     base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma))
     if huber_k is None:
         return base
@@ -76,7 +70,6 @@ def robust(sigma: float, dim: int = 1, huber_k: float | None = 1.345):
 def pseudorange_factors(k: int, epoch, p_approx_ecef, lever_arm_b, ecef_T_nav, huber_k=1.345,
                         sigma_scale: float = 1.0) -> list:
     """PseudorangeFactorArm per satellite of a `GnssEpoch` at keyframe k (one clock key per constellation)."""
-    import gtsam
     pr = epoch.pr_corr_m + sagnac_m(epoch.sat_pos_ecef, p_approx_ecef)
     out = []
     for i in range(epoch.n):
@@ -96,7 +89,6 @@ def doppler_factors(k: int, epoch, p_approx_ecef, lever_arm_b, omega_b, ecef_T_n
     dt = 1 s) makes that the instantaneous drift state (s/s) rather than the mean over the epoch interval,
     which would differ from it by the clock's random walk (~0.1-0.2 m/s for a TCXO, more than the noise).
     """
-    import gtsam
     rr = epoch.rr_corr_mps + sagnac_rate_mps(epoch.sat_pos_ecef, epoch.sat_vel_ecef, p_approx_ecef)
     out = []
     for i in range(epoch.n):
@@ -117,7 +109,6 @@ def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: fl
     equation is linear: a JacobianFactor wrapped as a nonlinear factor about `lin_values` (which must hold
     the three clock keys; its right-hand side is set so that the error is exactly A x).
     """
-    import gtsam
     out = []
     # the drift's own random walk integrates into the bias too (q_d dt^3 / 3)
     sb = np.sqrt(bias_rw_m ** 2 * dt + drift_rw_mps ** 2 * dt ** 3 / 3.0) / C_LIGHT
@@ -135,7 +126,6 @@ def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: fl
 
 def position_factor(k: int, p_ant_nav, sigma_ned, lever_arm_b, huber_k=None):
     """LC: antenna position (nav frame, m) with per-axis sigmas (m), through the lever arm."""
-    import gtsam
     base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma_ned, float))
     if huber_k is not None:
         base = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(huber_k)), base)
@@ -144,6 +134,5 @@ def position_factor(k: int, p_ant_nav, sigma_ned, lever_arm_b, huber_k=None):
 
 def velocity_factor(k: int, v_nav, sigma_ned):
     """LC: IMU velocity (nav frame, m/s; the antenna's lever-arm rate already removed) with sigmas (m/s)."""
-    import gtsam
     return gtsam.PriorFactorPoint3(V(k), np.asarray(v_nav, float),
                                    gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma_ned, float)))

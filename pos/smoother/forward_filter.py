@@ -11,17 +11,18 @@ Innovations: the GNSS factor errors at the IMU prediction, before the update.
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
-from dgcal.pos.smoother.batch import NavSolution, Problem
+from dgcal.pos.smoother.batch import NavSolution, Problem, read_states
+from dgcal.pos.smoother.covariance import KeyframeBlocks
+from dgcal.pos.smoother.factors import CLK, DRIFT, ZERO, B, V, X
 
 
 def _dense_system(graph, vals, key_order: list, has_zero: bool, scale: np.ndarray):
     """Dense information matrix and vector of a small graph linearised at `vals`, columns in `key_order`
     (ZERO, a pinned constant, last and dropped), scaled so the clock variables are in metres."""
-    import gtsam
 
-    from dgcal.pos.smoother.factors import ZERO
     order = gtsam.Ordering()
     for key in key_order:
         order.push_back(key)
@@ -36,7 +37,6 @@ def _dense_system(graph, vals, key_order: list, has_zero: bool, scale: np.ndarra
 
 def _step_factors(problem: Problem) -> list:
     """Factors of the graph grouped by the latest keyframe they touch."""
-    from dgcal.pos.smoother.covariance import KeyframeBlocks
     K = len(problem.t_key)
     where = KeyframeBlocks(K, problem.systems).where
     out: list = [[] for _ in range(K)]
@@ -55,7 +55,6 @@ def _flat(keys_block) -> list:
 
 def _retract(vals, keys_block, dx, systems):
     """Apply a block correction (pose 6, vel 3, bias 6, clocks, drift; clocks in s) to gtsam Values."""
-    import gtsam
     xk, vk, bk, ck, dk = keys_block
     vals.update(xk, vals.atPose3(xk).retract(dx[:6]))
     vals.update(vk, vals.atPoint3(vk) + dx[6:9])
@@ -87,11 +86,7 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
     `values` is not needed (the filter linearises about its own estimates; kept so the smoothed solution's
     values can be passed uniformly); the filter starts from the problem's initial values at the first epoch.
     """
-    import gtsam
 
-    from dgcal.pos.smoother.batch import read_states
-    from dgcal.pos.smoother.covariance import KeyframeBlocks
-    from dgcal.pos.smoother.factors import B, CLK, DRIFT, V, X, ZERO
     K = len(problem.t_key)
     systems = problem.systems
     n = KeyframeBlocks(1, systems).n

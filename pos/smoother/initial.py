@@ -9,10 +9,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 
+from dgcal.fields.constants import C_LIGHT
 from dgcal.fields.frames import R_body_to_ned_from_rph
-from dgcal.pos.ins.nav_frame import C_LIGHT, NavFrame
+from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude
+from dgcal.pos.ins.nav_frame import NavFrame
+from dgcal.pos.smoother.factors import sagnac_m
 
 
 @dataclass
@@ -52,7 +56,6 @@ def anchor_attitude(t_key: np.ndarray, v_nav: np.ndarray, min_speed: float = 3.0
     """Keyframe index and coarse R_body_to_nav at the first moving epoch: the pseudo-attitude of the GNSS
     velocity (dgcal.pos.gnss.pseudo_attitude: roll from the turn's centripetal acceleration, pitch = flight-path
     angle, heading = course); level with heading = course if it cannot be formed."""
-    from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude
     pa = pseudo_attitude(t_key, v_nav, window_s=0.0, min_speed=min_speed)
     ok = np.flatnonzero(pa.valid & np.all(np.isfinite(pa.rph), axis=1))
     if len(ok):
@@ -67,7 +70,6 @@ def anchor_attitude(t_key: np.ndarray, v_nav: np.ndarray, min_speed: float = 3.0
 
 def propagate_attitude(pims: list, anchor: int, R_anchor: np.ndarray, p_nav, v_nav) -> np.ndarray:
     """R_body_to_nav at all keyframes by chaining the preintegrated rotations from the anchor (both ways)."""
-    import gtsam
     K = len(pims) + 1
     R = np.empty((K, 3, 3))
     R[anchor] = R_anchor
@@ -83,7 +85,6 @@ def propagate_attitude(pims: list, anchor: int, R_anchor: np.ndarray, p_nav, v_n
 def initial_clocks(t_key, epochs_at_key, p_ant_nav, frame: NavFrame, systems) -> tuple[dict, np.ndarray]:
     """Receiver clock bias per constellation (s) at keyframes from the pseudoranges at the initial track,
     and the drift (s/s)."""
-    from dgcal.pos.smoother.factors import sagnac_m
     K = len(t_key)
     clk = {s: np.full(K, np.nan) for s in systems}
     for k, ep in enumerate(epochs_at_key):

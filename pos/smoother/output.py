@@ -4,6 +4,7 @@ INTERFACES.md sigma columns.
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -11,6 +12,7 @@ from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.io.formats import Trajectory
 from dgcal.fields.frames import rph_from_R_body_to_ned
 from dgcal.pos.ins.nav_frame import NavFrame
+from dgcal.pos.smoother.preintegration import gravity_correction_b, rotation_compensated_accel, split_at_keyframes
 
 
 def euler_rate_matrix(rph_deg: np.ndarray) -> np.ndarray:
@@ -57,9 +59,7 @@ def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
     """The trajectory at `rate_hz` (plus the keyframes): IMU mechanisation from each keyframe with its
     estimated biases, the small closure error at the next keyframe spread linearly over the interval;
     sigmas interpolated linearly in variance between keyframes."""
-    import gtsam
 
-    from dgcal.pos.smoother.preintegration import gravity_correction_b, rotation_compensated_accel, split_at_keyframes
     t_key = sol.t
     step = 1.0 / rate_hz
     grid = np.arange(np.ceil(t_key[0] / step) * step, t_key[-1], step)

@@ -7,66 +7,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
-from dgcal.pos.ins.nav_frame import NavFrame
+from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.pos.ins.error_model import ImuErrorModel
+from dgcal.pos.ins.nav_frame import NavFrame, normal_gravity
 
 
-@dataclass(frozen=True)
-class ImuNoise:
-    """Continuous-time IMU error densities used by the smoother (SI units, body FRD).
+def preintegration_params(noise: ImuErrorModel, frame: NavFrame, earth_rotation: bool = True):
+    """gtsam PreintegrationCombinedParams for a NED nav frame with normal gravity and (optionally) earth rate.
 
-    gyro_arw: angle random walk, rad/sqrt(s); accel_vrw: velocity random walk, m/s/sqrt(s);
-    gyro_bias_rw / accel_bias_rw: bias random-walk densities, rad/s/sqrt(s) and m/s^2/sqrt(s);
-    gyro_bias_sigma / accel_bias_sigma: turn-on bias sigma (prior on the first bias), rad/s and m/s^2.
-    *_scale / *_misalign: residual scale-factor (fraction) and axis-misalignment (rad) sigmas; not estimated,
-    they act as an error proportional to the rate / specific force during manoeuvres and are carried as
-    extra white noise there (see `interval_params`).
+    `noise` is in the smoother's form (`ImuErrorModel.smoother_noise()`: bias random walks, no Gauss-Markov).
     """
-
-    gyro_arw: float
-    accel_vrw: float
-    gyro_bias_rw: float
-    accel_bias_rw: float
-    gyro_bias_sigma: float
-    accel_bias_sigma: float
-    gyro_scale: float = 0.0
-    gyro_misalign: float = 0.0
-    accel_scale: float = 0.0
-    accel_misalign: float = 0.0
-
-
-def imu_noise_from_grade(grade) -> ImuNoise:
-    """Smoother noise densities from an `ImuGrade` (dgcal.pos.ins.error_model) or an `ImuNoise` (returned as is).
-
-    A first-order Gauss-Markov bias instability b with correlation time T is modelled as a random walk
-    with density b*sqrt(2/T), which matches its variance growth over one correlation time.
-    """
-    if isinstance(grade, ImuNoise):
-        return grade
-    g = grade
-    tau_g = max(float(getattr(g, "gyro_bias_tau_s", 0.0) or 0.0), 1.0)
-    tau_a = max(float(getattr(g, "accel_bias_tau_s", 0.0) or 0.0), 1.0)
-    gbi = float(getattr(g, "gyro_bias_instability", 0.0) or 0.0)
-    abi = float(getattr(g, "accel_bias_instability", 0.0) or 0.0)
-    grw = float(getattr(g, "gyro_bias_rw", 0.0) or 0.0)
-    arw_b = float(getattr(g, "accel_bias_rw", 0.0) or 0.0)
-    gyro_bias_rw = np.hypot(grw, gbi * np.sqrt(2.0 / tau_g)) if gbi else grw
-    accel_bias_rw = np.hypot(arw_b, abi * np.sqrt(2.0 / tau_a)) if abi else arw_b
-    return ImuNoise(
-        gyro_arw=float(g.gyro_arw), accel_vrw=float(g.accel_vrw),
-        gyro_bias_rw=max(float(gyro_bias_rw), 1e-9), accel_bias_rw=max(float(accel_bias_rw), 1e-8),
-        gyro_bias_sigma=max(float(getattr(g, "gyro_bias_sigma", 0.0) or 0.0), gbi, 1e-7),
-        accel_bias_sigma=max(float(getattr(g, "accel_bias_sigma", 0.0) or 0.0), abi, 1e-6),
-        gyro_scale=float(getattr(g, "gyro_scale_sigma", 0.0) or 0.0),
-        gyro_misalign=float(getattr(g, "gyro_misalign_sigma", 0.0) or 0.0),
-        accel_scale=float(getattr(g, "accel_scale_sigma", 0.0) or 0.0),
-        accel_misalign=float(getattr(g, "accel_misalign_sigma", 0.0) or 0.0))
-
-
-def preintegration_params(noise: ImuNoise, frame: NavFrame, earth_rotation: bool = True):
-    """gtsam PreintegrationCombinedParams for a NED nav frame with normal gravity and (optionally) earth rate."""
-    import gtsam
+    if noise.has_gauss_markov_bias:
+        raise ValueError(f"IMU model {noise.name!r} has a Gauss-Markov bias: pass model.smoother_noise()")
     p = gtsam.PreintegrationCombinedParams.MakeSharedD(frame.gravity)
     I3 = np.eye(3)
     p.setGyroscopeCovariance(I3 * noise.gyro_arw ** 2)
@@ -112,7 +68,7 @@ def split_at_keyframes(t_imu: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t
     return ImuSegments(gyro[idx], accel[idx], dt, key_pos)
 
 
-def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_rotation: bool = True,
+def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, earth_rotation: bool = True,
                     window_s: float = 10.0) -> list:
     """Preintegration parameters per keyframe interval, with the scale/misalignment errors as turn noise.
 
@@ -127,7 +83,8 @@ def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_ro
     Returns None entries where nothing is added.
     """
     K = len(seg.start) - 1
-    if not (noise.gyro_scale or noise.gyro_misalign or noise.accel_scale or noise.accel_misalign) or K < 2:
+    if not (noise.gyro_scale_sigma or noise.gyro_misalign_sigma or noise.accel_scale_sigma
+            or noise.accel_misalign_sigma) or K < 2:
         return [None] * K
     T = np.add.reduceat(seg.dt, seg.start[:-1])
     wbar = np.add.reduceat(seg.gyro * seg.dt[:, None], seg.start[:-1]) / T[:, None]
@@ -141,8 +98,8 @@ def interval_params(noise: ImuNoise, frame: NavFrame, seg: ImuSegments, earth_ro
         hi = np.searchsorted(t_mid, t_mid + window_s, side="right")
         aw = a * (c[hi] - c[lo])
         return s ** 2 * aw + m ** 2 * (aw.sum(1, keepdims=True) - aw)
-    qg = turn_density(wbar, noise.gyro_scale, noise.gyro_misalign)
-    qa = turn_density(fbar, noise.accel_scale, noise.accel_misalign)
+    qg = turn_density(wbar, noise.gyro_scale_sigma, noise.gyro_misalign_sigma)
+    qa = turn_density(fbar, noise.accel_scale_sigma, noise.accel_misalign_sigma)
     out = []
     for k in range(K):
         p = preintegration_params(noise, frame, earth_rotation)
@@ -168,7 +125,6 @@ def preintegrate(params, seg: ImuSegments, biases, per_interval: list | None = N
     """One PreintegratedCombinedMeasurements per keyframe interval; `biases[k]` is the linearisation bias,
     `per_interval[k]` (optional) replaces `params` for interval k. The specific force is rotation
     compensated (`rotation_compensated_accel`)."""
-    import gtsam
     out = []
     gyro, dt = seg.gyro, seg.dt
     accel = rotation_compensated_accel(seg.gyro, seg.accel, seg.dt)
@@ -191,10 +147,7 @@ def gravity_correction_b(t_imu: np.ndarray, t_key: np.ndarray, R_body_to_nav: np
     R_nav_to_body (g(p) - g0) to the accelerometers removes that error. Attitude and position come from a
     first solution (keyframes), interpolated to the IMU times (slerp / linear).
     """
-    from scipy.spatial.transform import Rotation, Slerp
 
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.pos.ins.nav_frame import normal_gravity
     tq = np.clip(t_imu, t_key[0], t_key[-1])
     R = Slerp(t_key, Rotation.from_matrix(R_body_to_nav))(tq).as_matrix()
     # gravity varies slowly: evaluate it at the keyframes and interpolate

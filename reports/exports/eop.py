@@ -15,11 +15,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from dgcal.calib.camera.files import colmap_cameras_txt_string
 from dgcal.calib.mounting.common import BlockFrame
-from dgcal.fields.crs import LocalENU, MapGrid
+from dgcal.fields.crs import LocalENU, MapGrid, parse_crs
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.formats import EOP
+from dgcal.fields.io.formats import EOP, write_eop
 
 FORMATS = ("colmap", "pix4d", "metashape", "odm", "eop")
 
@@ -30,7 +31,6 @@ def write_colmap(out_dir: Path, eop: EOP, grid: MapGrid, camera, points_map: dic
     """Write cameras.txt, images.txt, points3D.txt and georef.json (local ENU frame at the block centre).
 
     `points_map`: optional {id: map xyz}; `observations`: optional [(image, id, x, y)] linking them."""
-    from dgcal.calib.camera.files import colmap_cameras_txt_string
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     frame = BlockFrame.at_map_points(grid, eop.xyz)
@@ -192,7 +192,6 @@ def read_odm_geo(path: Path) -> tuple[EOP, MapGrid]:
         first = path.read_text().splitlines()[0].strip()
     except (OSError, IndexError):
         raise InputError("cannot read the CRS line of geo.txt", path, 1) from None
-    from dgcal.fields.crs import parse_crs
     crs = parse_crs(first, f"{path}:1")
     names, v = _read_rows(path, None, 1, 6, "geo.txt")
     return EOP(names, v[:, :3], v[:, 3:6]), MapGrid(crs)
@@ -201,7 +200,6 @@ def read_odm_geo(path: Path) -> tuple[EOP, MapGrid]:
 def export_all(out_dir: Path, eop: EOP, grid: MapGrid, camera=None, formats=FORMATS, points_map=None,
                observations=None) -> dict:
     """Write the requested formats under `out_dir`; returns {format: path}."""
-    from dgcal.fields.io.formats import write_eop
     out_dir = Path(out_dir)
     paths = {}
     for f in formats:
@@ -226,3 +224,23 @@ def export_all(out_dir: Path, eop: EOP, grid: MapGrid, camera=None, formats=FORM
             raise InputError(f"unknown export format {f!r} (one of {', '.join(FORMATS)})", field="--formats")
     return paths
 
+
+def export_formats(requested: tuple[str, ...] | None, have_camera: bool) -> list[str]:
+    """The export formats to write: `requested` (lower-cased, checked), or every format when None, without
+    COLMAP when there is no camera; an explicit COLMAP without a camera is an input error."""
+    if requested is None:
+        return [f for f in FORMATS if have_camera or f != "colmap"]
+    formats = [f.strip().lower() for f in requested if f.strip()]
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise InputError(f"unknown format {bad[0]!r} (one of {', '.join(FORMATS)})", field="--formats")
+    if "colmap" in formats and not have_camera:
+        raise InputError("the COLMAP export needs --camera", field="--camera")
+    return formats
+
+
+def write_dg_exports(out_dir: Path, flight, formats: tuple[str, ...] | None = None) -> dict:
+    """`dgcal export`'s files: the DG EOPs of `flight` (dgcal.calib.dg.eop.DgFlight) in `formats` (see
+    `export_formats`) under `out_dir`; returns {format: path}."""
+    return export_all(out_dir, flight.eop, flight.grid, flight.camera,
+                      export_formats(formats, flight.camera is not None))

@@ -1,0 +1,236 @@
+"""The inputs of an aerial triangulation from files (`dgcal triangulate`): camera, ground points, image
+measurements merged from several files, ArUco GCP targets detected in the images, SIFT tie points on
+spatial or sequential image pairs; then `triangulate_files` runs dgcal.bundle.triangulation.triangulate.
+
+Ground points: dgcal CSV, MicMac XML or ODM gcp_list.txt; measurements: dgcal CSV, ODM gcp_list.txt or
+MicMac XML (pixels, OpenCV convention). Measured ids absent from the ground points are tie points.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from dgcal.bundle.gcp_targets import detect_gcp_targets
+from dgcal.bundle.tiepoints import extract_tie_points, list_images, sequential_pairs, spatial_pairs
+from dgcal.bundle.triangulation import TriangulationOptions, TriangulationResult, triangulate
+from dgcal.calib.camera.files import load_camera
+from dgcal.calib.camera.models import CameraModel
+from dgcal.fields.crs import parse_crs
+from dgcal.fields.errors import InputError
+from dgcal.fields.io.formats import EOP, Measurements, Points, read_eop
+from dgcal.fields.io.gcp_files import read_any_measurements, read_any_points
+
+LOCAL_CRS_NAMES = ("local", "none")  # --crs values meaning a local Cartesian frame (no map projection)
+
+
+@dataclass
+class TriangulateOptions:
+    """Inputs and settings of `dgcal triangulate` (paths; pixels, metres). `crs` "local" treats coordinates as
+    a local Cartesian frame."""
+
+    camera: Path
+    crs: str
+    gcp: Path | None = None
+    images: Path | None = None                   # image folder: SIFT tie points and the image list
+    measurements: tuple[Path, ...] = ()          # merged; a point measured twice in one image is an error
+    image_size: tuple[int, int] | None = None    # (width, height) px, checked against the camera
+    sigma_px: float = 0.5                        # measurement sigma where a file gives none
+    tie_sigma_px: float | None = None            # sigma of SIFT tie measurements
+    gcp_sigma_m: tuple[float, float, float] | None = None  # overrides the ground point file's sigmas
+    fixed_gcps: bool = False
+    refine: tuple[str, ...] = ()                 # camera parameters to refine, or ("all",)
+    geoid: str | None = None                     # undulation (m) or PROJ vertical grid
+    approx: Path | None = None                   # approximate EOP CSV (initial values, spatial pairs)
+    gnss: Path | None = None                     # EOP CSV whose X,Y,Z (sX..sZ) are camera-centre priors
+    max_features: int = 4000                     # SIFT features per image
+    targets: str | None = None                   # ArUco dictionary of GCP targets to detect in the images
+    reject_blunders: bool = True
+    formats: tuple[str, ...] = ("colmap", "pix4d", "metashape", "odm")  # exports
+
+    @property
+    def local(self) -> bool:
+        """True when `crs` names a local Cartesian frame."""
+        return self.crs.strip().lower() in LOCAL_CRS_NAMES
+
+
+@dataclass
+class TriangulationInputs:
+    """Everything `triangulate` is given: camera, ground points, all measurements (control, check, tie) and
+    the optional approximate EOPs, centre priors and image list; warnings found while gathering them."""
+
+    camera: CameraModel
+    points: Points
+    measurements: Measurements | None
+    approx: EOP | None = None
+    centre_priors: EOP | None = None
+    all_images: list[str] | None = None
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class TriangulationRun:
+    """A triangulation from files: its result, the inputs it used, the CRS (None: local) and the exports
+    to write (COLMAP and ODM need a map CRS)."""
+
+    result: TriangulationResult
+    inputs: TriangulationInputs
+    crs: str | None
+    formats: list[str]
+
+
+def merge_measurements(a: Measurements, b: Measurements) -> Measurements:
+    """Two measurement sets as one; a point measured twice in one image is an error naming the second file."""
+    seen = set(zip(a.image.astype(str), a.id.astype(str)))
+    for i, key in enumerate(zip(b.image.astype(str), b.id.astype(str))):
+        if key in seen:
+            raise InputError(f"point {key[1]!r} in image {key[0]!r} is also measured in {a.path}", b.path,
+                             None if b.lines is None else int(b.lines[i]), "id")
+    lines = None if a.lines is None or b.lines is None else np.concatenate([a.lines, b.lines])
+    return Measurements(np.concatenate([a.image, b.image]), np.concatenate([a.id, b.id]),
+                        np.concatenate([a.xy, b.xy]), np.concatenate([a.sigma, b.sigma]), lines, a.path)
+
+
+def append_measurements(meas: Measurements | None, more: Measurements) -> Measurements:
+    """`meas` followed by `more` (detected or tie measurements, without file lines), keeping `meas`'s file."""
+    if meas is None:
+        return more
+    return Measurements(np.concatenate([meas.image, more.image]), np.concatenate([meas.id, more.id]),
+                        np.concatenate([meas.xy, more.xy]), np.concatenate([meas.sigma, more.sigma]),
+                        None if meas.lines is None else np.concatenate([meas.lines, np.zeros(len(more), int)]),
+                        meas.path)
+
+
+def gather_measurements(opts: TriangulateOptions) -> tuple[Points, Measurements | None]:
+    """Ground points and the merged measurements of every --measurements file; every file's CRS must be
+    `opts.crs`; without --gcp the ground points of an ODM gcp_list.txt are used."""
+    local = opts.local
+    if not local:
+        parse_crs(opts.crs)
+    points, gcp_crs = read_any_points(opts.gcp) if opts.gcp else (None, None)
+    meas, meas_points, crs_sources = None, None, [(opts.gcp, gcp_crs)]
+    for path in opts.measurements:
+        m, c, p = read_any_measurements(path)
+        crs_sources.append((path, c))
+        meas = m if meas is None else merge_measurements(meas, m)
+        meas_points = meas_points if p is None else p
+    for src, c in crs_sources:
+        if c is not None and not local and parse_crs(c) != parse_crs(opts.crs):
+            raise InputError(f"the file's CRS {c!r} differs from --crs {opts.crs!r}", src, 1, "--crs")
+    if points is None:
+        if meas_points is None:
+            raise InputError("no ground points: give --gcp (or an ODM gcp_list.txt as --measurements)", field="--gcp")
+        points = meas_points
+    if opts.gcp_sigma_m:
+        points.sigma[:] = np.asarray(opts.gcp_sigma_m, float)
+    return points, meas
+
+
+def check_image_size(folder: Path, name: str, camera: CameraModel) -> None:
+    """InputError naming the image when `folder/name` cannot be read or differs from the camera's size (px)."""
+    path = Path(folder) / name
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
+    if img is None:
+        raise InputError("cannot read image", path, field="--images")
+    if (img.shape[1], img.shape[0]) != tuple(camera.image_size):
+        raise InputError(f"image is {img.shape[1]}x{img.shape[0]} but the camera is "
+                         f"{camera.image_size[0]}x{camera.image_size[1]}", path, field="--images")
+
+
+def image_pairs(names: list[str], camera: CameraModel, points: Points, approx: EOP | None) -> list[tuple[str, str]]:
+    """Image pairs to match: by footprint overlap where approximate EOPs give the centres (m), sequential
+    (by file name) for the rest."""
+    if approx is None:
+        return sequential_pairs(names, overlap=len(names) if len(names) <= 30 else 10)
+    a_idx = {str(k): i for i, k in enumerate(approx.image)}
+    have = [n for n in names if n in a_idx]
+    xyz = np.array([approx.xyz[a_idx[n]] for n in have])
+    h = np.median(np.abs(xyz[:, 2] - np.median(points.xyz[:, 2])))
+    pairs = spatial_pairs(have, xyz, footprint_m=h * camera.image_size[0] / camera.pinhole_K()[0, 0])
+    return pairs + sequential_pairs([n for n in names if n not in a_idx])
+
+
+def add_gcp_targets(meas: Measurements | None, folder: Path, names: list[str], dictionary: str,
+                    points: Points, sigma_px: float) -> tuple[Measurements, list[str]]:
+    """`meas` plus the ArUco GCP targets detected in the images (marker id = point id); ids not among the
+    ground points are ignored, measurements already given take precedence. Returns them and the warnings."""
+    warnings = []
+    det = detect_gcp_targets(folder, names, dictionary, sigma_px=sigma_px)
+    known = set(points.ids.astype(str))
+    unknown = sorted(set(det.id) - known)
+    if unknown:
+        warnings.append(f"{len(unknown)} detected marker id(s) not in the ground points, ignored: "
+                        + ", ".join(unknown[:10]))
+    keep = np.array([i in known for i in det.id.astype(str)], bool)
+    if meas is not None:
+        have = set(zip(meas.image.astype(str), meas.id.astype(str)))
+        keep &= np.array([(a, b) not in have for a, b in zip(det.image.astype(str), det.id.astype(str))], bool)
+    det = det.subset(keep)
+    warnings.append(f"{len(det)} GCP target measurement(s) detected automatically ({dictionary})")
+    return append_measurements(meas, det), warnings
+
+
+def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
+    """Read and assemble every input of the triangulation: camera, ground points, merged measurements and,
+    with an image folder, the image list, detected GCP targets and SIFT tie points (see the module doc)."""
+    if not opts.images and not opts.measurements:
+        raise InputError("give --images DIR or --measurements MEAS.csv (or both)", field="--measurements")
+    camera = load_camera(opts.camera)
+    points, meas = gather_measurements(opts)
+    if opts.image_size and tuple(opts.image_size) != tuple(camera.image_size):
+        raise InputError(f"--image-size {tuple(opts.image_size)} differs from the camera's {tuple(camera.image_size)}",
+                         field="--image-size")
+    inp = TriangulationInputs(camera, points, meas, approx=read_eop(opts.approx) if opts.approx else None,
+                              centre_priors=read_eop(opts.gnss) if opts.gnss else None)
+    if opts.images:
+        names = list_images(opts.images)
+        check_image_size(opts.images, names[0], camera)
+        inp.all_images = names
+        if meas is not None:
+            missing = sorted(set(meas.images()) - set(names))
+            if missing:
+                inp.warnings.append(f"{len(missing)} measured image(s) not in {opts.images} (e.g. {missing[0]}): "
+                                    "their measurements are used without tie points")
+        pairs = image_pairs(names, camera, points, inp.approx)
+        if opts.targets:
+            meas, w = add_gcp_targets(meas, opts.images, names, opts.targets, points, opts.sigma_px)
+            inp.warnings += w
+        tie = extract_tie_points(opts.images, names, pairs, max_features=opts.max_features,
+                                 camera_K=camera.pinhole_K())
+        if opts.tie_sigma_px:
+            tie.sigma[:] = opts.tie_sigma_px
+        inp.measurements = append_measurements(meas, tie)
+    return inp
+
+
+def refine_parameters(camera: CameraModel, refine: tuple[str, ...]) -> tuple[str, ...]:
+    """The camera parameters to refine in flight: `refine` checked against the model, ("all",) for all."""
+    names = tuple(camera.PARAMS) if tuple(refine) == ("all",) else tuple(p for p in refine if p)
+    bad = [p for p in names if p not in camera.PARAMS]
+    if bad:
+        raise InputError(f"unknown camera parameter {bad[0]!r} ({camera.NAME} has {', '.join(camera.PARAMS)})",
+                         field="--refine")
+    return names
+
+
+def triangulate_files(opts: TriangulateOptions) -> TriangulationRun:
+    """`dgcal triangulate`: gather the inputs (`gather_inputs`), run the triangulation (EOPs in the map CRS
+    with covariance) and choose the exports; the gathering warnings come first in the result's warnings."""
+    inp = gather_inputs(opts)
+    sol = TriangulationOptions(sigma_px=opts.sigma_px, tie_sigma_px=opts.tie_sigma_px, fixed_gcps=opts.fixed_gcps,
+                               refine=refine_parameters(inp.camera, opts.refine), geoid=opts.geoid,
+                               reject_blunders=opts.reject_blunders)
+    crs = None if opts.local else opts.crs
+    res = triangulate(inp.camera, inp.points, inp.measurements, crs, sol, image_size=opts.image_size,
+                      approx=inp.approx, centre_priors=inp.centre_priors, all_images=inp.all_images)
+    res.warnings[:0] = inp.warnings
+    res.summary["warnings"] = res.warnings
+    formats = [f for f in opts.formats if f]
+    if opts.local and formats:
+        kept = [f for f in formats if f in ("pix4d", "metashape")]
+        if len(kept) < len(formats):
+            res.warnings.append("COLMAP and ODM exports need a map CRS: skipped for --crs local")
+        formats = kept
+    return TriangulationRun(res, inp, crs, formats)

@@ -1,0 +1,244 @@
+"""Parameters and residual blocks of the least-squares engine.
+
+Parameters (`State`): N poses (`dgcal.fields.pose.Poses`: 6 each, [dC (m, world), dtheta (rad, camera axes)],
+a right perturbation of R_cam_to_world), M points (3 each, world, m, additive) and G global parameters
+(additive: camera intrinsics, lever arm, boresight angles, delay, ...). The points are eliminated by Schur
+complement; poses and globals form the reduced ("camera-side") system.
+
+A residual block is a batch of k items of the same kind, each with `dim` whitened residuals that depend on at
+most one pose, one point and some globals. `evaluate` returns them (and, on request, their Jacobians) as a
+`BlockEval`; robust losses act on each item's squared whitened norm.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from dgcal.calib.camera.models import CameraModel
+from dgcal.fields.frames import skew
+from dgcal.fields.pose import Poses
+
+INVALID_COST = 1e12   # cost of an item that cannot be evaluated (a point behind its camera)
+
+
+@dataclass
+class State:
+    """The unknowns: poses (N), points (M,3) m and globals (G,)."""
+
+    poses: Poses
+    points: np.ndarray
+    globals: np.ndarray
+
+    def copy(self) -> "State":
+        return State(Poses(self.poses.R_world_to_cam.copy(), self.poses.C_world.copy()), self.points.copy(),
+                     self.globals.copy())
+
+
+@dataclass
+class BlockEval:
+    """Whitened residuals (k,dim) of a block's items and, when linearised, their Jacobians.
+
+    pose/point: (k,) indices of the pose/point each item depends on (None: none); glob: (Gb,) global columns.
+    """
+
+    r: np.ndarray
+    valid: np.ndarray
+    pose: np.ndarray | None = None
+    J_pose: np.ndarray | None = None        # (k,dim,6)
+    point: np.ndarray | None = None
+    J_point: np.ndarray | None = None       # (k,dim,3)
+    glob: np.ndarray | None = None
+    J_glob: np.ndarray | None = None        # (k,dim,Gb)
+
+
+class Block:
+    """Base of residual blocks: `name`, `dim`, robust `loss` and `loss_scale` (in whitened units)."""
+
+    name: str = "block"
+    dim: int = 1
+    loss: str = "none"
+    loss_scale: float = 3.0
+
+    def __len__(self) -> int:
+        raise NotImplementedError
+
+    def evaluate(self, state: State, jacobians: bool) -> BlockEval:
+        raise NotImplementedError
+
+
+class ImageObservations(Block):
+    """Pixel measurements uv (k,2) of points by posed images through a camera model, whitened by sigma (k,2) px.
+
+    `intrinsics` names the camera parameters that are unknowns; they are globals `glob_offset + 0..`;
+    `points_fixed` marks the points as known (no point unknowns, e.g. a target field held fixed).
+    Model: X_cam = R_world_to_cam[pose] (X[point] - C_world[pose]),  uv = camera.project(X_cam).
+    """
+
+    dim = 2
+
+    def __init__(self, camera: CameraModel, pose: np.ndarray, point: np.ndarray, uv: np.ndarray,
+                 sigma: np.ndarray, intrinsics: Sequence[str] = (), glob_offset: int = 0,
+                 loss: str = "none", loss_scale: float = 3.0, name: str = "image", points_fixed: bool = False):
+        self.camera = camera
+        self.pose = np.asarray(pose, int)
+        self.point = np.asarray(point, int)
+        self.uv = np.asarray(uv, float).reshape(-1, 2)
+        self.sigma = np.broadcast_to(np.asarray(sigma, float), self.uv.shape).copy()
+        self.intrinsics = tuple(intrinsics)
+        self.param_idx = np.array([camera.PARAMS.index(p) for p in self.intrinsics], int)
+        self.glob = glob_offset + np.arange(len(self.intrinsics))
+        self.loss, self.loss_scale, self.name = loss, loss_scale, name
+        self.points_fixed = points_fixed      # the points are known: no point Jacobian
+
+    def __len__(self) -> int:
+        return len(self.pose)
+
+    def camera_at(self, globals_: np.ndarray) -> CameraModel:
+        """The camera with the intrinsics of a state's globals."""
+        cam = self.camera.copy()
+        cam.sigmas = None
+        if len(self.glob):
+            cam.params[self.param_idx] = globals_[self.glob]
+        return cam
+
+    def evaluate(self, state: State, jacobians: bool) -> BlockEval:
+        cam = self.camera_at(state.globals)
+        R = state.poses.R_world_to_cam[self.pose]
+        Xc = np.einsum("kij,kj->ki", R, state.points[self.point] - state.poses.C_world[self.pose])
+        valid = Xc[:, 2] > 0
+        if not jacobians:
+            with np.errstate(all="ignore"):
+                r = (cam.project(Xc) - self.uv) / self.sigma
+            return BlockEval(r, valid & np.isfinite(r).all(1))
+        with np.errstate(all="ignore"):
+            uv, J_int, JX = cam.project_with_jacobians(Xc, params=len(self.glob) > 0)
+        w = (1.0 / self.sigma)[:, :, None]
+        JXw = JX * w
+        JR = np.matmul(JXw, R)
+        # dX_cam/dC = -R;  dX_cam/dtheta = [X_cam]x (R_cam_to_world <- R_cam_to_world Exp(dtheta))
+        J_pose = np.concatenate([-JR, np.matmul(JXw, skew(Xc))], axis=2)
+        r = (uv - self.uv) / self.sigma
+        valid &= np.isfinite(r).all(1)
+        return BlockEval(r, valid, self.pose, J_pose, None if self.points_fixed else self.point,
+                         None if self.points_fixed else JR, self.glob,
+                         J_int[:, :, self.param_idx] * w if len(self.glob) else None)
+
+
+class PointPriors(Block):
+    """Observed point coordinates, one item per coordinate: point (k,), axis (k,) 0-2, value (k,) m, sigma (k,) m.
+
+    Residual (X[point, axis] - value) / sigma. `from_arrays` builds it from (m,3) arrays with NaN = no prior."""
+
+    dim = 1
+
+    def __init__(self, point: np.ndarray, axis: np.ndarray, value: np.ndarray, sigma: np.ndarray,
+                 name: str = "point_prior"):
+        self.point = np.asarray(point, int)
+        self.axis = np.asarray(axis, int)
+        self.value = np.asarray(value, float)
+        self.w = 1.0 / np.broadcast_to(np.asarray(sigma, float), self.value.shape)
+        self.name = name
+
+    @classmethod
+    def from_arrays(cls, xyz: np.ndarray, sigma: np.ndarray, points: np.ndarray | None = None,
+                    name: str = "point_prior") -> "PointPriors":
+        """Priors of points `points` (default 0..m-1) from (m,3) coordinates and sigmas; NaN coordinates skipped."""
+        xyz = np.asarray(xyz, float).reshape(-1, 3)
+        pts = np.arange(len(xyz)) if points is None else np.asarray(points, int)
+        j, a = np.nonzero(np.isfinite(xyz))
+        sig = np.broadcast_to(np.asarray(sigma, float), xyz.shape)
+        return cls(pts[j], a, xyz[j, a], sig[j, a], name)
+
+    def __len__(self) -> int:
+        return len(self.point)
+
+    def evaluate(self, state: State, jacobians: bool) -> BlockEval:
+        r = ((state.points[self.point, self.axis] - self.value) * self.w)[:, None]
+        ev = BlockEval(r, np.ones(len(r), bool))
+        if jacobians:
+            J = np.zeros((len(r), 1, 3))
+            J[np.arange(len(r)), 0, self.axis] = self.w
+            ev.point, ev.J_point = self.point, J
+        return ev
+
+
+class CentrePriors(Block):
+    """Observed projection centres (e.g. GNSS), one item per coordinate: pose (k,), axis (k,), value, sigma (m).
+
+    Residual (C_world[pose, axis] - value) / sigma. `from_arrays` takes (n,3) arrays with NaN = no prior."""
+
+    dim = 1
+
+    def __init__(self, pose: np.ndarray, axis: np.ndarray, value: np.ndarray, sigma: np.ndarray,
+                 name: str = "centre_prior"):
+        self.pose = np.asarray(pose, int)
+        self.axis = np.asarray(axis, int)
+        self.value = np.asarray(value, float)
+        self.w = 1.0 / np.broadcast_to(np.asarray(sigma, float), self.value.shape)
+        self.name = name
+
+    @classmethod
+    def from_arrays(cls, C: np.ndarray, sigma: np.ndarray, name: str = "centre_prior") -> "CentrePriors":
+        """Priors from (n,3) centres and sigmas; NaN coordinates skipped."""
+        C = np.asarray(C, float).reshape(-1, 3)
+        i, a = np.nonzero(np.isfinite(C))
+        sig = np.broadcast_to(np.asarray(sigma, float), C.shape)
+        return cls(i, a, C[i, a], sig[i, a], name)
+
+    def __len__(self) -> int:
+        return len(self.pose)
+
+    def evaluate(self, state: State, jacobians: bool) -> BlockEval:
+        r = ((state.poses.C_world[self.pose, self.axis] - self.value) * self.w)[:, None]
+        ev = BlockEval(r, np.ones(len(r), bool))
+        if jacobians:
+            J = np.zeros((len(r), 1, 6))
+            J[np.arange(len(r)), 0, self.axis] = self.w
+            ev.pose, ev.J_pose = self.pose, J
+        return ev
+
+
+class GlobalPriors(Block):
+    """Prior values of globals, one item each: glob (k,) columns, value (k,), sigma (k,)."""
+
+    dim = 1
+
+    def __init__(self, glob: np.ndarray, value: np.ndarray, sigma: np.ndarray, name: str = "global_prior"):
+        self.glob_idx = np.asarray(glob, int)
+        self.value = np.asarray(value, float)
+        self.w = 1.0 / np.asarray(sigma, float)
+        self.name = name
+
+    def __len__(self) -> int:
+        return len(self.glob_idx)
+
+    def evaluate(self, state: State, jacobians: bool) -> BlockEval:
+        r = ((state.globals[self.glob_idx] - self.value) * self.w)[:, None]
+        ev = BlockEval(r, np.ones(len(r), bool))
+        if jacobians:
+            g = np.unique(self.glob_idx)
+            J = np.zeros((len(r), 1, len(g)))
+            J[np.arange(len(r)), 0, np.searchsorted(g, self.glob_idx)] = self.w
+            ev.glob, ev.J_glob = g, J
+        return ev
+
+
+@dataclass
+class FunctionBlock(Block):
+    """A block defined by a function `fun(state, jacobians) -> BlockEval` (pose priors from a POS, ...)."""
+
+    fun: Callable[[State, bool], BlockEval]
+    n: int
+    dim: int
+    name: str = "function"
+    loss: str = "none"
+    loss_scale: float = 3.0
+    extra: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return self.n
+
+    def evaluate(self, state: State, jacobians: bool) -> BlockEval:
+        return self.fun(state, jacobians)

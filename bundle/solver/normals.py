@@ -1,0 +1,346 @@
+"""The problem's layout, its cost and its normal equations with the points eliminated (Schur complement).
+
+Camera-side columns: 6 per pose ([dC, dtheta], `dgcal.fields.pose`) then the G globals; point-side: 3 per point.
+Held parameters (pose_free, point_free, global_free = False) and parameters no residual depends on get a unit
+diagonal and a zero gradient, so they stay where they are and keep the system regular.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+from dgcal.bundle.solver.blocks import INVALID_COST, Block, BlockEval, State
+from dgcal.bundle.solver.robust import robust_cost_and_weight
+
+V_REGULARISATION = 1e-10   # added to the point blocks' diagonal (whitened units: a prior of ~1e5 sigma)
+
+
+@dataclass
+class Problem:
+    """Residual blocks over N poses, M points and G globals, with masks of the parameters held fixed."""
+
+    blocks: list[Block]
+    n_poses: int
+    n_points: int
+    n_globals: int
+    pose_free: np.ndarray | None = None      # (N,) bool
+    point_free: np.ndarray | None = None     # (M,3) bool
+    global_free: np.ndarray | None = None    # (G,) bool
+
+    def __post_init__(self) -> None:
+        N, M, G = self.n_poses, self.n_points, self.n_globals
+        self.pose_free = np.ones(N, bool) if self.pose_free is None else np.asarray(self.pose_free, bool)
+        self.point_free = np.ones((M, 3), bool) if self.point_free is None else np.asarray(self.point_free, bool)
+        self.global_free = np.ones(G, bool) if self.global_free is None else np.asarray(self.global_free, bool)
+
+    @property
+    def n_camera_side(self) -> int:
+        return 6 * self.n_poses + self.n_globals
+
+    def block_costs(self, state: State) -> list[np.ndarray]:
+        """Robust cost of every item of every block (INVALID_COST for items that cannot be evaluated)."""
+        out = []
+        for b in self.blocks:
+            ev = b.evaluate(state, False)
+            e2 = np.sum(ev.r * ev.r, axis=1)
+            rho, _ = robust_cost_and_weight(b.loss, b.loss_scale, np.where(ev.valid, e2, 0.0))
+            out.append(np.where(ev.valid, rho, INVALID_COST))
+        return out
+
+    def cost(self, state: State) -> float:
+        """Total robust cost sum(rho(|r|^2)) (= chi^2 without a robust loss)."""
+        return float(sum(c.sum() for c in self.block_costs(state)))
+
+    def retract(self, state: State, dc: np.ndarray, dx: np.ndarray | None) -> State:
+        """The state moved by camera-side steps dc (6N+G,) and point steps dx (3M,)."""
+        N = self.n_poses
+        poses = state.poses.retract(dc[:6 * N].reshape(N, 6)) if N else state.poses
+        points = state.points + (dx.reshape(-1, 3) if dx is not None and self.n_points else 0.0)
+        return State(poses, points, state.globals + dc[6 * N:])
+
+
+@dataclass
+class Normals:
+    """J^T J and J^T r in blocks: camera side U (dense, 6N+G), pose-point coupling Wp (block-sparse 6N x 3M,
+    6x3 blocks), global-point coupling Wg (dense G x 3M), point blocks V (M,3,3), gradients g_c, g_x."""
+
+    U: np.ndarray
+    g_c: np.ndarray
+    Wp: sp.bsr_matrix | None
+    Wg: np.ndarray | None
+    V: np.ndarray
+    g_x: np.ndarray
+    cost: float
+    n_residuals: int
+    observed_c: np.ndarray          # (6N+G,) bool: a free camera-side parameter some residual depends on
+    observed_x: np.ndarray          # (3M,) bool
+    evals: list[BlockEval] = field(default_factory=list)   # whitened, robust-weighted linearisations
+    weights: list[np.ndarray] = field(default_factory=list)  # robust weight per item and block
+    row_offsets: list[int] = field(default_factory=list)
+    wp_blocks: np.ndarray | None = None   # (k,6,3) pose-point coupling of every item with a pose and a point
+    coupling: "CouplingPattern | None" = None   # where those blocks sit in Wp
+    _W: sp.csr_matrix | None = field(default=None, repr=False)
+
+    @property
+    def n_unknowns(self) -> int:
+        return int(self.observed_c.sum() + self.observed_x.sum())
+
+    @property
+    def redundancy(self) -> int:
+        return self.n_residuals - self.n_unknowns
+
+    @property
+    def W(self) -> sp.csr_matrix | None:
+        """The whole camera-side x point coupling (6N+G, 3M) as one sparse matrix."""
+        if self._W is None and self.Wp is not None:
+            parts = [self.Wp.tocsr()] + ([sp.csr_matrix(self.Wg)] if self.Wg is not None and len(self.Wg) else [])
+            self._W = sp.vstack(parts).tocsr()
+        return self._W
+
+    def W_dot(self, x: np.ndarray) -> np.ndarray:
+        """W @ x for x (3M,) or (3M,q)."""
+        out = self.Wp @ x
+        return np.concatenate([out, self.Wg @ x]) if self.Wg is not None and len(self.Wg) else out
+
+    def WT_dot(self, y: np.ndarray) -> np.ndarray:
+        """W^T @ y for y (6N+G,) or (6N+G,q)."""
+        n6 = self.Wp.shape[0]
+        out = self.Wp.T @ y[:n6]
+        return out + self.Wg.T @ y[n6:] if self.Wg is not None and len(self.Wg) else out
+
+
+class Grouper:
+    """Sums over the items of equal index (idx (k,) into n groups) by one sparse indicator product."""
+
+    def __init__(self, idx: np.ndarray, n: int):
+        self.idx, self.n = idx, n
+        k = len(idx)
+        self.G = sp.csr_matrix((np.ones(k), (idx, np.arange(k))), shape=(n, k))
+
+    def sum(self, values: np.ndarray) -> np.ndarray:
+        """(n,...) sums of values (k,...)."""
+        k = len(self.idx)
+        return np.asarray(self.G @ values.reshape(k, -1)).reshape((self.n,) + values.shape[1:])
+
+
+def _grouper(cache: dict, key: str, idx: np.ndarray, n: int) -> Grouper:
+    """A Grouper for idx, reused while a block's index array stays the same object."""
+    g = cache.get(key)
+    if g is None or g.idx is not idx or g.n != n:
+        g = cache[key] = Grouper(idx, n)
+    return g
+
+
+class CouplingPattern:
+    """Where per-item 6x3 pose-point blocks go in the block-sparse Wp (6N x 3M): sorted once, reused."""
+
+    def __init__(self, pose: np.ndarray, point: np.ndarray, N: int, M: int):
+        self.pose, self.point, self.N, self.M = pose, point, N, M
+        self.order = np.lexsort((point, pose))
+        p, q = pose[self.order], point[self.order]
+        self.unique = len(p) < 2 or bool(np.all((p[1:] != p[:-1]) | (q[1:] != q[:-1])))
+        self.indptr = np.searchsorted(p, np.arange(N + 1))
+        self.indices = q
+        self.by_pose = Grouper(pose, N)
+
+    def matrix(self, blocks: np.ndarray) -> sp.bsr_matrix:
+        """Wp-shaped block-sparse matrix of per-item blocks (k,6,3) (an image seeing a point twice: summed)."""
+        B = sp.bsr_matrix((blocks[self.order], self.indices, self.indptr), shape=(6 * self.N, 3 * self.M))
+        if not self.unique:
+            B.sum_duplicates()
+        return B
+
+
+def _group_sum(values: np.ndarray, idx: np.ndarray, n: int) -> np.ndarray:
+    """Sums of values (k,...) over equal idx (k,) into (n,...)."""
+    return Grouper(idx, n).sum(values)
+
+
+def _tdot(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A_k^T B_k for stacks (k,d,a), (k,d,b) -> (k,a,b)."""
+    return np.matmul(A.transpose(0, 2, 1), B)
+
+
+def _weighted(problem: Problem, ev: BlockEval, b: Block) -> tuple[BlockEval, float, np.ndarray]:
+    """The evaluation whitened by the robust weights (IRLS) and masked by the held parameters."""
+    e2 = np.sum(ev.r * ev.r, axis=1)
+    rho, w = robust_cost_and_weight(b.loss, b.loss_scale, np.where(ev.valid, e2, 0.0))
+    cost = float(np.sum(np.where(ev.valid, rho, INVALID_COST)))
+    sw = np.where(ev.valid, np.sqrt(w), 0.0)
+    ev.r = np.where(ev.valid[:, None], ev.r, 0.0) * sw[:, None]
+    if ev.J_pose is not None:
+        ev.J_pose = np.nan_to_num(ev.J_pose) * (sw * problem.pose_free[ev.pose])[:, None, None]
+    if ev.J_point is not None:
+        ev.J_point = np.nan_to_num(ev.J_point) * sw[:, None, None] * problem.point_free[ev.point][:, None, :]
+    if ev.J_glob is not None:
+        ev.J_glob = np.nan_to_num(ev.J_glob) * sw[:, None, None] * problem.global_free[ev.glob][None, None, :]
+    return ev, cost, np.where(ev.valid, w, 0.0)
+
+
+def linearise(problem: Problem, state: State) -> Normals:
+    """Normal equations at `state` (robust losses as iteratively reweighted least squares), assembled block
+    by block from per-item Jacobian products (each item touches at most one pose and one point)."""
+    N, M, G = problem.n_poses, problem.n_points, problem.n_globals
+    nc = problem.n_camera_side
+    U_pp = np.zeros((N, 6, 6))
+    U_pg = np.zeros((N, 6, G))
+    U_gg = np.zeros((G, G))
+    g_p, g_g = np.zeros((N, 6)), np.zeros(G)
+    V, g_x = np.zeros((M, 3, 3)), np.zeros((M, 3))
+    Wg = np.zeros((G, M, 3)) if M else None
+    wp_blk, wp_pose, wp_point, patterns = [], [], [], []
+    evals, weights, offsets = [], [], []
+    cost, row, n_valid = 0.0, 0, 0
+    for b in problem.blocks:
+        ev, c, w = _weighted(problem, b.evaluate(state, True), b)
+        cache = b.__dict__.setdefault("_groupers", {})
+        cost += c
+        r = ev.r
+        A, B, C = ev.J_pose, ev.J_glob, ev.J_point
+        if A is not None:
+            by_pose = _grouper(cache, "pose", ev.pose, N)
+            U_pp += by_pose.sum(_tdot(A, A))
+            g_p += by_pose.sum(np.einsum("kda,kd->ka", A, r))
+        if B is not None:
+            g = ev.glob
+            Bf = B.reshape(-1, len(g))
+            U_gg[np.ix_(g, g)] += Bf.T @ Bf
+            g_g[g] += Bf.T @ r.ravel()
+            if A is not None:
+                U_pg[:, :, g] += by_pose.sum(_tdot(A, B))
+        if C is not None and M:
+            by_point = _grouper(cache, "point", ev.point, M)
+            V += by_point.sum(_tdot(C, C))
+            g_x += by_point.sum(np.einsum("kda,kd->ka", C, r))
+            if A is not None:
+                wp_blk.append(_tdot(A, C))                              # (k,6,3) pose-point coupling
+                wp_pose.append(ev.pose)
+                wp_point.append(ev.point)
+                pat = cache.get("coupling")
+                if pat is None or pat.pose is not ev.pose or pat.point is not ev.point or (pat.N, pat.M) != (N, M):
+                    pat = cache["coupling"] = CouplingPattern(ev.pose, ev.point, N, M)
+                patterns.append(pat)
+            if B is not None:
+                Wg[ev.glob] += by_point.sum(_tdot(B, C)).transpose(1, 0, 2)
+        evals.append(ev)
+        weights.append(w)
+        offsets.append(row)
+        row += r.size
+        n_valid += int(ev.valid.sum()) * r.shape[1]
+    U = np.zeros((nc, nc))
+    idx = 6 * np.arange(N)[:, None] + np.arange(6)
+    U[idx[:, :, None], idx[:, None, :]] = U_pp
+    U[:6 * N, 6 * N:] = U_pg.reshape(6 * N, G)
+    U[6 * N:, :6 * N] = U[:6 * N, 6 * N:].T
+    U[6 * N:, 6 * N:] = U_gg
+    g_c = np.concatenate([g_p.ravel(), g_g])
+    Wp = blocks = pattern = None
+    if M and wp_blk:
+        if len(wp_blk) == 1:
+            blocks, pattern = wp_blk[0], patterns[0]
+        else:   # several observation blocks (cameras): one pattern over all their items
+            blocks = np.concatenate(wp_blk)
+            pattern = CouplingPattern(np.concatenate(wp_pose), np.concatenate(wp_point), N, M)
+        Wp = pattern.matrix(blocks)
+    dU = np.diag(U).copy()
+    observed_c = dU > 0
+    U[np.diag_indices(nc)] = np.where(observed_c, dU, 1.0)
+    dV = np.einsum("naa->na", V)
+    observed_x = (dV > 0).ravel()
+    dV[dV <= 0] = 1.0
+    if Wp is None and Wg is not None and not Wg.any():
+        Wg = None                     # no point is an unknown (all held or known): nothing to eliminate
+    return Normals(U, g_c, Wp, None if Wg is None else Wg.reshape(G, 3 * M), V, g_x.ravel(), cost, n_valid,
+                   observed_c, observed_x, evals, weights, offsets, blocks, pattern)
+
+
+def _block_diag_csr(blocks: np.ndarray) -> sp.csr_matrix:
+    m = len(blocks)
+    return sp.bsr_matrix((blocks, np.arange(m), np.arange(m + 1)), shape=(3 * m, 3 * m)).tocsr()
+
+
+def _damp(A: np.ndarray, lam: float) -> np.ndarray:
+    """A + lam diag(A) over the last two axes."""
+    if lam == 0.0:
+        return A
+    Ad = A.copy()
+    d = np.einsum("...ii->...i", Ad)
+    d += lam * np.maximum(d, 1e-12)
+    return Ad
+
+
+@dataclass
+class Reduced:
+    """The reduced camera system S = U - W V^-1 W^T, its factor and V^-1 (at one damping)."""
+
+    S: np.ndarray
+    Vinv: np.ndarray
+    Vinv_sp: sp.csr_matrix | None
+    scale: np.ndarray
+    factor: tuple | None
+
+
+DENSE_SCHUR_MAX = 4_000_000   # entries of a (6N x 3M) coupling below which the Schur product is a dense GEMM
+
+
+def reduce(nrm: Normals, lam: float = 0.0) -> Reduced:
+    """Eliminate the points (3x3 blocks) from the damped normal equations."""
+    U = _damp(nrm.U, lam)
+    # a tiny diagonal keeps a point seen along one ray (or nearly parallel rays) invertible
+    Vinv = np.linalg.inv(_damp(nrm.V, lam) + V_REGULARISATION * np.eye(3)) if len(nrm.V) else np.zeros((0, 3, 3))
+    Vinv_sp = _block_diag_csr(Vinv) if len(Vinv) else None
+    S = U
+    if nrm.Wp is None and nrm.Wg is not None:
+        raise NotImplementedError("points coupled to globals only")   # every point block has a pose here
+    if nrm.Wp is not None and len(nrm.V):
+        n6, n3 = nrm.Wp.shape
+        pat = nrm.coupling
+        Y = np.matmul(nrm.wp_blocks, Vinv[pat.point])                   # (k,6,3) W_k V_j^-1 per item
+        Yb = pat.matrix(Y)
+        S = U.copy()
+        if n6 * n3 <= DENSE_SCHUR_MAX:
+            S[:n6, :n6] -= Yb.toarray() @ nrm.Wp.T.toarray()
+        else:     # block-sparse product: the points couple only the images that see them
+            S[:n6, :n6] -= (Yb @ nrm.Wp.T).toarray()
+        if nrm.Wg is not None and len(nrm.Wg):
+            G = len(nrm.Wg)
+            Wg3 = nrm.Wg.reshape(G, -1, 3)
+            S_pg = pat.by_pose.sum(np.einsum("kia,gka->kig", Y, Wg3[:, pat.point])).reshape(n6, G)
+            S[:n6, n6:] -= S_pg
+            S[n6:, :n6] -= S_pg.T
+            S[n6:, n6:] -= np.einsum("gmi,mij,hmj->gh", Wg3, Vinv, Wg3)
+    s = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    try:
+        factor = cho_factor(S / s[:, None] / s[None, :], check_finite=False)
+    except (LinAlgError, ValueError):
+        factor = None
+    return Reduced(S, Vinv, Vinv_sp, s, factor)
+
+
+def solve_reduced(red: Reduced, b_c: np.ndarray) -> np.ndarray:
+    """S^-1 b_c (b_c (nc,) or (nc,q)), by the scaled Cholesky factor or least squares when S is singular."""
+    s = red.scale if b_c.ndim == 1 else red.scale[:, None]
+    if red.factor is not None:
+        return cho_solve(red.factor, b_c / s, check_finite=False) / s
+    return np.linalg.lstsq(red.S, b_c, rcond=None)[0]
+
+
+def solve_normals(nrm: Normals, red: Reduced, b_c: np.ndarray, b_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """N^-1 [b_c; b_x] through the Schur complement: camera side (nc,...) and point side (3M,...)."""
+    if red.Vinv_sp is None:
+        return solve_reduced(red, b_c), np.zeros_like(b_x)
+    if nrm.Wp is None:                # points and camera side uncoupled
+        return solve_reduced(red, b_c), red.Vinv_sp @ b_x
+    y = red.Vinv_sp @ b_x
+    dc = solve_reduced(red, b_c - nrm.W_dot(y))
+    dx = red.Vinv_sp @ (b_x - nrm.WT_dot(dc))
+    return dc, dx
+
+
+def step(nrm: Normals, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """The damped Gauss-Newton step (camera side dc, points dx)."""
+    red = reduce(nrm, lam)
+    return solve_normals(nrm, red, -nrm.g_c, -nrm.g_x)

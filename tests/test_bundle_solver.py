@@ -1,0 +1,138 @@
+"""The least-squares engine against dense linear algebra and scipy on a small bundle with every block type."""
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from dgcal.bundle.solver.blocks import (CentrePriors, GlobalPriors, ImageObservations, PointPriors, State)
+from dgcal.bundle.solver.covariance import Covariance, normal_rhs
+from dgcal.bundle.solver.lm import LMOptions, minimise, normals_at
+from dgcal.bundle.solver.normals import Problem, linearise
+from dgcal.calib.camera.models import Fraser7
+from dgcal.fields.pose import Poses
+
+INTR = ("f", "cx", "K1")
+
+
+def _problem(seed=0, noise=0.3):
+    rng = np.random.default_rng(seed)
+    cam = Fraser7((1000, 800), np.array([900.0, 500, 400, -0.05, 0.01, 0, 0, 0, 0, 0]))
+    n_img, n_pt = 5, 40
+    X = np.column_stack([rng.uniform(-20, 20, n_pt), rng.uniform(-20, 20, n_pt), rng.uniform(-3, 3, n_pt)])
+    C = np.column_stack([np.linspace(-10, 10, n_img), rng.uniform(-3, 3, n_img), np.full(n_img, 40.0)])
+    R_c2w = Rotation.from_euler("xyz", np.column_stack([np.full(n_img, 180.0), rng.normal(0, 3, (n_img, 2))]),
+                                degrees=True).as_matrix()
+    truth = Poses.from_cam_to_world(R_c2w, C)
+    ii, jj = np.meshgrid(np.arange(n_img), np.arange(n_pt), indexing="ij")
+    ii, jj = ii.ravel(), jj.ravel()
+    uv = cam.project(truth.to_cam(X[jj], ii)) + rng.normal(0, noise, (len(ii), 2))
+    sig = np.full((len(ii), 2), noise)
+    blocks = [ImageObservations(cam, ii, jj, uv, sig, INTR, 0),
+              PointPriors.from_arrays(X[:6] + rng.normal(0, 0.01, (6, 3)), 0.01),
+              CentrePriors.from_arrays(np.vstack([C[[0, 3]] + rng.normal(0, 0.05, (2, 3)), np.full((3, 3), np.nan)]),
+                                       0.05),
+              GlobalPriors(np.array([2]), np.array([-0.05]), np.array([0.01]))]
+    prob = Problem(blocks, n_img, n_pt, len(INTR))
+    start = State(truth.retract(rng.normal(0, 1e-2, (n_img, 6))), X + rng.normal(0, 0.2, X.shape),
+                  np.array([cam["f"], cam["cx"], cam["K1"]]) + [5.0, 3.0, 0.01])
+    return prob, start
+
+
+def _residual_vector(prob, state):
+    return np.concatenate([b.evaluate(state, False).r.ravel() for b in prob.blocks])
+
+
+def _dense_jacobian(prob, state, h=1e-6):
+    """d r / d [poses (6N, right perturbation), points (3M), globals (G)] by central differences."""
+    N, M, G = prob.n_poses, prob.n_points, prob.n_globals
+    n = 6 * N + 3 * M + G
+    J = np.empty((len(_residual_vector(prob, state)), n))
+    for k in range(n):
+        d = np.zeros(n)
+        d[k] = h
+        moved = []
+        for s in (1, -1):
+            dd = s * d
+            st = State(state.poses.retract(dd[:6 * N].reshape(N, 6)), state.points + dd[6 * N:6 * N + 3 * M].reshape(M, 3),
+                       state.globals + dd[6 * N + 3 * M:])
+            moved.append(_residual_vector(prob, st))
+        J[:, k] = (moved[0] - moved[1]) / (2 * h)
+    return J
+
+
+def test_analytic_jacobians_match_finite_differences():
+    prob, start = _problem()
+    nrm = linearise(prob, start)
+    Jd = _dense_jacobian(prob, start)
+    N, M = prob.n_poses, prob.n_points
+    # engine normals from analytic Jacobians vs the dense finite-difference normal matrix
+    Nd = Jd.T @ Jd
+    cam = np.r_[0:6 * N, 6 * N + 3 * M:Jd.shape[1]]
+    tol = 1e-7 * np.abs(Nd).max()      # finite-difference noise
+    np.testing.assert_allclose(nrm.U, Nd[np.ix_(cam, cam)], rtol=2e-4, atol=tol)
+    Vd = np.array([Nd[6 * N + 3 * j:6 * N + 3 * j + 3, 6 * N + 3 * j:6 * N + 3 * j + 3] for j in range(M)])
+    np.testing.assert_allclose(nrm.V, Vd, rtol=2e-4, atol=tol)
+    np.testing.assert_allclose(nrm.W.toarray(), Nd[np.ix_(cam, np.r_[6 * N:6 * N + 3 * M])], rtol=2e-4, atol=tol)
+
+
+def test_minimum_and_covariances_equal_dense_least_squares():
+    prob, start = _problem()
+    sol = minimise(prob, start, LMOptions(tol_chi2=1e-9, tol_rel=1e-15))
+    assert sol.converged
+    N, M, G = prob.n_poses, prob.n_points, prob.n_globals
+
+    def fun(z):
+        st = State(start.poses.retract(z[:6 * N].reshape(N, 6)), start.points + z[6 * N:6 * N + 3 * M].reshape(M, 3),
+                   start.globals + z[6 * N + 3 * M:])
+        return _residual_vector(prob, st)
+
+    ref = least_squares(fun, np.zeros(6 * N + 3 * M + G), method="lm", xtol=1e-14, ftol=1e-14)
+    assert sol.cost == pytest.approx(2 * ref.cost, rel=1e-7)
+    # covariances: the engine's Schur cofactors vs the dense inverse of J^T J at the minimum
+    nrm = normals_at(prob, sol)
+    cov = Covariance.at(prob, nrm)
+    Jd = _dense_jacobian(prob, sol.state)
+    Qd = np.linalg.inv(Jd.T @ Jd)
+    cam = np.r_[0:6 * N, 6 * N + 3 * M:Jd.shape[1]]
+    np.testing.assert_allclose(cov.Q_cc, Qd[np.ix_(cam, cam)], rtol=1e-3, atol=1e-12)
+    Qp = np.array([Qd[6 * N + 3 * j:6 * N + 3 * j + 3, 6 * N + 3 * j:6 * N + 3 * j + 3] for j in range(M)])
+    np.testing.assert_allclose(cov.point_cofactors(), Qp, rtol=1e-3, atol=1e-12)
+    np.testing.assert_allclose(cov.global_cofactors(), Qd[-G:, -G:], rtol=1e-3)
+    # redundancy numbers of the image observations: 1 - diag(J Q J^T)
+    H = Jd @ Qd @ Jd.T
+    k = len(prob.blocks[0])
+    np.testing.assert_allclose(cov.redundancy_numbers(0), (1 - np.diag(H)[:2 * k]).reshape(k, 2), atol=1e-4)
+    total = sum(cov.redundancy_numbers(b).sum() for b in range(len(prob.blocks)))
+    assert total == pytest.approx(nrm.redundancy, rel=1e-3)
+    # response to a disturbance of the centre priors: N^-1 J^T B, against the dense solve
+    B = np.random.default_rng(3).normal(size=(6, 1, 2))
+    b_c, b_x = normal_rhs(prob, nrm, 2, B)
+    x_c, x_x = cov.response(b_c, b_x)
+    Bfull = np.zeros((Jd.shape[0], 2))
+    off = nrm.row_offsets[2]
+    Bfull[off:off + 6] = B.reshape(6, 2)
+    ref_resp = Qd @ Jd.T @ Bfull
+    np.testing.assert_allclose(x_c, ref_resp[cam], rtol=1e-3, atol=1e-10)
+
+
+def test_held_parameters_stay_and_are_not_counted():
+    prob, start = _problem()
+    prob.pose_free[1] = False
+    prob.point_free[7] = [False, False, True]
+    prob.global_free[2] = False
+    sol = minimise(prob, start)
+    np.testing.assert_allclose(sol.state.poses.C_world[1], start.poses.C_world[1])
+    np.testing.assert_allclose(sol.state.points[7, :2], start.points[7, :2])
+    assert sol.state.globals[2] == start.globals[2]
+    nrm = normals_at(prob, sol)
+    assert nrm.n_unknowns == 6 * 4 + 3 * 40 - 2 + 2
+    cov = Covariance.at(prob, nrm)
+    assert np.isnan(cov.pose_cofactors()[1]).all() and np.isfinite(cov.pose_cofactors()[0]).all()
+    Qp = cov.point_cofactors(np.array([7]))[0]
+    assert np.isnan(Qp[0, 0]) and np.isfinite(Qp[2, 2])
+
+
+def test_iteration_limit_is_reported_as_not_converged():
+    prob, start = _problem()
+    sol = minimise(prob, start, LMOptions(max_iterations=1))
+    assert not sol.converged and "iteration limit" in sol.stop_reason
