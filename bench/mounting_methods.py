@@ -55,7 +55,7 @@ def bundle_eop(sim, flight):
 def main(seed: int = 7) -> None:
     from dgcal.calib.dg.accuracy import check_points_dg
     from dgcal.calib.mounting.methods import calibrate_mounting
-    from dgcal.calib.mounting.common import so3_log
+    from dgcal.fields.pose import so3_log
     from dgcal.calib.mounting.integrated import calibrate_iso
     from dgcal.fields.crs import MapGrid
     from dgcal.sim.mounting import simulate_mounting

@@ -32,6 +32,18 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
 
 
+def so3_right_jacobian_inv(phi: np.ndarray) -> np.ndarray:
+    """(...,3,3) inverse right Jacobian of SO(3) at rotation vectors phi (...,3): Log(Exp(phi) Exp(d)) ~ phi + Jr^-1 d."""
+    phi = np.asarray(phi, float)
+    th = np.linalg.norm(phi, axis=-1)[..., None, None]
+    K = np.zeros(phi.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -phi[..., 2], phi[..., 1], -phi[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = phi[..., 2], -phi[..., 1], phi[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.where(th > 1e-6, 1.0 / th**2 - (1 + np.cos(th)) / (2 * th * np.sin(th)), 1.0 / 12.0)
+    return np.eye(3) + 0.5 * K + c * (K @ K)
+
+
 def transpose(R: np.ndarray) -> np.ndarray:
     """Transpose of the last two axes (the inverse of stacked rotations)."""
     return np.swapaxes(R, -1, -2)

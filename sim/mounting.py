@@ -16,7 +16,9 @@ from scipy.spatial.transform import Rotation
 
 from dgcal.calib.camera.files import write_camera_json
 from dgcal.calib.camera.models import Fraser7
-from dgcal.calib.mounting.common import BlockFrame, T, so3_exp, so3_log
+from dgcal.calib.mounting.common import BlockFrame
+from dgcal.fields.pose import so3_exp, so3_log
+from dgcal.fields.pose import transpose as T
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph

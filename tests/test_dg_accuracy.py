@@ -5,7 +5,8 @@ import pytest
 from dgcal.calib.dg.eop import dg_eop
 from dgcal.calib.dg.accuracy import asprs_2023, check_points_dg, error_stats, improvement_rate, improvement_table
 from dgcal.calib.mounting.methods import calibrate_mounting
-from dgcal.calib.mounting.common import MountingResult, so3_log
+from dgcal.calib.mounting.common import MountingResult
+from dgcal.fields.pose import so3_log
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.frames import R_cam_to_map_from_opk
 from dgcal.sim.mounting import simulate_mounting

@@ -2,7 +2,7 @@
 import numpy as np
 
 from dgcal.bundle.intersection import intersect, propagate_pose_covariance
-from dgcal.calib.mounting.common import so3_exp
+from dgcal.fields.pose import so3_exp
 from dgcal.sim.mounting import mounting_flight_camera
 
 

@@ -4,7 +4,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dgcal.calib.mounting.methods import calibrate_mounting, prepare_epochs
-from dgcal.calib.mounting.common import BlockFrame, so3_log
+from dgcal.calib.mounting.common import BlockFrame
+from dgcal.fields.pose import so3_log
 from dgcal.calib.mounting.observability import observability_warnings
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.io.formats import EOP, Trajectory

@@ -1,7 +1,8 @@
 """dgcal compare: a significant mounting change is detected, an unchanged one is not."""
 import numpy as np
 
-from dgcal.calib.mounting.common import MountingResult, so3_exp
+from dgcal.calib.mounting.common import MountingResult
+from dgcal.fields.pose import so3_exp
 from dgcal.calib.mounting.compare import compare_mountings
 
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from dgcal.calib.mounting.common import so3_log
+from dgcal.fields.pose import so3_log
 from dgcal.calib.mounting.integrated import calibrate_iso
 from dgcal.cli import main
 from dgcal.fields.crs import MapGrid

@@ -2,7 +2,7 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dgcal.fields.pose import Poses, so3_exp, so3_log
+from dgcal.fields.pose import Poses, so3_exp, so3_log, so3_right_jacobian_inv
 
 
 def _random_poses(n=5, seed=0):
@@ -40,3 +40,11 @@ def test_a_small_rotation_error_moves_camera_points_as_documented():
     Xc = p.to_cam(X)[0]
     Xc2 = p.retract(np.r_[0, 0, 0, dth][None]).to_cam(X)[0]
     np.testing.assert_allclose(Xc2 - Xc, -np.cross(dth, Xc), atol=1e-9)
+
+
+def test_inverse_right_jacobian_linearises_the_log():
+    rng = np.random.default_rng(4)
+    for phi in (rng.normal(0, 0.5, 3), np.array([1e-8, 0, 0]), np.array([0.0, 2.5, 0.3])):
+        d = rng.normal(0, 1e-6, 3)
+        lhs = so3_log(so3_exp(phi) @ so3_exp(d)) - phi
+        np.testing.assert_allclose(lhs, so3_right_jacobian_inv(phi) @ d, atol=1e-11)

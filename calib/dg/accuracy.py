@@ -13,7 +13,8 @@ import numpy as np
 from dgcal.bundle.intersection import intersect, propagate_pose_covariance
 from dgcal.calib.camera.files import load_camera
 from dgcal.calib.dg.eop import dg_poses
-from dgcal.calib.mounting.common import BlockFrame, MountingResult, T, read_mounting_json
+from dgcal.calib.mounting.common import BlockFrame, MountingResult, read_mounting_json
+from dgcal.fields.pose import transpose as T
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import Events, Measurements, Points, Trajectory, read_events, read_points, read_trajectory

@@ -16,8 +16,8 @@ import numpy as np
 
 from dgcal.calib.camera.files import load_camera
 from dgcal.calib.camera.models import CameraModel
-from dgcal.calib.mounting.common import (BlockFrame, MountingResult, PoseAt, T, numeric_rot_jacobian, pos_covariance_world,
-                                   pose_at_times, read_mounting_json)
+from dgcal.calib.mounting.common import (BlockFrame, MountingResult, PoseAt, numeric_rot_jacobian, pos_covariance_world, pose_at_times, read_mounting_json)
+from dgcal.fields.pose import transpose as T
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, Events, Trajectory, read_events, read_trajectory

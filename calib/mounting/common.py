@@ -20,33 +20,18 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dgcal.fields.crs import LocalENU, MapGrid
+from dgcal.fields.pose import so3_log
+from dgcal.fields.pose import transpose as T
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, Events, Trajectory
 from dgcal.fields.frames import (R_NED_TO_ENU, R_ENU_TO_NED, R_body_to_ned_from_rph, R_cam_to_map_from_opk,
                            opk_from_R_cam_to_map, rph_from_R_body_to_ned)
 
 
-# --- SO(3) -------------------------------------------------------------------------------------
-def so3_exp(v: np.ndarray) -> np.ndarray:
-    """Rotation matrices (...,3,3) of rotation vectors (...,3) (rad)."""
-    v = np.asarray(v, float)
-    return Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(v.shape[:-1] + (3, 3))
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors (...,3) (rad) of rotation matrices (...,3,3)."""
-    R = np.asarray(R, float)
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
-
-
+# --- SO(3): dgcal.fields.pose holds the helpers; the rotation mean is the mounting's own ------------
 def rotation_mean(R: np.ndarray) -> np.ndarray:
     """Chordal L2 mean of rotation matrices (N,3,3)."""
     return Rotation.from_matrix(R).mean().as_matrix()
-
-
-def T(R: np.ndarray) -> np.ndarray:
-    """Transpose of the last two axes."""
-    return np.swapaxes(R, -1, -2)
 
 
 # --- the block frame ---------------------------------------------------------------------------

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from dgcal.calib.mounting.common import MountingResult, read_mounting_json, so3_log
+from dgcal.calib.mounting.common import MountingResult, read_mounting_json
+from dgcal.fields.pose import so3_log
 
 
 @dataclass

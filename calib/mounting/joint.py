@@ -22,10 +22,16 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from dgcal.calib.mounting.common import Epochs, MountingResult, T, so3_exp, so3_log
+from dgcal.bundle.solver.blocks import BlockEval, FunctionBlock, State
+from dgcal.bundle.solver.covariance import Covariance, normal_rhs
+from dgcal.bundle.solver.lm import LMOptions, minimise
+from dgcal.bundle.solver.normals import Problem, linearise
+from dgcal.calib.mounting.common import Epochs, MountingResult
 from dgcal.calib.mounting.two_step import calibrate_traditional
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import skew
+from dgcal.fields.pose import Poses, so3_exp, so3_log
+from dgcal.fields.pose import transpose as T
 
 DEFAULT_EOP_SIGMA = (0.05, np.radians(0.01))        # m, rad when the EOP file has no sigmas
 DEFAULT_POS_SIGMA = (0.10, np.radians(0.02), np.radians(0.05))  # m, roll/pitch rad, heading rad
@@ -82,17 +88,34 @@ def _pos_cov(ep: Epochs) -> np.ndarray:
     return default_cov(len(ep), DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2 + DEFAULT_POS_SIGMA[2:])
 
 
-def _jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray, W: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """Whitened d(prediction)/d(free parameters), by central differences, (6N, len(free))."""
-    J = np.empty((6 * len(ep), len(free)))
-    for k, j in enumerate(free):
-        h = 1e-6 if j > 0 else 1e-5
-        dx = np.zeros(7)
-        dx[j] = h
-        rp = np.einsum("nij,nj->ni", W, residuals(ep, x + dx, R_hat)).ravel()
-        rm = np.einsum("nij,nj->ni", W, residuals(ep, x - dx, R_hat)).ravel()
-        J[:, k] = -(rp - rm) / (2 * h)  # residual = obs - pred, so d(pred)/dx = -d(residual)/dx
-    return J
+def _epoch_block(ep: Epochs, R_hat: np.ndarray, W: np.ndarray) -> FunctionBlock:
+    """The engine block of the per-epoch residuals, whitened by W (N,6,6) and linear in nothing but the 7
+    mounting globals x = [dt, l_b, theta_b] (d/dx by central differences)."""
+
+    def fun(state: State, jacobians: bool) -> BlockEval:
+        x = state.globals
+        r = np.einsum("nij,nj->ni", W, residuals(ep, x, R_hat))
+        ev = BlockEval(r, np.ones(len(ep), bool))
+        if jacobians:
+            J = np.empty((len(ep), 6, 7))
+            for j in range(7):
+                h = 1e-6 if j > 0 else 1e-5
+                dx = np.zeros(7)
+                dx[j] = h
+                J[:, :, j] = (np.einsum("nij,nj->ni", W, residuals(ep, x + dx, R_hat))
+                              - np.einsum("nij,nj->ni", W, residuals(ep, x - dx, R_hat))) / (2 * h)
+            ev.glob, ev.J_glob = np.arange(7), J
+        return ev
+
+    return FunctionBlock(fun, len(ep), 6, name="epochs")
+
+
+def _problem(ep: Epochs, R_hat: np.ndarray, W: np.ndarray, fix_delay: bool) -> Problem:
+    return Problem([_epoch_block(ep, R_hat, W)], 0, 0, 7, global_free=np.arange(7) >= (1 if fix_delay else 0))
+
+
+def _no_poses(x: np.ndarray) -> State:
+    return State(Poses(np.zeros((0, 3, 3)), np.zeros((0, 3))), np.zeros((0, 3)), np.asarray(x, float).copy())
 
 
 def common_mode_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray, fix_delay: bool) -> np.ndarray:
@@ -106,9 +129,11 @@ def common_mode_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray, fix_del
     """
     free = np.arange(1 if fix_delay else 0, 7)
     W = _whiten(residual_covariance(ep, x, R_hat))
-    J = _jacobian(ep, x, R_hat, W, free)
-    B = np.einsum("nij,njk->nik", W, pos_error_jacobian(ep, x, R_hat)).reshape(-1, 6)
-    S = np.linalg.solve(J.T @ J, J.T @ B)
+    prob = _problem(ep, R_hat, W, fix_delay)
+    nrm = linearise(prob, _no_poses(x))
+    B = np.einsum("nij,njk->nik", W, pos_error_jacobian(ep, x, R_hat))
+    b_c, b_x = normal_rhs(prob, nrm, 0, B)
+    S = Covariance.at(prob, nrm).response(b_c, b_x)[0][free]
     C = np.zeros((7, 7))
     C[np.ix_(free, free)] = S @ _pos_cov(ep).mean(axis=0) @ S.T
     return C
@@ -121,24 +146,27 @@ def _whiten(C: np.ndarray) -> np.ndarray:
 
 
 def _solve(ep: Epochs, R_hat: np.ndarray, x0: np.ndarray, fix_delay: bool, iters: int = 20):
+    """Weighted least squares with the weights of the residual covariance at the current solution: the engine
+    solves for fixed weights, the weights and the boresight's reference R_hat are renewed until x settles."""
     x = x0.copy()
     free = np.arange(1 if fix_delay else 0, 7)
     for _ in range(iters):
         W = _whiten(residual_covariance(ep, x, R_hat))
-        r = np.einsum("nij,nj->ni", W, residuals(ep, x, R_hat)).ravel()
-        J = _jacobian(ep, x, R_hat, W, free)
-        N = J.T @ J
-        step = np.linalg.solve(N, J.T @ r)
-        x[free] += step
+        sol = minimise(_problem(ep, R_hat, W, fix_delay), _no_poses(x),
+                       LMOptions(max_iterations=50, tol_chi2=1e-12, tol_rel=1e-16))
+        step = sol.state.globals - x
+        x = sol.state.globals.copy()
         R_hat = so3_exp(x[4:7]) @ R_hat
         x[4:7] = 0.0
-        if np.max(np.abs(step)) < 1e-10:
+        if np.max(np.abs(step[free])) < 1e-10:
             break
     W = _whiten(residual_covariance(ep, x, R_hat))
     e = residuals(ep, x, R_hat)
     Tstat = np.einsum("ni,ni->n", np.einsum("nij,nj->ni", W, e), np.einsum("nij,nj->ni", W, e))
+    prob = _problem(ep, R_hat, W, fix_delay)
+    Q = Covariance.at(prob, linearise(prob, _no_poses(x))).global_cofactors()
     Ninv = np.zeros((7, 7))
-    Ninv[np.ix_(free, free)] = np.linalg.inv(N)
+    Ninv[np.ix_(free, free)] = Q[np.ix_(free, free)]
     return x, R_hat, e, Tstat, Ninv
 
 

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from dgcal.calib.mounting.common import Epochs, MountingResult, T, rotation_mean, so3_log
+from dgcal.calib.mounting.common import Epochs, MountingResult, rotation_mean
+from dgcal.fields.pose import so3_log
+from dgcal.fields.pose import transpose as T
 
 
 def per_epoch_values(ep: Epochs) -> tuple[np.ndarray, np.ndarray]:
