@@ -21,11 +21,12 @@ def bundle_eop(sim, flight):
     """EOPs (map CRS, with full covariances) of a GCP-only bundle of the flight's image measurements."""
     from dgcal.bundle.adjustment import BundleInput, adjust
     from dgcal.bundle.intersection import intersect
-    from dgcal.calib.dg.eop import pose_cov_to_map
     from dgcal.fields.io.formats import EOP
-    frame = flight.frame
+    from dgcal.fields.pose import Poses
+    world = flight.world
     names = [str(s) for s in flight.eop.image]
-    C0, R0 = frame.eop_to_world(flight.eop.xyz, flight.eop.opk)
+    p0 = world.eop_to_poses(flight.eop.xyz, flight.eop.opk)
+    C0, R0 = p0.C_world, p0.R_cam_to_world
     m = flight.measurements
     img = {k: i for i, k in enumerate(names)}
     pts = list(dict.fromkeys(str(k) for k in m.id))
@@ -39,15 +40,13 @@ def bundle_eop(sim, flight):
     for k, j in pid.items():
         r = gid[k]
         if sim.ground.role[r] == "control":
-            prior[j] = frame.map_to_world(sim.ground.xyz[r][None])[0]
+            prior[j] = world.to_world(sim.ground.xyz[r][None])[0]
             psig[j] = sim.ground.sigma[r]
-    inp = BundleInput(sim.camera, names, np.swapaxes(R0, -1, -2), C0, pts, X0, oi, op, m.xy, m.sigma, prior, psig)
+    inp = BundleInput(sim.camera, names, p0.R_world_to_cam, C0, pts, X0, oi, op, m.xy, m.sigma, prior, psig)
     from dgcal.bundle.adjustment import BundleOptions
     res = adjust(inp, BundleOptions(loss="none"))
-    R_cv = np.swapaxes(res.R_world_to_cam, -1, -2)
-    xyz, opk = frame.world_to_eop(res.C_world, R_cv)
     print(f"bundle pose covariance: min diagonal {np.min(np.diagonal(res.cov_pose, axis1=1, axis2=2)):.3g}")
-    cov = pose_cov_to_map(frame, xyz, opk, res.cov_pose)  # left camera-frame perturbation = -right: same cov
+    xyz, opk, cov = world.poses_to_eop(Poses(res.R_world_to_cam, res.C_world, res.cov_pose))
     sig = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
     return EOP(flight.eop.image, xyz, opk, sig, cov), res.sigma0
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from dgcal.fields.errors import InputError
@@ -17,7 +18,6 @@ from dgcal.fields.io.formats import Measurements
 
 def aruco_dictionary(name: str):
     """An OpenCV predefined ArUco dictionary by name (e.g. 'DICT_4X4_50'); InputError if unknown."""
-    import cv2
     key = name.strip().upper()
     if not key.startswith("DICT_"):
         key = "DICT_" + key
@@ -40,7 +40,6 @@ def _diagonal_centre(c: np.ndarray) -> np.ndarray:
 def detect_gcp_targets(image_dir: str | Path, names: list[str], dictionary: str = "DICT_4X4_50",
                        id_format: str = "{}", sigma_px: float = 0.3) -> Measurements:
     """Measurements (px) of ArUco GCP targets in the images; markers seen twice in one image are dropped."""
-    import cv2
     det = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), cv2.aruco.DetectorParameters())
     img_l, id_l, xy_l = [], [], []
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)

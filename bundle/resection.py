@@ -4,6 +4,7 @@ Frames as in `dgcal.bundle.adjustment`: `R_world_to_cam`, `C_world` in a local C
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from dgcal.calib.camera.models import CameraModel
@@ -16,7 +17,6 @@ def pnp(camera: CameraModel, uv: np.ndarray, X_world: np.ndarray, threshold_px: 
     Pixels are undistorted to ideal normalised coordinates first, so PnP runs on an identity camera.
     RANSAC (threshold in pixels) when there are 6 or more points, then Levenberg-Marquardt refinement.
     """
-    import cv2
     uv = np.asarray(uv, float)
     X = np.asarray(X_world, float)
     if len(uv) < 4:
@@ -140,7 +140,6 @@ def relative_bootstrap(camera: CameraModel, n_images: int, obs_image: np.ndarray
     """Orientation without any image seeing 4 control points: relative orientation of the pair with the
     most common points (essential matrix), growth in that model frame, then a 3-D similarity onto the
     control points triangulated in it. Returns grow_orientation's tuple in the world frame, or None."""
-    import cv2
     oi, op = np.asarray(obs_image, int), np.asarray(obs_point, int)
     m = len(X_known)
     known = np.isfinite(X_known).all(1)

@@ -60,7 +60,7 @@ def extract_tie_points(image_dir: str | Path, names: list[str] | None = None,
     Each verified track (no two features in one image) of length >= `min_track` becomes a point id
     `prefix + n`; every observation's sigma is left NaN (the caller's default applies).
     """
-    import pycolmap
+    import pycolmap   # deferred: a module-level pycolmap import gave an import-order heap corruption
     pycolmap.logging.minloglevel = 1   # COLMAP's per-image INFO lines would drown the command's output
     image_dir = Path(image_dir)
     names = list(names) if names is not None else list_images(image_dir)

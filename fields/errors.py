@@ -19,3 +19,8 @@ class InputError(ValueError):
             message = f"field '{field}': {message}"
         super().__init__(where + message)
         self.path, self.line, self.field = path, line, field
+
+
+class ResultError(InputError):
+    """A result that cannot be trusted from these inputs (no convergence, sigma0 far from 1, images left out):
+    the message gives the figures that failed; the command exits non-zero and writes nothing."""

@@ -49,6 +49,18 @@ def transpose(R: np.ndarray) -> np.ndarray:
     return np.swapaxes(R, -1, -2)
 
 
+def numeric_rot_jacobian(fun, x0: np.ndarray, R0: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    """d delta / d x (N,3,k) by central differences, where fun(x (N,k)) -> (N,3,3) and delta = Log(R0^T fun(x))
+    is the right perturbation (rad) of R0 (N,3,3); x in the units of x0 (N,k)."""
+    n, k = x0.shape
+    J = np.empty((n, 3, k))
+    for j in range(k):
+        d = np.zeros(k)
+        d[j] = step
+        J[:, :, j] = (so3_log(transpose(R0) @ fun(x0 + d)) - so3_log(transpose(R0) @ fun(x0 - d))) / (2 * step)
+    return J
+
+
 @dataclass
 class Poses:
     """N poses in one world frame, with optional (N,6,6) covariances [C_world (m), dtheta (rad)]."""

@@ -284,6 +284,19 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
             '<a href="#triangulation">Triangulation</a><a href="#pos">POS</a><a href="#mounting">Mounting</a>'
             '<a href="#dg">DG accuracy</a><a href="#warnings">Warnings</a></p>')
     rep.kv_table([("campaign file", d["campaign"]), ("map CRS", d.get("crs")), ("generated (UTC)", d["generated_utc"])])
+    _summary_section(rep, d)
+    _camera_section(rep, d, out, files)
+    _triangulation_section(rep, d, out, cfg, files)
+    _pos_section(rep, d, out, files)
+    _mounting_section(rep, d, out, files)
+    _dg_section(rep, d, out, files)
+    rep.raw('<h2 id="warnings">Warnings</h2>')
+    rep.warnings(d.get("warnings", []))
+    return rep.render()
+
+
+def _summary_section(rep: HtmlReport, d: dict) -> None:
+    """The summary: the chosen mounting, DG accuracy per method, steps, errors against a simulation's truth."""
     rep.raw('<h2 id="summary">Summary</h2>')
     mounts = d.get("mounting", {})
     chosen = d.get("mounting_method")
@@ -326,6 +339,9 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
                   rows)
         rep.text("Errors are estimate − truth; in brackets the error in units of the reported sigma.", cls="small")
 
+
+def _camera_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
+    """The camera calibration: model, fit, parameters (against the truth when simulated), distortion."""
     rep.raw('<h2 id="camera">Camera</h2>')
     cam = d.get("camera")
     if cam:
@@ -334,7 +350,7 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
                       ("rejected", cam.get("n_rejected")), ("images", cam.get("n_images")),
                       ("sigma0", cam.get("sigma0"))])
         sig = cam.get("sigmas") or {}
-        truth_cam = (tc or {}).get("camera", {})
+        truth_cam = (d.get("truth_comparison") or {}).get("camera", {})
         hdr = ["parameter", "value", "sigma"] + (["error vs truth", "error / sigma"] if truth_cam else [])
         rows = []
         for k, v in (cam.get("parameters") or {}).items():
@@ -352,6 +368,9 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
     else:
         rep.text("No camera step in this campaign.")
 
+
+def _triangulation_section(rep: HtmlReport, d: dict, out: Path, cfg: dict, files: dict) -> None:
+    """The aerial triangulation: fit statistics, check/control RMSE, the block plot."""
     rep.raw('<h2 id="triangulation">Aerial triangulation</h2>')
     tri = d.get("triangulation")
     if tri:
@@ -368,6 +387,9 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
     else:
         rep.text("No triangulation step in this campaign.")
 
+
+def _pos_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
+    """The GNSS/INS smoothing: summary, residuals, the sigma plot."""
     rep.raw('<h2 id="pos">POS (GNSS/INS smoothing)</h2>')
     pos = d.get("pos")
     if pos:
@@ -381,7 +403,12 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
     else:
         rep.text("No POS step in this campaign (an external trajectory was used).")
 
+
+def _mounting_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
+    """The mounting of every method: table, correlations of the chosen one, per-epoch plot."""
     rep.raw('<h2 id="mounting">Mounting: lever arm, boresight, exposure delay</h2>')
+    mounts = d.get("mounting", {})
+    chosen = d.get("mounting_method")
     if mounts:
         rep.table(["method", "delay (s)", "lever x (m)", "lever y (m)", "lever z (m)", "roll (°)", "pitch (°)",
                    "yaw (°)", "boresight sigmas x,y,z (°)", "epochs", "rejected"], _mount_rows(mounts))
@@ -399,7 +426,11 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
     else:
         rep.text("No mounting step in this campaign.")
 
+
+def _dg_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
+    """DG accuracy on check points per method: statistics, predicted budget, ASPRS 2023, improvement rates."""
     rep.raw('<h2 id="dg">Direct georeferencing accuracy on check points</h2>')
+    chk = d.get("check", {}).get("checks", {})
     if chk:
         for k, c in chk.items():
             rep.heading(f"{k}", 3)
@@ -425,10 +456,6 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
         _link(rep, out, files["check"].get("report"), "per-point table")
     else:
         rep.text("No DG check in this campaign.")
-
-    rep.raw('<h2 id="warnings">Warnings</h2>')
-    rep.warnings(d.get("warnings", []))
-    return rep.render()
 
 
 def _m(v, nd: int = 4) -> str:

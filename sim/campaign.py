@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -234,14 +235,106 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     # triad's non-orthogonality ends up in the calibrated boresight)
     imu, imu_err = simulate_imu(traj, imu_grade, seed=seed + 1, misalignment=False)
     events = camera_events(traj, distance_m=event_distance_m, delay_s=delay_s)
-    t_exp = events.t + delay_s
-    at = traj.at(t_exp)
+    at = traj.at(events.t + delay_s)
     C_ecef = at.p_ecef + np.einsum("nij,j->ni", at.R_body_to_ecef, lever)
     R_cam_to_ecef = at.R_body_to_ecef @ R_cb
     names = np.asarray(events.image, dtype=object)
 
-    # 2. ground points on the terrain: control and check points over the low block, tie points everywhere
-    C_enu = enu.from_ecef(C_ecef)
+    # 2. ground points on the terrain and their image measurements; the true EOPs
+    gp = _ground_points(rng, enu, enu.from_ecef(C_ecef), heights_agl, n_strips, strip_length_m, strip_spacing_m,
+                        strip_heading_deg, n_control, n_check, n_tie)
+    ims = _image_measurements(rng, camera, C_ecef, R_cam_to_ecef, names, gp, noise_px)
+    gp_map = grid.from_ecef(gp.gp_ecef)
+    sig = np.tile(np.asarray(gcp_sigma, float), (len(gp.gp_ids), 1))
+    gp_map_obs = gp_map + rng.normal(0, 1.0, gp_map.shape) * sig  # surveyed coordinates carry their sigmas
+    C_map, opk = _true_eops(grid, C_ecef, R_cam_to_ecef)
+
+    # 3. GNSS antenna: PPK-like positions (lc) or pseudoranges (tc)
+    t_gnss, p_ant, v_ant = _antenna(traj, lever_g, gnss_rate_hz)
+
+    with staged_dir(Path(out)) as tmp:
+        fl = tmp / "flight"
+        fl.mkdir()
+        field_info = _camera_field(tmp / "field", camera, rng, field_images, field_noise_px)
+        write_points(fl / "gcp.csv", Points(gp.gp_ids, gp_map_obs, sig, gp.role), with_role=True)
+        ims.write(fl, noise_px)
+        write_events(fl / "events.csv", events)
+        write_kf_gins(fl / "imu.txt", imu)
+        if gnss_mode == "lc":
+            _write_gnss_lc(fl / "gnss.csv", rng, grid, t_gnss, p_ant, v_ant, gnss_sigma_enu, gnss_sigma_v)
+        else:
+            obs = simulate_gnss(t_gnss, p_ant, v_ant, None, seed=seed + 2, sigma_pr=sigma_pr, systems=("G", "E"),
+                                prepare=False)
+            write_rinex_obs(fl / "rover.obs", obs)
+            shutil.copyfile(DEFAULT_NAV, fl / "nav.rnx")
+        tr = tmp / "truth"
+        tr.mkdir()
+        write_eop(tr / "eop.csv", EOP(names, C_map, opk))
+        write_trajectory(tr / "trajectory.csv", traj.as_trajectory(max(1, int(round(imu_rate_hz / 10)))))
+        write_points(tr / "gcp.csv", Points(gp.gp_ids, gp_map, sig, gp.role), with_role=True)
+        with atomic_write(tr / "camera.json") as fh:
+            json.dump(camera_json_dict(camera), fh, indent=1)
+        truth = {
+            "simulator": "campaign", "seed": int(seed), "crs": crs, "site": {"lat": lat0, "lon": lon0, "h_ground": h0},
+            "convergence_deg": float(grid.convergence_deg(lat0, lon0)),
+            "lever_arm_m": lever.tolist(), "boresight_R_cam_to_body": R_cb.tolist(),
+            "boresight_deg_about_nominal": list(boresight_deg), "delay_s": float(delay_s),
+            "lever_arm_gnss_m": lever_g.tolist(),
+            "camera": camera_json_dict(camera),
+            "flight": {"heights_agl_m": list(heights_agl), "n_strips": n_strips, "strip_length_m": strip_length_m,
+                       "strip_spacing_m": strip_spacing_m, "strip_heading_deg": strip_heading_deg,
+                       "airspeed_mps": list(speeds_mps), "duration_s": float(traj.t[-1] - traj.t[0]),
+                       "n_images": int(len(names)), "event_distance_m": event_distance_m,
+                       "gsd_m": {f"{H:g}": float(H / camera["f"]) for H in heights_agl}},
+            "imu": imu_err.as_dict() | {"rate_hz": imu_rate_hz},
+            "gnss": _gnss_truth(gnss_mode, gnss_rate_hz, gnss_sigma_enu, gnss_sigma_v, sigma_pr),
+            "image_noise_px": noise_px, "gcp_sigma_m": list(gcp_sigma),
+            "n_control": n_control, "n_check": n_check, "n_tie_points": int(len(np.unique(ims.tie_id))),
+            "n_observations": {"ground": int(len(ims.gp_image)), "tie": int(len(ims.tie_image))},
+            "camera_field": field_info,
+            "files": {"eop": "truth/eop.csv (true EOPs at the exposures, map CRS)",
+                      "trajectory": "truth/trajectory.csv (true IMU trajectory, 10 Hz)",
+                      "gcp": "truth/gcp.csv (error-free ground points)", "camera": "truth/camera.json"},
+        }
+        with atomic_write(tmp / "truth.json") as fh:
+            json.dump(truth, fh, indent=1, default=float)
+        _write_toml(tmp / "campaign.toml", crs, camera.image_size, gnss_mode, imu_grade, lever_g, pos_extra)
+    return truth
+
+
+def _antenna(traj, lever_g: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """GPS times (s), true antenna positions (m) and velocities (m/s) in ECEF at `rate_hz` over the flight."""
+    t_gnss = np.arange(math.ceil(traj.t[0]), traj.t[-1] + 1e-9, 1.0 / rate_hz)
+    g_at = traj.at(t_gnss)
+    p_ant = g_at.p_ecef + np.einsum("nij,j->ni", g_at.R_body_to_ecef, lever_g)
+    w_eb_b = g_at.omega_ib_b - np.einsum("nji,j->ni", g_at.R_body_to_ecef, OMEGA_IE_E)
+    v_ant = g_at.v_ecef + np.einsum("nij,nj->ni", g_at.R_body_to_ecef, np.cross(w_eb_b, lever_g))
+    return t_gnss, p_ant, v_ant
+
+
+def _gnss_truth(mode: str, rate_hz: float, sigma_enu, sigma_v: float, sigma_pr: float) -> dict:
+    """The GNSS part of truth.json."""
+    if mode == "lc":
+        return {"mode": "lc", "rate_hz": rate_hz, "sigma_enu_m": list(sigma_enu), "sigma_v_mps": sigma_v}
+    return {"mode": "tc", "rate_hz": rate_hz, "sigma_pr_m": sigma_pr, "systems": ["G", "E"]}
+
+
+@dataclass
+class _Ground:
+    """Control/check points (ids, roles) and tie points (ids) of the campaign, true ECEF coordinates (m)."""
+
+    gp_ids: np.ndarray
+    role: np.ndarray
+    gp_ecef: np.ndarray
+    tie_ids: np.ndarray
+    tie_ecef: np.ndarray
+
+
+def _ground_points(rng, enu: LocalENU, C_enu: np.ndarray, heights_agl, n_strips: int, strip_length_m: float,
+                   strip_spacing_m: float, strip_heading_deg: float, n_control: int, n_check: int,
+                   n_tie: int) -> _Ground:
+    """Ground points on the terrain: control and check points on a jittered grid over the low block, tie points
+    everywhere (C_enu: the projection centres in `enu`, m)."""
     low = C_enu[:, 2] < (heights_agl[0] + (heights_agl[1] if len(heights_agl) > 1 else 2 * heights_agl[0])) / 2
     lo, hi = C_enu[low, :2].min(0), C_enu[low, :2].max(0)
     ctr, half = (lo + hi) / 2, (hi - lo) / 2
@@ -266,97 +359,63 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     te = ctr + rng.uniform(-1, 1, (n_tie, 2)) * (half + 150.0)
     tie_enu = np.column_stack([te, terrain_up(te[:, 0], te[:, 1])])
     tie_ids = np.array([f"T{i + 1:05d}" for i in range(n_tie)], dtype=object)
-    gp_ecef, tie_ecef = enu.to_ecef(gp_enu), enu.to_ecef(tie_enu)
+    return _Ground(gp_ids, role, enu.to_ecef(gp_enu), tie_ids, enu.to_ecef(tie_enu))
 
-    gi, gid, guv = _observe(camera, C_ecef, R_cam_to_ecef, names, gp_ids, gp_ecef)
-    ti, tid, tuv = _observe(camera, C_ecef, R_cam_to_ecef, names, tie_ids, tie_ecef)
+
+@dataclass
+class _ImageMeasurements:
+    """Noisy image measurements (px) of the ground points and of the tie points seen at least twice."""
+
+    gp_image: np.ndarray
+    gp_id: np.ndarray
+    gp_xy: np.ndarray
+    tie_image: np.ndarray
+    tie_id: np.ndarray
+    tie_xy: np.ndarray
+
+    def write(self, folder: Path, noise_px: float) -> None:
+        """measurements_gcp.csv (ground points) and measurements.csv (all) with sigmas `noise_px` (px)."""
+        n_g, n_t = len(self.gp_image), len(self.tie_image)
+        write_measurements(folder / "measurements_gcp.csv",
+                           Measurements(self.gp_image, self.gp_id, self.gp_xy, np.full((n_g, 2), noise_px)))
+        write_measurements(folder / "measurements.csv",
+                           Measurements(np.concatenate([self.gp_image, self.tie_image]),
+                                        np.concatenate([self.gp_id, self.tie_id]),
+                                        np.concatenate([self.gp_xy, self.tie_xy]), np.full((n_g + n_t, 2), noise_px)))
+
+
+def _image_measurements(rng, camera, C_ecef, R_cam_to_ecef, names, gp: _Ground, noise_px: float) -> _ImageMeasurements:
+    """The ground and tie points through the true camera at the true poses, with pixel noise `noise_px`."""
+    gi, gid, guv = _observe(camera, C_ecef, R_cam_to_ecef, names, gp.gp_ids, gp.gp_ecef)
+    ti, tid, tuv = _observe(camera, C_ecef, R_cam_to_ecef, names, gp.tie_ids, gp.tie_ecef)
     uniq, cnt = np.unique(tid, return_counts=True)
     keep = np.isin(tid, uniq[cnt >= 2])
     ti, tid, tuv = ti[keep], tid[keep], tuv[keep]
     g_noisy = guv + rng.normal(0, noise_px, guv.shape)
     t_noisy = tuv + rng.normal(0, noise_px, tuv.shape)
+    return _ImageMeasurements(gi, gid, g_noisy, ti, tid, t_noisy)
 
-    gp_map = grid.from_ecef(gp_ecef)
-    sig = np.tile(np.asarray(gcp_sigma, float), (n_gp, 1))
-    gp_map_obs = gp_map + rng.normal(0, 1.0, gp_map.shape) * sig  # surveyed coordinates carry their sigmas
+
+def _true_eops(grid: MapGrid, C_ecef: np.ndarray, R_cam_to_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Map projection centres (N,3) (m) and PATB omega/phi/kappa (N,3) (deg) straight from ECEF poses: camera frame
+    -> grid axes (ENU at the centre turned by the meridian convergence), independently of dgcal.fields.world."""
     C_map = grid.from_ecef(C_ecef)
-    # EOP angles: camera frame -> grid axes (ENU at the centre turned by the meridian convergence)
     llh_c = grid.to_geodetic(C_map)
     gamma = grid.convergence_deg(llh_c[:, 0], llh_c[:, 1])
     R_cam_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ R_ecef_to_enu(llh_c[:, 0], llh_c[:, 1])
-                    @ R_cam_to_ecef)
-    opk = opk_from_R_cam_to_map(R_cam_to_grid)
+                     @ R_cam_to_ecef)
+    return C_map, opk_from_R_cam_to_map(R_cam_to_grid)
 
-    # 3. GNSS antenna: PPK-like positions (lc) or pseudoranges (tc)
-    t_gnss = np.arange(math.ceil(traj.t[0]), traj.t[-1] + 1e-9, 1.0 / gnss_rate_hz)
-    g_at = traj.at(t_gnss)
-    p_ant = g_at.p_ecef + np.einsum("nij,j->ni", g_at.R_body_to_ecef, lever_g)
-    w_eb_b = g_at.omega_ib_b - np.einsum("nji,j->ni", g_at.R_body_to_ecef, OMEGA_IE_E)
-    v_ant = g_at.v_ecef + np.einsum("nij,nj->ni", g_at.R_body_to_ecef, np.cross(w_eb_b, lever_g))
 
-    out = Path(out)
-    with staged_dir(out) as tmp:
-        fl = tmp / "flight"
-        fl.mkdir()
-        field_info = _camera_field(tmp / "field", camera, rng, field_images, field_noise_px)
-        write_points(fl / "gcp.csv", Points(gp_ids, gp_map_obs, sig, role), with_role=True)
-        write_measurements(fl / "measurements_gcp.csv", Measurements(gi, gid, g_noisy, np.full(guv.shape, noise_px)))
-        write_measurements(fl / "measurements.csv",
-                           Measurements(np.concatenate([gi, ti]), np.concatenate([gid, tid]),
-                                        np.concatenate([g_noisy, t_noisy]),
-                                        np.full((len(gi) + len(ti), 2), noise_px)))
-        write_events(fl / "events.csv", events)
-        write_kf_gins(fl / "imu.txt", imu)
-        if gnss_mode == "lc":
-            sg = np.asarray(gnss_sigma_enu, float)
-            llh = grid.to_geodetic(grid.from_ecef(p_ant))
-            R_e2enu = R_ecef_to_enu(llh[:, 0], llh[:, 1])
-            noise_enu = rng.normal(0, 1, p_ant.shape) * sg
-            p_obs = p_ant + np.einsum("nji,nj->ni", R_e2enu, noise_enu)
-            v_obs = v_ant + rng.normal(0, gnss_sigma_v, v_ant.shape)
-            write_table(fl / "gnss.csv", GNSS_CSV_COLUMNS, _gnss_rows(t_gnss, p_obs, v_obs, sg, gnss_sigma_v),
-                        fmt="%.12g")
-        else:
-
-            obs = simulate_gnss(t_gnss, p_ant, v_ant, None, seed=seed + 2, sigma_pr=sigma_pr, systems=("G", "E"),
-                                prepare=False)
-            write_rinex_obs(fl / "rover.obs", obs)
-            shutil.copyfile(DEFAULT_NAV, fl / "nav.rnx")
-        tr = tmp / "truth"
-        tr.mkdir()
-        write_eop(tr / "eop.csv", EOP(names, C_map, opk))
-        write_trajectory(tr / "trajectory.csv", traj.as_trajectory(max(1, int(round(imu_rate_hz / 10)))))
-        write_points(tr / "gcp.csv", Points(gp_ids, gp_map, sig, role), with_role=True)
-        with atomic_write(tr / "camera.json") as fh:
-            json.dump(camera_json_dict(camera), fh, indent=1)
-        truth = {
-            "simulator": "campaign", "seed": int(seed), "crs": crs, "site": {"lat": lat0, "lon": lon0, "h_ground": h0},
-            "convergence_deg": float(grid.convergence_deg(lat0, lon0)),
-            "lever_arm_m": lever.tolist(), "boresight_R_cam_to_body": R_cb.tolist(),
-            "boresight_deg_about_nominal": list(boresight_deg), "delay_s": float(delay_s),
-            "lever_arm_gnss_m": lever_g.tolist(),
-            "camera": camera_json_dict(camera),
-            "flight": {"heights_agl_m": list(heights_agl), "n_strips": n_strips, "strip_length_m": strip_length_m,
-                       "strip_spacing_m": strip_spacing_m, "strip_heading_deg": strip_heading_deg,
-                       "airspeed_mps": list(speeds_mps), "duration_s": float(traj.t[-1] - traj.t[0]),
-                       "n_images": int(len(names)), "event_distance_m": event_distance_m,
-                       "gsd_m": {f"{H:g}": float(H / camera["f"]) for H in heights_agl}},
-            "imu": imu_err.as_dict() | {"rate_hz": imu_rate_hz},
-            "gnss": ({"mode": "lc", "rate_hz": gnss_rate_hz, "sigma_enu_m": list(gnss_sigma_enu),
-                      "sigma_v_mps": gnss_sigma_v} if gnss_mode == "lc" else
-                     {"mode": "tc", "rate_hz": gnss_rate_hz, "sigma_pr_m": sigma_pr, "systems": ["G", "E"]}),
-            "image_noise_px": noise_px, "gcp_sigma_m": list(gcp_sigma),
-            "n_control": n_control, "n_check": n_check, "n_tie_points": int(len(np.unique(tid))),
-            "n_observations": {"ground": int(len(gi)), "tie": int(len(ti))},
-            "camera_field": field_info,
-            "files": {"eop": "truth/eop.csv (true EOPs at the exposures, map CRS)",
-                      "trajectory": "truth/trajectory.csv (true IMU trajectory, 10 Hz)",
-                      "gcp": "truth/gcp.csv (error-free ground points)", "camera": "truth/camera.json"},
-        }
-        with atomic_write(tmp / "truth.json") as fh:
-            json.dump(truth, fh, indent=1, default=float)
-        _write_toml(tmp / "campaign.toml", crs, camera.image_size, gnss_mode, imu_grade, lever_g, pos_extra)
-    return truth
+def _write_gnss_lc(path: Path, rng, grid: MapGrid, t_gnss, p_ant, v_ant, gnss_sigma_enu, gnss_sigma_v: float) -> None:
+    """gnss.csv of PPK-like antenna positions and velocities, ENU noise `gnss_sigma_enu` (m), `gnss_sigma_v` (m/s)."""
+    sg = np.asarray(gnss_sigma_enu, float)
+    llh = grid.to_geodetic(grid.from_ecef(p_ant))
+    R_e2enu = R_ecef_to_enu(llh[:, 0], llh[:, 1])
+    noise_enu = rng.normal(0, 1, p_ant.shape) * sg
+    p_obs = p_ant + np.einsum("nji,nj->ni", R_e2enu, noise_enu)
+    v_obs = v_ant + rng.normal(0, gnss_sigma_v, v_ant.shape)
+    write_table(path, GNSS_CSV_COLUMNS, _gnss_rows(t_gnss, p_obs, v_obs, sg, gnss_sigma_v), fmt="%.12g")
 
 
 def _write_toml(path: Path, crs: str, image_size, gnss_mode: str, imu_grade: str, lever_g, pos_extra) -> None:

@@ -16,14 +16,16 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from dgcal.calib.camera.files import write_camera_json
 from dgcal.calib.camera.models import Fraser7
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir
 from dgcal.fields.io.formats import EOP, Measurements, Points, write_eop, write_measurements, write_points
-from dgcal.fields.frames import R_CV_TO_PHOTO, R_enu_to_grid, opk_from_R_cam_to_map
-from scipy.spatial.transform import Rotation
+from dgcal.fields.frames import R_CV_TO_PHOTO
+from dgcal.fields.pose import Poses
+from dgcal.fields.world import World
 
 
 DEFAULT_CRS = "EPSG:32651"
@@ -73,61 +75,18 @@ def simulate_block_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS
     `target_size_m`, top to grid north, point ids = marker ids "0", "1", ...)."""
     rng = np.random.default_rng(seed)
     cam = block_flight_camera(*image_size)
-    grid = MapGrid(crs)
-    frame = LocalENU(CENTRE_LAT, CENTRE_LON, CENTRE_H)
+    world = World(MapGrid(crs), LocalENU(CENTRE_LAT, CENTRE_LON, CENTRE_H))
     plan = _flight_plan(cam, heights, n_strips, n_images, rng)
-    names, C_loc, R_w2c = [], [], []
-    for k, p in enumerate(plan):
-        g = terrain_height(np.array(p["e"]), np.array(p["n"]))
-        C = np.array([p["e"], p["n"], p["height"]]) + rng.normal(0, [1.0, 1.0, 0.5])
-        # camera: nadir, image top to the heading direction, plus a few degrees of jitter
-        kappa = -p["heading"]
-        R_cam_to_enu = (Rotation.from_euler("xyz", rng.normal(0, [1.5, 1.5, 2.0]), degrees=True).as_matrix()
-                       @ Rotation.from_euler("z", kappa, degrees=True).as_matrix() @ R_CV_TO_PHOTO)
-        names.append(f"IMG_{k:04d}.png")
-        C_loc.append(C)
-        R_w2c.append(R_cam_to_enu.T)
-    C_loc, R_w2c = np.array(C_loc), np.array(R_w2c)
+    names, C_loc, R_w2c = _true_poses(plan, rng)
     # ground points: control and check spread over the low-flight block, inset from its edge
-    half_fp = 0.3 * min(heights) * np.array(cam.image_size, float)[::-1] / cam["f"]   # N-S strips: x across
-    mid = 0.5 * (C_loc[:, :2].min(0) + C_loc[:, :2].max(0))
-    lo = np.minimum(C_loc[:, :2].min(0) + 10, mid - half_fp)
-    hi = np.maximum(C_loc[:, :2].max(0) - 10, mid + half_fp)
-    n_gp = n_control + n_check
-    gx = int(np.ceil(np.sqrt(n_gp * (hi[0] - lo[0]) / (hi[1] - lo[1]))))
-    gy = int(np.ceil(n_gp / gx))
-    ee, nn = np.meshgrid(np.linspace(lo[0], hi[0], gx), np.linspace(lo[1], hi[1], gy))
-    step = np.min((hi - lo) / np.maximum([gx - 1, gy - 1], 1))
-    # jitter small enough that neighbouring targets (up to ~3 m with their quiet zone) never overlap
-    en = np.column_stack([ee.ravel(), nn.ravel()])[:n_gp] + rng.uniform(-1, 1, (n_gp, 2)) * min(3.0, max(0.0, step / 2 - 2.0))
-    gp_loc = np.column_stack([en, terrain_height(en[:, 0], en[:, 1])])
-    role = np.array(["control", "check"] * n_gp, dtype=object)[:n_gp]
-    if targets == "aruco":
-        gp_ids = np.array([str(i) for i in range(n_gp)], dtype=object)
-    else:
-        gp_ids = np.array([f"GCP{i:02d}" if role[i] == "control" else f"CHK{i:02d}" for i in range(n_gp)], dtype=object)
+    gp_ids, role, gp_loc = _ground_points(rng, cam, C_loc, heights, n_control + n_check, targets)
     # tie points spread over the whole block
     lo2, hi2 = C_loc[:, :2].min(0) - 20, C_loc[:, :2].max(0) + 20
     te = rng.uniform(lo2, hi2, (n_tie, 2))
     tie_loc = np.column_stack([te, terrain_height(te[:, 0], te[:, 1])])
     tie_ids = np.array([f"T{i:05d}" for i in range(n_tie)], dtype=object)
-
-    def observe(ids, X):
-        rows_img, rows_id, rows_uv = [], [], []
-        for i in range(len(names)):
-            Xc = (X - C_loc[i]) @ R_w2c[i].T
-            ok = Xc[:, 2] > 1.0
-            uv = np.full((len(X), 2), np.nan)
-            uv[ok] = cam.project(Xc[ok])
-            w, h = cam.image_size
-            ok &= (uv[:, 0] > 5) & (uv[:, 0] < w - 6) & (uv[:, 1] > 5) & (uv[:, 1] < h - 6)
-            for j in np.nonzero(ok)[0]:
-                rows_img.append(names[i]); rows_id.append(ids[j]); rows_uv.append(uv[j])
-        return (np.array(rows_img, dtype=object), np.array(rows_id, dtype=object),
-                np.array(rows_uv).reshape(-1, 2))
-
-    gi, gid, guv = observe(gp_ids, gp_loc)
-    ti, tid, tuv = observe(tie_ids, tie_loc)
+    gi, gid, guv = _observe(cam, names, C_loc, R_w2c, gp_ids, gp_loc)
+    ti, tid, tuv = _observe(cam, names, C_loc, R_w2c, tie_ids, tie_loc)
     # keep tie points seen at least twice
     uniq, cnt = np.unique(tid, return_counts=True)
     twice = set(uniq[cnt >= 2].tolist())
@@ -137,20 +96,13 @@ def simulate_block_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS
     t_noisy = tuv + rng.normal(0, noise_px, tuv.shape)
 
     # map coordinates
-    gp_map = grid.from_ecef(frame.to_ecef(gp_loc))
-    sig = np.tile(np.asarray(gcp_sigma, float), (n_gp, 1))
+    gp_map = world.to_map(gp_loc)
+    sig = np.tile(np.asarray(gcp_sigma, float), (len(gp_ids), 1))
     gp_map_obs = gp_map + rng.normal(0, 1.0, gp_map.shape) * sig
-    C_map = grid.from_ecef(frame.to_ecef(C_loc))
-    g = frame.to_geodetic(C_loc)
-    R_here_to_local = frame.R_enu_here_to_local(g[:, 0], g[:, 1])
-    gamma = grid.convergence_deg(g[:, 0], g[:, 1])
-    R_cam_to_grid = (R_enu_to_grid(gamma[:, None]).reshape(-1, 3, 3) @ np.swapaxes(R_here_to_local, -1, -2)
-                    @ np.swapaxes(R_w2c, -1, -2))
-    opk = opk_from_R_cam_to_map(R_cam_to_grid)
+    C_map, opk, _ = world.poses_to_eop(Poses(R_w2c, C_loc))
     gsd = {f"{H:g}": float((H - 0.0) / cam["f"]) for H in heights}
 
-    out = Path(out)
-    with staged_dir(out) as tmp:
+    with staged_dir(Path(out)) as tmp:
         write_points(tmp / "gcp.csv", Points(gp_ids, gp_map_obs, sig, role), with_role=True)
         write_measurements(tmp / "measurements.csv", Measurements(gi, gid, g_noisy, np.full(guv.shape, noise_px)))
         write_measurements(tmp / "measurements_exact.csv", Measurements(gi, gid, guv, np.full(guv.shape, np.nan)))
@@ -172,12 +124,70 @@ def simulate_block_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS
                         "C_local": C_loc[i].tolist(), "R_world_to_cv_local": R_w2c[i].tolist(),
                         "height_m": plan[i]["height"], "strip": plan[i]["strip"]} for i in range(len(names))],
             "ground_points": [{"id": gp_ids[i], "role": role[i], "xyz": gp_map[i].tolist(),
-                               "local": gp_loc[i].tolist()} for i in range(n_gp)],
+                               "local": gp_loc[i].tolist()} for i in range(len(gp_ids))],
             "n_tie_points": int(len(np.unique(tid))), "n_tie_observations": int(len(tid)),
         }
         with atomic_write(tmp / "truth.json") as fh:
             json.dump(truth, fh, indent=1)
     return truth
+
+
+def _true_poses(plan: list[dict], rng) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Image names, true centres (M,3) (world, m) and R_world_to_cam (M,3,3) of the planned stations: nadir, image
+    top to the heading, with position and attitude jitter."""
+    names, C_loc, R_w2c = [], [], []
+    for k, p in enumerate(plan):
+        C = np.array([p["e"], p["n"], p["height"]]) + rng.normal(0, [1.0, 1.0, 0.5])
+        # camera: nadir, image top to the heading direction, plus a few degrees of jitter
+        kappa = -p["heading"]
+        R_cam_to_enu = (Rotation.from_euler("xyz", rng.normal(0, [1.5, 1.5, 2.0]), degrees=True).as_matrix()
+                        @ Rotation.from_euler("z", kappa, degrees=True).as_matrix() @ R_CV_TO_PHOTO)
+        names.append(f"IMG_{k:04d}.png")
+        C_loc.append(C)
+        R_w2c.append(R_cam_to_enu.T)
+    return names, np.array(C_loc), np.array(R_w2c)
+
+
+def _ground_points(rng, cam: Fraser7, C_loc: np.ndarray, heights, n_gp: int,
+                   targets: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ids, roles (control/check alternately) and world coordinates (m, on the terrain) of ground points on a
+    jittered grid over the low-flight block, inset from its edge."""
+    half_fp = 0.3 * min(heights) * np.array(cam.image_size, float)[::-1] / cam["f"]   # N-S strips: x across
+    mid = 0.5 * (C_loc[:, :2].min(0) + C_loc[:, :2].max(0))
+    lo = np.minimum(C_loc[:, :2].min(0) + 10, mid - half_fp)
+    hi = np.maximum(C_loc[:, :2].max(0) - 10, mid + half_fp)
+    gx = int(np.ceil(np.sqrt(n_gp * (hi[0] - lo[0]) / (hi[1] - lo[1]))))
+    gy = int(np.ceil(n_gp / gx))
+    ee, nn = np.meshgrid(np.linspace(lo[0], hi[0], gx), np.linspace(lo[1], hi[1], gy))
+    step = np.min((hi - lo) / np.maximum([gx - 1, gy - 1], 1))
+    # jitter small enough that neighbouring targets (up to ~3 m with their quiet zone) never overlap
+    jitter = min(3.0, max(0.0, step / 2 - 2.0))
+    en = np.column_stack([ee.ravel(), nn.ravel()])[:n_gp] + rng.uniform(-1, 1, (n_gp, 2)) * jitter
+    gp_loc = np.column_stack([en, terrain_height(en[:, 0], en[:, 1])])
+    role = np.array(["control", "check"] * n_gp, dtype=object)[:n_gp]
+    if targets == "aruco":
+        gp_ids = np.array([str(i) for i in range(n_gp)], dtype=object)
+    else:
+        gp_ids = np.array([f"GCP{i:02d}" if role[i] == "control" else f"CHK{i:02d}" for i in range(n_gp)], dtype=object)
+    return gp_ids, role, gp_loc
+
+
+def _observe(cam: Fraser7, names: list[str], C_loc: np.ndarray, R_w2c: np.ndarray, ids: np.ndarray,
+             X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Noise-free projections (px) of world points X (m) into every image: (image, id, uv) rows."""
+    rows_img, rows_id, rows_uv = [], [], []
+    for i in range(len(names)):
+        Xc = (X - C_loc[i]) @ R_w2c[i].T
+        ok = Xc[:, 2] > 1.0
+        uv = np.full((len(X), 2), np.nan)
+        uv[ok] = cam.project(Xc[ok])
+        w, h = cam.image_size
+        ok &= (uv[:, 0] > 5) & (uv[:, 0] < w - 6) & (uv[:, 1] > 5) & (uv[:, 1] < h - 6)
+        for j in np.nonzero(ok)[0]:
+            rows_img.append(names[i])
+            rows_id.append(ids[j])
+            rows_uv.append(uv[j])
+    return (np.array(rows_img, dtype=object), np.array(rows_id, dtype=object), np.array(rows_uv).reshape(-1, 2))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -217,50 +217,18 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
     imu, err = simulate_imu(truth, "adis16405", seed=seed)
     fixes, _ = gnss_fixes(truth, 50.0, seed=seed + 1)
     frame = NavFrame.at_ecef(fixes.p_ecef.mean(axis=0))
-    R_n2w = R_ENU_TO_NED.T  # world = ENU axes of the UKF's tangent frame
-
-    def to_w(p_ecef):
-        return frame.from_ecef(p_ecef) @ R_n2w.T
-
     rng = np.random.default_rng(seed + 7)
     # reference point ("fire hydrant") 18 m right of the leg centre line, on the DEM
-    c_ecef = geodetic_to_ecef_np(39.65, -79.95, 300.0)
-    c_w = to_w(c_ecef)
+    c_w = _to_world(frame, geodetic_to_ecef_np(39.65, -79.95, 300.0))
     dem = terrain_dem(c_w)
-    strips = truth.strips
     psi = np.radians(225.0)
     across_w = np.array([np.cos(psi + np.pi / 2), np.sin(psi + np.pi / 2)])[[1, 0]]  # (E, N) of "right"
     P_xy = c_w[:2] + 18.0 * across_w + np.array([6.0, -9.0])
     P_w = np.array([P_xy[0], P_xy[1], float(dem.height(P_xy[0], P_xy[1]))])
     camera = seed_camera()
     lever = np.array([0.10, 0.0, 0.05])
-    w, h = camera.image_size
-    rows = []
-    t_fix = fixes.t
-    for s in strips:
-        tt = np.arange(s.t_start, s.t_end, trigger_interval_s)
-        k = np.clip(np.searchsorted(t_fix, tt), 0, len(t_fix) - 1)  # exposures on the logger's 50 Hz grid
-        for j in np.unique(k):
-            if len(rows) >= n_images:
-                break
-            tr = truth.at(t_fix[j])
-            R_b2w = R_n2w @ frame.R_nav_to_ecef.T @ tr.R_body_to_ecef[0]
-            C_true, R_true = to_w(tr.p_ecef[0]) + R_b2w @ lever, R_b2w @ R_CAM_TO_BODY_NADIR
-            X_c = R_true.T @ (P_w - C_true)
-            if X_c[2] <= 0:
-                continue
-            uv_true = camera.project(X_c[None])[0]
-            if not (0.05 * w < uv_true[0] < 0.95 * w and 0.05 * h < uv_true[1] < 0.95 * h):
-                continue
-            uv = uv_true + rng.standard_normal(2) * sigma_px
-            centre_hit = _ray_dem_hit(C_true, R_true[:, 2], dem)
-            rho = float(np.linalg.norm(centre_hit - C_true)) + rng.standard_normal() * laser_sigma_m
-            rows.append(dict(j=int(j), t=float(t_fix[j]), uv=uv, C_true=C_true, R_true=R_true, rho=rho,
-                             centre_true=centre_hit, speed=float(np.linalg.norm(tr.v_ned[0]))))
-        if len(rows) >= n_images:
-            break
-    if len(rows) < n_images:
-        raise RuntimeError(f"only {len(rows)} images see the reference point")
+    rows = _exposures(truth, fixes, frame, camera, lever, P_w, dem, rng, n_images, sigma_px, laser_sigma_m,
+                      trigger_interval_s)
     # the filter runs up to the last exposure (its states are causal); map exposures to its epochs
     t_last = rows[-1]["t"] + 1.0
     keep = fixes.t <= t_last
@@ -278,32 +246,8 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
     covs = {k: [] for k in cases}
     table = []
     for r in rows:
-        j = r["j"]
-        P_nav = u.P[j]
-        R_nw = R_n2w
-        C_imu = R_nw @ u.p_nav[j]
-        rph = u.rph_deg[j]
-        R_b2w = R_nw @ R_body_to_ned_from_rph_np(rph)
-        C, R = C_imu + R_b2w @ lever, R_b2w @ R_CAM_TO_BODY_NADIR
-        cov_rph = np.degrees(np.degrees(P_nav[6:9, 6:9]))
-        cov_p = np.maximum(R_nw @ P_nav[0:3, 0:3] @ R_nw.T, gnss_cov)
-        pose_cov = pose_covariance_from_rph(rph, cov_rph, cov_p, R_CAM_TO_BODY_NADIR, R_enu_to_w=np.eye(3))
-        # raw data: level attitude, heading from the GNSS course, no distortion model
-        v = u.v_nav[j]
-        course = np.degrees(np.arctan2(v[1], v[0]))
-        R_lvl = R_nw @ R_body_to_ned_from_rph_np(np.array([0.0, 0.0, course]))
-        C_lvl, R_l = C_imu + R_lvl @ lever, R_lvl @ R_CAM_TO_BODY_NADIR
-        lvl_cov = pose_covariance_from_rph(np.array([0.0, 0.0, course]), np.array([3.0, 3.0, 3.0]) ** 2,
-                                           cov_p, R_CAM_TO_BODY_NADIR, np.eye(3))
-        est = {"raw": georeference(pinhole, r["uv"], C_lvl, R_l, height=P_w[2], pose_cov=lvl_cov, sigma_px=sigma_px),
-               "distortion": georeference(camera, r["uv"], C_lvl, R_l, height=P_w[2], pose_cov=lvl_cov,
-                                          sigma_px=sigma_px),
-               "attitude": georeference(camera, r["uv"], C, R, height=P_w[2], pose_cov=pose_cov, sigma_px=sigma_px),
-               "laser": georeference(camera, r["uv"], C, R, range_m=r["rho"], pose_cov=pose_cov, sigma_px=sigma_px,
-                                     sigma_range=laser_sigma_m),
-               "dem": georeference(camera, r["uv"], C, R, dem=dem, pose_cov=pose_cov, sigma_px=sigma_px,
-                                   sigma_height=0.1),
-               "truth": georeference(camera, r["uv"], r["C_true"], r["R_true"], height=P_w[2], sigma_px=sigma_px)}
+        rph = u.rph_deg[r["j"]]
+        est = _estimates(u, r, camera, pinhole, lever, P_w, dem, gnss_cov, sigma_px, laser_sigma_m)
         row = {"image": f"IMG_{7242 + len(table):04d}", "t_gps": r["t"], "pitch_deg": float(rph[1]),
                "roll_deg": float(rph[0]), "yaw_deg": float(rph[2]), "laser_range_m": r["rho"],
                "ground_speed_mps": r["speed"],
@@ -316,20 +260,8 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
             row[k] = {"dN_m": float(d[1]), "dE_m": float(d[0]), "total_m": float(np.hypot(*d)),
                       "sigma_N_m": float(e.sigma[0, 1]), "sigma_E_m": float(e.sigma[0, 0])}
         table.append(row)
-    summary = {}
-    for k in cases:
-        d = np.array(cases[k])
-        tot = np.hypot(d[:, 0], d[:, 1])
-        av = average_estimates(d + P_w[:2], np.array(covs[k]), common_cov=None if k == "truth" else gnss_cov[:2, :2])
-        z = np.array([np.sqrt(x @ np.linalg.solve(c, x) / 2) for x, c in zip(d, covs[k])])
-        summary[k] = {"mean_dN_m": float(d[:, 1].mean()), "mean_dE_m": float(d[:, 0].mean()),
-                      "mean_total_m": float(tot.mean()), "std_total_m": float(tot.std(ddof=1)),
-                      "std_dN_m": float(d[:, 1].std(ddof=1)), "std_dE_m": float(d[:, 0].std(ddof=1)),
-                      "average_error_m": float(np.hypot(*(av.mean - P_w[:2]))),
-                      "weighted_average_error_m": float(np.hypot(*(av.weighted - P_w[:2]))),
-                      "weighted_average_sigma_m": float(np.sqrt(np.trace(av.cov_weighted))),
-                      "weighted_average_sigma_common_m": float(np.sqrt(np.trace(av.cov_with_common))),
-                      "chi2_dof": av.chi2_dof, "normalised_error_rms": float(np.sqrt(np.mean(z ** 2)))}
+    summary = {k: _case_summary(np.array(cases[k]), np.array(covs[k]), P_w,
+                                None if k == "truth" else gnss_cov[:2, :2]) for k in cases}
     rph_true = np.array([rph_from_R_body_to_ned(truth.at(r["t"]).R_body_to_ned[0]) for r in rows])
     return {"images": table, "summary": summary, "n_images": len(table), "sigma_px": sigma_px,
             "reference_point_w": P_w.tolist(), "mean_height_agl_m": float(np.mean([r["C_true"][2] for r in rows])
@@ -337,6 +269,96 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
             "ukf_attitude_rms_deg": np.sqrt(np.mean((np.array([x["roll_deg"] for x in table]) - rph_true[:, 0]) ** 2
                                                     )).tolist(),
             "pixel_ground_size_m": float(np.mean([x["laser_range_m"] for x in table]) / camera["f"])}
+
+
+_R_NED_TO_WORLD = R_ENU_TO_NED.T  # the georeferencing world: ENU axes of the UKF's tangent frame
+
+
+def _to_world(frame: NavFrame, p_ecef: np.ndarray) -> np.ndarray:
+    """World (ENU axes of the UKF's tangent frame `frame`, m) of ECEF points (m)."""
+    return frame.from_ecef(p_ecef) @ _R_NED_TO_WORLD.T
+
+
+def _exposures(truth: TrueTrajectory, fixes: GnssFixes, frame: NavFrame, camera, lever: np.ndarray,
+               P_w: np.ndarray, dem: Dem, rng, n_images: int, sigma_px: float, laser_sigma_m: float,
+               trigger_interval_s: float) -> list[dict]:
+    """The first `n_images` exposures on the straight legs (on the logger's 50 Hz grid) that see the reference
+    point `P_w` well inside the frame: time, noisy pixel (px), true pose (world), noisy laser range (m)."""
+    w, h = camera.image_size
+    rows = []
+    t_fix = fixes.t
+    for s in truth.strips:
+        tt = np.arange(s.t_start, s.t_end, trigger_interval_s)
+        k = np.clip(np.searchsorted(t_fix, tt), 0, len(t_fix) - 1)  # exposures on the logger's 50 Hz grid
+        for j in np.unique(k):
+            if len(rows) >= n_images:
+                break
+            tr = truth.at(t_fix[j])
+            R_b2w = _R_NED_TO_WORLD @ frame.R_nav_to_ecef.T @ tr.R_body_to_ecef[0]
+            C_true, R_true = _to_world(frame, tr.p_ecef[0]) + R_b2w @ lever, R_b2w @ R_CAM_TO_BODY_NADIR
+            X_c = R_true.T @ (P_w - C_true)
+            if X_c[2] <= 0:
+                continue
+            uv_true = camera.project(X_c[None])[0]
+            if not (0.05 * w < uv_true[0] < 0.95 * w and 0.05 * h < uv_true[1] < 0.95 * h):
+                continue
+            uv = uv_true + rng.standard_normal(2) * sigma_px
+            centre_hit = _ray_dem_hit(C_true, R_true[:, 2], dem)
+            rho = float(np.linalg.norm(centre_hit - C_true)) + rng.standard_normal() * laser_sigma_m
+            rows.append(dict(j=int(j), t=float(t_fix[j]), uv=uv, C_true=C_true, R_true=R_true, rho=rho,
+                             centre_true=centre_hit, speed=float(np.linalg.norm(tr.v_ned[0]))))
+        if len(rows) >= n_images:
+            break
+    if len(rows) < n_images:
+        raise RuntimeError(f"only {len(rows)} images see the reference point")
+    return rows
+
+
+def _estimates(u, r: dict, camera, pinhole, lever: np.ndarray, P_w: np.ndarray, dem: Dem, gnss_cov: np.ndarray,
+               sigma_px: float, laser_sigma_m: float) -> dict:
+    """The reference point from exposure `r` by each case: raw (level attitude, GNSS course, no distortion),
+    distortion, attitude (UKF), laser, DEM and true pose."""
+    j = r["j"]
+    P_nav = u.P[j]
+    R_nw = _R_NED_TO_WORLD
+    C_imu = R_nw @ u.p_nav[j]
+    rph = u.rph_deg[j]
+    R_b2w = R_nw @ R_body_to_ned_from_rph_np(rph)
+    C, R = C_imu + R_b2w @ lever, R_b2w @ R_CAM_TO_BODY_NADIR
+    cov_rph = np.degrees(np.degrees(P_nav[6:9, 6:9]))
+    cov_p = np.maximum(R_nw @ P_nav[0:3, 0:3] @ R_nw.T, gnss_cov)
+    pose_cov = pose_covariance_from_rph(rph, cov_rph, cov_p, R_CAM_TO_BODY_NADIR, R_enu_to_w=np.eye(3))
+    # raw data: level attitude, heading from the GNSS course, no distortion model
+    v = u.v_nav[j]
+    course = np.degrees(np.arctan2(v[1], v[0]))
+    R_lvl = R_nw @ R_body_to_ned_from_rph_np(np.array([0.0, 0.0, course]))
+    C_lvl, R_l = C_imu + R_lvl @ lever, R_lvl @ R_CAM_TO_BODY_NADIR
+    lvl_cov = pose_covariance_from_rph(np.array([0.0, 0.0, course]), np.array([3.0, 3.0, 3.0]) ** 2,
+                                       cov_p, R_CAM_TO_BODY_NADIR, np.eye(3))
+    return {"raw": georeference(pinhole, r["uv"], C_lvl, R_l, height=P_w[2], pose_cov=lvl_cov, sigma_px=sigma_px),
+            "distortion": georeference(camera, r["uv"], C_lvl, R_l, height=P_w[2], pose_cov=lvl_cov,
+                                       sigma_px=sigma_px),
+            "attitude": georeference(camera, r["uv"], C, R, height=P_w[2], pose_cov=pose_cov, sigma_px=sigma_px),
+            "laser": georeference(camera, r["uv"], C, R, range_m=r["rho"], pose_cov=pose_cov, sigma_px=sigma_px,
+                                  sigma_range=laser_sigma_m),
+            "dem": georeference(camera, r["uv"], C, R, dem=dem, pose_cov=pose_cov, sigma_px=sigma_px,
+                                sigma_height=0.1),
+            "truth": georeference(camera, r["uv"], r["C_true"], r["R_true"], height=P_w[2], sigma_px=sigma_px)}
+
+
+def _case_summary(d: np.ndarray, covs: np.ndarray, P_w: np.ndarray, common_cov: np.ndarray | None) -> dict:
+    """Mean, spread and averaged error (m) of one case's horizontal errors d (n,2) (E, N) with covariances (n,2,2)."""
+    tot = np.hypot(d[:, 0], d[:, 1])
+    av = average_estimates(d + P_w[:2], covs, common_cov=common_cov)
+    z = np.array([np.sqrt(x @ np.linalg.solve(c, x) / 2) for x, c in zip(d, covs)])
+    return {"mean_dN_m": float(d[:, 1].mean()), "mean_dE_m": float(d[:, 0].mean()),
+            "mean_total_m": float(tot.mean()), "std_total_m": float(tot.std(ddof=1)),
+            "std_dN_m": float(d[:, 1].std(ddof=1)), "std_dE_m": float(d[:, 0].std(ddof=1)),
+            "average_error_m": float(np.hypot(*(av.mean - P_w[:2]))),
+            "weighted_average_error_m": float(np.hypot(*(av.weighted - P_w[:2]))),
+            "weighted_average_sigma_m": float(np.sqrt(np.trace(av.cov_weighted))),
+            "weighted_average_sigma_common_m": float(np.sqrt(np.trace(av.cov_with_common))),
+            "chi2_dof": av.chi2_dof, "normalised_error_rms": float(np.sqrt(np.mean(z ** 2)))}
 
 
 def geodetic_to_ecef_np(lat, lon, h) -> np.ndarray:

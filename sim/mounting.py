@@ -16,15 +16,15 @@ from scipy.spatial.transform import Rotation
 
 from dgcal.calib.camera.files import write_camera_json
 from dgcal.calib.camera.models import Fraser7
-from dgcal.calib.mounting.common import BlockFrame
-from dgcal.fields.pose import so3_exp, so3_log
-from dgcal.fields.pose import transpose as T
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir
 from dgcal.fields.io.formats import (EOP, Events, Measurements, Points, Trajectory, write_eop, write_events,
                                      write_measurements, write_points, write_trajectory)
+from dgcal.fields.pose import Poses, so3_exp, so3_log
+from dgcal.fields.pose import transpose as T
+from dgcal.fields.world import World
 
 
 R_CAM_TO_BODY_NOMINAL = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # image top forward
@@ -44,7 +44,7 @@ def mounting_flight_camera() -> Fraser7:
 class FlightSim:
     """One simulated flight: truth and the noisy files' contents."""
 
-    frame: BlockFrame
+    world: World
     traj: Trajectory              # noisy POS with sigmas
     traj_true: Trajectory
     events: Events                # recorded event times (t_exposure - delay)
@@ -98,7 +98,7 @@ def _strips(heights, n_strips, length_m, spacing_m, azimuth_deg):
     return out
 
 
-def simulate_mounting_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_to_body, delay_s: float,
+def simulate_mounting_flight(rng, world: World, camera, lever_arm_m, R_cam_to_body, delay_s: float,
                              ground_world: np.ndarray, ground_ids, *, heights=(300.0, 600.0), n_strips: int = 4,
                              length_m: float = 1200.0, spacing_m: float = 180.0, azimuth_deg: float = 30.0,
                              airspeed: float = 30.0, wind_en=(4.0, 5.0), photo_interval_s: float = 1.5,
@@ -106,7 +106,7 @@ def simulate_mounting_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_
                              eop_sigma=(0.03, 0.03, 0.04, 0.003, 0.003, 0.002), pixel_sigma: float = 0.5,
                              t0: float = 2200 * SECONDS_PER_WEEK + 300000.0, tau_s: float = 0.3,
                              pos_common_fraction: float = 0.0) -> FlightSim:
-    """Simulate one flight of straight strips (alternating headings) in L; see the module docstring."""
+    """Simulate one flight of straight strips (alternating headings) in the world; see the module docstring."""
     wind = np.array([wind_en[0], wind_en[1], 0.0])
     t_all, p_all, v_all, R_all = [], [], [], []
     t_exp, strip_h = [], []
@@ -126,7 +126,7 @@ def simulate_mounting_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_
         roll = 1.5 * np.sin(2 * np.pi * ts / 6.0 + ph[0])
         pitch = 2.0 + 1.0 * np.sin(2 * np.pi * ts / 9.0 + ph[1])
         heading = az + np.degrees(crab) + 0.5 * np.sin(2 * np.pi * ts / 13.0 + ph[2])
-        R_b = R_ENU_TO_NED.T @ R_body_to_ned_from_rph(roll, pitch, heading)  # body -> L (L level at the block)
+        R_b = R_ENU_TO_NED.T @ R_body_to_ned_from_rph(roll, pitch, heading)  # body -> world (level at the block)
         t_all.append(t + ts)
         p_all.append(p)
         v_all.append(v)
@@ -151,25 +151,25 @@ def simulate_mounting_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_
     r_cam = p_e + np.einsum("nij,j->ni", R_e, lever_arm_m)
     R_cam_to_world = R_e @ R_cam_to_body
     names = np.array([f"IMG_{k:04d}.JPG" for k in range(len(t_exp))], dtype=object)
-    xyz, opk = frame.world_to_eop(r_cam, R_cam_to_world)
+    xyz, opk, _ = world.poses_to_eop(Poses.from_cam_to_world(R_cam_to_world, r_cam))
     eop_true = EOP(names, xyz, opk)
     es = np.tile(np.asarray(eop_sigma, float), (len(names), 1))
     es *= (heights_img / heights[0])[:, None]  # bundle accuracy degrades with height
     # position noise in metres along grid E, N, Up (also right for a geographic CRS, whose X, Y are degrees)
     n_grid = rng.normal(0, 1, xyz.shape) * es[:, :3]
-    xyz_noisy = frame.world_to_map(r_cam + np.einsum("nij,nj->ni", frame.R_grid_to_world_at(xyz), n_grid))
+    xyz_noisy = world.to_map(r_cam + np.einsum("nji,nj->ni", world.R_world_to_grid_at(r_cam), n_grid))
     eop = EOP(names, xyz_noisy, opk + rng.normal(0, 1, opk.shape) * es[:, 3:], es)
     events = Events(names, t_exp - delay_s)
 
-    lat, lon, hh, v_ned, rph = frame.world_to_pos(p_world, v_world, R_bL)
+    lat, lon, hh, v_ned, rph = world.world_to_pos(p_world, v_world, R_bL)
     traj_true = Trajectory(t_s, lat, lon, hh, v_ned, rph)
     # smoother-like errors: a part common to the whole flight (bias-driven tilt, GNSS biases: it does not
     # average down over the photos) and a smooth part correlated over ~tau_s, independent between photos
     f = float(pos_common_fraction)
     err = (np.sqrt(1 - f) * _smooth_noise(rng, len(t_s), 1.0 / rate_hz, tau_s, np.asarray(pos_sigma, float))
            + np.sqrt(f) * rng.normal(0, 1, 6) * np.asarray(pos_sigma, float))
-    p_noisy = p_world + err[:, [1, 0, 2]]  # s_lat_m is north, s_lon_m east (L is ENU, level at the block)
-    lat_n, lon_n, h_n, _, _ = frame.world_to_pos(p_noisy, v_world, R_bL)
+    p_noisy = p_world + err[:, [1, 0, 2]]  # s_lat_m is north, s_lon_m east (the world is ENU, level at the block)
+    lat_n, lon_n, h_n, _, _ = world.world_to_pos(p_noisy, v_world, R_bL)
     traj = Trajectory(t_s, lat_n, lon_n, h_n, v_ned + rng.normal(0, 0.02, v_ned.shape), rph + err[:, 3:],
                       np.tile(np.asarray(pos_sigma, float), (len(t_s), 1)))
 
@@ -189,7 +189,7 @@ def simulate_mounting_flight(rng, frame: BlockFrame, camera, lever_arm_m, R_cam_
     uv_all = np.array(uv_all).reshape(-1, 2)
     meas = Measurements(np.array(rows_im, dtype=object), np.array(rows_id, dtype=object), uv_all,
                         np.full(uv_all.shape, pixel_sigma))
-    return FlightSim(frame, traj, traj_true, events, t_exp, eop, eop_true, meas, heights_img)
+    return FlightSim(world, traj, traj_true, events, t_exp, eop, eop_true, meas, heights_img)
 
 
 def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_to_body=None, delay_s: float = -0.14,
@@ -198,7 +198,7 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     """A calibration flight (300 m and 600 m, opposite headings) and a mapping flight over the same ground points."""
     rng = np.random.default_rng(seed)
     grid = MapGrid(crs)
-    frame = BlockFrame(grid, LocalENU(lat0, lon0, h0))
+    world = World(grid, LocalENU(lat0, lon0, h0))
     camera = mounting_flight_camera()
     R_cb = default_boresight() if R_cam_to_body is None else np.asarray(R_cam_to_body, float)
     lever = np.asarray(lever_arm_m, float)
@@ -209,13 +209,13 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     ground_world[:, :2] += rng.normal(0, 20, (gx.size, 2))
     ids = np.array([f"P{k:03d}" for k in range(len(ground_world))], dtype=object)
     role = np.array(["control" if (i % 4 == 0) else "check" for i in range(len(ids))], dtype=object)
-    ground = Points(ids, frame.world_to_map(ground_world), np.full((len(ids), 3), 0.01), role)
-    cal = simulate_mounting_flight(rng, frame, camera, lever, R_cb, delay_s, ground_world, ids,
+    ground = Points(ids, world.to_map(ground_world), np.full((len(ids), 3), 0.01), role)
+    cal = simulate_mounting_flight(rng, world, camera, lever, R_cb, delay_s, ground_world, ids,
                                    **(calibration or {}))
     mp = dict(heights=(450.0,), n_strips=4, spacing_m=250.0, azimuth_deg=100.0, wind_en=(-3.0, 6.0),
               t0=2200 * SECONDS_PER_WEEK + 310000.0)
     mp.update(mapping or {})
-    mapf = simulate_mounting_flight(rng, frame, camera, lever, R_cb, delay_s, ground_world, ids, **mp)
+    mapf = simulate_mounting_flight(rng, world, camera, lever, R_cb, delay_s, ground_world, ids, **mp)
     noise = {"pos_sigma": [0.05, 0.05, 0.08, 0.01, 0.01, 0.03], "eop_sigma_300m": [0.03, 0.03, 0.04, 0.003, 0.003, 0.002],
              "pixel_sigma": 0.5, "pos_error_kernel_s": 0.3,
              "pos_common_fraction": (calibration or {}).get("pos_common_fraction", 0.0)}

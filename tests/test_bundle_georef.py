@@ -1,12 +1,14 @@
-"""Map CRS <-> local frame for points and EOP angles (convergence, curvature, geoid), resection helpers."""
+"""Map CRS <-> world frame (dgcal.fields.world): points and EOP angles (convergence, curvature, geoid); resection."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dgcal.bundle.georef import Georef
 from dgcal.bundle.resection import pnp, relative_bootstrap, similarity_umeyama
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
+from dgcal.fields.frames import R_cam_to_map_from_opk
+from dgcal.fields.pose import Poses
+from dgcal.fields.world import World
 from dgcal.sim.flight import block_flight_camera
 
 rng = np.random.default_rng(11)
@@ -18,12 +20,13 @@ def _random_R(n):
 
 
 def test_points_and_eops_round_trip():
-    g = Georef("EPSG:32651", CENTRE)
+    g = World.from_crs("EPSG:32651", CENTRE)
     P = CENTRE + rng.uniform(-2000, 2000, (20, 3)) * [1, 1, 0.05]
     np.testing.assert_allclose(g.to_map(g.to_world(P)), P, atol=1e-6)
     R, C = _random_R(20), g.to_world(P)
-    xyz, opk = g.eop_to_map(R, C)
-    R2, C2 = g.eop_to_world(xyz, opk)
+    xyz, opk, _ = g.poses_to_eop(Poses(R, C))
+    back = g.eop_to_poses(xyz, opk)
+    R2, C2 = back.R_world_to_cam, back.C_world
     np.testing.assert_allclose(R2, R, atol=1e-12)
     np.testing.assert_allclose(C2, C, atol=1e-4)
 
@@ -31,13 +34,12 @@ def test_points_and_eops_round_trip():
 def test_eop_angles_follow_grid_axes_at_the_centre():
     """A ray's direction in grid-level axes at the projection centre, from the map EOP, points to where the
     ground point really is in map coordinates (checked independently of the local frame, 300 m away)."""
-    g = Georef("EPSG:32651", CENTRE)
+    g = World.from_crs("EPSG:32651", CENTRE)
     grid = MapGrid("EPSG:32651")
     C_map = CENTRE + [1500.0, -800.0, 400.0]       # far from the frame origin: curvature and convergence differ
     P_map = C_map + [120.0, 250.0, -380.0]
     R_w2c, C_loc = np.eye(3)[None] @ Rotation.from_euler("x", [180.0], degrees=True).as_matrix(), g.to_world(C_map)
-    xyz, opk = g.eop_to_map(R_w2c, C_loc)
-    from dgcal.fields.frames import R_cam_to_map_from_opk
+    xyz, opk, _ = g.poses_to_eop(Poses(R_w2c, C_loc))
     R_cam_to_grid = R_cam_to_map_from_opk(*opk[0])
     # ray to P in the camera frame, computed in the adjustment frame
     ray_cam = R_w2c[0] @ (g.to_world(P_map)[0] - C_loc[0])
@@ -51,7 +53,7 @@ def test_eop_angles_follow_grid_axes_at_the_centre():
     # and a nadir camera looking straight down at its own centre with top to grid north has opk ~ 0
     R_nadir_cam_to_grid = np.diag([1.0, -1.0, -1.0])
     R_w2c_n = (np.swapaxes(g.R_world_to_grid_at(C_loc), -1, -2)[0] @ R_nadir_cam_to_grid).T
-    np.testing.assert_allclose(g.eop_to_map(R_w2c_n[None], C_loc)[1], [[0, 0, 0]], atol=1e-9)
+    np.testing.assert_allclose(g.poses_to_eop(Poses(R_w2c_n[None], C_loc))[1], [[0, 0, 0]], atol=1e-9)
     # while in the local frame it is rotated by the convergence (~-0.7 deg) plus the curvature
     kappa_local = np.degrees(np.arctan2(R_w2c_n[0, 1], R_w2c_n[0, 0]))
     assert 0.3 < abs(kappa_local) < 1.5
@@ -67,16 +69,16 @@ def _scale_factor(grid, xyz):
 
 
 def test_covariance_to_map_matches_monte_carlo():
-    g = Georef("EPSG:32651", CENTRE)
+    g = World.from_crs("EPSG:32651", CENTRE)
     R, C = _random_R(1), np.array([[300.0, -200.0, 150.0]])
     A = rng.normal(size=(6, 6)) * [0.02, 0.02, 0.02, 1e-3, 1e-3, 1e-3]
     cov = A @ A.T
-    J = g.eop_covariance_to_map(R, C, cov[None])[0]
-    xyz0, opk0 = g.eop_to_map(R, C)
+    xyz0, opk0, J = g.poses_to_eop(Poses(R, C, cov[None]))
+    J = J[0]
     s = rng.multivariate_normal(np.zeros(6), cov, 4000)
     # the pose rule of dgcal.fields.pose: R_cam_to_world <- R_cam_to_world Exp(dtheta)
     Rs = Rotation.from_rotvec(-s[:, 3:]).as_matrix() @ R
-    xyz, opk = g.eop_to_map(Rs, C + s[:, :3])
+    xyz, opk, _ = g.poses_to_eop(Poses(Rs, C + s[:, :3]))
     emp = np.cov(np.column_stack([xyz - xyz0, opk - opk0]).T)
     np.testing.assert_allclose(np.sqrt(np.diag(emp)), np.sqrt(np.diag(J)), rtol=0.08)
     # the position-angle cross terms too (they change sign with the perturbation side)
@@ -85,8 +87,8 @@ def test_covariance_to_map_matches_monte_carlo():
 
 
 def test_geoid_constant_undulation():
-    g = Georef("EPSG:32651", CENTRE, geoid=20.0)
-    e = Georef("EPSG:32651", CENTRE + [0, 0, 20.0])
+    g = World.from_crs("EPSG:32651", CENTRE, geoid=20.0)
+    e = World.from_crs("EPSG:32651", CENTRE + [0, 0, 20.0])
     P = CENTRE + [[10.0, 20.0, 5.0]]
     np.testing.assert_allclose(g.to_world(P), e.to_world(P + [0, 0, 20.0]), atol=1e-6)
     np.testing.assert_allclose(g.to_map(g.to_world(P)), P, atol=1e-6)
@@ -94,13 +96,13 @@ def test_geoid_constant_undulation():
 
 def test_bad_crs_and_local_frame():
     with pytest.raises(InputError, match="--crs"):
-        Georef("EPSG:4326", CENTRE)
-    loc = Georef("local", np.array([10.0, 20.0, 3.0]))
+        World.from_crs("EPSG:4326", CENTRE)
+    loc = World.from_crs("local", np.array([10.0, 20.0, 3.0]))
     P = np.array([[11.0, 22.0, 4.0]])
     np.testing.assert_allclose(loc.to_world(P), [[1.0, 2.0, 1.0]])
     R = _random_R(1)
-    xyz, opk = loc.eop_to_map(R, loc.to_world(P))
-    R2, _ = loc.eop_to_world(xyz, opk)
+    xyz, opk, _ = loc.poses_to_eop(Poses(R, loc.to_world(P)))
+    R2 = loc.eop_to_poses(xyz, opk).R_world_to_cam
     np.testing.assert_allclose(R2, R, atol=1e-12)
 
 

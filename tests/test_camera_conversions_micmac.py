@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from dgcal.calib.camera import conversions as cc
-from dgcal.calib.camera.files import load_camera, parse_micmac, read_camera
+from dgcal.calib.camera.files import load_camera, parse_micmac, read_camera_with_error
 from dgcal.fields.errors import InputError
 
 IMAGES = ["IMGP4167.JPG", "IMGP4168.JPG", "IMGP4169.JPG", "IMGP4170.JPG"]
@@ -60,8 +60,8 @@ def test_v1_autocal_reproduces_micmac_check_points_and_fits_fraser7(mm):
 
 def test_ground_measurements_reprojected_through_converted_calibrations(mm):
     pts, meas = ground_data(mm)
-    cam_v1, _ = read_camera(mm / "Ori-Ground_mm3d/AutoCal_Foc-28000_Cam-PENTAX_K5.xml")
-    cam_v2, err2 = read_camera(mm / "MMVII-PhgrProj/Ori/toto/Calib-PerspCentral-Foc-28000_Cam-PENTAX_K5.xml")
+    cam_v1, _ = read_camera_with_error(mm / "Ori-Ground_mm3d/AutoCal_Foc-28000_Cam-PENTAX_K5.xml")
+    cam_v2, err2 = read_camera_with_error(mm / "MMVII-PhgrProj/Ori/toto/Calib-PerspCentral-Foc-28000_Cam-PENTAX_K5.xml")
     assert err2 < 1e-3
     res_v1, res_v2 = [], []
     for image, pid, xy in meas:

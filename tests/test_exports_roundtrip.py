@@ -48,13 +48,14 @@ def test_colmap_round_trip_and_reprojection(data, tmp_path):
     rec = pycolmap.Reconstruction(str(tmp_path / "colmap"))
     assert rec.num_images() == len(eop.image) and rec.num_points3D() == len(set(mp.measurements.id))
     # pixels of the ground points through pycolmap vs dgcal's camera model with the same DG EOPs
-    from dgcal.calib.mounting.common import BlockFrame
     from dgcal.fields.crs import LocalENU
+    from dgcal.fields.world import World
     import json
     geo = json.loads((tmp_path / "colmap" / "georef.json").read_text())
-    frame = BlockFrame(g, LocalENU(*geo["origin_lat_lon_h"]))
-    C_world, R_cam_to_world = frame.eop_to_world(eop.xyz, eop.opk)
-    X_world = frame.map_to_world(sim.ground.xyz)
+    world = World(g, LocalENU(*geo["origin_lat_lon_h"]))
+    poses = world.eop_to_poses(eop.xyz, eop.opk)
+    C_world, R_cam_to_world = poses.C_world, poses.R_cam_to_world
+    X_world = world.to_world(sim.ground.xyz)
     worst = 0.0
     n = 0
     for img in rec.images.values():

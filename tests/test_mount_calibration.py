@@ -4,11 +4,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dgcal.calib.mounting.methods import calibrate_mounting, prepare_epochs
-from dgcal.calib.mounting.common import BlockFrame
-from dgcal.fields.pose import so3_log
+from dgcal.fields.pose import Poses, so3_log
 from dgcal.calib.mounting.observability import observability_warnings
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.io.formats import EOP, Trajectory
+from dgcal.fields.world import World
 from dgcal.sim.mounting import simulate_mounting
 
 
@@ -23,28 +23,29 @@ def _errors(res, sim):
     return np.r_[res.delay_s - sim.delay_s, res.lever_arm_m - sim.lever_arm_m, d]
 
 
-def test_block_frame_round_trips():
-    frame = BlockFrame(MapGrid("EPSG:32651"), LocalENU(23.0, 120.3, 30.0))
+def test_block_world_round_trips():
+    world = World(MapGrid("EPSG:32651"), LocalENU(23.0, 120.3, 30.0))
     rng = np.random.default_rng(0)
     p_world = rng.uniform(-3000, 3000, (20, 3))
     R = Rotation.random(20, random_state=1).as_matrix()
-    xyz, opk = frame.world_to_eop(p_world, R)
-    p2, R2 = frame.eop_to_world(xyz, opk)
+    xyz, opk, _ = world.poses_to_eop(Poses.from_cam_to_world(R, p_world))
+    back = world.eop_to_poses(xyz, opk)
+    p2, R2 = back.C_world, back.R_cam_to_world
     assert np.max(np.abs(p2 - p_world)) < 1e-6
     assert np.max(np.abs(R2 - R)) < 1e-9
     v = rng.normal(0, 20, (20, 3))
-    lat, lon, h, v_ned, rph = frame.world_to_pos(p_world, v, R)
-    p3, v3, R3 = frame.pos_to_world(lat, lon, h, v_ned, rph)
+    lat, lon, h, v_ned, rph = world.world_to_pos(p_world, v, R)
+    p3, v3, R3 = world.pos_to_world(lat, lon, h, v_ned, rph)
     assert np.max(np.abs(p3 - p_world)) < 1e-6 and np.max(np.abs(v3 - v)) < 1e-9 and np.max(np.abs(R3 - R)) < 1e-9
 
 
-def test_block_frame_handles_convergence():
+def test_block_world_handles_convergence():
     """A nadir camera with its top to TRUE north west of the UTM central meridian: its top points east of grid
     north (convergence < 0), i.e. a clockwise kappa equal to the convergence."""
     grid = MapGrid("EPSG:32651")
-    frame = BlockFrame(grid, LocalENU(23.0, 120.3, 30.0))
+    world = World(grid, LocalENU(23.0, 120.3, 30.0))
     R_cam_to_enu = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # x east, y south (image down), z down
-    xyz, opk = frame.world_to_eop(np.zeros((1, 3)), R_cam_to_enu[None])
+    xyz, opk, _ = world.poses_to_eop(Poses.from_cam_to_world(R_cam_to_enu[None], np.zeros((1, 3))))
     conv = float(grid.convergence_deg(23.0, 120.3))
     assert abs(conv) > 0.9  # 2.7 deg west of 123 E
     assert np.allclose(opk[0, :2], 0, atol=1e-6)
@@ -98,8 +99,8 @@ def test_sigmas_are_honest_over_seeds():
 def test_events_at_trajectory_file_works(sim):
     """`--trajectory` may be the events.csv of `dgcal pos` (one row per event, no angular rate)."""
     c = sim.calibration
-    frame, ep = prepare_epochs(c.eop, MapGrid(sim.crs), c.traj, c.events)
-    lat, lon, h, v_ned, rph = frame.world_to_pos(ep.pos.r_imu_world, ep.pos.v_world, ep.pos.R_body_to_world)
+    world, ep = prepare_epochs(c.eop, MapGrid(sim.crs), c.traj, c.events)
+    lat, lon, h, v_ned, rph = world.world_to_pos(ep.pos.r_imu_world, ep.pos.v_world, ep.pos.R_body_to_world)
     ev_traj = Trajectory(ep.t_event, lat, lon, h, v_ned, rph, np.tile(c.traj.sigma[0], (len(lat), 1)),
                          image=ep.image)
     res = calibrate_mounting(c.eop, MapGrid(sim.crs), ev_traj, c.events, "proposed")
@@ -134,7 +135,7 @@ def test_outlier_epoch_is_rejected(sim):
 def test_one_heading_one_height_warns():
     s = simulate_mounting(3, calibration=dict(heights=(300.0,), n_strips=1, length_m=1500.0))
     c = s.calibration
-    frame, ep = prepare_epochs(c.eop, MapGrid(s.crs), c.traj, c.events)
+    _, ep = prepare_epochs(c.eop, MapGrid(s.crs), c.traj, c.events)
     w = " ".join(observability_warnings(ep))
     assert "one heading" in w and "one flying height" in w
     s2 = simulate_mounting(3)

@@ -13,6 +13,7 @@ import xml.etree.ElementTree as ET
 from datetime import datetime, timezone
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from dgcal.calib.camera import conversions as conv
@@ -108,7 +109,6 @@ def camera_from_json_dict(d: dict, path: str | Path | None = None) -> CameraMode
 def opencv_yaml_string(model: CameraModel) -> tuple[str, float]:
     """OpenCV FileStorage YAML (camera_matrix, distortion_coefficients, image_width, image_height) and
     the conversion's max error (px)."""
-    import cv2
     d, err = conv.to_opencv(model)
     K, dist = conv.opencv_K_dist(d)
     fs = cv2.FileStorage("camera.yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
@@ -131,7 +131,6 @@ def write_opencv_yaml(path: str | Path, model: CameraModel) -> float:
 
 def parse_opencv_yaml(text: str, path: str | Path | None = None) -> CameraModel:
     """A camera model from OpenCV FileStorage text (YAML or XML)."""
-    import cv2
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except cv2.error as e:
@@ -375,7 +374,7 @@ def parse_micmac(text: str, path=None):
 # ---------------------------------------------------------------------------------------------
 # any camera file
 # ---------------------------------------------------------------------------------------------
-def read_camera(path: str | Path, model: str | None = None) -> tuple[CameraModel, float]:
+def read_camera_with_error(path: str | Path, model: str | None = None) -> tuple[CameraModel, float]:
     """A camera model from any supported file, recognised by content: camera.json, OpenCV YAML/XML,
     COLMAP cameras.txt, Metashape XML, MicMac V1/MMVII XML. `model` ('fraser7'/'opencv8') asks for a
     conversion. Returns (model, max error px of any fitted conversion, 0 if exact)."""
@@ -412,6 +411,30 @@ def read_camera(path: str | Path, model: str | None = None) -> tuple[CameraModel
     return cam, err
 
 
-def load_camera(path: str | Path, model: str | None = None) -> CameraModel:
-    """A camera model from any supported camera file (see `read_camera`)."""
-    return read_camera(path, model)[0]
+def read_camera(path: str | Path, model: str | None = None) -> CameraModel:
+    """A camera model from any supported camera file (see `read_camera_with_error`)."""
+    return read_camera_with_error(path, model)[0]
+
+
+load_camera = read_camera   # the older name
+
+
+CAMERA_WRITERS = {".json": "camera.json", ".yaml": "OpenCV YAML", ".yml": "OpenCV YAML", ".txt": "COLMAP cameras.txt",
+                  ".xml": "Metashape XML"}
+
+
+def write_camera(path: str | Path, model: CameraModel, stats: dict | None = None) -> float:
+    """Write a camera file in the format its suffix names (CAMERA_WRITERS); returns the conversion's max error
+    (px, 0 when exact). camera.json keeps the model's sigmas and `stats`."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".json":
+        write_camera_json(path, model, model.sigmas, stats)
+        return 0.0
+    if suffix in (".yaml", ".yml"):
+        return write_opencv_yaml(path, model)
+    if suffix == ".txt":
+        return write_colmap_cameras_txt(path, model)
+    if suffix == ".xml":
+        return write_metashape_xml(path, model)
+    raise InputError(f"unknown camera file type {suffix!r} (one of {', '.join(CAMERA_WRITERS)})", path)

@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar
 
+import cv2
 import numpy as np
 
 from dgcal.fields.errors import InputError
@@ -152,7 +153,6 @@ class CameraModel:
         w, h = self.image_size if size is None else (int(size[0]), int(size[1]))
         cv = self.opencv_K_dist()
         if cv is not None:
-            import cv2
             # the model is exactly OpenCV's: its C++ map builder is ~20x faster than NumPy here
             return cv2.initUndistortRectifyMap(cv[0], cv[1], None, K, (w, h), cv2.CV_32FC1)
         map_x = np.empty((h, w), np.float32)
@@ -172,7 +172,6 @@ class CameraModel:
     def undistort_image(self, img: np.ndarray, K_new: np.ndarray | None = None,
                         size: tuple[int, int] | None = None, interpolation: int | None = None) -> np.ndarray:
         """The image resampled to the ideal pinhole camera `K_new` (default `pinhole_K()`), via cv2.remap."""
-        import cv2
         map_x, map_y = self.undistortion_maps(K_new, size)
         return cv2.remap(img, map_x, map_y, cv2.INTER_LINEAR if interpolation is None else interpolation,
                          borderMode=cv2.BORDER_CONSTANT)

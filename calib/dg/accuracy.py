@@ -13,12 +13,14 @@ import numpy as np
 from dgcal.bundle.intersection import intersect, propagate_pose_covariance
 from dgcal.calib.camera.files import load_camera
 from dgcal.calib.dg.eop import dg_poses
-from dgcal.calib.mounting.common import BlockFrame, MountingResult, read_mounting_json
-from dgcal.fields.pose import transpose as T
+from dgcal.calib.mounting.common import MountingResult, read_mounting_json
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
+from dgcal.fields.frames import skew
 from dgcal.fields.io.formats import Events, Measurements, Points, Trajectory, read_events, read_points, read_trajectory
 from dgcal.fields.io.gcp_files import read_any_measurements
+from dgcal.fields.pose import transpose as T
+from dgcal.fields.world import World
 
 ASPRS_MIN_CHECKPOINTS = 30
 
@@ -133,12 +135,12 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
     if len(m) == 0:
         raise InputError("no measurement of a check point in an image with an event", meas.path, field="id")
     images = list(dict.fromkeys(str(k) for k in m.image))
-    frame = BlockFrame.at_map_points(grid, pts.xyz)
-    poses = dg_poses(frame, traj, events, mount, images)
+    world = World.at_map_points(grid, pts.xyz)
+    poses = dg_poses(world, traj, events, mount, images)
     img_idx = {k: j for j, k in enumerate(images)}
     ids_used = list(dict.fromkeys(str(k) for k in m.id))
     pt_idx = {k: j for j, k in enumerate(ids_used)}
-    res = intersect(camera, poses.C_world, poses.R_cam_to_world, np.array([img_idx[str(k)] for k in m.image]),
+    res = intersect(camera, poses.cam.C_world, poses.cam.R_cam_to_world, np.array([img_idx[str(k)] for k in m.image]),
                     np.array([pt_idx[str(k)] for k in m.id]), m.xy, m.sigma, len(ids_used), min_rays)
     ok = res.ok
     warnings = []
@@ -147,9 +149,9 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
                         + ", ".join(np.array(ids_used)[~ok][:10]))
     ids = np.array(ids_used, dtype=object)[ok]
     X_world = res.xyz[ok]
-    xyz_dg = frame.world_to_map(X_world)
+    xyz_dg = world.to_map(X_world)
     xyz_ref = pts.xyz[[pid[k] for k in ids]]
-    R_world_to_grid = T(frame.R_grid_to_world_at(xyz_dg))
+    R_world_to_grid = world.R_world_to_grid_at(X_world)
     # errors as differences of map coordinates (grid E, N, height)
     err = xyz_dg - xyz_ref
     # predicted covariances per source, rotated into grid axes
@@ -158,10 +160,10 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
     corr, tau = None, pos_correlation_time_s
     if tau == "auto":
         tau = straight_segment_time(traj)
-    if poses.cov_pos is not None and tau:
+    if poses.cam.cov is not None and tau:
         dt = np.abs(poses.t_exposure[:, None] - poses.t_exposure[None, :])
         corr = np.exp(-dt / float(tau))
-    if poses.cov_pos is not None:
+    if poses.cam.cov is not None:
         Cp = poses.pos.cov
         Gp = _pos_to_pose(poses, mount)
         for name, sl in (("pos_position", slice(0, 3)), ("pos_attitude", slice(3, 6))):
@@ -175,8 +177,8 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
     parts_grid = {k: R_world_to_grid @ v @ T(R_world_to_grid) for k, v in parts.items()}
     # all sources together, with the mounting correlations
     total = res.cov[ok].copy()
-    if poses.cov_pos is not None:
-        total += propagate_pose_covariance(res, poses.cov_pos, pose_corr=corr)[ok]
+    if poses.cam.cov is not None:
+        total += propagate_pose_covariance(res, poses.cam.cov, pose_corr=corr)[ok]
     total += propagate_pose_covariance(res, None, poses.G_mount, cov_mount)[ok]
     total_grid = R_world_to_grid @ total @ T(R_world_to_grid)
     stats = error_stats(err)
@@ -185,7 +187,7 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
               "achieved_rms": stats["rms"],
               "ratio_achieved_to_predicted": {k: stats["rms"][k] / pred[k] if pred[k] > 0 else None
                                               for k in ("E", "N", "U", "2D", "3D")},
-              "mean_flying_height_m": float(np.mean(poses.C_world[:, 2] - X_world[:, 2].mean())),
+              "mean_flying_height_m": float(np.mean(poses.cam.C_world[:, 2] - X_world[:, 2].mean())),
               "mean_speed_m_s": float(np.mean(np.linalg.norm(poses.pos.v_world, axis=1))),
               "magnitudes": _magnitudes(traj, mount, m),
               "pos_correlation_time_s": float(tau) if tau else None,
@@ -213,8 +215,7 @@ def _magnitudes(traj: Trajectory, mount: MountingResult, meas: Measurements) -> 
 
 
 def _pos_to_pose(poses, mount: MountingResult) -> np.ndarray:
-    """d pose / d POS error [position L, body rotation] per image (M,6,6)."""
-    from dgcal.fields.frames import skew
+    """d pose / d POS error [position (m, world), body rotation (rad)] per image (M,6,6)."""
     n = len(poses.image)
     G = np.zeros((n, 6, 6))
     G[:, :3, :3] = np.eye(3)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import tifffile
 
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
@@ -77,7 +78,6 @@ def _geokeys(tags) -> dict[int, object]:
 
 def read_geotiff_dem(path: str | Path, band: int = 0) -> Dem:
     """A DEM from a single-band (or the `band`th) GeoTIFF; errors name the file and the missing tag."""
-    import tifffile
     path = Path(path)
     if not path.is_file():
         raise InputError("DEM file not found", path)
@@ -119,7 +119,6 @@ def read_geotiff_dem(path: str | Path, band: int = 0) -> Dem:
 
 def write_geotiff_dem(path: str | Path, dem: Dem, epsg: int | None = None, nodata: float = -9999.0) -> None:
     """Write a DEM as a float32 GeoTIFF (PixelIsArea, north-up affine only) with EPSG and GDAL_NODATA tags."""
-    import tifffile
     A = np.asarray(dem.A, float)
     if A[0, 1] != 0 or A[1, 0] != 0:
         raise ValueError("only north-up DEMs can be written with pixel scale + tiepoint")

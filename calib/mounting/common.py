@@ -1,12 +1,9 @@
-"""Shared pieces of the mounting calibration: the one local level frame, POS and EOP conversions into it,
-epoch matching, SO(3) helpers and the result record.
+"""Shared pieces of the mounting calibration: POS and EOPs in the world frame, epoch matching, the rotation
+mean and the result record.
 
-Frames (docs/conventions.md, docs/mounting.md):
-- `L`: a `LocalENU` frame at the block centre. Every position and rotation of an epoch is expressed in it,
-  so meridian convergence (map grid vs true north) and earth curvature (ENU at the point vs ENU at the
-  centre) are handled once, here.
-- map: the EOP CRS; EOP angles are PATB relative to grid-level axes (grid E, grid N, Up) at the projection centre.
-- body: IMU FRD; camera: CV (x right, y down, z forward).
+Frames (docs/conventions.md, docs/mounting.md): every position and rotation of an epoch is in the one world
+frame of the block (`dgcal.fields.world.World`, a local ENU frame at the block centre), which handles meridian
+convergence and earth curvature; body: IMU FRD; camera: x right, y down, z forward.
 Rotation errors are right perturbations: `R_obs = R_true Exp(delta)` with `delta` in the rotated frame's source
 axes (camera frame for `R_cam_to_world`, body frame for `R_body_to_world`).
 """
@@ -19,142 +16,35 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dgcal.fields.crs import LocalENU, MapGrid
-from dgcal.fields.pose import so3_log
-from dgcal.fields.pose import transpose as T
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, Events, Trajectory
-from dgcal.fields.frames import (R_NED_TO_ENU, R_ENU_TO_NED, R_body_to_ned_from_rph, R_cam_to_map_from_opk,
-                           opk_from_R_cam_to_map, rph_from_R_body_to_ned)
+from dgcal.fields.pose import Poses
+from dgcal.fields.world import World
+from dgcal.pos.ins.interpolate import interpolate_trajectory
 
 
-# --- SO(3): dgcal.fields.pose holds the helpers; the rotation mean is the mounting's own ------------
 def rotation_mean(R: np.ndarray) -> np.ndarray:
     """Chordal L2 mean of rotation matrices (N,3,3)."""
     return Rotation.from_matrix(R).mean().as_matrix()
 
 
-# --- the block frame ---------------------------------------------------------------------------
-@dataclass
-class BlockFrame:
-    """The map grid of the EOPs and the local level frame `L` (ENU at the block centre) the adjustment works in."""
-
-    grid: MapGrid
-    local: LocalENU
-
-    @classmethod
-    def at_map_points(cls, grid: MapGrid, xyz_map: np.ndarray) -> "BlockFrame":
-        """A block frame centred at the mean of map points (m)."""
-        return cls(grid, grid.local_frame(np.mean(np.asarray(xyz_map, float).reshape(-1, 3), axis=0)))
-
-    # map <-> L
-    def R_grid_to_world_at(self, xyz_map: np.ndarray) -> np.ndarray:
-        """Rotation from grid-level axes at map points to L (convergence, then curvature); (N,3,3)."""
-        xyz = np.atleast_2d(np.asarray(xyz_map, float))
-        geo = self.grid.to_geodetic(xyz)
-        # dgcal.fields.frames.R_enu_to_grid takes one angle; build the stack here (R_enu_to_grid = Rz(convergence))
-        conv = np.asarray(self.grid.convergence_deg(geo[:, 0], geo[:, 1]), float).reshape(-1, 1)
-        R_enu_to_grid = Rotation.from_euler("z", conv, degrees=True).as_matrix().reshape(-1, 3, 3)
-        return self.local.R_enu_here_to_local(geo[:, 0], geo[:, 1]) @ T(R_enu_to_grid)
-
-    def map_to_world(self, xyz_map: np.ndarray) -> np.ndarray:
-        """L coordinates (m) of map points."""
-        return self.local.from_ecef(self.grid.to_ecef(np.atleast_2d(np.asarray(xyz_map, float))))
-
-    def world_to_map(self, p_world: np.ndarray) -> np.ndarray:
-        """Map coordinates of L points (m)."""
-        return self.grid.from_ecef(self.local.to_ecef(np.atleast_2d(np.asarray(p_world, float))))
-
-    def eop_to_world(self, xyz_map: np.ndarray, opk_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Projection centres in L (N,3) and `R_cam_to_world` (N,3,3) from map EOPs (PATB degrees)."""
-        xyz = np.atleast_2d(np.asarray(xyz_map, float))
-        opk = np.atleast_2d(np.asarray(opk_deg, float))
-        R_cam_to_grid = R_cam_to_map_from_opk(opk[:, 0], opk[:, 1], opk[:, 2])
-        return self.map_to_world(xyz), self.R_grid_to_world_at(xyz) @ R_cam_to_grid
-
-    def world_to_eop(self, p_world: np.ndarray, R_cam_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Map projection centres (N,3) and PATB omega/phi/kappa (N,3) degrees from L poses."""
-        xyz = self.world_to_map(p_world)
-        R_cam_to_grid = T(self.R_grid_to_world_at(xyz)) @ np.asarray(R_cam_to_world, float).reshape(-1, 3, 3)
-        return xyz, opk_from_R_cam_to_map(R_cam_to_grid)
-
-    # geodetic POS <-> L
-    def pos_to_world(self, lat, lon, h, v_ned, rph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """IMU position in L (N,3), velocity in L (N,3) and `R_body_to_world` (N,3,3) from geodetic POS samples."""
-        lat, lon, h = (np.atleast_1d(np.asarray(a, float)) for a in (lat, lon, h))
-        R_here_to_world = self.local.R_enu_here_to_local(lat, lon).reshape(-1, 3, 3)
-        rph = np.atleast_2d(np.asarray(rph, float))
-        R_body_to_ned = R_body_to_ned_from_rph(rph[:, 0], rph[:, 1], rph[:, 2]).reshape(-1, 3, 3)
-        R_body_to_world = R_here_to_world @ R_NED_TO_ENU @ R_body_to_ned
-        v_world = np.einsum("nij,nj->ni", R_here_to_world, np.atleast_2d(np.asarray(v_ned, float)) @ R_NED_TO_ENU.T)
-        return self.local.from_geodetic(lat, lon, h).reshape(-1, 3), v_world, R_body_to_world
-
-    def world_to_pos(self, p_world, v_world, R_body_to_world) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """lat, lon (deg), h (m), v_ned (N,3), rph (N,3) deg from L samples (inverse of `pos_to_world`)."""
-        geo = self.local.to_geodetic(np.atleast_2d(np.asarray(p_world, float)))
-        R_world_to_here = T(self.local.R_enu_here_to_local(geo[:, 0], geo[:, 1]).reshape(-1, 3, 3))
-        R_body_to_ned = R_ENU_TO_NED @ R_world_to_here @ np.asarray(R_body_to_world, float).reshape(-1, 3, 3)
-        v_ned = np.einsum("nij,nj->ni", R_world_to_here, np.atleast_2d(np.asarray(v_world, float))) @ R_ENU_TO_NED.T
-        return geo[:, 0], geo[:, 1], geo[:, 2], v_ned, rph_from_R_body_to_ned(R_body_to_ned)
-
-
-def numeric_rot_jacobian(fun, x0: np.ndarray, R0: np.ndarray, step: float = 1e-6) -> np.ndarray:
-    """d delta / d x (N,3,k) where fun(x) -> (N,3,3) and delta = Log(R0^T fun(x)) (right perturbation)."""
-    n, k = x0.shape
-    J = np.empty((n, 3, k))
-    for j in range(k):
-        d = np.zeros(k)
-        d[j] = step
-        J[:, :, j] = (so3_log(T(R0) @ fun(x0 + d)) - so3_log(T(R0) @ fun(x0 - d))) / (2 * step)
-    return J
-
-
-def eop_covariance_world(frame: BlockFrame, eop: EOP, rows: np.ndarray) -> np.ndarray | None:
-    """(N,6,6) covariance of [position in L (m), camera-frame rotation error (rad)] of EOP rows, or None."""
-    if eop.cov is None and eop.sigma is None:
-        return None
-    xyz, opk = eop.xyz[rows], eop.opk[rows]
+def _eop_map_covariance(eop: EOP, rows: np.ndarray) -> np.ndarray | None:
+    """(N,6,6) covariances [position (m), omega, phi, kappa (deg)] of EOP rows: the file's, or diagonal from its
+    sigmas; None without either."""
     if eop.cov is not None:
-        C_map = eop.cov[rows].copy()
-    else:
-        C_map = np.zeros((len(rows), 6, 6))
-        C_map[:, np.arange(6), np.arange(6)] = eop.sigma[rows] ** 2
-    _, R0 = frame.eop_to_world(xyz, opk)
-    # d(rotation error, rad)/d(omega, phi, kappa, deg): the angle covariance is in deg^2
-    Jr = numeric_rot_jacobian(lambda a: frame.eop_to_world(xyz, a)[1], opk, R0, 1e-5)
-    G = np.zeros((len(rows), 6, 6))
-    G[:, :3, :3] = frame.R_grid_to_world_at(xyz)
-    G[:, 3:, 3:] = Jr
-    return G @ C_map @ T(G)
-
-
-def pos_covariance_world(frame: BlockFrame, lat, lon, h, rph, sigma: np.ndarray) -> np.ndarray:
-    """(N,6,6) covariance of [IMU position in L (m), body-frame rotation error (rad)] from POS sigmas.
-
-    `sigma` (N,6): s_lat_m (north), s_lon_m (east), s_h_m (m), s_roll, s_pitch, s_heading (deg)."""
-    lat, lon, h = (np.atleast_1d(np.asarray(a, float)) for a in (lat, lon, h))
-    rph = np.atleast_2d(np.asarray(rph, float))
-    R_here_to_world = frame.local.R_enu_here_to_local(lat, lon).reshape(-1, 3, 3)
-    C = np.zeros((len(lat), 6, 6))
-    C_enu = np.zeros((len(lat), 3, 3))
-    C_enu[:, 0, 0], C_enu[:, 1, 1], C_enu[:, 2, 2] = sigma[:, 1] ** 2, sigma[:, 0] ** 2, sigma[:, 2] ** 2
-    C[:, :3, :3] = R_here_to_world @ C_enu @ T(R_here_to_world)
-
-    def R_of(a):
-        return R_body_to_ned_from_rph(a[:, 0], a[:, 1], a[:, 2]).reshape(-1, 3, 3)
-
-    Jr = numeric_rot_jacobian(R_of, rph, R_of(rph), 1e-5)  # rad per degree
-    C_rph = np.zeros((len(lat), 3, 3))
-    C_rph[:, np.arange(3), np.arange(3)] = sigma[:, 3:] ** 2
-    C[:, 3:, 3:] = Jr @ C_rph @ T(Jr)
+        return eop.cov[rows].copy()
+    if eop.sigma is None:
+        return None
+    C = np.zeros((len(rows), 6, 6))
+    C[:, np.arange(6), np.arange(6)] = eop.sigma[rows] ** 2
     return C
 
 
 # --- POS at exposure/event times ----------------------------------------------------------------
 @dataclass
 class PoseAt:
-    """POS state at query times in L: IMU position, velocity, body-to-L rotation, body angular rate (rad/s),
-    covariance (N,6,6) of [position, body rotation error] or None."""
+    """POS state at query times in the world: IMU position (m), velocity (m/s), R_body_to_world, body angular
+    rate (rad/s), covariance (N,6,6) of [position (m), body rotation error (rad)] or None."""
 
     t: np.ndarray
     r_imu_world: np.ndarray
@@ -165,50 +55,56 @@ class PoseAt:
     geo: np.ndarray | None = None  # lat, lon, h
     rph: np.ndarray | None = None
 
+    def subset(self, mask: np.ndarray) -> "PoseAt":
+        """The samples where `mask` is true (or at indices `mask`)."""
+        return PoseAt(self.t[mask], self.r_imu_world[mask], self.v_world[mask], self.R_body_to_world[mask],
+                      self.omega_b[mask], None if self.cov is None else self.cov[mask],
+                      None if self.geo is None else self.geo[mask], None if self.rph is None else self.rph[mask])
 
-def pose_at_times(frame: BlockFrame, traj: Trajectory, t_query: np.ndarray, names=None,
+
+def pose_at_times(world: World, traj: Trajectory, t_query: np.ndarray, names: np.ndarray | list | None = None,
                   max_gap_s: float | None = None) -> PoseAt:
-    """POS interpolated at GPS times (s) by `dgcal.pos.ins.interpolate` (cubic Hermite position, cubic attitude, angular
-    rate, variance-linear sigmas), expressed in L."""
-    from dgcal.pos.ins.interpolate import interpolate_trajectory
+    """POS interpolated at GPS times (s) by `dgcal.pos.ins.interpolate` (cubic Hermite position, cubic attitude,
+    angular rate, variance-linear sigmas), in the world."""
     st = interpolate_trajectory(traj, np.asarray(t_query, float), names, max_gap_s=max_gap_s)
-    r, v, R = frame.pos_to_world(st.lat, st.lon, st.h, st.v_ned, st.rph)
-    cov = None if st.sigma is None else pos_covariance_world(frame, st.lat, st.lon, st.h, st.rph, st.sigma)
-    # omega_eb_b: body rate relative to the earth in body axes, the rate of R_body_to_world (L is earth-fixed)
+    r, v, R = world.pos_to_world(st.lat, st.lon, st.h, st.v_ned, st.rph)
+    cov = None if st.sigma is None else world.pos_covariance_to_world(st.lat, st.lon, st.rph, st.sigma)
+    # omega_eb_b: body rate relative to the earth in body axes, the rate of R_body_to_world (the world is earth-fixed)
     return PoseAt(st.t, r, v, R, np.asarray(st.omega_eb_b, float), cov, np.column_stack([st.lat, st.lon, st.h]),
                   st.rph)
 
 
-def pose_at_events(frame: BlockFrame, traj: Trajectory, images: np.ndarray, t_event: np.ndarray) -> PoseAt:
+def pose_at_rows(world: World, traj: Trajectory, rows: np.ndarray) -> PoseAt:
+    """POS of trajectory rows (e.g. of an events-at-trajectory file), in the world, without angular rate."""
+    lat, lon, h, rph = traj.lat[rows], traj.lon[rows], traj.h[rows], traj.rph[rows]
+    r, v, R = world.pos_to_world(lat, lon, h, traj.v_ned[rows], rph)
+    cov = None if traj.sigma is None else world.pos_covariance_to_world(lat, lon, rph, traj.sigma[rows])
+    return PoseAt(traj.t[rows], r, v, R, np.zeros((len(rows), 3)), cov, np.column_stack([lat, lon, h]), rph)
+
+
+def pose_at_events(world: World, traj: Trajectory, images: np.ndarray, t_event: np.ndarray) -> PoseAt:
     """POS at event times: interpolated from a trajectory, or read from an events-at-trajectory file by image."""
     if traj.image is None:
-        return pose_at_times(frame, traj, t_event, images)
+        return pose_at_times(world, traj, t_event, images)
     idx = {str(k): j for j, k in enumerate(traj.image)}
-    rows = np.array([idx[str(im)] for im in images], int)
-    p_world, v_world, R_bL = frame.pos_to_world(traj.lat[rows], traj.lon[rows], traj.h[rows], traj.v_ned[rows], traj.rph[rows])
-    cov = None
-    if traj.sigma is not None:
-        cov = pos_covariance_world(frame, traj.lat[rows], traj.lon[rows], traj.h[rows], traj.rph[rows], traj.sigma[rows])
-    geo = np.column_stack([traj.lat[rows], traj.lon[rows], traj.h[rows]])
-    return PoseAt(traj.t[rows], p_world, v_world, R_bL, np.zeros((len(rows), 3)), cov, geo, traj.rph[rows])
+    return pose_at_rows(world, traj, np.array([idx[str(im)] for im in images], int))
 
 
 # --- epochs -------------------------------------------------------------------------------------
 @dataclass
 class Epochs:
-    """Matched calibration epochs in L: camera pose from the bundle and POS at the event time."""
+    """Matched calibration epochs in the world: the camera pose from the bundle (`eop`, with the EOP covariance
+    [C_world (m), dtheta (rad)] or None) and the POS at the event time."""
 
     image: np.ndarray
     t_event: np.ndarray
-    C_world: np.ndarray
-    R_cam_to_world: np.ndarray
-    cov_eop: np.ndarray | None
+    eop: Poses
     pos: PoseAt
     has_rate: bool
     warnings: list[str] = field(default_factory=list)
     skipped: dict[str, list[str]] = field(default_factory=dict)
     dt_ref: float = 0.0  # the POS in `pos` is at t_event + dt_ref
-    frame: BlockFrame | None = field(default=None, repr=False)
+    world: World | None = field(default=None, repr=False)
     traj: Trajectory | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
@@ -217,23 +113,18 @@ class Epochs:
     @property
     def can_resample(self) -> bool:
         """True when the full trajectory is at hand, so the POS can be re-interpolated at t_event + delay."""
-        return self.traj is not None and self.traj.image is None and self.frame is not None
+        return self.traj is not None and self.traj.image is None and self.world is not None
 
     def at_delay(self, dt: float) -> "Epochs":
         """The epochs with the POS re-interpolated at t_event + dt (s)."""
-        pos = pose_at_times(self.frame, self.traj, self.t_event + dt, self.image)
-        return Epochs(self.image, self.t_event, self.C_world, self.R_cam_to_world, self.cov_eop, pos, self.has_rate,
-                      list(self.warnings), dict(self.skipped), float(dt), self.frame, self.traj)
+        pos = pose_at_times(self.world, self.traj, self.t_event + dt, self.image)
+        return Epochs(self.image, self.t_event, self.eop, pos, self.has_rate, list(self.warnings),
+                      dict(self.skipped), float(dt), self.world, self.traj)
 
     def subset(self, mask: np.ndarray) -> "Epochs":
         """Epochs where `mask` is true."""
-        p = self.pos
-        pos = PoseAt(p.t[mask], p.r_imu_world[mask], p.v_world[mask], p.R_body_to_world[mask], p.omega_b[mask],
-                     None if p.cov is None else p.cov[mask], None if p.geo is None else p.geo[mask],
-                     None if p.rph is None else p.rph[mask])
-        return Epochs(self.image[mask], self.t_event[mask], self.C_world[mask], self.R_cam_to_world[mask],
-                      None if self.cov_eop is None else self.cov_eop[mask], pos, self.has_rate,
-                      list(self.warnings), dict(self.skipped), self.dt_ref, self.frame, self.traj)
+        return Epochs(self.image[mask], self.t_event[mask], self.eop[mask], self.pos.subset(mask), self.has_rate,
+                      list(self.warnings), dict(self.skipped), self.dt_ref, self.world, self.traj)
 
 
 def match_images(eop: EOP, events: Events, traj: Trajectory) -> tuple[np.ndarray, np.ndarray, list[str], dict]:
@@ -265,17 +156,16 @@ def match_images(eop: EOP, events: Events, traj: Trajectory) -> tuple[np.ndarray
             warnings, skipped)
 
 
-def build_epochs(frame: BlockFrame, eop: EOP, events: Events, traj: Trajectory) -> Epochs:
-    """Match EOPs, events and POS by image name and express all of them in the block frame L."""
+def build_epochs(world: World, eop: EOP, events: Events, traj: Trajectory) -> Epochs:
+    """Match EOPs, events and POS by image name and express all of them in the world."""
     r_eop, r_ev, warnings, skipped = match_images(eop, events, traj)
-    C_world, R_cam_to_world = frame.eop_to_world(eop.xyz[r_eop], eop.opk[r_eop])
+    poses = world.eop_to_poses(eop.xyz[r_eop], eop.opk[r_eop], _eop_map_covariance(eop, r_eop))
     images = eop.image[r_eop]
-    pos = pose_at_events(frame, traj, images, events.t[r_ev])
+    pos = pose_at_events(world, traj, images, events.t[r_ev])
     has_rate = traj.image is None
     if not has_rate:
         warnings.append("trajectory has one row per event: no angular rate, attitude is held fixed over the delay")
-    return Epochs(images, events.t[r_ev], C_world, R_cam_to_world, eop_covariance_world(frame, eop, r_eop), pos,
-                  has_rate, warnings, skipped, 0.0, frame, traj)
+    return Epochs(images, events.t[r_ev], poses, pos, has_rate, warnings, skipped, 0.0, world, traj)
 
 
 # --- result ------------------------------------------------------------------------------------

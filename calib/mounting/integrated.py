@@ -15,27 +15,32 @@ epoch; poses follow `dgcal.fields.pose`); the covariance of the mounting comes f
 `pos_common_fraction` x the mean POS covariance taken as an error common to all epochs (bias-driven tilt,
 GNSS biases of a smoothed MEMS POS do not average down over one flight): its effect on the mounting is the
 sensitivity S = N^-1 J^T B of the estimate to a constant POS error (B: whitened POS residuals per unit
-position error in L and attitude error about body axes), computed with the same Schur elimination.
+position error in world axes and attitude error about body axes), computed with the same Schur elimination.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from dgcal.bundle.intersection import intersect
 from dgcal.bundle.solver.blocks import BlockEval, FunctionBlock, ImageObservations, PointPriors, State
 from dgcal.bundle.solver.covariance import Covariance, normal_rhs
 from dgcal.bundle.solver.lm import LMOptions, minimise, normals_at
 from dgcal.bundle.solver.normals import Problem
-from dgcal.calib.mounting.common import BlockFrame, MountingResult, build_epochs
+from dgcal.calib.camera.files import load_camera
+from dgcal.calib.mounting.common import MountingResult, build_epochs
 from dgcal.calib.mounting.observability import observability_warnings
 from dgcal.calib.mounting.joint import DEFAULT_POS_SIGMA, default_cov, calibrate_proposed
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.formats import EOP, Events, Measurements, Points, Trajectory
+from dgcal.fields.io.formats import EOP, Events, Measurements, Points, Trajectory, read_measurements, read_points
+from dgcal.fields.io.gcp_files import is_odm_gcp_list, read_odm_gcp_list
 from dgcal.fields.frames import skew
 from dgcal.fields.pose import Poses, so3_exp, so3_log, so3_right_jacobian_inv
 from dgcal.fields.pose import transpose as T
+from dgcal.fields.world import World
 
 DEFAULT_PIXEL_SIGMA = 0.5
 DEFAULT_GCP_SIGMA = 0.02
@@ -55,17 +60,51 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     if bad:
         raise InputError(f"camera model {camera.NAME} has no parameter {bad[0]!r} ({', '.join(camera.PARAMS)})",
                          field="--refine-intrinsics")
-    cam = camera.copy()
     i_intr = [camera.PARAMS.index(k) for k in refine_intrinsics]
-    n_intr = len(i_intr)
-    frame = BlockFrame.at_map_points(grid, eop.xyz)
-    ep = build_epochs(frame, eop, events, traj)
+    world = World.at_map_points(grid, eop.xyz)
+    ep = build_epochs(world, eop, events, traj)
     init = calibrate_proposed(ep, fix_delay=fix_delay)
+    blk = _iso_block(camera, ep, meas, gcp, world)
+    R_hat = init.R_cam_to_body.copy()
+    C_pos, W_pos = _pos_weights(ep.pos, init.delay_s, init.lever_arm_m, R_hat)
+    free_m = np.arange(1 if fix_delay else 0, 7)
+    prob = _iso_problem(camera, blk, ep.pos, R_hat, W_pos, refine_intrinsics, free_m)
+    x0 = np.r_[init.delay_s if not fix_delay else 0.0, init.lever_arm_m, 0, 0, 0, camera.params[i_intr]]
+    start = State(Poses(ep.eop.R_world_to_cam.copy(), ep.eop.C_world), blk.X0, x0)
+    sol = minimise(prob, start, LMOptions(max_iterations=max_iterations, tol_chi2=1e-4, tol_rel=1e-12))
+    nrm = normals_at(prob, sol)
+    sigma0_sq = float(nrm.cost / max(int(nrm.redundancy), 1))
+    mt = sol.state.globals[:7]
+    R_final = so3_exp(mt[4:7]) @ R_hat
+    cov = _iso_covariance(prob, nrm, ep.pos, W_pos, C_pos, mt, R_final, free_m, len(i_intr), sigma0_sq,
+                          pos_common_fraction)
+    return _iso_result(ep, world, blk, prob, sol, nrm, cov, R_final, fix_delay, refine_intrinsics,
+                       pos_common_fraction, init)
+
+
+@dataclass
+class _IsoBlock:
+    """The images, points and measurements of the ISO adjustment, and the initial points (world, m)."""
+
+    img_names: list[str]
+    pt_names: list[str]
+    meas: Measurements     # the measurements in images with an epoch
+    obs_img: np.ndarray
+    obs_pt: np.ndarray
+    sig_uv: np.ndarray     # px
+    ctrl: np.ndarray       # (K,) control point mask
+    X_ctrl: np.ndarray     # control coordinates (world, m)
+    s_ctrl: np.ndarray     # their sigmas (m)
+    X0: np.ndarray         # (K,3) initial points (world, m)
+
+
+def _iso_block(camera, ep, meas: Measurements, gcp: Points, world: World) -> _IsoBlock:
+    """Index the measurements of the epochs' images; control points from the file, the others intersected from the
+    initial poses (InputError with fewer than 3 measured control points or a point seen once)."""
     img_names = [str(s) for s in ep.image]
     img_idx = {k: i for i, k in enumerate(img_names)}
     gid = {str(k): j for j, k in enumerate(gcp.ids)}
-    keep = np.array([str(im) in img_idx for im in meas.image], bool)
-    m = meas.subset(keep)
+    m = meas.subset(np.array([str(im) in img_idx for im in meas.image], bool))
     pt_names = list(dict.fromkeys(str(k) for k in m.id))
     pt_idx = {k: j for j, k in enumerate(pt_names)}
     obs_img = np.array([img_idx[str(k)] for k in m.image], int)
@@ -76,50 +115,61 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
         raise InputError(f"ISO needs at least 3 measured control points, found {int(ctrl.sum())}", gcp.path,
                          field="role")
     ctrl_rows = np.array([gid[k] for k in np.array(pt_names)[ctrl]], int)
-    X_ctrl = frame.map_to_world(gcp.xyz[ctrl_rows])
+    X_ctrl = world.to_world(gcp.xyz[ctrl_rows])
     s_ctrl = np.where(np.isfinite(gcp.sigma[ctrl_rows]), gcp.sigma[ctrl_rows], DEFAULT_GCP_SIGMA)
-    M, K = len(img_names), len(pt_names)
-    # initial points: control from the file, the others intersected from the initial poses
-    res0 = intersect(camera, ep.C_world, ep.R_cam_to_world, obs_img, obs_pt, m.xy, sig_uv, K)
+    res0 = intersect(camera, ep.eop.C_world, ep.eop.R_cam_to_world, obs_img, obs_pt, m.xy, sig_uv, len(pt_names))
     X0 = np.where(res0.ok[:, None], res0.xyz, 0.0)
     X0[ctrl] = X_ctrl
     lonely = ~res0.ok & ~ctrl
     if lonely.any():
-        raise InputError(f"{int(lonely.sum())} points are seen in fewer than 2 images (e.g. {np.array(pt_names)[lonely][0]!r})",
-                         meas.path, field="id")
-    R0 = ep.R_cam_to_world.copy()
-    R_hat = init.R_cam_to_body.copy()
-    pos = ep.pos
-    C_pos = pos.cov if pos.cov is not None else default_cov(M, DEFAULT_POS_SIGMA[0], DEFAULT_POS_SIGMA[1:2] * 2
-                                                             + DEFAULT_POS_SIGMA[2:])
-    # POS residual weights, from the POS covariance through the model at the initial mounting
-    W_pos = np.linalg.inv(np.linalg.cholesky(_pos_G(pos, init.delay_s, init.lever_arm_m, R_hat) @ C_pos
-                                             @ T(_pos_G(pos, init.delay_s, init.lever_arm_m, R_hat))))
-    free_m = np.arange(1 if fix_delay else 0, 7)
-    n_glob = 7 + n_intr                       # globals: [dt, lever (3), theta (3)] then the intrinsics
+        raise InputError(f"{int(lonely.sum())} points are seen in fewer than 2 images "
+                         f"(e.g. {np.array(pt_names)[lonely][0]!r})", meas.path, field="id")
+    return _IsoBlock(img_names, pt_names, m, obs_img, obs_pt, sig_uv, ctrl, X_ctrl, s_ctrl, X0)
+
+
+def _pos_weights(pos, dt: float, lever: np.ndarray, R_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The POS covariance (M,6,6) (the defaults without one) and the POS residual weights W (M,6,6), from the POS
+    covariance through the model at the initial mounting."""
+    C_pos = pos.cov if pos.cov is not None else default_cov(len(pos.r_imu_world), DEFAULT_POS_SIGMA[0],
+                                                             DEFAULT_POS_SIGMA[1:2] * 2 + DEFAULT_POS_SIGMA[2:])
+    W_pos = np.linalg.inv(np.linalg.cholesky(_pos_G(pos, dt, lever, R_hat) @ C_pos @ T(_pos_G(pos, dt, lever, R_hat))))
+    return C_pos, W_pos
+
+
+def _iso_problem(camera, blk: _IsoBlock, pos, R_hat: np.ndarray, W_pos: np.ndarray,
+                 refine_intrinsics: tuple[str, ...], free_m: np.ndarray) -> Problem:
+    """The engine problem: image observations, control-point priors and the POS block (its last block); globals
+    [dt, lever (3), theta (3)] then the refined intrinsics."""
+    M, K = len(blk.img_names), len(blk.pt_names)
+    n_glob = 7 + len(refine_intrinsics)
     pos_block = FunctionBlock(lambda st, jac: _pos_residuals(st, pos, R_hat, W_pos, jac), M, 6, name="pos")
-    blocks = [ImageObservations(camera, obs_img, obs_pt, m.xy, sig_uv, refine_intrinsics, 7),
-              PointPriors.from_arrays(X_ctrl, s_ctrl, np.flatnonzero(ctrl)), pos_block]
+    blocks = [ImageObservations(camera, blk.obs_img, blk.obs_pt, blk.meas.xy, blk.sig_uv, refine_intrinsics, 7),
+              PointPriors.from_arrays(blk.X_ctrl, blk.s_ctrl, np.flatnonzero(blk.ctrl)), pos_block]
     glob_free = np.ones(n_glob, bool)
     glob_free[:7] = np.isin(np.arange(7), free_m)
-    prob = Problem(blocks, M, K, n_glob, global_free=glob_free)
-    x0 = np.r_[init.delay_s if not fix_delay else 0.0, init.lever_arm_m, 0, 0, 0, camera.params[i_intr]]
-    start = State(Poses.from_cam_to_world(R0, ep.C_world), X0, x0)
-    sol = minimise(prob, start, LMOptions(max_iterations=max_iterations, tol_chi2=1e-4, tol_rel=1e-12))
-    nrm = normals_at(prob, sol)
+    return Problem(blocks, M, K, n_glob, global_free=glob_free)
+
+
+@dataclass
+class _IsoCovariance:
+    """Mounting covariances (7,7): total, random part, POS common-mode part; and of the free globals."""
+
+    total: np.ndarray
+    random: np.ndarray
+    common: np.ndarray
+    glob: np.ndarray
+
+
+def _iso_covariance(prob: Problem, nrm, pos, W_pos: np.ndarray, C_pos: np.ndarray, mt: np.ndarray,
+                    R_final: np.ndarray, free_m: np.ndarray, n_intr: int, sigma0_sq: float,
+                    pos_common_fraction: float) -> _IsoCovariance:
+    """The normal matrix's covariance of the mounting (scaled by max(1, sigma0^2)) plus the response of the
+    mounting to a POS error common to all epochs (position in world axes, attitude about body axes): the POS
+    observation enters the residual as in `calibrate_proposed`."""
+    M = len(pos.r_imu_world)
     cov_eng = Covariance.at(prob, nrm)
-    dof = int(nrm.redundancy)
-    sigma0_sq = float(nrm.cost / max(dof, 1))
-    g = sol.state.globals
-    mt = g[:7]
-    R_final = so3_exp(mt[4:7]) @ R_hat
-    poses = sol.state.poses
-    C, R_c2w = poses.C_world, poses.R_cam_to_world
-    # response of the mounting to a POS error common to all epochs (position in world axes, attitude about body
-    # axes): the POS observation enters the residual as in `calibrate_proposed`
     B = np.einsum("nij,njk->nik", W_pos, _pos_G(pos, mt[0], mt[1:4], R_final))
-    ipos = len(blocks) - 1
-    b_c, b_x = normal_rhs(prob, nrm, ipos, B)
+    b_c, b_x = normal_rhs(prob, nrm, len(prob.blocks) - 1, B)
     resp_c, _ = cov_eng.response(b_c, b_x)
     glob_cols = 6 * M + np.r_[free_m, 7 + np.arange(n_intr)]
     sens_glob = resp_c[glob_cols]
@@ -127,25 +177,33 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     cov_glob_random = cof_glob * max(1.0, sigma0_sq)
     cov_glob_common = pos_common_fraction * sens_glob @ C_pos.mean(axis=0) @ sens_glob.T
     cov_glob = cov_glob_random + cov_glob_common
-    cov = np.zeros((7, 7))
-    cov_random = np.zeros((7, 7))
-    cov_common = np.zeros((7, 7))
+    out = _IsoCovariance(np.zeros((7, 7)), np.zeros((7, 7)), np.zeros((7, 7)), cov_glob)
     nf = len(free_m)
-    cov[np.ix_(free_m, free_m)] = cov_glob[:nf, :nf]
-    cov_random[np.ix_(free_m, free_m)] = cov_glob_random[:nf, :nf]
-    cov_common[np.ix_(free_m, free_m)] = cov_glob_common[:nf, :nf]
-    n_obs = len(obs_img)
-    img_block = blocks[0]
-    Xc = poses.to_cam(sol.state.points[obs_pt], obs_img)
-    rpx = img_block.camera_at(g).project(Xc) - m.xy
+    for C7, Cg in ((out.total, cov_glob), (out.random, cov_glob_random), (out.common, cov_glob_common)):
+        C7[np.ix_(free_m, free_m)] = Cg[:nf, :nf]
+    return out
+
+
+def _iso_result(ep, world: World, blk: _IsoBlock, prob: Problem, sol, nrm, cov: _IsoCovariance,
+                R_final: np.ndarray, fix_delay: bool, refine_intrinsics: tuple[str, ...], pos_common_fraction: float,
+                init: MountingResult) -> MountingResult:
+    """The mounting result: parameters, POS residuals per epoch, warnings, fit statistics and the adjusted EOPs."""
+    g = sol.state.globals
+    mt = g[:7]
+    pos, poses = ep.pos, sol.state.poses
+    dof = int(nrm.redundancy)
+    sigma0_sq = float(nrm.cost / max(dof, 1))
+    M, K = len(blk.img_names), len(blk.pt_names)
+    Xc = poses.to_cam(sol.state.points[blk.obs_pt], blk.obs_img)
+    rpx = prob.blocks[0].camera_at(g).project(Xc) - blk.meas.xy
     # POS residuals at the solution (as `proposed`); the image list also tells `covariance_for_flight` which
     # photos are this flight's, whose POS errors already carry the common part
     R_bf = pos.R_body_to_world @ so3_exp(pos.omega_b * mt[0])
     p_f = pos.r_imu_world + pos.v_world * mt[0] + np.einsum("nij,j->ni", R_bf, mt[1:4])
-    e_f = np.column_stack([C - p_f, so3_log(T(R_bf @ R_final) @ R_c2w)])
-    per_epoch = {"image": img_names, "residual_position_m": e_f[:, :3].tolist(),
+    e_f = np.column_stack([poses.C_world - p_f, so3_log(T(R_bf @ R_final) @ poses.R_cam_to_world)])
+    per_epoch = {"image": blk.img_names, "residual_position_m": e_f[:, :3].tolist(),
                  "residual_rotation_deg": np.degrees(e_f[:, 3:]).tolist()}
-    res = MountingResult("iso", mt[1:4].copy(), R_final, 0.0 if fix_delay else float(mt[0]), cov, M, [],
+    res = MountingResult("iso", mt[1:4].copy(), R_final, 0.0 if fix_delay else float(mt[0]), cov.total, M, [],
                          list(ep.warnings) + observability_warnings(ep), per_epoch)
     corr = res.correlation()
     for i in range(7):
@@ -154,26 +212,28 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
                 res.warnings.append(f"high correlation {corr[i, j]:+.3f} between {res.PARAM_NAMES[i]} and "
                                     f"{res.PARAM_NAMES[j]}")
     res.extra.update({"sigma0": float(np.sqrt(sigma0_sq)), "redundancy": int(dof),
-                      "covariance_scaled_by": float(max(1.0, sigma0_sq)), "n_image_observations": int(n_obs),
-                      "n_control_points": int(ctrl.sum()), "n_tie_points": int(K - ctrl.sum()),
+                      "covariance_scaled_by": float(max(1.0, sigma0_sq)),
+                      "n_image_observations": int(len(blk.obs_img)),
+                      "n_control_points": int(blk.ctrl.sum()), "n_tie_points": int(K - blk.ctrl.sum()),
                       "image_rms_px": float(np.sqrt(np.mean(rpx**2))), "iterations": int(sol.iterations),
                       "converged": bool(sol.converged), "stop_reason": sol.stop_reason,
-                      "sigma_random": np.sqrt(np.diag(cov_random)).tolist(),
-                      "sigma_pos_common_mode": np.sqrt(np.diag(cov_common)).tolist(),
+                      "sigma_random": np.sqrt(np.diag(cov.random)).tolist(),
+                      "sigma_pos_common_mode": np.sqrt(np.diag(cov.common)).tolist(),
                       "pos_common_fraction": float(pos_common_fraction),
-                      "covariance_random": [[float(v) for v in row] for row in cov_random],
+                      "covariance_random": [[float(v) for v in row] for row in cov.random],
                       "covariance_model": "normal matrix of the bundle (scaled by max(1, sigma0^2)) plus "
                                           "pos_common_fraction x the mean POS covariance as an error common to all epochs",
                       "boresight_parameterisation": "unit quaternion with minimal 3-parameter multiplicative update",
                       "initialisation": {"method": "proposed", "delay_s": init.delay_s,
                                          "lever_arm_m": init.lever_arm_m.tolist()},
                       "skipped_images": ep.skipped})
-    if n_intr:
+    if refine_intrinsics:
+        nf = len(cov.glob) - len(refine_intrinsics)
         res.extra["intrinsics"] = {k: float(v) for k, v in zip(refine_intrinsics, g[7:])}
         res.extra["intrinsics_sigma"] = {k: float(v) for k, v in
-                                         zip(refine_intrinsics, np.sqrt(np.diag(cov_glob)[nf:]))}
-    xyz_map, opk = frame.world_to_eop(C, R_c2w)
-    res.extra["adjusted_eop"] = {"image": img_names, "xyz": xyz_map.tolist(), "opk_deg": opk.tolist()}
+                                         zip(refine_intrinsics, np.sqrt(np.diag(cov.glob)[nf:]))}
+    xyz_map, opk = world.poses_to_eop(poses)[:2]
+    res.extra["adjusted_eop"] = {"image": blk.img_names, "xyz": xyz_map.tolist(), "opk_deg": opk.tolist()}
     return res
 
 
@@ -227,11 +287,5 @@ def _pos_residuals(state: State, pos, R_hat: np.ndarray, W_pos: np.ndarray, jaco
 def calibrate_iso_files(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, meas_path: Path,
                         gcp_path: Path, camera_path: Path, **kw) -> MountingResult:
     """`calibrate_iso` with measurements (CSV or ODM gcp_list.txt), ground points and camera read from files."""
-    from dgcal.calib.camera.files import load_camera
-    from dgcal.fields.io.formats import read_measurements, read_points
-    try:
-        from dgcal.fields.io.gcp_files import is_odm_gcp_list, read_odm_gcp_list
-        meas = read_odm_gcp_list(meas_path)[2] if is_odm_gcp_list(meas_path) else read_measurements(meas_path)
-    except ImportError:
-        meas = read_measurements(meas_path)
+    meas = read_odm_gcp_list(meas_path)[2] if is_odm_gcp_list(meas_path) else read_measurements(meas_path)
     return calibrate_iso(eop, grid, traj, events, meas, read_points(gcp_path), load_camera(camera_path), **kw)

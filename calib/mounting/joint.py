@@ -1,7 +1,7 @@
 """Proposed mounting calibration (seed 003 eq. 10-11): exposure delay, lever arm and boresight in one weighted
 least-squares adjustment.
 
-Model per epoch i (block frame L; t_e = event time, dt = delay, POS propagated over the delay; with a full
+Model per epoch i (the world frame of the block; t_e = event time, dt = delay, POS propagated over the delay; with a full
 trajectory the POS is re-interpolated at t_e + dt between iterations, so the propagation only spans the last
 correction and the constant-rate approximation leaves no bias):
     R_body_to_world(t_e + dt) = R_body_to_world,i Exp(omega_b,i dt)           (body angular rate from the POS)
@@ -56,22 +56,22 @@ def predict(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> tuple[np.ndarray, n
 
 
 def residuals(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
-    """(N,6) residuals: position (m, L) and rotation Log(R_pred^T R_obs) (rad, camera frame)."""
+    """(N,6) residuals: position (m, world) and rotation Log(R_pred^T R_obs) (rad, camera frame)."""
     p, Rc, _ = predict(ep, x, R_hat)
-    return np.column_stack([ep.C_world - p, so3_log(T(Rc) @ ep.R_cam_to_world)])
+    return np.column_stack([ep.eop.C_world - p, so3_log(T(Rc) @ ep.eop.R_cam_to_world)])
 
 
 def residual_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
     """(N,6,6) covariance of the residuals from EOP and POS covariances (defaults when not given)."""
     n = len(ep)
-    C_eop = ep.cov_eop if ep.cov_eop is not None else default_cov(n, DEFAULT_EOP_SIGMA[0], (DEFAULT_EOP_SIGMA[1],) * 3)
+    C_eop = ep.eop.cov if ep.eop.cov is not None else default_cov(n, DEFAULT_EOP_SIGMA[0], (DEFAULT_EOP_SIGMA[1],) * 3)
     C_pos = _pos_cov(ep)
     G = pos_error_jacobian(ep, x, R_hat)
     return C_eop + G @ C_pos @ T(G)
 
 
 def pos_error_jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
-    """(N,6,6) d(residual)/d(POS error): position error in L (m), attitude error about body axes (rad)."""
+    """(N,6,6) d(residual)/d(POS error): position error in the world (m), attitude error about body axes (rad)."""
     n = len(ep)
     _, _, R_b = predict(ep, x, R_hat)
     R_cb = so3_exp(x[4:7]) @ R_hat
@@ -229,8 +229,8 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
     cov = cov_random + cov_common
     # per-epoch values with the delay applied (seed Fig. 22): what each epoch says about l_b and the boresight
     p_pred, Rc_pred, R_b = predict(ep, x, R_hat_s)
-    lever_i = np.einsum("nji,nj->ni", R_b, ep.C_world - ep.pos.r_imu_world - ep.pos.v_world * (x[0] - ep.dt_ref))
-    ang_i = so3_log((T(R_b) @ ep.R_cam_to_world) @ R_hat_s.T)
+    lever_i = np.einsum("nji,nj->ni", R_b, ep.eop.C_world - ep.pos.r_imu_world - ep.pos.v_world * (x[0] - ep.dt_ref))
+    ang_i = so3_log((T(R_b) @ ep.eop.R_cam_to_world) @ R_hat_s.T)
     e_full = residuals(ep, x, R_hat_s)
     per_epoch = {"image": [str(s) for s in ep.image], "t_event": ep.t_event.tolist(),
                  "lever_arm_m": lever_i.tolist(), "boresight_deg": np.degrees(ang_i).tolist(),

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from dgcal.calib.mounting.common import BlockFrame, Epochs, MountingResult, build_epochs
+from dgcal.calib.mounting.common import Epochs, MountingResult, build_epochs
 from dgcal.calib.mounting.integrated import calibrate_iso_files
 from dgcal.calib.mounting.joint import calibrate_proposed
 from dgcal.calib.mounting.observability import observability_warnings
@@ -25,6 +25,7 @@ from dgcal.calib.mounting.two_step import calibrate_traditional
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, Events, Trajectory, read_eop, read_events, read_trajectory
+from dgcal.fields.world import World
 
 
 @dataclass(frozen=True)
@@ -69,10 +70,10 @@ def canonical_method(name: str) -> str:
     return key if key in METHODS else str(name)
 
 
-def prepare_epochs(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events) -> tuple[BlockFrame, Epochs]:
-    """The block frame (centred on the EOPs) and the matched epochs in it."""
-    frame = BlockFrame.at_map_points(grid, eop.xyz)
-    return frame, build_epochs(frame, eop, events, traj)
+def prepare_epochs(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events) -> tuple[World, Epochs]:
+    """The world (tangent at the centre of the EOPs) and the matched epochs in it."""
+    world = World.at_map_points(grid, eop.xyz)
+    return world, build_epochs(world, eop, events, traj)
 
 
 def calibrate_mounting(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events,
@@ -86,11 +87,11 @@ def calibrate_mounting(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events
     if m.needs_image_measurements:
         raise InputError(f"method {method!r} needs image measurements: use calibrate_mounting_files "
                          "(dgcal mount --measurements --gcp --camera)", field="--method")
-    frame, ep = prepare_epochs(eop, grid, traj, events)
+    world, ep = prepare_epochs(eop, grid, traj, events)
     res = calibrate_traditional(ep) if m.name == "two-step" else calibrate_proposed(ep, **kw)
     res.warnings = list(ep.warnings) + observability_warnings(ep, res if m.name != "two-step" else None)
     res.extra["skipped_images"] = ep.skipped
-    res.extra["block_origin_lat_lon_h"] = [frame.local.lat0, frame.local.lon0, frame.local.h0]
+    res.extra["block_origin_lat_lon_h"] = [world.enu.lat0, world.enu.lon0, world.enu.h0]
     _name(res, method, m)
     return res
 

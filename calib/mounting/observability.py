@@ -37,7 +37,7 @@ def observability_warnings(ep: Epochs, result: MountingResult | None = None,
     if spread < 1.0 and rate < 0.5:
         out.append(f"the forward ground speed varies by only {spread:.2f} m/s (std) over the epochs: the delay is "
                    "nearly inseparable from the along-track lever arm")
-    z = ep.C_world[:, 2]
+    z = ep.eop.C_world[:, 2]
     if n > 1 and np.ptp(z) < 0.25 * max(np.median(np.abs(z)), 1.0):
         out.append("one flying height only: boresight errors and POS attitude errors, and the vertical lever arm "
                    "and height-dependent bundle errors, are hard to tell apart (fly two heights, e.g. 300 m and 600 m)")

@@ -1,7 +1,7 @@
 """Traditional two-step mounting calibration (seed 003 eq. 4-5, 8-9): per-epoch lever arm and boresight at the
 EVENT time (delay assumed 0), then their robust mean.
 
-Per epoch i, in the block frame L:
+Per epoch i, in the world frame of the block:
     l_b,i        = R_body_to_world,i^T (C_world,i - r_imu_world,i)
     R_cam_to_body,i = R_body_to_world,i^T R_cam_to_world,i
 Mean: lever arm by the mean after rejecting epochs further than 4 sigmas from the mean (iterated);
@@ -20,8 +20,8 @@ from dgcal.fields.pose import transpose as T
 def per_epoch_values(ep: Epochs) -> tuple[np.ndarray, np.ndarray]:
     """Per-epoch lever arms (N,3) m in body and boresights `R_cam_to_body` (N,3,3) at event time."""
     R_bL = ep.pos.R_body_to_world
-    lever = np.einsum("nji,nj->ni", R_bL, ep.C_world - ep.pos.r_imu_world)
-    return lever, T(R_bL) @ ep.R_cam_to_world
+    lever = np.einsum("nji,nj->ni", R_bL, ep.eop.C_world - ep.pos.r_imu_world)
+    return lever, T(R_bL) @ ep.eop.R_cam_to_world
 
 
 def _clip_outliers(x: np.ndarray, k: float = 4.0, rounds: int = 5) -> np.ndarray:

@@ -14,11 +14,11 @@ the final residuals.
 """
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from dgcal.bundle.solver.blocks import ImageObservations, PointPriors, State
 from dgcal.bundle.solver.covariance import Covariance
@@ -229,191 +229,290 @@ def adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, model
     or 'weighted' (targets with their CSV sigmas `field_sigma` (m) as priors; NaN sigma = held).
     fixed: names of camera parameters held at their initial values. meas_sigma (px) are relative weights.
     """
-    try:
-        from threadpoolctl import threadpool_limits
-        limiter = threadpool_limits(limits=1)
-    except ImportError:
-        limiter = contextlib.nullcontext()
     # the dense blocks are small (<= ~1000): BLAS threads cost more than they give, and much more on a
     # busy machine (a 190x190 solve took 170 ms with threads competing, 1 ms on one)
-    with limiter:
+    with threadpool_limits(limits=1):
         return _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, model, meas_sigma,
                        field_sigma, fixed, refine_targets, initial, reject_k, max_rounds, min_points_per_image,
                        progress)
 
 
 def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, model: str = "fraser7",
-           meas_sigma=None, field_sigma=None, fixed=(), refine_targets: str = "none",
-           initial: CameraModel | None = None, reject_k: float = 4.0, max_rounds: int = 6,
-           min_points_per_image: int = 6, progress=None) -> IntrinsicBAResult:
+            meas_sigma=None, field_sigma=None, fixed=(), refine_targets: str = "none",
+            initial: CameraModel | None = None, reject_k: float = 4.0, max_rounds: int = 6,
+            min_points_per_image: int = 6, progress=None) -> IntrinsicBAResult:
     """The adjustment itself (see `adjust`)."""
     w, h = int(image_size[0]), int(image_size[1])
     cls = model_class(model)
-    field_ids = np.asarray(field_ids).astype(str)
-    field_xyz = np.asarray(field_xyz, float)
-    pid = {k: i for i, k in enumerate(field_ids)}
-    meas_image = np.asarray(meas_image).astype(str)
-    meas_id = np.asarray(meas_id).astype(str)
-    meas_xy = np.asarray(meas_xy, float)
-    n = len(meas_id)
-    sig = np.ones((n, 2)) if meas_sigma is None else np.asarray(meas_sigma, float).copy()
-    sig[~np.isfinite(sig)] = 1.0
-    unknown = [k for k in dict.fromkeys(meas_id) if k not in pid]
-    if unknown:
-        raise InputError(f"target id(s) not in the field: {', '.join(unknown[:5])}", field="id")
+    obs = _observations(field_ids, field_xyz, meas_image, meas_id, meas_xy, meas_sigma)
     bad = [k for k in fixed if k not in cls.PARAMS]
     if bad:
         raise InputError(f"unknown parameter(s) to fix {bad}; {model} has {', '.join(cls.PARAMS)}", field="fixed")
     if refine_targets not in ("none", "free", "weighted"):
         raise InputError(f"refine_targets must be none, free or weighted, got {refine_targets!r}")
-
-    image_names = list(dict.fromkeys(meas_image.tolist()))
-    img_index = {k: i for i, k in enumerate(image_names)}
-    obs_img = np.array([img_index[k] for k in meas_image], int)
-    obs_pt = np.array([pid[k] for k in meas_id], int)
-    M, N = len(image_names), len(field_ids)
-
-    c0, R_field_to_plane, planar = _plane_frame(field_xyz[np.unique(obs_pt)])
-    plane_xyz = (field_xyz - c0) @ R_field_to_plane.T
+    M = obs.M
+    c0, R_field_to_plane, planar = _plane_frame(obs.field_xyz[np.unique(obs.obs_pt)])
+    plane_xyz = (obs.field_xyz - c0) @ R_field_to_plane.T
     if planar:
         plane_xyz[:, 2] = 0.0
-    groups = [(i, obs_pt[obs_img == i], meas_xy[obs_img == i]) for i in range(M)]
+    groups = [(i, obs.obs_pt[obs.obs_img == i], obs.xy[obs.obs_img == i]) for i in range(M)]
     groups_ok = [g for g in groups if len(g[1]) >= min_points_per_image]
     if len(groups_ok) < 3:
         raise InputError(f"only {len(groups_ok)} image(s) with at least {min_points_per_image} target "
                          f"measurements; need 3 or more")
+    cam = _initial_camera(cls, model, initial, groups_ok, obs.field_xyz, plane_xyz, planar, (w, h))
+    init = _initial_poses(obs, cam, initial is not None, plane_xyz, planar, R_field_to_plane, c0,
+                          min_points_per_image, progress)
+    if M - len(init.dropped) < 3:
+        raise InputError(f"only {M - len(init.dropped)} usable image(s) (no pose for {', '.join(init.dropped[:5])}); "
+                         "need 3 or more")
+    X0, pt_free, pt_prior_w = _target_unknowns(refine_targets, obs, init.active, field_sigma)
+    # all requested parameters at once (staging focal length/K1 first converged slower in tests)
+    adj = _Adjustment(cam, np.array([k not in fixed for k in cls.PARAMS]), obs, X0, pt_free, pt_prior_w)
+    state, total_it, _ = adj.solve(State(Poses.from_R_t(init.R, init.t), X0.copy(), cam.params.copy()), init.active)
+    state, active, usable, settled, it = _reject_outliers(adj, state, init, reject_k, max_rounds, min_points_per_image)
+    total_it += it
+    if M - len(init.dropped) < 3:
+        raise InputError(f"only {M - len(init.dropped)} usable image(s) after outlier rejection; need 3 or more")
+    state, it, lm_conv = adj.solve(state, active)
+    return _result(adj, state, active, usable, init, refine_targets, total_it + it, bool(lm_conv), settled, (w, h))
 
-    # --- initial values ----------------------------------------------------------------------
+
+@dataclass
+class _Observations:
+    """The measurements of `adjust`, indexed: image and target of every observation, pixel sigmas."""
+
+    field_ids: np.ndarray
+    field_xyz: np.ndarray
+    meas_image: np.ndarray
+    meas_id: np.ndarray
+    xy: np.ndarray          # (n,2) px
+    sig: np.ndarray         # (n,2) px (relative weights)
+    obs_img: np.ndarray
+    obs_pt: np.ndarray
+    image_names: list[str]
+
+    @property
+    def M(self) -> int:
+        return len(self.image_names)
+
+    @property
+    def N(self) -> int:
+        return len(self.field_ids)
+
+    @property
+    def n(self) -> int:
+        return len(self.meas_id)
+
+    def index(self, names: list[str]) -> list[int]:
+        """Indices of image names."""
+        return [self.image_names.index(k) for k in names]
+
+
+def _observations(field_ids, field_xyz, meas_image, meas_id, meas_xy, meas_sigma) -> _Observations:
+    """Index the measurements by image and target; InputError for a target id not in the field."""
+    field_ids = np.asarray(field_ids).astype(str)
+    pid = {k: i for i, k in enumerate(field_ids)}
+    meas_image = np.asarray(meas_image).astype(str)
+    meas_id = np.asarray(meas_id).astype(str)
+    sig = np.ones((len(meas_id), 2)) if meas_sigma is None else np.asarray(meas_sigma, float).copy()
+    sig[~np.isfinite(sig)] = 1.0
+    unknown = [k for k in dict.fromkeys(meas_id) if k not in pid]
+    if unknown:
+        raise InputError(f"target id(s) not in the field: {', '.join(unknown[:5])}", field="id")
+    image_names = list(dict.fromkeys(meas_image.tolist()))
+    img_index = {k: i for i, k in enumerate(image_names)}
+    return _Observations(field_ids, np.asarray(field_xyz, float), meas_image, meas_id, np.asarray(meas_xy, float), sig,
+                         np.array([img_index[k] for k in meas_image], int), np.array([pid[k] for k in meas_id], int),
+                         image_names)
+
+
+def _initial_camera(cls, model: str, initial: CameraModel | None, groups_ok, field_xyz, plane_xyz, planar: bool,
+                    size: tuple[int, int]) -> CameraModel:
+    """The start camera: `initial` (converted to `model` if it is another one), else a focal-length guess with the
+    principal point at the image centre."""
+    w, h = size
     if initial is not None:
         if isinstance(initial, cls):
-            cam = cls((w, h), initial.params)
-        else:  # another model: its closest equivalent (exact where one model contains the other)
-            cam = convert_model(initial, model)[0]
-            cam = cls((w, h), cam.params)
-        f0 = float(cam.pinhole_K()[0, 0])
-    else:
-        f0 = _focal_guess(groups_ok, field_xyz if not planar else plane_xyz, (w, h), planar, plane_xyz)
-        values = {"f": f0, "fx": f0, "fy": f0, "cx": (w - 1) / 2, "cy": (h - 1) / 2}
-        cam = cls.from_dict((w, h), values)
+            return cls((w, h), initial.params)
+        # another model: its closest equivalent (exact where one model contains the other)
+        return cls((w, h), convert_model(initial, model)[0].params)
+    f0 = _focal_guess(groups_ok, field_xyz if not planar else plane_xyz, (w, h), planar, plane_xyz)
+    return cls.from_dict((w, h), {"f": f0, "fx": f0, "fy": f0, "cx": (w - 1) / 2, "cy": (h - 1) / 2})
+
+
+@dataclass
+class _InitialPoses:
+    """Start poses (R_field_to_cam (M,3,3), t (M,3)), the observations kept (PnP inliers), dropped images and why."""
+
+    R: np.ndarray
+    t: np.ndarray
+    active: np.ndarray
+    dropped: list[str]
+    reason: np.ndarray
+
+
+def _initial_poses(obs: _Observations, cam: CameraModel, with_camera: bool, plane_xyz, planar: bool,
+                   R_field_to_plane: np.ndarray, c0: np.ndarray, min_points: int, progress) -> _InitialPoses:
+    """Every image's start pose by RANSAC PnP in the field's plane frame (images with too few targets or no pose
+    are dropped; PnP outliers leave the adjustment)."""
+    w, h = cam.image_size
     K0 = cam.pinhole_K()
-    R = np.tile(np.eye(3), (M, 1, 1))
-    t = np.zeros((M, 3))
-    active = np.ones(n, bool)
-    dropped: list[str] = []
-    rejected_reason = np.array([""] * n, dtype=object)
-    iterator = range(M) if progress is None else progress(range(M))
-    for i in iterator:
-        m = obs_img == i
-        if m.sum() < min_points_per_image:
-            dropped.append(image_names[i])
-            active[m] = False
-            rejected_reason[m] = "image dropped: too few targets"
+    M = obs.M
+    out = _InitialPoses(np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)), np.ones(obs.n, bool), [],
+                        np.array([""] * obs.n, dtype=object))
+    for i in (range(M) if progress is None else progress(range(M))):
+        m = obs.obs_img == i
+        if m.sum() < min_points:
+            out.dropped.append(obs.image_names[i])
+            out.active[m] = False
+            out.reason[m] = "image dropped: too few targets"
             continue
-        obj = plane_xyz[obs_pt[m]]
-        uv = meas_xy[m]
+        obj, uv = plane_xyz[obs.obs_pt[m]], obs.xy[m]
         pose = _pnp(obj, uv, K0, planar, 0.02 * max(w, h))
-        if initial is not None:
-            # with a start camera: PnP on undistorted pixels too, keep whichever pose the camera fits better
-            with np.errstate(all="ignore"):
-                xy_n = cam.undistort_normalized(uv)
-                ok = np.all(np.isfinite(xy_n), axis=1) & np.all(np.abs(xy_n) < 100, axis=1)
-            cands = [] if pose is None else [pose]
-            if ok.sum() >= min_points_per_image:
-                alt = _pnp(obj[ok], xy_n[ok] @ K0[:2, :2].T + K0[:2, 2], K0, planar, 0.02 * max(w, h))
-                if alt is not None:
-                    cands.append(alt)
-            best = np.inf
-            pose = None
-            for Rc, tc, _ in cands:
-                with np.errstate(all="ignore"):
-                    e = np.linalg.norm(cam.project(obj @ Rc.T + tc) - uv, axis=1)
-                if np.nanmedian(e) < best:
-                    best = float(np.nanmedian(e))
-                    pose = (Rc, tc, np.nan_to_num(e, nan=np.inf) < max(0.02 * max(w, h), 3 * best))
+        if with_camera:
+            pose = _pose_fitting_camera(cam, K0, obj, uv, pose, planar, min_points)
         if pose is None:
-            dropped.append(image_names[i])
-            active[m] = False
-            rejected_reason[m] = "image dropped: no pose"
+            out.dropped.append(obs.image_names[i])
+            out.active[m] = False
+            out.reason[m] = "image dropped: no pose"
             continue
         Rp, tp, inl = pose
-        R[i] = Rp @ R_field_to_plane
-        t[i] = tp - Rp @ R_field_to_plane @ c0
-        sub = np.flatnonzero(m)
-        active[sub[~inl]] = False
-    if M - len(dropped) < 3:
-        raise InputError(f"only {M - len(dropped)} usable image(s) (no pose for {', '.join(dropped[:5])}); need 3 or more")
+        out.R[i] = Rp @ R_field_to_plane
+        out.t[i] = tp - Rp @ R_field_to_plane @ c0
+        out.active[np.flatnonzero(m)[~inl]] = False
+    return out
 
-    # --- targets as unknowns -----------------------------------------------------------------
-    X0 = field_xyz.copy()
+
+def _pose_fitting_camera(cam: CameraModel, K0: np.ndarray, obj: np.ndarray, uv: np.ndarray, pose, planar: bool,
+                         min_points: int):
+    """With a start camera: PnP on undistorted pixels too, and whichever pose (of that and `pose`) the camera fits
+    better, with its inliers; None without either."""
+    w, h = cam.image_size
+    with np.errstate(all="ignore"):
+        xy_n = cam.undistort_normalized(uv)
+        ok = np.all(np.isfinite(xy_n), axis=1) & np.all(np.abs(xy_n) < 100, axis=1)
+    cands = [] if pose is None else [pose]
+    if ok.sum() >= min_points:
+        alt = _pnp(obj[ok], xy_n[ok] @ K0[:2, :2].T + K0[:2, 2], K0, planar, 0.02 * max(w, h))
+        if alt is not None:
+            cands.append(alt)
+    best = np.inf
+    pose = None
+    for Rc, tc, _ in cands:
+        with np.errstate(all="ignore"):
+            e = np.linalg.norm(cam.project(obj @ Rc.T + tc) - uv, axis=1)
+        if np.nanmedian(e) < best:
+            best = float(np.nanmedian(e))
+            pose = (Rc, tc, np.nan_to_num(e, nan=np.inf) < max(0.02 * max(w, h), 3 * best))
+    return pose
+
+
+def _target_unknowns(refine_targets: str, obs: _Observations, active: np.ndarray,
+                     field_sigma) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start targets (N,3) (m), which coordinates are free, and prior weights (1/sigma, 1/m; 0 = no prior): none
+    free, a free network with a minimal datum, or targets seen twice weighted by their sigmas."""
+    N = obs.N
+    X0 = obs.field_xyz.copy()
     pt_free = np.zeros((N, 3), bool)
     pt_prior_w = np.zeros((N, 3))
-    if refine_targets != "none":
-        img_count = np.bincount(obs_pt[active], minlength=N)  # each image measures a target once
-        seen = img_count >= 2
-        pt_free[seen] = True
-        if refine_targets == "free":
-            a, b, c, axis = _datum_points(field_xyz, seen)
-            pt_free[a] = pt_free[b] = False
-            pt_free[c, axis] = False
-        else:
-            fs = np.full((N, 3), np.nan) if field_sigma is None else np.asarray(field_sigma, float)
-            ok = np.isfinite(fs) & (fs > 0)
-            pt_free &= ok
-            pt_prior_w[ok] = 1.0 / fs[ok]
-            if not pt_free.any():
-                raise InputError("refine_targets='weighted' needs target sigmas sx,sy,sz in the field file",
-                                 field="sx")
-    # --- all requested parameters at once (staging focal length/K1 first converged slower in tests) ----
-    free_cam = np.array([k not in fixed for k in cls.PARAMS])
-    state = State(Poses.from_R_t(R, t), X0.copy(), cam.params.copy())
+    if refine_targets == "none":
+        return X0, pt_free, pt_prior_w
+    img_count = np.bincount(obs.obs_pt[active], minlength=N)  # each image measures a target once
+    seen = img_count >= 2
+    pt_free[seen] = True
+    if refine_targets == "free":
+        a, b, c, axis = _datum_points(obs.field_xyz, seen)
+        pt_free[a] = pt_free[b] = False
+        pt_free[c, axis] = False
+    else:
+        fs = np.full((N, 3), np.nan) if field_sigma is None else np.asarray(field_sigma, float)
+        ok = np.isfinite(fs) & (fs > 0)
+        pt_free &= ok
+        pt_prior_w[ok] = 1.0 / fs[ok]
+        if not pt_free.any():
+            raise InputError("refine_targets='weighted' needs target sigmas sx,sy,sz in the field file",
+                             field="sx")
+    return X0, pt_free, pt_prior_w
 
-    def solve(state, active):
-        prob = _problem(cam, free_cam, active, obs_img, obs_pt, meas_xy, sig, X0, pt_free, pt_prior_w, M)
-        return _lm(prob, state)
 
-    def whitened_residuals(state, rows):
-        blk = ImageObservations(cam, obs_img[rows], obs_pt[rows], meas_xy[rows], sig[rows], cam.PARAMS, 0)
+@dataclass
+class _Adjustment:
+    """The parts of the problem that stay: camera model and its free parameters, observations, target unknowns."""
+
+    cam: CameraModel
+    free_cam: np.ndarray
+    obs: _Observations
+    X0: np.ndarray
+    pt_free: np.ndarray
+    pt_prior_w: np.ndarray
+
+    def problem(self, active: np.ndarray) -> Problem:
+        """The engine problem on the active observations."""
+        o = self.obs
+        return _problem(self.cam, self.free_cam, active, o.obs_img, o.obs_pt, o.xy, o.sig, self.X0, self.pt_free,
+                        self.pt_prior_w, o.M)
+
+    def solve(self, state: State, active: np.ndarray) -> tuple[State, int, bool]:
+        """Levenberg-Marquardt on the active observations from `state`."""
+        return _lm(self.problem(active), state)
+
+    def whitened_residuals(self, state: State, rows: np.ndarray) -> np.ndarray:
+        """(k,2) residuals / sigma of observation rows at `state`."""
+        o = self.obs
+        blk = ImageObservations(self.cam, o.obs_img[rows], o.obs_pt[rows], o.xy[rows], o.sig[rows], self.cam.PARAMS, 0)
         return blk.evaluate(state, False).r
 
-    state, total_it, _ = solve(state, active)
 
-    # --- outlier rejection: solve, reject |v|/sigma > k sigma_robust over all observations, repeat ----
-    usable = ~np.isin(obs_img, [img_index[d] for d in dropped])
+def _reject_outliers(adj: _Adjustment, state: State, init: _InitialPoses, reject_k: float, max_rounds: int,
+                     min_points: int):
+    """Solve, reject |v|/sigma > k sigma_robust over all observations, repeat until the set settles; images left
+    with too few inliers are dropped (`init.dropped`, `init.reason` updated). Returns (state, active, usable,
+    settled, iterations)."""
+    obs = adj.obs
+    M, n = obs.M, obs.n
+    active = init.active
+    usable = ~np.isin(obs.obs_img, obs.index(init.dropped))
     settled = False
+    total_it = 0
     for _ in range(max_rounds):
         norm = np.full(n, np.inf)
-        norm[usable] = np.linalg.norm(whitened_residuals(state, usable), axis=1)
+        norm[usable] = np.linalg.norm(adj.whitened_residuals(state, usable), axis=1)
         s_rob = np.median(norm[usable]) / _CHI2_MEDIAN  # over all: a median of survivors would creep
         new_active = usable & (norm <= reject_k * s_rob)
         # keep every usable image solvable
-        counts = np.bincount(obs_img[new_active], minlength=M)
-        for i in np.flatnonzero((counts < min_points_per_image) & (np.bincount(obs_img[usable], minlength=M) > 0)):
-            dropped.append(image_names[i])
-            usable &= obs_img != i
-            new_active &= obs_img != i
-            rejected_reason[obs_img == i] = "image dropped: too few inliers"
+        counts = np.bincount(obs.obs_img[new_active], minlength=M)
+        for i in np.flatnonzero((counts < min_points) & (np.bincount(obs.obs_img[usable], minlength=M) > 0)):
+            init.dropped.append(obs.image_names[i])
+            usable &= obs.obs_img != i
+            new_active &= obs.obs_img != i
+            init.reason[obs.obs_img == i] = "image dropped: too few inliers"
         changed = int(np.sum(new_active != active))
         if changed <= 5e-3 * usable.sum():  # later rounds only trade a few borderline points
             settled = True
             active = new_active
             break
         active = new_active
-        state, it, _ = solve(state, active)
+        state, it, _ = adj.solve(state, active)
         total_it += it
-    if M - len(dropped) < 3:
-        raise InputError(f"only {M - len(dropped)} usable image(s) after outlier rejection; need 3 or more")
-    state, it, lm_conv = solve(state, active)
-    total_it += it
+    return state, active, usable, settled, total_it
 
-    # --- statistics and covariance -----------------------------------------------------------
-    prob = _problem(cam, free_cam, active, obs_img, obs_pt, meas_xy, sig, X0, pt_free, pt_prior_w, M)
+
+def _result(adj: _Adjustment, state: State, active: np.ndarray, usable: np.ndarray, init: _InitialPoses,
+            refine_targets: str, iterations: int, converged: bool, settled: bool,
+            size: tuple[int, int]) -> IntrinsicBAResult:
+    """Statistics and covariances (sigma0^2 N^-1) at the final state, residuals and the rejected observations."""
+    obs, cls = adj.obs, type(adj.cam)
+    M, N, n = obs.M, obs.N, obs.n
+    prob = adj.problem(active)
     nrm = linearise(prob, state)
     cov = Covariance.at(prob, nrm)
     keep_img = np.ones(M, bool)
-    keep_img[[img_index[d] for d in dropped]] = False
+    keep_img[obs.index(init.dropped)] = False
     redundancy = int(nrm.redundancy)
     sigma0 = float(np.sqrt(nrm.cost / max(redundancy, 1)))
     Pn = len(cls.PARAMS)
+    free_cam = adj.free_cam
     fi = np.flatnonzero(free_cam)
     cov_cam = np.zeros((Pn, Pn))
     cov_cam[np.ix_(fi, fi)] = sigma0**2 * cov.global_cofactors(fi)
@@ -424,29 +523,30 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     corr[:, ~free_cam] = np.nan
     pose_cov = sigma0**2 * cov.pose_cofactors()
     pose_cov[~keep_img] = np.nan
+    pt_free = adj.pt_free
     pts_sigma = np.zeros((N, 3))
     if pt_free.any():
-        pts_sigma = np.nan_to_num(sigma0 * np.sqrt(np.maximum(np.einsum("naa->na", cov.point_cofactors()), 0))) * pt_free
-
-    camera = cls((w, h), state.globals)
+        var = np.maximum(np.einsum("naa->na", cov.point_cofactors()), 0)
+        pts_sigma = np.nan_to_num(sigma0 * np.sqrt(var)) * pt_free
+    camera = cls(size, state.globals)
     camera.sigmas = sd
     r_all = np.full((n, 2), np.nan)
     if usable.any():
-        r_all[usable] = whitened_residuals(state, usable) * sig[usable]
+        r_all[usable] = adj.whitened_residuals(state, usable) * obs.sig[usable]
     rms = float(np.sqrt(np.mean(np.sum(r_all[active] ** 2, axis=1))))
     rejected = []
     for k in np.flatnonzero(~active):
-        rejected.append(RejectedObservation(meas_image[k], meas_id[k],
+        rejected.append(RejectedObservation(obs.meas_image[k], obs.meas_id[k],
                                             float(np.linalg.norm(r_all[k])) if usable[k] else float("nan"),
-                                            rejected_reason[k] or "outlier"))
+                                            init.reason[k] or "outlier"))
     R_out, C_out = state.poses.R_world_to_cam.copy(), state.poses.C_world.copy()
     R_out[~keep_img] = np.nan
     C_out[~keep_img] = np.nan
     return IntrinsicBAResult(
         camera=camera, free=free_cam.copy(), cov_camera=cov_cam, correlation=corr,
-        image_names=image_names, poses=Poses(R_out, C_out, pose_cov),
-        point_ids=list(field_ids), points_xyz=state.points.copy(), points_sigma=pts_sigma, points_free=pt_free.copy(),
-        obs_image=obs_img, obs_point=obs_pt, obs_xy=meas_xy, obs_sigma=sig, residuals=r_all, used=active,
-        sigma0=sigma0, rms_px=rms, rejected=rejected, dropped_images=list(dropped),
-        refine_targets=refine_targets, iterations=total_it, converged=bool(lm_conv), rejection_settled=settled,
+        image_names=obs.image_names, poses=Poses(R_out, C_out, pose_cov),
+        point_ids=list(obs.field_ids), points_xyz=state.points.copy(), points_sigma=pts_sigma,
+        points_free=pt_free.copy(), obs_image=obs.obs_img, obs_point=obs.obs_pt, obs_xy=obs.xy, obs_sigma=obs.sig,
+        residuals=r_all, used=active, sigma0=sigma0, rms_px=rms, rejected=rejected, dropped_images=list(init.dropped),
+        refine_targets=refine_targets, iterations=iterations, converged=converged, rejection_settled=settled,
         redundancy=int(redundancy))

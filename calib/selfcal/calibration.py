@@ -10,16 +10,25 @@ Python use::
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from dgcal.calib.selfcal.diagnostics import Diagnostics, diagnose
+from dgcal.calib.camera.files import (camera_json_dict, load_camera, write_colmap_cameras_txt, write_metashape_xml,
+                                      write_opencv_yaml)
 from dgcal.calib.camera.models import CameraModel, model_class
 from dgcal.calib.selfcal.adjustment import IntrinsicBAResult, adjust
+from dgcal.calib.selfcal.detection import detect_folder
+from dgcal.calib.selfcal.diagnostics import Diagnostics, diagnose
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.formats import Measurements, Points, read_measurements, read_points, write_measurements
+from dgcal.fields.frames import opk_from_R_cam_to_map
+from dgcal.fields.io.csv_tables import atomic_write, write_table
+from dgcal.fields.io.formats import (Measurements, Points, read_measurements, read_points, write_measurements,
+                                     write_points)
 
 
 @dataclass
@@ -76,7 +85,6 @@ class CameraCalibration:
 
     def camera_json(self) -> dict:
         """The camera.json content (see docs/camera_calibration.md)."""
-        from dgcal.calib.camera.files import camera_json_dict
         d = camera_json_dict(self.camera, self.camera.sigmas, self.stats())
         err = d.get("opencv_max_error_px") or 0.0
         if err > 0.05:
@@ -124,7 +132,6 @@ def calibrate_camera(field: Points | str | Path, measurements: Measurements | st
     pts = read_points(field) if isinstance(field, (str, Path)) else field
     detection_report = None
     if images is not None:
-        from dgcal.calib.selfcal.detection import detect_folder
         if field_path is None:
             raise InputError("detection needs the field file (its layout sits beside it)")
         meas, detection_report = detect_folder(images, field_path, workers=workers, progress=progress)
@@ -148,7 +155,6 @@ def calibrate_camera(field: Points | str | Path, measurements: Measurements | st
         raise InputError(f"image size must be positive, got {image_size}", field="image_size")
     _check_measurements(meas, pts, image_size)
     if isinstance(initial, (str, Path)):
-        from dgcal.calib.camera.files import load_camera
         initial = load_camera(initial)
     if initial is not None and tuple(initial.image_size) != image_size:
         raise InputError(f"the initial camera is for {initial.image_size[0]} x {initial.image_size[1]} px images, "
@@ -156,10 +162,6 @@ def calibrate_camera(field: Points | str | Path, measurements: Measurements | st
     field_sigma = pts.sigma if np.isfinite(pts.sigma).any() else None
     progress_fn = None
     if progress:
-        import sys
-        from functools import partial
-
-        from tqdm import tqdm
         progress_fn = partial(tqdm, desc="initial poses", unit="img", file=sys.stderr, leave=False)
     try:
         ba = adjust(pts.ids, pts.xyz, meas.image, meas.id, meas.xy, image_size, model,
@@ -177,8 +179,6 @@ def calibrate_camera(field: Points | str | Path, measurements: Measurements | st
 def write_poses(path: str | Path, ba: IntrinsicBAResult) -> None:
     """Per-image poses in the field frame: projection centre X,Y,Z (m) and PATB omega, phi, kappa (deg) of
     R_photo_to_field, their sigmas (centre m; rotation deg about the camera axes), RMS (px) and count."""
-    from dgcal.fields.io.csv_tables import write_table
-    from dgcal.fields.frames import opk_from_R_cam_to_map
     C, sC = ba.camera_centres()
     rms = ba.per_image_rms()
     n = np.bincount(ba.obs_image[ba.used], minlength=len(ba.image_names))
@@ -201,8 +201,6 @@ def write_camera_outputs(cal: CameraCalibration, out_dir: str | Path,
     """Write camera.json, opencv.yaml, cameras.txt (COLMAP), metashape.xml, poses.csv, measurements.csv (when
     detected) and field_refined.csv (when targets were refined) into `out_dir`, named by role in `names`
     (default `CAMERA_FILES`; `dgcal camera` passes its declared OUTPUTS); returns the paths by role."""
-    from dgcal.calib.camera.files import write_colmap_cameras_txt, write_metashape_xml, write_opencv_yaml
-    from dgcal.fields.io.csv_tables import atomic_write
     out = Path(out_dir)
     path = {role: out / name for role, name in (names or CAMERA_FILES).items()}
     paths = {}
@@ -219,7 +217,6 @@ def write_camera_outputs(cal: CameraCalibration, out_dir: str | Path,
         write_measurements(path["measurements"], cal.measurements)
         paths["measurements"] = path["measurements"]
     if cal.ba.refine_targets != "none":
-        from dgcal.fields.io.formats import write_points
         # held (datum) and unobserved coordinates have no sigma: NaN, which read_points accepts as "not given"
         sig = np.where(cal.ba.points_free, cal.ba.points_sigma, np.nan)
         refined = Points(cal.field.ids, cal.ba.points_xyz, sig, cal.field.role)

@@ -15,10 +15,13 @@ from __future__ import annotations
 
 import os
 import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import Measurements, read_points
@@ -64,7 +67,6 @@ def list_images(image_dir: str | Path) -> list[Path]:
 
 def read_gray(path: str | Path) -> np.ndarray:
     """8-bit grey image as stored (EXIF orientation ignored); InputError naming the file if unreadable."""
-    import cv2
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
     if img is None or img.size == 0:
         raise InputError("cannot read the image (missing, corrupt or not an image)", path)
@@ -86,7 +88,6 @@ def resolve_field(field: TargetField | str | Path) -> tuple[TargetField, set | N
 
 def estimate_noise(img: np.ndarray) -> float:
     """Robust image noise sigma (DN): median absolute Laplacian-type response (edges are a minority)."""
-    import cv2
     k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
     # bands of 34 rows spread over the image, about 1 MP in all (enough for a median, fast on 20 MP)
     h = img.shape[0]
@@ -106,7 +107,6 @@ class CharucoFieldDetector:
     """Detector for one TargetField; reusable across images (holds the OpenCV objects)."""
 
     def __init__(self, tf: TargetField, keep_ids: set | None = None):
-        import cv2
         self.tf = tf
         self.board = tf.board()
         dp = cv2.aruco.DetectorParameters()
@@ -134,7 +134,6 @@ class CharucoFieldDetector:
     def _markers(self, img: np.ndarray):
         """ArUco markers, found on a copy reduced to at most MARKER_IMAGE_PX a side (identification needs no
         more; the ChArUco corners are refined on the full image), corners in full-image pixels."""
-        import cv2
         scale = min(1.0, MARKER_IMAGE_PX / max(img.shape[:2]))
         if scale > 0.9:
             mcorners, mids, _ = self.aruco.detectMarkers(img)
@@ -149,7 +148,6 @@ class CharucoFieldDetector:
 
     def detect(self, img: np.ndarray) -> Detection:
         """Targets in a grey image (uint8)."""
-        import cv2
         h, w = img.shape[:2]
         stats = {"size": [int(w), int(h)], "markers": 0, "corners": 0, "rejected_duplicate_marker": 0,
                  "rejected_border": 0, "rejected_small": 0, "rejected_homography": 0, "not_in_field": 0}
@@ -294,7 +292,6 @@ def homography_jacobian(H: np.ndarray, p: np.ndarray) -> np.ndarray:
 def _corner_sigmas(img: np.ndarray, xy: np.ndarray, half: np.ndarray, noise_dn: float) -> np.ndarray:
     """Sigma (px) of cornerSubPix corners: sandwich covariance A^-1 (sg^2 sum w^2 |p-q|^2 g g^T) A^-1 with
     A = sum w g g^T, the weights and gradients of cornerSubPix and sg the gradient noise."""
-    import cv2
     sg2 = noise_dn ** 2 * 12.0 / 64.0  # variance of the Sobel/8 derivative of white noise
     out = np.full((len(xy), 2), np.nan)
     h, w = img.shape
@@ -351,9 +348,6 @@ def detect_folder(image_dir: str | Path, field: TargetField | str | Path, worker
     Returns the measurement table (`image` = file name, `id`, pixel `xy`, `sigma` px) and a report:
     per-image counts (markers, corners, rejections, size, noise), `image_size` when all images agree
     (else None) and the layout source. Unreadable images or an empty folder raise InputError naming the file."""
-    from concurrent.futures import ProcessPoolExecutor
-
-    from tqdm import tqdm
     files = list_images(image_dir)
     tf, keep, source = resolve_field(field)
     for f in files:  # fail fast, before any work, on files that cannot even be opened as images
@@ -374,7 +368,6 @@ def detect_folder(image_dir: str | Path, field: TargetField | str | Path, worker
         else:
             with ProcessPoolExecutor(n_workers) as pool:
                 futs = {pool.submit(_detect_file, *a): a[0] for a in args}
-                from concurrent.futures import as_completed
                 for fut in as_completed(futs):
                     name, res = fut.result()
                     if isinstance(res, str):

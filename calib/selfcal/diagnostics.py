@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from dgcal.calib.camera.models import CameraModel
 
@@ -198,8 +200,6 @@ def projection_difference(cam_a: CameraModel, cam_b: CameraModel, grid=(60, 40),
     R is the small rotation between the two camera frames that best aligns them (when fit_rotation),
     since every pose absorbs it and it means nothing for the calibration; returns (rms, max, R_a_to_b).
     """
-    from scipy.optimize import least_squares
-    from scipy.spatial.transform import Rotation
     w, h = cam_a.image_size
     u, v = np.meshgrid(np.linspace(0, w - 1, grid[0]), np.linspace(0, h - 1, grid[1]))
     uv = np.column_stack([u.ravel(), v.ravel()])

@@ -1,8 +1,10 @@
 """OpenCV `calibrateCamera` on dgcal's measurements: the baseline the self-calibration is compared with."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
+from dgcal.calib.camera.conversions import from_opencv, opencv_from_K_dist
 from dgcal.calib.camera.models import CameraModel
 from dgcal.fields.io.formats import Points
 
@@ -10,9 +12,6 @@ from dgcal.fields.io.formats import Points
 def calibrate_with_opencv(points: Points, image: np.ndarray, ids: np.ndarray, xy: np.ndarray,
                           image_size: tuple[int, int], rational: bool = False) -> tuple[float, CameraModel]:
     """RMS (px) and model of OpenCV's calibration of a planar (z = 0) field; fraser7 (B2 = 0), or opencv8 if `rational`."""
-    import cv2
-
-    from dgcal.calib.camera.conversions import from_opencv, opencv_from_K_dist
     index = {k: i for i, k in enumerate(points.ids)}
     objs, imgs = [], []
     for name in dict.fromkeys(image.tolist()):

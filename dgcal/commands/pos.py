@@ -5,7 +5,11 @@ gps_week,gps_sow,x,y,z (ECEF, m), vx,vy,vz (m/s), sx,sy,sz, svx,svy,svz (1-sigma
 lat,lon,h (deg, deg, m ellipsoidal), s_e,s_n,s_u (m), clk_G_m,clk_E_m,clk_C_m (receiver clock
 bias per clock group, metres = c*dt; QZSS shares GPS's), drift_mps (c*clock drift, m/s),
 n_sat, gdop,pdop,hdop,vdop, chi2_dof, rejected (satellites removed by RAIM, ';'-separated);
-DIR/gnss_summary.json and DIR/gnss_report.html. --mode tc|lc hand over to dgcal.pos.pipeline.run_pos (trajectory.csv, events.csv).
+DIR/gnss_summary.json and DIR/gnss_report.html. --mode ppk (rover + base RINEX, carrier phase) writes
+DIR/gnss.csv with gps_week,gps_sow,x,y,z (ECEF, m), fix (fixed/float/single), n_sat, ratio, sx,sy,sz (m),
+sxy,sxz,syz (RTKLIB's signed square roots of the covariances, m), lat,lon,h, s_e,s_n,s_u, age_s,
+n_fixed_amb, fix_forward, fix_backward, plus gnss_summary.json and gnss_report.html (dgcal.pos.pipeline.run_ppk).
+--mode tc|lc hand over to dgcal.pos.pipeline.run_pos (trajectory.csv, events.csv).
 """
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ if TYPE_CHECKING:
     from dgcal.pos.pipeline import PosOptions
 
 NAME = "pos"
-HELP = "GNSS single-point positioning or GNSS/INS smoothing (trajectory + events)"
+HELP = "GNSS single-point positioning, carrier-phase PPK, or GNSS/INS smoothing (trajectory + events)"
 SECTION = "pos"
 SPP_OUTPUTS = {"gnss": "gnss.csv", "gnss_summary": "gnss_summary.json", "gnss_report": "gnss_report.html"}
 INS_OUTPUTS = {"trajectory": "trajectory.csv", "events": "events.csv", "trajectory_forward": "trajectory_forward.csv",
@@ -29,11 +33,25 @@ OUTPUTS = {**SPP_OUTPUTS, **INS_OUTPUTS}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rinex-obs", metavar="OBS", help="RINEX 3 observation file of the rover")
+    p.add_argument("--rinex-obs", metavar="OBS", help="RINEX 2.10/2.11/3.x observation file of the rover")
     p.add_argument("--rinex-nav", metavar="NAV", nargs="+",
-                   help="RINEX 3 (mixed) broadcast navigation file(s)")
-    p.add_argument("--mode", choices=("spp", "tc", "lc"), default="spp",
-                   help="spp: GNSS only; tc: tightly coupled GNSS/INS; lc: loosely coupled")
+                   help="RINEX 3 (mixed) or RINEX 2 GPS broadcast navigation file(s)")
+    p.add_argument("--mode", choices=("spp", "ppk", "tc", "lc"), default="spp",
+                   help="spp: GNSS code only; ppk: carrier-phase PPK against --rinex-base; tc: tightly coupled "
+                   "GNSS/INS; lc: loosely coupled")
+    p.add_argument("--rinex-base", metavar="BASE", help="RINEX observation file of the base station (ppk)")
+    p.add_argument("--base-position", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
+                   help="base antenna position, ECEF m (ppk; default: the base header's APPROX POSITION, "
+                   "with a warning)")
+    p.add_argument("--base-position-llh", type=float, nargs=3, metavar=("LAT", "LON", "H"), default=None,
+                   help="base antenna position, geodetic degrees and ellipsoidal height m (ppk)")
+    p.add_argument("--dynamics", choices=("kinematic", "static"), default="kinematic",
+                   help="ppk rover model: kinematic (any motion, default) or static")
+    p.add_argument("--ppk-solution", choices=("combined", "forward", "backward"), default="combined",
+                   help="ppk: forward + backward combined (default), or one pass")
+    p.add_argument("--ar-ratio", type=float, default=3.0, help="ppk: ratio-test threshold of ambiguity fixing")
+    p.add_argument("--frequencies", type=int, default=3, choices=(1, 2, 3),
+                   help="ppk: frequencies per system (L1/L2/L5, E1/E5a/E5b, ...)")
     p.add_argument("--imu", metavar="IMU", help="IMU file (tc/lc)")
     p.add_argument("--events", metavar="EVENTS.csv", help="camera events image,gps_week,gps_sow (tc/lc)")
     p.add_argument("--gnss", metavar="GNSS.csv", help="GNSS positions for lc mode (gnss.csv of --mode spp)")
@@ -51,9 +69,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="IMU error model preset (tc/lc), see dgcal.pos.ins.error_model: navigation, adis16488, "
                    "adis16405, consumer")
     p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
-                   help="further smoother option for tc/lc (repeatable), passed to dgcal.pos.pipeline")
+                   help="further option (repeatable): smoother settings for tc/lc, dgcal.pos.gnss.ppk.PpkOptions "
+                   "fields for ppk")
     p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
-                   help="known antenna position (ECEF, m) for the spp report's error plots")
+                   help="known antenna position (ECEF, m) for the spp/ppk summary and report")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -66,7 +85,12 @@ def pos_options(args: argparse.Namespace) -> PosOptions:
                       code_sigma_m=args.code_sigma, doppler_sigma_mps=args.doppler_sigma, raim=not args.no_raim,
                       t_start=args.t_start, t_end=args.t_end, lever_arm_m=tup(args.lever_arm),
                       imu_grade=args.imu_grade, settings=tuple(args.extra), reference_ecef=tup(args.reference),
-                      progress=not args.no_progress)
+                      progress=not args.no_progress, rinex_base=getattr(args, "rinex_base", None),
+                      base_position_ecef=tup(getattr(args, "base_position", None)),
+                      base_position_llh=tup(getattr(args, "base_position_llh", None)),
+                      dynamics=getattr(args, "dynamics", "kinematic"),
+                      ppk_solution=getattr(args, "ppk_solution", "combined"), ar_ratio=getattr(args, "ar_ratio", 3.0),
+                      n_freq=getattr(args, "frequencies", 3))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,6 +105,22 @@ def run(args: argparse.Namespace) -> int:
         s = sp.summary
         print(f"{Path(args.out) / SPP_OUTPUTS['gnss']}: {s['n_fixed']}/{s['n_epochs']} epochs, "
               f"median sigma 3D {s['median_sigma_3d_m']:.2f} m", file=sys.stderr)
+        return 0
+    if opts.mode == "ppk":
+        from dgcal.pos.pipeline import run_ppk
+        from dgcal.reports.ppk import write_ppk_outputs
+        run_ = run_ppk(opts)
+        with staged_dir(args.out) as tmp:
+            write_ppk_outputs(tmp, run_, SPP_OUTPUTS)
+        s = run_.summary
+        for w in run_.warnings:
+            print(f"warning: {w}", file=sys.stderr)
+        c = s["counts"]
+        msg = (f"{Path(args.out) / SPP_OUTPUTS['gnss']}: PPK {c['fixed']} fixed, {c['float']} float, {c['single']} "
+               f"single of {s['n_epochs']} epochs ({100 * s['fix_rate']:.1f} % fixed)")
+        if "error_fixed" in s:
+            msg += f"; fixed-epoch 3D RMS {1e3 * s['error_fixed']['rms_3d_m']:.1f} mm vs --reference"
+        print(msg, file=sys.stderr)
         return 0
     from dgcal.pos.pipeline import run_pos
     from dgcal.reports.pos import write_pos_outputs

@@ -16,32 +16,33 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dgcal.calib.camera.files import colmap_cameras_txt_string
-from dgcal.calib.mounting.common import BlockFrame
 from dgcal.fields.crs import LocalENU, MapGrid, parse_crs
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, write_eop
+from dgcal.fields.pose import Poses
+from dgcal.fields.world import World
 
 FORMATS = ("colmap", "pix4d", "metashape", "odm", "eop")
 
 
 # --- COLMAP --------------------------------------------------------------------------------------
 def write_colmap(out_dir: Path, eop: EOP, grid: MapGrid, camera, points_map: dict | None = None,
-                 observations: list | None = None) -> BlockFrame:
+                 observations: list | None = None) -> World:
     """Write cameras.txt, images.txt, points3D.txt and georef.json (local ENU frame at the block centre).
 
     `points_map`: optional {id: map xyz}; `observations`: optional [(image, id, x, y)] linking them."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    frame = BlockFrame.at_map_points(grid, eop.xyz)
-    C_world, R_cam_to_world = frame.eop_to_world(eop.xyz, eop.opk)
+    world = World.at_map_points(grid, eop.xyz)
+    poses = world.eop_to_poses(eop.xyz, eop.opk)
     cams_txt, err = colmap_cameras_txt_string(camera, 1)
     pid = {}
     pts_world = None
     if points_map:
         keys = list(points_map)
         pid = {k: j + 1 for j, k in enumerate(keys)}
-        pts_world = frame.map_to_world(np.array([points_map[k] for k in keys], float))
+        pts_world = world.to_world(np.array([points_map[k] for k in keys], float))
     obs_by_image: dict[str, list] = {}
     tracks: dict[int, list] = {}
     for im, i, x, y in (observations or []):
@@ -52,8 +53,7 @@ def write_colmap(out_dir: Path, eop: EOP, grid: MapGrid, camera, points_map: dic
              "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
              "#   POINTS2D[] as (X, Y, POINT3D_ID)", f"# Number of images: {len(eop.image)}"]
     for k, name in enumerate(eop.image):
-        R_w2c = R_cam_to_world[k].T
-        t = -R_w2c @ C_world[k]
+        R_w2c, t = poses.R_world_to_cam[k], poses.t_cam[k]
         q = Rotation.from_matrix(R_w2c).as_quat()  # x, y, z, w
         lines.append(" ".join([str(k + 1)] + [repr(float(v)) for v in (q[3], q[0], q[1], q[2])]
                               + [repr(float(v)) for v in t] + ["1", str(name)]))
@@ -80,10 +80,10 @@ def write_colmap(out_dir: Path, eop: EOP, grid: MapGrid, camera, points_map: dic
         fh.write("\n".join(pts_lines) + "\n")
     with atomic_write(out_dir / "georef.json") as fh:
         json.dump({"frame": "local ENU (East, North, Up, metres) tangent at the origin",
-                   "origin_lat_lon_h": [frame.local.lat0, frame.local.lon0, frame.local.h0],
+                   "origin_lat_lon_h": [world.enu.lat0, world.enu.lon0, world.enu.h0],
                    "map_crs": grid.crs.to_string(), "camera_conversion_max_error_px": float(err),
                    "point_ids": {str(k): v for k, v in pid.items()}}, fh, indent=2)
-    return frame
+    return world
 
 
 def read_colmap(in_dir: Path) -> tuple[EOP, MapGrid]:
@@ -95,8 +95,8 @@ def read_colmap(in_dir: Path) -> tuple[EOP, MapGrid]:
         grid = MapGrid(g["map_crs"])
     except (OSError, KeyError, ValueError) as exc:
         raise InputError(f"cannot read georef.json ({exc})", in_dir / "georef.json") from None
-    frame = BlockFrame(grid, LocalENU(lat0, lon0, h0))
-    names, C, R = [], [], []
+    world = World(grid, LocalENU(lat0, lon0, h0))
+    names, R, t = [], [], []
     path = in_dir / "images.txt"
     rows = [(n, ln) for n, ln in enumerate(path.read_text().splitlines(), 1) if not ln.startswith("#")]
     for n, ln in rows[0::2]:
@@ -107,11 +107,10 @@ def read_colmap(in_dir: Path) -> tuple[EOP, MapGrid]:
             qw, qx, qy, qz, tx, ty, tz = (float(v) for v in tok[1:8])
         except ValueError:
             raise InputError("quaternion and translation must be numbers", path, n, "QW") from None
-        R_w2c = Rotation.from_quat([qx, qy, qz, qw]).as_matrix()
         names.append(" ".join(tok[9:]))
-        R.append(R_w2c.T)
-        C.append(-R_w2c.T @ np.array([tx, ty, tz]))
-    xyz, opk = frame.world_to_eop(np.array(C), np.array(R))
+        R.append(Rotation.from_quat([qx, qy, qz, qw]).as_matrix())
+        t.append([tx, ty, tz])
+    xyz, opk, _ = world.poses_to_eop(Poses.from_R_t(np.array(R), np.array(t)))
     return EOP(np.array(names, dtype=object), xyz, opk), grid
 
 

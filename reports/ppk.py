@@ -1,0 +1,75 @@
+"""Files of `dgcal pos --mode ppk`: gnss.csv (ECEF m, fix status, covariance), gnss_summary.json, a short HTML report."""
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.fields.frames import R_ecef_to_enu
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.pos.gnss.ppk import STATUS, write_ppk_csv
+from dgcal.pos.pipeline import PpkRun
+from dgcal.reports.html import HtmlReport, new_figure
+
+_COLOURS = {"fixed": "tab:green", "float": "tab:orange", "single": "tab:red"}
+
+
+def write_ppk_report(path: str | Path, run: PpkRun) -> Path:
+    """``gnss_report.html`` of a PPK run: fix status over time, position about the reference (or median)."""
+    res, s = run.result, run.summary
+    rep = HtmlReport("dgcal pos — carrier-phase PPK")
+    rep.kv_table([("rover", s.get("rinex_obs", "")), ("base", s.get("rinex_base", "")),
+                  ("navigation", s.get("rinex_nav", "")),
+                  ("base position", f"{np.round(run.base_ecef, 3).tolist()} ({s.get('base_position_source')})"),
+                  ("epochs fixed / float / single", f"{s['counts']['fixed']} / {s['counts']['float']} / "
+                                                      f"{s['counts']['single']} of {s['n_epochs']}"),
+                  ("fix rate", f"{100 * s['fix_rate']:.1f} %"),
+                  ("median ratio (fixed)", s.get("median_ratio_fixed")),
+                  ("age of differential median / max (s)", f"{s['age_s']['median']} / {s['age_s']['max']}"),
+                  ("slips flagged rover / base", f"{s['slips_flagged_rover']} / {s['slips_flagged_base']}")])
+    rep.warnings(run.warnings)
+    ok = res.status >= 1
+    if not ok.any():
+        return rep.write(path)
+    ref = run.reference_ecef if run.reference_ecef is not None else np.median(res.p[ok], axis=0)
+    lat, lon, _ = ecef_to_geodetic(ref)
+    R = R_ecef_to_enu(lat, lon)
+    enu = (res.p - ref) @ R.T
+    t = res.t_gps - res.t_gps[0]
+    fig, axs = new_figure(9, 7, nrows=3, sharex=True)
+    names = np.array([STATUS[k] for k in res.status])
+    for i, (ax, lab) in enumerate(zip(axs, ("east", "north", "up"))):
+        for st, col in _COLOURS.items():
+            m = names == st
+            if m.any():
+                ax.plot(t[m], enu[m, i], ".", ms=3, color=col, label=st)
+        ax.set_ylabel(f"{lab} (m)")
+        ax.grid(alpha=0.3)
+    axs[0].legend(loc="upper right")
+    axs[-1].set_xlabel("time since first epoch (s)")
+    what = "the reference position" if run.reference_ecef is not None else "the median position"
+    rep.figure(fig, f"Position about {what}, coloured by solution status.")
+    fig, ax = new_figure(9, 3)
+    ax.step(t, res.n_sat, where="mid", label="satellites")
+    ax2 = ax.twinx()
+    ax2.semilogy(t, np.where(np.isfinite(res.ratio), res.ratio, np.nan), "k.", ms=2)
+    ax.set_xlabel("time since first epoch (s)")
+    ax.set_ylabel("satellites")
+    ax2.set_ylabel("ratio")
+    rep.figure(fig, "Satellites with double differences and the ratio of the ambiguity test.")
+    return rep.write(path)
+
+
+def write_ppk_outputs(out_dir: str | Path, run: PpkRun, names: Mapping[str, str]) -> dict[str, Path]:
+    """`dgcal pos --mode ppk`'s files in `out_dir`, by role in `names`: gnss (gnss.csv), gnss_summary (JSON),
+    gnss_report (HTML); returns the paths by role."""
+    out = Path(out_dir)
+    paths = {role: out / names[role] for role in ("gnss", "gnss_summary", "gnss_report")}
+    write_ppk_csv(paths["gnss"], run.result)
+    with atomic_write(paths["gnss_summary"]) as fh:
+        json.dump(run.summary, fh, indent=2, default=float)
+    write_ppk_report(paths["gnss_report"], run)
+    return paths
