@@ -1,26 +1,31 @@
-"""`dgcal pos`: RINEX -> SPP antenna positions; IMU + RINEX (or GNSS positions) + events -> smoothed trajectory.
+"""`dgcal pos`: RINEX -> SPP or PPK antenna positions; IMU + RINEX (or GNSS positions) + events -> smoothed trajectory.
 
 `process(...)` works on in-memory data (tests, simulator); `run_pos(PosOptions)` reads the files and runs
-it, `run_spp(PosOptions)` is `--mode spp`; dgcal.reports.pos.write_pos_outputs and
-dgcal.reports.gnss.write_spp_outputs write their files.
+it, `run_spp(PosOptions)` is `--mode spp`, `run_ppk(PosOptions)` is `--mode ppk` (rover + base carrier
+phase); dgcal.reports.pos.write_pos_outputs, dgcal.reports.gnss.write_spp_outputs and
+dgcal.reports.ppk.write_ppk_outputs write their files.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from dgcal.fields.constants import G0, SECONDS_PER_WEEK
-from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_ecef_to_ned
 from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.io.formats import read_events
+from dgcal.pos.gnss.carrier import carrier_observations
 from dgcal.pos.gnss.observations import GnssObservations
-from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
-from dgcal.pos.gnss.spp import SppOptions, prepare_epoch, spp, spp_summary
+from dgcal.pos.gnss.ppk import PpkOptions, PpkResult, ppk, ppk_summary
+from dgcal.pos.gnss.rinex import calendar_from_gps_seconds, read_rinex_nav, read_rinex_obs
+from dgcal.pos.gnss.rinex_obs import read_obs_file
+from dgcal.pos.gnss.spp import SppOptions, prepare_epoch, solve_epoch, spp, spp_summary
 from dgcal.pos.ins.error_model import imu_grade
 from dgcal.pos.ins.imu_data import read_imu_csv, read_kf_gins
 from dgcal.pos.ins.interpolate import trajectory_at_events
@@ -252,8 +257,15 @@ class PosOptions:
     lever_arm_m: tuple[float, float, float] | None = None  # tc/lc: GNSS antenna in the IMU body frame (FRD)
     imu_grade: str | None = None            # tc/lc: error-model preset (default adis16488)
     settings: tuple[str, ...] = ()          # tc/lc: smoother settings KEY=VALUE (`parse_settings`)
-    reference_ecef: tuple[float, float, float] | None = None  # spp: known antenna position (m) for the report
+    reference_ecef: tuple[float, float, float] | None = None  # spp/ppk: known antenna position (m) for the report
     progress: bool = True
+    rinex_base: Path | None = None          # ppk: RINEX observations of the base station
+    base_position_ecef: tuple[float, float, float] | None = None   # ppk: base antenna ECEF (m)
+    base_position_llh: tuple[float, float, float] | None = None    # ppk: base antenna lat, lon (deg), h (m)
+    dynamics: str = "kinematic"             # ppk: kinematic | static
+    ppk_solution: str = "combined"          # ppk: combined | forward | backward
+    ar_ratio: float = 3.0                   # ppk: ratio-test threshold
+    n_freq: int = 3                         # ppk: frequencies per system (1-3)
 
 
 def _spp_options(opts: PosOptions, model_errors: bool = True, strict: bool = True):
@@ -337,3 +349,173 @@ def run_pos(opts: PosOptions) -> PosResult:
                        events=events, rate_hz=rate, forward=forward, smoother_opts=sm, progress=opts.progress)
     except ValueError as exc:
         raise InputError(str(exc), opts.imu) from None
+
+
+# ------------------------------------------------------------------------------------------------ ppk
+_PPK_SETTINGS = {f.name: f.type for f in fields(PpkOptions)}
+
+
+def ppk_settings(items) -> dict:
+    """`--set KEY=VALUE` items of `--mode ppk` -> typed PpkOptions fields; InputError naming --set otherwise."""
+    out: dict = {}
+    for item in items:
+        key, sep, val = str(item).partition("=")
+        key = key.strip().replace("-", "_")
+        if not sep or key not in _PPK_SETTINGS:
+            raise InputError(f"unknown setting {item!r} (KEY=VALUE with KEY one of {', '.join(_PPK_SETTINGS)})",
+                             field="--set")
+        typ = _PPK_SETTINGS[key]
+        v = val.strip()
+        try:
+            if typ in (bool, "bool"):
+                if v.lower() not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
+                    raise ValueError(v)
+                out[key] = v.lower() in ("1", "true", "yes", "on")
+            elif typ in (int, "int"):
+                out[key] = int(v)
+            elif typ in (float, "float"):
+                out[key] = float(v)
+            else:
+                out[key] = v
+        except ValueError:
+            raise InputError(f"bad value for {key}: {val!r}", field="--set") from None
+    return out
+
+
+@dataclass
+class PpkRun:
+    """`dgcal pos --mode ppk`: the PPK result (single epochs filled by SPP), its summary and warnings."""
+
+    result: PpkResult
+    summary: dict
+    base_ecef: np.ndarray
+    reference_ecef: np.ndarray | None = None
+    warnings: list[str] = field(default_factory=list)
+
+
+def _ymd(t_gps: float) -> str:
+    y, mo, d, h, mi, s = calendar_from_gps_seconds(t_gps)
+    return f"{y:04d}-{mo:02d}-{d:02d} {h:02d}:{mi:02d}:{s:04.1f}"
+
+
+def _spp_median(raw, nav, sopts, n_max: int = 10) -> tuple[np.ndarray | None, int]:
+    """Median SPP position (ECEF m) of up to `n_max` epochs spread over a receiver's file."""
+    k = np.unique(np.linspace(0, len(raw.epochs) - 1, min(n_max, len(raw.epochs))).astype(int))
+    guess = raw.p_approx_ecef if np.all(np.isfinite(raw.p_approx_ecef)) else None
+    ps = []
+    for i in k:
+        s = solve_epoch(raw.epochs[i], nav, guess, sopts)
+        if s.ok:
+            ps.append(s.p_ecef)
+            guess = s.p_ecef
+    return (np.median(ps, axis=0) if ps else None), len(ps)
+
+
+def run_ppk(opts: PosOptions) -> PpkRun:
+    """`dgcal pos --mode ppk`: carrier-phase PPK of the rover RINEX against the base RINEX at the given base
+    position (ECEF m, or geodetic, or the base header's APPROX POSITION with a warning); epochs without
+    double differences are SPP ('single'). Checks: common epochs, same day, base position within 100 m of the
+    base's own SPP. Returns the solution and the summary (with the 3D RMS against `reference_ecef` if given)."""
+    for name, val in (("rinex-obs", opts.rinex_obs), ("rinex-nav", opts.rinex_nav), ("rinex-base", opts.rinex_base)):
+        if not val:
+            raise InputError("required for --mode ppk", field="--" + name)
+    if opts.dynamics not in ("kinematic", "static"):
+        raise InputError(f"dynamics must be kinematic or static, not {opts.dynamics!r}", field="--dynamics")
+    if opts.ppk_solution not in ("combined", "forward", "backward"):
+        raise InputError(f"must be combined, forward or backward, not {opts.ppk_solution!r}", field="--ppk-solution")
+    if not 1 <= int(opts.n_freq) <= 3:
+        raise InputError(f"must be 1, 2 or 3, not {opts.n_freq}", field="--frequencies")
+    sopts = _spp_options(opts)
+    extra = ppk_settings(opts.settings)
+    popts = PpkOptions(**{**dict(systems="".join(sopts.systems), n_freq=int(opts.n_freq),
+                                  elev_mask_deg=opts.elev_mask_deg, ar_elev_mask_deg=opts.elev_mask_deg,
+                                  dynamics=opts.dynamics, solution=opts.ppk_solution,
+                                  ratio_threshold=opts.ar_ratio), **extra})
+    warnings: list[str] = []
+    nav = read_rinex_nav(opts.rinex_nav[0], list(opts.rinex_nav[1:]))
+    warnings += nav.warnings
+    rover_rx = read_obs_file(opts.rinex_obs, t_start=opts.t_start, t_end=opts.t_end, systems=popts.systems)
+    if len(rover_rx) == 0:
+        raise InputError("no observation epochs in the requested time span", opts.rinex_obs)
+    t0, t1 = rover_rx.t_gps[0], rover_rx.t_gps[-1]
+    base_all = read_obs_file(opts.rinex_base, systems=popts.systems)
+    if len(base_all) == 0:
+        raise InputError("no observation epochs", opts.rinex_base)
+    tb = base_all.t_gps
+    if tb[-1] < t0 - popts.max_age_s or tb[0] > t1 + popts.max_age_s:
+        day = abs(np.floor(tb[0] / 86400.0) - np.floor(t0 / 86400.0)) >= 1
+        raise InputError(f"no common epochs: base {_ymd(tb[0])} - {_ymd(tb[-1])}, rover {_ymd(t0)} - {_ymd(t1)} GPS"
+                         + (" (another day)" if day else ""), opts.rinex_base, int(base_all.epoch_line[0]), "EPOCH")
+    near = np.abs(tb[np.clip(np.searchsorted(tb, rover_rx.t_gps), 0, len(tb) - 1)] - rover_rx.t_gps)
+    near = np.minimum(near, np.abs(tb[np.clip(np.searchsorted(tb, rover_rx.t_gps) - 1, 0, len(tb) - 1)]
+                                   - rover_rx.t_gps))
+    if not np.any(near <= popts.max_age_s):
+        raise InputError(f"no base epoch within {popts.max_age_s:g} s of any rover epoch", opts.rinex_base,
+                         int(base_all.epoch_line[0]), "EPOCH")
+    keep = (tb >= t0 - popts.max_age_s) & (tb <= t1 + popts.max_age_s)
+    base_rx = read_obs_file(opts.rinex_base, t_start=float(tb[keep][0]), t_end=float(tb[keep][-1]),
+                            systems=popts.systems)
+    # base position
+    if opts.base_position_ecef is not None:
+        base = np.asarray(opts.base_position_ecef, float)
+        src, fld = "--base-position", "--base-position"
+    elif opts.base_position_llh is not None:
+        lat, lon, h = (float(v) for v in opts.base_position_llh)
+        if not (-90 <= lat <= 90 and -180 <= lon <= 360):
+            raise InputError(f"latitude/longitude out of range: {lat}, {lon}", field="--base-position-llh")
+        base = np.asarray(geodetic_to_ecef(lat, lon, h), float).reshape(3)
+        src, fld = "--base-position-llh", "--base-position-llh"
+    else:
+        base = base_rx.p_approx_ecef
+        if not np.all(np.isfinite(base)):
+            raise InputError("no base position: give --base-position X Y Z (or --base-position-llh); the base "
+                             "header has no APPROX POSITION XYZ", opts.rinex_base, field="APPROX POSITION XYZ")
+        src, fld = "header APPROX POSITION XYZ", "APPROX POSITION XYZ"
+        warnings.append(f"{opts.rinex_base}: no --base-position given: the base header's APPROX POSITION XYZ "
+                        "is used; its error (often metres) goes into the rover position one to one")
+    if not (np.all(np.isfinite(base)) and 6.0e6 < np.linalg.norm(base) < 6.5e6):
+        raise InputError(f"base position {base.tolist()} is not on the Earth's surface (ECEF metres?)", field=fld)
+    base_raw = read_rinex_obs(opts.rinex_base, systems=sopts.systems, rinex=base_rx)
+    base_spp, n_spp = _spp_median(base_raw, nav, sopts)
+    d_spp = float(np.linalg.norm(base - base_spp)) if base_spp is not None else np.nan
+    if base_spp is not None and d_spp > 100.0:
+        raise InputError(f"base position ({src}) is {d_spp:.0f} m from the base's own SPP position "
+                         f"{np.round(base_spp, 1).tolist()}: wrong coordinates or wrong file?", field=fld)
+    # rover: SPP of the first epochs (start of the filter) and of epochs without double differences
+    rover_raw = read_rinex_obs(opts.rinex_obs, systems=sopts.systems, rinex=rover_rx)
+    p_init = None
+    guess = rover_raw.p_approx_ecef if np.all(np.isfinite(rover_raw.p_approx_ecef)) else None
+    for ep in rover_raw.epochs[:10]:
+        s = solve_epoch(ep, nav, guess, sopts)
+        if s.ok:
+            p_init = s.p_ecef
+            break
+    if p_init is None:
+        p_init = guess if guess is not None else base
+    rover = carrier_observations(rover_rx, popts.systems, popts.n_freq)
+    base_obs = carrier_observations(base_rx, popts.systems, popts.n_freq)
+    t_run = time.perf_counter()
+    with threadpool_limits(1):        # small matrices: BLAS threads only cost
+        res = ppk(rover, base_obs, nav, base, popts, p_init=p_init)
+    t_run = time.perf_counter() - t_run
+    # 'single' epochs: SPP where PPK has no solution
+    t_raw = {round(ep.t_gps, 3): ep for ep in rover_raw.epochs}
+    guess = p_init
+    for k in np.nonzero(res.status == 0)[0]:
+        ep = t_raw.get(round(float(res.t_gps[k]), 3))
+        if ep is None:
+            continue
+        s = solve_epoch(ep, nav, guess, sopts)
+        if s.ok:
+            res.status[k], res.p[k], res.P[k], res.n_sat[k] = 1, s.p_ecef, s.cov_p, s.n_sat
+            guess = s.p_ecef
+    ref = np.asarray(opts.reference_ecef, float) if opts.reference_ecef is not None else None
+    summary = ppk_summary(res, ref)
+    summary.update({"rinex_obs": str(opts.rinex_obs), "rinex_base": str(opts.rinex_base),
+                    "rinex_nav": nav.source, "base_ecef_m": base.tolist(), "base_position_source": src,
+                    "base_spp_ecef_m": base_spp.tolist() if base_spp is not None else None,
+                    "base_minus_spp_m": d_spp, "ionosphere_model": nav.ion_source,
+                    "run_time_s": round(t_run, 2),
+                    "time_per_epoch_ms": round(1e3 * t_run / max(len(res.t_gps), 1), 2),
+                    "warnings": warnings})
+    return PpkRun(res, summary, base, ref, warnings)

@@ -42,6 +42,7 @@ def write_spp_report(path: str | Path, sol, summary: dict, ref_ecef: np.ndarray 
                     "(fewer satellites than unknowns, or GDOP > 30).")
     if summary["n_rejected"]:
         warn.append(f"{summary['n_rejected']} satellite observations rejected by RAIM.")
+    warn += list(summary.get("warnings", []))
     rep.warnings(warn)
     if not ok.any():
         return rep.write(path)

@@ -1,4 +1,4 @@
-"""Files of `dgcal pos --mode ppk`: gnss.csv (ECEF m, fix status, covariance), gnss_summary.json, a short HTML report."""
+"""Files of `dgcal pos --mode ppk`: gnss.csv (ECEF m, fix status, covariance), gnss_summary.json, HTML report."""
 from __future__ import annotations
 
 import json

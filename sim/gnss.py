@@ -327,3 +327,93 @@ def simulate_gnss_dataset(out: str | Path, seed: int = 0, nav: str | Path | None
         with atomic_write(Path(d) / "truth.json") as fh:
             json.dump(truth, fh)
     return Path(out) / "sim.obs"
+
+
+# ------------------------------------------------------------------------------- carrier phase (PPK tests)
+CARRIER_BANDS_HZ = {"G": (1575.42e6, 1227.60e6, 1176.45e6), "E": (1575.42e6, 1176.45e6, 1207.14e6),
+                    "J": (1575.42e6, 1227.60e6, 1176.45e6)}
+
+
+def simulate_carrier_pair(t_gps: np.ndarray, p_rover_ecef: np.ndarray, p_base_ecef: np.ndarray, nav=None,
+                          seed: int = 0, sigma_code: float = 0.3, sigma_phase: float = 0.003,
+                          systems=("G", "E"), n_freq: int = 2, elev_mask_deg: float = 10.0,
+                          slips: list[tuple[float, str, int, int, bool]] = ()):
+    """Minimal simulated code + carrier phase of a rover and a static base (for PPK tests), as two
+    ``dgcal.pos.gnss.carrier.CarrierObs``; returns (rover, base, nav).
+
+    Per receiver, satellite and frequency slot ``f`` (GPS/QZSS L1 L2 L5, Galileo E1 E5a E5b)::
+
+        P = rho + c*(dt_rx - dt_sat) + T + I_f + n_P,    L = (rho + c*(dt_rx - dt_sat) + T - I_f)/lam + N + n_L/lam
+
+    with the exact light-time range of ``_range_at``, the Saastamoinen (hydrostatic) and Klobuchar models at
+    each receiver (so that the PPK front end removes them; no differential atmosphere error), a constant
+    receiver clock offset, random integer ambiguities and white noise ``sigma * sqrt(1/2 + 1/(2 sin^2 el))``
+    (zenith sigmas ``sigma_code`` m, ``sigma_phase`` m). ``slips``: (t_gps, sat, slot, cycles, flagged)
+    add ``cycles`` to that phase from ``t_gps`` on, with LLI=1 at that epoch if ``flagged``. ``rover.truth``
+    holds the true rover positions. Code-only products (SPP) are unchanged by this function.
+    """
+    from dgcal.pos.gnss.carrier import CarrierObs
+    rng = np.random.default_rng(seed)
+    t = np.asarray(t_gps, float)
+    nav = _load_nav(nav, (t[0], t[-1]), tuple(s for s in systems if s in "GEC"), seed)
+    n_ep = len(t)
+    P_r = np.asarray(p_rover_ecef, float).reshape(-1, 3)
+    if len(P_r) == 1:
+        P_r = np.repeat(P_r, n_ep, axis=0)
+    p_b = np.asarray(p_base_ecef, float).reshape(3)
+    sats = sorted(s for s in nav.by_sat if s[0] in systems and s[0] in CARRIER_BANDS_HZ)
+    m = len(sats)
+    freq = np.array([[CARRIER_BANDS_HZ[s[0]][f] for f in range(n_freq)] for s in sats])
+    out = {}
+    for name, pos, clk_m in (("rover", P_r, 3.0e3), ("base", np.repeat(p_b[None], n_ep, axis=0), -1.2e3)):
+        K = np.repeat(np.arange(n_ep), m)
+        S = sats * n_ep
+        t_true = t[K] - clk_m / C_LIGHT              # the time tag runs ahead of true time by the clock offset
+        t_s0 = t_true - 0.075
+        ps, vs, clk_s, clk_d, _, ok = satellite_states(nav, S, t_s0)
+        ps = np.where(ok[:, None], ps, 2.6e7)
+        vs = np.where(ok[:, None], vs, 0.0)
+        acc = _ecef_acceleration(ps, vs)
+        rho, tau, prot = _range_at(ps, vs, acc, t_s0, pos[K], t_true)
+        llh = ecef_to_geodetic(pos[K]).reshape(-1, 3)
+        R = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(-1, 3, 3)
+        d = prot - pos[K]
+        e = np.einsum("nij,nj->ni", R, d / np.linalg.norm(d, axis=1, keepdims=True))
+        el = np.arcsin(np.clip(e[:, 2], -1, 1))
+        az = np.mod(np.arctan2(e[:, 0], e[:, 1]), 2 * np.pi)
+        vis = ok & (el >= np.radians(elev_mask_deg - 2.0))
+        dts = clk_s + clk_d * ((t_true - tau) - t_s0)
+        tropo = saastamoinen_delay_m(llh[:, 0], llh[:, 2], el, humidity=0.0)
+        geo = rho + clk_m - C_LIGHT * dts + tropo
+        Pm = np.full((n_ep * m, n_freq), np.nan)
+        Lm = np.full((n_ep * m, n_freq), np.nan)
+        N = rng.integers(-10 ** 6, 10 ** 6, size=(m, n_freq)).astype(float)
+        for f in range(n_freq):
+            fr = freq[np.tile(np.arange(m), n_ep), f]
+            iono = klobuchar_delay_m(t[K], llh[:, 0], llh[:, 1], el, az, nav.ion_gps, fr)
+            sc = code_sigma_m(el, sigma_code)
+            sp = code_sigma_m(el, sigma_phase)
+            Pm[:, f] = geo + iono + sc * rng.standard_normal(len(K))
+            Lm[:, f] = (geo - iono + sp * rng.standard_normal(len(K))) / (C_LIGHT / fr) + N[np.tile(np.arange(m),
+                                                                                                       n_ep), f]
+        Pm[~vis] = np.nan
+        Lm[~vis] = np.nan
+        out[name] = (Pm.reshape(n_ep, m, n_freq), Lm.reshape(n_ep, m, n_freq))
+    lli = {k: np.zeros((n_ep, m, n_freq), dtype=np.uint8) for k in out}
+    for (ts, sat, f, cycles, flagged) in slips:
+        i = sats.index(sat)
+        k = t >= ts - 1e-9
+        out["rover"][1][k, i, f] += cycles
+        if flagged and k.any():
+            lli["rover"][np.argmax(k), i, f] = 1
+    signals = {(s, f): (f"C{b}X", f"L{b}X") for s in systems if s in CARRIER_BANDS_HZ
+               for f, b in enumerate({"G": "125", "E": "157", "J": "125"}[s][:n_freq])}
+    res = []
+    for name, pos0 in (("rover", P_r[0]), ("base", p_b)):
+        Pm, Lm = out[name]
+        res.append(CarrierObs(source=f"simulation ({name})", t_gps=t.copy(), sats=list(sats), freq_hz=freq.copy(),
+                              P=Pm, L=Lm, D=np.full_like(Pm, np.nan), snr=np.full_like(Pm, np.nan), lli=lli[name],
+                              signals=dict(signals), p_approx_ecef=pos0 + rng.normal(0, 2.0, 3),
+                              power_failure=np.zeros(n_ep, dtype=bool),
+                              truth={"p_ecef": P_r.copy()} if name == "rover" else {"p_ecef": p_b.copy()}))
+    return res[0], res[1], nav

@@ -1,27 +1,29 @@
-"""RINEX 3 observation and navigation files: reading through cssrlib, writing simulated observations.
+"""RINEX observation and navigation files (2.10/2.11 and 3.x): reading for SPP/TC, writing simulated observations.
 
-Reading uses cssrlib's ``rnxdec`` (a maintained RINEX decoder) fed through a line-counting file
-wrapper, so that any decoding failure is reported as ``InputError`` naming the file and line.
-One code signal per constellation is chosen (single-frequency SPP/TC): GPS and QZSS L1 C/A,
-Galileo E1, BeiDou B1I, each with its Doppler and C/N0 where present.
+Observation files are read by ``dgcal.pos.gnss.rinex_obs.read_obs_file`` (every code of every
+version); ``read_rinex_obs`` picks one code signal per constellation (single-frequency SPP/TC): GPS
+and QZSS L1 C/A, Galileo E1, BeiDou B1I, each with its Doppler and C/N0 where present. Navigation
+files are decoded by cssrlib's ``rnxdec`` (RINEX 2 GPS files are first laid out as RINEX 3 by
+``dgcal.pos.gnss.rinex_nav``) through a line-counting wrapper, so that any decoding failure is
+reported as ``InputError`` naming the file and line.
 """
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
-import gzip
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
-from cssrlib.gnss import Nav, char2sys, gpst2time, rSigRnx, sat2id, sat2prn, sys2char, time2gpst, uTYP
+from cssrlib.gnss import Nav, gpst2time, sat2id, time2gpst
 from cssrlib.rinex import rnxdec
 
 from dgcal.fields.constants import C_LIGHT, SECONDS_PER_DAY, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.gnss.observations import SYSTEMS, GnssEpoch, GnssObservations
+from dgcal.pos.gnss.rinex_nav import ION_DEFAULT, nav_text_for_cssrlib
+from dgcal.pos.gnss.rinex_obs import RinexObsFile, read_obs_file
 
 # Preferred code observations per system, best first (RINEX 3 codes).
 CODE_PRIORITY = {
@@ -78,7 +80,7 @@ def gps_seconds_from_gtime(t) -> float:
 
 
 class _LineCounter:
-    """File wrapper counting lines, so a decoder failure can name the line."""
+    """Text-stream wrapper counting lines, so a decoder failure can name the line."""
 
     def __init__(self, fh):
         self.fh, self.line = fh, 0
@@ -104,43 +106,16 @@ class _LineCounter:
         self.fh.close()
 
 
-def _open_text(path: Path):
-    if not path.is_file():
-        raise InputError("file not found", path)
-    if path.suffix.lower() in (".gz", ".z"):
-        return gzip.open(path, "rt", encoding="ascii", errors="replace")
-    return open(path, "rt", encoding="ascii", errors="replace")
-
-
-def _check_version(path: Path, kind: str) -> None:
-    """RINEX 3+ only; names the file if the first line is not a RINEX 3 header of the right kind."""
-    with _open_text(path) as fh:
-        first = fh.readline()
-    if "CRINEX VERS" in first:
-        raise InputError("Hatanaka-compressed RINEX: decompress it first (crx2rnx)", path, 1)
-    if "RINEX VERSION / TYPE" not in first:
-        raise InputError("not a RINEX file (no 'RINEX VERSION / TYPE' header line)", path, 1)
-    try:
-        ver = float(first[:9])
-    except ValueError:
-        raise InputError("bad RINEX version", path, 1, "RINEX VERSION") from None
-    if ver < 3.0:
-        raise InputError(f"RINEX version {ver} is not supported (need 3.x)", path, 1, "RINEX VERSION")
-    typ = first[20:21]
-    if kind == "obs" and typ != "O":
-        raise InputError(f"not an observation file (type '{typ}')", path, 1, "RINEX VERSION / TYPE")
-    if kind == "nav" and typ != "N":
-        raise InputError(f"not a navigation file (type '{typ}')", path, 1, "RINEX VERSION / TYPE")
-
-
 # ----------------------------------------------------------------------------------------- nav
 @dataclass
 class BroadcastNav:
-    """Broadcast ephemerides of a RINEX 3 navigation file.
+    """Broadcast ephemerides of RINEX navigation files (RINEX 2.10/2.11 GPS or 3.x mixed).
 
     ``eph``: cssrlib ``Eph`` records (GPS, Galileo, BeiDou, QZSS; epochs converted to GPS time);
     ``by_sat``: the same grouped by satellite id ('G05'); ``ion_gps``: Klobuchar (alpha, beta)
-    from the GPSA/GPSB header lines (2x4), ``ion_bds`` from BDSA/BDSB, None when absent.
+    (2x4) from the GPSA/GPSB (RINEX 2: ION ALPHA/BETA) header lines, else QZSA/QZSB, else RTKLIB's
+    defaults (``ion_source`` says which; a warning is added to ``warnings``), ``ion_bds`` from
+    BDSA/BDSB, None when absent. ``warnings``: one-line notes for summaries and reports.
     """
 
     eph: list
@@ -150,56 +125,35 @@ class BroadcastNav:
     leap_seconds: int
     source: str = ""
     _toe: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
-
-
-def _parse_ion_header(path: Path) -> tuple[np.ndarray | None, np.ndarray | None, int]:
-    """GPSA/GPSB and BDSA/BDSB Klobuchar coefficients and leap seconds from the header."""
-    coef: dict[str, list[float]] = {}
-    leap = 18
-    with _open_text(path) as fh:
-        for lineno, line in enumerate(fh, start=1):
-            label = line[60:].strip()
-            if label.startswith("END OF HEADER"):
-                break
-            if label.startswith("IONOSPHERIC CORR"):
-                key = line[0:4]
-                try:
-                    coef[key] = [float(line[5 + 12 * k:5 + 12 * (k + 1)].replace("D", "E").strip() or 0.0)
-                                 for k in range(4)]
-                except ValueError:
-                    raise InputError("bad number in IONOSPHERIC CORR", path, lineno, key) from None
-            elif label.startswith("LEAP SECONDS"):
-                with contextlib.suppress(ValueError):
-                    leap = int(line[:6])
-
-    def pair(a: str, b: str):
-        return np.array([coef[a], coef[b]]) if a in coef and b in coef else None
-
-    return pair("GPSA", "GPSB"), pair("BDSA", "BDSB"), leap
+    ion_source: str = "GPSA/GPSB"
+    warnings: list[str] = field(default_factory=list)
 
 
 def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> BroadcastNav:
-    """Read one or more RINEX 3 (mixed) navigation files into ``BroadcastNav`` via cssrlib."""
+    """Read one or more RINEX navigation files (2.10/2.11 GPS, 3.x mixed) into ``BroadcastNav`` via cssrlib.
+
+    Without Klobuchar coefficients in any header the QZSS ones are used, else RTKLIB's defaults,
+    with a warning in ``BroadcastNav.warnings`` (never silently zero).
+    """
 
     all_paths = [Path(path)] + [Path(p) for p in paths]
     nav = Nav()
-    ion_gps = ion_bds = None
+    ion_gps = ion_qzs = ion_bds = None
     leap = 18
     for k, p in enumerate(all_paths):
-        _check_version(p, "nav")
-        g, b, leap = _parse_ion_header(p)
-        ion_gps = g if g is not None else ion_gps
-        ion_bds = b if b is not None else ion_bds
+        text, hdr = nav_text_for_cssrlib(p)
+        ion_gps = hdr.ion_gps if hdr.ion_gps is not None else ion_gps
+        ion_qzs = hdr.ion_qzs if hdr.ion_qzs is not None else ion_qzs
+        ion_bds = hdr.ion_bds if hdr.ion_bds is not None else ion_bds
+        leap = hdr.leap_seconds
         dec = rnxdec()
-        fh = _LineCounter(_open_text(p))
+        fh = _LineCounter(text)
         try:
             nav = dec._decode_nav(fh, nav, append=k > 0)
         except (ValueError, IndexError, KeyError) as exc:
             raise InputError(f"cannot decode navigation record: {exc}", p, fh.line) from None
-        finally:
-            fh.close()
         if nav == -1:
-            raise InputError("RINEX version < 3.02 is not supported by the decoder", p, 1)
+            raise InputError("RINEX version not supported by the decoder", p, 1)
     by_sat: dict[str, list] = {}
     for e in nav.eph:
         sid = sat2id(e.sat)
@@ -207,22 +161,22 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
             by_sat.setdefault(sid, []).append(e)
     if not by_sat:
         raise InputError("no GPS/Galileo/BeiDou/QZSS ephemeris in navigation file", all_paths[0])
+    source = ", ".join(str(p) for p in all_paths)
+    warnings, ion_source = [], "GPSA/GPSB"
+    if ion_gps is None:
+        if ion_qzs is not None:
+            ion_gps, ion_source = ion_qzs, "QZSA/QZSB"
+            warnings.append(f"{source}: no GPS ionosphere coefficients (GPSA/GPSB, ION ALPHA/BETA); "
+                            "the QZSS Klobuchar coefficients (QZSA/QZSB) are used")
+        else:
+            ion_gps, ion_source = ION_DEFAULT.copy(), "default"
+            warnings.append(f"{source}: no ionosphere coefficients (GPSA/GPSB, ION ALPHA/BETA); "
+                            "RTKLIB's default Klobuchar coefficients are used")
     return BroadcastNav(eph=nav.eph, by_sat=by_sat, ion_gps=ion_gps, ion_bds=ion_bds,
-                        leap_seconds=leap, source=", ".join(str(p) for p in all_paths))
+                        leap_seconds=leap, source=source, ion_source=ion_source, warnings=warnings)
 
 
 # ----------------------------------------------------------------------------------------- obs
-@dataclass
-class RinexObsHeader:
-    """What the observation header says: marker, receiver, approximate position, signals per system."""
-
-    marker: str
-    receiver: str
-    p_approx_ecef: np.ndarray
-    obs_types: dict[str, list[str]]
-    version: float
-
-
 def _choose_signals(obs_types: dict[str, list[str]], systems: Iterable[str]) -> dict[str, str]:
     """The code observation used per system (first available of CODE_PRIORITY)."""
     chosen = {}
@@ -237,141 +191,86 @@ def _choose_signals(obs_types: dict[str, list[str]], systems: Iterable[str]) -> 
 
 def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
                    t_start: float | None = None, t_end: float | None = None,
-                   decimate_s: float | None = None) -> GnssObservations:
-    """Read a RINEX 3 observation file (via cssrlib) into raw ``GnssEpoch``s (front-end fields NaN).
+                   decimate_s: float | None = None, rinex: RinexObsFile | None = None) -> GnssObservations:
+    """Read a RINEX 2.10/2.11/3.x observation file into raw ``GnssEpoch``s (front-end fields NaN).
 
     One code signal per system (see ``CODE_PRIORITY``) with its Doppler and C/N0. When the file
     has no Doppler for a signal, the range rate is derived from the carrier phase of the same
     signal by central differences between neighbouring epochs (no loss-of-lock flag, gap <= 1.5
     epoch intervals); ``doppler_hz`` is then the equivalent Doppler. Times are GPS time.
+    ``rinex``: the file already read by ``dgcal.pos.gnss.rinex_obs.read_obs_file`` (not read again).
     """
 
     path = Path(path)
-    _check_version(path, "obs")
-    dec = rnxdec()
-    fh = _LineCounter(_open_text(path))
-    try:
-        dec.fobs = fh
-        try:
-            if dec._decode_obsh() != 0:
-                raise InputError("RINEX version < 3.02 is not supported by the decoder", path, 1)
-        except (ValueError, IndexError, KeyError) as exc:
-            raise InputError(f"cannot decode observation header: {exc}", path, fh.line) from None
-        obs_types = {}
-        for gns, m in dec.sig_map.items():
-            obs_types[_sys_letter(gns)] = [m[i].str() for i in sorted(m)]
-        signals = _choose_signals(obs_types, [s for s in systems if s in SYSTEMS])
-        if not signals:
-            raise InputError(f"no usable code observations for systems {list(systems)} "
-                             f"(have {obs_types})", path, field="SYS / # / OBS TYPES")
-        sig_list, wavelength = [], {}
-        for s, code in signals.items():
-            band_att = code[1:]
-            want = [code, "L" + band_att, "D" + band_att, "S" + band_att]
-            for w in want:
-                if w in obs_types[s]:
-                    sig_list.append(rSigRnx(char2sys(s), w))
-            wavelength[s] = C_LIGHT / signal_frequency_hz(s, code)
-        dec.setSignals(sig_list)
-        raw = _decode_obs_body(dec, fh, path, signals, obs_types, t_start, t_end, decimate_s)
-    finally:
-        fh.close()
-    header = RinexObsHeader(marker="", receiver=(dec.rcv or "").strip(),
-                            p_approx_ecef=np.asarray(dec.pos, float), obs_types=obs_types,
-                            version=dec.ver)
-    epochs = _raw_to_epochs(raw, signals, wavelength, sat2id)
-    if not epochs:
-        raise InputError("no observation epochs in the requested time span", path)
-    p0 = header.p_approx_ecef if np.linalg.norm(header.p_approx_ecef) > 1e6 else np.full(3, np.nan)
-    return GnssObservations(epochs=epochs, receiver=header.receiver, p_approx_ecef=p0,
-                            signals=signals, source=str(path))
-
-
-def _sys_letter(gns) -> str:
-    return sys2char(gns)
-
-
-def _decode_obs_body(dec, fh: _LineCounter, path: Path, signals, obs_types, t_start, t_end,
-                     decimate_s) -> list[tuple[float, np.ndarray, dict]]:
-    """Decode epochs with cssrlib; returns (t_gps, sats, {typ: values}) per epoch."""
-    letter_cache: dict[int, str] = {}
-
-    def letter_of(sat: int) -> str:
-        if sat not in letter_cache:
-            letter_cache[sat] = sys2char(sat2prn(sat)[0])
-        return letter_cache[sat]
-
-    typ_of = {"C": uTYP.C, "L": uTYP.L, "D": uTYP.D, "S": uTYP.S}
-    has = {(c, k): c in signals and bool(dec.getSignals(char2sys(c), typ)) for c in "GRECJSI"
-           for k, typ in typ_of.items()}
-    out = []
-    while True:
-        line_before = fh.line
-        try:
-            obs = dec.decode_obs()
-        except (ValueError, IndexError, KeyError) as exc:
-            raise InputError(f"cannot decode observation record: {exc}", path, fh.line) from None
-        if fh.line == line_before or obs.t.time == 0:
-            break
-        if len(obs.sat) == 0:
+    rx = rinex if rinex is not None else read_obs_file(path, t_start=t_start, t_end=t_end)
+    obs_types = rx.obs_types
+    signals = _choose_signals(obs_types, [s for s in systems if s in SYSTEMS])
+    if not signals:
+        raise InputError(f"no usable code observations for systems {list(systems)} "
+                         f"(have {obs_types})", path, field="SYS / # / OBS TYPES")
+    wavelength = {s: C_LIGHT / signal_frequency_hz(s, code) for s, code in signals.items()}
+    t = rx.t_gps
+    keep_t = np.ones(len(t), dtype=bool)
+    if rinex is not None:
+        if t_start is not None:
+            keep_t &= t >= t_start - 1e-6
+        if t_end is not None:
+            keep_t &= t <= t_end + 1e-6
+    if decimate_s:
+        keep_t &= np.abs(t / decimate_s - np.round(t / decimate_s)) <= 1e-6
+    cols = {}
+    for s, code in signals.items():
+        so = rx.systems.get(s)
+        if so is None:
             continue
-        t = gps_seconds_from_gtime(obs.t)
-        if t_start is not None and t < t_start - 1e-6:
-            continue
-        if t_end is not None and t > t_end + 1e-6:
-            break
-        if decimate_s and abs(t / decimate_s - round(t / decimate_s)) > 1e-6:
-            continue
-        # cssrlib's per-type arrays hold our single signal per system in column 0
-        vals = {k: np.full(len(obs.sat), np.nan) for k in ("C", "L", "D", "S")}
-        lli = np.zeros(len(obs.sat), dtype=int)
-        letters = [letter_of(int(sat)) for sat in obs.sat]
-        for typ_name, arr in (("C", obs.P), ("L", obs.L), ("D", obs.D), ("S", obs.S)):
-            if arr.shape[1] == 0:
-                continue
-            col = np.where(np.array([has[(c, typ_name)] for c in letters], dtype=bool), arr[:, 0], 0.0)
-            vals[typ_name] = np.where(col != 0.0, col, np.nan)
-            if typ_name == "L":
-                lli = np.where(np.isfinite(vals["L"]), obs.lli[:, 0], 0)
-        out.append((t, np.asarray(obs.sat), vals, lli))
-    return out
+        ba = code[1:]
 
-
-def _raw_to_epochs(raw, signals, wavelength, sat2id) -> list[GnssEpoch]:
-    """Build raw GnssEpochs; derive range rate from carrier phase where Doppler is missing."""
+        def col(c, so=so):
+            return so.codes.index(c) if c in so.codes else None
+        cols[s] = (so, {so.sats[j]: j for j in range(len(so.sats))}, col(code), col("L" + ba), col("D" + ba),
+                   col("S" + ba))
     epochs = []
-    id_cache: dict[int, str] = {}
-    for t, sats, vals, lli in raw:
-        ok = np.isfinite(vals["C"]) & (vals["C"] > 1e6)
-        ids = []
-        for s in sats:
-            s = int(s)
-            if s not in id_cache:
-                id_cache[s] = sat2id(s)
-            ids.append(id_cache[s])
-        keep = [i for i in range(len(ids)) if ok[i] and isinstance(ids[i], str) and ids[i][0] in signals]
-        if not keep:
+    for k in np.nonzero(keep_t)[0]:
+        sat, pr, ph, dop, cn0, lli = [], [], [], [], [], []
+        for sid in rx.epoch_sats[k]:
+            c = cols.get(sid[0])
+            if c is None:
+                continue
+            so, index, jc, jl, jd, js = c
+            j = index[sid]
+            v = so.val[k, j]
+            p = v[jc]
+            if not (np.isfinite(p) and p > 1e6):
+                continue
+            sat.append(sid)
+            pr.append(p)
+            ph.append(v[jl] if jl is not None else np.nan)
+            dop.append(v[jd] if jd is not None else np.nan)
+            cn0.append(v[js] if js is not None else np.nan)
+            lli.append(int(so.lli[k, j, jl]) if jl is not None and np.isfinite(v[jl]) else 0)
+        if not sat:
             continue
-        keep = np.array(keep)
-        sat = [ids[i] for i in keep]
+        n = len(sat)
         system = np.array([s[0] for s in sat])
         lam = np.array([wavelength[s] for s in system])
-        dop = vals["D"][keep]
-        n = len(sat)
+        dop = np.array(dop, dtype=float)
         nan = np.full(n, np.nan)
-        ep = GnssEpoch(t_gps=t, sat=sat, system=system, pr_m=vals["C"][keep], doppler_hz=dop,
-                       range_rate_mps=-lam * dop, wavelength_m=lam, cn0_dbhz=vals["S"][keep],
+        ep = GnssEpoch(t_gps=float(t[k]), sat=sat, system=system, pr_m=np.array(pr, dtype=float), doppler_hz=dop,
+                       range_rate_mps=-lam * dop, wavelength_m=lam, cn0_dbhz=np.array(cn0, dtype=float),
                        sat_pos_ecef=np.full((n, 3), np.nan), sat_vel_ecef=np.full((n, 3), np.nan),
                        sat_clk_s=nan.copy(), sat_clk_drift=nan.copy(), iono_m=nan.copy(),
                        tropo_m=nan.copy(), elev_deg=nan.copy(), azim_deg=nan.copy(),
                        sigma_pr_m=nan.copy(), sigma_rr_mps=nan.copy())
-        ep._phase = vals["L"][keep]  # cycles; used only to derive a missing Doppler
-        ep._lli = lli[keep]
+        ep._phase = np.array(ph, dtype=float)  # cycles; used only to derive a missing Doppler
+        ep._lli = np.array(lli, dtype=int)
         epochs.append(ep)
     _doppler_from_phase(epochs)
     for ep in epochs:
         del ep._phase, ep._lli
-    return epochs
+    if not epochs:
+        raise InputError("no observation epochs in the requested time span", path)
+    return GnssObservations(epochs=epochs, receiver=rx.receiver, p_approx_ecef=rx.p_approx_ecef.copy(),
+                            signals=signals, source=str(path))
 
 
 def _doppler_from_phase(epochs: list[GnssEpoch]) -> None:

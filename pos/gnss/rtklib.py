@@ -43,3 +43,70 @@ def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
             ps.append([sol.rr[0], sol.rr[1], sol.rr[2]])
         i += m
     return np.array(ts), np.array(ps)
+
+
+_PPK_FIELDS = ("mode", "soltype", "nf", "navsys", "elmin", "modear", "ionoopt", "tropopt", "refpos", "sateph")
+
+
+def rtklib_ppk(rover_obs: str, nav_path: str, base_obs: str, base_ecef, elev_mask_deg: float = 10.0,
+               systems: str = "GEJ", n_freq: int = 3, static: bool = False, solution: str = "combined",
+               fix_and_hold: bool = True) -> dict:
+    """RTKLIB's PPK (postpos, as rnx2rtkp) on RINEX files: per epoch t_gps, p_ecef (m), q (1 fix, 2 float, 5 single),
+    ns, ratio and the run time (s). Broadcast orbits, Saastamoinen, broadcast ionosphere, LAMBDA ratio 3."""
+    import os
+    import tempfile
+    import time
+
+    import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
+
+    popt, sopt, fopt = rk.prcopt_default, rk.solopt_default, rk.filopt_t()
+    saved = {k: getattr(popt, k) for k in _PPK_FIELDS}
+    saved_rb = [popt.rb[i] for i in range(3)]
+    saved_thres = popt.thresar[0]
+    saved_posf = sopt.posf
+    try:
+        popt.mode = rk.PMODE_STATIC if static else rk.PMODE_KINEMA
+        popt.soltype = {"forward": 0, "backward": 1, "combined": 2}[solution]
+        popt.nf = int(n_freq)
+        popt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS, "C": rk.SYS_CMP}[s] for s in systems)
+        popt.elmin = np.radians(elev_mask_deg)
+        popt.modear = 3 if fix_and_hold else 1
+        popt.ionoopt = rk.IONOOPT_BRDC
+        popt.tropopt = rk.TROPOPT_SAAS
+        popt.sateph = rk.EPHOPT_BRDC
+        popt.refpos = 0
+        popt.thresar[0] = 3.0
+        for i in range(3):
+            popt.rb[i] = float(base_ecef[i])
+        sopt.posf = rk.SOLF_XYZ
+        with tempfile.TemporaryDirectory() as d:
+            out_path = os.path.join(d, "rtklib.pos")
+            buf = rk.Arr1Dchar(len(out_path) + 1)
+            for i, c in enumerate(out_path):
+                buf[i] = c
+            buf[len(out_path)] = "\0"
+            t0 = time.perf_counter()
+            rk.postpos(rk.gtime_t(), rk.gtime_t(), 0.0, 0.0, popt, sopt, fopt,
+                       [str(rover_obs), str(nav_path), str(base_obs)], 3, buf, "", "")
+            run_s = time.perf_counter() - t0
+            rows = []
+            with open(out_path) as fh:
+                for line in fh:
+                    if line.startswith("%") or not line.strip():
+                        continue
+                    v = line.split()
+                    ymd, hms = v[0].split("/"), v[1].split(":")
+                    from dgcal.pos.gnss.rinex import gps_seconds_from_calendar
+                    t = gps_seconds_from_calendar(int(ymd[0]), int(ymd[1]), int(ymd[2]), int(hms[0]), int(hms[1]),
+                                                  float(hms[2]))
+                    rows.append([t, float(v[2]), float(v[3]), float(v[4]), int(v[5]), int(v[6]), float(v[14])])
+    finally:
+        for k, val in saved.items():
+            setattr(popt, k, val)
+        for i in range(3):
+            popt.rb[i] = saved_rb[i]
+        popt.thresar[0] = saved_thres
+        sopt.posf = saved_posf
+    a = np.array(rows) if rows else np.zeros((0, 7))
+    return {"t_gps": a[:, 0], "p_ecef": a[:, 1:4], "q": a[:, 4].astype(int), "ns": a[:, 5].astype(int),
+            "ratio": a[:, 6], "run_s": run_s}

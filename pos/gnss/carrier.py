@@ -1,0 +1,297 @@
+"""Multi-frequency code and carrier phase of one receiver, its zero-difference model and cycle-slip flags.
+
+``carrier_observations`` picks, per system and frequency band, the RINEX 3 signal (code + phase of
+one attribute) with the most observations and returns them as ``CarrierObs`` arrays
+``[epoch, satellite, slot]``. Slots are frequency bands in the order of ``BANDS``: GPS/QZSS L1, L2,
+L5; Galileo E1, E5a, E5b; BeiDou B1I, B2I/B2b, B3I. One attribute per receiver, system and band is
+used for all satellites, so receiver-side signal biases (and RINEX 3 phase alignment shifts) are the
+same for all satellites of a double difference and cancel.
+
+``zero_difference`` models one epoch at a receiver position: satellite states at transmission from
+the pseudorange (dgcal.pos.gnss.ephemeris, Sagnac rotation into the ECEF frame at reception),
+Saastamoinen troposphere and Klobuchar ionosphere (scaled to each frequency, + on code, - on phase).
+Observed-minus-computed values (m)::
+
+    omc_code  = P       - (rho - c*dt_sat + T + I_f)
+    omc_phase = lam*L   - (rho - c*dt_sat + T - I_f)
+
+``slip_flags`` marks, per receiver, the observations whose carrier phase may have slipped since the
+previous observation of the same satellite and slot: loss-of-lock indicator (bit 0), an epoch flag
+1 (power failure), a data gap, a jump of the geometry-free combination or of the Melbourne-Wuebbena
+wide-lane (against the running mean of the arc).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dgcal.fields.constants import C_LIGHT
+from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.fields.errors import InputError
+from dgcal.pos.gnss.corrections import elevation_azimuth, klobuchar_delay_m, sagnac_rotate, saastamoinen_delay_m
+from dgcal.pos.gnss.ephemeris import states_at_transmission
+from dgcal.pos.gnss.rinex import BroadcastNav
+from dgcal.pos.gnss.rinex_obs import RinexObsFile
+
+BANDS = {"G": ("1", "2", "5"), "J": ("1", "2", "5"), "E": ("1", "5", "7"), "C": ("2", "7", "6")}
+BAND_FREQ_HZ = {
+    ("G", "1"): 1575.42e6, ("G", "2"): 1227.60e6, ("G", "5"): 1176.45e6,
+    ("J", "1"): 1575.42e6, ("J", "2"): 1227.60e6, ("J", "5"): 1176.45e6, ("J", "6"): 1278.75e6,
+    ("E", "1"): 1575.42e6, ("E", "5"): 1176.45e6, ("E", "7"): 1207.14e6, ("E", "8"): 1191.795e6,
+    ("E", "6"): 1278.75e6,
+    ("C", "2"): 1561.098e6, ("C", "7"): 1207.14e6, ("C", "6"): 1268.52e6, ("C", "1"): 1575.42e6,
+    ("C", "5"): 1176.45e6, ("C", "8"): 1191.795e6,
+}
+# attribute preference per band when two attributes are equally complete
+ATTR_PRIORITY = "CWPYXLSQIDBZMNA"
+
+
+@dataclass
+class CarrierObs:
+    """Code (m), phase (cycles), Doppler (Hz), C/N0 and LLI of one receiver as ``[epoch, sat, slot]`` arrays.
+
+    ``freq_hz[sat, slot]`` is NaN where the system has no such slot; ``signals[(system, slot)]`` the
+    RINEX 3 code and phase used (e.g. ``('C1C', 'L1C')``). ``power_failure``: epoch flag 1.
+    """
+
+    source: str
+    t_gps: np.ndarray
+    sats: list[str]
+    freq_hz: np.ndarray
+    P: np.ndarray
+    L: np.ndarray
+    D: np.ndarray
+    snr: np.ndarray
+    lli: np.ndarray
+    signals: dict[tuple[str, int], tuple[str, str]]
+    p_approx_ecef: np.ndarray
+    receiver: str = ""
+    antenna: str = ""
+    power_failure: np.ndarray | None = None
+    epoch_line: np.ndarray | None = None
+    truth: dict | None = None
+
+    @property
+    def n_slots(self) -> int:
+        """Number of frequency slots (columns of the last axis)."""
+        return self.P.shape[2]
+
+    @property
+    def system(self) -> np.ndarray:
+        """System letter of every satellite."""
+        return np.array([s[0] for s in self.sats])
+
+    @property
+    def wavelength_m(self) -> np.ndarray:
+        """Carrier wavelength (m) per satellite and slot (NaN where no slot)."""
+        return C_LIGHT / self.freq_hz
+
+
+def _pick_attribute(so, band: str) -> tuple[str, str] | None:
+    """(code, phase) of the attribute with the most complete phase + code of a band in one system."""
+    best, best_n = None, 0
+    for code in so.codes:
+        if len(code) != 3 or code[0] != "C" or code[1] != band:
+            continue
+        ph = "L" + code[1:]
+        if ph not in so.codes:
+            continue
+        v = so.val[:, :, so.column(code)]
+        w = so.val[:, :, so.column(ph)]
+        n = int(np.sum(np.isfinite(v) & np.isfinite(w)))
+        rank = ATTR_PRIORITY.find(code[2]) if code[2] in ATTR_PRIORITY else len(ATTR_PRIORITY)
+        key = (n, -rank)
+        if n > 0 and (best is None or key > best_n):
+            best, best_n = (code, ph), key
+    return best
+
+
+def carrier_observations(rx: RinexObsFile, systems: str = "GECJ", n_freq: int = 3) -> CarrierObs:
+    """The code/phase arrays of a RINEX file for PPK: ``n_freq`` slots per system (see ``BANDS``)."""
+    sats, freq, cols, signals = [], [], [], {}
+    for s in "GECJ":
+        if s not in systems or s not in rx.systems:
+            continue
+        so = rx.systems[s]
+        picks = []
+        for f, band in enumerate(BANDS[s][:n_freq]):
+            pk = _pick_attribute(so, band)
+            picks.append(pk)
+            if pk is not None:
+                signals[(s, f)] = pk
+        if all(p is None for p in picks):
+            continue
+        for j, sid in enumerate(so.sats):
+            sats.append(sid)
+            freq.append([BAND_FREQ_HZ[(s, BANDS[s][f])] if f < len(picks) and picks[f] is not None else np.nan
+                         for f in range(n_freq)])
+            cols.append((so, j, picks))
+    if not sats:
+        raise InputError(f"no carrier-phase observations for systems {systems}", rx.path,
+                         field="SYS / # / OBS TYPES" if rx.version >= 3 else "# / TYPES OF OBSERV")
+    n_ep, m = len(rx.t_gps), len(sats)
+    P = np.full((n_ep, m, n_freq), np.nan)
+    L = np.full((n_ep, m, n_freq), np.nan)
+    D = np.full((n_ep, m, n_freq), np.nan)
+    S = np.full((n_ep, m, n_freq), np.nan)
+    LLI = np.zeros((n_ep, m, n_freq), dtype=np.uint8)
+    for i, (so, j, picks) in enumerate(cols):
+        for f, pk in enumerate(picks):
+            if pk is None:
+                continue
+            code, ph = pk
+            P[:, i, f] = so.val[:, j, so.column(code)]
+            L[:, i, f] = so.val[:, j, so.column(ph)]
+            LLI[:, i, f] = so.lli[:, j, so.column(ph)]
+            for arr, typ in ((D, "D"), (S, "S")):
+                c = typ + code[1:]
+                if c in so.codes:
+                    arr[:, i, f] = so.val[:, j, so.column(c)]
+    bad = ~(P > 1e6)
+    P[bad] = np.nan
+    return CarrierObs(source=rx.path, t_gps=rx.t_gps.copy(), sats=sats, freq_hz=np.array(freq, float), P=P, L=L,
+                      D=D, snr=S, lli=LLI, signals=signals, p_approx_ecef=rx.p_approx_ecef.copy(),
+                      receiver=rx.receiver, antenna=rx.antenna, power_failure=rx.power_failure.copy(),
+                      epoch_line=rx.epoch_line.copy())
+
+
+@dataclass
+class ZeroDiff:
+    """One receiver epoch modelled at ``p_rx``: per satellite (m,) and slot (m, F) arrays.
+
+    ``ok``: satellite has ephemeris and a code; ``sat_pos`` (ECEF at reception, m), ``los`` (unit
+    vectors receiver->satellite), ``rho`` (m), ``elev``/``azim`` (rad), ``tropo`` (m), ``iono`` (m,
+    per slot), ``omc_code``/``omc_phase`` (m, per slot; NaN where not observed).
+    """
+
+    ok: np.ndarray
+    sat_pos: np.ndarray
+    sat_vel: np.ndarray
+    sat_clk_s: np.ndarray
+    rho: np.ndarray
+    los: np.ndarray
+    elev: np.ndarray
+    azim: np.ndarray
+    tropo: np.ndarray
+    iono: np.ndarray
+    omc_code: np.ndarray
+    omc_phase: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+
+def satellite_geometry(nav: BroadcastNav, sats: list[str], t_rx: float, pr_m: np.ndarray, p_rx: np.ndarray):
+    """Satellite position/velocity (ECEF at reception, Sagnac-rotated), clock (s) and validity for one epoch."""
+    m = len(sats)
+    ok = np.isfinite(pr_m)
+    pos = np.full((m, 3), np.nan)
+    vel = np.full((m, 3), np.nan)
+    clk = np.full(m, np.nan)
+    idx = np.nonzero(ok)[0]
+    if len(idx) == 0:
+        return pos, vel, clk, ok
+    p, v, c, _d, _u, good = states_at_transmission(nav, [sats[i] for i in idx], t_rx, pr_m[idx])
+    tau = np.linalg.norm(p - p_rx, axis=1) / C_LIGHT
+    for _ in range(2):
+        pr_, _ = sagnac_rotate(p, v, tau)
+        tau = np.linalg.norm(pr_ - p_rx, axis=1) / C_LIGHT
+    los = (p - p_rx) / np.linalg.norm(p - p_rx, axis=1, keepdims=True)
+    p_rot, v_rot = sagnac_rotate(p, v, tau, np.sum(los * v, axis=1) / C_LIGHT)
+    pos[idx], vel[idx], clk[idx] = p_rot, v_rot, c
+    ok[idx] = good
+    return pos, vel, clk, ok & np.all(np.isfinite(pos), axis=1)
+
+
+def zero_difference(nav: BroadcastNav, sats: list[str], t_rx: float, P: np.ndarray, L: np.ndarray,
+                    freq_hz: np.ndarray, p_rx: np.ndarray, geometry=None, humidity: float = 0.7) -> ZeroDiff:
+    """Model one epoch of one receiver at ``p_rx`` (ECEF m): ranges, atmosphere, observed-minus-computed (m).
+
+    ``P`` (m, F) code in metres, ``L`` (m, F) phase in cycles, ``freq_hz`` (m, F). ``geometry``: the
+    ``satellite_geometry`` result to reuse (satellite states do not depend on ``p_rx`` beyond the
+    Sagnac rotation, which changes < 0.1 mm for 100 m).
+    """
+    m = len(sats)
+    pr0 = np.full(m, np.nan)
+    for f in range(P.shape[1]):
+        pr0 = np.where(np.isfinite(pr0), pr0, P[:, f])
+    pos, vel, clk, ok = geometry if geometry is not None else satellite_geometry(nav, sats, t_rx, pr0, p_rx)
+    d = pos - p_rx
+    rho = np.linalg.norm(d, axis=1)
+    los = d / rho[:, None]
+    lat, lon, h = ecef_to_geodetic(p_rx)
+    elev = np.full(m, np.nan)
+    azim = np.full(m, np.nan)
+    if ok.any():
+        elev[ok], azim[ok] = elevation_azimuth(p_rx, pos[ok], (lat, lon))
+    tropo = np.where(ok, saastamoinen_delay_m(lat, h, np.nan_to_num(elev), humidity), np.nan)
+    iono1 = np.where(ok, klobuchar_delay_m(t_rx, lat, lon, np.nan_to_num(elev), np.nan_to_num(azim), nav.ion_gps),
+                     np.nan)
+    iono = iono1[:, None] * (1575.42e6 / freq_hz) ** 2
+    geo = rho - C_LIGHT * clk + tropo
+    omc_code = P - (geo[:, None] + iono)
+    omc_phase = C_LIGHT / freq_hz * L - (geo[:, None] - iono)
+    omc_code[~ok] = np.nan
+    omc_phase[~ok] = np.nan
+    return ZeroDiff(ok, pos, vel, clk, rho, los, elev, azim, tropo, iono, omc_code, omc_phase)
+
+
+def slip_flags(obs: CarrierObs, gf_threshold_m: float = 0.05, mw_threshold_cycles: float = 4.0,
+               max_gap_s: float = 30.0) -> np.ndarray:
+    """Possible cycle slips ``[epoch, sat, slot]``: the phase may have jumped since the previous observation.
+
+    Flags: LLI bit 0; epoch flag 1 (power failure: all phases); a gap > ``max_gap_s`` since the previous
+    phase of the same satellite and slot; a geometry-free (``lam1 L1 - lamk Lk``, m) change > the
+    threshold (scaled up for gaps over 1 s, to allow for the ionosphere's rate); a Melbourne-Wuebbena
+    wide-lane jump > ``mw_threshold_cycles`` times its scatter along the arc (at least 1 cycle + 4 sigma
+    of the epoch noise). GF/MW flags mark all slots of the satellite pair concerned.
+    """
+    n, m, F = obs.L.shape
+    t = obs.t_gps
+    have = np.isfinite(obs.L)
+    slip = (obs.lli & 1).astype(bool) & have
+    if obs.power_failure is not None and obs.power_failure.any():
+        slip |= obs.power_failure[:, None, None] & have
+    lam = C_LIGHT / obs.freq_hz                                  # (m, F)
+    for i in range(m):
+        for f in range(F):
+            k = np.nonzero(have[:, i, f])[0]
+            if len(k) == 0:
+                continue
+            slip[k[0], i, f] = True                                # the start of an arc
+            gap = np.diff(t[k]) > max_gap_s
+            slip[k[1:][gap], i, f] = True
+        for f in range(1, F):
+            if not (np.isfinite(lam[i, 0]) and np.isfinite(lam[i, f])):
+                continue
+            k = np.nonzero(have[:, i, 0] & have[:, i, f])[0]
+            if len(k) < 2:
+                continue
+            gf = lam[i, 0] * obs.L[k, i, 0] - lam[i, f] * obs.L[k, i, f]
+            dt = np.diff(t[k])
+            jump = np.abs(np.diff(gf)) > gf_threshold_m * np.maximum(1.0, np.sqrt(dt))
+            f0, f1 = obs.freq_hz[i, 0], obs.freq_hz[i, f]
+            lam_wl = C_LIGHT / (f0 - f1)
+            p_ok = np.isfinite(obs.P[k, i, 0]) & np.isfinite(obs.P[k, i, f])
+            mw = ((obs.L[k, i, 0] - obs.L[k, i, f])
+                  - (f0 * obs.P[k, i, 0] + f1 * obs.P[k, i, f]) / (f0 + f1) / lam_wl)
+            jump_mw = np.zeros(len(k) - 1, dtype=bool)
+            mean, m2, cnt = 0.0, 0.0, 0
+            for j in range(len(k)):
+                restart = j == 0 or slip[k[j], i, 0] or slip[k[j], i, f] or (j > 0 and jump[j - 1])
+                if restart:
+                    mean, m2, cnt = 0.0, 0.0, 0
+                if not p_ok[j]:
+                    continue
+                if cnt >= 5:
+                    sd = np.sqrt(m2 / (cnt - 1)) if cnt > 1 else 0.0
+                    if abs(mw[j] - mean) > max(mw_threshold_cycles * sd, 1.0 + 4.0 * 0.15):
+                        jump_mw[j - 1] = True
+                        mean, m2, cnt = 0.0, 0.0, 0
+                cnt += 1
+                dlt = mw[j] - mean
+                mean += dlt / cnt
+                m2 += dlt * (mw[j] - mean)
+            bad = np.nonzero(jump | jump_mw)[0] + 1
+            slip[k[bad], i, 0] = True
+            slip[k[bad], i, f] = True
+    return slip

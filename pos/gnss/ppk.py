@@ -1,0 +1,745 @@
+"""Carrier-phase PPK: double-differenced code and phase, EKF with float ambiguities, LAMBDA with validation,
+fix-and-hold, cycle-slip handling, forward + backward passes combined.
+
+State: rover antenna position (ECEF m) and one between-receiver single-difference ambiguity per
+satellite and frequency slot (cycles, ``3 + sat*F + slot``); the double differences are formed per
+system and slot against the highest satellite, so a change of reference satellite needs nothing.
+Measurements (m), per system and slot, satellite i and reference r::
+
+    DD phase = DD(omc_phase) = -(e_i - e_r).(x - x0) + lam (N_i - N_r) + noise
+    DD code  = DD(omc_code)  = -(e_i - e_r).(x - x0) + noise
+
+with ``omc`` the zero-difference observed-minus-computed values of ``dgcal.pos.gnss.carrier`` (rover at the
+linearisation point ``x0``, base at its known position and its own epoch: any base rate, the age of
+differential is reported). Zero-difference noise ``sigma0 * sqrt(1/2 + 1/(2 sin^2 el))`` at each
+receiver (phase and code zenith sigmas are options); the DD covariance is the exact one of the
+differencing. Kinematic (default): the position is re-initialised every epoch at the previous solution
+with a 30 m sigma (no dynamic model: any UAV motion); static: constant position.
+
+Every epoch: slips (LLI, power failure, gap, geometry-free, Melbourne-Wuebbena of either receiver)
+reset the ambiguity; new ambiguities start at phase minus code; the update is iterated at the new
+position; post-fit DD residuals are data-snooped (the worst phase outlier resets its ambiguity, a code
+outlier is dropped). Then LAMBDA (``dgcal.pos.gnss.ambiguity``) on the DD ambiguities of the satellites above
+the AR mask: full set, else a partial set; **a fix is accepted only if** (1) the ratio test passes, (2)
+the ambiguity float-to-fixed distance ``(a - a_fix)' Q_a^-1 (a - a_fix)`` and (3) the position shift
+``(x_fix - x_float)' P_float^-1 (x_fix - x_float)`` are within their chi-square quantiles (1 - alpha),
+and (4) the DD phase residuals of the fixed solution pass a chi-square test against their covariance
+with no residual beyond 5 sigma; otherwise the epoch is reported as float. After ``hold_after``
+consecutive accepted fixes the fixed ambiguities are fed back as tight pseudo-observations (fix and
+hold). The backward pass is the same run in reverse time; ``combine`` merges the two per epoch.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import chdtri
+
+from dgcal.fields.constants import C_LIGHT
+from dgcal.pos.gnss.ambiguity import fixed_solution, resolve
+from dgcal.pos.gnss.carrier import CarrierObs, ZeroDiff, satellite_geometry, slip_flags, zero_difference
+from dgcal.pos.gnss.rinex import BroadcastNav
+
+STATUS = ("none", "single", "float", "fixed")
+
+
+@dataclass
+class PpkOptions:
+    """Settings of the PPK engine (sigmas are zero-difference values at the zenith)."""
+
+    systems: str = "GECJ"
+    n_freq: int = 3
+    elev_mask_deg: float = 10.0
+    ar_elev_mask_deg: float = 10.0
+    dynamics: str = "kinematic"           # kinematic | static
+    solution: str = "combined"            # combined | forward | backward
+    code_sigma_m: float = 0.3
+    phase_sigma_m: float = 0.003
+    ratio_threshold: float = 3.0
+    partial: bool = True
+    p0: float = 0.999                     # success rate of a partial set
+    min_fix_amb: int = 4
+    hold: bool = True
+    hold_after: int = 3
+    hold_sigma_cycles: float = 0.03
+    alpha: float = 1e-3                   # false-alarm probability of the validation tests
+    pos_sigma_m: float = 30.0             # kinematic: prior sigma of the position every epoch
+    amb_sigma_cycles: float = 30.0        # prior sigma of a new ambiguity
+    amb_q_cycles2_s: float = 1e-8         # ambiguity random walk
+    slip_gf_m: float = 0.05
+    slip_mw_sigma: float = 4.0
+    max_gap_s: float = 30.0               # ambiguity reset after a longer gap
+    max_age_s: float = 30.0               # base epochs older/newer than this are not used
+    outlier_w: float = 5.0                # post-fit w-test threshold (standardised residual)
+    code_corr_s: float = 60.0             # correlation time of code errors (multipath); 0: white
+    phase_bias_sigma_m: float = 0.01      # time-correlated SD phase errors (multipath, PCV), validation only
+    humidity: float = 0.0                 # Saastamoinen hydrostatic only at both receivers (as RTKLIB relative)
+
+
+@dataclass
+class PassResult:
+    """One filter pass, per rover epoch: status index into ``STATUS``, solution and float (ECEF m, 3x3 m^2)."""
+
+    status: np.ndarray
+    p: np.ndarray
+    P: np.ndarray
+    p_float: np.ndarray
+    P_float: np.ndarray
+    ratio: np.ndarray
+    n_sat: np.ndarray
+    n_amb: np.ndarray
+    n_fixed_amb: np.ndarray
+    chi2: np.ndarray                       # (N, 3): ambiguity, position and residual test statistics / limits
+    reason: list
+    resid: list = field(default_factory=list)   # per epoch {(sat, slot): DD phase residual m} of the solution
+
+
+@dataclass
+class PpkResult:
+    """PPK of every rover epoch: the combined (or chosen) solution plus both passes and diagnostics."""
+
+    t_gps: np.ndarray
+    status: np.ndarray
+    p: np.ndarray
+    P: np.ndarray
+    ratio: np.ndarray
+    n_sat: np.ndarray
+    n_fixed_amb: np.ndarray
+    age_s: np.ndarray
+    forward: PassResult | None
+    backward: PassResult | None
+    sats: list[str]
+    signals_rover: dict
+    signals_base: dict
+    slips_rover: int
+    slips_base: int
+    options: PpkOptions
+    info: dict = field(default_factory=dict)
+
+    @property
+    def fix(self) -> np.ndarray:
+        """Status names per epoch ('fixed', 'float', 'single', 'none')."""
+        return np.array([STATUS[s] for s in self.status])
+
+
+def _zd_var(sigma0: float, elev: np.ndarray) -> np.ndarray:
+    s = np.sin(np.maximum(elev, np.radians(2.0)))
+    return sigma0 ** 2 * (0.5 + 0.5 / s ** 2)
+
+
+class _Engine:
+    """The data shared by both passes: common satellites, base matching, slips, cached front end."""
+
+    def __init__(self, rover: CarrierObs, base: CarrierObs, nav: BroadcastNav, base_pos: np.ndarray,
+                 opts: PpkOptions):
+        self.nav, self.opts = nav, opts
+        self.base_pos = np.asarray(base_pos, float)
+        F = min(rover.n_slots, base.n_slots, opts.n_freq)
+        sats = [s for s in rover.sats if s in base.sats and s[0] in opts.systems]
+        self.sats, self.F = sats, F
+        ir = [rover.sats.index(s) for s in sats]
+        ib = [base.sats.index(s) for s in sats]
+        self.t = rover.t_gps
+        self.tb = base.t_gps
+        fr, fb = rover.freq_hz[ir, :F], base.freq_hz[ib, :F]
+        same = np.isfinite(fr) & np.isfinite(fb) & (np.abs(fr - fb) < 1.0)
+        self.freq = np.where(same, fr, np.nan)
+        self.lam = C_LIGHT / self.freq
+        self.Pr, self.Lr = rover.P[:, ir, :F], rover.L[:, ir, :F]
+        self.Pb, self.Lb = base.P[:, ib, :F], base.L[:, ib, :F]
+        sr = slip_flags(rover, opts.slip_gf_m, opts.slip_mw_sigma, opts.max_gap_s)[:, ir, :F]
+        sb = slip_flags(base, opts.slip_gf_m, opts.slip_mw_sigma, opts.max_gap_s)[:, ib, :F]
+        self.slips_rover = int(sr[1:].sum())
+        self.slips_base = int(sb[1:].sum())
+        self.Cr = np.cumsum(sr, axis=0)
+        self.Cb = np.cumsum(sb, axis=0)
+        # base epoch for every rover epoch: nearest within max_age
+        if len(self.tb):
+            j = np.clip(np.searchsorted(self.tb, self.t), 1, max(len(self.tb) - 1, 1))
+            j0 = np.clip(j - 1, 0, len(self.tb) - 1)
+            j1 = np.clip(j, 0, len(self.tb) - 1)
+            pick = np.where(np.abs(self.tb[j1] - self.t) < np.abs(self.tb[j0] - self.t), j1, j0)
+            self.jb = pick
+            self.age = self.t - self.tb[pick]
+            self.jb[np.abs(self.age) > opts.max_age_s] = -1
+        else:
+            self.jb = np.full(len(self.t), -1)
+            self.age = np.full(len(self.t), np.nan)
+        self.system = np.array([s[0] for s in sats])
+        self._geo: dict[int, tuple] = {}
+        self._zb: dict[int, ZeroDiff] = {}
+
+    def base_zd(self, j: int) -> ZeroDiff:
+        if j not in self._zb:
+            g = None
+            self._zb[j] = zero_difference(self.nav, self.sats, self.tb[j], self.Pb[j], self.Lb[j], self.freq,
+                                          self.base_pos, g, self.opts.humidity)
+        return self._zb[j]
+
+    def rover_zd(self, k: int, x0: np.ndarray) -> ZeroDiff:
+        if k not in self._geo:
+            pr0 = np.full(len(self.sats), np.nan)
+            for f in range(self.F):
+                pr0 = np.where(np.isfinite(pr0), pr0, self.Pr[k, :, f])
+            self._geo[k] = satellite_geometry(self.nav, self.sats, self.t[k], pr0, x0)
+        return zero_difference(self.nav, self.sats, self.t[k], self.Pr[k], self.Lr[k], self.freq, x0,
+                               self._geo[k], self.opts.humidity)
+
+
+def _slipped(C: np.ndarray, a: int, b: int) -> np.ndarray:
+    """Any slip flag in the epochs (min(a,b), max(a,b)] per (sat, slot)."""
+    lo, hi = min(a, b), max(a, b)
+    return C[hi] - C[lo] > 0
+
+
+class _Pass:
+    """One EKF pass over the rover epochs in the given order."""
+
+    def __init__(self, eng: _Engine, order: np.ndarray, p_init: np.ndarray):
+        self.e, self.order = eng, order
+        m, F = len(eng.sats), eng.F
+        self.n = 3 + m * F
+        self.x = np.zeros(self.n)
+        self.x[:3] = p_init
+        self.P = np.zeros((self.n, self.n))
+        self.P[:3, :3] = np.eye(3) * eng.opts.pos_sigma_m ** 2
+        self.active = np.zeros((m, F), dtype=bool)
+        self.last = np.full((m, F), -1)
+        self.last_b = np.full((m, F), -1)
+        self.lock = np.zeros((m, F), dtype=int)
+        self.held = np.zeros((m, F), dtype=bool)
+        self.n_fix_run = 0
+        self.t_prev = None
+        self.t_now = None
+        self.have_pos = False
+
+    def idx(self, i: int, f: int) -> int:
+        return 3 + i * self.e.F + f
+
+    def reset(self, i: int, f: int) -> None:
+        a = self.idx(i, f)
+        self.P[a, :] = 0.0
+        self.P[:, a] = 0.0
+        self.x[a] = 0.0
+        self.active[i, f] = False
+        self.lock[i, f] = 0
+        self.held[i, f] = False
+
+    # ------------------------------------------------------------------ measurement model
+    def _design(self, zr: ZeroDiff, zb: ZeroDiff, valid: np.ndarray, x0: np.ndarray, drop_code: set):
+        e, o = self.e, self.e.opts
+        F = e.F
+        rows_y, rows_H, meta = [], [], []
+        sdp = zr.omc_phase - zb.omc_phase
+        sdc = zr.omc_code - zb.omc_code
+        vp_r = _zd_var(o.phase_sigma_m, zr.elev)
+        vp_b = _zd_var(o.phase_sigma_m, zb.elev)
+        vc_r = _zd_var(o.code_sigma_m, zr.elev)
+        vc_b = _zd_var(o.code_sigma_m, zb.elev)
+        blocks = []
+        groups = []
+        for s in "GECJ":
+            for f in range(F):
+                mem = np.nonzero(valid[:, f] & (e.system == s))[0]
+                if len(mem) < 2:
+                    continue
+                el = zr.elev[mem]
+                # reference: highest satellite, preferring one with an established ambiguity
+                score = el + np.where(self.lock[mem, f] > 0, 10.0, 0.0)
+                ref = int(mem[np.argmax(score)])
+                oth = [int(i) for i in mem if i != ref]
+                groups.append((s, f, ref, oth))
+                for kind in ("phase", "code"):
+                    use = [i for i in oth if kind == "phase" or (i, f) not in drop_code]
+                    if not use:
+                        continue
+                    n = len(use)
+                    H = np.zeros((n, self.n))
+                    H[:, :3] = -(zr.los[use] - zr.los[ref])
+                    if kind == "phase":
+                        y = sdp[use, f] - sdp[ref, f]
+                        lam = e.lam[use, f]
+                        H[np.arange(n), [self.idx(i, f) for i in use]] = lam
+                        H[:, self.idx(ref, f)] = -e.lam[ref, f]
+                        vr = vp_r[ref] + vp_b[ref]
+                        vi = vp_r[use] + vp_b[use]
+                    else:
+                        y = sdc[use, f] - sdc[ref, f]
+                        vr = vc_r[ref] + vc_b[ref]
+                        vi = (vc_r[use] + vc_b[use]) * self._code_factor(use, f)
+                    # the state-independent part: y is at x0, the model is H (x - x0)
+                    rows_y.append(y + H[:, :3] @ x0)
+                    rows_H.append(H)
+                    blocks.append(np.full((n, n), vr) + np.diag(vi))
+                    meta += [(kind, s, f, i, ref) for i in use]
+        if not rows_y:
+            return None
+        y = np.concatenate(rows_y)
+        H = np.vstack(rows_H)
+        R = np.zeros((len(y), len(y)))
+        k = 0
+        for b in blocks:
+            nb = len(b)
+            R[k:k + nb, k:k + nb] = b
+            k += nb
+        return y, H, R, meta, groups
+
+    def _code_factor(self, use: list[int], f: int) -> np.ndarray:
+        """Variance factor of a code DD: 1 for a new satellite, (1 + rho)/(1 - rho) once tracked.
+
+        Code errors (multipath) are modelled as first-order Gauss-Markov with correlation time
+        ``code_corr_s``: each further epoch of an AR(1) sequence adds ``(1 - rho)/(1 + rho)`` of the
+        first epoch's information about a constant (the ambiguity), ``rho = exp(-dt/tau)``.
+        """
+        o = self.e.opts
+        out = np.ones(len(use))
+        if o.code_corr_s <= 0 or self.t_now is None:
+            return out
+        for q, i in enumerate(use):
+            a = self.last[i, f]
+            if a >= 0 and self.lock[i, f] > 0:
+                rho = np.exp(-abs(self.t_now - self.e.t[a]) / o.code_corr_s)
+                out[q] = (1.0 + rho) / max(1.0 - rho, 1e-6)
+        return out
+
+    def _update(self, x, P, y, H, R):
+        S = H @ P @ H.T + R
+        try:
+            Sinv_HP = np.linalg.solve(S, H @ P)
+        except np.linalg.LinAlgError:
+            return None
+        K = Sinv_HP.T
+        v = y - H @ x
+        xn = x + K @ v
+        IKH = np.eye(len(x)) - K @ H
+        Pn = IKH @ P @ IKH.T + K @ R @ K.T
+        return xn, 0.5 * (Pn + Pn.T)
+
+    # ------------------------------------------------------------------ one epoch
+    def step(self, k: int, out: dict) -> None:
+        e, o = self.e, self.e.opts
+        t = e.t[k]
+        j = int(e.jb[k])
+        if j < 0:
+            return
+        dt = 0.0 if self.t_prev is None else abs(t - self.t_prev)
+        self.t_now = t
+        # prediction
+        if o.dynamics == "kinematic" or not self.have_pos:
+            self.P[:3, :] = 0.0
+            self.P[:, :3] = 0.0
+            self.P[:3, :3] = np.eye(3) * o.pos_sigma_m ** 2
+        act = np.nonzero(self.active.ravel())[0] + 3
+        self.P[act, act] += o.amb_q_cycles2_s * dt
+        x0 = self.x[:3].copy()
+        zb = e.base_zd(j)
+        zr = e.rover_zd(k, x0)
+        valid = (np.isfinite(zr.omc_phase) & np.isfinite(zr.omc_code) & np.isfinite(zb.omc_phase)
+                 & np.isfinite(zb.omc_code) & np.isfinite(e.lam)
+                 & (zr.elev >= np.radians(o.elev_mask_deg))[:, None])
+        if valid.sum() < 2:
+            return
+        # slips and gaps since the last update of every ambiguity
+        for i, f in zip(*np.nonzero(valid & self.active)):
+            a, ab = self.last[i, f], self.last_b[i, f]
+            if (abs(t - e.t[a]) > o.max_gap_s or _slipped(e.Cr[:, i, f][:, None], a, k)[0]
+                    or (ab != j and _slipped(e.Cb[:, i, f][:, None], ab, j)[0])):
+                self.reset(i, f)
+        for i, f in zip(*np.nonzero(valid & ~self.active)):
+            a = self.idx(i, f)
+            sd_phase = zr.omc_phase[i, f] - zb.omc_phase[i, f]
+            sd_code = zr.omc_code[i, f] - zb.omc_code[i, f]
+            self.x[a] = (sd_phase - sd_code) / e.lam[i, f]
+            self.P[a, :] = 0.0
+            self.P[:, a] = 0.0
+            self.P[a, a] = o.amb_sigma_cycles ** 2
+            self.active[i, f] = True
+            self.lock[i, f] = 0
+        drop_code: set = set()
+        x_prior, P_prior = self.x.copy(), self.P.copy()
+        sol = None
+        for _snoop in range(6):
+            x, P = x_prior.copy(), P_prior.copy()
+            lin = x0.copy()
+            zr_it = zr
+            for _it in range(3):
+                des = self._design(zr_it, zb, valid, lin, drop_code)
+                if des is None:
+                    return
+                y, H, R, meta, groups = des
+                up = self._update(x_prior, P_prior, y, H, R)
+                if up is None:
+                    return
+                x, P = up
+                moved = np.linalg.norm(x[:3] - lin)
+                if moved < 0.5:
+                    break
+                lin = x[:3].copy()
+                zr_it = e.rover_zd(k, lin)
+            zr = zr_it
+            # post-fit data snooping
+            v = y - H @ x
+            Qv = R - H @ P @ H.T
+            w = np.abs(v) / np.sqrt(np.maximum(np.diag(Qv), 1e-12))
+            worst = int(np.argmax(w))
+            if w[worst] <= o.outlier_w:
+                sol = (x, P, y, H, R, meta, groups, lin)
+                break
+            kind, s, f, i, ref = meta[worst]
+            if kind == "code":
+                drop_code.add((i, f))
+            else:
+                # many failing rows in the group: the reference slipped
+                grp = [q for q, mm in enumerate(meta) if mm[0] == "phase" and mm[2] == f and mm[1] == s]
+                bad = sum(w[q] > o.outlier_w for q in grp)
+                victim = ref if len(grp) >= 3 and bad >= 0.5 * len(grp) else i
+                a = self.idx(victim, f)
+                x_prior[a] = (zr.omc_phase[victim, f] - zb.omc_phase[victim, f]
+                              - zr.omc_code[victim, f] + zb.omc_code[victim, f]) / e.lam[victim, f]
+                P_prior[a, :] = 0.0
+                P_prior[:, a] = 0.0
+                P_prior[a, a] = o.amb_sigma_cycles ** 2
+                self.lock[victim, f] = 0
+                self.held[victim, f] = False
+                out["resets"] = out.get("resets", 0) + 1
+        if sol is None:
+            sol = (x, P, y, H, R, meta, groups, lin)
+        x, P, y, H, R, meta, groups, lin = sol
+        self.x, self.P = x, P
+        self.have_pos = True
+        self.t_prev = t
+        used = valid.copy()
+        for i, f in zip(*np.nonzero(used)):
+            self.last[i, f] = k
+            self.last_b[i, f] = j
+            self.lock[i, f] += 1
+        sats_used = {i for _, _, _, i, _ in meta} | {g[2] for g in groups}
+        out.update(status=2, p_float=x[:3].copy(), P_float=P[:3, :3].copy(), p=x[:3].copy(), P=P[:3, :3].copy(),
+                   n_sat=len(sats_used), n_amb=int(sum(1 for mm in meta if mm[0] == "phase")))
+        self._resolve(x, P, y, H, R, meta, groups, zr, out)
+
+    def _resolve(self, x, P, y, H, R, meta, groups, zr, out) -> None:
+        e, o = self.e, self.e.opts
+        rows = []
+        amb_keys = []
+        for _s, f, ref, oth in groups:
+            if zr.elev[ref] < np.radians(o.ar_elev_mask_deg):
+                continue
+            for i in oth:
+                if zr.elev[i] < np.radians(o.ar_elev_mask_deg):
+                    continue
+                r = np.zeros(self.n)
+                r[self.idx(i, f)] = 1.0
+                r[self.idx(ref, f)] = -1.0
+                rows.append(r)
+                amb_keys.append((i, f))
+        out["reason"] = "no ambiguities"
+        if len(rows) < o.min_fix_amb:
+            self.n_fix_run = 0
+            return
+        T = _multifrequency_combinations(amb_keys)
+        Da = T @ np.array(rows)
+        a = Da @ x
+        Qa = Da @ P @ Da.T
+        fix = resolve(a, Qa, o.ratio_threshold, o.p0, o.min_fix_amb, o.partial)
+        out["ratio"] = fix.ratio
+        if not fix.fixed:
+            out["reason"] = "ratio"
+            self.n_fix_run = 0
+            return
+        xf, Pf, chi2_amb = fixed_solution(x, P, Da, fix)
+        if o.phase_bias_sigma_m > 0:
+            # the float filter takes phase noise as white: add the time-correlated part for the test
+            lam_sd = np.array([e.lam[i, f] for i in range(len(e.sats)) for f in range(e.F)])
+            var_b = np.zeros(self.n)
+            var_b[3:] = np.nan_to_num((o.phase_bias_sigma_m / lam_sd) ** 2)
+            A = fix.C @ Da
+            r = fix.c - A @ x
+            S = A @ P @ A.T + (A * var_b) @ A.T
+            chi2_amb = float(r @ np.linalg.solve(S, r))
+        lim_amb = float(chdtri(fix.n_fixed, o.alpha))
+        d = xf[:3] - x[:3]
+        try:
+            chi2_pos = float(d @ np.linalg.solve(P[:3, :3], d))
+        except np.linalg.LinAlgError:
+            chi2_pos = np.inf
+        lim_pos = float(chdtri(3, o.alpha))
+        ph = np.array([mm[0] == "phase" for mm in meta])
+        v = (y - H @ xf)[ph]
+        Rp = R[np.ix_(ph, ph)]
+        chi2_res = float(v @ np.linalg.solve(Rp, v))
+        lim_res = float(chdtri(max(int(ph.sum()), 1), o.alpha))
+        w_max = float(np.max(np.abs(v) / np.sqrt(np.diag(Rp)))) if len(v) else 0.0
+        out["chi2"] = (chi2_amb / lim_amb, chi2_pos / lim_pos, chi2_res / lim_res)
+        ok = chi2_amb <= lim_amb and chi2_pos <= lim_pos and chi2_res <= lim_res and w_max <= 5.0
+        if not ok:
+            out["reason"] = ("ambiguity consistency" if chi2_amb > lim_amb else "position consistency"
+                             if chi2_pos > lim_pos else "fixed residuals")
+            self.n_fix_run = 0
+            return
+        out.update(status=3, p=xf[:3].copy(), P=Pf[:3, :3].copy(), n_fixed_amb=fix.n_fixed, reason="")
+        out["resid"] = {(e.sats[mm[3]], mm[2]): float(r) for mm, r in zip([m for m in meta if m[0] == "phase"], v)}
+        self.n_fix_run += 1
+        if o.hold and self.n_fix_run >= o.hold_after and fix.mode == "full":
+            a_comb = np.linalg.solve(fix.C, fix.c)              # integer values of the rows of Da
+            self._hold(np.round(np.linalg.solve(T, a_comb)), amb_keys, groups)
+
+    def _hold(self, a_fix: np.ndarray, amb_keys: list, groups: list) -> None:
+        """Fix and hold: constrain every newly fixed SD ambiguity once to a held one of its group.
+
+        The constraint ``N_i - N_anchor = integer`` (sigma ``hold_sigma_cycles``) is applied once per
+        ambiguity arc (``held`` is cleared by a reset), so repeated holds do not shrink the float
+        covariance below what the data support (the validation tests stay meaningful).
+        """
+        o = self.e.opts
+        val = {key: v for key, v in zip(amb_keys, a_fix)}
+        rows, y = [], []
+        for _s, f, ref, oth in groups:
+            mem = [ref] + [i for i in oth if (i, f) in val]
+            if len(mem) < 2:
+                continue
+            dd = {ref: 0.0, **{i: val[(i, f)] for i in oth if (i, f) in val}}
+            held = [i for i in mem if self.held[i, f]]
+            anchor = held[0] if held else ref
+            for i in mem:
+                if i == anchor or self.held[i, f]:
+                    continue
+                r = np.zeros(self.n)
+                r[self.idx(i, f)] = 1.0
+                r[self.idx(anchor, f)] = -1.0
+                rows.append(r)
+                y.append(dd[i] - dd[anchor])
+            for i in mem:
+                self.held[i, f] = True
+        if not rows:
+            return
+        A = np.array(rows)
+        up = self._update(self.x, self.P, np.array(y), A, np.eye(len(y)) * o.hold_sigma_cycles ** 2)
+        if up is not None:
+            self.x, self.P = up
+
+    def run(self) -> PassResult:
+        e = self.e
+        N = len(e.t)
+        status = np.zeros(N, dtype=int)
+        p = np.full((N, 3), np.nan)
+        Pc = np.full((N, 3, 3), np.nan)
+        pf = np.full((N, 3), np.nan)
+        Pfl = np.full((N, 3, 3), np.nan)
+        ratio = np.full(N, np.nan)
+        n_sat = np.zeros(N, dtype=int)
+        n_amb = np.zeros(N, dtype=int)
+        n_fix = np.zeros(N, dtype=int)
+        chi2 = np.full((N, 3), np.nan)
+        reason = [""] * N
+        resid = [dict() for _ in range(N)]
+        for k in self.order:
+            out: dict = {}
+            self.step(int(k), out)
+            if "status" not in out:
+                reason[k] = "no double differences"
+                continue
+            status[k] = out["status"]
+            p[k], Pc[k], pf[k], Pfl[k] = out["p"], out["P"], out["p_float"], out["P_float"]
+            ratio[k] = out.get("ratio", np.nan)
+            n_sat[k], n_amb[k], n_fix[k] = out["n_sat"], out["n_amb"], out.get("n_fixed_amb", 0)
+            chi2[k] = out.get("chi2", (np.nan,) * 3)
+            reason[k] = out.get("reason", "")
+            resid[k] = out.get("resid", {})
+            # kinematic: the next epoch's prior position (30 m sigma) is this epoch's best solution
+            if out["status"] == 3 and self.e.opts.dynamics == "kinematic":
+                self.x[:3] = out["p"]
+        return PassResult(status, p, Pc, pf, Pfl, ratio, n_sat, n_amb, n_fix, chi2, reason, resid)
+
+
+def _multifrequency_combinations(keys: list[tuple[int, int]]) -> np.ndarray:
+    """Unimodular integer recombination T of DD ambiguities per satellite: (N_f0 - N_f1, N_f1 - N_f2, ..., N_f0).
+
+    The (extra-)wide-lane differences are far more precise than the single-frequency ambiguities, which
+    gives LAMBDA's decorrelation a head start (same integer lattice, far fewer permutations).
+    """
+    n = len(keys)
+    by_sat: dict[int, list[int]] = {}
+    for q, (i, _f) in enumerate(keys):
+        by_sat.setdefault(i, []).append(q)
+    T = np.zeros((n, n))
+    r = 0
+    for qs in by_sat.values():
+        qs = sorted(qs, key=lambda q: keys[q][1])
+        for a, b in zip(qs[:-1], qs[1:]):
+            T[r, a], T[r, b] = 1.0, -1.0
+            r += 1
+        T[r, qs[0]] = 1.0
+        r += 1
+    return T
+
+
+def _chi2_3(d: np.ndarray, S: np.ndarray) -> float:
+    try:
+        return float(d @ np.linalg.solve(S, d))
+    except np.linalg.LinAlgError:
+        return np.inf
+
+
+def combine(fw: PassResult, bw: PassResult, alpha: float = 1e-3):
+    """Forward + backward per epoch: fixed if a pass's validated fix agrees with the other pass (chi-square,
+    3 dof), float otherwise. Two agreeing fixes are averaged without shrinking the covariance (they share
+    the epoch's measurements); two floats are combined by their covariances, the covariance doubled (but
+    not above the better pass's) for the same reason. Returns (status, p, P, ratio, n_sat, n_fixed_amb)."""
+    N = len(fw.status)
+    lim = float(chdtri(3, alpha))
+    status = np.zeros(N, dtype=int)
+    p = np.full((N, 3), np.nan)
+    P = np.full((N, 3, 3), np.nan)
+    ratio = np.full(N, np.nan)
+    n_sat = np.maximum(fw.n_sat, bw.n_sat)
+    n_fix = np.zeros(N, dtype=int)
+    for k in range(N):
+        a, b = fw.status[k], bw.status[k]
+        if a < 2 and b < 2:
+            continue
+        if a < 2 or b < 2:
+            r = fw if a >= 2 else bw
+            status[k], p[k], P[k], ratio[k], n_fix[k] = r.status[k], r.p[k], r.P[k], r.ratio[k], r.n_fixed_amb[k]
+            continue
+        if a == 3 and b == 3:
+            d = fw.p[k] - bw.p[k]
+            if _chi2_3(d, fw.P[k] + bw.P[k]) <= lim:
+                status[k] = 3
+                Wf, Wb = np.linalg.inv(fw.P[k]), np.linalg.inv(bw.P[k])
+                p[k] = np.linalg.solve(Wf + Wb, Wf @ fw.p[k] + Wb @ bw.p[k])
+                P[k] = 0.5 * (fw.P[k] + bw.P[k])
+                ratio[k] = max(fw.ratio[k], bw.ratio[k])
+                n_fix[k] = max(fw.n_fixed_amb[k], bw.n_fixed_amb[k])
+                continue
+        elif a == 3 or b == 3:
+            fx, fl = (fw, bw) if a == 3 else (bw, fw)
+            d = fx.p[k] - fl.p_float[k]
+            if _chi2_3(d, fx.P[k] + fl.P_float[k]) <= lim:
+                status[k], p[k], P[k], ratio[k], n_fix[k] = 3, fx.p[k], fx.P[k], fx.ratio[k], fx.n_fixed_amb[k]
+                continue
+        # float combination
+        Wf, Wb = np.linalg.inv(fw.P_float[k]), np.linalg.inv(bw.P_float[k])
+        Pc = np.linalg.inv(Wf + Wb)
+        status[k] = 2
+        p[k] = Pc @ (Wf @ fw.p_float[k] + Wb @ bw.p_float[k])
+        best = fw.P_float[k] if np.trace(fw.P_float[k]) < np.trace(bw.P_float[k]) else bw.P_float[k]
+        P[k] = 2.0 * Pc if np.trace(2.0 * Pc) < np.trace(best) else best
+        ratio[k] = np.nanmax([fw.ratio[k], bw.ratio[k], 0.0])
+    return status, p, P, ratio, n_sat, n_fix
+
+
+def ppk(rover: CarrierObs, base: CarrierObs, nav: BroadcastNav, base_pos_ecef, opts: PpkOptions | None = None,
+        p_init=None) -> PpkResult:
+    """Carrier-phase PPK of the rover against the base at ``base_pos_ecef`` (ECEF m); see the module docstring.
+
+    ``p_init``: approximate rover position (ECEF m) for the first epoch (default: the rover header's).
+    Epochs without double differences have status 'none' (the caller may fill them with SPP, 'single').
+    """
+    opts = opts or PpkOptions()
+    eng = _Engine(rover, base, nav, base_pos_ecef, opts)
+    p0 = np.asarray(p_init if p_init is not None else rover.p_approx_ecef, float)
+    if not np.all(np.isfinite(p0)):
+        p0 = np.asarray(base_pos_ecef, float)
+    N = len(eng.t)
+    fw = bw = None
+    if opts.solution in ("combined", "forward"):
+        fw = _Pass(eng, np.arange(N), p0).run()
+    if opts.solution in ("combined", "backward"):
+        pe = p0
+        if fw is not None and np.any(fw.status >= 2):
+            pe = fw.p[np.nonzero(fw.status >= 2)[0][-1]]
+        bw = _Pass(eng, np.arange(N)[::-1], pe).run()
+    if fw is not None and bw is not None:
+        status, p, P, ratio, n_sat, n_fix = combine(fw, bw, opts.alpha)
+    else:
+        r = fw or bw
+        status, p, P, ratio, n_sat, n_fix = r.status, r.p, r.P, r.ratio, r.n_sat, r.n_fixed_amb
+    return PpkResult(t_gps=eng.t.copy(), status=status, p=p, P=P, ratio=ratio, n_sat=n_sat, n_fixed_amb=n_fix,
+                     age_s=np.where(eng.jb >= 0, eng.age, np.nan), forward=fw, backward=bw, sats=eng.sats,
+                     signals_rover=dict(rover.signals), signals_base=dict(base.signals),
+                     slips_rover=eng.slips_rover, slips_base=eng.slips_base, options=opts)
+
+
+PPK_CSV_COLUMNS = ["gps_week", "gps_sow", "x", "y", "z", "fix", "n_sat", "ratio", "sx", "sy", "sz", "sxy", "sxz",
+                   "syz", "lat", "lon", "h", "s_e", "s_n", "s_u", "age_s", "n_fixed_amb", "fix_forward",
+                   "fix_backward"]
+
+
+def _enu_axes(p_ecef: np.ndarray) -> np.ndarray:
+    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.fields.frames import R_ecef_to_enu
+    lat, lon, _ = ecef_to_geodetic(p_ecef)
+    return R_ecef_to_enu(lat, lon)
+
+
+def write_ppk_csv(path, res: PpkResult) -> None:
+    """Write gnss.csv of `--mode ppk` (columns ``PPK_CSV_COLUMNS``, ECEF m; see docs/gnss.md), epochs with a solution.
+
+    ``sx,sy,sz`` are 1-sigma (m); ``sxy,sxz,syz`` the cross covariances as RTKLIB writes them,
+    ``sign(c) sqrt(|c|)`` (m); ``s_e,s_n,s_u`` local-level sigmas (m).
+    """
+    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.fields.io.csv_tables import write_table
+    from dgcal.pos.gnss.observations import split_gps_time
+    k = np.nonzero(res.status >= 1)[0]
+    week, sow = split_gps_time(res.t_gps[k])
+    rows = []
+    llh = ecef_to_geodetic(res.p[k]).reshape(-1, 3) if len(k) else np.zeros((0, 3))
+    fw = res.forward.status if res.forward is not None else np.zeros(len(res.t_gps), dtype=int)
+    bw = res.backward.status if res.backward is not None else np.zeros(len(res.t_gps), dtype=int)
+    for j, i in enumerate(k):
+        C = res.P[i]
+        s = np.sqrt(np.maximum(np.diag(C), 0.0))
+        cross = [float(np.sign(c) * np.sqrt(abs(c))) for c in (C[0, 1], C[0, 2], C[1, 2])]
+        R = _enu_axes(res.p[i])
+        senu = np.sqrt(np.maximum(np.diag(R @ C @ R.T), 0.0))
+        rows.append([int(week[j]), float(sow[j]), *res.p[i].tolist(), STATUS[res.status[i]], int(res.n_sat[i]),
+                     float(res.ratio[i]) if np.isfinite(res.ratio[i]) else float("nan"), *s.tolist(), *cross,
+                     *llh[j].tolist(), *senu.tolist(), float(res.age_s[i]), int(res.n_fixed_amb[i]),
+                     STATUS[fw[i]], STATUS[bw[i]]])
+    write_table(path, PPK_CSV_COLUMNS, rows, fmt="%.12g")
+
+
+def ppk_summary(res: PpkResult, reference_ecef: np.ndarray | None = None) -> dict:
+    """Numbers for gnss_summary.json of `--mode ppk`: counts per status, fix rate, sigmas, ages, slips, options,
+    and with a known position the fixed-epoch 3D RMS and mean/std/RMS error per local axis (m)."""
+    n = len(res.t_gps)
+    st = res.status
+    counts = {name: int(np.sum(st == i)) for i, name in enumerate(STATUS)}
+    fixed = st == 3
+    out = {"mode": "ppk", "n_epochs": n, "counts": counts, "n_fixed": counts["fixed"],
+           "fix_rate": float(fixed.mean()) if n else 0.0, "systems": sorted({s[0] for s in res.sats}),
+           "signals_rover": {f"{s}{f}": "/".join(v) for (s, f), v in res.signals_rover.items()},
+           "signals_base": {f"{s}{f}": "/".join(v) for (s, f), v in res.signals_base.items()},
+           "slips_flagged_rover": res.slips_rover, "slips_flagged_base": res.slips_base,
+           "median_ratio_fixed": float(np.nanmedian(res.ratio[fixed])) if fixed.any() else None,
+           "mean_n_sat": float(np.mean(res.n_sat[st >= 2])) if np.any(st >= 2) else 0.0,
+           "age_s": {"median": float(np.nanmedian(np.abs(res.age_s))) if np.isfinite(res.age_s).any() else None,
+                     "max": float(np.nanmax(np.abs(res.age_s))) if np.isfinite(res.age_s).any() else None}}
+    for name, p in (("forward", res.forward), ("backward", res.backward)):
+        if p is not None:
+            out[f"{name}_fixed"] = int(np.sum(p.status == 3))
+            reasons: dict[str, int] = {}
+            for k in np.nonzero(p.status == 2)[0]:
+                reasons[p.reason[k] or "float"] = reasons.get(p.reason[k] or "float", 0) + 1
+            out[f"{name}_float_reasons"] = reasons
+    if fixed.any():
+        R = _enu_axes(res.p[fixed][0])
+        senu = np.sqrt(np.maximum(np.einsum("ij,njk,lk->nil", R, res.P[fixed], R).diagonal(axis1=1, axis2=2), 0))
+        out["median_sigma_enu_fixed_m"] = np.median(senu, axis=0).tolist()
+        out["median_ecef_fixed_m"] = np.median(res.p[fixed], axis=0).tolist()
+    if reference_ecef is not None:
+        ref = np.asarray(reference_ecef, float)
+        R = _enu_axes(ref)
+        out["reference_ecef_m"] = ref.tolist()
+        for name, m in (("fixed", fixed), ("all", st >= 1)):
+            if not m.any():
+                continue
+            e = (res.p[m] - ref) @ R.T
+            out[f"error_{name}"] = {"n": int(m.sum()), "rms_3d_m": float(np.sqrt(np.mean(np.sum(e ** 2, axis=1)))),
+                                    "mean_enu_m": e.mean(axis=0).tolist(), "std_enu_m": e.std(axis=0).tolist(),
+                                    "rms_enu_m": np.sqrt(np.mean(e ** 2, axis=0)).tolist()}
+    o = res.options
+    out["options"] = {k: getattr(o, k) for k in o.__dataclass_fields__}
+    return out

@@ -1,0 +1,164 @@
+"""RINEX navigation files of every version in the form cssrlib's decoder reads (RINEX 3.02+).
+
+cssrlib decodes RINEX >= 3.02 navigation records. ``nav_text_for_cssrlib`` hands it RINEX 3.02-3.05
+files unchanged, 3.00/3.01 files with the version patched (their GPS/Galileo/BeiDou/QZSS records are
+laid out the same), and RINEX 2.10/2.11 GPS navigation files (type ``N``) rewritten record by record
+into RINEX 3 layout with **the same line numbers**, so that decoder messages still name the original
+line. Every numeric field of a RINEX 2 record is checked on the way (``InputError`` naming file, line
+and the field's name). The header's Klobuchar coefficients are returned as well (RINEX 3
+``GPSA/GPSB``, ``QZSA/QZSB``, ``BDSA/BDSB``; RINEX 2 ``ION ALPHA/ION BETA``) with the leap seconds.
+"""
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.fields.errors import InputError
+from dgcal.pos.gnss.rinex_obs import read_lines
+
+# RTKLIB's default Klobuchar coefficients (alpha, beta; 2004/1/1), used when a file has none
+ION_DEFAULT = np.array([[0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06],
+                        [0.1167e+06, -0.2294e+06, -0.1311e+06, 0.1049e+07]])
+
+_GPS_FIELDS = (("SV clock bias", "SV clock drift", "SV clock drift rate"),
+               ("IODE", "Crs", "Delta n", "M0"), ("Cuc", "e", "Cus", "sqrt(A)"),
+               ("Toe", "Cic", "OMEGA0", "Cis"), ("i0", "Crc", "omega", "OMEGA DOT"),
+               ("IDOT", "L2 codes", "GPS week", "L2 P flag"), ("SV accuracy", "SV health", "TGD", "IODC"),
+               ("transmission time", "fit interval", "spare", "spare"))
+
+
+@dataclass
+class NavHeader:
+    """What a navigation header says: version, file type, Klobuchar pairs (2x4 or None), leap seconds."""
+
+    version: float
+    file_type: str
+    ion_gps: np.ndarray | None
+    ion_qzs: np.ndarray | None
+    ion_bds: np.ndarray | None
+    leap_seconds: int
+    end_line: int
+
+
+def _num(s: str, path, ln: int, name: str) -> float:
+    t = s.strip()
+    if not t:
+        return 0.0
+    try:
+        return float(t.replace("D", "E").replace("d", "e"))
+    except ValueError:
+        raise InputError(f"not a number: {t!r}", path, ln, name) from None
+
+
+def parse_nav_header(lines: list[str], path: Path) -> NavHeader:
+    """Version, type, ionosphere coefficients and leap seconds of a RINEX 2/3 navigation header."""
+    if not lines:
+        raise InputError("empty file", path, 1)
+    first = lines[0]
+    if "CRINEX VERS" in first:
+        raise InputError("Hatanaka-compressed RINEX: decompress it first (crx2rnx)", path, 1)
+    if "RINEX VERSION / TYPE" not in first:
+        raise InputError("not a RINEX file (no 'RINEX VERSION / TYPE' header line)", path, 1)
+    try:
+        ver = float(first[:9])
+    except ValueError:
+        raise InputError("bad RINEX version", path, 1, "RINEX VERSION") from None
+    typ = first[20:21]
+    if ver < 2.0 or ver >= 4.0:
+        raise InputError(f"RINEX version {ver} is not supported (need 2.10-3.05)", path, 1, "RINEX VERSION")
+    if ver >= 3.0 and typ != "N":
+        raise InputError(f"not a navigation file (type '{typ}')", path, 1, "RINEX VERSION / TYPE")
+    if ver < 3.0 and typ not in "NGHEJ":
+        raise InputError(f"not a navigation file (type '{typ}')", path, 1, "RINEX VERSION / TYPE")
+    coef: dict[str, list[float]] = {}
+    leap = 18
+    end = None
+    for i, line in enumerate(lines[1:], start=1):
+        lab = line[60:80].strip()
+        ln = i + 1
+        if lab.startswith("END OF HEADER"):
+            end = i
+            break
+        if lab.startswith("IONOSPHERIC CORR"):
+            key = line[0:4]
+            coef[key] = [_num(line[5 + 12 * k:5 + 12 * (k + 1)], path, ln, key) for k in range(4)]
+        elif lab.startswith("ION ALPHA") or lab.startswith("ION BETA"):
+            key = "GPSA" if "ALPHA" in lab else "GPSB"
+            coef[key] = [_num(line[2 + 12 * k:2 + 12 * (k + 1)], path, ln, lab) for k in range(4)]
+        elif lab.startswith("LEAP SECONDS"):
+            try:
+                leap = int(line[:6])
+            except ValueError:
+                raise InputError("not an integer", path, ln, "LEAP SECONDS") from None
+    if end is None:
+        raise InputError("no END OF HEADER line", path, len(lines))
+
+    def pair(a: str, b: str):
+        if a in coef and b in coef:
+            v = np.array([coef[a], coef[b]])
+            return v if np.any(v) else None
+        return None
+
+    return NavHeader(ver, typ, pair("GPSA", "GPSB"), pair("QZSA", "QZSB"), pair("BDSA", "BDSB"), leap, end)
+
+
+def _rinex2_gps_to_3(lines: list[str], hdr: NavHeader, path: Path) -> list[str]:
+    """RINEX 2 GPS records rewritten in RINEX 3 layout, line for line (same numbering)."""
+    out = [""] * len(lines)
+    out[0] = f"{3.04:9.2f}{'':11}{'N: GNSS NAV DATA':<20}{'G: GPS':<20}RINEX VERSION / TYPE"
+    for i in range(1, hdr.end_line):
+        out[i] = f"{'converted from RINEX 2 by dgcal':<60}COMMENT"
+    out[hdr.end_line] = f"{'':60}END OF HEADER"
+    i = hdr.end_line + 1
+    n = len(lines)
+    while i < n:
+        line = lines[i]
+        if not line.strip():
+            out[i] = ""
+            i += 1
+            continue
+        ln = i + 1
+        try:
+            prn = int(line[0:2])
+            yy, mo, dd, hh, mi = (int(line[2 + 3 * k:5 + 3 * k]) for k in range(5))
+            sec = float(line[17:22])
+        except ValueError:
+            raise InputError(f"bad PRN / EPOCH {line[:22].strip()!r}", path, ln, "PRN / EPOCH / SV CLK") from None
+        year = yy + (2000 if yy < 80 else 1900)
+        vals = [line[22 + 19 * k:41 + 19 * k].ljust(19) for k in range(3)]
+        for k, v in enumerate(vals):
+            _num(v, path, ln, _GPS_FIELDS[0][k])
+        out[i] = f"G{prn:02d} {year:04d} {mo:02d} {dd:02d} {hh:02d} {mi:02d} {int(round(sec)):02d}" + "".join(vals)
+        for m in range(1, 8):
+            j = i + m
+            if j >= n:
+                raise InputError("file ends inside a navigation record", path, n, "BROADCAST ORBIT")
+            orb = lines[j]
+            fields = [orb[3 + 19 * k:22 + 19 * k].ljust(19) for k in range(4)]
+            for k, v in enumerate(fields):
+                _num(v, path, j + 1, f"BROADCAST ORBIT - {m}: {_GPS_FIELDS[m][k]}")
+            out[j] = "    " + "".join(fields)
+        i += 8
+    return out
+
+
+def nav_text_for_cssrlib(path: str | Path) -> tuple[io.StringIO, NavHeader]:
+    """The file's text in a layout cssrlib's ``rnxdec._decode_nav`` reads, line numbers unchanged, and its header."""
+    path = Path(path)
+    lines = read_lines(path)
+    hdr = parse_nav_header(lines, path)
+    if hdr.version >= 3.02:
+        text = lines
+    elif hdr.version >= 3.0:
+        text = list(lines)
+        text[0] = f"{3.02:9.2f}" + lines[0][9:]
+    elif hdr.file_type == "N":
+        text = _rinex2_gps_to_3(lines, hdr, path)
+    else:
+        kind = {"G": "GLONASS", "H": "SBAS", "E": "Galileo", "J": "QZSS"}[hdr.file_type]
+        raise InputError(f"RINEX 2 {kind} navigation files are not read (GPS 'N' files and RINEX 3 are)",
+                         path, 1, "RINEX VERSION / TYPE")
+    return io.StringIO("\n".join(text) + "\n"), hdr

@@ -1,0 +1,76 @@
+"""PPK on a simulated kinematic baseline: honest fixed-epoch sigmas, slips; LAMBDA against cssrlib's."""
+import numpy as np
+import pytest
+
+from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
+from dgcal.fields.frames import R_ecef_to_enu
+from dgcal.pos.gnss.ambiguity import bootstrap_success_rate, decorrelate, lambda_ils, resolve
+from dgcal.pos.gnss.ppk import PpkOptions, ppk
+from dgcal.sim.gnss import DEFAULT_T0_GPS, circle_trajectory, simulate_carrier_pair
+
+BASE = np.asarray(geodetic_to_ecef(35.31, 139.50, 40.0), float).reshape(3)
+
+
+def _flight(seed, duration=120.0, slips=()):
+    t = DEFAULT_T0_GPS + np.arange(0.0, duration)
+    p, _v = circle_trajectory(t, 35.33, 139.52, 80.0, 100.0, 10.0)       # 3 km baseline, 10 m/s circle
+    rover, base, nav = simulate_carrier_pair(t, p, BASE, seed=seed, systems=("G", "E"), n_freq=2, slips=slips)
+    return t, p, rover, base, nav
+
+
+@pytest.mark.parametrize("seed", [2, 5])
+def test_simulated_kinematic_baseline_sigmas_are_honest(seed):
+    t, p, rover, base, nav = _flight(seed)
+    res = ppk(rover, base, nav, BASE, PpkOptions(n_freq=2), p_init=p[0] + 3.0)
+    f = res.status == 3
+    assert f.mean() >= 0.95
+    lat, lon, _ = ecef_to_geodetic(p[0])
+    R = R_ecef_to_enu(lat, lon)
+    e = (res.p[f] - p[f]) @ R.T
+    s = np.sqrt(np.einsum("ij,njk,ik->ni", R, res.P[f], R))
+    z = np.sqrt(np.mean((e / s) ** 2, axis=0))
+    print(f"\nseed {seed}: {100 * f.mean():.0f} % fixed, 3D RMS {1e3 * np.sqrt(np.mean(np.sum(e ** 2, 1))):.1f} mm, "
+          f"error/sigma RMS E/N/U {np.round(z, 2).tolist()}")
+    assert np.all((z > 0.7) & (z < 1.4))
+    assert np.max(np.linalg.norm(e, axis=1)) < 0.05          # no wrong fix slipped through
+
+
+def test_slips_flagged_and_unflagged_are_handled():
+    """A flagged slip (LLI) and an unflagged 7-cycle slip: both reset their ambiguity, no fixed epoch is off."""
+    t0 = DEFAULT_T0_GPS
+    t, p, rover, base, nav = _flight(3, 90.0, slips=[(t0 + 30.0, "G03", 0, 3, True), (t0 + 50.0, "G17", 1, 7, False)])
+    i5, i17 = rover.sats.index("G03"), rover.sats.index("G17")
+    if not (np.isfinite(rover.L[30, i5, 0]) and np.isfinite(rover.L[50, i17, 1])):
+        pytest.skip("slipped satellites not visible")
+    res = ppk(rover, base, nav, BASE, PpkOptions(n_freq=2), p_init=p[0] + 3.0)
+    f = res.status == 3
+    assert f.mean() >= 0.9 and f[30] and f[50] and f[51]
+    assert np.max(np.linalg.norm(res.p[f] - p[f], axis=1)) < 0.05
+    assert res.slips_rover >= 2
+
+
+def test_lambda_matches_cssrlib_and_decorrelates():
+    mlambda = pytest.importorskip("cssrlib.mlambda").mlambda
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        n = int(rng.integers(2, 20))
+        A = rng.normal(size=(n + 4, n))
+        Q = np.linalg.inv(A.T @ A) * rng.uniform(0.01, 1.0)
+        a = rng.normal(size=n) * 4
+        F, s = lambda_ils(a, Q)
+        F2, s2, _, _ = mlambda(a, Q)
+        np.testing.assert_allclose(s, s2, rtol=1e-8)
+        r = a - F[:, 0]
+        assert r @ np.linalg.solve(Q, r) == pytest.approx(s[0])
+        L, D, Z = decorrelate(Q)
+        np.testing.assert_allclose(Z.T @ Q @ Z, L.T @ np.diag(D) @ L, atol=1e-9)
+        assert abs(np.linalg.det(Z)) == pytest.approx(1.0)
+    # precise ambiguities near integers: full fix with a high ratio and success rate
+    n = 8
+    Q = np.diag(np.full(n, 0.01)) + 0.005
+    a = np.arange(n) + rng.normal(0, 0.02, n)
+    fx = resolve(a, Q)
+    assert fx.fixed and fx.mode == "full" and fx.ratio > 10
+    np.testing.assert_allclose(np.linalg.solve(fx.C, fx.c), np.arange(n))
+    L, D, Z = decorrelate(Q)
+    assert bootstrap_success_rate(D) > 0.999
