@@ -54,6 +54,8 @@ class BundleOptions:
     loss_scale: float = 3.0        # whitened residual norm where the loss turns robust
     max_iterations: int = 60
     tolerance: float = 1e-8        # relative cost decrease that stops the iterations
+    tol_chi2: float = 1e-3         # ... or a chi^2 gain below this (parameters within ~0.03 sigma of the minimum:
+                                   # a flat valley no longer crawls to the iteration limit)
     aposteriori: bool = True       # scale covariances by max(sigma0^2, 1): inflate when the fit is worse than
                                    # the stated sigmas, never shrink (precise tie points must not make the
                                    # GCP-driven datum look better than its own sigmas say)
@@ -149,7 +151,7 @@ def adjust(inp: BundleInput, options: BundleOptions | None = None) -> BundleResu
     """Run the bundle adjustment (pixels, metres, radians inside) and return orientation with covariance."""
     opt = options or BundleOptions()
     prob, state = problem_of(inp, opt)
-    sol = minimise(prob, state, LMOptions(max_iterations=opt.max_iterations, tol_rel=opt.tolerance, tol_chi2=0.0,
+    sol = minimise(prob, state, LMOptions(max_iterations=opt.max_iterations, tol_rel=opt.tolerance, tol_chi2=opt.tol_chi2,
                                           lambda_up=8.0, lambda_down=5.0, verbose=opt.verbose))
     nrm = normals_at(prob, sol)
     cov = Covariance.at(prob, nrm)

@@ -1,4 +1,4 @@
-"""Blunder detection on ground-control measurements: Baarda's standardised residuals, suspects named."""
+"""Blunder detection on ground control: Baarda's standardised residuals of image measurements, suspects named."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -17,13 +17,20 @@ class Suspect:
     image: str
     point: str
     residual_px: tuple[float, float]
-    w: float                         # largest |standardised residual| of its two coordinates
+    w: float                         # largest |standardised residual| of its two coordinates (coordinates: the
+                                     # 3-dof test as an equivalent |w|)
     redundancy: float                # smallest redundancy number of its two coordinates
     removed: bool = False
+    kind: str = "measurement"        # "measurement" (an image measurement) or "coordinates" (a control point's)
+    coordinate_error_m: tuple[float, float, float] | None = None   # adjusted - given (world axes), coordinates
 
     def as_dict(self) -> dict:
-        return {"image": self.image, "id": self.point, "residual_px": [float(v) for v in self.residual_px],
-                "w": float(self.w), "redundancy": float(self.redundancy), "removed": self.removed}
+        d = {"kind": self.kind, "image": self.image, "id": self.point,
+             "residual_px": [float(v) for v in self.residual_px], "w": float(self.w),
+             "redundancy": float(self.redundancy), "removed": self.removed}
+        if self.coordinate_error_m is not None:
+            d["coordinate_error_m"] = [float(v) for v in self.coordinate_error_m]
+        return d
 
 
 def standardized(result: BundleResult, obs_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

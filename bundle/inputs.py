@@ -7,6 +7,7 @@ MicMac XML (pixels, OpenCV convention). Measured ids absent from the ground poin
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,6 +50,11 @@ class TriangulateOptions:
     targets: str | None = None                   # ArUco dictionary of GCP targets to detect in the images
     reject_blunders: bool = True
     formats: tuple[str, ...] = ("colmap", "pix4d", "metashape", "odm")  # exports
+    approx_eop: EOP | None = None                # approximate EOPs already in memory (e.g. from a POS)
+    check_as_tie: bool | None = None             # None: on for measurement-only input
+    accept_poor: bool = False                    # return (and write) an untrusted result, with its problems
+    use_mapper: bool = True                      # pycolmap's incremental mapper for the initial orientation
+    progress: Callable[[str], None] | None = None   # told what each long stage is doing
 
     @property
     def local(self) -> bool:
@@ -68,6 +74,7 @@ class TriangulationInputs:
     centre_priors: EOP | None = None
     all_images: list[str] | None = None
     warnings: list[str] = field(default_factory=list)
+    tie_stats: dict = field(default_factory=dict)       # SIFT features, matches, tracks and times (with images)
 
 
 @dataclass
@@ -182,7 +189,8 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
     if opts.image_size and tuple(opts.image_size) != tuple(camera.image_size):
         raise InputError(f"--image-size {tuple(opts.image_size)} differs from the camera's {tuple(camera.image_size)}",
                          field="--image-size")
-    inp = TriangulationInputs(camera, points, meas, approx=read_eop(opts.approx) if opts.approx else None,
+    approx = read_eop(opts.approx) if opts.approx else opts.approx_eop
+    inp = TriangulationInputs(camera, points, meas, approx=approx,
                               centre_priors=read_eop(opts.gnss) if opts.gnss else None)
     if opts.images:
         names = list_images(opts.images)
@@ -197,12 +205,20 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
         if opts.targets:
             meas, w = add_gcp_targets(meas, opts.images, names, opts.targets, points, opts.sigma_px)
             inp.warnings += w
+        _say(opts, f"tie points: SIFT features and matching of {len(pairs)} pairs of {len(names)} images")
         tie = extract_tie_points(opts.images, names, pairs, max_features=opts.max_features,
-                                 camera_K=camera.pinhole_K())
+                                 camera_K=camera.pinhole_K(), stats=inp.tie_stats)
+        _say(opts, f"tie points: {inp.tie_stats['n_features']} features, {inp.tie_stats['n_matches']} verified "
+                   f"matches, {inp.tie_stats['n_tracks']} tracks in {inp.tie_stats['seconds_extract_match']:.1f} s")
         if opts.tie_sigma_px:
             tie.sigma[:] = opts.tie_sigma_px
         inp.measurements = append_measurements(meas, tie)
     return inp
+
+
+def _say(opts: TriangulateOptions, text: str) -> None:
+    if opts.progress is not None:
+        opts.progress(text)
 
 
 def refine_parameters(camera: CameraModel, refine: tuple[str, ...]) -> tuple[str, ...]:
@@ -221,12 +237,18 @@ def triangulate_files(opts: TriangulateOptions) -> TriangulationRun:
     inp = gather_inputs(opts)
     sol = TriangulationOptions(sigma_px=opts.sigma_px, tie_sigma_px=opts.tie_sigma_px, fixed_gcps=opts.fixed_gcps,
                                refine=refine_parameters(inp.camera, opts.refine), geoid=opts.geoid,
-                               reject_blunders=opts.reject_blunders)
+                               reject_blunders=opts.reject_blunders, check_as_tie=opts.check_as_tie,
+                               accept_poor=opts.accept_poor, use_mapper=opts.use_mapper)
     crs = None if opts.local else opts.crs
+    _say(opts, f"adjustment: initial orientation and bundle adjustment of {len(inp.measurements)} measurements")
     res = triangulate(inp.camera, inp.points, inp.measurements, crs, sol, image_size=opts.image_size,
                       approx=inp.approx, centre_priors=inp.centre_priors, all_images=inp.all_images)
+    _say(opts, f"adjustment: {res.summary['initial_orientation']}, {res.summary['rounds']['adjustments']} "
+               f"adjustment(s) in {sum(res.summary['timings_s'].get(k, 0) for k in ('initialised', 'adjusted')):.1f} s")
     res.warnings[:0] = inp.warnings
     res.summary["warnings"] = res.warnings
+    if inp.tie_stats:
+        res.summary["tie_points_from_images"] = inp.tie_stats
     formats = [f for f in opts.formats if f]
     if opts.local and formats:
         kept = [f for f in formats if f in ("pix4d", "metashape")]

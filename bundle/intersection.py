@@ -75,6 +75,13 @@ def intersect(camera, C_w: np.ndarray, R_cam_to_world: np.ndarray, obs_image: np
         ok = ok & (np.bincount(obs_point[good], minlength=K) >= min_rays)
         if not ok.any():
             break
+        # parallel rays (a point seen along one direction): singular normals, the point is not intersected
+        cond = np.linalg.cond(Nm[ok]) if ok.any() else np.zeros(0)
+        sub = np.flatnonzero(ok)
+        bad = ~np.isfinite(cond) | (cond > 1e12)
+        ok[sub[bad]] = False
+        if not ok.any():
+            break
         Ninv[ok] = np.linalg.inv(Nm[ok])
         step = np.einsum("kij,kj->ki", Ninv[ok], g[ok])
         X[ok] += step

@@ -2,14 +2,21 @@
 
 `triangulate(...)` is what a Python user calls (and `dgcal triangulate` wraps). It
 1. sorts measured ids into control (role control), check (role check) and tie points (not in the ground
-   point file), and warns about anything it cannot use (ids without measurements, points seen once,
-   images without measurements or that cannot be oriented) instead of dropping it silently;
-2. moves everything into a local ENU frame at the control centroid (`dgcal.bundle.georef.Georef`);
-3. orients images by PnP from control and growing through tie points, or from approximate EOPs;
-4. runs the bundle adjustment (`dgcal.bundle.adjustment`), tests GCP measurements for blunders (standardised
-   residuals), removes the worst one at a time while any exceeds the critical value, and re-adjusts;
-5. intersects check points from the adjusted images and reports their errors in E, N, Up;
-6. converts EOPs and their 6x6 covariances to the map CRS (grid-level PATB angles).
+   point file), and warns about anything it cannot use instead of dropping it silently;
+2. moves everything into the world frame of the adjustment, a local ENU frame at the control centroid
+   (`dgcal.fields.world.World`);
+3. orients the images (`dgcal.bundle.initial`): from approximate EOPs, else by pycolmap's incremental mapper
+   on the measurements moved onto the control points, else by resection and growth from control;
+4. adjusts the block (`dgcal.bundle.adjustment`, on the engine of `dgcal.bundle.solver`) and cleans it:
+   tie observations beyond k robust sigmas are dropped (each one named), images left out are retried by
+   resection through the adjusted points, then data snooping on the control (Baarda's w-tests on each image
+   measurement and on each control point's coordinates as a group: a wrong coordinate is named as such and
+   the point becomes a tie point, its rays stay), one at a time until no test exceeds the critical value;
+5. evaluates the check points: adjusted as tie points when their measurements help the block
+   (`check_as_tie`), else intersected from the adjusted images; errors in grid E, N, Up with sigmas;
+6. converts EOPs and their 6x6 covariances to the map CRS (grid-level PATB angles);
+7. judges the result: not converged, sigma0 above `max_sigma0` or more than `max_left_out` of the connected
+   images left out is a failure (`ResultError`) unless `accept_poor`.
 """
 from __future__ import annotations
 
@@ -17,22 +24,29 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import gammaln, ndtri_exp
+from scipy.stats import chi2
 
 from dgcal.bundle.adjustment import BundleInput, BundleOptions, BundleResult, adjust
-from dgcal.bundle.blunders import CRITICAL_W, Suspect, find_suspects, standardized
-from dgcal.bundle.georef import Georef
-from dgcal.bundle.resection import grow_orientation, relative_bootstrap
+from dgcal.bundle.blunders import CRITICAL_W, Suspect
+from dgcal.bundle.initial import initial_orientation
+from dgcal.bundle.intersection import intersect, propagate_pose_covariance
+from dgcal.bundle.resection import pnp
+from dgcal.bundle.solver.blocks import PointPriors
 from dgcal.calib.camera.models import CameraModel
-from dgcal.fields.errors import InputError
+from dgcal.fields.errors import InputError, ResultError
 from dgcal.fields.io.formats import EOP, Measurements, Points
+from dgcal.fields.pose import Poses
+from dgcal.fields.world import World
 
 DEFAULT_SIGMA_PX = 0.5          # image measurement sigma when the file gives none
 DEFAULT_GCP_SIGMA_M = (0.02, 0.02, 0.03)
+_CHI2_MEDIAN_2D = float(np.sqrt(2 * np.log(2)))   # median of the norm of a 2-D standard normal
 
 
 @dataclass
 class TriangulationOptions:
-    """Choices of the triangulation: weights, intrinsics, robust loss, blunder handling, geoid."""
+    """Choices of the triangulation: weights, intrinsics, robust loss, blunder handling, quality limits."""
 
     sigma_px: float = DEFAULT_SIGMA_PX
     tie_sigma_px: float | None = None          # default: sigma_px
@@ -43,10 +57,15 @@ class TriangulationOptions:
     loss_scale: float = 3.0
     reject_blunders: bool = True
     critical_w: float = CRITICAL_W
-    max_rejections: int = 10
-    tie_outlier_sigma: float = 5.0             # tie observations beyond this many sigma0 are dropped
+    max_rejections: int = 50                   # data-snooping rounds; the rest are listed as suspects
+    tie_outlier_sigma: float = 5.0             # tie observations beyond this many robust sigmas are dropped
+    check_as_tie: bool | None = None           # None: on for measurement-only input (no image folder)
     geoid: float | str | None = None           # constant undulation (m) or PROJ vertical grid
     aposteriori: bool = True
+    use_mapper: bool = True                    # pycolmap's incremental mapper for the initial orientation
+    max_sigma0: float = 3.0                    # sigma0 above this: the result is not trusted
+    max_left_out: float = 0.1                  # share of connected images that may stay unoriented
+    accept_poor: bool = False                  # return an untrusted result (with its problems) instead of failing
     verbose: bool = False
 
 
@@ -55,12 +74,12 @@ class TriangulationResult:
     """Everything a report needs: EOPs in the map CRS, the adjustment, per-point and per-image figures."""
 
     eop: EOP                                   # map CRS, sigma (n,6) and cov (n,6,6) (m, deg)
-    georef: Georef
+    georef: World                              # the world frame of the adjustment and the map CRS
     bundle: BundleResult
-    camera: CameraModel
+    camera: CameraModel                        # the camera of the adjustment (refined when `refine` was asked)
     images: list[str]
     point_ids: list[str]
-    point_kind: np.ndarray                     # 'control' | 'tie' per adjusted point
+    point_kind: np.ndarray                     # 'control' | 'tie' | 'check' per adjusted point
     gcp: list[dict]
     check: list[dict]
     image_stats: list[dict]
@@ -70,6 +89,8 @@ class TriangulationResult:
     summary: dict = field(default_factory=dict)
     R_world_to_cam: np.ndarray | None = None
     C_world: np.ndarray | None = None
+    dropped: list[dict] = field(default_factory=list)   # tie observations left out: image, id, residual_px
+    problems: list[str] = field(default_factory=list)    # why the result is not to be trusted (empty: fine)
 
 
 def _warn(msgs: list[str], text: str, verbose: bool) -> None:
@@ -78,19 +99,23 @@ def _warn(msgs: list[str], text: str, verbose: bool) -> None:
         print("warning:", text)
 
 
-def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: str | None,
-                options: TriangulationOptions | None = None, image_size: tuple[int, int] | None = None,
-                approx: EOP | None = None, centre_priors: EOP | None = None,
-                all_images: list[str] | None = None) -> TriangulationResult:
-    """Aerial triangulation: EOPs (map CRS, PATB deg) with covariance from ground points and measurements (px).
+@dataclass
+class _Block:
+    """The adjustment's observations and points, before compaction to the oriented images."""
 
-    `meas` holds GCP, check and tie measurements (ids not in `points` are tie points). `approx`
-    (map CRS) gives approximate EOPs where known, `centre_priors` GNSS centres with sigmas (sX..sZ).
-    `all_images` lists images that should be oriented (those without measurements are reported).
-    """
-    opt = options or TriangulationOptions()
-    clock = {"start": time.perf_counter()}
-    msgs: list[str] = []
+    images: list[str]
+    point_ids: list[str]
+    kind: np.ndarray            # control / tie / check per point
+    rows: np.ndarray            # row of `meas` behind each observation
+    oi: np.ndarray
+    op: np.ndarray
+    uv: np.ndarray
+    sig: np.ndarray
+    X_prior: np.ndarray         # (m,3) control coordinates in the world frame, NaN for others
+    S_prior: np.ndarray
+
+
+def _check_measurements(camera: CameraModel, meas: Measurements, image_size) -> None:
     if image_size is not None and tuple(int(v) for v in image_size) != tuple(camera.image_size):
         raise InputError(f"image size {tuple(image_size)} differs from the camera's {tuple(camera.image_size)}",
                          field="--image-size")
@@ -100,34 +125,16 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
         i = int(np.argmax(out))
         raise InputError(f"measurement ({meas.xy[i, 0]:.1f}, {meas.xy[i, 1]:.1f}) lies outside the "
                          f"{w_img}x{h_img} image", meas.path, None if meas.lines is None else int(meas.lines[i]), "x")
-    pidx = points.index()
-    ids = meas.id.astype(str)
-    in_points = np.array([i in pidx for i in ids])
-    role_of = {str(k): str(r) for k, r in zip(points.ids, points.role)}
-    is_control = np.array([role_of.get(i) == "control" for i in ids])
-    is_check = np.array([role_of.get(i) == "check" for i in ids])
-    unknown_ids = sorted(set(ids[~in_points]))
-    control_ids = [str(k) for k, r in zip(points.ids, points.role) if r == "control"]
-    if not control_ids:
-        raise InputError("no control points (role 'control') in the ground point file", points.path, field="role")
-    measured = set(ids)
-    for pid in points.ids:
-        if str(pid) not in measured:
-            _warn(msgs, f"ground point {pid} ({role_of[str(pid)]}) has no image measurements: not used", opt.verbose)
-    counts = {}
-    for i in ids:
-        counts[i] = counts.get(i, 0) + 1
-    for pid in control_ids:
-        if counts.get(pid, 0) == 1:
-            _warn(msgs, f"control point {pid} is measured in one image only: it constrains that image weakly "
-                        "and its measurement cannot be checked for blunders", opt.verbose)
 
-    # --- georeferencing: local ENU at the centroid of the measured control ------------------------
+
+def _georef(points: Points, meas: Measurements, crs: str | None, opt: TriangulationOptions) -> tuple[World, np.ndarray]:
+    """The world frame at the centroid of the measured control points, and every ground point in it."""
+    role_of = {str(k): str(r) for k, r in zip(points.ids, points.role)}
+    measured = set(meas.id.astype(str))
     ctrl_mask = np.array([str(c) in measured and role_of[str(c)] == "control" for c in points.ids], bool)
     if not ctrl_mask.any():
         raise InputError("none of the control points is measured in any image", meas.path, field="id")
-    centre = points.xyz[ctrl_mask].mean(0)
-    geo = Georef(crs, centre, opt.geoid, points.path)
+    geo = World.from_crs(crs, points.xyz[ctrl_mask].mean(0), opt.geoid, points.path)
     P_world = geo.to_world(points.xyz)
     if not np.isfinite(P_world).all():
         bad = int(np.argmax(~np.isfinite(P_world).all(1)))
@@ -137,246 +144,510 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     if ctrl_mask.sum() > 2 and max(spread[:2]) > 5e4:
         raise InputError(f"control points span {max(spread[:2]) / 1e3:.0f} km in CRS {crs}: wrong CRS or "
                          "coordinate order?", points.path, field="--crs")
+    return geo, P_world
 
-    # --- the adjustment's points: control + tie (check points are not adjusted) -------------------
-    use = ~is_check
-    used_ids = ids[use]
-    uniq, cnt = np.unique(used_ids, return_counts=True)
+
+def _block(points: Points, P_world: np.ndarray, meas: Measurements, opt: TriangulationOptions, check_as_tie: bool,
+           all_images: list[str] | None, msgs: list[str]) -> _Block:
+    """Observations of control, tie (and check, as ties) points; points measured once (not control) left out."""
+    pidx = points.index()
+    ids = meas.id.astype(str)
+    role_of = {str(k): str(r) for k, r in zip(points.ids, points.role)}
+    control_ids = [str(k) for k, r in zip(points.ids, points.role) if r == "control"]
+    if not control_ids:
+        raise InputError("no control points (role 'control') in the ground point file", points.path, field="role")
+    measured = set(ids)
+    for pid in points.ids:
+        if str(pid) not in measured:
+            _warn(msgs, f"ground point {pid} ({role_of[str(pid)]}) has no image measurements: not used", opt.verbose)
+    counts = dict(zip(*np.unique(ids, return_counts=True)))
+    for pid in control_ids:
+        if counts.get(pid, 0) == 1:
+            _warn(msgs, f"control point {pid} is measured in one image only: it constrains that image weakly "
+                        "and its measurement cannot be checked for blunders", opt.verbose)
+    is_check = np.array([role_of.get(i) == "check" for i in ids])
+    use = ~is_check | check_as_tie
+    uniq, cnt = np.unique(ids[use], return_counts=True)
     once = set(uniq[cnt < 2]) - set(control_ids)
-    for pid in sorted(once):
-        _warn(msgs, f"tie point {pid} is measured in one image only: not used", opt.verbose) \
-            if pid in unknown_ids and len(once) <= 20 else None
-    if len(once) > 20:
+    if 0 < len(once) <= 20:
+        for pid in sorted(once):
+            _warn(msgs, f"{'check' if role_of.get(pid) == 'check' else 'tie'} point {pid} is measured in one image "
+                        "only: not used in the adjustment", opt.verbose)
+    elif len(once) > 20:
         _warn(msgs, f"{len(once)} tie points are measured in one image only: not used", opt.verbose)
-    use &= ~np.array([i in once for i in ids], bool)
+    if once:
+        use &= np.array([i not in once for i in ids], bool)   # np.isin on object arrays is quadratic
     images = list(dict.fromkeys((all_images or []) + meas.images()))
     img_index = {n: i for i, n in enumerate(images)}
     point_ids = list(dict.fromkeys(ids[use].tolist()))
     pt_index = {p: i for i, p in enumerate(point_ids)}
-    kind = np.array(["control" if p in role_of else "tie" for p in point_ids], dtype=object)
-    sel = np.nonzero(use)[0]
-    oi = np.array([img_index[n] for n in meas.image[sel].astype(str)], int)
-    op = np.array([pt_index[p] for p in ids[sel]], int)
-    uv = meas.xy[sel]
-    sig_default = np.where(kind[op] == "tie", opt.tie_sigma_px or opt.sigma_px, opt.sigma_px)
-    sig = np.where(np.isfinite(meas.sigma[sel]), meas.sigma[sel], sig_default[:, None])
+    kind = np.array([role_of.get(p, "tie") for p in point_ids], dtype=object)
+    rows = np.flatnonzero(use)
+    oi = np.array([img_index[n] for n in meas.image[rows].astype(str)], int)
+    op = np.array([pt_index[p] for p in ids[rows]], int)
+    sig_default = np.where(kind[op] == "control", opt.sigma_px, opt.tie_sigma_px or opt.sigma_px)
+    sig = np.where(np.isfinite(meas.sigma[rows]), meas.sigma[rows], sig_default[:, None])
     m = len(point_ids)
-    Xprior = np.full((m, 3), np.nan)
-    Sprior = np.full((m, 3), np.nan)
+    X_prior = np.full((m, 3), np.nan)
+    S_prior = np.full((m, 3), np.nan)
     for j, p in enumerate(point_ids):
         if kind[j] == "control":
             r = pidx[p]
-            Xprior[j] = P_world[r]
+            X_prior[j] = P_world[r]
             s = points.sigma[r]
-            Sprior[j] = 0.0 if opt.fixed_gcps else np.where(np.isfinite(s), s, opt.gcp_sigma_m)
-    # --- initial orientation --------------------------------------------------------------------
+            S_prior[j] = 0.0 if opt.fixed_gcps else np.where(np.isfinite(s), s, opt.gcp_sigma_m)
+    return _Block(images, point_ids, kind, rows, oi, op, meas.xy[rows], sig, X_prior, S_prior)
+
+
+def _approx_poses(approx: EOP | None, geo: World, images: list[str]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    if approx is None:
+        return None, None
     n = len(images)
-    R0 = C0 = None
-    if approx is not None:
-        R0 = np.full((n, 3, 3), np.nan)
-        C0 = np.full((n, 3), np.nan)
-        a_idx = {str(k): i for i, k in enumerate(approx.image)}
-        for name, i in img_index.items():
-            if name in a_idx:
-                Ra, Ca = geo.eop_to_world(approx.xyz[a_idx[name]][None], approx.opk[a_idx[name]][None])
-                R0[i], C0[i] = Ra[0], Ca[0]
-    clock["prepared"] = time.perf_counter()
-    R, C, oriented, X0, okpt = grow_orientation(camera, n, oi, op, uv, Xprior, R0, C0)
-    if not oriented[np.unique(oi)].all():
-        boot = relative_bootstrap(camera, n, oi, op, uv, Xprior)
-        if boot is not None and boot[2].sum() > oriented.sum():
-            R, C, oriented, X0, okpt = boot
-            _warn(msgs, "too few control points per image for resection: started from a relative orientation "
-                        "scaled onto the control points", opt.verbose)
-    for i in np.nonzero(~oriented)[0]:
-        nm = int(np.sum(oi == i))
-        _warn(msgs, f"image {images[i]} could not be oriented ({nm} usable measurements): left out"
-              if nm else f"image {images[i]} has no measurements: left out", opt.verbose)
-    nbad = int((~okpt).sum())
-    if nbad:
-        _warn(msgs, f"{nbad} tie point(s) could not be triangulated (too few oriented rays or angle < 1 deg): left out",
-              opt.verbose)
-    keep_obs = oriented[oi] & okpt[op]
-    # compact to oriented images and initialised points
-    img_keep = np.nonzero(oriented)[0]
-    pt_keep = np.nonzero(okpt)[0]
-    if len(img_keep) == 0:
-        raise InputError("no image could be oriented: each needs >= 4 control points or tie points "
-                         "shared with oriented images (or approximate EOPs)", meas.path)
-    im_map = -np.ones(n, int)
-    im_map[img_keep] = np.arange(len(img_keep))
-    pt_map = -np.ones(m, int)
-    pt_map[pt_keep] = np.arange(len(pt_keep))
-    oi2, op2 = im_map[oi[keep_obs]], pt_map[op[keep_obs]]
-    uv2, sig2 = uv[keep_obs], sig[keep_obs]
-    src_rows = sel[keep_obs]                              # rows of `meas` behind each observation
-    images_k = [images[i] for i in img_keep]
-    pids_k = [point_ids[j] for j in pt_keep]
-    kind_k = kind[pt_keep]
-    cprior = csig = None
-    if centre_priors is not None:
-        cprior = np.full((len(images_k), 3), np.nan)
-        csig = np.full((len(images_k), 3), np.nan)
-        c_idx = {str(k): i for i, k in enumerate(centre_priors.image)}
-        for i, name in enumerate(images_k):
-            if name in c_idx:
-                r = c_idx[name]
-                cprior[i] = geo.to_world(centre_priors.xyz[r][None])[0]
-                csig[i] = centre_priors.sigma[r, :3] if centre_priors.sigma is not None else 0.05
-    inp = BundleInput(camera, images_k, R[img_keep], C[img_keep], pids_k, X0[pt_keep], oi2, op2, uv2, sig2,
-                      Xprior[pt_keep], Sprior[pt_keep], cprior, csig, tuple(opt.refine))
-    bopt = BundleOptions(loss=opt.loss, loss_scale=opt.loss_scale, aposteriori=opt.aposteriori, verbose=opt.verbose)
-    clock["initialised"] = time.perf_counter()
-    res = adjust(inp, bopt)
-    clock["adjusted"] = time.perf_counter()
-    # --- tie-point outliers (SIFT mismatches) then GCP blunders, one at a time ------------------
-    active = np.ones(len(oi2), bool)
-    if (kind_k == "tie").any() and np.isfinite(res.sigma0):
-        e = np.linalg.norm(res.residuals_px / sig2, axis=1)
-        bad = (kind_k[op2] == "tie") & (e > opt.tie_outlier_sigma * max(res.sigma0, 1.0))
-        if bad.any():
-            _warn(msgs, f"{int(bad.sum())} tie observation(s) beyond {opt.tie_outlier_sigma:g} sigma dropped", opt.verbose)
-            active &= ~bad
-            res = _readjust(inp, active, bopt, res)
+    R0, C0 = np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan)
+    a_idx = {str(k): i for i, k in enumerate(approx.image)}
+    have = [i for i, name in enumerate(images) if name in a_idx]
+    if have:
+        rows = [a_idx[images[i]] for i in have]
+        p = geo.eop_to_poses(approx.xyz[rows], approx.opk[rows])
+        R0[have], C0[have] = p.R_world_to_cam, p.C_world
+    return R0, C0
+
+
+def _centre_priors(centre_priors: EOP | None, geo: World, images: list[str]):
+    if centre_priors is None:
+        return None, None
+    cprior = np.full((len(images), 3), np.nan)
+    csig = np.full((len(images), 3), np.nan)
+    c_idx = {str(k): i for i, k in enumerate(centre_priors.image)}
+    for i, name in enumerate(images):
+        if name in c_idx:
+            r = c_idx[name]
+            cprior[i] = geo.to_world(centre_priors.xyz[r][None])[0]
+            csig[i] = centre_priors.sigma[r, :3] if centre_priors.sigma is not None else 0.05
+    return cprior, csig
+
+
+class _Adjuster:
+    """The block being adjusted: which images are oriented, which observations are active, the last result."""
+
+    def __init__(self, camera, blk: _Block, R, C, oriented, X, point_ok, cprior, csig, opt: TriangulationOptions):
+        self.camera, self.blk, self.opt = camera, blk, opt
+        self.R, self.C, self.oriented, self.X, self.point_ok = R.copy(), C.copy(), oriented.copy(), X.copy(), point_ok
+        self.cprior, self.csig = cprior, csig
+        self.active = np.ones(len(blk.oi), bool)
+        self.is_prior = np.isfinite(blk.X_prior).all(1)     # control points whose coordinates are observations
+        self.res: BundleResult | None = None
+        self.img_keep = self.pt_keep = self.obs_keep = None
+
+    def bundle_input(self) -> BundleInput:
+        b = self.blk
+        free = ~self.is_prior
+        use = self.active & self.oriented[b.oi] & self.point_ok[b.op]
+        self.lone = np.zeros(len(b.oi), bool)
+        while True:   # tie points need two active rays
+            cnt = np.bincount(b.op[use], minlength=len(b.point_ids))
+            lone = use & free[b.op] & (cnt[b.op] < 2)
+            if not lone.any():
+                break
+            use &= ~lone
+            self.lone |= lone & self.active & self.oriented[b.oi]
+        img_keep = np.flatnonzero(self.oriented & (np.bincount(b.oi[use], minlength=len(b.images)) > 0))
+        pt_keep = np.flatnonzero(np.bincount(b.op[use], minlength=len(b.point_ids)) > 0)
+        im_map = -np.ones(len(b.images), int)
+        im_map[img_keep] = np.arange(len(img_keep))
+        pt_map = -np.ones(len(b.point_ids), int)
+        pt_map[pt_keep] = np.arange(len(pt_keep))
+        use &= im_map[b.oi] >= 0
+        self.img_keep, self.pt_keep, self.obs_keep = img_keep, pt_keep, np.flatnonzero(use)
+        k = self.obs_keep
+        cp = cs = None
+        if self.cprior is not None:
+            cp, cs = self.cprior[img_keep], self.csig[img_keep]
+        Xp = np.where(self.is_prior[:, None], b.X_prior, np.nan)
+        return BundleInput(self.camera, [b.images[i] for i in img_keep], self.R[img_keep], self.C[img_keep],
+                           [b.point_ids[j] for j in pt_keep], self.X[pt_keep], im_map[b.oi[k]], pt_map[b.op[k]],
+                           b.uv[k], b.sig[k], Xp[pt_keep], b.S_prior[pt_keep], cp, cs, tuple(self.opt.refine))
+
+    def run(self) -> BundleResult:
+        bopt = BundleOptions(loss=self.opt.loss, loss_scale=self.opt.loss_scale, aposteriori=self.opt.aposteriori,
+                             verbose=self.opt.verbose)
+        res = adjust(self.bundle_input(), bopt)
+        self.R[self.img_keep], self.C[self.img_keep] = res.R_world_to_cam, res.C_world
+        self.X[self.pt_keep] = res.X_world
+        self.oriented[:] = False
+        self.oriented[self.img_keep] = True
+        self.res = res
+        return res
+
+    def retry_left_out(self, msgs: list[str]) -> int:
+        """Resect images left out through the adjusted points; returns how many joined."""
+        b = self.blk
+        known = np.zeros(len(b.point_ids), bool)
+        known[self.pt_keep] = True
+        joined = 0
+        for i in np.flatnonzero(~self.oriented):
+            kk = np.flatnonzero((b.oi == i) & known[b.op] & self.active)
+            if len(kk) < 6:
+                continue
+            got = pnp(self.camera, b.uv[kk], self.X[b.op[kk]])
+            if got is None:
+                continue
+            self.R[i], self.C[i], inl = got
+            self.oriented[i] = True
+            joined += 1
+        if joined:
+            _warn(msgs, f"{joined} image(s) left out by the initial orientation resected through the adjusted "
+                        "points and adjusted", self.opt.verbose)
+        return joined
+
+
+def _drop_tie_outliers(adj: _Adjuster, msgs: list[str], dropped: list[dict]) -> bool:
+    """Drop tie observations whose standardised residual exceeds `tie_outlier_sigma` robust sigmas (the scale
+    from the median, so a first pass full of mismatches does not loosen the cut); True if any."""
+    res, b, opt = adj.res, adj.blk, adj.opt
+    k = adj.obs_keep
+    # standardised by the approximate redundancy of a ray of a point seen L times (its 3 coordinates are
+    # shared by the 2L residuals): a blunder in one of few rays is half absorbed by the point
+    L = np.bincount(res.obs_point, minlength=len(adj.pt_keep))[res.obs_point]
+    r_approx = np.clip(1.0 - 1.5 / np.maximum(L, 1), 0.1, 1.0)
+    e = np.linalg.norm(res.residuals_px / b.sig[k], axis=1) / np.sqrt(r_approx)
+    s_rob = max(float(np.median(e)) / _CHI2_MEDIAN_2D, 1.0)
+    tie = b.kind[b.op[k]] != "control"
+    bad = tie & (e > opt.tie_outlier_sigma * s_rob)
+    if not bad.any():
+        return False
+    for r in np.flatnonzero(bad):
+        dropped.append({"image": b.images[b.oi[k[r]]], "id": b.point_ids[b.op[k[r]]], "reason": "outlier",
+                        "residual_px": [float(v) for v in res.residuals_px[r]], "standardised": float(e[r])})
+    adj.active[k[bad]] = False
+    _warn(msgs, f"{int(bad.sum())} tie observation(s) beyond {opt.tie_outlier_sigma:g} robust sigmas "
+                f"({opt.tie_outlier_sigma * s_rob:.1f} sigma) dropped (listed in the summary)", opt.verbose)
+    return True
+
+
+def equivalent_w(T: float, dof: int) -> float:
+    """The |w| of a one-dimensional test with the same false-alarm probability as the chi-square statistic T
+    with `dof` degrees of freedom (two-sided; finite for any T, through log probabilities)."""
+    log_p = chi2.logsf(T, dof)
+    if not np.isfinite(log_p):   # far in the tail: the leading term of the upper incomplete gamma function
+        log_p = -T / 2 + (dof / 2 - 1) * np.log(T / 2) - gammaln(dof / 2)
+    return float(-ndtri_exp(log_p + np.log(0.5)))
+
+
+def _snoop_control(adj: _Adjuster, msgs: list[str], suspects: list[Suspect], apply: bool) -> bool:
+    """One round of data snooping on the control: w-tests of each image measurement of a control point and a
+    3-dof test of each control point's coordinates (as an equivalent |w|). Removes the worst group when it
+    exceeds the critical value (the measurement, or the point's coordinates: it becomes a tie point)."""
+    res, b, opt = adj.res, adj.blk, adj.opt
+    k = adj.obs_keep
+    ctrl_obs = np.flatnonzero(adj.is_prior[b.op[k]])
+    cand = []
+    if len(ctrl_obs):
+        w = res.standardized_residuals(ctrl_obs)
+        r = res.redundancy_numbers(ctrl_obs)
+        testable = r > 0.02
+        w_obs = np.where(testable, np.abs(w), 0.0).max(1)
+        for n, wk in zip(ctrl_obs, w_obs):
+            if wk > opt.critical_w:
+                cand.append((float(wk), "measurement", int(n), float(r[ctrl_obs == n].min())))
+    # coordinate groups: residuals of the prior block (rows per coordinate) with their 3x3 cofactors
+    blocks = adj.res.covariance.problem.blocks
+    ib = next((i for i, blk in enumerate(blocks) if isinstance(blk, PointPriors)), None)
+    if ib is not None and len(blocks[ib]) and not opt.fixed_gcps:
+        ev = adj.res.covariance.normals.evals[ib]
+        prior_block = blocks[ib]
+        pts_local = np.unique(prior_block.point)
+        Q = adj.res.covariance.point_cofactors(pts_local)
+        for j_loc, Qj in zip(pts_local, Q):
+            rows = np.flatnonzero(prior_block.point == j_loc)
+            if len(rows) < 3 or not np.isfinite(Qj).all():
+                continue
+            axes = prior_block.axis[rows]
+            wgt = prior_block.w[rows]
+            Wq = np.diag(wgt) @ Qj[np.ix_(axes, axes)] @ np.diag(wgt)
+            Qvv = np.eye(len(rows)) - Wq                      # cofactor of the whitened coordinate residuals
+            v = ev.r[rows, 0]
+            try:
+                T = float(v @ np.linalg.solve(Qvv, v))
+            except np.linalg.LinAlgError:
+                continue
+            if min(np.linalg.eigvalsh(Qvv)) < 0.02:
+                continue                                      # the coordinates are not checked by the rays
+            w_eq = equivalent_w(T, len(rows))
+            if w_eq > opt.critical_w:
+                cand.append((w_eq, "coordinates", int(adj.pt_keep[j_loc]), float(min(np.diag(Qvv)))))
+    if not cand:
+        return False
+    cand.sort(key=lambda c: -c[0])
+    if not apply:
+        for wk, what, idx, red in cand:
+            suspects.append(_suspect(adj, what, idx, wk, red, removed=False))
+        return False
+    wk, what, idx, red = cand[0]
+    s = _suspect(adj, what, idx, wk, red, removed=True)
+    suspects.append(s)
+    if what == "measurement":
+        adj.active[k[idx]] = False
+        _warn(msgs, f"measurement of control point {s.point} in {s.image} rejected as a blunder "
+                    f"(standardised residual {wk:.1f})", opt.verbose)
+    else:
+        adj.is_prior[idx] = False
+        _warn(msgs, f"coordinates of control point {s.point} rejected as a blunder (test {wk:.1f} as |w|): "
+                    "the point is kept as a tie point and its coordinates are compared afterwards", opt.verbose)
+    return True
+
+
+def _suspect(adj: _Adjuster, what: str, idx: int, w: float, red: float, removed: bool) -> Suspect:
+    b = adj.blk
+    if what == "measurement":
+        row = adj.obs_keep[idx]
+        return Suspect(b.images[b.oi[row]], b.point_ids[b.op[row]], tuple(adj.res.residuals_px[idx]), w, red,
+                       removed, kind="measurement")
+    j_loc = int(np.searchsorted(adj.pt_keep, idx))
+    d = adj.res.X_world[j_loc] - b.X_prior[idx]
+    return Suspect("", b.point_ids[idx], (float("nan"), float("nan")), w, red, removed, kind="coordinates",
+                   coordinate_error_m=tuple(float(v) for v in d))
+
+
+def _adjust_and_clean(adj: _Adjuster, msgs: list[str]) -> tuple[list[Suspect], list[dict], dict]:
+    """Adjust, drop tie outliers, retry left-out images, snoop the control until clean (see the module doc)."""
+    opt = adj.opt
     suspects: list[Suspect] = []
-    for _ in range(opt.max_rejections if opt.reject_blunders else 1):
-        act_idx = np.nonzero(active)[0]                  # full index of each observation of `res`
-        ctrl_obs = np.nonzero(kind_k[res.obs_point] == "control")[0]
-        found = find_suspects(res, ctrl_obs, images_k, pids_k, opt.critical_w)
-        if not found:
+    dropped: list[dict] = []
+    rounds = {"adjustments": 0, "tie_rounds": 0, "retries": 0, "snooping": 0}
+    adj.run()
+    rounds["adjustments"] += 1
+    for _ in range(6):
+        changed = False
+        if np.isfinite(adj.res.sigma0) and (adj.blk.kind != "control").any() and _drop_tie_outliers(adj, msgs, dropped):
+            rounds["tie_rounds"] += 1
+            changed = True
+        if (~adj.oriented).any() and adj.retry_left_out(msgs):
+            rounds["retries"] += 1
+            changed = True
+        if not changed:
             break
-        if not opt.reject_blunders:
-            suspects.extend(found)
+        adj.run()
+        rounds["adjustments"] += 1
+    for _ in range(opt.max_rejections if opt.reject_blunders else 0):
+        if not _snoop_control(adj, msgs, suspects, apply=True):
             break
-        worst = found[0]
-        k_sub = next(k for k in ctrl_obs if images_k[res.obs_image[k]] == worst.image
-                     and pids_k[res.obs_point[k]] == worst.point)
-        worst.removed = True
-        suspects.append(worst)
-        active[act_idx[k_sub]] = False
-        _warn(msgs, f"measurement of {worst.point} in {worst.image} rejected as a blunder "
-                    f"(standardised residual {worst.w:.1f})", opt.verbose)
-        res = _readjust(inp, active, bopt, res)
-    clock["cleaned"] = time.perf_counter()
-    # --- outputs ----------------------------------------------------------------------------
-    geo_xyz, geo_opk = geo.eop_to_map(res.R_world_to_cam, res.C_world)
-    cov_map = geo.eop_covariance_to_map(res.R_world_to_cam, res.C_world, res.cov_pose)
+        rounds["snooping"] += 1
+        adj.run()
+        rounds["adjustments"] += 1
+    # what is left above the critical value (not removed: the cap was reached, or rejection is off)
+    _snoop_control(adj, msgs, suspects, apply=False)
+    return suspects, dropped, rounds
+
+
+def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: str | None,
+                options: TriangulationOptions | None = None, image_size: tuple[int, int] | None = None,
+                approx: EOP | None = None, centre_priors: EOP | None = None,
+                all_images: list[str] | None = None) -> TriangulationResult:
+    """Aerial triangulation: EOPs (map CRS, PATB deg) with covariance from ground points and measurements (px).
+
+    `meas` holds control, check and tie measurements (ids not in `points` are tie points). `approx`
+    (map CRS) gives approximate EOPs where known, `centre_priors` GNSS centres with sigmas (sX..sZ).
+    `all_images` lists images that should be oriented (those without measurements are reported).
+    Raises `ResultError` when the result cannot be trusted (see `TriangulationOptions`), unless `accept_poor`.
+    """
+    opt = options or TriangulationOptions()
+    clock = {"start": time.perf_counter()}
+    msgs: list[str] = []
+    _check_measurements(camera, meas, image_size)
+    check_as_tie = (all_images is None) if opt.check_as_tie is None else bool(opt.check_as_tie)
+    geo, P_world = _georef(points, meas, crs, opt)
+    blk = _block(points, P_world, meas, opt, check_as_tie, all_images, msgs)
+    unknown_ids = sorted(set(meas.id.astype(str)) - set(points.ids.astype(str)))
+    clock["prepared"] = time.perf_counter()
+    R0, C0 = _approx_poses(approx, geo, blk.images)
+    init = initial_orientation(camera, blk.images, blk.oi, blk.op, blk.uv, blk.X_prior, R0, C0,
+                               use_mapper=opt.use_mapper)
+    for note in init.notes:
+        _warn(msgs, note, opt.verbose)
+    if not init.oriented.any():
+        raise InputError("no image could be oriented: each needs >= 4 control points, or tie points shared with "
+                         "oriented images, or approximate EOPs", meas.path)
+    clock["initialised"] = time.perf_counter()
+    cprior, csig = _centre_priors(centre_priors, geo, blk.images)
+    adj = _Adjuster(camera, blk, init.R_world_to_cam, init.C_world, init.oriented, init.X_world, init.point_ok,
+                    cprior, csig, opt)
+    suspects, dropped, rounds = _adjust_and_clean(adj, msgs)
+    res = adj.res
+    lone = np.flatnonzero(adj.lone)
+    if len(lone):
+        dropped += [{"image": blk.images[blk.oi[r]], "id": blk.point_ids[blk.op[r]], "reason": "no other ray left",
+                     "residual_px": None, "standardised": None} for r in lone]
+        _warn(msgs, f"{len(lone)} tie observation(s) left out: their point has no other usable ray", opt.verbose)
+    clock["adjusted"] = time.perf_counter()
+    images_k = [blk.images[i] for i in adj.img_keep]
+    for i in np.flatnonzero(~adj.oriented):
+        nm = int(np.sum(blk.oi == i))
+        _warn(msgs, f"image {blk.images[i]} could not be oriented ({nm} usable measurements): left out"
+              if nm else f"image {blk.images[i]} has no measurements: left out", opt.verbose)
+    out = _outputs(camera, res, adj, geo, points, meas, images_k, blk, msgs, opt, suspects, unknown_ids, P_world)
+    out.dropped = dropped
+    out.summary.update({"initial_orientation": init.method, "rounds": rounds, "n_dropped_tie_observations": len(dropped),
+                        "dropped_tie_observations": dropped[:1000]})
+    out.problems = _problems(res, adj, blk, opt)
+    out.summary["problems"] = out.problems
+    out.summary["trusted"] = not out.problems
+    clock["done"] = time.perf_counter()
+    names = list(clock)
+    out.summary["timings_s"] = {f"{b}": round(clock[b] - clock[a], 3) for a, b in zip(names, names[1:])}
+    out.summary["timings_s"].update(init.seconds)
+    if opt.verbose:
+        print(f"sigma0 {res.sigma0:.3f}, {len(images_k)} images, {len(adj.pt_keep)} points, redundancy {res.redundancy}")
+    if out.problems and not opt.accept_poor:
+        raise ResultError("triangulation not trusted: " + "; ".join(out.problems)
+                          + " (--accept-poor writes it anyway)", meas.path)
+    return out
+
+
+def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: TriangulationOptions) -> list[str]:
+    """Why the result cannot be trusted (empty when it can)."""
+    out = []
+    if not res.converged:
+        out.append(f"the adjustment did not converge ({res.stop_reason})")
+    if not np.isfinite(res.sigma0) or res.sigma0 > opt.max_sigma0:
+        out.append(f"sigma0 {res.sigma0:.2f} exceeds {opt.max_sigma0:g} (measurement sigmas or data inconsistent)")
+    # images connected to the block: >= 10 observations of points that other images see too
+    n_img = np.bincount(blk.op, minlength=len(blk.point_ids))
+    shared = n_img[blk.op] >= 2
+    connected = np.bincount(blk.oi[shared], minlength=len(blk.images)) >= 10
+    left = connected & ~adj.oriented
+    if connected.any() and left.sum() > opt.max_left_out * connected.sum():
+        out.append(f"{int(left.sum())} of {int(connected.sum())} connected images left out "
+                   f"(more than {opt.max_left_out:.0%})")
+    return out
+
+
+def _outputs(camera, res: BundleResult, adj: _Adjuster, geo: World, points: Points, meas: Measurements,
+             images_k: list[str], blk: _Block, msgs: list[str], opt: TriangulationOptions, suspects: list[Suspect],
+             unknown_ids: list[str], P_world: np.ndarray) -> TriangulationResult:
+    """EOPs in the map CRS, per-image figures, control and check point reports, the summary."""
+    pidx = points.index()
+    pids_k = [blk.point_ids[j] for j in adj.pt_keep]
+    kind_k = blk.kind[adj.pt_keep]
+    prior_k = adj.is_prior[adj.pt_keep]
+    geo_xyz, geo_opk, cov_map = geo.poses_to_eop(res.poses)
     sig_map = np.sqrt(np.clip(np.diagonal(cov_map, axis1=1, axis2=2), 0, None))
     eop = EOP(np.array(images_k, dtype=object), geo_xyz, geo_opk, sig_map, cov_map)
-    a_oi, a_op = res.obs_image, res.obs_point   # observations of the final adjustment
+    a_oi, a_op = res.obs_image, res.obs_point
     image_stats = []
     for i, name in enumerate(images_k):
-        kk = np.nonzero(a_oi == i)[0]
+        kk = np.flatnonzero(a_oi == i)
         r = res.residuals_px[kk]
-        image_stats.append({"image": name, "n_obs": int(len(kk)),
-                            "n_control": int(np.sum(kind_k[a_op[kk]] == "control")),
+        image_stats.append({"image": name, "n_obs": int(len(kk)), "n_control": int(np.sum(prior_k[a_op[kk]])),
                             "rms_px": float(np.sqrt(np.mean(np.sum(r ** 2, 1)))) if len(kk) else float("nan"),
                             "sigma": sig_map[i].tolist()})
-    w_std, r_num = standardized(res, np.nonzero(kind_k[a_op] == "control")[0])
-    ctrl_rows = np.nonzero(kind_k[a_op] == "control")[0]
-    gcp_rep = []
+    ctrl_rows = np.flatnonzero(prior_k[a_op])
+    w_std = res.standardized_residuals(ctrl_rows) if len(ctrl_rows) else np.zeros((0, 2))
+    r_num = res.redundancy_numbers(ctrl_rows) if len(ctrl_rows) else np.zeros((0, 2))
     X_map = geo.to_map(res.X_world) if len(res.X_world) else np.zeros((0, 3))
+    removed = {(s.image, s.point) for s in suspects if s.removed and s.kind == "measurement"}
+    k_of = {p: j for j, p in enumerate(pids_k)}
+    for s_ in suspects:
+        if s_.kind == "coordinates" and s_.point in k_of:
+            # the rejected coordinates against the point as the final adjustment places it (grid E, N, Up)
+            j = k_of[s_.point]
+            R_lg = geo.R_world_to_grid_at(res.X_world[j][None])[0]
+            s_.coordinate_error_m = tuple(float(v) for v in R_lg @ (res.X_world[j] - P_world[pidx[s_.point]]))
+    gcp_rep = []
     for j, pid in enumerate(pids_k):
         if kind_k[j] != "control":
             continue
         r = pidx[pid]
-        kk = np.nonzero(a_op == j)[0]
-        pos = np.searchsorted(ctrl_rows, kk)
-        dloc = res.X_world[j] - P_world[r]
+        kk = np.flatnonzero(a_op == j)
         R_lg = geo.R_world_to_grid_at(res.X_world[j][None])[0]
+        meas_rep = []
+        if prior_k[j]:
+            pos = np.searchsorted(ctrl_rows, kk)
+            meas_rep = [{"image": images_k[a_oi[k]], "residual_px": res.residuals_px[k].tolist(),
+                         "w": float(np.max(np.abs(w_std[p]))), "redundancy": float(r_num[p].min()),
+                         "rejected": False} for k, p in zip(kk, pos)]
+        rejected_meas = [{"image": im, "residual_px": None, "w": None, "redundancy": None, "rejected": True}
+                         for im, p in sorted(removed) if p == pid]
         gcp_rep.append({"id": pid, "n_images": int(len(kk)), "xyz": points.xyz[r].tolist(),
-                        "adjusted": X_map[j].tolist(), "dENU_m": (R_lg @ dloc).tolist(),
-                        "rms_px": float(np.sqrt(np.mean(np.sum(res.residuals_px[kk] ** 2, 1)))),
-                        "measurements": [{"image": images_k[a_oi[k]], "residual_px": res.residuals_px[k].tolist(),
-                                          "w": float(np.max(np.abs(w_std[p]))), "redundancy": float(r_num[p].min())}
-                                         for k, p in zip(kk, pos)]})
-    removed = {(s.image, s.point) for s in suspects if s.removed}
-    for g in gcp_rep:
-        for mm in g["measurements"]:
-            mm["rejected"] = (mm["image"], g["id"]) in removed
-    unknown_rep = []
+                        "adjusted": X_map[j].tolist(), "dENU_m": (R_lg @ (res.X_world[j] - P_world[r])).tolist(),
+                        "coordinates_used": bool(prior_k[j]),
+                        "rms_px": float(np.sqrt(np.mean(np.sum(res.residuals_px[kk] ** 2, 1)))) if len(kk) else None,
+                        "measurements": meas_rep + rejected_meas})
     k_index = {p: j for j, p in enumerate(pids_k)}
     n_rays = np.bincount(a_op, minlength=len(pids_k))
-    for pid in unknown_ids:
-        if pid in k_index:
-            j = k_index[pid]
-            unknown_rep.append({"id": pid, "n_images": int(n_rays[j]), "xyz": X_map[j].tolist()})
-        else:
-            unknown_rep.append({"id": pid, "n_images": int(counts.get(pid, 0)), "xyz": None})
-    check_rep = _check_points(camera, res, geo, points, meas, is_check, images_k, msgs, opt)
-    summary = _summary(res, eop, images, images_k, gcp_rep, check_rep, unknown_rep, suspects, msgs, geo, kind_k)
-    clock["done"] = time.perf_counter()
-    names = list(clock)
-    summary["timings_s"] = {f"{b}": round(clock[b] - clock[a], 3) for a, b in zip(names, names[1:])}
-    if opt.verbose:
-        print(f"sigma0 {res.sigma0:.3f}, {len(images_k)} images, {len(pids_k)} points, redundancy {res.redundancy}")
+    counts = dict(zip(*np.unique(meas.id.astype(str), return_counts=True)))
+    unknown_rep = [{"id": pid, "n_images": int(n_rays[k_index[pid]]), "xyz": X_map[k_index[pid]].tolist()}
+                   if pid in k_index else {"id": pid, "n_images": int(counts.get(pid, 0)), "xyz": None}
+                   for pid in unknown_ids]
+    check_rep = _check_points(camera, res, geo, points, meas, images_k, pids_k, kind_k, msgs, opt)
+    summary = _summary(res, eop, blk.images, images_k, gcp_rep, check_rep, unknown_rep, suspects, msgs, geo, kind_k)
     return TriangulationResult(eop, geo, res, res.camera, images_k, pids_k, kind_k, gcp_rep, check_rep, image_stats,
                                suspects, msgs, unknown_ids, summary, res.R_world_to_cam, res.C_world)
 
 
-def _readjust(inp: BundleInput, active: np.ndarray, bopt: BundleOptions, prev: BundleResult) -> BundleResult:
-    """Re-run the adjustment on the active observations only, starting from the previous solution.
-
-    Tie points left with fewer than two active rays are deactivated too (in place in `active`)."""
-    free = ~np.isfinite(inp.point_prior).all(1) if inp.point_prior is not None else np.ones(len(inp.point_ids), bool)
-    while True:
-        cnt = np.bincount(inp.obs_point[active], minlength=len(inp.point_ids))
-        lone = active & free[inp.obs_point] & (cnt[inp.obs_point] < 2)
-        if not lone.any():
-            break
-        active &= ~lone
-    sub = BundleInput(inp.camera, inp.images, prev.R_world_to_cam, prev.C_world, inp.point_ids, prev.X_world,
-                      inp.obs_image[active], inp.obs_point[active], inp.obs_uv[active], inp.obs_sigma[active],
-                      inp.point_prior, inp.point_prior_sigma, inp.center_prior, inp.center_prior_sigma, inp.refine,
-                      inp.intrinsic_prior_sigma)
-    return adjust(sub, bopt)
-
-
-def _check_points(camera, res: BundleResult, geo: Georef, points: Points, meas: Measurements,
-                  is_check: np.ndarray, images_k: list[str], msgs: list[str], opt) -> list[dict]:
-    """Intersect check points from the adjusted images (dgcal.bundle.intersection, pixel and pose covariance);
-    errors (intersected - given) and sigmas in grid E, N, Up."""
-    from dgcal.bundle.intersection import intersect, propagate_pose_covariance
-    im_idx = {n: i for i, n in enumerate(images_k)}
+def _check_points(camera, res: BundleResult, geo: World, points: Points, meas: Measurements, images_k: list[str],
+                  pids_k: list[str], kind_k: np.ndarray, msgs: list[str], opt) -> list[dict]:
+    """Check-point errors (evaluated - given) and sigmas in grid E, N, Up: from the adjustment where they were tie
+    points, else intersected from the adjusted images (pixel and pose covariance)."""
     pidx = points.index()
-    rows = np.array([r for r in np.nonzero(is_check)[0] if str(meas.image[r]) in im_idx], int)
-    ids = list(dict.fromkeys(meas.id[is_check].astype(str)))
+    role = {str(k): str(r) for k, r in zip(points.ids, points.role)}
+    ids = list(dict.fromkeys(str(i) for i in meas.id.astype(str) if role.get(i) == "check"))
+    k_index = {p: j for j, p in enumerate(pids_k)}
     out = []
-    if len(rows):
-        pid_of = {p: j for j, p in enumerate(ids)}
-        oi = np.array([im_idx[str(meas.image[r])] for r in rows])
-        op = np.array([pid_of[str(meas.id[r])] for r in rows])
-        sig = np.where(np.isfinite(meas.sigma[rows]), meas.sigma[rows], opt.sigma_px)
-        R_c2w = np.swapaxes(res.R_world_to_cam, -1, -2)
-        ir = intersect(camera, res.C_world, R_c2w, oi, op, meas.xy[rows], sig, n_points=len(ids))
-        cov = ir.cov + propagate_pose_covariance(ir, res.cov_pose)
-    for j, pid in enumerate(ids):
-        n_rays = int(ir.n_rays[j]) if len(rows) else 0
-        if not len(rows) or not ir.ok[j]:
-            why = ("needs 2" if n_rays < 2 else "the rays do not intersect in front of the cameras")
-            _warn(msgs, f"check point {pid} is measured in {n_rays} oriented image(s): {why}, not evaluated",
-                  opt.verbose)
-            out.append({"id": pid, "n_images": n_rays, "evaluated": False})
-            continue
-        X = ir.xyz[j]
+    todo = [p for p in ids if p not in k_index]
+    ir_rows = {}
+    if todo:
+        im_idx = {n: i for i, n in enumerate(images_k)}
+        want = set(todo)
+        rows = np.array([r for r in range(len(meas)) if str(meas.id[r]) in want and str(meas.image[r]) in im_idx], int)
+        pid_of = {p: j for j, p in enumerate(todo)}
+        if len(rows):
+            oi = np.array([im_idx[str(meas.image[r])] for r in rows])
+            op = np.array([pid_of[str(meas.id[r])] for r in rows])
+            sig = np.where(np.isfinite(meas.sigma[rows]), meas.sigma[rows], opt.sigma_px)
+            ir = intersect(camera, res.C_world, np.swapaxes(res.R_world_to_cam, -1, -2), oi, op, meas.xy[rows], sig,
+                           n_points=len(todo))
+            cov = ir.cov + propagate_pose_covariance(ir, np.nan_to_num(res.cov_pose))
+            ir_rows = {p: (ir, cov, pid_of[p]) for p in todo}
+    for pid in ids:
+        if pid in k_index:
+            j = k_index[pid]
+            X = res.X_world[j]
+            cov_j = res.point_covariance(j)[0]
+            n_rays = int(np.sum(res.obs_point == j))
+            rms = float(np.sqrt(np.mean(res.residuals_px[res.obs_point == j] ** 2)))
+            how = "adjusted as a tie point"
+        else:
+            got = ir_rows.get(pid)
+            n_rays = int(got[0].n_rays[got[2]]) if got else 0
+            if got is None or not got[0].ok[got[2]]:
+                why = ("needs 2" if n_rays < 2 else "the rays do not intersect in front of the cameras")
+                _warn(msgs, f"check point {pid} is measured in {n_rays} oriented image(s): {why}, not evaluated",
+                      opt.verbose)
+                out.append({"id": pid, "n_images": n_rays, "evaluated": False})
+                continue
+            ir, cov, j = got
+            X, cov_j, rms, how = ir.xyz[j], cov[j], float(ir.rms_px[j]), "intersected"
         given = geo.to_world(points.xyz[pidx[pid]][None])[0]
         R_lg = geo.R_world_to_grid_at(X[None])[0]
         d = R_lg @ (X - given)
-        s = np.sqrt(np.clip(np.diag(R_lg @ cov[j] @ R_lg.T), 0, None))
-        out.append({"id": pid, "n_images": n_rays, "evaluated": True, "xyz": points.xyz[pidx[pid]].tolist(),
-                    "intersected": geo.to_map(X[None])[0].tolist(), "dENU_m": d.tolist(), "sigma_ENU_m": s.tolist(),
-                    "rms_px": float(ir.rms_px[j])})
+        s = np.sqrt(np.clip(np.diag(R_lg @ cov_j @ R_lg.T), 0, None))
+        out.append({"id": pid, "n_images": n_rays, "evaluated": True, "how": how,
+                    "xyz": points.xyz[pidx[pid]].tolist(), "intersected": geo.to_map(X[None])[0].tolist(),
+                    "dENU_m": d.tolist(), "sigma_ENU_m": s.tolist(), "rms_px": rms})
     return out
 
 
 def _summary(res, eop, images, images_k, gcp_rep, check_rep, unknown_rep, suspects, msgs, geo, kind_k) -> dict:
     ev = [c for c in check_rep if c.get("evaluated")]
     d = np.array([c["dENU_m"] for c in ev]) if ev else np.zeros((0, 3))
-    g = np.array([c["dENU_m"] for c in gcp_rep]) if gcp_rep else np.zeros((0, 3))
+    g = np.array([c["dENU_m"] for c in gcp_rep if c["coordinates_used"]]) if gcp_rep else np.zeros((0, 3))
+    g = g.reshape(-1, 3)
     fin = np.isfinite(res.residuals_px).all(1)
+    cam = res.camera
     return {
         "crs": geo.crs_text or "local", "sigma0": res.sigma0, "redundancy": res.redundancy,
-        "converged": bool(res.converged), "iterations": int(res.iterations),
+        "converged": bool(res.converged), "iterations": int(res.iterations), "stop_reason": res.stop_reason,
         "n_images": len(images), "n_oriented": len(images_k), "n_control": len(gcp_rep),
         "n_tie_points": int(np.sum(kind_k == "tie")), "n_observations": int(fin.sum()),
         "rms_px": float(np.sqrt(np.mean(np.sum(res.residuals_px[fin] ** 2, 1)))),
@@ -385,7 +656,8 @@ def _summary(res, eop, images, images_k, gcp_rep, check_rep, unknown_rep, suspec
                           "horizontal": _rms(np.hypot(d[:, 0], d[:, 1])) if len(d) else None, "n": len(d)},
         "median_sigma": {k: float(np.median(eop.sigma[:, j])) for j, k in
                          enumerate(("X_m", "Y_m", "Z_m", "omega_deg", "phi_deg", "kappa_deg"))},
-        "camera": {"model": res.camera.NAME, "refined": list(res.refine), "params": res.camera.as_dict()},
+        "camera": {"model": cam.NAME, "refined": list(res.refine), "params": cam.as_dict(),
+                   "sigmas": {k: float(s) for k, s in zip(res.refine, np.sqrt(np.diag(res.cov_intrinsics)))}},
         "n_unknown_ids": len(unknown_rep),
         "unknown_points": [u for u in unknown_rep if not str(u["id"]).startswith("tie_")][:200],
         "suspects": [s.as_dict() for s in suspects], "warnings": list(msgs),

@@ -15,6 +15,9 @@ from scipy.spatial.transform import Rotation
 R_CV_TO_PHOTO = np.diag([1.0, -1.0, -1.0])
 R_ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 R_NED_TO_ENU = R_ENU_TO_NED.T  # the swap is its own inverse, .T keeps the intent readable
+# the nominal mounting of a down-looking camera with the image top forward: camera x (right) = body y,
+# camera y (down the image) = -body x, camera z (viewing direction) = body z (down)
+R_CAM_TO_BODY_NADIR = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 
 def R_body_to_ned_from_rph(roll_deg, pitch_deg, heading_deg) -> np.ndarray:

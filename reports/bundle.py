@@ -69,6 +69,8 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
     """Write the HTML report (one self-contained file) and return its path."""
     s = res.summary
     rep = HtmlReport(title)
+    if s.get("problems"):
+        rep.warnings(["NOT TRUSTED (written with --accept-poor): " + "; ".join(s["problems"])])
     rep.heading("Summary")
     chk = s["check_rmse_m"]
     rep.kv_table([("map CRS", s["crs"]), ("images oriented / given", f"{s['n_oriented']} / {s['n_images']}"),
@@ -125,7 +127,8 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
     rep.heading("Control points")
     rep.table(["id", "images", "dE (m)", "dN (m)", "dU (m)", "RMS (px)", "max |w|"],
               [[c["id"], c["n_images"], *c["dENU_m"], c["rms_px"],
-                max([m["w"] for m in c["measurements"]], default=float("nan"))] for c in res.gcp])
+                max([m["w"] for m in c["measurements"] if m["w"] is not None], default=float("nan"))]
+               for c in res.gcp])
     rep.heading("Check points")
     rep.table(["id", "images", "dE (m)", "dN (m)", "dU (m)", "sE (m)", "sN (m)", "sU (m)"],
               [[c["id"], c["n_images"], *(c["dENU_m"] if c.get("evaluated") else [float("nan")] * 3),

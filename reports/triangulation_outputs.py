@@ -5,14 +5,17 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
+import numpy as np
+
 from dgcal.bundle.inputs import TriangulationRun
+from dgcal.calib.camera.files import write_camera_json
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.io.csv_tables import write_table
 from dgcal.fields.io.formats import write_eop
 from dgcal.reports.bundle import write_bundle_report, write_summary_json
 from dgcal.reports.exports.eop import export_all
 
-ROLES = ("eop", "summary", "report", "points", "residuals", "exports")
+ROLES = ("eop", "summary", "report", "points", "residuals", "exports", "camera_refined")
 
 
 def write_triangulation_outputs(out_dir: str | Path, run: TriangulationRun,
@@ -22,15 +25,20 @@ def write_triangulation_outputs(out_dir: str | Path, run: TriangulationRun,
     exports folder (the formats of `run.formats`); returns the paths by role."""
     out = Path(out_dir)
     res = run.result
-    paths = {role: out / names[role] for role in ROLES}
+    paths = {role: out / names[role] for role in ROLES if role in names}
     if run.formats:
         ctrl = {g["id"]: g["xyz"] for g in res.gcp}
         meas = run.inputs.measurements
         obs = [(meas.image[i], meas.id[i], *meas.xy[i]) for i in range(len(meas)) if str(meas.id[i]) in ctrl]
-        export_all(paths["exports"], res.eop, None if run.crs is None else MapGrid(run.crs), run.inputs.camera,
+        # the camera of the adjustment: refined in flight when asked, so the exports pair EOPs and camera
+        export_all(paths["exports"], res.eop, None if run.crs is None else MapGrid(run.crs), res.camera,
                    run.formats, points_map=ctrl, observations=obs)
     else:
-        del paths["exports"]
+        paths.pop("exports", None)
+    if res.bundle.refine and "camera_refined" in paths:
+        write_refined_camera(paths["camera_refined"], res)
+    else:
+        paths.pop("camera_refined", None)
     write_eop(paths["eop"], res.eop)
     write_summary_json(paths["summary"], res)
     write_bundle_report(paths["report"], res)
@@ -42,3 +50,21 @@ def write_triangulation_outputs(out_dir: str | Path, run: TriangulationRun,
                 ([res.images[obs_image[k]], res.point_ids[obs_point[k]], *res.bundle.residuals_px[k]]
                  for k in range(len(obs_image))), fmt="%.4f")
     return paths
+
+
+def write_refined_camera(path: str | Path, res) -> None:
+    """camera_refined.json: the camera with the intrinsics refined in flight, their sigmas and correlations
+    (the other parameters as given, sigma 0)."""
+    b = res.bundle
+    cov = b.cov_intrinsics
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    sig = np.zeros(len(res.camera.PARAMS))
+    idx = [res.camera.PARAMS.index(p) for p in b.refine]
+    sig[idx] = sd
+    stats = {"source": "dgcal triangulate (intrinsics refined in flight)", "refined": list(b.refine),
+             "correlation": {"parameters": list(b.refine), "matrix": corr.tolist()},
+             "sigma0": float(b.sigma0), "n_observations": int(len(b.obs_image)),
+             "rms_px": float(np.sqrt(np.nanmean(np.sum(b.residuals_px ** 2, 1)))), "n_rejected": 0}
+    write_camera_json(path, res.camera, sig, stats)

@@ -40,7 +40,7 @@ from dgcal.calib.camera.models import Fraser7
 from dgcal.fields.constants import OMEGA_IE_E
 from dgcal.fields.crs import LocalENU, MapGrid, ecef_to_geodetic
 from dgcal.fields.errors import InputError
-from dgcal.fields.frames import R_ecef_to_enu, R_enu_to_grid, opk_from_R_cam_to_map
+from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, R_ecef_to_enu, R_enu_to_grid, opk_from_R_cam_to_map
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir, write_table
 from dgcal.fields.io.formats import (EOP, Measurements, Points, week_sow, write_eop, write_events, write_measurements,
                                      write_points, write_trajectory)
@@ -60,7 +60,6 @@ SITE = (23.70, 120.60, 40.0)         # lat, lon (deg), ellipsoidal ground height
 LEVER_ARM_M = (0.12, -0.06, 0.18)    # IMU -> camera, body FRD (m), of the order of seed Table 1
 BORESIGHT_DEG = (0.9, -0.6, 1.4)     # small rotations (x, y, z, deg) applied to the nominal mounting
 LEVER_ARM_GNSS_M = (0.05, 0.0, -0.35)  # IMU -> GNSS antenna, body FRD (m), surveyed
-R_CAM_TO_BODY_NOMINAL = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # image top forward
 
 
 def campaign_camera() -> Fraser7:
@@ -72,7 +71,7 @@ def campaign_camera() -> Fraser7:
 
 def boresight_matrix(deg=BORESIGHT_DEG) -> np.ndarray:
     """R_cam_to_body: the nominal down-looking, image-top-forward mounting turned by small angles (deg)."""
-    return Rotation.from_euler("xyz", deg, degrees=True).as_matrix() @ R_CAM_TO_BODY_NOMINAL
+    return Rotation.from_euler("xyz", deg, degrees=True).as_matrix() @ R_CAM_TO_BODY_NADIR
 
 
 def terrain_up(e: np.ndarray, n: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from dgcal.calib.dg.dem import Dem
 from dgcal.calib.dg.single_image import average_estimates, georeference, intersect_dem, pose_covariance_from_rph
 from dgcal.fields.crs import geodetic_to_ecef
 from dgcal.fields.io.csv_tables import staged_dir
-from dgcal.fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph, R_ecef_to_ned, rph_from_R_body_to_ned
+from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, R_ENU_TO_NED, R_body_to_ned_from_rph, R_ecef_to_ned, rph_from_R_body_to_ned
 from dgcal.pos.ins.imu_data import ImuData, write_imu_csv
 from dgcal.pos.ins.nav_frame import NavFrame
 from dgcal.pos.lowcost.ukf import run_ukf
@@ -175,8 +175,6 @@ def format_accuracy_table(report: dict) -> str:
 
 
 # --- single-image georeferencing campaign (seed 000 sec. 5.3, Table 6, Fig. 19) ---------------------------
-
-R_CAM_TO_BODY_NADIR = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # image top forward
 
 
 def seed_camera(scale: float = 1.0):

@@ -18,7 +18,7 @@ from dgcal.calib.camera.files import write_camera_json
 from dgcal.calib.camera.models import Fraser7
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.crs import LocalENU, MapGrid
-from dgcal.fields.frames import R_ENU_TO_NED, R_body_to_ned_from_rph
+from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, R_ENU_TO_NED, R_body_to_ned_from_rph
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir
 from dgcal.fields.io.formats import (EOP, Events, Measurements, Points, Trajectory, write_eop, write_events,
                                      write_measurements, write_points, write_trajectory)
@@ -27,12 +27,11 @@ from dgcal.fields.pose import transpose as T
 from dgcal.fields.world import World
 
 
-R_CAM_TO_BODY_NOMINAL = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # image top forward
 
 
 def default_boresight() -> np.ndarray:
     """A nominal down-looking camera (image top forward) misaligned by about a degree (like seed Table 1)."""
-    return Rotation.from_euler("xyz", [1.3, -0.7, 0.4], degrees=True).as_matrix() @ R_CAM_TO_BODY_NOMINAL
+    return Rotation.from_euler("xyz", [1.3, -0.7, 0.4], degrees=True).as_matrix() @ R_CAM_TO_BODY_NADIR
 
 
 def mounting_flight_camera() -> Fraser7:

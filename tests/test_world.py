@@ -1,10 +1,9 @@
-"""dgcal.fields.world: covariance round trips (EOP <-> poses), POS covariances, constructors, the Georef adapter."""
+"""dgcal.fields.world: covariance round trips (EOP <-> poses), POS covariances, constructors."""
 import numpy as np
 import pytest
 from pyproj import Geod
 from scipy.spatial.transform import Rotation
 
-from dgcal.bundle.georef import Georef
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.pose import Poses, so3_log
@@ -90,17 +89,3 @@ def test_constructors_agree_and_engineering_has_no_geodetic_link():
         e.pos_to_world([23.0], [120.0], [0.0], np.zeros((1, 3)), np.zeros((1, 3)))
     with pytest.raises(InputError, match="geoid"):
         World.from_crs("EPSG:32651", CENTRE, geoid="/no/such/geoid.tif")
-
-
-def test_georef_adapter_is_the_world():
-    g, w = Georef("EPSG:32651", CENTRE, 21.5), World.from_crs("EPSG:32651", CENTRE, geoid=21.5)
-    p = _poses(w, 4)
-    assert g.crs_text == w.crs_text and g.enu == w.enu
-    xyz, opk, cov = w.poses_to_eop(p)
-    np.testing.assert_array_equal(np.concatenate(g.eop_to_map(p.R_world_to_cam, p.C_world), 1),
-                                  np.concatenate([xyz, opk], 1))
-    np.testing.assert_array_equal(g.eop_covariance_to_map(p.R_world_to_cam, p.C_world, p.cov), cov)
-    R, C = g.eop_to_world(xyz, opk)
-    q = w.eop_to_poses(xyz, opk)
-    np.testing.assert_array_equal(R, q.R_world_to_cam)
-    np.testing.assert_array_equal(C, q.C_world)

@@ -20,7 +20,7 @@ from dgcal.calib.camera.models import CameraModel
 from dgcal.calib.mounting.common import MountingResult, PoseAt, pose_at_rows, pose_at_times, read_mounting_json
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.errors import InputError
-from dgcal.fields.frames import skew
+from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, skew
 from dgcal.fields.io.formats import EOP, Events, Trajectory, read_events, read_trajectory
 from dgcal.fields.pose import Poses
 from dgcal.fields.pose import transpose as T
@@ -124,3 +124,20 @@ def dg_eop_files(opts: ExportOptions) -> DgFlight:
     grid = MapGrid(opts.crs)
     eop, _, _ = dg_eop(grid, read_trajectory(opts.trajectory), read_events(opts.events), mount)
     return DgFlight(eop, grid, camera)
+
+
+def nominal_mounting(lever_arm_m=(0.0, 0.0, 0.0), R_cam_to_body: np.ndarray = R_CAM_TO_BODY_NADIR,
+                     delay_s: float = 0.0) -> MountingResult:
+    """A nominal mounting for approximate orientations (no calibration yet): by default a down-looking camera
+    with the image top forward at the IMU origin (body FRD), no delay; sigmas 0 (it only starts an adjustment)."""
+    return MountingResult("nominal", np.asarray(lever_arm_m, float), np.asarray(R_cam_to_body, float),
+                          float(delay_s), np.zeros((7, 7)))
+
+
+def approx_eop_from_pos(crs: str, trajectory: str | Path, events: str | Path,
+                        mounting: str | Path | None = None) -> EOP:
+    """Approximate EOPs (map CRS, PATB deg) for POS-assisted aerial triangulation: DG of every event with a
+    mounting.json, or `nominal_mounting()` when none is given."""
+    mount = read_mounting_json(mounting) if mounting is not None else nominal_mounting()
+    eop, _, _ = dg_eop(MapGrid(crs), read_trajectory(trajectory), read_events(events), mount)
+    return eop

@@ -10,6 +10,7 @@ DIR/exports/ (COLMAP model, Pix4D, Metashape OPK, ODM geo.txt).
 from __future__ import annotations
 
 import argparse
+import sys
 
 from dgcal.steps import Campaign
 
@@ -17,7 +18,7 @@ NAME = "triangulate"
 HELP = "aerial triangulation with GCPs: EOPs with covariance, check points, report, exports"
 SECTION = "triangulation"
 OUTPUTS = {"eop": "eop.csv", "summary": "summary.json", "report": "report.html", "points": "points.csv",
-           "residuals": "residuals.csv", "exports": "exports"}
+           "residuals": "residuals.csv", "exports": "exports", "camera_refined": "camera_refined.json"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -43,13 +44,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "marker id = point id; measurements in --measurements take precedence")
     p.add_argument("--no-blunder-rejection", action="store_true", help="report suspects without removing them")
     p.add_argument("--formats", default="colmap,pix4d,metashape,odm", help="exports (comma separated)")
+    p.add_argument("--approx-from-pos", nargs=2, metavar=("TRAJ", "EVENTS"),
+                   help="approximate EOPs by direct georeferencing of a trajectory at the events (POS-assisted AT)")
+    p.add_argument("--nominal-mounting", metavar="MOUNTING_JSON",
+                   help="mounting for --approx-from-pos (default: nadir camera, image top forward, at the IMU)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--check-as-tie", dest="check_as_tie", action="store_true", default=None,
+                   help="use check-point measurements as tie points (default for measurement-only input)")
+    g.add_argument("--no-check-as-tie", dest="check_as_tie", action="store_false",
+                   help="leave check points out of the adjustment (intersect them afterwards)")
+    p.add_argument("--no-mapper", action="store_true",
+                   help="initial orientation by resection and growth from control, not pycolmap's mapper")
+    p.add_argument("--accept-poor", action="store_true",
+                   help="write a result that fails the quality checks (not converged, sigma0 > 3, images left "
+                        "out) instead of exiting with an error; the report's first line says so")
+    p.add_argument("--no-progress", action="store_true", help="no stage messages on stderr")
 
 
 def run(args: argparse.Namespace) -> int:
     from dgcal.bundle.inputs import TriangulateOptions, triangulate_files
+    from dgcal.calib.dg.eop import approx_eop_from_pos
     from dgcal.fields.io.csv_tables import staged_dir
     from dgcal.reports.triangulation_outputs import write_triangulation_outputs
 
+    approx_eop = (approx_eop_from_pos(args.crs, *args.approx_from_pos, args.nominal_mounting)
+                  if args.approx_from_pos else None)
     opts = TriangulateOptions(
         camera=args.camera, crs=args.crs, gcp=args.gcp, images=args.images,
         measurements=tuple(args.measurements or ()),
@@ -58,7 +77,9 @@ def run(args: argparse.Namespace) -> int:
         gcp_sigma_m=None if args.gcp_sigma is None else tuple(args.gcp_sigma), fixed_gcps=args.fixed_gcps,
         refine=_words(args.refine), geoid=args.geoid, approx=args.approx, gnss=args.gnss,
         max_features=args.max_features, targets=args.targets, reject_blunders=not args.no_blunder_rejection,
-        formats=_words(args.formats))
+        formats=_words(args.formats), approx_eop=approx_eop, check_as_tie=args.check_as_tie,
+        accept_poor=args.accept_poor, use_mapper=not args.no_mapper,
+        progress=None if args.no_progress else _progress)
     tri = triangulate_files(opts)
     with staged_dir(args.out) as tmp:
         write_triangulation_outputs(tmp, tri, OUTPUTS)
@@ -66,7 +87,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"{s['n_oriented']}/{s['n_images']} images oriented, sigma0 {s['sigma0']:.3f}, "
           f"check RMSE E/N/U {_f(s['check_rmse_m']['E'])}/{_f(s['check_rmse_m']['N'])}/{_f(s['check_rmse_m']['U'])} m, "
           f"{len(res.warnings)} warning(s) -> {args.out}/{OUTPUTS['eop']}")
+    if res.problems:
+        print("NOT TRUSTED (--accept-poor): " + "; ".join(res.problems))
     return 0
+
+
+def _progress(text: str) -> None:
+    print(f"[{NAME}] {text}", file=sys.stderr, flush=True)
 
 
 def _words(text: str) -> tuple[str, ...]:
