@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
 """Architecture checks of docs/architecture.md: the layer order (import-linter), no private names imported
-from another module, no bare `fields`/`calib`/... imports. Exit status 0 when all hold, 1 otherwise.
+from another module, no bare `fields`/`calib`/... imports, every module listed in docs/architecture.md. Exit status 0 when all
+hold, 1 otherwise.
 
 import-linter analyses a package by walking its folder; dgcal's sub-packages live in the top-level folders
 (setuptools `package-dir`), so the check runs on a mirror of the tree in the installed layout
 (`dgcal/fields`, `dgcal/calib`, ...) made of hard links (or copies) in a temporary folder.
 
     python .ci/architecture.py [ROOT]     # ROOT defaults to the checkout holding this file
+    python .ci/architecture.py --write-module-table    # regenerate the module table of docs/architecture.md
 """
 from __future__ import annotations
 
@@ -73,7 +75,49 @@ def import_violations(root: Path) -> list[str]:
     return problems
 
 
+MAP = Path("docs") / "architecture.md"
+BEGIN, END = "<!-- modules:begin -->", "<!-- modules:end -->"
+
+
+def module_rows(root: Path) -> list[tuple[str, str]]:
+    """(path, first sentence of its docstring) of every module and documented package of the code folders."""
+    rows = []
+    for top in ("fields", "calib", "bundle", "pos", "reports", "sim", "dgcal"):
+        for path in sorted((root / top).rglob("*.py")):
+            if "__pycache__" in path.parts:
+                continue
+            rel = path.relative_to(root)
+            doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
+            if path.name == "__init__.py":
+                if not doc:
+                    continue
+                name = f"{rel.parent}/"
+            else:
+                name = str(rel)
+            first = " ".join(doc.split("\n\n")[0].split()).replace("|", "/")
+            rows.append((name, first if len(first) <= 160 else first[:157].rsplit(" ", 1)[0] + " ..."))
+    return rows
+
+
+def write_module_table(root: Path) -> None:
+    """Regenerate the "where does X live" table of docs/architecture.md from the modules' docstrings."""
+    doc = (root / MAP).read_text(encoding="utf-8")
+    table = "| module | holds |\n|---|---|\n" + "\n".join(f"| `{n}` | {d} |" for n, d in module_rows(root))
+    a, b = doc.index(BEGIN) + len(BEGIN), doc.index(END)
+    (root / MAP).write_text(doc[:a] + "\n" + table + "\n" + doc[b:], encoding="utf-8")
+
+
+def unmapped_modules(root: Path) -> list[str]:
+    """Modules missing from the table of docs/architecture.md."""
+    doc = (root / MAP).read_text(encoding="utf-8")
+    return [f"{n} is not in {MAP} (run .ci/architecture.py --write-module-table)"
+            for n, _ in module_rows(root) if f"`{n}`" not in doc]
+
+
 def main(argv: list[str]) -> int:
+    if "--write-module-table" in argv:
+        argv = [a for a in argv if a != "--write-module-table"]
+        write_module_table(Path(argv[1]).resolve() if len(argv) > 1 else Path(__file__).resolve().parents[1])
     root = Path(argv[1]).resolve() if len(argv) > 1 else Path(__file__).resolve().parents[1]
     ok = True
     with tempfile.TemporaryDirectory(prefix="dgcal-arch-") as tmp:
@@ -81,7 +125,7 @@ def main(argv: list[str]) -> int:
     if not kept:
         ok = False
         print(report)
-    problems = import_violations(root)
+    problems = import_violations(root) + unmapped_modules(root)
     for p in problems:
         print(p)
     ok &= not problems
