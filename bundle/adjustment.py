@@ -44,6 +44,7 @@ class BundleInput:
     center_prior_sigma: np.ndarray | None = None  # (n,3) m
     refine: tuple[str, ...] = ()                  # camera parameters to refine
     intrinsic_prior_sigma: dict[str, float] = field(default_factory=dict)  # optional soft constraints
+    held_images: tuple[int, ...] = ()             # images whose poses are held (known, or a gauge)
 
 
 @dataclass
@@ -142,6 +143,7 @@ def problem_of(inp: BundleInput, opt: BundleOptions) -> tuple[Problem, State]:
         ref_idx = [cam.PARAMS.index(p) for p in inp.refine]
         blocks.append(GlobalPriors(g, cam.params[ref_idx][g], ips[g]))
     prob = Problem(blocks, n, m, len(inp.refine))
+    prob.pose_free[list(inp.held_images)] = False
     state = State(Poses(inp.R_world_to_cam, inp.C_world), np.asarray(inp.X_world, float).reshape(-1, 3).copy(),
                   cam.params[[cam.PARAMS.index(p) for p in inp.refine]].copy())
     return prob, state

@@ -136,3 +136,29 @@ def test_iteration_limit_is_reported_as_not_converged():
     prob, start = _problem()
     sol = minimise(prob, start, LMOptions(max_iterations=1))
     assert not sol.converged and "iteration limit" in sol.stop_reason
+
+
+def test_compiled_schur_sum_equals_the_dense_product(monkeypatch):
+    from dgcal.bundle.solver import normals
+    prob, start = _problem()
+    nrm = linearise(prob, start)
+    dense = normals.reduce(nrm, 1e-3).S
+    monkeypatch.setattr(normals, "DENSE_SCHUR_MAX", 0)      # the large-block path: the compiled track sum
+    sparse = normals.reduce(nrm, 1e-3).S
+    np.testing.assert_allclose(sparse, dense, rtol=1e-10, atol=1e-9 * np.abs(dense).max())
+
+
+def test_compiled_schur_sum_with_an_image_measuring_a_point_twice(monkeypatch):
+    from dgcal.bundle.solver import normals
+    prob, start = _problem()
+    img = prob.blocks[0]
+    # the first observation repeated (a point measured twice in one image) enters both the dense and the
+    # compiled sums as two items
+    for name in ("pose", "point"):
+        setattr(img, name, np.r_[getattr(img, name), getattr(img, name)[:1]])
+    img.uv = np.vstack([img.uv, img.uv[:1] + 0.5])
+    img.sigma = np.vstack([img.sigma, img.sigma[:1]])
+    nrm = linearise(prob, start)
+    dense = normals.reduce(nrm, 1e-3).S
+    monkeypatch.setattr(normals, "DENSE_SCHUR_MAX", 0)
+    np.testing.assert_allclose(normals.reduce(nrm, 1e-3).S, dense, rtol=1e-10, atol=1e-9 * np.abs(dense).max())

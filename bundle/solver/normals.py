@@ -6,6 +6,7 @@ diagonal and a zero gradient, so they stay where they are and keep the system re
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -13,6 +14,7 @@ import scipy.sparse as sp
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from dgcal.bundle.solver.blocks import INVALID_COST, Block, BlockEval, State
+from dgcal.bundle.solver.kernels import accumulate_items, pose_pose_schur
 from dgcal.bundle.solver.robust import robust_cost_and_weight
 
 V_REGULARISATION = 1e-10   # added to the point blocks' diagonal (whitened units: a prior of ~1e5 sigma)
@@ -145,6 +147,9 @@ class CouplingPattern:
         self.indptr = np.searchsorted(p, np.arange(N + 1))
         self.indices = q
         self.by_pose = Grouper(pose, N)
+        self.pose64 = pose.astype(np.int64)
+        self.by_point_order = np.lexsort((pose, point)).astype(np.int64)   # by point, then pose
+        self.point_starts = np.searchsorted(point[self.by_point_order], np.arange(M + 1)).astype(np.int64)
 
     def matrix(self, blocks: np.ndarray) -> sp.bsr_matrix:
         """Wp-shaped block-sparse matrix of per-item blocks (k,6,3) (an image seeing a point twice: summed)."""
@@ -200,10 +205,18 @@ def linearise(problem: Problem, state: State) -> Normals:
         cost += c
         r = ev.r
         A, B, C = ev.J_pose, ev.J_glob, ev.J_point
+        fused = A is not None and C is not None and M > 0
+        if fused:
+            # items with a pose and a point (image observations): one compiled pass for the pose and point
+            # blocks, the gradients and the couplings
+            blk = np.empty((len(r), 6, 3))
+            accumulate_items(np.ascontiguousarray(r), np.ascontiguousarray(A), ev.pose.astype(np.int64),
+                             np.ascontiguousarray(C), ev.point.astype(np.int64), U_pp, g_p, V, g_x, blk)
         if A is not None:
             by_pose = _grouper(cache, "pose", ev.pose, N)
-            U_pp += by_pose.sum(_tdot(A, A))
-            g_p += by_pose.sum(np.einsum("kda,kd->ka", A, r))
+            if not fused:
+                U_pp += by_pose.sum(_tdot(A, A))
+                g_p += by_pose.sum(np.einsum("kda,kd->ka", A, r))
         if B is not None:
             g = ev.glob
             Bf = B.reshape(-1, len(g))
@@ -213,10 +226,11 @@ def linearise(problem: Problem, state: State) -> Normals:
                 U_pg[:, :, g] += by_pose.sum(_tdot(A, B))
         if C is not None and M:
             by_point = _grouper(cache, "point", ev.point, M)
-            V += by_point.sum(_tdot(C, C))
-            g_x += by_point.sum(np.einsum("kda,kd->ka", C, r))
+            if not fused:
+                V += by_point.sum(_tdot(C, C))
+                g_x += by_point.sum(np.einsum("kda,kd->ka", C, r))
             if A is not None:
-                wp_blk.append(_tdot(A, C))                              # (k,6,3) pose-point coupling
+                wp_blk.append(blk)                                      # (k,6,3) pose-point coupling
                 wp_pose.append(ev.pose)
                 wp_point.append(ev.point)
                 pat = cache.get("coupling")
@@ -283,6 +297,7 @@ class Reduced:
     factor: tuple | None
 
 
+SCHUR_THREADS = max(1, min(2, os.cpu_count() or 1))   # threads of the compiled Schur sum
 DENSE_SCHUR_MAX = 4_000_000   # entries of a (6N x 3M) coupling below which the Schur product is a dense GEMM
 
 
@@ -299,12 +314,12 @@ def reduce(nrm: Normals, lam: float = 0.0) -> Reduced:
         n6, n3 = nrm.Wp.shape
         pat = nrm.coupling
         Y = np.matmul(nrm.wp_blocks, Vinv[pat.point])                   # (k,6,3) W_k V_j^-1 per item
-        Yb = pat.matrix(Y)
         S = U.copy()
         if n6 * n3 <= DENSE_SCHUR_MAX:
-            S[:n6, :n6] -= Yb.toarray() @ nrm.Wp.T.toarray()
-        else:     # block-sparse product: the points couple only the images that see them
-            S[:n6, :n6] -= (Yb @ nrm.Wp.T).toarray()
+            S[:n6, :n6] -= pat.matrix(Y).toarray() @ nrm.Wp.T.toarray()
+        else:     # the points couple only the images that see them: a compiled sum over their tracks
+            S[:n6, :n6] -= pose_pose_schur(Y, nrm.wp_blocks, pat.pose64, pat.by_point_order, pat.point_starts,
+                                           n6 // 6, SCHUR_THREADS)
         if nrm.Wg is not None and len(nrm.Wg):
             G = len(nrm.Wg)
             Wg3 = nrm.Wg.reshape(G, -1, 3)
