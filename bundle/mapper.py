@@ -62,10 +62,30 @@ def image_pairs_by_shared_points(obs_image: np.ndarray, obs_point: np.ndarray, n
     return ia, ib, ra, rb
 
 
+def _strong_subset(oi: np.ndarray, op: np.ndarray, n_images: int, n_points: int, per_image: int) -> np.ndarray:
+    """Observations of the points taken, longest tracks first, while an image they see still has fewer than
+    `per_image` taken observations; (k,) bool."""
+    L = np.bincount(op, minlength=n_points)
+    by_point = np.argsort(op, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(L)])
+    have = np.zeros(n_images, int)
+    take = np.zeros(n_points, bool)
+    for j in np.argsort(-L, kind="stable"):
+        imgs = oi[by_point[starts[j]:starts[j + 1]]]
+        if len(imgs) and have[imgs].min() < per_image:
+            take[j] = True
+            have[imgs] += 1
+    return take[op]
+
+
 def orient_by_mapper(camera: CameraModel, image_names: list[str], obs_image: np.ndarray, obs_point: np.ndarray,
                      obs_uv: np.ndarray, n_points: int, *, min_matches: int = 8, num_threads: int = 2,
-                     verify: bool = False, workdir: str | Path | None = None) -> MapperResult:
-    """Orient a block from its measurements alone (no control, no approximate EOPs) with pycolmap's mapper."""
+                     verify: bool = False, per_image: int = 150, workdir: str | Path | None = None) -> MapperResult:
+    """Orient a block from its measurements alone (no control, no approximate EOPs) with pycolmap's mapper.
+
+    The mapper is given the points of the longest tracks until every image has `per_image` of them (all
+    points when there are fewer): its cost grows with the observations, and an initial orientation needs
+    no more; the adjustment that follows uses them all."""
     import pycolmap   # deferred: heavy, and only this step needs it
     import time
     pycolmap.logging.minloglevel = 2
@@ -81,6 +101,7 @@ def orient_by_mapper(camera: CameraModel, image_names: list[str], obs_image: np.
     order = np.argsort(oi, kind="stable")
     counts = np.bincount(oi, minlength=n)
     kp[order] = np.arange(len(oi)) - np.repeat(np.cumsum(counts) - counts, counts)
+    good &= _strong_subset(oi, op, n, n_points, per_image)
     ia, ib, ra, rb = image_pairs_by_shared_points(oi[good], op[good], n, min_matches)
     rows_good = np.flatnonzero(good)
     ra, rb = rows_good[ra], rows_good[rb]

@@ -71,7 +71,8 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the `dgcal` console script; returns the exit status."""
+    """Entry point of the `dgcal` console script; returns the exit status (0 done, 2 bad input or an untrusted
+    result, 3 an internal error, 130 interrupted)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
     try:
@@ -84,6 +85,29 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"dgcal {args.verb}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # the last line of defence: a bug, never a traceback for the user
+        if args.debug:
+            traceback.print_exc()
+        print(f"dgcal {args.verb}: internal error: {type(exc).__name__}: {_one_line(exc)} ({_where(exc)}; "
+              f"`dgcal --debug {args.verb} ...` shows the traceback)", file=sys.stderr)
+        return INTERNAL_ERROR
+
+
+INTERNAL_ERROR = 3   # exit status of an unexpected failure (bad input is 2)
+
+
+def _one_line(exc: BaseException, limit: int = 300) -> str:
+    text = " ".join(str(exc).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _where(exc: BaseException) -> str:
+    """The innermost dgcal frame of the traceback (file:line), where the failure surfaced."""
+    tb = traceback.extract_tb(exc.__traceback__)
+    ours = [f for f in tb if "/dgcal/" in f.filename or any(f"/{p}/" in f.filename for p in
+                                                              ("fields", "calib", "bundle", "pos", "reports", "sim"))]
+    f = (ours or tb)[-1] if (ours or tb) else None
+    return "unknown place" if f is None else f"{Path(f.filename).name}:{f.lineno}"
 
 
 if __name__ == "__main__":

@@ -23,3 +23,17 @@ def test_the_chosen_verb_and_simulator_get_their_options():
     assert a.verb == "simulate" and a.what == "logger" and a.seed == 3 and callable(a._sim_run)
     full = build_parser()  # every verb loaded: what the campaign runner's argv check uses
     assert full.parse_args(["simulate", "camera-field", "--out", "y"]).what == "camera-field"
+
+
+def test_an_unexpected_failure_is_one_line_and_exit_3(monkeypatch, capsys):
+    import dgcal.commands.compare as compare_verb
+    from dgcal.cli import main as cli_main
+
+    def broken(args):
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setattr(compare_verb, "run", broken)
+    rc = cli_main(["compare", "a.json", "b.json"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 3 and len(err) == 1
+    assert "internal error: ZeroDivisionError" in err[0] and "--debug" in err[0]

@@ -1,18 +1,15 @@
-"""CSV tables with header, typed columns and errors that name file, line and field; atomic writes."""
+"""CSV tables with header, typed columns and errors that name file, line and field (written atomically)."""
 from __future__ import annotations
 
-import contextlib
 import csv
 import io
-import os
-import shutil
-import tempfile
 from pathlib import Path
-from typing import Iterable, Iterator, Sequence
+from typing import Iterable, Sequence
 
 import numpy as np
 
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.atomic import atomic_write, staged_dir  # noqa: F401  (their old home, still imported from here)
 
 
 class Table:
@@ -94,30 +91,6 @@ def read_table(path: str | Path, required: Sequence[str], optional: Sequence[str
     return Table(path, cols, lines)
 
 
-@contextlib.contextmanager
-def atomic_write(path: str | Path, mode: str = "w", **kw) -> Iterator:
-    """Open `path` for writing through a temporary file renamed into place only on success."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    os.close(fd)
-    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs should get the user's usual mode
-    try:
-        with open(tmp, mode, **kw) as fh:
-            yield fh
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def write_table(path: str | Path, header: Sequence[str], rows: Iterable[Sequence], fmt: str = "%.10g") -> None:
     """Write a CSV atomically; floats are formatted with `fmt`, everything else with str()."""
     def cell(v):
@@ -129,22 +102,3 @@ def write_table(path: str | Path, header: Sequence[str], rows: Iterable[Sequence
         w.writerow(header)
         for r in rows:
             w.writerow([cell(v) for v in r])
-
-
-@contextlib.contextmanager
-def staged_dir(out: str | Path) -> Iterator[Path]:
-    """Yield a scratch directory whose files are moved into `out` only if the block succeeds."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".staging.", dir=out))
-    try:
-        yield tmp
-        for p in sorted(tmp.rglob("*")):
-            dest = out / p.relative_to(tmp)
-            if p.is_dir():
-                dest.mkdir(parents=True, exist_ok=True)
-            else:
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(p, dest)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
