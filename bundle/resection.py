@@ -26,20 +26,26 @@ def pnp(camera: CameraModel, uv: np.ndarray, X_world: np.ndarray, threshold_px: 
     K = np.eye(3)
     origin = X.mean(0)   # PnP on centred coordinates keeps large map coordinates out of the solver
     Xc = np.ascontiguousarray(X - origin)
+    sv = np.linalg.svd(Xc, compute_uv=False)
+    if sv[1] < 1e-2 * sv[0]:
+        return None      # collinear points leave the rotation about their line undetermined
     xy = np.ascontiguousarray(xy)
     inl = np.ones(len(uv), bool)
-    if len(uv) >= 6:
-        ok, rvec, tvec, idx = cv2.solvePnPRansac(Xc, xy, K, None, reprojectionError=threshold_px / f,
-                                                 iterationsCount=500, confidence=0.9999, flags=cv2.SOLVEPNP_SQPNP)
-        if not ok or idx is None or len(idx) < 4:
-            return None
-        inl = np.zeros(len(uv), bool)
-        inl[idx.ravel()] = True
-    else:
-        ok, rvec, tvec = cv2.solvePnP(Xc, xy, K, None, flags=cv2.SOLVEPNP_SQPNP)
-        if not ok:
-            return None
-    rvec, tvec = cv2.solvePnPRefineLM(Xc[inl], xy[inl], K, None, rvec, tvec)
+    try:   # degenerate geometry (collinear points, too few) makes OpenCV assert: no pose, not a crash
+        if len(uv) >= 6:
+            ok, rvec, tvec, idx = cv2.solvePnPRansac(Xc, xy, K, None, reprojectionError=threshold_px / f,
+                                                     iterationsCount=500, confidence=0.9999, flags=cv2.SOLVEPNP_SQPNP)
+            if not ok or idx is None or len(idx) < 4:
+                return None
+            inl = np.zeros(len(uv), bool)
+            inl[idx.ravel()] = True
+        else:
+            ok, rvec, tvec = cv2.solvePnP(Xc, xy, K, None, flags=cv2.SOLVEPNP_SQPNP)
+            if not ok:
+                return None
+        rvec, tvec = cv2.solvePnPRefineLM(Xc[inl], xy[inl], K, None, rvec, tvec)
+    except cv2.error:
+        return None
     R = cv2.Rodrigues(rvec)[0]
     C = -R.T @ tvec.ravel() + origin
     Xcam = (X - C) @ R.T
@@ -159,10 +165,13 @@ def relative_bootstrap(camera: CameraModel, n_images: int, obs_image: np.ndarray
         if len(common) < 8:
             break
         x1, x2 = xy[lookup[i, common]], xy[lookup[j, common]]
-        E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), cv2.RANSAC, 0.999, 2.0 / f)
-        if E is None or E.shape != (3, 3):
-            continue
-        _, R, t, mask = cv2.recoverPose(E, x1, x2, np.eye(3), mask=mask)
+        try:
+            E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), cv2.RANSAC, 0.999, 2.0 / f)
+            if E is None or E.shape != (3, 3):
+                continue
+            _, R, t, mask = cv2.recoverPose(E, x1, x2, np.eye(3), mask=mask)
+        except cv2.error:
+            continue   # a degenerate pair: try the next one
         R0 = np.full((n_images, 3, 3), np.nan)
         C0 = np.full((n_images, 3), np.nan)
         R0[i], C0[i] = np.eye(3), np.zeros(3)

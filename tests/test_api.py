@@ -39,3 +39,17 @@ def test_write_camera_round_trips_each_format(tmp_path):
         back = api.read_camera(tmp_path / f"cam{suffix}", "fraser7")
         uv = cam.project([[0.3, -0.2, 1.0], [-0.4, 0.3, 1.0]])
         assert abs(back.project([[0.3, -0.2, 1.0], [-0.4, 0.3, 1.0]]) - uv).max() < max(1e-6, 2 * err), suffix
+
+
+def test_pycolmap_then_dgcal_reports_do_not_abort():
+    # importing dgcal first (as the CLI does) loads zlib before pycolmap: PNG figures are safe
+    code = ("import dgcal, pycolmap\n"
+            "from dgcal.reports.html import HtmlReport, new_figure\n"
+            "fig, ax = new_figure(3, 2); ax.plot([0, 1], [0, 1]); r = HtmlReport('x'); r.figure(fig, 'c')\n"
+            "import zlib; zlib.compress(bytes(1_000_000)); print('ok')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-500:]
+    # the other order cannot be repaired afterwards: dgcal says so instead of letting the process abort later
+    out = subprocess.run([sys.executable, "-W", "error::RuntimeWarning", "-c", "import pycolmap, dgcal"],
+                         capture_output=True, text=True)
+    assert out.returncode != 0 and "import dgcal (or zlib) before pycolmap" in out.stderr

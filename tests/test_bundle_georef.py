@@ -118,3 +118,16 @@ def test_pnp_and_umeyama():
     Rs = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
     s, R3, t = similarity_umeyama(X, 2.5 * X @ Rs.T + [1, 2, 3])
     assert s == pytest.approx(2.5) and np.allclose(R3, Rs) and np.allclose(t, [1, 2, 3])
+
+
+def test_resection_of_degenerate_geometry_returns_no_pose_not_an_opencv_error():
+    from dgcal.bundle.resection import pnp
+    from dgcal.sim.block import full_frame_20mm_camera
+    cam = full_frame_20mm_camera()
+    X = np.column_stack([np.linspace(0, 10, 5), np.zeros(5), np.zeros(5)])        # collinear control
+    uv = np.column_stack([np.linspace(2000, 4000, 5), np.full(5, 2000.0)])
+    assert pnp(cam, uv, X) is None
+    assert pnp(cam, uv[:3], X[:3]) is None
+    # nearly degenerate points that OpenCV's SQPnP asserts on: no pose either
+    X2 = X + np.array([[0, 0, 0], [0, 0.02, 0], [0, 0, 0], [0, 0, 0.02], [0, 0, 0]])
+    assert pnp(cam, uv, X2) is None
