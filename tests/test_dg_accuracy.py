@@ -90,3 +90,23 @@ def test_straight_segment_time_of_a_racetrack():
     assert straight_segment_time(traj) == pytest.approx(60.0, abs=0.5)
     still = Trajectory(t, np.full(n, 23.7), np.full(n, 120.6), np.full(n, 400.0), np.zeros((n, 3)), np.zeros((n, 3)))
     assert straight_segment_time(still) == pytest.approx(t[-1] - t[0])
+
+
+def test_check_point_blunders_are_flagged_and_left_out(sim):
+    import copy
+    c, mp, g = sim.calibration, sim.mapping, MapGrid(sim.crs)
+    r = calibrate_mounting(c.eop, g, c.traj, c.events, "proposed")
+    kw = dict(roles=("check", "control"), pos_correlation_time_s=sim.noise["pos_error_kernel_s"])
+    clean = check_points_dg(g, mp.traj, mp.events, r, sim.camera, mp.measurements, sim.ground, **kw)
+    meas = copy.deepcopy(mp.measurements)
+    rng = np.random.default_rng(3)
+    ids = meas.id.astype(str)
+    n_rays = dict(zip(*np.unique(ids, return_counts=True)))
+    cand = np.flatnonzero([n_rays[i] >= 4 for i in ids])
+    bad = rng.choice(cand, 4, replace=False)
+    meas.xy[bad] += rng.choice([-1, 1], (4, 2)) * 25.0            # four measurements 35 px off
+    ck = check_points_dg(g, mp.traj, mp.events, r, sim.camera, meas, sim.ground, **kw)
+    flagged = {(x["image"], x["id"]) for x in ck.rejected}
+    assert {(str(meas.image[k]), str(meas.id[k])) for k in bad} <= flagged
+    assert len(flagged) <= 4 + 2 and len(clean.rejected) <= 2
+    assert ck.stats["rms"]["3D"] < 1.2 * clean.stats["rms"]["3D"]   # the statistics come from the rest

@@ -83,3 +83,18 @@ def test_iso_rejects_bad_pos_common_fraction(sim):
     with pytest.raises(InputError, match="pos_common_fraction"):
         calibrate_iso(c.eop, MapGrid(sim.crs), c.traj, c.events, c.measurements, sim.ground, sim.camera,
                       pos_common_fraction=1.5)
+
+
+def test_iso_rejects_one_wrong_pixel(sim):
+    import copy
+    c = sim.calibration
+    clean = calibrate_iso(c.eop, MapGrid(sim.crs), c.traj, c.events, c.measurements, sim.ground, sim.camera)
+    meas = copy.deepcopy(c.measurements)
+    k = len(meas.id) // 2
+    meas.xy[k] += [6.0, -5.0]                     # one measurement 8 px off
+    r = calibrate_iso(c.eop, MapGrid(sim.crs), c.traj, c.events, meas, sim.ground, sim.camera)
+    rej = r.extra["rejected_observations"]
+    assert [(x["image"], x["id"]) for x in rej] == [(str(meas.image[k]), str(meas.id[k]))]
+    assert np.all(np.abs(r.lever_arm_m - clean.lever_arm_m) < 3 * clean.sigmas[1:4])
+    assert abs(r.delay_s - clean.delay_s) < 3 * clean.sigmas[0]
+    assert clean.extra["rejected_observations"] == []

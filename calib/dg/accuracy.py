@@ -17,7 +17,9 @@ from dgcal.calib.mounting.common import MountingResult, read_mounting_json
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import skew
-from dgcal.fields.io.formats import Events, Measurements, Points, Trajectory, read_events, read_points, read_trajectory
+from dgcal.fields.io.formats import Events, Measurements, Points, Trajectory, read_points
+from dgcal.pos.events import read_any_events
+from dgcal.pos.ins.sbet import read_any_trajectory
 from dgcal.fields.io.gcp_files import read_any_measurements
 from dgcal.fields.pose import transpose as T
 from dgcal.fields.world import World
@@ -82,9 +84,11 @@ class CheckResult:
     asprs: dict
     budget: dict
     warnings: list[str] = field(default_factory=list)
+    rejected: list[dict] = field(default_factory=list)   # check-point measurements left out as blunders
 
     def to_json(self) -> dict:
         return {"stats": self.stats, "asprs_2023": self.asprs, "budget": self.budget, "warnings": self.warnings,
+                "rejected_measurements": self.rejected,
                 "points": [{"id": str(i), "dg": x.tolist(), "ref": r.tolist(), "err_enu": e.tolist(),
                             "n_rays": int(n), "sigma_pred_enu": s.tolist()}
                            for i, x, r, e, n, s in zip(self.ids, self.xyz_dg, self.xyz_ref, self.err_enu,
@@ -140,10 +144,16 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
     img_idx = {k: j for j, k in enumerate(images)}
     ids_used = list(dict.fromkeys(str(k) for k in m.id))
     pt_idx = {k: j for j, k in enumerate(ids_used)}
-    res = intersect(camera, poses.cam.C_world, poses.cam.R_cam_to_world, np.array([img_idx[str(k)] for k in m.image]),
-                    np.array([pt_idx[str(k)] for k in m.id]), m.xy, m.sigma, len(ids_used), min_rays)
+    oi = np.array([img_idx[str(k)] for k in m.image])
+    op = np.array([pt_idx[str(k)] for k in m.id])
+    res, keep_obs = _screened_intersection(camera, poses, oi, op, m.xy, m.sigma, len(ids_used), min_rays)
+    rejected = [{"image": str(m.image[k]), "id": str(m.id[k])} for k in np.flatnonzero(~keep_obs)]
     ok = res.ok
     warnings = []
+    if rejected:
+        warnings.append(f"{len(rejected)} check-point measurement(s) rejected as blunders (beyond "
+                        f"{CHECK_OUTLIER_SIGMA:g} robust sigmas): " + ", ".join(f"{r['id']} in {r['image']}"
+                                                                         for r in rejected[:8]))
     if (~ok).any():
         warnings.append(f"{int((~ok).sum())} check points seen in fewer than {min_rays} images: "
                         + ", ".join(np.array(ids_used)[~ok][:10]))
@@ -197,7 +207,39 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
                                       "once, in the POS term)") if cov_mount is not mount.cov else "full"}
     sig = np.sqrt(np.diagonal(total_grid, axis1=1, axis2=2))
     return CheckResult(ids, xyz_dg, xyz_ref, err, res.n_rays[ok], sig, stats,
-                       asprs_2023(err, pts.sigma[[pid[k] for k in ids]]), budget, warnings)
+                       asprs_2023(err, pts.sigma[[pid[k] for k in ids]]), budget, warnings, rejected)
+
+
+CHECK_OUTLIER_SIGMA = 5.0   # check-point rays beyond this many robust sigmas are blunders
+
+
+def _screened_intersection(camera, poses, oi: np.ndarray, op: np.ndarray, xy: np.ndarray, sigma: np.ndarray,
+                           n_points: int, min_rays: int):
+    """Intersect the check points, leaving out rays whose residual, standardised by its approximate redundancy
+    (1 - 1.5/L for a point seen L times) and scaled by the median of all rays (DG pose errors make the rays
+    disagree more than their pixel sigmas say), exceeds CHECK_OUTLIER_SIGMA; the worst ray of a point per
+    round, until none. Returns the intersection of the kept rays and the kept mask."""
+    keep = np.ones(len(oi), bool)
+    sig = np.where(np.isfinite(sigma), sigma, 1.0)
+    C, R = poses.cam.C_world, poses.cam.R_cam_to_world
+    while True:
+        res = intersect(camera, C, R, oi[keep], op[keep], xy[keep], sigma[keep], n_points, min_rays)
+        L = np.bincount(op[keep], minlength=n_points)[op[keep]]
+        e = np.linalg.norm(res.residuals_px / sig[keep], axis=1) / np.sqrt(np.clip(1 - 1.5 / np.maximum(L, 1),
+                                                                                  0.1, 1))
+        fin = np.isfinite(e)
+        if fin.sum() < 6:
+            return res, keep
+        s_rob = float(np.median(e[fin])) / np.sqrt(2 * np.log(2))
+        bad = fin & (e > CHECK_OUTLIER_SIGMA * s_rob) & (L > 2)     # two rays cannot tell which one is wrong
+        if not bad.any():
+            return res, keep
+        rows = np.flatnonzero(keep)[bad]
+        worst = {}
+        for r, ev, p in zip(rows, e[bad], op[rows]):
+            if p not in worst or ev > worst[p][1]:
+                worst[p] = (r, ev)
+        keep[[r for r, _ in worst.values()]] = False
 
 
 def _magnitudes(traj: Trajectory, mount: MountingResult, meas: Measurements) -> dict:
@@ -256,7 +298,8 @@ def check_dg_files(opts: CheckOptions) -> DgCheck:
     if tau is not None and not tau >= 0:
         raise InputError(f"must be a time >= 0 s, not {tau}", field="--pos-correlation-time")
     grid = MapGrid(opts.crs)
-    traj, events = read_trajectory(opts.trajectory), read_events(opts.events)
+    events = read_any_events(opts.events)
+    traj = read_any_trajectory(opts.trajectory, near_t=float(events.t[0]) if len(events) else None)
     meas = read_any_measurements(opts.measurements)[0]
     pts = read_points(opts.gcp)
     camera = load_camera(opts.camera)

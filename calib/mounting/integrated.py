@@ -48,8 +48,10 @@ DEFAULT_GCP_SIGMA = 0.02
 
 def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, meas: Measurements, gcp: Points,
                   camera, *, fix_delay: bool = False, max_iterations: int = 30,
-                  refine_intrinsics: tuple[str, ...] = (), pos_common_fraction: float = 0.0) -> MountingResult:
-    """ISO mounting calibration; `eop` (e.g. a bundle or DG result) only initialises the image poses.
+                  refine_intrinsics: tuple[str, ...] = (), pos_common_fraction: float = 0.0,
+                  critical_w: float = 4.0) -> MountingResult:
+    """ISO mounting calibration; `eop` (e.g. a bundle or DG result) only initialises the image poses; image
+    measurements whose w-test exceeds `critical_w` are rejected (listed in extra["rejected_observations"]).
     `refine_intrinsics` names camera parameters (e.g. ("f", "cx", "cy")) estimated in the same adjustment.
     `pos_common_fraction` (0-1): share of the POS error variance common to all epochs of the flight (as in
     `calibrate_proposed`; 0 = independent per photo)."""
@@ -71,15 +73,59 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     prob = _iso_problem(camera, blk, ep.pos, R_hat, W_pos, refine_intrinsics, free_m)
     x0 = np.r_[init.delay_s if not fix_delay else 0.0, init.lever_arm_m, 0, 0, 0, camera.params[i_intr]]
     start = State(Poses(ep.eop.R_world_to_cam.copy(), ep.eop.C_world), blk.X0, x0)
-    sol = minimise(prob, start, LMOptions(max_iterations=max_iterations, tol_chi2=1e-4, tol_rel=1e-12))
+    lm = LMOptions(max_iterations=max_iterations, tol_chi2=1e-4, tol_rel=1e-12)
+    sol = minimise(prob, start, lm)
     nrm = normals_at(prob, sol)
+    rejected: list[dict] = []
+    for _ in range(MAX_SNOOPING_ROUNDS):
+        # data snooping on the image measurements: the worst measurement of each point whose w-test fails
+        bad = _image_blunders(prob, nrm, blk, critical_w)
+        if not len(bad):
+            break
+        rpx = nrm.evals[0].r[bad] * blk.sig_uv[bad]
+        rejected += [{"image": str(blk.meas.image[k]), "id": str(blk.meas.id[k]), "residual_px": rpx[n].tolist(),
+                      "w": float(w)} for n, (k, w) in enumerate(zip(bad, _image_w(prob, nrm)[bad]))]
+        keep = np.ones(len(blk.obs_img), bool)
+        keep[bad] = False
+        blk = blk.subset(keep)
+        prob = _iso_problem(camera, blk, ep.pos, R_hat, W_pos, refine_intrinsics, free_m)
+        sol = minimise(prob, sol.state, lm)
+        nrm = normals_at(prob, sol)
     sigma0_sq = float(nrm.cost / max(int(nrm.redundancy), 1))
     mt = sol.state.globals[:7]
     R_final = so3_exp(mt[4:7]) @ R_hat
     cov = _iso_covariance(prob, nrm, ep.pos, W_pos, C_pos, mt, R_final, free_m, len(i_intr), sigma0_sq,
                           pos_common_fraction)
-    return _iso_result(ep, world, blk, prob, sol, nrm, cov, R_final, fix_delay, refine_intrinsics,
-                       pos_common_fraction, init)
+    res = _iso_result(ep, world, blk, prob, sol, nrm, cov, R_final, fix_delay, refine_intrinsics,
+                      pos_common_fraction, init)
+    res.extra["rejected_observations"] = rejected
+    if rejected:
+        res.warnings.append(f"{len(rejected)} image measurement(s) rejected as blunders (w-test > {critical_w:g}): "
+                            + ", ".join(f"{r['id']} in {r['image']}" for r in rejected[:5])
+                            + (" ..." if len(rejected) > 5 else ""))
+    return res
+
+
+MAX_SNOOPING_ROUNDS = 20
+
+
+def _image_w(prob: Problem, nrm) -> np.ndarray:
+    """|w| of every image measurement (the larger of its two coordinates; 0 where it cannot be tested)."""
+    r = Covariance.at(prob, nrm).redundancy_numbers(0)
+    w = np.abs(nrm.evals[0].r) / np.sqrt(np.clip(r, 1e-9, None))
+    return np.where(r > 0.02, w, 0.0).max(1)
+
+
+def _image_blunders(prob: Problem, nrm, blk: "_IsoBlock", critical: float) -> np.ndarray:
+    """Rows of the worst measurement of each point with a w-test above `critical` (several at once, one per
+    point: a blunder also inflates the other rays of its own point, rarely those of others)."""
+    w = _image_w(prob, nrm)
+    cand = np.flatnonzero(w > critical)
+    if not len(cand):
+        return cand
+    order = cand[np.argsort(-w[cand])]
+    _, first = np.unique(blk.obs_pt[order], return_index=True)
+    return np.sort(order[first])
 
 
 @dataclass
@@ -96,6 +142,11 @@ class _IsoBlock:
     X_ctrl: np.ndarray     # control coordinates (world, m)
     s_ctrl: np.ndarray     # their sigmas (m)
     X0: np.ndarray         # (K,3) initial points (world, m)
+
+    def subset(self, keep: np.ndarray) -> "_IsoBlock":
+        """The block with only the measurements `keep` (the points stay, indices unchanged)."""
+        return _IsoBlock(self.img_names, self.pt_names, self.meas.subset(keep), self.obs_img[keep],
+                         self.obs_pt[keep], self.sig_uv[keep], self.ctrl, self.X_ctrl, self.s_ctrl, self.X0)
 
 
 def _iso_block(camera, ep, meas: Measurements, gcp: Points, world: World) -> _IsoBlock:
