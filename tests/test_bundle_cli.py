@@ -178,3 +178,23 @@ def test_odm_gcp_list_plus_tie_csv(small, tmp_path, capsys):
     assert _run(["--camera", d / "camera.json", "--crs", "EPSG:32650", "--measurements", tmp_path / "gcp_list.txt",
                  d / "tie_measurements.csv", "--out", tmp_path / "x"]) == 2
     assert "differs from --crs" in capsys.readouterr().err
+
+
+def test_refined_intrinsics_are_written_as_a_camera_and_exported(small, tmp_path):
+    import json
+
+    from dgcal.calib.camera.files import read_camera
+    d, truth = small
+    out = tmp_path / "r"
+    assert _run(["--camera", d / "camera.json", "--gcp", d / "gcp.csv", "--crs", truth["crs"], "--measurements",
+                 d / "measurements_all.csv", "--refine", "f,cx,cy", "--no-progress", "--out", out]) == 0
+    refined = json.loads((out / "camera_refined.json").read_text())
+    summary = json.loads((out / "summary.json").read_text())
+    cam = read_camera(out / "camera_refined.json")
+    for k in ("f", "cx", "cy"):
+        assert cam[k] == pytest.approx(summary["camera"]["params"][k])
+        assert summary["camera"]["sigmas"][k] > 0
+    assert refined["correlation"]["parameters"] == ["f", "cx", "cy"]
+    # the COLMAP export carries the refined camera, not the one given
+    colmap = read_camera(out / "exports" / "colmap" / "cameras.txt", "fraser7")
+    assert colmap["f"] == pytest.approx(cam["f"], abs=1e-3)
