@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Architecture checks of docs/architecture.md: the layer order (import-linter), no private names imported
-from another module, no bare `fields`/`calib`/... imports, every module listed in docs/architecture.md. Exit status 0 when all
-hold, 1 otherwise.
+from another module, no bare `fields`/`calib`/... imports, every module listed in docs/architecture.md. Exit
+status 0 when all hold, 1 otherwise.
 
 import-linter analyses a package by walking its folder; dgcal's sub-packages live in the top-level folders
 (setuptools `package-dir`), so the check runs on a mirror of the tree in the installed layout

@@ -196,7 +196,7 @@ def bench_photos() -> None:
         cam = load_camera(d / "camera.json")
         stats: dict = {}
         t0 = time.perf_counter()
-        tie = extract_tie_points(d / "images", names, pairs, camera_K=cam.pinhole_K(), stats=stats)
+        extract_tie_points(d / "images", names, pairs, camera_K=cam.pinhole_K(), stats=stats)
         t_dgcal = time.perf_counter() - t0
         db = Path(tmp) / "peer.sqlite"
         (Path(tmp) / "pairs.txt").write_text("".join(f"{a} {b}\n" for a, b in pairs))

@@ -1,6 +1,8 @@
 """Benchmark of camera calibration: the self-calibrating adjustment for 60 images x ~1000 corners beside
 OpenCV calibrateCamera on the same measurements (time and accuracy against the simulated truth), target
-refinement, and ChArUco detection time per 20 MP image. Run by hand: `.venv/bin/python bench/camera.py`."""
+refinement, ChArUco detection time per 20 MP image, the real webcam videos of ../shared/data/charuco-webcam
+(detection against OpenCV's own ChArUco detector, RMS against calibrateCamera, timings) and `--model auto` on
+mrcal's corners. Run by hand: `.venv/bin/python bench/camera.py`."""
 from __future__ import annotations
 
 import argparse
@@ -85,16 +87,76 @@ def bench_detection(n_images: int) -> None:
           f"{len(meas) / n_images:.0f} corners per image; rendering took {t_sim / n_images:.1f} s per image")
 
 
+def bench_webcam() -> None:
+    """`dgcal camera --board charuco.toml --images cam_N.mp4` on the real webcam videos, beside OpenCV."""
+    import cv2
+
+    from dgcal.calib.selfcal.calibration import calibrate_camera
+    from dgcal.fields.targets.boards import read_board
+    d = Path(__file__).resolve().parents[2] / "shared" / "data" / "charuco-webcam"
+    if not d.is_dir():
+        print(f"(no {d}: webcam benchmark skipped)")
+        return
+    board = read_board(d / "charuco.toml")
+    ref_det = cv2.aruco.CharucoDetector(board.cv_board())
+    print(f"{'video':8s} {'frames':>6s} {'corners':>8s} {'OpenCV':>7s} {'time s':>7s} {'RMS':>7s} {'OpenCV RMS':>10s} "
+          f"{'fx':>8s} {'OpenCV fx':>9s} {'valid %':>7s} {'sigma px':>8s}")
+    for cam in ("cam_0", "cam_2"):
+        t0 = time.perf_counter()
+        cal = calibrate_camera(None, images=d / f"{cam}.mp4", board=d / "charuco.toml", fixed=("B2",), reject_k=0,
+                               progress=False)
+        dt = time.perf_counter() - t0
+        chosen = {int(c.label.split("#")[1]) for c in cal.frames.chosen}
+        cap = cv2.VideoCapture(str(d / f"{cam}.mp4"))
+        objs, imgs, n_cv, k = [], [], 0, 0
+        while True:
+            ok, fr = cap.read()
+            if not ok:
+                break
+            cc, ci, _, _ = ref_det.detectBoard(255 - cv2.cvtColor(fr, cv2.COLOR_BGR2GRAY))
+            if k in chosen and ci is not None:
+                n_cv += len(ci)
+                objs.append(board.corner_xyz()[ci.ravel()].astype(np.float32))
+                imgs.append(cc.reshape(-1, 2))
+            k += 1
+        rms, K, _, _, _ = cv2.calibrateCamera(objs, imgs, (1280, 720), None, None)
+        sig = cal.uncertainty.at(cal.region.grid((41, 29)), infinity=True)
+        print(f"{cam:8s} {len(chosen):6d} {len(cal.measurements):8d} {n_cv:7d} {dt:7.2f} {cal.ba.rms_px:7.4f} "
+              f"{rms:10.4f} {cal.camera['f'] + cal.camera['B1']:8.1f} {K[0, 0]:9.1f} "
+              f"{100 * cal.region.fractions()['valid']:7.1f} {np.median(sig):8.3f}")
+
+
+def bench_auto() -> None:
+    """`--model auto` on mrcal's figueroa corners: the comparison table and the time."""
+    from dgcal.calib.selfcal.calibration import calibrate_camera
+    d = Path(__file__).resolve().parents[2] / "shared" / "data" / "mrcal-figueroa"
+    if not d.is_dir():
+        print(f"(no {d}: model-comparison benchmark skipped)")
+        return
+    t0 = time.perf_counter()
+    cal = calibrate_camera(d / "field.csv", measurements=d / "measurements.csv", image_size=(6016, 4016),
+                           model="auto", progress=False)
+    print(f"--model auto on mrcal's corners: {time.perf_counter() - t0:.1f} s, chose {cal.comparison.chosen}")
+    for f in cal.comparison.fits.values():
+        r = f.row()
+        print(f"  {r['model']:8s} RMS {r['rms_px']:7.3f} px  cross-validation {r['cv_rms_px']:6.3f} px "
+              f"(x{r['cv_ratio']:.2f} noise)  {r['rejected'] or ''}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--images", type=int, default=60)
     p.add_argument("--square", type=float, default=0.06, help="ChArUco square (m): 0.06 gives ~1000 corners")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--detect-images", type=int, default=3, help="20 MP images to render and detect (0: skip)")
+    p.add_argument("--skip-real", action="store_true", help="skip the webcam and mrcal runs")
     a = p.parse_args()
     bench_adjustment(a.images, a.square, a.seed)
     if a.detect_images:
         bench_detection(a.detect_images)
+    if not a.skip_real:
+        bench_webcam()
+        bench_auto()
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", help="keep the rendered data set here (default: a temporary folder)")
+    p.add_argument("--boards", action="store_true", help="also the standard boards (charuco, chessboard, aruco-grid)")
     a = p.parse_args()
 
     import cv2
@@ -83,6 +84,39 @@ def main() -> None:
         print(f"corner error OpenCV: RMS {np.sqrt(np.mean(err_cv ** 2)):.4f} px per axis, "
               f"max {np.abs(err_cv).max():.3f} px (CharucoDetector defaults, same targets)")
     print(f"sigma honesty: RMS(error/sigma) = {np.sqrt(np.mean(z ** 2)):.2f} (1 = honest)")
+    if a.boards:
+        bench_boards(a.seed)
+
+
+def bench_boards(seed: int, n_images: int = 12, size=(960, 720)) -> None:
+    """Standard boards rendered by the simulator: detection time per image and corner errors against the truth."""
+    import cv2
+
+    from dgcal.calib.selfcal.board_detection import BoardDetector
+    from dgcal.fields.io.formats import read_measurements
+    from dgcal.fields.targets.boards import Board
+    from dgcal.sim.camera_field import simulate_board_views
+    boards = {"charuco (inverted)": Board("charuco", 12, 9, 0.03, 0.0225, "DICT_4X4_250", inverted=True),
+              "chessboard": Board("chessboard", 12, 9, 0.025),
+              "aruco-grid": Board("aruco-grid", 8, 6, 0.04, 0.032, "DICT_5X5_250", first_id=3)}
+    print(f"standard boards, {n_images} rendered views of {size[0]}x{size[1]}:")
+    for name, b in boards.items():
+        with tempfile.TemporaryDirectory() as d:
+            out = Path(d) / "v"
+            simulate_board_views(out, b, seed=seed, n_images=n_images, image_size=size)
+            tm = read_measurements(out / "truth_measurements.csv")
+            key = {(i, k): p for i, k, p in zip(tm.image, tm.id, tm.xy)}
+            det = BoardDetector(b)
+            err, t = [], 0.0
+            for f in sorted((out / "images").iterdir()):
+                g = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+                t0 = time.perf_counter()
+                r = det.detect(g)
+                t += time.perf_counter() - t0
+                err += [p - key[(f.name, k)] for k, p in zip(r.ids, r.xy) if (f.name, k) in key]
+            e = np.array(err)
+            print(f"  {name:20s} {t / n_images * 1000:6.0f} ms/image, {len(e)} of {len(tm)} corners, error RMS "
+                  f"{np.sqrt(np.mean(e ** 2)):.4f} px per axis, median |e| {np.median(np.abs(e)):.4f} px")
 
 
 if __name__ == "__main__":

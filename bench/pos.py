@@ -1,8 +1,12 @@
-"""Benchmark and acceptance run of the GNSS/INS smoother (issue 4).
+"""Benchmark and acceptance run of the GNSS/INS smoother (issues 4 and 12).
 
     python bench/pos.py                 # 1 h of 200 Hz IMU + 1 Hz GNSS, TC: wall time and peak memory
     python bench/pos.py --acceptance    # 20-min ADIS16488 flight, TC and LC: accuracy, sigma honesty,
                                         # smoother vs forward, 60 s with 3 satellites (several seeds)
+    python bench/pos.py --carrier       # issue 12: 20-min flight, rover + base carrier phase: TC with carrier vs
+                                        # LC on the same PPK positions, the 3-satellite minute (several seeds)
+    python bench/pos.py --carrier --hours 1   # 1 h of 200 Hz IMU + 1 Hz rover/base TC with carrier phase:
+                                        # wall time per stage and peak memory
 """
 from __future__ import annotations
 
@@ -24,6 +28,11 @@ def _rss_mb() -> float:
 
 def _rms(x, axis=0):
     return np.sqrt(np.mean(np.asarray(x) ** 2, axis=axis))
+
+
+def _errors(sol, traj):
+    from dgcal.sim.pos import navigation_errors
+    return navigation_errors(sol, traj)
 
 
 def acceptance(seeds, duration, rate):
@@ -96,6 +105,69 @@ def benchmark(hours, rate, systems):
           f"att {_rms((dth / sa).ravel()):.2f}")
 
 
+def carrier_acceptance(seeds, duration, rate, misalignment):
+    from dgcal.pos.gnss.carrier import code_observations
+    from dgcal.pos.gnss.spp import SppOptions
+    from dgcal.pos.pipeline import fixes_from_ppk, process
+    from dgcal.sim.pos import navigation_errors, simulate_pos
+    for seed in seeds:
+        t0 = time.time()
+        sim = simulate_pos(seed=seed, duration_s=duration, rate_hz=rate, misalignment=misalignment)
+        c = sim.carrier
+        print(f"seed {seed}: simulated {duration:.0f} s at {rate:.0f} Hz (triad misalignment {misalignment}) in "
+              f"{time.time() - t0:.1f} s; slips {len(c.truth['slips'])}, outages {sim.outages}")
+        opts = SppOptions(code_sigma_zenith_m=0.3, doppler_sigma_zenith_mps=0.1, model_errors=False,
+                          systems=("G", "E"))
+        t0 = time.time()
+        tc = process("tc", sim.imu, sim.grade, sim.lever_arm_b, raw_obs=code_observations(c.rover), nav=sim.nav,
+                     spp_opts=opts, events=sim.events, carrier=(c.rover, c.base, c.base_ecef))
+        wall = time.time() - t0
+        lc = process("lc", sim.imu, sim.grade, sim.lever_arm_b, lc_fixes=fixes_from_ppk(tc.carrier.ppk),
+                     events=sim.events, forward=False)
+        o0, o1, _ = sim.outage
+        for name, r in (("TC carrier", tc), ("LC on PPK", lc)):
+            sol = r.smoothed
+            dp, dth, sp, sa = navigation_errors(sol, sim.traj)
+            inside = (sol.t >= o0 + 1) & (sol.t <= o1 - 1)
+            e = np.linalg.norm(dp, axis=1)
+            print(f"  {name:10s} pos 3D RMS {100 * _rms(e):.2f} cm, att RMS (x,y,z body) "
+                  f"{np.array2string(np.degrees(_rms(dth)), precision=4)} deg, "
+                  f"normalised pos {_rms((dp / sp).ravel()):.2f} "
+                  f"att {_rms((dth / sa).ravel()):.2f} (per axis {np.array2string(_rms(dth / sa), precision=2)}); "
+                  f"3-satellite minute max {100 * e[inside].max():.1f} cm RMS {100 * _rms(e[inside]):.1f} cm")
+        s = tc.summary["carrier"]
+        print(f"  TC wall {wall:.1f} s {tc.smoothed.info.get('timing')}; PPK {100 * s['ppk_fix_rate']:.0f} % fixed, "
+              f"TC-PPK(fixed) {100 * s['tc_minus_ppk_fixed_rms_m']:.2f} cm, DD phase residual RMS/sigma "
+              f"{tc.summary['residuals']['ddp']['rms_normalised']:.2f}, NIS {tc.summary['normalised_innovations']}")
+
+
+def carrier_benchmark(hours, rate):
+    from dgcal.pos.gnss.carrier import code_observations
+    from dgcal.pos.gnss.spp import SppOptions
+    from dgcal.pos.pipeline import process
+    from dgcal.sim.pos import simulate_pos
+    t0 = time.time()
+    sim = simulate_pos(seed=0, duration_s=hours * 3600.0, rate_hz=rate, n_strips=10, strip_length_m=1000.0,
+                       strip_spacing_m=100.0, misalignment=False)
+    c = sim.carrier
+    print(f"simulated {hours * 3600:.0f} s: {len(sim.imu.t)} IMU samples at {rate:.0f} Hz, {len(c.rover.t_gps)} "
+          f"rover/base epochs ({len(c.rover.sats)} satellites in the file, 2 frequencies); {time.time() - t0:.1f} s")
+    opts = SppOptions(code_sigma_zenith_m=0.3, doppler_sigma_zenith_mps=0.1, model_errors=False, systems=("G", "E"))
+    raw = code_observations(c.rover)
+    rss0 = _rss_mb()
+    t0, c0 = time.time(), time.process_time()
+    r = process("tc", sim.imu, sim.grade, sim.lever_arm_b, raw_obs=raw, nav=sim.nav, spp_opts=opts, events=sim.events,
+                carrier=(c.rover, c.base, c.base_ecef))
+    wall, cpu = time.time() - t0, time.process_time() - c0
+    dp, dth, sp, sa = _errors(r.smoothed, sim.traj)
+    print(f"TC with carrier phase, {hours:g} h: wall {wall:.1f} s, CPU {cpu:.1f} s (load {os.getloadavg()[0]:.1f} on "
+          f"{os.cpu_count()} cores); stages {r.smoothed.info.get('timing')}; front end {r.carrier.info}")
+    print(f"  peak RSS {_rss_mb():.0f} MB (before the run {rss0:.0f} MB, after simulating the data)")
+    print(f"  accuracy: pos 3D RMS {100 * _rms(np.linalg.norm(dp, axis=1)):.2f} cm, attitude RMS "
+          f"{np.array2string(np.degrees(_rms(dth)), precision=4)} deg, normalised pos {_rms((dp / sp).ravel()):.2f} "
+          f"att {_rms((dth / sa).ravel()):.2f}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--acceptance", action="store_true")
@@ -105,8 +177,14 @@ def main() -> int:
     ap.add_argument("--hours", type=float, default=1.0, help="benchmark length, h")
     ap.add_argument("--systems", default="G",
                     help="benchmark constellations (real nav file: G, E, J); G gives ~10 satellites")
+    ap.add_argument("--carrier", action="store_true", help="TC with carrier phase against a base (issue 12)")
+    ap.add_argument("--misalignment", action="store_true", help="--carrier: simulate a misaligned IMU triad")
     a = ap.parse_args()
-    if a.acceptance:
+    if a.carrier and "--hours" in sys.argv:
+        carrier_benchmark(a.hours, a.rate)
+    elif a.carrier:
+        carrier_acceptance(a.seeds, a.duration, a.rate, a.misalignment)
+    elif a.acceptance:
         acceptance(a.seeds, a.duration, a.rate)
     else:
         benchmark(a.hours, a.rate, tuple(a.systems))

@@ -153,8 +153,9 @@ def adjust(inp: BundleInput, options: BundleOptions | None = None) -> BundleResu
     """Run the bundle adjustment (pixels, metres, radians inside) and return orientation with covariance."""
     opt = options or BundleOptions()
     prob, state = problem_of(inp, opt)
-    sol = minimise(prob, state, LMOptions(max_iterations=opt.max_iterations, tol_rel=opt.tolerance, tol_chi2=opt.tol_chi2,
-                                          lambda_up=8.0, lambda_down=5.0, verbose=opt.verbose))
+    sol = minimise(prob, state, LMOptions(max_iterations=opt.max_iterations, tol_rel=opt.tolerance,
+                                          tol_chi2=opt.tol_chi2, lambda_up=8.0, lambda_down=5.0,
+                                          verbose=opt.verbose))
     nrm = normals_at(prob, sol)
     cov = Covariance.at(prob, nrm)
     redundancy = int(nrm.redundancy)

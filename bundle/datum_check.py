@@ -74,6 +74,7 @@ def gcp_datum_step(camera, R_cam_to_world: np.ndarray, C_w: np.ndarray, obs_imag
     cov = np.linalg.pinv(J.T @ J) * max(s0sq, 1.0)
     R, C = _apply(sol.x, R_cam_to_world, C_w, centre)
     chi2 = float(sol.x @ np.linalg.solve(cov, sol.x))
-    px = lambda r: float(np.sqrt(np.mean((r.reshape(-1, 2) * sig) ** 2)))
+    def px(r):
+        return float(np.sqrt(np.mean((r.reshape(-1, 2) * sig) ** 2)))
     return DatumStep(sol.x[:3].copy(), sol.x[3:6].copy(), float(sol.x[6]), centre, cov, chi2,
                      px(r0), px(sol.fun), R, C)

@@ -9,8 +9,8 @@
    Images the mapper leaves out are resected through the points it triangulated.
 3. If the mapper finds nothing (too few tie points), images are resected from the control points and grown
    through the tie points in the world frame (`dgcal.bundle.resection.grow_orientation`), or a relative
-   orientation is scaled onto the control points, whichever orients more images. The adjustment refines the result and retries the images left
-out (`dgcal.bundle.triangulation`).
+   orientation is scaled onto the control points, whichever orients more images. The adjustment refines the
+   result and retries the images left out (`dgcal.bundle.triangulation`).
 """
 from __future__ import annotations
 
@@ -118,7 +118,7 @@ def initial_orientation(camera: CameraModel, image_names: list[str], obs_image: 
 
     X_control (m,3): control coordinates (NaN for tie points); R0, C0: approximate poses (NaN where unknown)."""
     import time
-    n, m = len(image_names), len(X_control)
+    n = len(image_names)
     oi, op = np.asarray(obs_image, int), np.asarray(obs_point, int)
     notes: list[str] = []
     seconds: dict = {}

@@ -71,7 +71,8 @@ def extract_tie_points(image_dir: str | Path, names: list[str] | None = None,
     names = list(names) if names is not None else list_images(image_dir)
     missing = [n for n in names if not (image_dir / n).is_file()]
     if missing:
-        raise InputError(f"image {missing[0]} not found" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""),
+        raise InputError(f"image {missing[0]} not found"
+                         + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""),
                          image_dir, field="--images")
     pairs = pairs if pairs is not None else sequential_pairs(names)
     t_start = time.perf_counter()

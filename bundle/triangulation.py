@@ -36,7 +36,6 @@ from dgcal.bundle.solver.blocks import PointPriors
 from dgcal.calib.camera.models import CameraModel
 from dgcal.fields.errors import InputError, ResultError
 from dgcal.fields.io.formats import EOP, Measurements, Points
-from dgcal.fields.pose import Poses
 from dgcal.fields.world import World
 
 DEFAULT_SIGMA_PX = 0.5          # image measurement sigma when the file gives none
@@ -120,7 +119,8 @@ def _check_measurements(camera: CameraModel, meas: Measurements, image_size) -> 
         raise InputError(f"image size {tuple(image_size)} differs from the camera's {tuple(camera.image_size)}",
                          field="--image-size")
     w_img, h_img = camera.image_size
-    out = (meas.xy[:, 0] < -0.5) | (meas.xy[:, 1] < -0.5) | (meas.xy[:, 0] > w_img - 0.5) | (meas.xy[:, 1] > h_img - 0.5)
+    out = ((meas.xy[:, 0] < -0.5) | (meas.xy[:, 1] < -0.5) | (meas.xy[:, 0] > w_img - 0.5)
+           | (meas.xy[:, 1] > h_img - 0.5))
     if out.any():
         i = int(np.argmax(out))
         raise InputError(f"measurement ({meas.xy[i, 0]:.1f}, {meas.xy[i, 1]:.1f}) lies outside the "
@@ -487,8 +487,8 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
               if nm else f"image {blk.images[i]} has no measurements: left out", opt.verbose)
     out = _outputs(camera, res, adj, geo, points, meas, images_k, blk, msgs, opt, suspects, unknown_ids, P_world)
     out.dropped = dropped
-    out.summary.update({"initial_orientation": init.method, "rounds": rounds, "n_dropped_tie_observations": len(dropped),
-                        "dropped_tie_observations": dropped[:1000]})
+    out.summary.update({"initial_orientation": init.method, "rounds": rounds,
+                        "n_dropped_tie_observations": len(dropped), "dropped_tie_observations": dropped[:1000]})
     out.problems = _problems(res, adj, blk, opt)
     out.summary["problems"] = out.problems
     out.summary["trusted"] = not out.problems
@@ -497,7 +497,8 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     out.summary["timings_s"] = {f"{b}": round(clock[b] - clock[a], 3) for a, b in zip(names, names[1:])}
     out.summary["timings_s"].update(init.seconds)
     if opt.verbose:
-        print(f"sigma0 {res.sigma0:.3f}, {len(images_k)} images, {len(adj.pt_keep)} points, redundancy {res.redundancy}")
+        print(f"sigma0 {res.sigma0:.3f}, {len(images_k)} images, {len(adj.pt_keep)} points, "
+              f"redundancy {res.redundancy}")
     if out.problems and not opt.accept_poor:
         raise ResultError("triangulation not trusted: " + "; ".join(out.problems)
                           + " (--accept-poor writes it anyway)", meas.path)

@@ -26,11 +26,20 @@ from dgcal.fields.io.gcp_files import read_any_measurements, read_any_points
 from dgcal.fields.pose import Poses
 from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
 from dgcal.pos.gnss.spp import SppOptions, spp
+from dgcal.pos.events import read_any_events, read_mrk, read_utc_events
+from dgcal.pos.gnss.solution_files import (GnssSolution, read_gnss_solution, read_nmea_gga, read_rtklib_pos,
+                                           write_rtklib_pos)
+from dgcal.pos.ins.error_model import read_imu_datasheet
 from dgcal.pos.ins.imu_data import ImuData, read_imu_csv, read_imu_text, read_kf_gins
+from dgcal.pos.ins.imu_formats import ImuFormat, imu_format, read_imu
+from dgcal.pos.ins.sbet import read_any_trajectory, read_sbet, write_sbet_files
+from dgcal.pos.ins.time_tags import read_time_tag
+from dgcal.pos.ins.ulog import read_ulog_camera_capture, read_ulog_imu
 from dgcal.pos.ins.interpolate import interpolate_trajectory
 from dgcal.pos.lowcost.sync import synchronise
 from dgcal.pos.lowcost.ukf import run_ukf
 from dgcal.pos.pipeline import PosOptions, PosResult, run_pos
+from dgcal.reports.exports.calibration import read_calibration_export, write_calibration_exports
 from dgcal.reports.exports.eop import (export_all, read_colmap, read_metashape, read_odm_geo, read_pix4d,
                                        write_colmap, write_metashape, write_odm_geo, write_pix4d)
 from dgcal.sim.campaign import simulate_campaign
@@ -50,12 +59,16 @@ __all__ = [
     # POS
     "ImuData", "read_imu_csv", "read_imu_text", "read_kf_gins", "read_rinex_obs", "read_rinex_nav",
     "SppOptions", "spp", "PosOptions", "PosResult", "run_pos", "interpolate_trajectory", "run_ukf", "synchronise",
+    "ImuFormat", "imu_format", "read_imu", "read_time_tag", "read_ulog_imu", "read_ulog_camera_capture",
+    "read_imu_datasheet", "GnssSolution", "read_gnss_solution", "read_rtklib_pos", "write_rtklib_pos",
+    "read_nmea_gga", "read_any_events", "read_mrk", "read_utc_events", "read_sbet", "write_sbet_files",
+    "read_any_trajectory",
     # system calibration and DG
     "METHODS", "MountingResult", "calibrate_mounting", "read_mounting_json", "dg_eop", "check_points_dg",
     "georeference",
     # exports
     "export_all", "write_colmap", "read_colmap", "write_pix4d", "read_pix4d", "write_metashape", "read_metashape",
-    "write_odm_geo", "read_odm_geo",
+    "write_odm_geo", "read_odm_geo", "write_calibration_exports", "read_calibration_export",
     # simulation
     "simulate_campaign",
 ]

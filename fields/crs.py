@@ -87,37 +87,52 @@ class LocalENU:
         return self.R_ecef_to_enu @ np.swapaxes(R_ecef_to_enu(lat_deg, lon_deg), -1, -2)
 
 
+def height_unit_factor(crs: pyproj.CRS) -> float:
+    """Metres per unit of the heights that go with a CRS: a 2-D projected CRS's heights are in its own linear
+    unit (a US-survey-foot State Plane grid has heights in US survey feet); 1 for geographic CRS and for 3-D or
+    compound CRS, whose vertical axis names its unit (pyproj converts it)."""
+    if not crs.is_projected or len(crs.axis_info) != 2:
+        return 1.0
+    f = crs.axis_info[0].unit_conversion_factor
+    return float(f) if f and np.isfinite(f) and f > 0 else 1.0
+
+
 class MapGrid:
-    """A map CRS (projected or geographic, 3-D with ellipsoidal heights) and its link to ECEF."""
+    """A map CRS (projected or geographic, 3-D with ellipsoidal heights) and its link to ECEF.
+
+    Heights (z) are ellipsoidal, in the CRS's height unit (`height_unit_factor`: metres for geographic and
+    metric grids, feet for a 2-D grid in feet)."""
 
     def __init__(self, crs: str | pyproj.CRS):
         self.crs = parse_crs(crs) if isinstance(crs, str) else crs
+        self.z_unit_m = height_unit_factor(self.crs)
         self._to_ecef = pyproj.Transformer.from_crs(self.crs.to_3d(), ECEF, always_xy=True)
         self._from_ecef = pyproj.Transformer.from_crs(ECEF, self.crs.to_3d(), always_xy=True)
         self._to_geo = pyproj.Transformer.from_crs(self.crs.to_3d(), GEODETIC, always_xy=True)
         self._from_geo = pyproj.Transformer.from_crs(GEODETIC, self.crs.to_3d(), always_xy=True)
 
     def to_ecef(self, xyz) -> np.ndarray:
-        """ECEF (m) of map coordinates (x=E, y=N, z=ellipsoidal height)."""
+        """ECEF (m) of map coordinates (x=E, y=N, z=ellipsoidal height in the CRS's height unit)."""
         p = np.asarray(xyz, float)
-        return np.stack(self._to_ecef.transform(p[..., 0], p[..., 1], p[..., 2]), axis=-1)
+        return np.stack(self._to_ecef.transform(p[..., 0], p[..., 1], p[..., 2] * self.z_unit_m), axis=-1)
 
     def from_ecef(self, p_ecef) -> np.ndarray:
         """Map coordinates (E, N, h) of ECEF points (m)."""
         p = np.asarray(p_ecef, float)
-        return np.stack(self._from_ecef.transform(p[..., 0], p[..., 1], p[..., 2]), axis=-1)
+        x, y, z = self._from_ecef.transform(p[..., 0], p[..., 1], p[..., 2])
+        return np.stack([x, y, np.asarray(z) / self.z_unit_m], axis=-1)
 
     def to_geodetic(self, xyz) -> np.ndarray:
-        """Latitude, longitude (degrees), ellipsoidal height of map coordinates."""
+        """Latitude, longitude (degrees), ellipsoidal height (m) of map coordinates."""
         p = np.asarray(xyz, float)
-        lon, lat, h = self._to_geo.transform(p[..., 0], p[..., 1], p[..., 2])
+        lon, lat, h = self._to_geo.transform(p[..., 0], p[..., 1], p[..., 2] * self.z_unit_m)
         return np.stack([lat, lon, h], axis=-1)
 
     def from_geodetic(self, lat_deg, lon_deg, h_m) -> np.ndarray:
         """Map coordinates of geodetic points (degrees, ellipsoidal m)."""
         x, y, z = self._from_geo.transform(np.asarray(lon_deg, float), np.asarray(lat_deg, float),
                                            np.asarray(h_m, float))
-        return np.stack([x, y, z], axis=-1)
+        return np.stack([x, y, np.asarray(z) / self.z_unit_m], axis=-1)
 
     def convergence_deg(self, lat_deg, lon_deg) -> np.ndarray:
         """True azimuth of grid north (degrees, clockwise from true north) at geodetic points.

@@ -33,7 +33,8 @@ def so3_log(R: np.ndarray) -> np.ndarray:
 
 
 def so3_right_jacobian_inv(phi: np.ndarray) -> np.ndarray:
-    """(...,3,3) inverse right Jacobian of SO(3) at rotation vectors phi (...,3): Log(Exp(phi) Exp(d)) ~ phi + Jr^-1 d."""
+    """(...,3,3) inverse right Jacobian of SO(3) at rotation vectors phi (...,3):
+    Log(Exp(phi) Exp(d)) ~ phi + Jr^-1 d."""
     phi = np.asarray(phi, float)
     th = np.linalg.norm(phi, axis=-1)[..., None, None]
     K = np.zeros(phi.shape[:-1] + (3, 3))

@@ -139,12 +139,12 @@ class World:
 
     def _to_ellipsoidal(self, xyz_map: np.ndarray) -> np.ndarray:
         xyz = np.array(np.atleast_2d(xyz_map), float)
-        xyz[:, 2] += self.undulation(xyz)
+        xyz[:, 2] += self.undulation(xyz) / getattr(self.grid, "z_unit_m", 1.0)   # N (m) in height units
         return xyz
 
     def _from_ellipsoidal(self, xyz_ell: np.ndarray) -> np.ndarray:
         xyz = np.array(np.atleast_2d(xyz_ell), float)
-        xyz[:, 2] -= self.undulation(xyz)
+        xyz[:, 2] -= self.undulation(xyz) / getattr(self.grid, "z_unit_m", 1.0)   # N (m) in height units
         return xyz
 
     # --- points -------------------------------------------------------------------------------

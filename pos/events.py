@@ -1,4 +1,8 @@
-"""Camera event marks beyond the events CSV: DJI `.MRK` timestamp files, and building Events from times.
+"""Camera event marks beyond the events CSV: DJI `.MRK` timestamp files, `image,utc` CSV, PX4 camera-capture
+messages (dgcal.pos.ins.ulog), `read_any_events` choosing by content, and building Events from times.
+
+`image,utc` CSV: a header with `image` and `utc` (UTC as `YYYY-MM-DD[T ]hh:mm:ss[.fff][Z]` or Unix seconds);
+GPS time = UTC + the leap seconds (dgcal.fields.io.timescales), or a `gpst` column (same forms) without them.
 
 DJI `Timestamp.MRK` (Phantom 4 RTK, Matrice RTK payloads): one tab-separated line per photo:
   `1  282401.669089  [2404]  101,N  107,E  129,V  22.77995359,Lat  114.10089118,Lon  139.231,Ellh
@@ -16,9 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.formats import Events, gps_seconds, week_sow
+from dgcal.fields.io.csv_tables import atomic_write, read_table
+from dgcal.fields.io.formats import Events, gps_seconds, read_events, week_sow
+from dgcal.fields.io.timescales import gps_from_unix_gpst, gps_from_unix_utc, unix_from_calendar
+from dgcal.pos.ins.ulog import read_ulog_camera_capture
 
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 # the row's fields in order: (name used in errors, regex piece)
@@ -142,3 +148,72 @@ def match_events_to_images(events: Events, image_names) -> Events:
                          events.path, field="image")
     return Events(image=np.array(imgs, dtype=object), t=np.asarray(events.t, float).copy(), lines=events.lines,
                   path=events.path)
+
+
+def read_utc_events(path: str | Path, leap_seconds: float | None = None) -> Events:
+    """Events from a CSV `image,utc` (or `image,gpst`): date-time texts or Unix seconds (see the module docstring)."""
+    path = Path(path)
+    tab = read_table(path, ("image",), (), text=("image", "utc", "gpst", "time"))
+    head = [c for c in ("utc", "gpst") if c in tab.cols]
+    if not head:
+        tab = read_table(path, ("image", "utc"), (), text=("image", "utc"))
+        head = ["utc"]
+    col = head[0]
+    u = np.empty(len(tab))
+    for i, v in enumerate(tab[col]):
+        s = str(v).strip()
+        try:
+            u[i] = float(s)
+        except ValueError:
+            try:
+                u[i] = unix_from_calendar(s.rstrip("Zz"))
+            except ValueError as exc:
+                raise InputError(str(exc), path, int(tab.lines[i]), col) from None
+        if not np.isfinite(u[i]):
+            raise InputError("not a finite time", path, int(tab.lines[i]), col)
+    t = gps_from_unix_utc(u, leap_seconds) if col == "utc" else gps_from_unix_gpst(u)
+    image = np.array([str(v) for v in tab["image"]], dtype=object)
+    _, first = np.unique(image, return_index=True)
+    if len(first) < len(image):
+        dup = np.setdiff1d(np.arange(len(image)), first)[0]
+        raise InputError(f"image {image[dup]!r} has two events", path, int(tab.lines[dup]), "image")
+    return Events(image, t, tab.lines, path)
+
+
+EVENT_FORMATS = ("dgcal", "mrk", "utc-csv", "px4")
+
+
+def sniff_events_format(path: str | Path) -> str:
+    """The events file's format from its content: dgcal, mrk, utc-csv or px4 (ULog)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", path)
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    if head.startswith(b"ULog"):
+        return "px4"
+    text = head.decode("utf-8", "replace").lstrip("\ufeff")
+    first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), "")
+    low = first.lower()
+    if _MRK.match(first) or re.search(r",\s*Lat\b", first):
+        return "mrk"
+    cols = [c.strip() for c in low.split(",")]
+    if "image" in cols and ("utc" in cols or "gpst" in cols) and "gps_sow" not in cols:
+        return "utc-csv"
+    return "dgcal"
+
+
+def read_any_events(path: str | Path, fmt: str | None = None, name_pattern: str = "DJI_{index:04d}.JPG") -> Events:
+    """Camera events from a dgcal events CSV, a DJI `.MRK`, an `image,utc` CSV or a PX4 ULog's camera_capture
+    (`fmt` one of EVENT_FORMATS; default: recognised by content)."""
+    fmt = fmt or sniff_events_format(path)
+    if fmt == "dgcal":
+        return read_events(path)
+    if fmt == "mrk":
+        return read_mrk(path).events(name_pattern)
+    if fmt == "utc-csv":
+        return read_utc_events(path)
+    if fmt == "px4":
+        return read_ulog_camera_capture(path)
+    raise InputError(f"unknown events format {fmt!r} (one of {', '.join(EVENT_FORMATS)})", path,
+                     field="--events-format")

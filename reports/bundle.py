@@ -80,7 +80,8 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
                   ("converged", s["converged"]),
                   ("control RMSE E / N / U (m)", _triple(s["control_rmse_m"])),
                   ("check RMSE E / N / U (m)", _triple(chk)), ("check points evaluated", chk["n"]),
-                  ("camera", f"{s['camera']['model']}, refined: {', '.join(s['camera']['refined']) or 'none (fixed)'}")])
+                  ("camera", f"{s['camera']['model']}, "
+                             f"refined: {', '.join(s['camera']['refined']) or 'none (fixed)'}")])
     rep.heading("Warnings")
     rep.warnings(s["warnings"])
     # --- map figure -------------------------------------------------------------------------

@@ -1,5 +1,6 @@
-"""The camera calibration report: one HTML file with the parameters and their sigmas, warnings, the
-residual vectors over the frame, distortion curves, the correlation matrix and per-image RMS."""
+"""The camera calibration report: one HTML file with the parameters and their sigmas, warnings, the model
+comparison (`--model auto`), the projection-uncertainty map with the valid region, the residual vectors over the
+frame, distortion curves, the correlation matrix, per-image RMS and the frames chosen from videos."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,6 +9,7 @@ import numpy as np
 
 from dgcal.calib.selfcal.calibration import CameraCalibration, write_camera_outputs
 from dgcal.calib.selfcal.diagnostics import residual_pattern
+from dgcal.calib.selfcal.uncertainty import UncertaintyMap
 from dgcal.reports.html import HtmlReport, new_figure
 
 
@@ -140,6 +142,49 @@ def stations_figure(cal: CameraCalibration):
     return fig
 
 
+def _outline(ax, cal: CameraCalibration) -> None:
+    """The valid region's parts on a frame plot: observed hull (solid) and the monotonic boundary (dashed)."""
+    reg = cal.region
+    if reg is None:
+        return
+    if reg.observed is not None:
+        h = np.vstack([reg.observed, reg.observed[:1]])
+        ax.plot(h[:, 0], h[:, 1], "-", color="white", lw=2.2)
+        ax.plot(h[:, 0], h[:, 1], "-", color="black", lw=1.0, label="observed region (hull)")
+    if not reg.whole_frame_monotonic:
+        m = np.vstack([reg.monotonic, reg.monotonic[:1]])
+        ax.plot(m[:, 0], m[:, 1], "--", color="tab:red", lw=1.2, label="fold of the model (monotonic region)")
+
+
+def uncertainty_figure(cal: CameraCalibration, umap: UncertaintyMap | None = None, title: str = ""):
+    """Maps of the worst-direction projection sigma (px, log colour scale) over the frame, at the map's range and
+    at infinity, with the valid region outlined."""
+    u = cal.uncertainty if umap is None else umap
+    w, h = cal.camera.image_size
+    fig, axes = new_figure(11, 11 * h / w / 2 + 1.3, ncols=2)
+    reg_uv = cal.region.grid((41, 29)) if cal.region is not None else np.zeros((0, 2))
+    inside = u.at(reg_uv, infinity=True) if len(reg_uv) else u.sigma_infinity.ravel()
+    lo = max(float(np.nanmin(u.sigma_range)), 1e-6)
+    hi = float(np.nanpercentile(inside, 100)) * 30 if len(inside) else float(np.nanmax(u.sigma_infinity))
+    hi = max(hi, 2 * lo)
+    from matplotlib.colors import LogNorm
+    panels = ((axes[0], u.sigma_range, f"at {u.range_m:.3g} m"), (axes[1], u.sigma_infinity, "at infinity"))
+    for ax, grid, lab in panels:
+        im = ax.imshow(np.clip(grid, lo, hi), extent=(u.u[0], u.u[-1], u.v[-1], u.v[0]), norm=LogNorm(lo, hi),
+                       cmap="viridis", aspect="equal", interpolation="bilinear")
+        levels = [x for x in (0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100) if lo < x < hi]
+        if levels:
+            cs = ax.contour(u.u, u.v, grid, levels=levels, colors="white", linewidths=0.6)
+            ax.clabel(cs, fmt="%g", fontsize=7)
+        _outline(ax, cal)
+        ax.set_xlim(0, w - 1)
+        ax.set_ylim(h - 1, 0)
+        ax.set_title(f"{title or u.model}: projection sigma {lab} (px)", fontsize=9)
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    axes[0].legend(fontsize=7, loc="lower right")
+    return fig
+
+
 def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calibration") -> HtmlReport:
     """The report page (not yet written)."""
     ba, cam = cal.ba, cal.camera
@@ -153,6 +198,30 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
                   ("converged", str(ba.converged))])
     rep.heading("Warnings")
     rep.warnings(cal.warnings)
+    if cal.comparison is not None:
+        rep.heading("Model comparison (--model auto)")
+        cols = ["model", "RMS (px)", "free params", "radial chi2/dof", "radial pattern (px)", "valid fraction",
+                "cross-validation RMS (px)", "cross-validation max (px)", "CV / noise", "verdict"]
+        rows = []
+        for f in cal.comparison.fits.values():
+            r = f.row()
+            rows.append([r["model"], r["rms_px"], r["n_free_parameters"], r["radial_chi2_per_dof"],
+                         r["radial_pattern_rms_px"], r["valid_fraction"], r["cv_rms_px"], r["cv_max_px"], r["cv_ratio"],
+                         "chosen" if f.name == cal.comparison.chosen else (f.rejected or "not chosen")])
+        rep.table(cols, rows)
+        for r in cal.comparison.reasons:
+            rep.text(r)
+    if cal.uncertainty is not None:
+        rep.heading("Projection uncertainty and valid region")
+        rep.text(f"{cal.uncertainty.summary(cal.region)}. " + (cal.region.describe() if cal.region else ""))
+        rep.figure(uncertainty_figure(cal), "Worst-direction standard deviation of the projection of a point seen at "
+                   "each pixel (the intrinsics' and the poses' covariance propagated, as mrcal does). Black: the "
+                   "region the observations cover; dashed red: where the model folds. Outside the black outline the "
+                   "model is an extrapolation.")
+        if cal.opencv_uncertainty is not None:
+            rep.figure(uncertainty_figure(cal, cal.opencv_uncertainty, "OpenCV block"),
+                       f"The same for the OpenCV block (a conversion fitted inside the valid region, max error "
+                       f"{cal.conversion_errors.get('opencv', 0):.3g} px there).")
     rep.heading("Parameters")
     sig = cal.diagnostics.significance
     rows = []
@@ -174,6 +243,14 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
     rep.figure(per_image_figure(cal))
     rep.heading("Camera stations")
     rep.figure(stations_figure(cal), "Projection centres of the used images (poses.csv) in the field frame.")
+    if cal.frames is not None:
+        rep.heading("Frames")
+        rep.text(f"frames looked at: {cal.frames.summary()}; video frames are chosen by sharpness and coverage "
+                 "diversity (all of them in frames.csv)")
+        rows = cal.frames.rows()
+        rep.table(["frame", "source", "number", "time (s)", "corners", "sharpness", "status"], rows[:300])
+        if len(rows) > 300:
+            rep.text(f"... and {len(rows) - 300} more in frames.csv.", "small")
     if ba.rejected:
         rep.heading("Rejected observations")
         shown = sorted(ba.rejected, key=lambda r: -(r.residual_px if r.residual_px == r.residual_px else 0))[:200]

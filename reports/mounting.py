@@ -103,17 +103,20 @@ def mount_report_html(main: dict, others: dict | None = None) -> str:
                  "Delay = t_exposure − t_event.</p>")
     R = np.array(main["boresight_R_cam_to_body"])
     parts.append("<h3>R_cam_to_body</h3>" + _table(["", "cam x", "cam y", "cam z"],
-                                                   [[f"body {'xyz'[i]}"] + [f"{v:.8f}" for v in R[i]] for i in range(3)]))
+                                                   [[f"body {'xyz'[i]}"] + [f"{v:.8f}" for v in R[i]]
+                                                    for i in range(3)]))
     if main.get("correlation"):
         names = main.get("parameters", [])
         corr = main["correlation"]
         parts.append("<h2>Correlations</h2>" + _table(
-            [""] + names, [[names[i]] + ["" if v is None else f"{v:+.3f}" for v in corr[i]] for i in range(len(names))]))
+            [""] + names, [[names[i]] + ["" if v is None else f"{v:+.3f}" for v in corr[i]]
+                           for i in range(len(names))]))
     for k in ("sigma0", "redundancy", "covariance_scaled_by", "boresight_parameterisation", "propagation"):
         if k in main:
             parts.append(f"<p><b>{k}</b>: {html.escape(str(main[k]))}</p>")
     warn = main.get("warnings", [])
-    parts.append("<h2>Warnings</h2>" + ("".join(f"<p class='warn'>{html.escape(w)}</p>" for w in warn) or "<p>none</p>"))
+    parts.append("<h2>Warnings</h2>"
+                 + ("".join(f"<p class='warn'>{html.escape(w)}</p>" for w in warn) or "<p>none</p>"))
     if main.get("rejected_epochs"):
         parts.append("<h2>Rejected epochs</h2><p>" + html.escape(", ".join(main["rejected_epochs"])) + "</p>")
     parts.append("<h2>Per-epoch values</h2>" + "".join(_per_epoch_plots(results)))
@@ -127,7 +130,8 @@ def check_report_html(checks: dict, improvement: dict | None = None) -> str:
     for name, c in checks.items():
         s = c["stats"]
         for what in ("avg", "std", "rms"):
-            rows.append([f"{name} ({s['n']})", what.upper()] + [f"{s[what][k]:.4f}" for k in ("E", "N", "U", "2D", "3D")])
+            rows.append([f"{name} ({s['n']})", what.upper()]
+                        + [f"{s[what][k]:.4f}" for k in ("E", "N", "U", "2D", "3D")])
     parts.append("<h2>DG check-point errors (m), seed 003 Table 2</h2>"
                  + _table(["method", "", "E", "N", "U", "2D", "3D"], rows))
     if improvement:

@@ -1,5 +1,7 @@
-"""HTML report of a GNSS/INS smoothing run (`dgcal pos --mode tc|lc`): trajectory map, satellites used,
-post-fit residuals, sigma envelopes, smoother vs forward, innovation statistics. One self-contained file."""
+"""HTML report of a GNSS/INS smoothing run (`dgcal pos --mode tc|lc`): with a base station the carrier phase (PPK
+fix rate over time, satellites and fixed phase rows, slips, TC minus PPK), trajectory map, satellites used,
+post-fit residuals (DD phase and code), sigma envelopes, smoother vs forward, innovations and normalised
+innovations. One self-contained file."""
 from __future__ import annotations
 
 import json
@@ -11,7 +13,7 @@ import numpy as np
 from dgcal.fields.crs import geodetic_to_ecef
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import write_trajectory
-from dgcal.pos.pipeline import PosResult
+from dgcal.pos.pipeline import PosResult, antenna_ecef
 from dgcal.reports.html import HtmlReport, new_figure
 
 
@@ -79,10 +81,11 @@ def _satellites(res):
 
 def _residuals(res, which: str):
     rows = (res.smoothed.residuals if which == "post-fit" else res.forward.residuals)
-    kinds = [k for k in ("pr", "dop", "pos", "vel") if k in rows]
+    kinds = [k for k in ("pr", "ddp", "ddp_float", "ddc", "dop", "pos", "vel") if k in rows]
     fig, axs = new_figure(9, 2.6 * max(len(kinds), 1), nrows=max(len(kinds), 1), squeeze=False)
     t = res.smoothed.t - res.smoothed.t[0]
-    unit = {"pr": "pseudorange (m)", "dop": "range rate (m/s)", "pos": "position (m)", "vel": "velocity (m/s)"}
+    unit = {"pr": "pseudorange (m)", "dop": "range rate (m/s)", "pos": "position (m)", "vel": "velocity (m/s)",
+            "ddp": "DD phase (m)", "ddp_float": "DD phase, float,\ntime difference (m)", "ddc": "DD code (m)"}
     for ax, kind in zip(axs[:, 0], kinds):
         k, e, s = rows[kind]
         ax.plot(t[k.astype(int)], e, ".", ms=1.5, alpha=0.6)
@@ -100,6 +103,64 @@ def _smooth_vs_forward(res):
     ax.plot(t, np.linalg.norm(res.forward_keyframes.sigma[:, :3], axis=1), "--", lw=0.8,
             label="forward 3D sigma (m)")
     ax.plot(t, np.linalg.norm(res.keyframes.sigma[:, :3], axis=1), lw=0.8, label="smoothed 3D sigma (m)")
+    ax.set_yscale("log")
+    ax.set_xlabel("time since start (s)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def _carrier_status(res):
+    """PPK status per epoch, running fix rate, satellites in the double differences and slip flags."""
+    fe, sol = res.carrier, res.smoothed
+    pk = fe.ppk
+    t0 = sol.t[0]
+    fig, axs = new_figure(9, 6.5, nrows=3, sharex=True)
+    colors = {3: "#393", 2: "#e90", 1: "#d33", 0: "#999"}
+    names = {3: "fixed", 2: "float", 1: "single", 0: "none"}
+    for st, c in colors.items():
+        m = pk.status == st
+        if m.any():
+            axs[0].plot(pk.t_gps[m] - t0, np.full(m.sum(), st), "|", ms=8, color=c, label=names[st])
+    axs[0].set_yticks([0, 1, 2, 3], ["none", "single", "float", "fixed"])
+    ax2 = axs[0].twinx()
+    run = np.cumsum(pk.status == 3) / np.arange(1, len(pk.status) + 1)
+    ax2.plot(pk.t_gps - t0, 100 * run, lw=0.8, color="#345")
+    ax2.set_ylabel("fix rate so far (%)")
+    axs[0].set_title("PPK status (the pass whose fixes give the arcs' integers)", fontsize=9)
+    axs[1].step(sol.t - t0, sol.n_sat, where="mid", lw=0.9, label="satellites in the double differences")
+    n_phase = np.array([int(np.sum((d.cur.kind == 0) & (d.cur.mode == 0))) if (d := sol.problem.dd.get(k)) else 0
+                        for k in range(len(sol.t))])
+    axs[1].step(sol.t - t0, n_phase, where="mid", lw=0.9, label="fixed phase rows")
+    axs[1].axhline(4, color="#d33", lw=0.6, ls=":")
+    axs[1].legend(fontsize=8)
+    pair = pk.pair
+    if pair is not None and len(pair.t) > 1:
+        flags = np.diff(pair.Cr, axis=0).sum(axis=(1, 2))
+        k = np.nonzero(flags)[0] + 1
+        axs[2].vlines(pair.t[k] - t0, 0, flags[k - 1], color="#d33", lw=0.8, label="rover slip flags (incl. new arcs)")
+        if pair.Cb.shape[0] > 1:
+            fb = np.diff(pair.Cb, axis=0).sum(axis=(1, 2))
+            kb = np.nonzero(fb)[0] + 1
+            axs[2].vlines(pair.tb[kb] - t0, 0, -fb[kb - 1], color="#36c", lw=0.8, label="base (down)")
+        axs[2].legend(fontsize=8)
+    axs[2].set_xlabel("time since start (s)")
+    for a in axs:
+        a.grid(alpha=0.3)
+    return fig
+
+
+def _ppk_vs_tc(res):
+    """TC antenna minus PPK position at PPK's fixed epochs, with the TC 3D sigma."""
+    fe, sol = res.carrier, res.smoothed
+    pk = fe.ppk
+    p = antenna_ecef(sol, sol.problem.lever_arm_b)
+    j = np.clip(np.searchsorted(pk.t_gps, sol.t - 1e-3), 0, len(pk.t_gps) - 1)
+    m = (np.abs(pk.t_gps[j] - sol.t) < 1e-3) & (pk.status[j] == 3)
+    fig, ax = new_figure(9, 3)
+    t = sol.t - sol.t[0]
+    ax.plot(t[m], 100 * np.linalg.norm(p[m] - pk.p[j[m]], axis=1), ".", ms=2, label="|TC - PPK fixed| (cm)")
+    ax.plot(t, 100 * np.linalg.norm(res.keyframes.sigma[:, :3], axis=1), lw=0.8, label="TC 3D sigma (cm)")
     ax.set_yscale("log")
     ax.set_xlabel("time since start (s)")
     ax.legend(fontsize=8)
@@ -129,6 +190,29 @@ def write_pos_report(path: str | Path, res) -> Path:
     if s["epochs_without_gnss_update"] > 0:
         warn.append(f"{s['epochs_without_gnss_update']} keyframes without a GNSS update (IMU only there)")
     rep.warnings(warn)
+    c = s.get("carrier")
+    if c is not None and res.carrier is not None:
+        ints = c.get("integers") or {}
+        rep.heading("Carrier phase (TC against a base station)")
+        rep.kv_table([("base position (ECEF m) and source",
+                       f"{c.get('base_ecef_m')} ({c.get('base_position_source')})"),
+                      ("base minus its own SPP (m)", c.get("base_minus_spp_m")),
+                      ("PPK epochs fixed / float / single",
+                       f"{c['ppk_counts']['fixed']} / {c['ppk_counts']['float']} / {c['ppk_counts']['single']} "
+                       f"({100 * c['ppk_fix_rate']:.1f} % fixed)"),
+                      ("phase arcs with an integer / components / inter-system links",
+                       f"{ints.get('arcs')} / {ints.get('components')} / {ints.get('inter_system_links')}"),
+                      ("arc pairs tied / rejected / conflicting",
+                       f"{ints.get('pairs_tied')} / {ints.get('pairs_rejected')} / {ints.get('conflicts')}"),
+                      ("keyframes with carrier phase (with < 4 satellites)",
+                       f"{c['keyframes_with_phase']} ({c['keyframes_with_phase_and_lt4_sats']})"),
+                      ("double differences dropped as outliers", c.get("dd_rows_dropped")),
+                      ("slip flags rover / base", f"{c['slips_flagged_rover']} / {c['slips_flagged_base']}"),
+                      ("TC minus PPK at fixed epochs, 3D RMS (m)", c.get("tc_minus_ppk_fixed_rms_m")),
+                      ("differential-atmosphere budget N/E/D (m)", res.smoothed.info.get("atmosphere_budget_m"))])
+        rep.figure(_carrier_status(res), "PPK status and fix rate, satellites and fixed phase rows per keyframe, "
+                   "slip flags")
+        rep.figure(_ppk_vs_tc(res), "TC (antenna) minus PPK at PPK's fixed epochs, and the TC sigma")
     rep.heading("Trajectory").figure(_map(res), "Smoothed IMU track in the nav frame (NED at the flight centre)")
     rep.figure(_satellites(res), "Satellites used per epoch (TC) or GNSS fixes (LC)")
     rep.heading("Sigma envelopes").figure(_sigmas(res), "1-sigma of the smoothed solution (from the "
@@ -146,6 +230,13 @@ def write_pos_report(path: str | Path, res) -> Path:
         rep.table(["factor", "n", "RMS", "RMS / sigma", "max |e|", "share > 3 sigma"],
                   [[k, v["n"], round(v["rms"], 4), round(v["rms_normalised"], 3), round(v["max_abs"], 3),
                     round(v["share_beyond_3sigma"], 4)] for k, v in s.get("innovations", {}).items()])
+        nis = s.get("normalised_innovations", {})
+        if nis:
+            rep.text("Normalised innovations: each GNSS factor's innovation squared against its full predicted "
+                     "covariance (filter prediction plus measurement noise), per dimension: 1 when both are right.")
+            rep.table(["factor", "n", "NIS per dimension", "RMS normalised", "share > chi2 99 %"],
+                      [[k, v["n"], round(v["nis_per_dim"], 3), round(v["rms_normalised"], 3),
+                        round(v["share_beyond_99pc"], 4)] for k, v in nis.items()])
         rep.figure(_smooth_vs_forward(res), "Forward minus smoothed position, and the two sigma envelopes")
         rep.figure(_residuals(res, "innovations"), "Innovations")
     return rep.write(path)

@@ -1,4 +1,5 @@
-"""HTML report of the time synchronisation: packet loss, PPS clock fit, exposure spikes, laser vs GNSS height."""
+"""HTML report of the time synchronisation: the checks, packet loss, PPS clock fit, exposure spikes, unmatched
+images, laser (or baro) against GNSS height."""
 from __future__ import annotations
 
 import json
@@ -7,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dgcal.fields.io.formats import write_events
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.io.formats import week_sow, write_events
 from dgcal.reports.html import HtmlReport, new_figure
 
 
@@ -15,9 +17,24 @@ def write_sync_report(path: Path, res) -> Path:
     """One-file HTML report of a `dgcal.pos.lowcost.sync.SyncResult`."""
     rep = HtmlReport("dgcal time synchronisation")
     s = res.summary()
+    rep.warnings(s["warnings"])
+    rep.heading("Checks")
+    rep.table(["check", "status", "figure", "limit", "message"],
+              [[c["name"], c["status"], c["figure"], c["limit"], c["message"]] for c in s["checks"]])
     lag = s.pop("shutter_lag_s") or {}
     skipped = s.pop("skipped_triggers")
-    rep.kv_table(s.items())
+    um = s.pop("unmatched_images")
+    rep.heading("Summary")
+    rep.kv_table([(k, v) for k, v in s.items() if k not in ("checks", "warnings", "coarse_alignment",
+                                                           "unmatched_spikes_gps_s")]
+                 + [(f"coarse alignment: {k}", v) for k, v in s["coarse_alignment"].items()])
+    rep.heading("Unmatched images")
+    if um:
+        rep.table(["image", "reason"], [[u["image"], u["reason"]] for u in um])
+    else:
+        rep.text("Every image was paired with an exposure spike.")
+    if s["unmatched_spikes_gps_s"]:
+        rep.text("Spikes without an image (GPS s): " + ", ".join(f"{t:.3f}" for t in s["unmatched_spikes_gps_s"]))
     rep.heading("Triggers and shutter lag")
     rep.kv_table([("skipped triggers (index)", ", ".join(map(str, skipped)) or "none")]
                  + [(f"lag {k} (s)", v) for k, v in lag.items()])
@@ -43,21 +60,37 @@ def write_sync_report(path: Path, res) -> Path:
     if res.laser is not None and res.gnss_h is not None:
         fig, ax = new_figure(10, 3)
         t0 = res.t_logger_gps[0]
-        ax.plot(res.gnss_axis.t - t0, res.gnss_h - np.median(res.gnss_h), lw=0.8, label="GNSS height")
-        ax.plot(res.t_logger_gps - t0, res.laser - np.median(res.laser), lw=0.8, label="laser range")
+        ax.plot(res.gnss_axis.t - t0, res.gnss_h - np.nanmedian(res.gnss_h), lw=0.8, label="GNSS height")
+        ax.plot(res.t_logger_gps - t0, res.laser - np.nanmedian(res.laser), lw=0.8, label="laser range / baro")
         ax.set_xlabel("GPS time since logger start (s)")
         ax.set_ylabel("m (median removed)")
         ax.legend()
-        rep.figure(fig, "Laser range against GNSS height after alignment (seed 000 Fig. 7)")
+        rep.figure(fig, "Laser range (or baro) against GNSS height after alignment (seed 000 Fig. 7)")
     return rep.write(path)
 
 
+def write_exposures(path: Path, res) -> None:
+    """CSV image,gps_week,gps_sow,sigma_s,bound_s,t_peak_sow of the events (exposure sigma and error bound, s)."""
+    w, sow = week_sow(res.events.t)
+    pk = week_sow(res.spikes.t_peak[res.event_spike])[1] if len(res.events) else np.zeros(0)
+    with atomic_write(path) as fh:
+        fh.write("image,gps_week,gps_sow,sigma_s,bound_s,t_peak_sow\n")
+        for i in range(len(res.events)):
+            fh.write(f"{res.events.image[i]},{int(w[i])},{sow[i]:.6f},{res.event_sigma_s[i]:.6f},"
+                     f"{res.event_bound_s[i]:.6f},{pk[i]:.6f}\n")
+
+
 def write_sync_outputs(out_dir: str | Path, res, names: Mapping[str, str]) -> dict[str, Path]:
-    """`dgcal sync`'s files in `out_dir`, named by role in `names`: events (CSV image,gps_week,gps_sow),
-    summary (sync.json) and report (HTML) of a dgcal.pos.lowcost.sync.SyncResult; returns the paths by role."""
+    """`dgcal sync`'s files in `out_dir`, named by role in `names`: events (CSV image,gps_week,gps_sow), exposures
+    (events with sigma and bound), summary (sync.json: figures, checks, unmatched images) and report (HTML) of a
+    dgcal.pos.lowcost.sync.SyncResult; returns the paths by role."""
     out = Path(out_dir)
-    paths = {role: out / names[role] for role in ("events", "summary", "report")}
+    paths = {role: out / names[role] for role in ("events", "summary", "report") if role in names}
     write_events(paths["events"], res.events)
-    paths["summary"].write_text(json.dumps(res.summary(), indent=1))
+    if "exposures" in names:
+        paths["exposures"] = out / names["exposures"]
+        write_exposures(paths["exposures"], res)
+    with atomic_write(paths["summary"]) as fh:
+        json.dump(res.summary(), fh, indent=1)
     write_sync_report(paths["report"], res)
     return paths

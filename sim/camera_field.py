@@ -7,6 +7,10 @@ blurred, vignetted, noised and written as JPEG. Writes `images/*.jpg`, `field.cs
 `truth.json` (camera, poses R_field_to_cam/t_field_to_cam, noise, seed) and `truth_measurements.csv`
 (noise-free projections of every visible target; column `complete` = 1 when the target's four squares lie
 wholly inside the frame, i.e. a detector can be expected to find it).
+
+`simulate_board_views` does the same for a standard board (charuco, chessboard, aruco-grid of
+dgcal.fields.targets.boards): hand-held views spread over the frame, the whole board in view, optionally mirrored
+(the back face).
 """
 from __future__ import annotations
 
@@ -22,6 +26,7 @@ from tqdm import tqdm
 from dgcal.calib.camera.files import camera_json_dict
 from dgcal.calib.camera.models import CameraModel, Fraser7
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir, write_table
+from dgcal.fields.targets.boards import Board, board_texture, write_board_field
 from dgcal.fields.targets.plate import TargetField, nonplanar_field, write_field
 from dgcal.fields.targets.printing import field_texture
 from dgcal.sim.render import Facet, RayGrid, facet_depth_at, render
@@ -206,6 +211,143 @@ def simulate_camera_field(out: str | Path, seed: int = 0, n_images: int = 48,
                         "tilt_deg": s.tilt_deg, "distance_m": s.distance_m, "roll_deg": s.roll_deg}
                        for s in shots],
         }
+        with atomic_write(tmp / "truth.json") as fh:
+            json.dump(truth, fh, indent=1)
+    return truth
+
+
+# ---------------------------------------------------------------------------------------------
+# standard boards (charuco, chessboard, aruco-grid): hand-held views over the whole frame
+# ---------------------------------------------------------------------------------------------
+def board_facets(board: Board, texel_m: float) -> list[Facet]:
+    """The printed board (with its white margin) as one facet in the board frame (x right, y down, z into it)."""
+    grey, (ox, oy) = board_texture(board, texel_m)
+    grey = np.rint(grey * 65535).astype(np.uint16)
+    return [Facet(np.array([ox + texel_m / 2, oy + texel_m / 2, 0.0]), np.array([texel_m, 0, 0.0]),
+                  np.array([0, texel_m, 0.0]), grey, None)]
+
+
+def _board_outline(board: Board) -> np.ndarray:
+    """(4,3) outer corners of the printed board including its white margin (board frame, m)."""
+    bw, bh = board.size_m
+    m = board.square_m
+    return np.array([[-m, -m, 0], [bw + m, -m, 0], [bw + m, bh + m, 0], [-m, bh + m, 0]], float)
+
+
+def plan_board_shots(n_images: int, camera: CameraModel, board: Board, rng: np.random.Generator,
+                     size_fraction: tuple[float, float] = (0.45, 0.8), max_tilt_deg: float = 50.0) -> list[Shot]:
+    """Poses of `n_images` views of a hand-held board: its centre aimed at pixels spread over the frame (a 4 x 3
+    grid first, frame corners included, then at random), apparent width `size_fraction` of the image's, tilted up
+    to `max_tilt_deg` about a random in-plane axis and turned at random. A chessboard stays wholly in the frame
+    (its detector needs it all); a ChArUco or ArUco-grid board may leave it partly, keeping at least 40 % of its
+    corners in view, so that its corners reach the frame's corners. X_cam = R X_board + t (m)."""
+    w, h = camera.image_size
+    f = camera.pinhole_K()[0, 0]
+    bw, bh = board.size_m
+    centre = np.array([bw / 2, bh / 2, 0.0])
+    outline = _board_outline(board)
+    corners = board.corner_xyz()
+    partial = board.type != "chessboard"
+    lo, hi = (0.0, 1.0) if partial else (0.12, 0.88)
+    gx, gy = np.meshgrid(np.linspace(lo, hi, 4), np.linspace(lo, hi, 3))
+    aims = np.column_stack([gx.ravel(), gy.ravel()])
+    shots = []
+    for k in range(n_images):
+        aim = aims[k % len(aims)] + rng.uniform(-0.04, 0.04, 2) if k < 2 * len(aims) else rng.uniform(lo, hi, 2)
+        frac = rng.uniform(*size_fraction)
+        tilt = math.radians(rng.uniform(15.0, max_tilt_deg))
+        axis_ang = rng.uniform(0, 2 * math.pi)
+        spin = rng.uniform(-math.pi, math.pi) if partial else rng.uniform(-0.6, 0.6)
+        ax = np.array([math.cos(axis_ang), math.sin(axis_ang), 0.0])
+        R = _axis_angle(ax, tilt) @ _rz(spin)
+        for _ in range(40):
+            uv_aim = np.array([aim[0] * (w - 1), aim[1] * (h - 1)])
+            ray = camera.ray(uv_aim[None])[0]
+            dist = f * bw / (frac * w)
+            t = ray / ray[2] * dist - R @ centre
+            if partial:
+                X = corners @ R.T + t
+                uv = camera.project(X)
+                seen = (X[:, 2] > 0) & np.all((uv >= 4) & (uv <= [w - 5, h - 5]), axis=1)
+                if seen.mean() >= 0.4:
+                    break
+            else:
+                X = outline @ R.T + t
+                if np.all(X[:, 2] > 0):
+                    uv = camera.project(X)
+                    if np.all((uv >= 2) & (uv <= [w - 3, h - 3])):
+                        break
+            frac *= 0.93
+            aim = 0.5 + 0.93 * (aim - 0.5)
+        shots.append(Shot(f"IMG_{k + 1:04d}.png", R, t, math.degrees(spin), math.degrees(tilt), float(dist), 0.0))
+    return shots
+
+
+def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation matrix of `angle` (rad) about the unit `axis`."""
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+
+
+def board_truth_projections(camera: CameraModel, board: Board, shot: Shot) -> tuple[np.ndarray, np.ndarray]:
+    """Ids and noise-free pixels of the board corners inside the frame in one shot."""
+    X = board.corner_xyz() @ shot.R_field_to_cam.T + shot.t_field_to_cam
+    w, h = camera.image_size
+    uv = np.full((len(X), 2), np.nan)
+    ok = X[:, 2] > 0
+    uv[ok] = camera.project(X[ok])
+    inside = ok & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+    return board.corner_ids()[inside], uv[inside]
+
+
+def simulate_board_views(out: str | Path, board: Board, seed: int = 0, n_images: int = 30,
+                         image_size: tuple[int, int] = (1200, 800), camera: CameraModel | None = None,
+                         blur_px: float = 0.8, noise_dn: float = 2.0, supersample: int = 2,
+                         texel_m: float | None = None, mirrored: bool = False, progress: bool = False) -> dict:
+    """Render views of a standard board into `out`: `images/IMG_0001.png ...`, `board.toml`, `field.csv` (+
+    `field.json`), `truth.json` (camera, poses) and `truth_measurements.csv`; returns the truth dict. With
+    `mirrored` every image is flipped left-right (a view of the board's back face)."""
+    rng = np.random.default_rng(seed)
+    camera = calibration_field_camera(image_size) if camera is None else camera
+    w, h = camera.image_size
+    if texel_m is None:
+        # a fraction of the finest pixel footprint of the closest view, a whole number of texels per square
+        texel_m = 0.5 * board.size_m[0] / (0.55 * w)
+    texel_m = board.square_m / max(1, round(board.square_m / texel_m))
+    facets = board_facets(board, texel_m)
+    shots = plan_board_shots(n_images, camera, board, rng)
+    rays = RayGrid(camera)
+    rows = []
+    with staged_dir(out) as tmp:
+        (tmp / "images").mkdir()
+        write_board_field(tmp / "field.csv", board)
+        with atomic_write(tmp / "board.toml") as fh:
+            fh.write(board.to_toml())
+        for shot in tqdm(shots, desc="render", unit="img", disable=not progress):
+            rad = render(camera, shot.R_field_to_cam, shot.t_field_to_cam, facets, background=0.3,
+                         supersample=supersample, rays=rays)
+            img = _finish(rad, rng, blur_px, noise_dn)
+            if mirrored:
+                img = np.ascontiguousarray(img[:, ::-1])
+            ok, buf = cv2.imencode(".png", img)
+            with atomic_write(tmp / "images" / shot.image, "wb") as fh:
+                fh.write(buf.tobytes())
+            ids, uv = board_truth_projections(camera, board, shot)
+            if mirrored:
+                uv = uv.copy()
+                uv[:, 0] = (w - 1) - uv[:, 0]
+            rows += [(shot.image, i, *p) for i, p in zip(ids, uv)]
+        write_table(tmp / "truth_measurements.csv", ["image", "id", "x", "y"], rows, fmt="%.5f")
+        truth = {"simulator": "board-views", "seed": int(seed), "n_images": len(shots),
+                 "camera": camera_json_dict(camera), "board": board.to_dict(), "mirrored": bool(mirrored),
+                 "noise": {"blur_px": blur_px, "noise_dn": noise_dn, "supersample": int(supersample),
+                           "texel_m": texel_m},
+                 "frames": "X_cam = R_board_to_cam @ X_board + t_board_to_cam; board x right, y down, z into the "
+                           "board; camera x right, y down, z forward" + ("; images flipped left-right" if mirrored
+                                                                          else ""),
+                 "images": [{"image": s.image, "R_board_to_cam": s.R_field_to_cam.tolist(),
+                             "t_board_to_cam": s.t_field_to_cam.tolist(), "tilt_deg": s.tilt_deg,
+                             "spin_deg": s.rotation_deg, "distance_m": s.distance_m} for s in shots]}
         with atomic_write(tmp / "truth.json") as fh:
             json.dump(truth, fh, indent=1)
     return truth

@@ -18,11 +18,15 @@ measurements of a rotating coded-target plate photographed by the same camera (`
     flight/events.csv        camera events (GPS week, seconds of week)
     flight/imu.txt           IMU increments (KF-GINS text, body FRD)
     flight/gnss.csv          antenna positions (gnss.csv of `dgcal pos --mode spp`, cm-level), LC input
+    flight/rover.rnx, base.rnx, nav.rnx   (gnss_mode "carrier", the default) rover and base RINEX with
+                             dual-frequency code and carrier phase (`dgcal.sim.gnss.simulate_rover_base`)
+    flight/imu_model.toml    (carrier) the IMU's error model: the preset with an orthogonal triad
     flight/rover.obs, nav.rnx     (gnss_mode "tc") simulated RINEX pseudoranges and navigation
     truth.json, truth/*      the true camera, mounting, delay, trajectory, EOPs
 
-Code-only TC processing gives metre-level positions and hence dm-level lever arms; the lever-arm (3 cm)
-and delay (2 ms) accuracy of a calibration needs PPK-quality antenna positions, the default here.
+The campaign file's POS step is TC with carrier phase from the rover + base RINEX ("carrier"); "lc" makes it
+LC from gnss.csv (written in every mode). Code-only TC ("tc") gives metre-level positions and hence dm-level
+lever arms: the lever-arm (3 cm) and delay (2 ms) accuracy of a calibration needs carrier phase.
 """
 from __future__ import annotations
 
@@ -45,11 +49,12 @@ from dgcal.fields.io.csv_tables import atomic_write, staged_dir, write_table
 from dgcal.fields.io.formats import (EOP, Measurements, Points, week_sow, write_eop, write_events, write_measurements,
                                      write_points, write_trajectory)
 from dgcal.fields.targets.plate import TargetField, write_field
+from dgcal.pos.gnss.carrier import write_rinex_carrier
 from dgcal.pos.gnss.rinex import write_rinex_obs
 from dgcal.pos.gnss.spp import GNSS_CSV_COLUMNS
 from dgcal.pos.ins.imu_data import write_kf_gins
 from dgcal.sim.camera_field import plan_shots, truth_projections
-from dgcal.sim.gnss import DEFAULT_NAV, DEFAULT_T0_GPS, simulate_gnss
+from dgcal.sim.gnss import DEFAULT_NAV, DEFAULT_T0_GPS, CarrierErrorModel, simulate_gnss, simulate_rover_base
 from dgcal.sim.imu import simulate_imu
 from dgcal.sim.trajectory import (FlightProfile, SmoothSteps, assemble_trajectory, camera_events,
                                   simulate_true_trajectory)
@@ -60,6 +65,7 @@ SITE = (23.70, 120.60, 40.0)         # lat, lon (deg), ellipsoidal ground height
 LEVER_ARM_M = (0.12, -0.06, 0.18)    # IMU -> camera, body FRD (m), of the order of seed Table 1
 BORESIGHT_DEG = (0.9, -0.6, 1.4)     # small rotations (x, y, z, deg) applied to the nominal mounting
 LEVER_ARM_GNSS_M = (0.05, 0.0, -0.35)  # IMU -> GNSS antenna, body FRD (m), surveyed
+BASE_OFFSET_ENU_M = (900.0, -600.0, 0.0)  # GNSS base station from the site centre, on the ground (m)
 
 
 def campaign_camera() -> Fraser7:
@@ -207,14 +213,14 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
                       event_distance_m: float = 70.0,
                       delay_s: float = -0.14, lever_arm_m=LEVER_ARM_M, boresight_deg=BORESIGHT_DEG,
                       lever_arm_gnss_m=LEVER_ARM_GNSS_M, imu_grade: str = "adis16488", imu_rate_hz: float = 100.0,
-                      gnss_mode: str = "lc", gnss_rate_hz: float = 1.0, gnss_sigma_enu=(0.02, 0.02, 0.04),
+                      gnss_mode: str = "carrier", gnss_rate_hz: float = 1.0, gnss_sigma_enu=(0.02, 0.02, 0.04),
                       gnss_sigma_v: float = 0.03, sigma_pr: float = 0.5, noise_px: float = 0.3,
                       n_control: int = 12, n_check: int = 12, gcp_sigma=(0.01, 0.01, 0.02), n_tie: int = 1500,
                       field_images: int = 36, field_noise_px: float = 0.15, pos_extra: dict | None = None) -> dict:
     """Write a campaign into `out` (see the module doc); returns the truth dictionary (also truth.json)."""
 
-    if gnss_mode not in ("lc", "tc"):
-        raise InputError(f"unknown GNSS mode {gnss_mode!r} (lc or tc)", field="gnss_mode")
+    if gnss_mode not in ("lc", "tc", "carrier"):
+        raise InputError(f"unknown GNSS mode {gnss_mode!r} (carrier, lc or tc)", field="gnss_mode")
     rng = np.random.default_rng(seed)
     lat0, lon0, h0 = site
     grid = MapGrid(crs)
@@ -259,12 +265,19 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
         ims.write(fl, noise_px)
         write_events(fl / "events.csv", events)
         write_kf_gins(fl / "imu.txt", imu)
-        if gnss_mode == "lc":
-            _write_gnss_lc(fl / "gnss.csv", rng, grid, t_gnss, p_ant, v_ant, gnss_sigma_enu, gnss_sigma_v)
-        else:
+        _write_gnss_lc(fl / "gnss.csv", rng, grid, t_gnss, p_ant, v_ant, gnss_sigma_enu, gnss_sigma_v)
+        base_ecef = None
+        if gnss_mode == "tc":
             obs = simulate_gnss(t_gnss, p_ant, v_ant, None, seed=seed + 2, sigma_pr=sigma_pr, systems=("G", "E"),
                                 prepare=False)
             write_rinex_obs(fl / "rover.obs", obs)
+            shutil.copyfile(DEFAULT_NAV, fl / "nav.rnx")
+        elif gnss_mode == "carrier":
+            base_ecef = enu.to_ecef(np.asarray(BASE_OFFSET_ENU_M, float)[None])[0]
+            cs = simulate_rover_base(t_gnss, p_ant, v_ant, base_ecef, None, seed=seed + 2, systems=("G", "E"),
+                                     n_freq=2, n_random_slips=4)
+            write_rinex_carrier(fl / "rover.rnx", cs.rover, marker="ROVER")
+            write_rinex_carrier(fl / "base.rnx", cs.base, marker="BASE")
             shutil.copyfile(DEFAULT_NAV, fl / "nav.rnx")
         tr = tmp / "truth"
         tr.mkdir()
@@ -286,7 +299,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
                        "n_images": int(len(names)), "event_distance_m": event_distance_m,
                        "gsd_m": {f"{H:g}": float(H / camera["f"]) for H in heights_agl}},
             "imu": imu_err.as_dict() | {"rate_hz": imu_rate_hz},
-            "gnss": _gnss_truth(gnss_mode, gnss_rate_hz, gnss_sigma_enu, gnss_sigma_v, sigma_pr),
+            "gnss": _gnss_truth(gnss_mode, gnss_rate_hz, gnss_sigma_enu, gnss_sigma_v, sigma_pr, base_ecef),
             "image_noise_px": noise_px, "gcp_sigma_m": list(gcp_sigma),
             "n_control": n_control, "n_check": n_check, "n_tie_points": int(len(np.unique(ims.tie_id))),
             "n_observations": {"ground": int(len(ims.gp_image)), "tie": int(len(ims.tie_image))},
@@ -297,7 +310,16 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
         }
         with atomic_write(tmp / "truth.json") as fh:
             json.dump(truth, fh, indent=1, default=float)
-        _write_toml(tmp / "campaign.toml", crs, camera.image_size, gnss_mode, imu_grade, lever_g, pos_extra)
+        grade_file = None
+        if gnss_mode == "carrier":
+            # the simulated triad is orthogonal (misalignment=False above): say so to the smoother, whose preset
+            # would otherwise carry 0.02 deg misalignments as turn noise (conservative attitude sigmas)
+            grade_file = "flight/imu_model.toml"
+            with atomic_write(tmp / grade_file) as fh:
+                fh.write(f'name = "{imu_grade} (orthogonal triad)"\nbase = "{imu_grade}"\n'
+                         "[gyro]\nmisalign_deg = 0.0\n[accel]\nmisalign_deg = 0.0\n")
+        _write_toml(tmp / "campaign.toml", crs, camera.image_size, gnss_mode, grade_file or imu_grade, lever_g,
+                    pos_extra, base_ecef)
     return truth
 
 
@@ -311,11 +333,17 @@ def _antenna(traj, lever_g: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.
     return t_gnss, p_ant, v_ant
 
 
-def _gnss_truth(mode: str, rate_hz: float, sigma_enu, sigma_v: float, sigma_pr: float) -> dict:
+def _gnss_truth(mode: str, rate_hz: float, sigma_enu, sigma_v: float, sigma_pr: float, base_ecef=None) -> dict:
     """The GNSS part of truth.json."""
+    lc = {"rate_hz": rate_hz, "sigma_enu_m": list(sigma_enu), "sigma_v_mps": sigma_v}
     if mode == "lc":
-        return {"mode": "lc", "rate_hz": rate_hz, "sigma_enu_m": list(sigma_enu), "sigma_v_mps": sigma_v}
-    return {"mode": "tc", "rate_hz": rate_hz, "sigma_pr_m": sigma_pr, "systems": ["G", "E"]}
+        return {"mode": "lc", **lc}
+    if mode == "carrier":
+        return {"mode": "carrier", "rate_hz": rate_hz, "systems": ["G", "E"], "frequencies": 2,
+                "base_ecef_m": np.asarray(base_ecef).tolist(), "errors": CarrierErrorModel().as_dict(),
+                "gnss_csv": lc, "files": {"rover": "flight/rover.rnx", "base": "flight/base.rnx",
+                                          "nav": "flight/nav.rnx", "lc": "flight/gnss.csv"}}
+    return {"mode": "tc", "rate_hz": rate_hz, "sigma_pr_m": sigma_pr, "systems": ["G", "E"], "gnss_csv": lc}
 
 
 @dataclass
@@ -417,11 +445,22 @@ def _write_gnss_lc(path: Path, rng, grid: MapGrid, t_gnss, p_ant, v_ant, gnss_si
     write_table(path, GNSS_CSV_COLUMNS, _gnss_rows(t_gnss, p_obs, v_obs, sg, gnss_sigma_v), fmt="%.12g")
 
 
-def _write_toml(path: Path, crs: str, image_size, gnss_mode: str, imu_grade: str, lever_g, pos_extra) -> None:
+def _write_toml(path: Path, crs: str, image_size, gnss_mode: str, imu_grade: str, lever_g, pos_extra,
+                base_ecef=None) -> None:
     w, h = image_size
-    gn = ('gnss = "flight/gnss.csv"' if gnss_mode == "lc"
-          else 'rinex_obs = "flight/rover.obs"\nrinex_nav = "flight/nav.rnx"')
+    if gnss_mode == "lc":
+        gn = 'gnss = "flight/gnss.csv"'
+    elif gnss_mode == "tc":
+        gn = 'rinex_obs = "flight/rover.obs"\nrinex_nav = "flight/nav.rnx"'
+    else:
+        b = ", ".join(f"{v:.4f}" for v in base_ecef)
+        gn = ('rinex_obs = "flight/rover.rnx"       # rover: dual-frequency code and carrier phase\n'
+              'rinex_nav = "flight/nav.rnx"\n'
+              'rinex_base = "flight/base.rnx"      # base station: carrier phase against it (TC)\n'
+              f'base_position = [{b}]   # base antenna, ECEF m\nfrequencies = 2\n'
+              '# gnss = "flight/gnss.csv"          # with mode = "lc": LC from PPK-like positions instead')
     extra = "".join(f'\nset = {json.dumps([f"{k}={v}" for k, v in pos_extra.items()])}' if pos_extra else "")
+    pos_mode = "lc" if gnss_mode == "lc" else "tc"
     text = f"""# dgcal calibration campaign (simulated by `dgcal simulate campaign`); paths relative to this file
 name = "simulated seed-003 campaign"
 crs = "{crs}"
@@ -438,7 +477,7 @@ gcp = "flight/gcp.csv"
 measurements = "flight/measurements.csv"
 
 [pos]                         # GNSS/INS smoothing
-mode = "{gnss_mode}"
+mode = "{pos_mode}"
 imu = "flight/imu.txt"
 events = "flight/events.csv"
 {gn}

@@ -20,7 +20,8 @@ from dgcal.fields.crs import LocalENU
 from dgcal.fields.frames import R_NED_TO_ENU
 from dgcal.fields.io.csv_tables import staged_dir
 from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude
-from dgcal.pos.lowcost.optic_flow import R_CAM_TO_BODY_FORWARD, flow_attitude
+from dgcal.calib.camera.files import write_camera
+from dgcal.pos.lowcost.optic_flow import R_CAM_TO_BODY_FORWARD, flow_attitude, mean_velocity
 from dgcal.sim.render import Facet, RayGrid, render
 from dgcal.sim.trajectory import TrueTrajectory, simulate_true_trajectory
 
@@ -114,7 +115,7 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
     sim = sim or make_forward_camera_sim(seed=seed)
     tr = sim.truth
     tv, v = gnss_velocity(tr, seed=seed + 1)
-    pa = pseudo_attitude(tv, v)
+    pa = pseudo_attitude(tv, v, sigma_v_mps="auto")
     rng = np.random.default_rng(seed + 2)
     agl_true = np.array([sim.enu.from_ecef(p)[2] for p in tr.p_ecef[::int(tr.rate_hz)]])
     t_agl = tr.t[::int(tr.rate_hz)]
@@ -131,19 +132,21 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
         rph1 = np.array([np.interp(t1, pa.t, pa.rph[:, 0]), np.interp(t1, pa.t, pa.rph[:, 1]),
                          np.degrees(np.interp(t1, pa.t, np.unwrap(np.radians(pa.rph[:, 2])))) % 360.0])
         w = np.array([np.interp(tm, pa.t, pa.omega_b[:, i]) for i in range(3)])
-        v_mid = np.array([np.interp(tm, tv, v[:, i]) for i in range(3)])
+        v_mid, gain = mean_velocity(tv, v, t1, t2)  # the chord's velocity
         if not pa.valid[k1]:
             continue
         img1 = sim.frame(t1, image_noise, rng)
         img2 = sim.frame(t2, image_noise, rng)
         try:
-            fa = flow_attitude(sim.camera, img1, img2, frame_dt, rph1, w, v_mid, sim.R_cam_to_body)
+            fa = flow_attitude(sim.camera, img1, img2, frame_dt, rph1, w, v_mid, sim.R_cam_to_body,
+                               sigma_roll_deg=float(np.interp(t1, pa.t, pa.sigma_rph[:, 0])),
+                               sigma_v_mps=pa.sigma_v_mps * gain)
         except ValueError:
             continue
         s = tr.at(t1)
         C, _ = sim.pose(t1)
         rows.append({"t": float(t1), "roll": fa.roll, "pitch": fa.pitch, "yaw": fa.yaw,
-                     "sigma_pitch": fa.sigma_pitch, "sigma_yaw": fa.sigma_yaw,
+                     "sigma_roll": fa.sigma_roll, "sigma_pitch": fa.sigma_pitch, "sigma_yaw": fa.sigma_yaw,
                      "pseudo_pitch": float(rph1[1]), "pseudo_yaw": float(rph1[2]),
                      "true_roll": float(s.rph[0, 0]), "true_pitch": float(s.rph[0, 1]),
                      "true_yaw": float(s.rph[0, 2]), "agl": fa.agl_m, "sigma_agl": fa.sigma_agl_m,
@@ -158,6 +161,7 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
     agl_err = R["agl"] - R["true_agl"]
     table2 = {name: {"mean_deg": float(err[:, i].mean()), "std_deg": float(err[:, i].std(ddof=1))}
               for i, name in enumerate(("roll", "pitch", "yaw"))}
+    zr = err[:, 0] / R["sigma_roll"]
     zp = err[:, 1] / R["sigma_pitch"]
     zy = err[:, 2] / R["sigma_yaw"]
     return {"n_pairs": len(rows), "frame_dt_s": frame_dt, "pair_every_s": pair_every_s,
@@ -167,7 +171,8 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
                             "yaw_mean_deg": float(err_pseudo[:, 1].mean()),
                             "pitch_std_deg": float(err_pseudo[:, 0].std(ddof=1)),
                             "yaw_std_deg": float(err_pseudo[:, 1].std(ddof=1))},
-            "normalised_error_rms": {"pitch": float(np.sqrt(np.mean(zp ** 2))),
+            "normalised_error_rms": {"roll": float(np.sqrt(np.mean(zr ** 2))),
+                                     "pitch": float(np.sqrt(np.mean(zp ** 2))),
                                      "yaw": float(np.sqrt(np.mean(zy ** 2)))},
             "agl": {"mean_error_m": float(np.mean(agl_err)), "std_error_m": float(np.std(agl_err, ddof=1)),
                     "median_rel_error": float(np.median(np.abs(agl_err) / R["true_agl"])),
@@ -195,8 +200,8 @@ def format_table2(rep: dict) -> str:
 def write_forward_camera_dataset(out: str | Path, seed: int = 0, duration_s: float = 300.0, fps: float = 5.0,
                                  image_px: int = 240) -> int:
     """Render the forward camera's frames at `fps` (Hz) over a `duration_s` flight into out/frames with
-    frames.csv (image,t_gps), gnss_velocity.csv (NED m/s), truth_trajectory.csv and truth.json; returns the
-    number of frames."""
+    frames.csv (image,t_gps), camera.json, gnss_velocity.csv (NED m/s), truth_trajectory.csv and truth.json
+    (with the ground's ellipsoidal height `h_ground`); returns the number of frames."""
     sim = make_forward_camera_sim(duration_s=duration_s, image_px=image_px, seed=seed)
     times = np.arange(sim.truth.t[0], sim.truth.t[-1], 1.0 / fps)
     rng = np.random.default_rng(seed)
@@ -215,8 +220,10 @@ def write_forward_camera_dataset(out: str | Path, seed: int = 0, duration_s: flo
         tr = sim.truth
         np.savetxt(d / "truth_trajectory.csv", np.column_stack([tr.t, tr.lat, tr.lon, tr.h, tr.v_ned, tr.rph]),
                    delimiter=",", fmt="%.9f", header="t_gps,lat,lon,h,vn,ve,vd,roll,pitch,heading", comments="")
+        write_camera(d / "camera.json", sim.camera)
         (d / "truth.json").write_text(json.dumps({"camera": sim.camera.as_dict(), "image_size":
                                                   list(sim.camera.image_size),
-                                                  "R_cam_to_body": sim.R_cam_to_body.tolist(), "seed": seed},
+                                                  "R_cam_to_body": sim.R_cam_to_body.tolist(), "seed": seed,
+                                                  "h_ground": float(sim.enu.h0)},
                                                  indent=1))
     return len(times)

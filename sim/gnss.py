@@ -28,6 +28,7 @@ from dgcal.fields.constants import C_LIGHT, GM_GPS, OMEGA_EARTH, SECONDS_PER_DAY
 from dgcal.fields.crs import LocalENU, ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+from dgcal.pos.gnss.carrier import CarrierObs
 from dgcal.pos.gnss.corrections import code_sigma_m, klobuchar_delay_m, saastamoinen_delay_m
 from dgcal.pos.gnss.ephemeris import satellite_states
 from dgcal.pos.gnss.observations import GnssEpoch, GnssObservations
@@ -352,7 +353,6 @@ def simulate_carrier_pair(t_gps: np.ndarray, p_rover_ecef: np.ndarray, p_base_ec
     add ``cycles`` to that phase from ``t_gps`` on, with LLI=1 at that epoch if ``flagged``. ``rover.truth``
     holds the true rover positions. Code-only products (SPP) are unchanged by this function.
     """
-    from dgcal.pos.gnss.carrier import CarrierObs
     rng = np.random.default_rng(seed)
     t = np.asarray(t_gps, float)
     nav = _load_nav(nav, (t[0], t[-1]), tuple(s for s in systems if s in "GEC"), seed)
@@ -417,3 +417,240 @@ def simulate_carrier_pair(t_gps: np.ndarray, p_rover_ecef: np.ndarray, p_base_ec
                               power_failure=np.zeros(n_ep, dtype=bool),
                               truth={"p_ecef": P_r.copy()} if name == "rover" else {"p_ecef": p_b.copy()}))
     return res[0], res[1], nav
+
+
+# ------------------------------------------------------------ rover + base carrier phase (TC, campaign, tests)
+# RINEX 3 (code, phase) per system and frequency slot (the slots of dgcal.pos.gnss.carrier.BANDS)
+CARRIER_SIGNALS = {"G": (("C1C", "L1C"), ("C2W", "L2W"), ("C5Q", "L5Q")),
+                   "E": (("C1C", "L1C"), ("C5Q", "L5Q"), ("C7Q", "L7Q")),
+                   "J": (("C1C", "L1C"), ("C2L", "L2L"), ("C5Q", "L5Q"))}
+
+
+@dataclass
+class CarrierErrorModel:
+    """Errors of the rover + base carrier simulator: zenith sigmas (m, m/s) with the elevation law of
+    `code_sigma_m`, correlation times (s).
+
+    Per receiver, satellite and frequency: white noise plus a first-order Gauss-Markov multipath error (code and
+    phase independently; the base's multipath is `base_multipath_scale` times the rover's, a static site with
+    a better antenna). Atmosphere left after the models of the PPK/TC front end: a slant ionosphere gradient
+    per satellite (`iono_gradient_ppm` mm per km of horizontal distance from the base at L1, times the
+    elevation mapping 1/sin el) and a rover zenith troposphere residual (`tropo_zenith_residual_m`, drawn once,
+    mapped 1/sin el). Doppler: white, `doppler_mps`.
+    """
+
+    code_white_m: float = 0.15
+    code_mp_m: float = 0.26
+    code_mp_tau_s: float = 30.0
+    phase_white_m: float = 0.0018
+    phase_mp_m: float = 0.0024
+    phase_mp_tau_s: float = 10.0
+    doppler_mps: float = 0.05
+    base_multipath_scale: float = 1.0
+    iono_gradient_ppm: float = 0.5
+    tropo_zenith_residual_m: float = 0.0015
+
+    def as_dict(self) -> dict:
+        """The model as a JSON-ready dict."""
+        return dict(self.__dict__)
+
+
+@dataclass
+class CarrierSimulation:
+    """Simulated rover and base observations (`CarrierObs`, code m, phase cycles, Doppler Hz) and their truth.
+
+    `truth`: rover antenna ECEF per epoch (m), base ECEF (m), receiver clocks (s), the slips applied
+    [(t_gps, sat, slot, cycles, flagged)], the loss-of-lock restarts [(t_gps, sat)], the error model.
+    """
+
+    rover: CarrierObs
+    base: CarrierObs
+    nav: BroadcastNav
+    base_ecef: np.ndarray
+    truth: dict
+
+
+def _gauss_markov(n_ep: int, shape: tuple, dt: np.ndarray, tau_s: float, rng) -> np.ndarray:
+    """Unit-variance first-order Gauss-Markov sequences (n_ep, *shape) with correlation time tau_s (s)."""
+    out = np.empty((n_ep, *shape))
+    out[0] = rng.standard_normal(shape)
+    if tau_s <= 0:
+        out[1:] = rng.standard_normal((n_ep - 1, *shape))
+        return out
+    for k in range(1, n_ep):
+        rho = np.exp(-dt[k] / tau_s)
+        out[k] = rho * out[k - 1] + np.sqrt(1.0 - rho * rho) * rng.standard_normal(shape)
+    return out
+
+
+def _receiver_geometry(nav, sats, t, pos, vel, bias, elev_mask_deg):
+    """Exact ranges, range rates, elevations/azimuths, satellite clocks of every (epoch, satellite) of a receiver.
+
+    pos/vel (n_ep,3) antenna ECEF at the time tags t (receiver time: true time = t - bias). Returns arrays
+    (n_ep, m): rho (m), rr (m/s), el, az (rad), dts (s), ddts (s/s), visible; and the receiver llh (n_ep,3).
+    """
+    n_ep, m = len(t), len(sats)
+    t_true = t - bias
+    p_rx = pos - vel * bias[:, None]
+    K = np.repeat(np.arange(n_ep), m)
+    S = list(sats) * n_ep
+    t_s0 = t_true[K] - 0.075
+    ps, vs, clk_s, clk_d, _, ok = satellite_states(nav, S, t_s0)
+    ps = np.where(ok[:, None], ps, 2.6e7)
+    vs = np.where(ok[:, None], vs, 0.0)
+    acc = _ecef_acceleration(ps, vs)
+    rho, tau, prot = _range_at(ps, vs, acc, t_s0, p_rx[K], t_true[K])
+    h_d = 0.01
+    rho_p, _, _ = _range_at(ps, vs, acc, t_s0, p_rx[K] + vel[K] * h_d, t_true[K] + h_d)
+    rho_m, _, _ = _range_at(ps, vs, acc, t_s0, p_rx[K] - vel[K] * h_d, t_true[K] - h_d)
+    rr = (rho_p - rho_m) / (2 * h_d)
+    llh = ecef_to_geodetic(p_rx).reshape(n_ep, 3)
+    R = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(n_ep, 3, 3)
+    d = prot - p_rx[K]
+    e = np.einsum("nij,nj->ni", R[K], d / np.linalg.norm(d, axis=1, keepdims=True))
+    el = np.arcsin(np.clip(e[:, 2], -1, 1))
+    az = np.mod(np.arctan2(e[:, 0], e[:, 1]), 2 * np.pi)
+    dts = clk_s + clk_d * ((t_true[K] - tau) - t_s0)
+    vis = ok & (el >= np.radians(elev_mask_deg))
+    shp = (n_ep, m)
+    return (rho.reshape(shp), rr.reshape(shp), el.reshape(shp), az.reshape(shp), dts.reshape(shp),
+            clk_d.reshape(shp), vis.reshape(shp), llh, p_rx)
+
+
+def simulate_rover_base(t_gps: np.ndarray, p_rover_ecef: np.ndarray, v_rover_ecef: np.ndarray,
+                        base_ecef: np.ndarray, nav=None, seed: int = 0, errors: CarrierErrorModel | None = None,
+                        systems=("G", "E"), n_freq: int = 2, elev_mask_deg: float = 10.0,
+                        outages: list[tuple[float, float, int]] = (),
+                        slips: list[tuple[float, str, int, int, bool]] = (), n_random_slips: int = 0,
+                        rover_clock: RxClock | None = None, base_clock: RxClock | None = None) -> CarrierSimulation:
+    """Code, carrier phase, Doppler and C/N0 of a moving rover antenna and a static base (GPS s, ECEF m, m/s).
+
+    Per receiver r, satellite and frequency slot f (GPS L1 L2 L5, Galileo E1 E5a E5b, QZSS L1 L2 L5)::
+
+        P = rho + c (dt_r - dt_sat) + isb + T + I_f + e_P
+        L = (rho + c (dt_r - dt_sat) + T - I_f + e_L) / lam_f + N + phi_r
+
+    with the exact light-time range (`_range_at`, Earth rotation), receiver clocks as `RxClock` random walks
+    (the antenna is where it was at the true time t_tag - dt_r), Saastamoinen with the standard atmosphere
+    (70 % humidity) and Klobuchar at each receiver plus the residuals and errors of `CarrierErrorModel`, one
+    integer N per phase arc (a new one after every loss of lock) and a fractional receiver phase offset phi_r
+    per system and slot. `outages` (t0, t1, max_sats): inside [t0, t1] the rover keeps only the `max_sats`
+    satellites that were highest at t0 (0 = nothing); a satellite it loses starts a new arc with the
+    loss-of-lock indicator when it comes back. `slips` (t_gps, sat, slot, cycles, flagged) add cycles to the
+    rover phase from t_gps on (LLI 1 at that epoch if flagged); `n_random_slips` more are drawn (half flagged).
+    """
+    err = errors or CarrierErrorModel()
+    rng = np.random.default_rng(seed)
+    t = np.asarray(t_gps, float)
+    n_ep = len(t)
+    nav = _load_nav(nav, (t[0], t[-1]), tuple(s for s in systems if s in "GEC"), seed)
+    P_r = np.asarray(p_rover_ecef, float).reshape(-1, 3)
+    V_r = np.asarray(v_rover_ecef, float).reshape(-1, 3)
+    p_b = np.asarray(base_ecef, float).reshape(3)
+    sats = sorted(s for s in nav.by_sat if s[0] in systems and s[0] in CARRIER_SIGNALS)
+    m, F = len(sats), int(n_freq)
+    sysv = np.array([s[0] for s in sats])
+    freq = np.array([[signal_frequency_hz(s[0], CARRIER_SIGNALS[s[0]][f][0]) for f in range(F)] for s in sats])
+    lam = C_LIGHT / freq
+    dt = np.r_[1.0, np.diff(t)]
+    clocks = {"rover": rover_clock or RxClock(), "base": base_clock or RxClock(bias_s=-1.2e-5, drift=-3e-8)}
+    enu_b = LocalENU(*ecef_to_geodetic(p_b).reshape(3))
+    g_iono = rng.normal(0.0, err.iono_gradient_ppm * 1e-6, (m, 2))          # m of slant delay per m, L1
+    tropo_res = rng.normal(0.0, err.tropo_zenith_residual_m)
+    out, vis_r = {}, None
+    truth_clk = {}
+    for name, pos, vel in (("rover", P_r, V_r), ("base", np.repeat(p_b[None], n_ep, 0), np.zeros((n_ep, 3)))):
+        clk = clocks[name]
+        bias, drift = _clock_series(t, clk, rng)
+        truth_clk[name] = {"bias_s": bias, "drift": drift}
+        rho, rr, el, az, dts, ddts, vis, llh, p_rx = _receiver_geometry(nav, sats, t, pos, vel, bias,
+                                                                          elev_mask_deg)
+        tropo = saastamoinen_delay_m(llh[:, 0:1], llh[:, 2:3], el, humidity=0.7)
+        mapping = 1.0 / np.sin(np.maximum(el, np.radians(3.0)))
+        iono1 = np.stack([klobuchar_delay_m(t[k], llh[k, 0], llh[k, 1], el[k], az[k], nav.ion_gps)
+                          for k in range(n_ep)])
+        if name == "rover":
+            tropo = tropo + tropo_res * mapping
+            d_en = enu_b.from_ecef(p_rx)[:, :2]                                 # horizontal offset from the base
+            iono1 = iono1 + mapping * (d_en @ g_iono.T)
+        isb = np.array([clk.isb_m.get(s, 0.0) for s in sysv])
+        geo = rho + C_LIGHT * (bias[:, None] - dts) + tropo                     # (n_ep, m)
+        mp = 1.0 if name == "rover" else err.base_multipath_scale
+        sig_el = code_sigma_m(el, 1.0)[:, :, None]                              # elevation factor
+        n_code = sig_el * (err.code_white_m * rng.standard_normal((n_ep, m, F))
+                           + mp * err.code_mp_m * _gauss_markov(n_ep, (m, F), dt, err.code_mp_tau_s, rng))
+        n_phase = sig_el * (err.phase_white_m * rng.standard_normal((n_ep, m, F))
+                            + mp * err.phase_mp_m * _gauss_markov(n_ep, (m, F), dt, err.phase_mp_tau_s, rng))
+        iono = iono1[:, :, None] * (1575.42e6 / freq[None]) ** 2
+        P = geo[:, :, None] + isb[None, :, None] + iono + n_code
+        Lm = geo[:, :, None] - iono + n_phase                                    # metres, before N
+        rr_meas = rr + C_LIGHT * (drift[:, None] - ddts)
+        D = -(rr_meas[:, :, None] + err.doppler_mps * sig_el * rng.standard_normal((n_ep, m, F))) / lam[None]
+        snr = np.repeat((30.0 + 20.0 * np.sin(el))[:, :, None], F, axis=2)
+        out[name] = dict(P=P, L=Lm / lam[None], D=D, snr=np.round(snr, 3), vis=vis, el=el)
+        if name == "rover":
+            vis_r = vis.copy()
+    # rover outages: keep the satellites that were highest at the window start
+    for (a, b, nmax) in outages:
+        kk = np.nonzero((t >= a - 1e-9) & (t <= b + 1e-9))[0]
+        if len(kk) == 0:
+            continue
+        el0 = np.where(vis_r[kk[0]], out["rover"]["el"][kk[0]], -np.inf)
+        keep = np.argsort(-el0)[:int(nmax)] if nmax > 0 else np.array([], int)
+        mask = np.zeros(m, bool)
+        mask[keep] = True
+        vis_r[kk] &= mask[None]
+    out["rover"]["vis"] = vis_r
+    truth_slips, restarts = [], []
+    phase_offset = {name: {s: rng.uniform(0, 1, F) for s in set(sysv)} for name in out}
+    for name, o in out.items():
+        vis = o["vis"]
+        start = vis & ~np.vstack([np.zeros((1, m), bool), vis[:-1]])           # first epoch of every arc
+        arc = np.cumsum(start, axis=0)                                          # arc number per (epoch, sat)
+        N = rng.integers(-10 ** 6, 10 ** 6, size=(int(arc.max()) + 1, m, F)).astype(float)
+        L = o["L"] + N[arc, np.arange(m)[None, :], :]
+        L = L + np.stack([phase_offset[name][s] for s in sysv])[None]
+        lli = np.zeros((n_ep, m, F), dtype=np.uint8)
+        restart = start.copy()
+        restart[0] = False
+        lli[restart] = 1
+        if name == "rover":
+            restarts = [(float(t[k]), sats[i]) for k, i in zip(*np.nonzero(restart))]
+        o.update(L=L, lli=lli)
+    # cycle slips on the rover
+    slip_list = list(slips)
+    if n_random_slips:
+        vis = out["rover"]["vis"]
+        cand = np.argwhere(vis[5:-5]) + [5, 0]
+        pick = cand[rng.choice(len(cand), size=min(n_random_slips, len(cand)), replace=False)]
+        for q, (k, i) in enumerate(pick):
+            cyc = int(rng.integers(1, 20)) * int(rng.choice([-1, 1]))
+            slip_list.append((float(t[k]), sats[i], int(rng.integers(0, F)), cyc, bool(q % 2 == 0)))
+    for (ts, sat, f, cycles, flagged) in slip_list:
+        i = sats.index(sat)
+        k = t >= ts - 1e-9
+        out["rover"]["L"][k, i, f] += cycles
+        if flagged and k.any():
+            out["rover"]["lli"][np.argmax(k), i, f] |= 1
+        truth_slips.append((float(ts), sat, int(f), int(cycles), bool(flagged)))
+    signals = {(s, f): CARRIER_SIGNALS[s][f] for s in systems if s in CARRIER_SIGNALS for f in range(F)}
+    res = {}
+    for name, pos0 in (("rover", P_r[0]), ("base", p_b)):
+        o = out[name]
+        hide = ~o["vis"][:, :, None].repeat(F, axis=2)
+        arrs = {}
+        for key in ("P", "L", "D", "snr"):
+            a = o[key].copy()
+            a[hide] = np.nan
+            arrs[key] = a
+        lli = o["lli"].copy()
+        lli[hide] = 0
+        res[name] = CarrierObs(source=f"simulation ({name})", t_gps=t.copy(), sats=list(sats), freq_hz=freq.copy(),
+                               P=arrs["P"], L=arrs["L"], D=arrs["D"], snr=arrs["snr"], lli=lli,
+                               signals=dict(signals), p_approx_ecef=pos0 + rng.normal(0, 2.0, 3),
+                               receiver="DGCAL SIM", antenna="SIM", power_failure=np.zeros(n_ep, dtype=bool),
+                               epoch_line=np.arange(n_ep), truth={"p_ecef": (P_r if name == "rover" else p_b).copy()})
+    truth = {"t_gps": t, "p_ecef": P_r, "v_ecef": V_r, "base_ecef": p_b, "clock": truth_clk,
+             "slips": truth_slips, "restarts": restarts, "errors": err.as_dict(),
+             "tropo_zenith_residual_m": float(tropo_res), "outages": [list(o) for o in outages]}
+    return CarrierSimulation(res["rover"], res["base"], nav, p_b, truth)

@@ -16,16 +16,20 @@ import numpy as np
 from dgcal.calib.camera.models import Fraser7
 from dgcal.calib.dg.dem import Dem
 from dgcal.calib.dg.single_image import average_estimates, georeference, intersect_dem, pose_covariance_from_rph
-from dgcal.fields.crs import geodetic_to_ecef
-from dgcal.fields.io.csv_tables import staged_dir
-from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, R_ENU_TO_NED, R_body_to_ned_from_rph, R_ecef_to_ned, rph_from_R_body_to_ned
+from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
+from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+from dgcal.fields.io.formats import week_sow, write_events
+from dgcal.fields.frames import (R_CAM_TO_BODY_NADIR, R_ENU_TO_NED, R_body_to_ned_from_rph, R_ecef_to_ned,
+                                 rph_from_R_body_to_ned)
 from dgcal.pos.ins.imu_data import ImuData, write_imu_csv
 from dgcal.pos.ins.nav_frame import NavFrame
+from dgcal.pos.gnss.solution_files import cov_to_sqvar
+from dgcal.pos.lowcost.fix_files import write_gnss_fixes
 from dgcal.pos.lowcost.ukf import run_ukf
 from dgcal.pos.smoother.batch import SmootherOptions, smooth
 from dgcal.pos.smoother.initial import GnssFixes
 from dgcal.sim.imu import ImuErrorRealisation, simulate_imu
-from dgcal.sim.trajectory import TrueTrajectory, simulate_true_trajectory
+from dgcal.sim.trajectory import TrueTrajectory, camera_events, simulate_true_trajectory
 
 
 @dataclass
@@ -94,21 +98,42 @@ def laser_ranges(truth: TrueTrajectory, t: np.ndarray, ground_height, axis_b=(0.
     return (s.h - np.asarray(ground_height, float)) / d_ned[:, 2] + rng.standard_normal(len(t)) * sigma_m
 
 
-def write_lowcost_dataset(out: str | Path, f: LowcostFlight, seed: int = 0) -> None:
-    """Write a simulated low-cost flight into `out`: imu.csv, gnss_fixes.csv (t_gps, ECEF m and m/s, NED
-    sigmas), truth_trajectory.csv (t_gps, lat, lon, h, NED velocity, roll/pitch/heading deg), truth.json."""
+def write_gnss_csv(path: str | Path, fx: GnssFixes) -> None:
+    """The fixes as dgcal's gnss.csv (`dgcal pos --gnss`): gps_week,gps_sow,x,y,z, the ECEF covariance as sigmas and
+    signed square roots of the cross terms (sx,sy,sz,sxy,sxz,syz, m), velocity and its ECEF sigmas (m/s)."""
+    geo = ecef_to_geodetic(fx.p_ecef)
+    R_ne = np.swapaxes(R_ecef_to_ned(geo[:, 0], geo[:, 1]), 1, 2)
+    C_ned = fx.cov_ned if fx.cov_ned is not None else np.einsum("ni,ij->nij", fx.sigma_ned ** 2, np.eye(3))
+    C = R_ne @ C_ned @ np.swapaxes(R_ne, 1, 2)
+    Cv = R_ne @ np.einsum("ni,ij->nij", fx.sigma_v_ned ** 2, np.eye(3)) @ np.swapaxes(R_ne, 1, 2)
+    w, sow = week_sow(fx.t)
+    cols = [w.astype(int), sow, fx.p_ecef, np.sqrt(np.einsum("nii->ni", C)), cov_to_sqvar(C[:, 0, 1]),
+            cov_to_sqvar(C[:, 0, 2]), cov_to_sqvar(C[:, 1, 2]), fx.v_ecef, np.sqrt(np.einsum("nii->ni", Cv))]
+    rows = np.column_stack(cols)
+    with atomic_write(path) as fh:
+        fh.write("gps_week,gps_sow,x,y,z,sx,sy,sz,sxy,sxz,syz,vx,vy,vz,svx,svy,svz\n")
+        np.savetxt(fh, rows, delimiter=",", fmt=["%d", "%.4f"] + ["%.4f"] * 3 + ["%.5f"] * 6 + ["%.4f"] * 3
+                   + ["%.5f"] * 3)
+
+
+def write_lowcost_dataset(out: str | Path, f: LowcostFlight, seed: int = 0, event_interval_s: float = 2.0) -> None:
+    """Write a simulated low-cost flight into `out`: imu.csv, gnss_fixes.csv (t_gps, ECEF m and m/s, NED sigmas;
+    `dgcal.pos.lowcost.fix_files.read_gnss_fixes`), gnss.csv (the same as dgcal's gnss.csv for `dgcal pos
+    --gnss`), events.csv (an image every `event_interval_s` s on the legs), truth_trajectory.csv (t_gps, lat,
+    lon, h, NED velocity, roll/pitch/heading deg; `dgcal pos --truth` reads it), truth.json."""
     with staged_dir(out) as d:
         write_imu_csv(Path(d) / "imu.csv", f.imu)
-        fx = f.fixes
-        rows = np.column_stack([fx.t, fx.p_ecef, fx.v_ecef, fx.sigma_ned, fx.sigma_v_ned])
-        np.savetxt(Path(d) / "gnss_fixes.csv", rows, delimiter=",", fmt="%.4f",
-                   header="t_gps,x,y,z,vx,vy,vz,s_n,s_e,s_d,s_vn,s_ve,s_vd", comments="")
+        write_gnss_fixes(Path(d) / "gnss_fixes.csv", f.fixes)
+        write_gnss_csv(Path(d) / "gnss.csv", f.fixes)
+        ev = camera_events(f.truth, interval_s=event_interval_s)
+        write_events(Path(d) / "events.csv", ev)
         tr = f.truth
         rows = np.column_stack([tr.t, tr.lat, tr.lon, tr.h, tr.v_ned, tr.rph])
         np.savetxt(Path(d) / "truth_trajectory.csv", rows, delimiter=",", fmt="%.9f",
                    header="t_gps,lat,lon,h,vn,ve,vd,roll,pitch,heading", comments="")
         (Path(d) / "truth.json").write_text(json.dumps({"imu_errors": f.imu_errors.as_dict(),
-                                                       "h_ground": f.h_ground, "seed": seed}, indent=1))
+                                                       "h_ground": f.h_ground, "seed": seed,
+                                                       "imu_grade": f.imu_errors.grade.name}, indent=1))
 def attitude_error_stats(err_deg: np.ndarray) -> dict:
     """Mean, std and RMS (deg) of roll/pitch/heading errors (N,3) — the rows of seed 000 / 001 accuracy tables."""
     e = np.asarray(err_deg, float)

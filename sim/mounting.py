@@ -142,7 +142,7 @@ def simulate_mounting_flight(rng, world: World, camera, lever_arm_m, R_cam_to_bo
     def at(tq):
         i = np.clip(np.searchsorted(t_s, tq) - 1, 0, len(t_s) - 2)
         s = (tq - t_s[i]) / (t_s[i + 1] - t_s[i])
-        pq = p_world[i] + s[:, None] * (p_world[i + 1] - p_world[i])  # straight constant-velocity strips: linear is exact
+        pq = p_world[i] + s[:, None] * (p_world[i + 1] - p_world[i])  # straight constant-velocity strips: linear exact
         Rq = R_bL[i] @ so3_exp(s[:, None] * so3_log(T(R_bL[i]) @ R_bL[i + 1]))
         return pq, Rq
 
@@ -215,7 +215,8 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
               t0=2200 * SECONDS_PER_WEEK + 310000.0)
     mp.update(mapping or {})
     mapf = simulate_mounting_flight(rng, world, camera, lever, R_cb, delay_s, ground_world, ids, **mp)
-    noise = {"pos_sigma": [0.05, 0.05, 0.08, 0.01, 0.01, 0.03], "eop_sigma_300m": [0.03, 0.03, 0.04, 0.003, 0.003, 0.002],
+    noise = {"pos_sigma": [0.05, 0.05, 0.08, 0.01, 0.01, 0.03],
+             "eop_sigma_300m": [0.03, 0.03, 0.04, 0.003, 0.003, 0.002],
              "pixel_sigma": 0.5, "pos_error_kernel_s": 0.3,
              "pos_common_fraction": (calibration or {}).get("pos_common_fraction", 0.0)}
     return MountingSim(crs, camera, lever, R_cb, float(delay_s), ground, cal, mapf, noise)

@@ -1,10 +1,15 @@
 """`dgcal simulate pos`: a UAV flight with a realistic IMU, raw GNSS code + Doppler from broadcast orbits,
-an antenna lever arm, a partial outage (3 satellites for 60 s) and camera events, with the truth.
+rover and base carrier phase, an antenna lever arm, a partial outage (3 satellites for 60 s) and camera
+events, with the truth.
 
-Composes dgcal.sim.trajectory (exact flight kinematics), dgcal.sim.imu (grade presets of dgcal.pos.ins.error_model) and dgcal.sim.gnss
-(pseudoranges from the real navigation file of ../shared/data/rinex-sept by default, so the flight is dated
-2021-03-19 around 12:00 GPS time). Files: imu.csv (increments, dgcal.pos.ins.imu_data), obs.rnx (RINEX 3), nav.rnx,
-events.csv, truth_trajectory.csv (true IMU trajectory at 10 Hz), truth_events.csv, truth.json.
+Composes dgcal.sim.trajectory (exact flight kinematics), dgcal.sim.imu (grade presets of
+dgcal.pos.ins.error_model) and dgcal.sim.gnss (pseudoranges from the real navigation file of
+../shared/data/rinex-sept by default, so the flight is dated 2021-03-19 around 12:00 GPS time).
+Files: imu.csv (increments, dgcal.pos.ins.imu_data), obs.rnx (RINEX 3, code + Doppler), rover.rnx and base.rnx
+(RINEX 3, dual-frequency code, carrier phase, Doppler, C/N0 of the rover antenna and of a static base station:
+`dgcal.sim.gnss.simulate_rover_base`, with multipath, atmosphere residuals, cycle slips, a 10 s total outage and
+the 60 s three-satellite window), nav.rnx, events.csv, truth_trajectory.csv (true IMU trajectory at 10 Hz),
+truth_events.csv, truth.json (with the base position and the exact `dgcal pos` command lines).
 """
 from __future__ import annotations
 
@@ -17,12 +22,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dgcal.fields.constants import OMEGA_IE_E, SECONDS_PER_WEEK
+from dgcal.fields.crs import LocalENU
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir
 from dgcal.fields.io.formats import Trajectory, write_events, write_trajectory
+from dgcal.pos.gnss.carrier import write_rinex_carrier
 from dgcal.pos.gnss.rinex import write_rinex_obs
 from dgcal.pos.ins.error_model import imu_grade as grade_of
 from dgcal.pos.ins.imu_data import write_imu_csv
-from dgcal.sim.gnss import DEFAULT_T0_GPS, load_nav, simulate_gnss
+from dgcal.sim.gnss import DEFAULT_T0_GPS, CarrierErrorModel, load_nav, simulate_gnss, simulate_rover_base
 from dgcal.sim.imu import simulate_imu
 from dgcal.sim.trajectory import camera_events, simulate_true_trajectory
 
@@ -43,6 +50,8 @@ class PosSimulation:
     sigma_pr: float
     sigma_doppler: float
     info: dict = field(default_factory=dict)
+    carrier: object = None  # dgcal.sim.gnss.CarrierSimulation: rover + base carrier phase (None if not simulated)
+    outages: list = field(default_factory=list)  # the carrier pair's rover outages (t0, t1, max_sats)
 
 
 def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multirotor", imu_grade="adis16488",
@@ -51,11 +60,16 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
                  sigma_pr: float = 0.3, sigma_doppler: float = 0.1, event_interval_s: float = 2.0,
                  lat0: float = 35.3, lon0: float = 139.5, h_ground: float = 40.0, height_agl: float = 120.0,
                  n_strips: int = 6, strip_length_m: float = 600.0, strip_spacing_m: float = 80.0,
-                 misalignment: bool = True) -> PosSimulation:
+                 misalignment: bool = True, carrier: bool = True, base_offset_enu_m=(1200.0, -700.0, 0.0),
+                 total_outage_s: float = 10.0, n_slips: int = 6,
+                 carrier_errors: CarrierErrorModel | None = None) -> PosSimulation:
     """Simulate a flight (seconds, metres, degrees; GPS time from the navigation file's day).
 
     The outage (`outage_sats` highest satellites kept) starts at `outage_start_s` after take-off (default:
-    60 % of the flight, on a strip or turn). GNSS epochs are at whole GPS seconds at 1 Hz.
+    60 % of the flight, on a strip or turn). GNSS epochs are at whole GPS seconds at 1 Hz. With `carrier`, the
+    rover antenna and a static base at `base_offset_enu_m` from the site (ground height) also get dual-frequency
+    code and carrier phase (`dgcal.sim.gnss.simulate_rover_base`): the same three-satellite window, a total
+    outage of `total_outage_s` at 30 % of the flight (0: none) and `n_slips` random cycle slips.
     """
     nav = load_nav(nav)
     week = int(DEFAULT_T0_GPS // SECONDS_PER_WEEK)
@@ -81,8 +95,17 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     events = camera_events(traj, interval_s=event_interval_s)
     inside = (events.t > t_gnss[0] + 1.0) & (events.t < t_gnss[-1] - 1.0)  # the smoothed span
     events.image, events.t = events.image[inside], events.t[inside]
+    csim, outages = None, []
+    if carrier:
+        outages = [outage]
+        if total_outage_s > 0:
+            ta = float(t_gnss[0] + 0.3 * (t_gnss[-1] - t_gnss[0]))
+            outages.append((ta, ta + float(total_outage_s), 0))
+        base = LocalENU(lat0, lon0, h_ground).to_ecef(np.asarray(base_offset_enu_m, float)[None])[0]
+        csim = simulate_rover_base(t_gnss, p_ant, v_ant, base, nav=nav, seed=seed + 3, errors=carrier_errors,
+                                   systems=tuple(systems), n_freq=2, outages=outages, n_random_slips=n_slips)
     return PosSimulation(traj, imu, err, obs, nav, events, lever, outage, grade, sigma_pr, sigma_doppler,
-                         {"seed": seed, "flight": kind, "duration_s": duration_s, "rate_hz": rate_hz})
+                         {"seed": seed, "flight": kind, "duration_s": duration_s, "rate_hz": rate_hz}, csim, outages)
 
 
 def true_trajectory(traj, t) -> object:
@@ -116,6 +139,7 @@ def write_pos_dataset(out, sim: PosSimulation) -> dict:
         "n_events": len(sim.events.t),
         "files": {"imu": "imu.csv", "rinex_obs": "obs.rnx", "rinex_nav": "nav.rnx", "events": "events.csv",
                   "truth_trajectory": "truth_trajectory.csv", "truth_events": "truth_events.csv"},
+        **_carrier_truth(sim),
         "command": ("dgcal pos --mode tc --rinex-obs obs.rnx --rinex-nav nav.rnx --imu imu.csv --events events.csv "
                     f"--imu-grade {sim.grade.name} --lever-arm {' '.join('%g' % v for v in sim.lever_arm_b)} "
                     f"--code-sigma {sim.sigma_pr:g} --doppler-sigma {sim.sigma_doppler:g} "
@@ -125,6 +149,9 @@ def write_pos_dataset(out, sim: PosSimulation) -> dict:
         d = Path(d)
         write_imu_csv(d / "imu.csv", sim.imu)
         write_rinex_obs(d / "obs.rnx", sim.obs)
+        if sim.carrier is not None:
+            write_rinex_carrier(d / "rover.rnx", sim.carrier.rover, marker="ROVER")
+            write_rinex_carrier(d / "base.rnx", sim.carrier.base, marker="BASE")
         src = Path(sim.nav.source) if sim.nav.source else None
         if src is not None and src.is_file():
             shutil.copyfile(src, d / "nav.rnx")
@@ -136,3 +163,29 @@ def write_pos_dataset(out, sim: PosSimulation) -> dict:
         with atomic_write(d / "truth.json") as fh:
             json.dump(truth, fh, indent=2)
     return truth
+
+
+def _carrier_truth(sim: PosSimulation) -> dict:
+    """The rover + base part of truth.json: files, base position, the carrier simulation's errors, slips and
+    outages, and the exact `dgcal pos` command line of TC with carrier phase."""
+    c = sim.carrier
+    if c is None:
+        return {}
+    b = c.base_ecef
+    return {
+        "carrier": {"files": {"rover": "rover.rnx", "base": "base.rnx"}, "base_ecef_m": b.tolist(),
+                    "systems": sorted({s[0] for s in c.rover.sats}), "frequencies": int(c.rover.n_slots),
+                    "signals": {f"{s}{f}": "/".join(v) for (s, f), v in c.rover.signals.items()},
+                    "errors": c.truth["errors"], "tropo_zenith_residual_m": c.truth["tropo_zenith_residual_m"],
+                    "outages": [{"t0_gps": a, "t1_gps": e, "max_sats": n} for a, e, n in sim.outages],
+                    "slips": [{"t_gps": t, "sat": s, "slot": f, "cycles": n, "flagged": fl}
+                              for t, s, f, n, fl in c.truth["slips"]],
+                    "loss_of_lock_restarts": len(c.truth["restarts"])},
+        "command_carrier": ("dgcal pos --mode tc --rinex-obs rover.rnx --rinex-nav nav.rnx --rinex-base base.rnx "
+                            f"--base-position {b[0]:.4f} {b[1]:.4f} {b[2]:.4f} --imu imu.csv --events events.csv "
+                            f"--imu-grade {sim.grade.name} --lever-arm {' '.join('%g' % v for v in sim.lever_arm_b)} "
+                            f"--code-sigma 0.3 --doppler-sigma {sim.sigma_doppler:g} --frequencies 2 "
+                            "--set model_errors=false --out OUT"),
+        "command_ppk": ("dgcal pos --mode ppk --rinex-obs rover.rnx --rinex-nav nav.rnx --rinex-base base.rnx "
+                        f"--base-position {b[0]:.4f} {b[1]:.4f} {b[2]:.4f} --frequencies 2 --out OUT"),
+    }

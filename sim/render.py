@@ -23,7 +23,8 @@ class Facet:
     """A textured planar parallelogram in the world frame.
 
     The centre of texel (row i, col j) lies at `origin_w + j * du_w + i * dv_w` (m); `grey` is the
-    radiance (H x W; float32 0..1, or uint8/uint16 scaled to 0..1); `alpha` (same shape, 0..1) the coverage of the surface, None = opaque."""
+    radiance (H x W; float32 0..1, or uint8/uint16 scaled to 0..1); `alpha` (same shape, 0..1) the coverage of the
+    surface, None = opaque."""
 
     origin_w: np.ndarray
     du_w: np.ndarray

@@ -241,7 +241,8 @@ def _kinematics_chunked(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, 
 
 def assemble_trajectory(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, with_increments: bool, rate_hz: float,
               chunk: int = 50000) -> TrueTrajectory:
-    """The true trajectory (state, specific force, rates; increments optionally) of a profile at times t (s) and local positions p_l (m)."""
+    """The true trajectory (state, specific force, rates; increments optionally) of a profile at times t (s) and
+    local positions p_l (m)."""
     n = len(t)
     keys = ("p_ecef", "v_ecef", "R_body_to_ecef", "f_b", "omega_ib_b", "v_l")
     arr = _kinematics_chunked(profile, t, p_l, keys, chunk)

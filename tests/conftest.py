@@ -1,13 +1,12 @@
 import os
+from pathlib import Path
+
+import pytest
 
 # Two cores shared by two test workers: BLAS threads would only thrash (a 190x190 solve took 170 ms
 # threaded against 0.8 ms single-threaded). Set before numpy is imported by the tests.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
-
-from pathlib import Path
-
-import pytest
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -1,5 +1,4 @@
 """Output folders appear whole or not at all (dgcal.fields.io.atomic), also when the writer is killed."""
-import json
 import os
 import signal
 import subprocess

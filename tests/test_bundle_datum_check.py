@@ -17,7 +17,9 @@ def _block(rng):
         Xc = (X - C[i]) @ R_cam_to_world[i]
         p = cam.project(Xc)
         vis = (Xc[:, 2] > 0) & (p[:, 0] > 0) & (p[:, 0] < 1200) & (p[:, 1] > 0) & (p[:, 1] < 800)
-        k += [i] * int(vis.sum()); Xo.append(X[vis]); uv.append(p[vis])
+        k += [i] * int(vis.sum())
+        Xo.append(X[vis])
+        uv.append(p[vis])
     return cam, R_cam_to_world, C, np.array(k), np.vstack(Xo), np.vstack(uv)
 
 

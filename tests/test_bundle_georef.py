@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dgcal.bundle.resection import pnp, relative_bootstrap, similarity_umeyama
+from dgcal.bundle.resection import pnp, similarity_umeyama
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_cam_to_map_from_opk

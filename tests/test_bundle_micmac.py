@@ -101,7 +101,7 @@ def test_micmac_orientation_gap_is_micmacs_datum(micmac):
         keep = gcp_meas.id[known] != g
         assert gcp_datum_step(cam, R_mm, C_mm, k[keep], X[keep], gcp_meas.xy[known][keep]).angle_deg > 0.2
     # MicMac's block moved to that datum agrees with ours far inside the acceptance (0.08-0.11 deg, < 1 cm)
-    for i, name in enumerate(names):
+    for i, _name in enumerate(names):
         assert np.linalg.norm(step.C_w[i] - res.eop.xyz[i]) < 0.015
         assert np.degrees(Rotation.from_matrix(step.R_cam_to_world[i].T @ res.R_world_to_cam[i].T).magnitude()) < 0.15
 

@@ -1,5 +1,4 @@
 """Aerial triangulation on a simulated flight (measurements only): accuracy and honest sigmas vs truth."""
-import json
 
 import numpy as np
 import pytest

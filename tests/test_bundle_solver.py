@@ -53,7 +53,8 @@ def _dense_jacobian(prob, state, h=1e-6):
         moved = []
         for s in (1, -1):
             dd = s * d
-            st = State(state.poses.retract(dd[:6 * N].reshape(N, 6)), state.points + dd[6 * N:6 * N + 3 * M].reshape(M, 3),
+            st = State(state.poses.retract(dd[:6 * N].reshape(N, 6)),
+                       state.points + dd[6 * N:6 * N + 3 * M].reshape(M, 3),
                        state.globals + dd[6 * N + 3 * M:])
             moved.append(_residual_vector(prob, st))
         J[:, k] = (moved[0] - moved[1]) / (2 * h)

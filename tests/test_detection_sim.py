@@ -137,7 +137,8 @@ def test_border_and_homography_rejections():
     assert det.xy[:, 0].max() < cut.shape[1] - 4
     ref = dict(zip(full.ids, full.xy))
     assert max(np.abs(ref[i] - p).max() for i, p in zip(det.ids, det.xy)) < 0.05
-    # a corner moved by 5 px (tolerance 0.04 square = 3.2 px) is caught by its neighbours' homography, the others are not
+    # a corner moved by 5 px (tolerance 0.04 square = 3.2 px) is caught by its neighbours' homography, the others
+    # are not
     d = CharucoFieldDetector(tf)
     cids = np.array(sorted(d.target_of_corner))
     k2 = {v: k for k, v in d.target_of_corner.items()}

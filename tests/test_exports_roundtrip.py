@@ -40,7 +40,8 @@ def test_colmap_round_trip_and_reprojection(data, tmp_path):
     sim, g, eop = data
     mp = sim.mapping
     pts = {str(i): x for i, x in zip(sim.ground.ids, sim.ground.xyz)}
-    obs = [(mp.measurements.image[k], mp.measurements.id[k], *mp.measurements.xy[k]) for k in range(len(mp.measurements))]
+    obs = [(mp.measurements.image[k], mp.measurements.id[k], *mp.measurements.xy[k])
+           for k in range(len(mp.measurements))]
     export_all(tmp_path, eop, g, sim.camera, formats=("colmap",), points_map=pts, observations=obs)
     e2, g2 = read_colmap(tmp_path / "colmap")
     assert np.max(np.abs(e2.xyz - eop.xyz)) < 1e-6

@@ -87,4 +87,5 @@ def test_eop_round_trip(tmp_path):
     np.testing.assert_allclose(b.xyz, e.xyz, atol=1e-6)
     np.testing.assert_allclose(b.opk, e.opk, atol=1e-6)
     np.testing.assert_allclose(b.sigma, e.sigma, atol=1e-5)
-    assert (tmp_path / "eop.csv").read_text().split("\n")[0] == "image,X,Y,Z,omega,phi,kappa,sX,sY,sZ,somega,sphi,skappa"
+    assert (tmp_path / "eop.csv").read_text().split("\n")[0] == ("image,X,Y,Z,omega,phi,kappa,"
+                                                                "sX,sY,sZ,somega,sphi,skappa")

@@ -1,6 +1,5 @@
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from dgcal.fields import frames
 from dgcal.fields.crs import LocalENU, MapGrid, ecef_to_geodetic, geodetic_to_ecef

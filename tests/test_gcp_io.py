@@ -4,8 +4,9 @@ import pytest
 
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import Measurements, Points
-from dgcal.fields.io.gcp_files import (is_odm_gcp_list, odm_crs_to_pyproj, read_any_measurements, read_micmac_measurements,
-                           read_micmac_orientation, read_micmac_points, read_odm_gcp_list, write_odm_gcp_list)
+from dgcal.fields.io.gcp_files import (is_odm_gcp_list, odm_crs_to_pyproj, read_any_measurements,
+                                       read_micmac_measurements, read_micmac_orientation, read_micmac_points,
+                                       read_odm_gcp_list, write_odm_gcp_list)
 
 
 def _sample():

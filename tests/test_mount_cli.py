@@ -41,7 +41,8 @@ def test_mount_check_export_compare_chain(files, tmp_path):
     assert _mount(files, tmp_path / "trad", "traditional") == 0
     assert _mount(files, tmp_path / "prop") == 0
     m = files / "mapping"
-    rc = main(["check", "--mounting", str(tmp_path / "trad" / "mounting.json"), str(tmp_path / "prop" / "mounting.json"),
+    rc = main(["check", "--mounting", str(tmp_path / "trad" / "mounting.json"),
+               str(tmp_path / "prop" / "mounting.json"),
                "--trajectory", str(m / "trajectory.csv"), "--events", str(m / "events.csv"),
                "--measurements", str(m / "measurements.csv"), "--gcp", str(files / "ground.csv"),
                "--camera", str(files / "camera.json"), "--crs", "EPSG:32651", "--out", str(tmp_path / "check")])

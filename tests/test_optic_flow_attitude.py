@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from dgcal.fields.frames import R_body_to_ned_from_rph
-from dgcal.pos.lowcost.optic_flow import (R_CAM_TO_BODY_FORWARD, depth_from_flow, exp_so3, focus_of_expansion, ground_homography,
+from dgcal.pos.lowcost.optic_flow import (R_CAM_TO_BODY_FORWARD, depth_from_flow, focus_of_expansion, ground_homography,
                             height_above_ground, pitch_yaw_from_velocity)
 from dgcal.sim.forward_camera import flow_attitude_study, format_table2, forward_camera, make_forward_camera_sim
+from dgcal.fields.pose import so3_exp
 
 
 def test_pitch_yaw_from_velocity_round_trip():
@@ -19,10 +20,12 @@ def test_pitch_yaw_from_velocity_round_trip():
         assert abs(p2 - p) < 1e-8 and abs((y2 - y + 180) % 360 - 180) < 1e-8
 
 
-def _synthetic_pair(rng, rot_err=np.zeros(3), n=300, agl=60.0, noise_rad=0.0):
+def _synthetic_pair(rng, rot_err=None, n=300, agl=60.0, noise_rad=0.0):
     """Rays of ground points in two forward-camera frames and the exact camera motion."""
+    if rot_err is None:
+        rot_err = np.zeros(3)
     R_c1 = R_body_to_ned_from_rph(5.0, 3.0, 40.0) @ R_CAM_TO_BODY_FORWARD
-    dR = exp_so3(np.radians([0.3, -0.5, 1.0]))  # cam2 -> cam1
+    dR = so3_exp(np.radians([0.3, -0.5, 1.0]))  # cam2 -> cam1
     T_ned = np.array([9.0, 8.0, -0.3])
     t_c = R_c1.T @ T_ned
     # ground points seen at depressions 10..45 deg
@@ -35,7 +38,7 @@ def _synthetic_pair(rng, rot_err=np.zeros(3), n=300, agl=60.0, noise_rad=0.0):
     d1 = P1 / np.linalg.norm(P1, axis=1, keepdims=True)
     d2 = P2 / np.linalg.norm(P2, axis=1, keepdims=True)
     d2 = d2 + rng.standard_normal(d2.shape) * noise_rad
-    d2r = d2 @ (exp_so3(rot_err) @ dR).T  # de-rotated with a slightly wrong rotation
+    d2r = d2 @ (so3_exp(rot_err) @ dR).T  # de-rotated with a slightly wrong rotation
     return R_c1, dR, t_c, d1, d2r / np.linalg.norm(d2r, axis=1, keepdims=True), P1
 
 

@@ -115,6 +115,34 @@ def test_nonplanar_plate_renders_blocks_and_hides_what_they_occlude(tmp_path):
     cam = calibration_field_camera((1200, 800))
     shots = plan_shots(2, cam, tf, np.random.default_rng(11))
     with_blocks, plate_only = field_facets(tf, 0.004), field_facets(TargetField(square_m=0.12, marker_m=0.09), 0.004)
-    hidden = sum(len(set(truth_projections(cam, tf, sh, plate_only)[0]) - set(truth_projections(cam, tf, sh, with_blocks)[0]))
-                 for sh in shots)
+    hidden = sum(len(set(truth_projections(cam, tf, sh, plate_only)[0])
+                     - set(truth_projections(cam, tf, sh, with_blocks)[0])) for sh in shots)
     assert hidden > 0
+
+
+def test_cli_renders_a_standard_board_with_consistent_truth(tmp_path):
+    import cv2
+
+    from dgcal.calib.camera.files import camera_from_json_dict
+    from dgcal.cli import main
+    from dgcal.fields.targets.boards import read_board
+    board = tmp_path / "b.toml"
+    board.write_text('type = "aruco-grid"\ncolumns = 4\nrows = 3\nsquare_m = 0.05\nmarker_m = 0.04\n'
+                     'dictionary = "DICT_5X5_250"\n')
+    out = tmp_path / "sim"
+    assert main(["simulate", "camera-field", "--board", str(board), "--out", str(out), "--seed", "2",
+                 "--n-images", "3", "--image-size", "480", "360"]) == 0
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["simulator"] == "board-views" and len(truth["images"]) == 3
+    assert read_board(out / "board.toml") == read_board(board)
+    cam = camera_from_json_dict(truth["camera"])
+    pts = read_points(out / "field.csv")
+    xyz = dict(zip(pts.ids, pts.xyz))
+    tm = read_table(out / "truth_measurements.csv", ["image", "id", "x", "y"])
+    for im in truth["images"]:
+        assert cv2.imread(str(out / "images" / im["image"]), cv2.IMREAD_GRAYSCALE).shape == (360, 480)
+        R, t = np.array(im["R_board_to_cam"]), np.array(im["t_board_to_cam"])
+        sel = tm["image"] == im["image"]
+        assert sel.sum() >= 0.4 * len(pts.ids)            # at least 40 % of the corners in view
+        uv = cam.project(np.array([xyz[i] for i in tm["id"][sel]]) @ R.T + t)
+        assert np.abs(uv - np.column_stack([tm["x"][sel], tm["y"][sel]])).max() < 1e-4

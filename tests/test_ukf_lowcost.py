@@ -81,12 +81,21 @@ def test_ukf_with_antenna_lever_arm():
     f = simulate_lowcost_flight(duration_s=75.0, rate_hz=50.0, seed=2)
     lever = np.array([0.3, -0.2, -0.4])
     fixes, _ = gnss_fixes(f.truth, 50.0, seed=3, lever_arm_b=lever)
-    u = run_ukf(f.imu, fixes, f.imu_errors.grade, UkfOptions(lever_arm_b=lever))
+    # the seed's 15 states (fixes taken as white)
+    u = run_ukf(f.imu, fixes, f.imu_errors.grade, UkfOptions(lever_arm_b=lever, gnss_error_states=False))
     a = u.t > u.t[0] + 25.0
     e = _rph_error(f.truth, u.t[a], u.rph_deg[a])
     assert np.all(np.sqrt(np.mean(e[:, :2] ** 2, axis=0)) < 0.5)
     p_true = u.frame.from_ecef(f.truth.at(u.t[a]).p_ecef)
     assert np.sqrt(np.mean(np.sum((u.p_nav[a] - p_true) ** 2, axis=1))) < 3.0
+    # the default adds the GNSS error states: the same attitude, and a position error its sigma accounts for (this
+    # flight's GNSS errors average 3.3 m over the window, so no filter can be much closer)
+    g = run_ukf(f.imu, fixes, f.imu_errors.grade, UkfOptions(lever_arm_b=lever))
+    assert g.info["n_states"] == 18
+    e = _rph_error(f.truth, g.t[a], g.rph_deg[a])
+    assert np.all(np.sqrt(np.mean(e[:, :2] ** 2, axis=0)) < 0.5)
+    z = (g.p_nav[a] - p_true) / g.sigma_p_nav[a]
+    assert np.sqrt(np.mean(z ** 2)) < 2.0
 
 
 def test_ukf_solution_as_trajectory_file(tmp_path):

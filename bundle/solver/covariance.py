@@ -98,7 +98,8 @@ class Covariance:
                 r_.append(np.broadcast_to(rows[:, :, None], (k, d, g)).ravel())
                 c_.append(np.broadcast_to((6 * N + ev.glob)[None, None, :], (k, d, g)).ravel())
                 v_.append(ev.J_glob[it].ravel())
-            cat = (lambda a: np.concatenate(a) if a else np.zeros(0))
+            def cat(a):
+                return np.concatenate(a) if a else np.zeros(0)
             A_c = sp.csr_matrix((cat(v_), (cat(r_).astype(int), cat(c_).astype(int))), shape=(k * d, nc))
             q = np.zeros(k * d)
             if ev.J_point is not None and M:

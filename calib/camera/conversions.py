@@ -1,8 +1,10 @@
 """Conversions between dgcal camera models and other software's conventions.
 
 Every conversion returns the converted parameters and the largest projection difference in pixels
-over the whole frame (`max_error_px`): 0 where the conversion is exact, otherwise the residual of a
-least-squares fit over a grid spanning the frame. See docs/camera_models.md for the equations and
+(`max_error_px`): 0 where the conversion is exact, otherwise the residual of a least-squares fit over a grid
+spanning the frame or, given a `region` (dgcal.calib.camera.region.ValidRegion: where the source model is
+monotonic and observed), only the part of the frame inside it: a model is not fitted through its own fold or
+into corners no observation reached, and the error is measured there. See docs/camera_models.md for the equations and
 the convention traps (P1/P2 swap, +0.5 px origin, centre-relative principal point, inverse models).
 
 All pixel coordinates in this module are dgcal's (OpenCV's): origin at the centre of the top-left
@@ -16,7 +18,7 @@ from typing import ClassVar
 import numpy as np
 from scipy.optimize import least_squares
 
-from dgcal.calib.camera.models import CameraModel, Fraser7, OpenCV8, model_class
+from dgcal.calib.camera.models import CameraModel, Fisheye, Fraser7, OpenCV8, model_class
 from dgcal.fields.errors import InputError
 
 OPENCV5_KEYS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
@@ -28,7 +30,9 @@ COLMAP_PARAMS = {
     "RADIAL": ("f", "cx", "cy", "k1", "k2"),
     "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
     "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
 }
+MIN_FIT_POINTS = 60           # a region with fewer grid points is sampled more densely
 COLMAP_PIXEL_SHIFT = 0.5      # COLMAP's origin is the top-left pixel's corner: its centre is (0.5, 0.5)
 METASHAPE_PIXEL_SHIFT = 0.5   # Metashape's too: u = w/2 + cx + ... has the image centre at w/2
 METASHAPE_KEYS = ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2", "p3", "p4")
@@ -45,22 +49,39 @@ def frame_grid(image_size: tuple[int, int], n: tuple[int, int] = (41, 29)) -> np
     return np.column_stack([uu.ravel(), vv.ravel()])
 
 
-def max_projection_difference(a, b, n: tuple[int, int] = (61, 41)) -> float:
-    """Largest pixel distance between two camera models' projections of the rays of `a` over the frame."""
-    uv = frame_grid(a.image_size, n)
-    return float(np.max(np.linalg.norm(b.project(a.ray(uv)) - uv, axis=1)))
+def region_grid(image_size: tuple[int, int], n: tuple[int, int], region=None) -> np.ndarray:
+    """Pixels of a frame grid (corners included), or, given `region`, pixels filling it (a grid over its bounding
+    box and points along its border: `ValidRegion.sample`)."""
+    if region is None:
+        return frame_grid(image_size, n)
+    uv = region.sample(n)
+    if len(uv) < MIN_FIT_POINTS:
+        uv = region.sample((3 * n[0], 3 * n[1]))
+    return uv
+
+
+def max_projection_difference(a, b, n: tuple[int, int] = (61, 41), region=None) -> float:
+    """Largest pixel distance between two camera models' projections of the rays of `a` over the frame (or over
+    the part of it inside `region`)."""
+    uv = region_grid(a.image_size, n, region)
+    with np.errstate(all="ignore"):
+        d = np.linalg.norm(b.project(a.ray(uv)) - uv, axis=1)
+    if not len(d):
+        return float("inf") if region is not None else 0.0   # an empty region: nothing is known to fit
+    return float(np.max(np.nan_to_num(d, nan=np.inf)))
 
 
 def fit_camera(source, target: CameraModel, free: list[str] | None = None,
-               grid: tuple[int, int] = (41, 29)) -> tuple[CameraModel, float]:
+               grid: tuple[int, int] = (41, 29), region=None) -> tuple[CameraModel, float]:
     """Fit `target`'s parameters (those in `free`, default all) so that it projects the rays of `source`
     (anything with image_size, ray, project) where `source` does; returns (fitted copy, max error px).
-    The error is measured on a denser grid than the fit's, over the whole frame."""
+    The error is measured on a denser grid than the fit's, over the whole frame or only inside `region`."""
     t = target.copy()
     t.sigmas = None
     idx = np.arange(len(t.PARAMS)) if free is None else np.array([t.PARAMS.index(k) for k in free])
-    uv = frame_grid(source.image_size, grid)
-    rays = source.ray(uv)
+    uv = region_grid(source.image_size, grid, region)
+    with np.errstate(all="ignore"):
+        rays = source.ray(uv)
     ok = np.all(np.isfinite(rays), axis=1)
     uv, rays = uv[ok], rays[ok]
 
@@ -75,19 +96,43 @@ def fit_camera(source, target: CameraModel, free: list[str] | None = None,
     sol = least_squares(residual, t.params[idx].copy(), jac=jacobian, method="lm", x_scale="jac",
                         xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
     t.params[idx] = sol.x
-    return t, max_projection_difference(source, t)
+    return t, max_projection_difference(source, t, region=region)
+
+
+def conversion_jacobian(source: CameraModel, target: CameraModel, free: list[str] | None = None,
+                        uv: np.ndarray | None = None, region=None) -> np.ndarray:
+    """d(target params)/d(source params) (Pt, Ps) of a fitted conversion (`fit_camera` of `target` to `source` on
+    the pixels `uv`, default the region's fit grid), by the implicit-function theorem on the Gauss-Newton
+    normal equations: a change of the source's parameters moves its rays, the fit follows. Rows of held target
+    parameters are 0."""
+    uv = region_grid(source.image_size, (41, 29), region) if uv is None else np.asarray(uv, float)
+    idx = np.arange(len(target.PARAMS)) if free is None else np.array([target.PARAMS.index(k) for k in free])
+    xy = source.undistort_normalized(uv)
+    X = np.column_stack([xy, np.ones(len(xy))])
+    _, Js, JXs = source.project_with_jacobians(X)
+    # source: project(ray) = uv  =>  J_xy dxy + J_s ds = 0
+    dxy = -np.linalg.solve(JXs[:, :, :2], Js)                         # (N,2,Ps)
+    _, Jt, JXt = target.project_with_jacobians(X)
+    dr_ds = np.einsum("nij,njp->nip", JXt[:, :, :2], dxy).reshape(-1, Js.shape[2])
+    A = Jt[:, :, idx].reshape(-1, len(idx))
+    sol = -np.linalg.lstsq(A, dr_ds, rcond=None)[0]
+    out = np.zeros((len(target.PARAMS), Js.shape[2]))
+    out[idx] = sol
+    return out
 
 
 def _initial(source, cls: type[CameraModel]) -> CameraModel:
     K = source.pinhole_K()
     if cls is Fraser7:
         return Fraser7(source.image_size, [K[1, 1], K[0, 2], K[1, 2], 0, 0, 0, 0, 0, K[0, 0] - K[1, 1], 0])
+    if cls is Fisheye:
+        return Fisheye(source.image_size, [K[0, 0], K[1, 1], K[0, 2], K[1, 2]] + [0.0] * 4)
     return OpenCV8(source.image_size, [K[0, 0], K[1, 1], K[0, 2], K[1, 2]] + [0.0] * 8)
 
 
-def convert_model(source, name: str) -> tuple[CameraModel, float]:
-    """`source` as the dgcal model `name` ('fraser7' or 'opencv8'): exact where one contains the other,
-    else fitted; returns (model, max error px)."""
+def convert_model(source, name: str, region=None) -> tuple[CameraModel, float]:
+    """`source` as the dgcal model `name` ('fraser7', 'opencv8' or 'fisheye'): exact where one contains the other,
+    else fitted (inside `region` when given); returns (model, max error px)."""
     cls = model_class(name)
     if isinstance(source, cls):
         return source.copy(), 0.0
@@ -96,7 +141,7 @@ def convert_model(source, name: str) -> tuple[CameraModel, float]:
         return OpenCV8.from_dict(source.image_size, d), err
     if isinstance(source, OpenCV8) and cls is Fraser7 and not np.any(source.params[9:]):
         return from_opencv(to_opencv(source)[0], source.image_size, "fraser7"), 0.0
-    return fit_camera(source, _initial(source, cls))
+    return fit_camera(source, _initial(source, cls), region=region)
 
 
 class _NewtonRay:
@@ -131,11 +176,15 @@ class _NewtonRay:
 # ---------------------------------------------------------------------------------------------
 # OpenCV
 # ---------------------------------------------------------------------------------------------
-def to_opencv(model: CameraModel) -> tuple[dict[str, float], float]:
+def to_opencv(model: CameraModel, region=None) -> tuple[dict[str, float], float]:
     """OpenCV parameters {fx, fy, cx, cy, k1, k2, p1, p2, k3[, k4, k5, k6]} (px) and the max error (px):
-    exact for opencv8 and for fraser7 with B2 = 0, else a 5-coefficient fit over the frame."""
+    exact for opencv8 and for fraser7 with B2 = 0, else a fit over the frame (inside `region` when given):
+    5 coefficients for fraser7, the rational 8 for fisheye."""
     if isinstance(model, OpenCV8):
         return {k: model[k] for k in OPENCV8_KEYS}, 0.0
+    if isinstance(model, Fisheye):
+        fit, err = fit_camera(model, _initial(model, OpenCV8), region=region)
+        return {k: fit[k] for k in OPENCV8_KEYS}, err
     if not isinstance(model, Fraser7):
         raise InputError(f"no OpenCV conversion for camera model {model.NAME!r}", field="model")
     err = 0.0
@@ -143,7 +192,7 @@ def to_opencv(model: CameraModel) -> tuple[dict[str, float], float]:
         # OpenCV has no skew term: fit a fraser7 with B2 = 0, which is exactly OpenCV's 5-coefficient model
         start = model.copy()
         start.params[9] = 0.0
-        model, err = fit_camera(model, start, free=[k for k in Fraser7.PARAMS if k != "B2"])
+        model, err = fit_camera(model, start, free=[k for k in Fraser7.PARAMS if k != "B2"], region=region)
     f, cx, cy, k1, k2, k3, p1, p2, b1, _ = model.params
     return {"fx": f + b1, "fy": f, "cx": cx, "cy": cy, "k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3}, err
 
@@ -191,10 +240,15 @@ def opencv_from_K_dist(K: np.ndarray, dist: np.ndarray) -> dict[str, float]:
 # ---------------------------------------------------------------------------------------------
 # COLMAP
 # ---------------------------------------------------------------------------------------------
-def to_colmap(model: CameraModel) -> tuple[str, list[float], float]:
+def to_colmap(model: CameraModel, region=None) -> tuple[str, list[float], float]:
     """COLMAP camera model name, its params (pixel origin at the top-left corner: cx, cy + 0.5) and the
-    max error (px): OPENCV when K3 = 0, else FULL_OPENCV; exact unless fraser7 has B2 != 0."""
-    d, err = to_opencv(model)
+    max error (px): OPENCV when K3 = 0, else FULL_OPENCV (OPENCV_FISHEYE for fisheye); exact unless fraser7 has
+    B2 != 0 (then fitted inside `region` when given)."""
+    if isinstance(model, Fisheye):
+        d = model.as_dict()
+        d = dict(d, cx=d["cx"] + COLMAP_PIXEL_SHIFT, cy=d["cy"] + COLMAP_PIXEL_SHIFT)
+        return "OPENCV_FISHEYE", [float(d[k]) for k in COLMAP_PARAMS["OPENCV_FISHEYE"]], 0.0
+    d, err = to_opencv(model, region)
     d = dict(d, cx=d["cx"] + COLMAP_PIXEL_SHIFT, cy=d["cy"] + COLMAP_PIXEL_SHIFT)
     name = "OPENCV" if d.get("k3", 0.0) == 0.0 and not any(d.get(k, 0.0) for k in ("k4", "k5", "k6")) \
         else "FULL_OPENCV"
@@ -217,6 +271,9 @@ def from_colmap(name: str, width: int, height: int, params, model: str | None = 
         d["fx"] = d["fy"] = d.pop("f")
     d["cx"] -= COLMAP_PIXEL_SHIFT
     d["cy"] -= COLMAP_PIXEL_SHIFT
+    if name == "OPENCV_FISHEYE":
+        cam = Fisheye.from_dict((width, height), d)
+        return cam if model in (None, "fisheye") else convert_model(cam, model)[0]
     return from_opencv(d, (width, height), model)
 
 
@@ -228,12 +285,13 @@ def _metashape_centre(image_size) -> np.ndarray:
     return np.array(image_size, float) / 2.0 - METASHAPE_PIXEL_SHIFT
 
 
-def to_metashape(model: CameraModel) -> tuple[dict[str, float], float]:
+def to_metashape(model: CameraModel, region=None) -> tuple[dict[str, float], float]:
     """Metashape frame-camera calibration {f, cx, cy, b1, b2, k1..k4, p1..p4} and the max error (px).
-    Exact for fraser7: cx, cy relative to the image centre, Metashape's p1 = our P2 and p2 = our P1."""
+    Exact for fraser7: cx, cy relative to the image centre, Metashape's p1 = our P2 and p2 = our P1; other models
+    through a fraser7 fit (inside `region` when given)."""
     err = 0.0
     if not isinstance(model, Fraser7):
-        model, err = convert_model(model, "fraser7")
+        model, err = convert_model(model, "fraser7", region)
     f, cx, cy, k1, k2, k3, p1, p2, b1, b2 = model.params
     c = _metashape_centre(model.image_size)
     return {"f": f, "cx": cx - c[0], "cy": cy - c[1], "b1": b1, "b2": b2, "k1": k1, "k2": k2, "k3": k3,

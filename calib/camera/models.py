@@ -1,4 +1,4 @@
-"""Camera models: `fraser7` (f, cx, cy, K1-K3, P1, P2, B1, B2) and `opencv8` (OpenCV rational).
+"""Camera models: `fraser7` (f, cx, cy, K1-K3, P1, P2, B1, B2), `opencv8` (OpenCV rational), `fisheye` (Kannala-Brandt).
 
 Pixel coordinates follow OpenCV: x right, y down, origin at the centre of the top-left pixel.
 Camera frame: x right, y down, z forward. With normalised coordinates x = X/Z, y = Y/Z and
@@ -20,6 +20,11 @@ opencv8 (OpenCV's rational model)::
     radial = (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)
     xd = x radial + 2 p1 xy + p2 (r^2 + 2x^2);  yd = y radial + p1 (r^2 + 2y^2) + 2 p2 xy
     u = fx xd + cx;  v = fy yd + cy
+
+fisheye (Kannala-Brandt, OpenCV's cv::fisheye without skew, COLMAP OPENCV_FISHEYE)::
+
+    theta = atan(r);  theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)
+    (xd, yd) = (x, y) theta_d / r;  u = fx xd + cx;  v = fy yd + cy
 """
 from __future__ import annotations
 
@@ -339,11 +344,103 @@ class OpenCV8(CameraModel):
         return J
 
 
-MODELS: dict[str, type[CameraModel]] = {m.NAME: m for m in (Fraser7, OpenCV8)}
+class Fisheye(CameraModel):
+    """Kannala-Brandt / OpenCV fisheye (cv::fisheye, COLMAP OPENCV_FISHEYE): fx, fy, cx, cy (px), k1..k4 on the
+    angle theta = atan(r) of the ray from the optical axis: theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6
+    + k4 theta^8), distorted = (x, y) theta_d / r, u = fx xd + cx, v = fy yd + cy (no skew; rays within 90 deg of
+    the axis, z > 0)."""
+
+    NAME = "fisheye"
+    PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")
+
+    def _theta(self, r):
+        """theta, theta_d(theta), d theta_d / d theta, and the odd powers theta^3..theta^9."""
+        k1, k2, k3, k4 = self.params[4:]
+        th = np.arctan(r)
+        t2 = th * th
+        thd = th * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+        dthd = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+        return th, thd, dthd
+
+    def _scale(self, r):
+        """s = theta_d / r and (ds/dr) / r, with their limits at r -> 0."""
+        k1 = self.params[4]
+        small = r < 1e-6
+        rs = np.where(small, 1.0, r)
+        th, thd, dthd = self._theta(rs)
+        s = thd / rs
+        ds_r = (dthd / (1 + rs * rs) * rs - thd) / rs**3
+        return np.where(small, 1.0, s), np.where(small, 2 * (k1 - 1.0 / 3.0), ds_r)
+
+    def distort(self, xy):
+        xy = np.atleast_2d(xy)
+        s, _ = self._scale(np.hypot(xy[:, 0], xy[:, 1]))
+        return xy * s[:, None]
+
+    def distort_jacobian(self, xy):
+        xy = np.atleast_2d(xy)
+        s, ds_r = self._scale(np.hypot(xy[:, 0], xy[:, 1]))
+        J = ds_r[:, None, None] * xy[:, :, None] * xy[:, None, :]
+        J[:, 0, 0] += s
+        J[:, 1, 1] += s
+        return J
+
+    def undistort_normalized(self, uv, iterations: int = 30):
+        """Ideal normalised coordinates of pixels: theta from theta_d by 1-D Newton (monotonic part), r = tan(theta)."""
+        xyd = self.from_pixels(np.atleast_2d(np.asarray(uv, float)))
+        thd = np.hypot(xyd[:, 0], xyd[:, 1])
+        th = np.clip(thd, 0, 1.5)
+        for _ in range(iterations):
+            _, f, df = self._theta(np.tan(th))
+            step = (f - thd) / np.where(np.abs(df) > 1e-12, df, 1e-12)
+            th = np.clip(th - step, 0.0, np.pi / 2 - 1e-9)
+            if np.max(np.abs(step), initial=0.0) < 1e-15:
+                break
+        r = np.tan(th)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            k = np.where(thd > 1e-15, r / np.where(thd > 1e-15, thd, 1.0), 1.0)
+        return xyd * k[:, None]
+
+    def to_pixels(self, xyd):
+        fx, fy, cx, cy = self.params[:4]
+        return np.column_stack([fx * xyd[:, 0] + cx, fy * xyd[:, 1] + cy])
+
+    def from_pixels(self, uv):
+        fx, fy, cx, cy = self.params[:4]
+        return np.column_stack([(uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy])
+
+    def pinhole_K(self):
+        fx, fy, cx, cy = self.params[:4]
+        return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+
+    def pixel_jacobian(self):
+        return np.diag(self.params[:2]).astype(float)
+
+    def _param_jacobian(self, xy, xyd):
+        r = np.hypot(xy[:, 0], xy[:, 1])
+        small = r < 1e-6
+        rs = np.where(small, 1.0, r)
+        th = np.arctan(rs)
+        n = len(r)
+        J = np.zeros((n, 2, 8))
+        J[:, 0, 0] = xyd[:, 0]
+        J[:, 1, 1] = xyd[:, 1]
+        J[:, 0, 2] = 1.0
+        J[:, 1, 3] = 1.0
+        fx, fy = self.params[:2]
+        for j in range(4):
+            # d(xd, yd)/dk_j = (x, y) theta^(2j+3) / r  (-> 0 at the axis)
+            g = np.where(small, 0.0, th ** (2 * j + 3) / rs)
+            J[:, 0, 4 + j] = fx * xy[:, 0] * g
+            J[:, 1, 4 + j] = fy * xy[:, 1] * g
+        return J
+
+
+MODELS: dict[str, type[CameraModel]] = {m.NAME: m for m in (Fraser7, OpenCV8, Fisheye)}
 
 
 def model_class(name: str) -> type[CameraModel]:
-    """The camera model class for a name ('fraser7' or 'opencv8')."""
+    """The camera model class for a name ('fraser7', 'opencv8' or 'fisheye')."""
     try:
         return MODELS[name]
     except KeyError:

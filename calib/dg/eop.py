@@ -22,6 +22,8 @@ from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, skew
 from dgcal.fields.io.formats import EOP, Events, Trajectory, read_events, read_trajectory
+from dgcal.pos.events import read_any_events
+from dgcal.pos.ins.sbet import read_any_trajectory
 from dgcal.fields.pose import Poses
 from dgcal.fields.pose import transpose as T
 from dgcal.fields.world import World
@@ -122,7 +124,9 @@ def dg_eop_files(opts: ExportOptions) -> DgFlight:
     camera = load_camera(opts.camera) if opts.camera is not None else None
     mount = read_mounting_json(opts.mounting)
     grid = MapGrid(opts.crs)
-    eop, _, _ = dg_eop(grid, read_trajectory(opts.trajectory), read_events(opts.events), mount)
+    events = read_any_events(opts.events)
+    traj = read_any_trajectory(opts.trajectory, near_t=float(events.t[0]) if len(events) else None)
+    eop, _, _ = dg_eop(grid, traj, events, mount)
     return DgFlight(eop, grid, camera)
 
 

@@ -28,9 +28,10 @@ from dgcal.calib.dg.eop import dg_eop
 from dgcal.calib.mounting.common import read_mounting_json
 from dgcal.fields.crs import MapGrid, parse_crs
 from dgcal.fields.errors import InputError
-from dgcal.fields.frames import R_NED_TO_ENU, R_body_to_ned_from_rph, R_cam_to_map_from_opk, skew
+from dgcal.fields.frames import R_NED_TO_ENU, R_body_to_ned_from_rph, R_cam_to_map_from_opk
 from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.io.formats import read_eop, read_events, read_measurements, read_trajectory
+from dgcal.fields.pose import so3_exp, so3_log
 
 
 @dataclass
@@ -46,23 +47,6 @@ class GroundEstimate:
     def sigma(self) -> np.ndarray:
         """1-sigma E, N, h (m) (N,3)."""
         return np.sqrt(np.einsum("nii->ni", self.cov))
-
-
-def exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (3,) rad (Rodrigues)."""
-    th = float(np.linalg.norm(w))
-    K = skew(np.asarray(w, float))
-    if th < 1e-12:
-        return np.eye(3) + K
-    return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th ** 2 * K @ K
-
-
-def log_so3(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) rad of a rotation matrix."""
-    c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
-    th = np.arccos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return 0.5 * v if th < 1e-9 else th / (2 * np.sin(th)) * v
 
 
 def camera_pose_from_body(C_imu_w: np.ndarray, R_body_to_w: np.ndarray, lever_arm_b: np.ndarray,
@@ -96,7 +80,7 @@ def pose_covariance_from_rph(rph_deg, cov_rph_deg2, cov_pos_w, R_cam_to_body: np
         d = np.zeros(3)
         d[i] = eps
         R1 = R_body_to_world_from_rph(rph + d, R_enu_to_w) @ R_cam_to_body
-        J[:, i] = log_so3(R0.T @ R1) / eps
+        J[:, i] = so3_log(R0.T @ R1) / eps
     P = np.zeros((6, 6))
     P[:3, :3] = Cp
     P[3:, 3:] = J @ Ca @ J.T
@@ -110,7 +94,8 @@ def _intersect_height(C: np.ndarray, d: np.ndarray, h) -> tuple[np.ndarray, np.n
 
 
 def intersect_dem(C: np.ndarray, d: np.ndarray, dem, dh: float, max_iter: int, tol: float):
-    """Ground points (N,3) of rays from C (3,) along d (N,3) on a DEM raised by dh (m), by Newton along each ray; and ok (N,)."""
+    """Ground points (N,3) of rays from C (3,) along d (N,3) on a DEM raised by dh (m), by Newton along each
+    ray; and ok (N,)."""
     # start on the level surface through the DEM height below the camera (or the DEM mean)
     h0 = dem.height(C[0], C[1])
     h0 = float(np.nanmean(dem.heights)) if not np.isfinite(h0) else float(h0)
@@ -194,7 +179,7 @@ def georeference(camera, uv, C_w, R_cam_to_world, *, height=None, dem=None, rang
             elif i < 6:
                 w = np.zeros(3)
                 w[i - 3] = e
-                R = R0 @ exp_so3(w)
+                R = R0 @ so3_exp(w)
             elif i < 8:
                 u = uv.copy()
                 u[:, i - 6] += e
@@ -253,7 +238,7 @@ def pose_covariance_from_opk(opk_deg, cov_eop: np.ndarray) -> np.ndarray:
     for i in range(3):
         d = np.zeros(3)
         d[i] = eps
-        J[:, i] = log_so3(R0.T @ R_cam_to_map_from_opk(*(opk + d))) / eps
+        J[:, i] = so3_log(R0.T @ R_cam_to_map_from_opk(*(opk + d))) / eps
     H = np.zeros((6, 6))
     H[:3, :3] = np.eye(3)
     H[3:, 3:] = J

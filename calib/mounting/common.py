@@ -248,7 +248,8 @@ class MountingResult:
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"not a mounting record: {exc}", source) from None
         if abs(np.linalg.det(R) - 1) > 1e-3 or np.max(np.abs(R.T @ R - np.eye(3))) > 1e-3:
-            raise InputError("boresight_R_cam_to_body is not a rotation matrix", source, field="boresight_R_cam_to_body")
+            raise InputError("boresight_R_cam_to_body is not a rotation matrix", source,
+                             field="boresight_R_cam_to_body")
         U, _, Vt = np.linalg.svd(R)
         per_epoch = d.get("per_epoch") if isinstance(d.get("per_epoch"), dict) else {}
         extra = {k: d[k] for k in ("pos_common_fraction", "covariance_random") if k in d}

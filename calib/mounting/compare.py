@@ -36,7 +36,8 @@ def compare_mountings(old: MountingResult, new: MountingResult, alpha: float = 0
     names = MountingResult.PARAM_NAMES
     unfixed = [n for n, u in zip(names, use) if not u]
     return {
-        "difference": {"delay_s": float(d[0]), "lever_arm_m": d[1:4].tolist(), "boresight_deg": np.degrees(d[4:]).tolist()},
+        "difference": {"delay_s": float(d[0]), "lever_arm_m": d[1:4].tolist(),
+                       "boresight_deg": np.degrees(d[4:]).tolist()},
         "combined_sigma": {"delay_s": float(np.sqrt(var[0])), "lever_arm_m": np.sqrt(var[1:4]).tolist(),
                            "boresight_deg": np.degrees(np.sqrt(var[4:])).tolist()},
         "z": {n: (None if not np.isfinite(v) else float(v)) for n, v in zip(names, z)},

@@ -1,8 +1,9 @@
 """One-step integrated sensor orientation (ISO): a bundle adjustment of the control-field flight with the POS as
 observations, estimating the lever arm, boresight and exposure delay in the same adjustment.
 
-Unknowns (world frame of the block): every image's pose (C_i, R_cam_to_world,i), the ground points (control points weighted by their sigmas, all others free
-tie points; points with role `check` are never control), and the mounting x = [dt, l_b, theta_b].
+Unknowns (world frame of the block): every image's pose (C_i, R_cam_to_world,i), the ground points (control
+points weighted by their sigmas, all others free tie points; points with role `check` are never control), and
+the mounting x = [dt, l_b, theta_b].
 Observations:
 - image measurements (px, collinearity with the camera model, weighted by the pixel sigmas); selected
   intrinsics (`refine_intrinsics`) may be estimated too;
@@ -11,8 +12,9 @@ Observations:
     C_i = r_imu,i + v_i dt + R_b,i Exp(omega_i dt) l_b,   R_cam_to_world,i = R_b,i Exp(omega_i dt) Exp(theta_b) R_hat,
   weighted by the POS covariance (position and attitude).
 Solved by the engine of `dgcal.bundle.solver` (image observations, control-point priors and a POS block per
-epoch; poses follow `dgcal.fields.pose`); the covariance of the mounting comes from the full normal matrix, scaled by max(1, sigma0^2), plus
-`pos_common_fraction` x the mean POS covariance taken as an error common to all epochs (bias-driven tilt,
+epoch; poses follow `dgcal.fields.pose`); the covariance of the mounting comes from the full normal matrix,
+scaled by max(1, sigma0^2), plus `pos_common_fraction` x the mean POS covariance taken as an error common to
+all epochs (bias-driven tilt,
 GNSS biases of a smoothed MEMS POS do not average down over one flight): its effect on the mounting is the
 sensitivity S = N^-1 J^T B of the estimate to a constant POS error (B: whitened POS residuals per unit
 position error in world axes and attitude error about body axes), computed with the same Schur elimination.
@@ -273,7 +275,8 @@ def _iso_result(ep, world: World, blk: _IsoBlock, prob: Problem, sol, nrm, cov: 
                       "pos_common_fraction": float(pos_common_fraction),
                       "covariance_random": [[float(v) for v in row] for row in cov.random],
                       "covariance_model": "normal matrix of the bundle (scaled by max(1, sigma0^2)) plus "
-                                          "pos_common_fraction x the mean POS covariance as an error common to all epochs",
+                                          "pos_common_fraction x the mean POS covariance as an error common to "
+                                          "all epochs",
                       "boresight_parameterisation": "unit quaternion with minimal 3-parameter multiplicative update",
                       "initialisation": {"method": "proposed", "delay_s": init.delay_s,
                                          "lever_arm_m": init.lever_arm_m.tolist()},

@@ -1,8 +1,8 @@
 """Proposed mounting calibration (seed 003 eq. 10-11): exposure delay, lever arm and boresight in one weighted
 least-squares adjustment.
 
-Model per epoch i (the world frame of the block; t_e = event time, dt = delay, POS propagated over the delay; with a full
-trajectory the POS is re-interpolated at t_e + dt between iterations, so the propagation only spans the last
+Model per epoch i (the world frame of the block; t_e = event time, dt = delay, POS propagated over the delay; with a
+full trajectory the POS is re-interpolated at t_e + dt between iterations, so the propagation only spans the last
 correction and the constant-rate approximation leaves no bias):
     R_body_to_world(t_e + dt) = R_body_to_world,i Exp(omega_b,i dt)           (body angular rate from the POS)
     r_imu_world(t_e + dt)     = r_imu_world,i + v_world,i dt                       (POS velocity)
@@ -234,7 +234,8 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
     e_full = residuals(ep, x, R_hat_s)
     per_epoch = {"image": [str(s) for s in ep.image], "t_event": ep.t_event.tolist(),
                  "lever_arm_m": lever_i.tolist(), "boresight_deg": np.degrees(ang_i).tolist(),
-                 "residual_position_m": e_full[:, :3].tolist(), "residual_rotation_deg": np.degrees(e_full[:, 3:]).tolist(),
+                 "residual_position_m": e_full[:, :3].tolist(),
+                 "residual_rotation_deg": np.degrees(e_full[:, 3:]).tolist(),
                  "test_statistic": T_all.tolist(), "rejected": (~keep).tolist()}
     res = MountingResult("proposed", x[1:4].copy(), R_hat_s, 0.0 if fix_delay else float(x[0]), cov, n,
                          [str(s) for s in ep.image[~keep]], list(ep.warnings), per_epoch)
@@ -245,13 +246,15 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
                       "pos_common_fraction": float(pos_common_fraction),
                       "covariance_random": [[float(v) for v in row] for row in cov_random],
                       "covariance_model": "per-epoch EOP and POS errors (scaled by max(1, sigma0^2)) plus "
-                                          "pos_common_fraction x the mean POS covariance as an error common to all epochs",
+                                          "pos_common_fraction x the mean POS covariance as an error common to "
+                                          "all epochs",
                       "boresight_parameterisation": "unit quaternion with minimal 3-parameter multiplicative update "
                                                     "R_cam_to_body = Exp(theta_b) R_hat (theta about body axes)",
                       "propagation": ("POS re-interpolated at t_event + delay (iterated); within an iteration "
                                       "position propagated with the POS velocity, attitude with the body angular rate")
                       if ep.can_resample else
-                      "position propagated with the POS velocity; attitude held fixed (no angular rate in an events file)",
+                      "position propagated with the POS velocity; attitude held fixed "
+                      "(no angular rate in an events file)",
                       "rejection_limit_chi2_6dof": float(limit)})
     if not reject:
         res.extra["rejection"] = "off"

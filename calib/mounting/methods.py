@@ -24,7 +24,9 @@ from dgcal.calib.mounting.observability import observability_warnings
 from dgcal.calib.mounting.two_step import calibrate_traditional
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.formats import EOP, Events, Trajectory, read_eop, read_events, read_trajectory
+from dgcal.fields.io.formats import EOP, Events, Trajectory, read_eop
+from dgcal.pos.events import read_any_events
+from dgcal.pos.ins.sbet import read_any_trajectory
 from dgcal.fields.world import World
 
 
@@ -147,7 +149,8 @@ def calibrate_mounting_files(opts: MountOptions) -> MountingRun:
         if missing:
             raise InputError(f"--method {opts.method} needs --{missing[0]}", field=f"--{missing[0]}")
     grid = MapGrid(opts.crs)
-    eop, traj, events = read_eop(opts.eop), read_trajectory(opts.trajectory), read_events(opts.events)
+    eop, events = read_eop(opts.eop), read_any_events(opts.events)
+    traj = read_any_trajectory(opts.trajectory, near_t=float(events.t[0]) if len(events) else None)
     res = _SOLVERS[m.name](eop, grid, traj, events, opts)
     _name(res, opts.method, m)
     refs = {}

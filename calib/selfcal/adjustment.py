@@ -31,6 +31,7 @@ from dgcal.fields.pose import Poses
 
 # median of the chi distribution with 2 degrees of freedom, in units of sigma
 _CHI2_MEDIAN = float(np.sqrt(2 * np.log(2)))
+MIN_POINTS_AFTER_REJECTION = 4   # an image keeps its pose with this many inliers (4 points of a plane fix it)
 
 
 @dataclass
@@ -72,6 +73,8 @@ class IntrinsicBAResult:
     converged: bool                        # the final Levenberg-Marquardt run converged
     redundancy: int
     rejection_settled: bool = True         # the outlier set stopped changing within max_rounds
+    cov_camera_side: np.ndarray | None = None  # (6M+P, 6M+P) sigma0^2 N^-1 of the poses [C (m), dtheta (rad)] and
+    #                                            the camera parameters (points eliminated); NaN = held/unobserved
 
     @property
     def n_observations(self) -> int:
@@ -228,6 +231,8 @@ def adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, model
     refine_targets: 'none' (targets fixed), 'free' (free network, minimal datum of 7 held coordinates)
     or 'weighted' (targets with their CSV sigmas `field_sigma` (m) as priors; NaN sigma = held).
     fixed: names of camera parameters held at their initial values. meas_sigma (px) are relative weights.
+    reject_k: an observation beyond k robust sigmas (of all observations and of its own image's) is rejected;
+    0 or inf keeps every observation.
     """
     # the dense blocks are small (<= ~1000): BLAS threads cost more than they give, and much more on a
     # busy machine (a 190x190 solve took 170 ms with threads competing, 1 ms on one)
@@ -244,6 +249,8 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     """The adjustment itself (see `adjust`)."""
     w, h = int(image_size[0]), int(image_size[1])
     cls = model_class(model)
+    if not reject_k > 0:        # 0 (or negative): no outlier rejection, every observation kept (as OpenCV)
+        reject_k = np.inf
     obs = _observations(field_ids, field_xyz, meas_image, meas_id, meas_xy, meas_sigma)
     bad = [k for k in fixed if k not in cls.PARAMS]
     if bad:
@@ -479,10 +486,15 @@ def _reject_outliers(adj: _Adjustment, state: State, init: _InitialPoses, reject
         norm = np.full(n, np.inf)
         norm[usable] = np.linalg.norm(adj.whitened_residuals(state, usable), axis=1)
         s_rob = np.median(norm[usable]) / _CHI2_MEDIAN  # over all: a median of survivors would creep
-        new_active = usable & (norm <= reject_k * s_rob)
+        # an outlier is inconsistent with its own image too: a frame that fits worse as a whole (motion, rolling
+        # shutter, a bent board) keeps its observations (OpenCV keeps them all) and is reported instead
+        s_img = _image_scales(norm, obs.obs_img, usable, M) / _CHI2_MEDIAN
+        new_active = usable & (norm <= reject_k * np.maximum(s_rob, s_img[obs.obs_img]))
         # keep every usable image solvable
         counts = np.bincount(obs.obs_img[new_active], minlength=M)
-        for i in np.flatnonzero((counts < min_points) & (np.bincount(obs.obs_img[usable], minlength=M) > 0)):
+        # an image needs min_points to start, but keeps its pose with fewer after rejection (a plane: 4)
+        keep_min = min(min_points, MIN_POINTS_AFTER_REJECTION)
+        for i in np.flatnonzero((counts < keep_min) & (np.bincount(obs.obs_img[usable], minlength=M) > 0)):
             init.dropped.append(obs.image_names[i])
             usable &= obs.obs_img != i
             new_active &= obs.obs_img != i
@@ -496,6 +508,22 @@ def _reject_outliers(adj: _Adjustment, state: State, init: _InitialPoses, reject
         state, it, _ = adj.solve(state, active)
         total_it += it
     return state, active, usable, settled, total_it
+
+
+def _image_scales(norm: np.ndarray, obs_img: np.ndarray, usable: np.ndarray, M: int) -> np.ndarray:
+    """(M,) median whitened residual norm of each image's usable observations (0 for an image without any)."""
+    out = np.zeros(M)
+    idx = np.flatnonzero(usable)
+    if not len(idx):
+        return out
+    order = idx[np.lexsort((norm[idx], obs_img[idx]))]
+    img = obs_img[order]
+    starts = np.flatnonzero(np.r_[True, img[1:] != img[:-1]])
+    counts = np.diff(np.r_[starts, len(order)])
+    lo = norm[order[starts + (counts - 1) // 2]]
+    hi = norm[order[starts + counts // 2]]
+    out[img[starts]] = 0.5 * (lo + hi)
+    return out
 
 
 def _result(adj: _Adjustment, state: State, active: np.ndarray, usable: np.ndarray, init: _InitialPoses,
@@ -542,11 +570,41 @@ def _result(adj: _Adjustment, state: State, active: np.ndarray, usable: np.ndarr
     R_out, C_out = state.poses.R_world_to_cam.copy(), state.poses.C_world.copy()
     R_out[~keep_img] = np.nan
     C_out[~keep_img] = np.nan
+    cov_side = sigma0**2 * cov.Q_cc
     return IntrinsicBAResult(
-        camera=camera, free=free_cam.copy(), cov_camera=cov_cam, correlation=corr,
+        camera=camera, free=free_cam.copy(), cov_camera=cov_cam, correlation=corr, cov_camera_side=cov_side,
         image_names=obs.image_names, poses=Poses(R_out, C_out, pose_cov),
         point_ids=list(obs.field_ids), points_xyz=state.points.copy(), points_sigma=pts_sigma,
         points_free=pt_free.copy(), obs_image=obs.obs_img, obs_point=obs.obs_pt, obs_xy=obs.xy, obs_sigma=obs.sig,
         residuals=r_all, used=active, sigma0=sigma0, rms_px=rms, rejected=rejected, dropped_images=list(init.dropped),
         refine_targets=refine_targets, iterations=iterations, converged=converged, rejection_settled=settled,
         redundancy=int(redundancy))
+
+
+def refit(result: IntrinsicBAResult, images: np.ndarray) -> IntrinsicBAResult:
+    """The adjustment of `result` again on the used observations of a subset of its images (bool (M,) or names),
+    started from its solution, targets held where they are, no new rejection (e.g. the halves of a
+    cross-validation)."""
+    names = np.array(result.image_names, dtype=object)
+    sel = np.isin(names, list(images)) if np.asarray(images).dtype != bool else np.asarray(images, bool)
+    ids = np.array(result.point_ids, dtype=object)
+    obs = _Observations(ids.astype(str), result.points_xyz.copy(), names[result.obs_image].astype(str),
+                        ids[result.obs_point].astype(str), result.obs_xy, result.obs_sigma, result.obs_image,
+                        result.obs_point, list(result.image_names))
+    cam = result.camera.copy()
+    cam.sigmas = None
+    N = len(ids)
+    adj = _Adjustment(cam, result.free.copy(), obs, result.points_xyz.copy(), np.zeros((N, 3), bool), np.zeros((N, 3)))
+    active = result.used & sel[result.obs_image]
+    counts = np.bincount(result.obs_image[active], minlength=len(names))
+    keep = counts >= MIN_POINTS_AFTER_REJECTION
+    active &= keep[result.obs_image]
+    if keep.sum() < 3:
+        raise InputError(f"only {int(keep.sum())} image(s) in the subset; need 3 or more")
+    R = np.where(keep[:, None, None], np.nan_to_num(result.poses.R_world_to_cam), np.eye(3))
+    C = np.where(keep[:, None], np.nan_to_num(result.poses.C_world), 0.0)
+    state, it, conv = adj.solve(State(Poses(R, C), result.points_xyz.copy(), cam.params.copy()), active)
+    dropped = [str(n) for n, k in zip(names, keep) if not k]
+    init = _InitialPoses(R, C, active.copy(), dropped, np.array(["not in the subset"] * len(active), dtype=object))
+    init.reason[active] = ""
+    return _result(adj, state, active, active.copy(), init, "none", it, bool(conv), True, cam.image_size)

@@ -28,9 +28,9 @@ from dgcal.fields.io.formats import Measurements, read_points
 from dgcal.fields.targets.plate import TargetField, load_layout
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
-# sigma = hypot(SIGMA_FACTOR * propagated noise sigma, SIGMA_FLOOR_PX * max(1, 4 / half-window)^2), fitted to rendered images (JPEG q95,
-# blur 0.8 px, noise 2 and 5 DN; 1200x800 and 3000x2000): the factor covers JPEG and correlated gradient
-# noise, the floor the remaining model error (sampling, perspective within the window)
+# sigma = hypot(SIGMA_FACTOR * propagated noise sigma, SIGMA_FLOOR_PX * max(1, 4 / half-window)^2), fitted to rendered
+# images (JPEG q95, blur 0.8 px, noise 2 and 5 DN; 1200x800 and 3000x2000): the factor covers JPEG and correlated
+# gradient noise, the floor the remaining model error (sampling, perspective within the window)
 SIGMA_FACTOR = 1.9
 SIGMA_FLOOR_PX = 0.025
 SMALL_WINDOW_PX = 4  # below this half-window the floor grows as (4 / half)^2: 0.1 px at 2, 0.044 px at 3
@@ -268,8 +268,9 @@ def fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
     a = src @ Ts[:2, :2].T + Ts[:2, 2]
     b = dst @ Td[:2, :2].T + Td[:2, 2]
     z, o = np.zeros(len(a)), np.ones(len(a))
-    M = np.concatenate([np.column_stack([a[:, 0], a[:, 1], o, z, z, z, -b[:, 0] * a[:, 0], -b[:, 0] * a[:, 1], -b[:, 0]]),
-                        np.column_stack([z, z, z, a[:, 0], a[:, 1], o, -b[:, 1] * a[:, 0], -b[:, 1] * a[:, 1], -b[:, 1]])])
+    bx, by = b[:, 0], b[:, 1]
+    M = np.concatenate([np.column_stack([a[:, 0], a[:, 1], o, z, z, z, -bx * a[:, 0], -bx * a[:, 1], -bx]),
+                        np.column_stack([z, z, z, a[:, 0], a[:, 1], o, -by * a[:, 0], -by * a[:, 1], -by])])
     _, sv, vt = np.linalg.svd(M)
     if sv[-2] < 1e-9 * sv[0]:
         return None

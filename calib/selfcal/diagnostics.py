@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 from dgcal.calib.camera.models import CameraModel
 
 DISTORTION_PARAMS = ("K1", "K2", "K3", "P1", "P2", "B1", "B2", "k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2")
+RADIAL_PARAMS = {"K1", "K2", "K3", "k1", "k2", "k3", "k4", "k5", "k6"}
 
 
 @dataclass
@@ -152,8 +153,7 @@ def diagnose(result, corr_threshold: float = 0.9, reject_warn_fraction: float = 
     if weak:
         warnings.append("distortion parameter(s) not significant (|value/sigma| < 2): " + ", ".join(weak)
                         + "; consider fixing them")
-    radial = {"K1", "K2", "K3", "k1", "k2", "k3", "k4", "k5", "k6"}
-    within = [(a, b, r) for a, b, r in corr if a in radial and b in radial]
+    within = [(a, b, r) for a, b, r in corr if a in RADIAL_PARAMS and b in RADIAL_PARAMS]
     if within:
         terms = sorted({x for a, b, _ in within for x in (a, b)}, key=names.index)
         warnings.append(f"radial terms {', '.join(terms)} are strongly correlated among themselves (up to "
@@ -167,7 +167,8 @@ def diagnose(result, corr_threshold: float = 0.9, reject_warn_fraction: float = 
                f"{pattern.radial_pattern_rms_px:.2f} px of {pattern.residual_rms_px:.2f} px residual RMS, "
                f"chi2/dof {pattern.radial_chi2_per_dof:.0f})")
         if cam.NAME == "fraser7":
-            msg += "; the fraser7 model does not fit this lens (wide-angle?) - use --model opencv8"
+            msg += ("; the fraser7 model does not fit this lens (wide-angle?) - use --model opencv8 (or fisheye, or "
+                    "auto to compare them)")
         else:
             msg += "; the distortion model does not follow this lens"
         warnings.append(msg)
@@ -194,15 +195,17 @@ def diagnose(result, corr_threshold: float = 0.9, reject_warn_fraction: float = 
 
 
 def projection_difference(cam_a: CameraModel, cam_b: CameraModel, grid=(60, 40),
-                          fit_rotation: bool = True) -> tuple[float, float, np.ndarray]:
-    """RMS and max (px) of |project_b(R ray_a(uv)) - uv| over a pixel grid covering the frame.
+                          fit_rotation: bool = True, uv: np.ndarray | None = None) -> tuple[float, float, np.ndarray]:
+    """RMS and max (px) of |project_b(R ray_a(uv)) - uv| over a pixel grid covering the frame (or the pixels `uv`,
+    e.g. those of a valid region).
 
     R is the small rotation between the two camera frames that best aligns them (when fit_rotation),
     since every pose absorbs it and it means nothing for the calibration; returns (rms, max, R_a_to_b).
     """
     w, h = cam_a.image_size
-    u, v = np.meshgrid(np.linspace(0, w - 1, grid[0]), np.linspace(0, h - 1, grid[1]))
-    uv = np.column_stack([u.ravel(), v.ravel()])
+    if uv is None:
+        u, v = np.meshgrid(np.linspace(0, w - 1, grid[0]), np.linspace(0, h - 1, grid[1]))
+        uv = np.column_stack([u.ravel(), v.ravel()])
     rays = cam_a.ray(uv)
 
     def diff(rv):

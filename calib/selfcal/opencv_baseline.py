@@ -11,7 +11,8 @@ from dgcal.fields.io.formats import Points
 
 def calibrate_with_opencv(points: Points, image: np.ndarray, ids: np.ndarray, xy: np.ndarray,
                           image_size: tuple[int, int], rational: bool = False) -> tuple[float, CameraModel]:
-    """RMS (px) and model of OpenCV's calibration of a planar (z = 0) field; fraser7 (B2 = 0), or opencv8 if `rational`."""
+    """RMS (px) and model of OpenCV's calibration of a planar (z = 0) field; fraser7 (B2 = 0), or opencv8 if
+    `rational`."""
     index = {k: i for i, k in enumerate(points.ids)}
     objs, imgs = [], []
     for name in dict.fromkeys(image.tolist()):

@@ -26,7 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pos-correlation-time", type=float, default=None, metavar="S",
                    help="correlation time (s) of the POS errors between images in the predicted budget "
                         "(default: the median straight-strip duration of the trajectory; 0: independent)")
-    p.add_argument("--out", required=True, type=Path, help="output directory (check.json, check.html, check_points.csv)")
+    p.add_argument("--out", required=True, type=Path,
+                   help="output directory (check.json, check.html, check_points.csv)")
 
 
 def run(args: argparse.Namespace) -> int:

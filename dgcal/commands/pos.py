@@ -9,7 +9,9 @@ DIR/gnss_summary.json and DIR/gnss_report.html. --mode ppk (rover + base RINEX, 
 DIR/gnss.csv with gps_week,gps_sow,x,y,z (ECEF, m), fix (fixed/float/single), n_sat, ratio, sx,sy,sz (m),
 sxy,sxz,syz (RTKLIB's signed square roots of the covariances, m), lat,lon,h, s_e,s_n,s_u, age_s,
 n_fixed_amb, fix_forward, fix_backward, plus gnss_summary.json and gnss_report.html (dgcal.pos.pipeline.run_ppk).
---mode tc|lc hand over to dgcal.pos.pipeline.run_pos (trajectory.csv, events.csv).
+--mode tc|lc hand over to dgcal.pos.pipeline.run_pos (trajectory.csv, events.csv). --mode ukf runs seed 000's
+UKF on the same inputs (dgcal.pos.lowcost.ukf_pos) and writes trajectory.csv, events.csv, trajectory_fixes.csv
+(every fix epoch), accuracy.csv (the UKF beside the lc smoother, against --truth when given) and the report.
 """
 from __future__ import annotations
 
@@ -29,22 +31,29 @@ SECTION = "pos"
 SPP_OUTPUTS = {"gnss": "gnss.csv", "gnss_summary": "gnss_summary.json", "gnss_report": "gnss_report.html"}
 INS_OUTPUTS = {"trajectory": "trajectory.csv", "events": "events.csv", "trajectory_forward": "trajectory_forward.csv",
                "summary": "pos_summary.json", "report": "report.html"}  # --mode tc|lc
-OUTPUTS = {**SPP_OUTPUTS, **INS_OUTPUTS}
+UKF_OUTPUTS = {"trajectory": "trajectory.csv", "events": "events.csv", "trajectory_fixes": "trajectory_fixes.csv",
+               "accuracy": "accuracy.csv", "summary": "pos_summary.json", "report": "report.html"}  # --mode ukf
+OUTPUTS = {**SPP_OUTPUTS, **INS_OUTPUTS, **{k: v for k, v in UKF_OUTPUTS.items() if k not in INS_OUTPUTS}}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rinex-obs", metavar="OBS", help="RINEX 2.10/2.11/3.x observation file of the rover")
     p.add_argument("--rinex-nav", metavar="NAV", nargs="+",
                    help="RINEX 3 (mixed) or RINEX 2 GPS broadcast navigation file(s)")
-    p.add_argument("--mode", choices=("spp", "ppk", "tc", "lc"), default="spp",
+    p.add_argument("--mode", choices=("spp", "ppk", "tc", "lc", "ukf"), default="spp",
                    help="spp: GNSS code only; ppk: carrier-phase PPK against --rinex-base; tc: tightly coupled "
-                   "GNSS/INS; lc: loosely coupled")
-    p.add_argument("--rinex-base", metavar="BASE", help="RINEX observation file of the base station (ppk)")
+                   "GNSS/INS; lc: loosely coupled; ukf: seed 000's 15-state UKF on the fixes (--gnss or SPP), "
+                   "the lc smoother beside it")
+    p.add_argument("--truth", metavar="TRUTH.csv", default=None,
+                   help="ukf: true trajectory (trajectory CSV or a simulator's truth_trajectory.csv) for the accuracy "
+                   "table")
+    p.add_argument("--rinex-base", metavar="BASE", help="RINEX observation file of the base station (ppk; tc: "
+                   "double-differenced carrier phase and code against it)")
     p.add_argument("--base-position", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
-                   help="base antenna position, ECEF m (ppk; default: the base header's APPROX POSITION, "
-                   "with a warning)")
+                   help="base antenna position, ECEF m (ppk, tc with --rinex-base; default: the base header's "
+                   "APPROX POSITION, with a warning)")
     p.add_argument("--base-position-llh", type=float, nargs=3, metavar=("LAT", "LON", "H"), default=None,
-                   help="base antenna position, geodetic degrees and ellipsoidal height m (ppk)")
+                   help="base antenna position, geodetic degrees and ellipsoidal height m (ppk, tc)")
     p.add_argument("--dynamics", choices=("kinematic", "static"), default="kinematic",
                    help="ppk rover model: kinematic (any motion, default) or static")
     p.add_argument("--ppk-solution", choices=("combined", "forward", "backward"), default="combined",
@@ -52,9 +61,35 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ar-ratio", type=float, default=3.0, help="ppk: ratio-test threshold of ambiguity fixing")
     p.add_argument("--frequencies", type=int, default=3, choices=(1, 2, 3),
                    help="ppk: frequencies per system (L1/L2/L5, E1/E5a/E5b, ...)")
-    p.add_argument("--imu", metavar="IMU", help="IMU file (tc/lc)")
-    p.add_argument("--events", metavar="EVENTS.csv", help="camera events image,gps_week,gps_sow (tc/lc)")
-    p.add_argument("--gnss", metavar="GNSS.csv", help="GNSS positions for lc mode (gnss.csv of --mode spp)")
+    p.add_argument("--imu", metavar="IMU", help="IMU file (tc/lc): dgcal CSV, KF-GINS text, or as --imu-format says")
+    p.add_argument("--imu-format", metavar="NAME|FILE.toml", default=None,
+                   help="IMU file description: a preset (dgcal, kf-gins, rtklibexplorer, rtklibexplorer-sf) or a TOML "
+                   "file (columns, units, time, axes; docs/formats.md)")
+    p.add_argument("--imu-set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one key of the IMU description (repeatable), e.g. units.gyro=deg/s, "
+                   "axes.euler_zyx_deg=[180,0,180], time.kind=unix_utc")
+    p.add_argument("--imu-tag", metavar="FILE.tag", default=None,
+                   help="RTKLIB time-tag file of a tick-counter IMU log (default: the IMU file + .tag)")
+    p.add_argument("--imu-time-offset", type=float, default=0.0, metavar="S",
+                   help="seconds added to every IMU sample time (e.g. -0.125 for a logger's delay)")
+    p.add_argument("--events", metavar="EVENTS",
+                   help="camera events (tc/lc, optional): dgcal CSV image,gps_week,gps_sow, DJI .MRK, image,utc CSV "
+                   "or a PX4 .ulg (camera_capture)")
+    p.add_argument("--events-format", choices=("dgcal", "mrk", "utc-csv", "px4"), default=None,
+                   help="format of --events (default: recognised by content)")
+    p.add_argument("--gnss", metavar="GNSS", help="GNSS antenna positions for lc mode: dgcal gnss.csv, RTKLIB .pos "
+                   "(llh or xyz, with its covariance) or NMEA GGA")
+    p.add_argument("--gnss-format", choices=("dgcal-csv", "rtklib-pos", "nmea"), default=None,
+                   help="format of --gnss (default: recognised by content)")
+    p.add_argument("--gnss-quality", default=None, metavar="Q[,Q]",
+                   help="lc: fix qualities of --gnss to use (fixed, float, sbas, dgps, single, ppp; default all)")
+    p.add_argument("--gnss-outages", type=float, nargs=3, default=None, metavar=("START", "LENGTH", "PERIOD"),
+                   help="lc: withhold the --gnss fixes inside outages of LENGTH s every PERIOD s from START s "
+                   "after the first fix, and report the trajectory's errors at them (pos_summary.json withheld_fixes)")
+    p.add_argument("--nmea-date", default=None, metavar="YYYY-MM-DD",
+                   help="UTC date of an NMEA log without RMC sentences")
+    p.add_argument("--sbet-out", metavar="FILE.out", default=None,
+                   help="tc/lc: also write the trajectory as an Applanix SBET (and FILE's smrmsg beside it)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--systems", default="GECJ", help="constellations to use, letters of G,E,C,J")
     p.add_argument("--elev-mask", type=float, default=10.0, help="elevation mask, degrees")
@@ -66,8 +101,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="GNSS antenna lever arm in the IMU body frame, m (tc/lc)")
     p.add_argument("--imu-grade", default=None,
-                   help="IMU error model preset (tc/lc), see dgcal.pos.ins.error_model: navigation, adis16488, "
-                   "adis16405, consumer")
+                   help="IMU error model (tc/lc): a preset (navigation, adis16488, adis16405, consumer) or a datasheet "
+                   "TOML file (ARW, VRW, bias instabilities, scale factors, range; docs/formats.md)")
     p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                    help="further option (repeatable): smoother settings for tc/lc, dgcal.pos.gnss.ppk.PpkOptions "
                    "fields for ppk")
@@ -90,7 +125,13 @@ def pos_options(args: argparse.Namespace) -> PosOptions:
                       base_position_llh=tup(getattr(args, "base_position_llh", None)),
                       dynamics=getattr(args, "dynamics", "kinematic"),
                       ppk_solution=getattr(args, "ppk_solution", "combined"), ar_ratio=getattr(args, "ar_ratio", 3.0),
-                      n_freq=getattr(args, "frequencies", 3))
+                      n_freq=getattr(args, "frequencies", 3), imu_format=getattr(args, "imu_format", None),
+                      imu_set=tuple(getattr(args, "imu_set", ()) or ()), imu_tag=getattr(args, "imu_tag", None),
+                      imu_time_offset_s=float(getattr(args, "imu_time_offset", 0.0) or 0.0),
+                      events_format=getattr(args, "events_format", None),
+                      gnss_format=getattr(args, "gnss_format", None), gnss_quality=getattr(args, "gnss_quality", None),
+                      nmea_date=getattr(args, "nmea_date", None),
+                      gnss_outages=tup(getattr(args, "gnss_outages", None)), truth=getattr(args, "truth", None))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -125,18 +166,37 @@ def run(args: argparse.Namespace) -> int:
     from dgcal.pos.pipeline import run_pos
     from dgcal.reports.pos import write_pos_outputs
     res = run_pos(opts)
+    if opts.mode == "ukf":
+        from dgcal.reports.ukf import write_ukf_outputs
+        with staged_dir(args.out) as tmp:
+            write_ukf_outputs(tmp, res, UKF_OUTPUTS)
+        s = res.summary
+        print(f"{Path(args.out) / UKF_OUTPUTS['trajectory']}: UKF {s['keyframes']} epochs, {s['events']} events, "
+              f"median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg; report "
+              f"{Path(args.out) / UKF_OUTPUTS['report']}", file=sys.stderr)
+        return 0
     with staged_dir(args.out) as tmp:
         write_pos_outputs(tmp, res, INS_OUTPUTS)
+        if getattr(args, "sbet_out", None):
+            from dgcal.pos.ins.sbet import write_sbet_files
+            sbet = Path(args.sbet_out)
+            staged = tmp / sbet.name if not sbet.is_absolute() and len(sbet.parts) == 1 else None
+            write_sbet_files(staged if staged is not None else sbet, res.trajectory)
     s = res.summary
     print(f"{Path(args.out) / INS_OUTPUTS['trajectory']}: {opts.mode.upper()} {s['keyframes']} keyframes, "
           f"{s['events']} events, median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg", file=sys.stderr)
+    w = s.get("withheld_fixes")
+    if w and w.get("n"):
+        print(f"withheld fixes: {w['n']}, antenna 3D RMS {w['rms_3d_m']} m (N,E,D {w['rms_ned_m']} m), max "
+              f"{w['max_3d_m']} m", file=sys.stderr)
     return 0
 
 
 def campaign_steps(c: Campaign) -> None:
-    """[pos] -> `dgcal pos --mode lc|tc`: `imu`, `events`, `gnss` (lc) or `rinex_obs` + `rinex_nav`,
-    `imu_grade`, `lever_arm_gnss`, `set` = [KEY=VALUE], `args`; with `trajectory` (+ `events`) an external
-    POS is used and no step runs. Provides the trajectory and events to later steps."""
+    """[pos] -> `dgcal pos --mode lc|tc`: `imu`, `events`, `gnss` (lc) or `rinex_obs` + `rinex_nav` (tc: with
+    `rinex_base`, `base_position` [X, Y, Z] ECEF m and `frequencies`, carrier phase against the base), `imu_grade`,
+    `lever_arm_gnss`, `set` = [KEY=VALUE], `args`; with `trajectory` (+ `events`) an external POS is used and no
+    step runs. Provides the trajectory and events to later steps."""
     pos = c.section(SECTION)
     if pos is None:
         return
@@ -161,10 +221,24 @@ def campaign_steps(c: Campaign) -> None:
         obs, nav = c.path(SECTION, "rinex_obs"), c.path(SECTION, "rinex_nav")
         a += ["--rinex-obs", str(obs), "--rinex-nav", str(nav)]
         ins += [obs, nav]
+        if mode == "tc" and "rinex_base" in pos:   # carrier phase against a base station
+            base = c.path(SECTION, "rinex_base")
+            a += ["--rinex-base", str(base)]
+            ins.append(base)
+            if "base_position" in pos:
+                a += ["--base-position", *map(str, c.vec3(SECTION, "base_position"))]
+            if "frequencies" in pos:
+                a += ["--frequencies", str(int(pos["frequencies"]))]
     else:
         raise c.error("[pos] mode lc needs 'gnss' (or rinex_obs and rinex_nav)", "pos.gnss")
     if "imu_grade" in pos:
-        a += ["--imu-grade", str(pos["imu_grade"])]
+        grade = str(pos["imu_grade"])
+        if grade.lower().endswith(".toml"):             # a datasheet file, relative to the campaign file
+            gp = c.path(SECTION, "imu_grade")
+            a += ["--imu-grade", str(gp)]
+            ins.append(gp)
+        else:
+            a += ["--imu-grade", grade]
     if "lever_arm_gnss" in pos:
         a += ["--lever-arm", *map(str, c.vec3(SECTION, "lever_arm_gnss"))]
     for kv in pos.get("set", []):

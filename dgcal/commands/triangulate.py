@@ -28,7 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--images", help="image folder: SIFT tie points (and the image list)")
     p.add_argument("--measurements", nargs="+", metavar="MEAS",
                    help="image measurements: CSV, ODM gcp_list.txt or MicMac XML (several files are merged)")
-    p.add_argument("--image-size", nargs=2, type=int, metavar=("W", "H"), help="image size (px) when there are no images")
+    p.add_argument("--image-size", nargs=2, type=int, metavar=("W", "H"),
+                   help="image size (px) when there are no images")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--sigma-px", type=float, default=0.5, help="measurement sigma (px) where the file gives none")
     p.add_argument("--tie-sigma-px", type=float, default=None, help="sigma of SIFT/tie measurements (px)")

@@ -16,8 +16,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--crs", default=DEFAULT_CRS, help="map CRS of the ground points (default %(default)s)")
-    p.add_argument("--gnss-mode", choices=("lc", "tc"), default="lc",
-                   help="lc: cm-level antenna positions (PPK-like, default); tc: RINEX pseudoranges (metre-level)")
+    p.add_argument("--gnss-mode", choices=("carrier", "lc", "tc"), default="carrier",
+                   help="carrier (default): rover + base RINEX with carrier phase, POS step TC with carrier phase; "
+                   "lc: POS step LC from cm-level antenna positions (PPK-like gnss.csv, written in every mode); "
+                   "tc: rover RINEX pseudoranges only (metre-level)")
     p.add_argument("--delay", type=float, default=-0.14, help="exposure delay t_exposure - t_event (s)")
     p.add_argument("--heights", type=float, nargs="+", default=[300.0, 600.0], help="flying heights above ground (m)")
     p.add_argument("--strips", type=int, default=4, help="strips per height (alternating headings)")

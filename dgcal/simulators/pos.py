@@ -1,4 +1,5 @@
-"""A UAV flight for the POS smoother: raw IMU, RINEX code/Doppler with an outage, events, truth (dgcal.sim.pos)."""
+"""A UAV flight for the POS smoother: raw IMU, RINEX code/Doppler, rover + base carrier phase with outages and
+slips, events, truth (dgcal.sim.pos)."""
 from __future__ import annotations
 
 import argparse
@@ -8,7 +9,7 @@ from dgcal.sim import pos
 from dgcal.sim.pos import simulate_pos, write_pos_dataset
 
 NAME = "pos"
-HELP = "simulate a UAV flight: raw IMU, RINEX code/Doppler with an outage, events, truth"
+HELP = "simulate a UAV flight: raw IMU, RINEX code/Doppler, rover + base carrier phase, events, truth"
 DESCRIPTION = pos.__doc__  # --help shows the simulator's own documentation
 
 
@@ -23,13 +24,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="GNSS antenna lever arm, body FRD, m")
     p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: ../shared/data/rinex-sept)")
     p.add_argument("--outage-sats", type=int, default=3, help="satellites kept during the 60 s outage")
+    p.add_argument("--no-carrier", action="store_true", help="no rover.rnx / base.rnx (carrier phase)")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         sim = simulate_pos(seed=args.seed, duration_s=args.duration, kind=args.kind, imu_grade=args.imu_grade,
                            rate_hz=args.rate, lever_arm_b=args.lever_arm, nav=args.nav,
-                           outage_sats=args.outage_sats)
+                           outage_sats=args.outage_sats, carrier=not args.no_carrier)
     except ValueError as exc:  # an unknown IMU grade
         raise InputError(str(exc), field="--imu-grade") from None
     write_pos_dataset(args.out, sim)

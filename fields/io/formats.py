@@ -229,8 +229,8 @@ def write_trajectory(path: str | Path, tr: Trajectory) -> None:
         header += list(TRAJECTORY_SIGMA_COLUMNS)
     rows = []
     for i in range(len(tr.t)):
-        r = ([tr.image[i]] if tr.image is not None else []) + [int(week[i]), "%.6f" % sow[i],
-                                                               "%.10f" % tr.lat[i], "%.10f" % tr.lon[i], "%.4f" % tr.h[i]]
+        r = ([tr.image[i]] if tr.image is not None else []) + [int(week[i]), "%.6f" % sow[i], "%.10f" % tr.lat[i],
+                                                               "%.10f" % tr.lon[i], "%.4f" % tr.h[i]]
         r += ["%.4f" % v for v in tr.v_ned[i]] + ["%.6f" % v for v in tr.rph[i]]
         if tr.sigma is not None:
             r += ["%.4f" % v for v in tr.sigma[i, :3]] + ["%.6f" % v for v in tr.sigma[i, 3:]]

@@ -3,7 +3,10 @@
 - ODM/OpenDroneMap `gcp_list.txt`: first line the CRS (EPSG code, PROJ string or WGS84 UTM name), then
   one measurement per line, whitespace separated: `geo_x geo_y geo_z im_x im_y image_name [gcp_name [extra]]`.
   OpenSfM normalises pixels as `(x + 0.5 - w/2) / size`, i.e. pixel (0,0) is the centre of the top-left
-  pixel: the same convention as dgcal (no shift). Lines without a name get `gcp_<x>_<y>_<z>`.
+  pixel: the same convention as dgcal (no shift). Lines without a name are grouped by their exact coordinates (as
+  ODM's GCPEntry.coords_key does) and named `gcp_1`, `gcp_2`, ... in order of appearance, skipping names the file
+  uses itself. The CRS line may be an EPSG code, a PROJ string, `WGS84 UTM <zone><N|S>` or `WGS84 longlat`
+  (EPSG:4326, geo_x = longitude, geo_y = latitude); `#` comment lines may come before it.
 - MicMac `DicoAppuisFlottant` (ground points: `Pt`, `NamePt`, `Incertitude`) and
   `SetOfMesureAppuisFlottants` (image measurements: `NameIm`, `NamePt`, `PtIm`). MicMac V1 measures
   pixels from the top-left pixel's centre too (its calibration PP of an ideal camera is (w-1)/2), so no shift.
@@ -21,27 +24,37 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import Measurements, Points, read_measurements, read_points
 
 _WGS84_UTM = re.compile(r"^\s*WGS84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.I)
+_WGS84_LONGLAT = re.compile(r"^\s*WGS84\s+(long?lat|lonlat|latlong?)\s*$", re.I)
 
 
 def odm_crs_to_pyproj(text: str) -> str:
-    """The pyproj text of an ODM CRS line ('EPSG:32651', a PROJ string, or 'WGS84 UTM 51N')."""
+    """The pyproj text of an ODM CRS line ('EPSG:32651', a PROJ string, 'WGS84 UTM 51N', 'WGS84 longlat')."""
     m = _WGS84_UTM.match(text)
     if m:
         zone, hemi = int(m.group(1)), m.group(2).upper()
         return f"EPSG:{32600 + zone if hemi == 'N' else 32700 + zone}"
-    return text.strip()
+    if _WGS84_LONGLAT.match(text):
+        return "EPSG:4326"
+    return text.strip().strip("'")
 
 
 def is_odm_gcp_list(path: str | Path) -> bool:
     """True when a file looks like an ODM gcp_list.txt (a CRS line, then whitespace-separated rows)."""
     try:
-        with open(path, encoding="utf-8-sig") as fh:
-            first = fh.readline().strip()
+        with open(path, encoding="utf-8-sig", errors="replace") as fh:
+            first = ""
+            for _ in range(200):
+                line = fh.readline()
+                if not line:
+                    break
+                if line.strip() and not line.lstrip().startswith("#"):
+                    first = line.strip()
+                    break
     except OSError:
         return False
     return bool(first) and "," not in first and (
-        first.upper().startswith("EPSG:") or first.startswith("+proj") or bool(_WGS84_UTM.match(first))
-        or first.upper().startswith(("PROJCS", "PROJCRS", "GEOGCS")))
+        first.upper().startswith("EPSG:") or first.startswith(("+proj", "'+proj")) or bool(_WGS84_UTM.match(first))
+        or bool(_WGS84_LONGLAT.match(first)) or first.upper().startswith(("PROJCS", "PROJCRS", "GEOGCS")))
 
 
 def read_odm_gcp_list(path: str | Path) -> tuple[str, Points, Measurements]:
@@ -52,10 +65,15 @@ def read_odm_gcp_list(path: str | Path) -> tuple[str, Points, Measurements]:
     path = Path(path)
     if not path.is_file():
         raise InputError("file not found", path)
-    lines = path.read_text(encoding="utf-8-sig").splitlines()
+    try:
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read: {exc}", path) from None
     crs_line = None
     pts: dict[str, tuple[np.ndarray, int]] = {}
     img, pid, xy, ln = [], [], [], []
+    named = {f[6] for f in (raw.split() for raw in lines) if len(f) > 6 and not f[0].startswith("#")}
+    auto: dict[tuple[float, float, float], str] = {}
     for no, raw in enumerate(lines, start=1):
         s = raw.strip()
         if not s or s.startswith("#"):
@@ -74,11 +92,28 @@ def read_odm_gcp_list(path: str | Path) -> tuple[str, Points, Measurements]:
             raise InputError(f"not a number: {f[bad]!r}", path, no,
                              ("geo_x", "geo_y", "geo_z", "im_x", "im_y")[bad]) from None
         X = np.array(vals[:3])
-        name = f[6] if len(f) > 6 else "gcp_%.3f_%.3f_%.3f" % tuple(X)
+        if not np.all(np.isfinite(vals)):
+            bad = next(i for i, v in enumerate(vals) if not np.isfinite(v))
+            raise InputError(f"not a finite number: {f[bad]!r}", path, no,
+                             ("geo_x", "geo_y", "geo_z", "im_x", "im_y")[bad])
+        if len(f) > 6:
+            name = f[6]
+        else:
+            key = (vals[0], vals[1], vals[2])
+            if key not in auto:
+                k = len(auto) + 1
+                while f"gcp_{k}" in named:
+                    k += 1
+                auto[key] = f"gcp_{k}"
+                named.add(auto[key])
+            name = auto[key]
         if name in pts and np.max(np.abs(pts[name][0] - X)) > 1e-6:
             raise InputError(f"point {name!r} has other coordinates than on line {pts[name][1]}", path, no, "geo_x")
         pts.setdefault(name, (X, no))
-        img.append(f[5]); pid.append(name); xy.append(vals[3:5]); ln.append(no)
+        img.append(f[5])
+        pid.append(name)
+        xy.append(vals[3:5])
+        ln.append(no)
     if crs_line is None:
         raise InputError("empty gcp_list.txt: the first line must be the CRS", path, 1)
     if not img:
@@ -204,7 +239,9 @@ def read_micmac_measurements(path: str | Path) -> Measurements:
             if not p:
                 raise InputError("missing value", path, line, "NamePt")
             xy.append(_numbers(m.find("PtIm"), 2, path, line, "PtIm"))
-            img.append(name); pid.append(p); lines.append(line or 0)
+            img.append(name)
+            pid.append(p)
+            lines.append(line or 0)
     if not img:
         raise InputError("no <OneMesureAF1I> measurements", path)
     meas = Measurements(np.array(img, dtype=object), np.array(pid, dtype=object), np.array(xy),

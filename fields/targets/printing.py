@@ -1,5 +1,5 @@
 """The printable field: black rectangles of the ChArUco plate, true-scale PDF (vector) and PNG (with DPI), and
-an anti-aliased texture of the plate (for rendering simulated photos)."""
+an anti-aliased texture of the plate (for rendering simulated photos); the same sheet for a standard board."""
 from __future__ import annotations
 
 import math
@@ -14,6 +14,7 @@ from matplotlib.patches import Circle, Rectangle
 from PIL import Image
 
 from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.targets.boards import Board, board_texture, write_board_field
 from dgcal.fields.targets.plate import TargetField, layout_path, write_field
 
 INCH_M = 0.0254
@@ -219,4 +220,68 @@ def write_field_files(out_dir: str | Path, tf: TargetField, names: dict[str, str
     if tiles:
         paths["tiles"] = out / names["tiles"].format(page=tiles)
         paths["tile_pages"] = write_pdf_tiles(paths["tiles"], tf, tiles)
+    return paths
+
+
+# ---------------------------------------------------------------------------------------------
+# standard boards (dgcal.fields.targets.boards)
+# ---------------------------------------------------------------------------------------------
+BOARD_MARGIN_M = 0.015     # white paper around a printed board (a chessboard needs a quiet zone)
+BOARD_HEADER_M = 0.012     # strip above it for the title and the check bar
+
+
+def _board_label(board: Board) -> str:
+    return f"dgcal board: {board.describe()}  ({board.n_corners} corners)"
+
+
+def write_board_pdf(path: str | Path, board: Board) -> None:
+    """Vector PDF of a standard board at true scale: the board with a white margin, a title line and a check bar
+    (100 mm, or the largest whole 10 mm that fits). Inverted boards are printed white on black."""
+    bw, bh = board.size_m
+    m, top = BOARD_MARGIN_M, BOARD_HEADER_M
+    W, H = bw + 2 * m, bh + 2 * m + top
+    fig = Figure(figsize=(W / INCH_M, H / INCH_M))
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.set_xlim(-m, bw + m)
+    ax.set_ylim(bh + m, -m - top)
+    ax.axis("off")
+    r = board.black_rectangles()
+    ink = "white" if board.inverted else "black"
+    if board.inverted:
+        ax.add_patch(Rectangle((0, 0), bw, bh, color="black", linewidth=0))
+    polys = np.stack([r[:, [0, 1]], r[:, [2, 1]], r[:, [2, 3]], r[:, [0, 3]]], axis=1)
+    ax.add_collection(PolyCollection(polys, facecolors=ink, edgecolors="none", antialiased=False))
+    pt = 72 / INCH_M
+    ax.text(0, -m - top + 0.002, _board_label(board) + "  - print at 100 %", fontsize=min(0.0035, top / 3) * pt,
+            va="top", ha="left")
+    bar = min(0.1, math.floor(bw * 100) / 100)
+    ax.add_patch(Rectangle((0, -m - 0.004), bar, 0.002, color="black"))
+    ax.text(bar + 0.002, -m - 0.003, f"{bar * 1000:g} mm", fontsize=0.0025 * pt, va="center", ha="left")
+    with atomic_write(path, "wb") as fh:
+        fig.savefig(fh, format="pdf")
+
+
+def board_raster(board: Board, dpi: float) -> np.ndarray:
+    """uint8 raster of the printed board with its white margin at `dpi` (area-filtered edges)."""
+    grey, _ = board_texture(board, INCH_M / dpi, BOARD_MARGIN_M)
+    return np.clip(np.rint(grey * 255), 0, 255).astype(np.uint8)
+
+
+def write_board_files(out_dir: str | Path, board: Board, names: dict[str, str], png_dpi: float | None = 300.0,
+                      ) -> dict[str, Path]:
+    """`dgcal field --board`'s files in `out_dir`, named by role in `names`: field (CSV, ids = corner indices, with
+    its layout JSON beside it), board (a normalised copy of the board TOML), pdf (true scale) and png (at
+    `png_dpi`; None: none); returns the paths by role."""
+    out = Path(out_dir)
+    paths: dict = {"field": out / names["field"], "pdf": out / names["pdf"],
+                   "board": out / names.get("board", "board.toml")}
+    write_board_field(paths["field"], board)
+    paths["layout"] = paths["field"].with_suffix(".json")
+    with atomic_write(paths["board"]) as fh:
+        fh.write(f"# {_board_label(board)}\n" + board.to_toml())
+    write_board_pdf(paths["pdf"], board)
+    if png_dpi is not None:
+        paths["png"] = out / names["png"]
+        with atomic_write(paths["png"], "wb") as fh:
+            Image.fromarray(board_raster(board, png_dpi)).save(fh, format="PNG", dpi=(png_dpi, png_dpi))
     return paths

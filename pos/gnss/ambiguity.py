@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.special import erf
 
 LOOP_MAX = 100000
@@ -46,41 +47,58 @@ def decorrelate(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     instead of restarting; a final pass size-reduces all of L.
     """
     L, Dv = ldl(Q)
-    n = len(Dv)
-    D = Dv.tolist()
-    Z = np.eye(n)
+    Lt = np.ascontiguousarray(L.T)               # Lt[j, i] = L[i, j]: column updates on contiguous rows
+    Zt = np.eye(len(Dv))                         # Zt[j] = column j of Z
+    D = Dv.copy()
+    _reduce(Lt, D, Zt)
+    return np.ascontiguousarray(Lt.T), D, np.ascontiguousarray(Zt.T)
+
+
+@njit(cache=True)
+def _reduce(Lt, D, Zt):  # pragma: no cover - compiled
+    """The permutation sweep with lazy size reduction and the final size reduction, in place (see decorrelate)."""
+    n = len(D)
     k = n - 2
     while k >= 0:
-        mu = math.floor(float(L[k + 1, k]) + 0.5)
+        mu = math.floor(Lt[k, k + 1] + 0.5)
         if mu != 0:
-            L[k + 1:, k] -= mu * L[k + 1:, k + 1]
-            Z[:, k] -= mu * Z[:, k + 1]
-        l1 = float(L[k + 1, k])
+            for i in range(k + 1, n):
+                Lt[k, i] -= mu * Lt[k + 1, i]
+            for i in range(n):
+                Zt[k, i] -= mu * Zt[k + 1, i]
+        l1 = Lt[k, k + 1]
         delta = D[k] + l1 * l1 * D[k + 1]
         if delta + 1e-6 < D[k + 1]:
             eta = D[k] / delta
             lam = D[k + 1] * l1 / delta
             D[k] = eta * D[k + 1]
             D[k + 1] = delta
-            a0 = L[k, :k].copy()
-            a1 = L[k + 1, :k].copy()
-            L[k, :k] = -l1 * a0 + a1
-            L[k + 1, :k] = eta * a0 + lam * a1
-            L[k + 1, k] = lam
-            L[k + 2:, [k, k + 1]] = L[k + 2:, [k + 1, k]]
-            Z[:, [k, k + 1]] = Z[:, [k + 1, k]]
+            for i in range(k):
+                a0 = Lt[i, k]
+                a1 = Lt[i, k + 1]
+                Lt[i, k] = -l1 * a0 + a1
+                Lt[i, k + 1] = eta * a0 + lam * a1
+            Lt[k, k + 1] = lam
+            for i in range(k + 2, n):
+                tmp = Lt[k, i]
+                Lt[k, i] = Lt[k + 1, i]
+                Lt[k + 1, i] = tmp
+            for i in range(n):
+                tmp = Zt[k, i]
+                Zt[k, i] = Zt[k + 1, i]
+                Zt[k + 1, i] = tmp
             if k < n - 2:
                 k += 1
         else:
             k -= 1
-    for j in range(n - 2, -1, -1):               # final size reduction of every column
-        col = L[:, j]
+    for j in range(n - 2, -1, -1):
         for i in range(j + 1, n):
-            mu = math.floor(float(col[i]) + 0.5)
+            mu = math.floor(Lt[j, i] + 0.5)
             if mu != 0:
-                L[i:, j] -= mu * L[i:, i]
-                Z[:, j] -= mu * Z[:, i]
-    return L, np.array(D), Z
+                for q in range(i, n):
+                    Lt[j, q] -= mu * Lt[i, q]
+                for q in range(n):
+                    Zt[j, q] -= mu * Zt[i, q]
 
 
 def search(L: np.ndarray, D: np.ndarray, zs: np.ndarray, m: int = 2) -> tuple[np.ndarray, np.ndarray]:

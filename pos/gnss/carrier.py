@@ -29,9 +29,11 @@ import numpy as np
 from dgcal.fields.constants import C_LIGHT
 from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.gnss.corrections import elevation_azimuth, klobuchar_delay_m, sagnac_rotate, saastamoinen_delay_m
 from dgcal.pos.gnss.ephemeris import states_at_transmission
-from dgcal.pos.gnss.rinex import BroadcastNav
+from dgcal.pos.gnss.observations import GnssEpoch, GnssObservations
+from dgcal.pos.gnss.rinex import BroadcastNav, calendar_from_gps_seconds
 from dgcal.pos.gnss.rinex_obs import RinexObsFile
 
 BANDS = {"G": ("1", "2", "5"), "J": ("1", "2", "5"), "E": ("1", "5", "7"), "C": ("2", "7", "6")}
@@ -295,3 +297,89 @@ def slip_flags(obs: CarrierObs, gf_threshold_m: float = 0.05, mw_threshold_cycle
             slip[k[bad], i, 0] = True
             slip[k[bad], i, f] = True
     return slip
+
+
+def code_observations(obs: CarrierObs, slot: int = 0) -> GnssObservations:
+    """The single-frequency code, Doppler and C/N0 of slot `slot` as raw `GnssObservations` (SPP, code TC):
+    what `dgcal.pos.gnss.rinex.read_rinex_obs` would read from the same data (front-end fields NaN)."""
+    epochs = []
+    lam = C_LIGHT / obs.freq_hz[:, slot]
+    sysv = obs.system
+    for k in range(len(obs.t_gps)):
+        i = np.nonzero(np.isfinite(obs.P[k, :, slot]) & np.isfinite(lam))[0]
+        if len(i) == 0:
+            continue
+        n = len(i)
+        nan = np.full(n, np.nan)
+        dop = obs.D[k, i, slot]
+        epochs.append(GnssEpoch(
+            t_gps=float(obs.t_gps[k]), sat=[obs.sats[j] for j in i], system=sysv[i], pr_m=obs.P[k, i, slot].copy(),
+            doppler_hz=dop.copy(), range_rate_mps=-lam[i] * dop, wavelength_m=lam[i].copy(),
+            cn0_dbhz=obs.snr[k, i, slot].copy(), sat_pos_ecef=np.full((n, 3), np.nan),
+            sat_vel_ecef=np.full((n, 3), np.nan), sat_clk_s=nan.copy(), sat_clk_drift=nan.copy(),
+            iono_m=nan.copy(), tropo_m=nan.copy(), elev_deg=nan.copy(), azim_deg=nan.copy(),
+            sigma_pr_m=nan.copy(), sigma_rr_mps=nan.copy()))
+    signals = {s: obs.signals[(s, slot)][0] for s in dict.fromkeys(sysv) if (s, slot) in obs.signals}
+    return GnssObservations(epochs=epochs, receiver=obs.receiver, p_approx_ecef=obs.p_approx_ecef.copy(),
+                            signals=signals, source=obs.source)
+
+
+def write_rinex_carrier(path, obs: CarrierObs, marker: str = "DGCAL", comment: str = "simulated by dgcal") -> None:
+    """Write code (m), carrier phase (cycles, with the loss-of-lock indicator), Doppler (Hz) and C/N0 of every
+    slot of ``obs`` (its ``signals``) as a RINEX 3.04 observation file (atomic write); NaN is left blank."""
+    systems = [s for s in "GECJ" if any(sid[0] == s for sid in obs.sats)]
+    types, slots = {}, {}
+    for s in systems:
+        fs = [f for f in range(obs.n_slots) if (s, f) in obs.signals]
+        slots[s] = fs
+        types[s] = [c for f in fs for c in (obs.signals[(s, f)][0], obs.signals[(s, f)][1],
+                                            "D" + obs.signals[(s, f)][0][1:], "S" + obs.signals[(s, f)][0][1:])]
+    p0 = obs.p_approx_ecef if np.all(np.isfinite(obs.p_approx_ecef)) else np.zeros(3)
+
+    def hdr(text: str, label: str) -> str:
+        return f"{text:<60.60}{label:<20}\n"
+
+    t = obs.t_gps
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    lines = [hdr(f"{3.04:9.2f}{'':11}{'OBSERVATION DATA':<20}{'M':<20}", "RINEX VERSION / TYPE"),
+             hdr(f"{'dgcal':<20}{'dgcal':<40}", "PGM / RUN BY / DATE"),
+             hdr(comment, "COMMENT"), hdr(marker, "MARKER NAME"),
+             hdr(f"{'SIM':<20}{obs.receiver or 'DGCAL SIM':<20}{'':<20}", "REC # / TYPE / VERS"),
+             hdr(f"{'SIM':<20}{obs.antenna or 'SIM':<20}", "ANT # / TYPE"),
+             hdr(f"{p0[0]:14.4f}{p0[1]:14.4f}{p0[2]:14.4f}", "APPROX POSITION XYZ"),
+             hdr(f"{0.0:14.4f}{0.0:14.4f}{0.0:14.4f}", "ANTENNA: DELTA H/E/N")]
+    for s in systems:
+        ty = types[s]
+        for j in range(0, len(ty), 13):
+            head = f"{s}{len(ty):5d}" if j == 0 else " " * 6
+            lines.append(hdr(head + "".join(f" {c}" for c in ty[j:j + 13]), "SYS / # / OBS TYPES"))
+    lines.append(hdr(f"{dt:10.3f}", "INTERVAL"))
+    for tt, label in ((t[0], "TIME OF FIRST OBS"), (t[-1], "TIME OF LAST OBS")):
+        y, mo, d, h, mi, sec = calendar_from_gps_seconds(tt)
+        lines.append(hdr(f"{y:6d}{mo:6d}{d:6d}{h:6d}{mi:6d}{sec:13.7f}     GPS", label))
+    lines.append(hdr("DBHZ", "SIGNAL STRENGTH UNIT"))
+    lines.append(hdr("", "END OF HEADER"))
+    col = {sid: i for i, sid in enumerate(obs.sats)}
+    order = sorted(obs.sats, key=lambda sid: ("GECJ".index(sid[0]), sid))
+
+    def val(v: float, lli: int = 0) -> str:
+        if not np.isfinite(v):
+            return " " * 16
+        return f"{v:14.3f}{lli if lli else ' '} "
+
+    with atomic_write(path) as fh:
+        fh.writelines(lines)
+        for k in range(len(t)):
+            rows = []
+            for sid in order:
+                i = col[sid]
+                fs = slots[sid[0]]
+                if not any(np.isfinite(obs.P[k, i, f]) or np.isfinite(obs.L[k, i, f]) for f in fs):
+                    continue
+                rec = "".join(val(obs.P[k, i, f]) + val(obs.L[k, i, f], int(obs.lli[k, i, f]))
+                              + val(obs.D[k, i, f]) + val(obs.snr[k, i, f]) for f in fs)
+                rows.append(sid + rec.rstrip() + "\n")
+            y, mo, d, h, mi, sec = calendar_from_gps_seconds(t[k])
+            flag = 1 if obs.power_failure is not None and obs.power_failure[k] else 0
+            fh.write(f"> {y:4d} {mo:02d} {d:02d} {h:02d} {mi:02d}{sec:11.7f}  {flag}{len(rows):3d}\n")
+            fh.writelines(rows)

@@ -115,6 +115,7 @@ class PpkResult:
     slips_base: int
     options: PpkOptions
     info: dict = field(default_factory=dict)
+    pair: CarrierPair | None = field(default=None, repr=False)   # the prepared receivers (for the TC smoother)
 
     @property
     def fix(self) -> np.ndarray:
@@ -127,8 +128,11 @@ def _zd_var(sigma0: float, elev: np.ndarray) -> np.ndarray:
     return sigma0 ** 2 * (0.5 + 0.5 / s ** 2)
 
 
-class _Engine:
-    """The data shared by both passes: common satellites, base matching, slips, cached front end."""
+class CarrierPair:
+    """A rover and a base receiver prepared for double differencing (shared by both PPK passes and the TC
+    smoother's carrier-phase factors): common satellites and frequency slots, the base epoch of every rover
+    epoch (nearest within ``max_age_s``), slip flags of both receivers and the cached zero-difference models
+    (``base_zd(j)``, ``rover_zd(k, x0)``; ECEF m)."""
 
     def __init__(self, rover: CarrierObs, base: CarrierObs, nav: BroadcastNav, base_pos: np.ndarray,
                  opts: PpkOptions):
@@ -168,6 +172,16 @@ class _Engine:
         self.system = np.array([s[0] for s in sats])
         self._geo: dict[int, tuple] = {}
         self._zb: dict[int, ZeroDiff] = {}
+        self._zr: dict[int, ZeroDiff] = {}     # the last model of every rover epoch (reused by the TC front end)
+
+    def arcs(self) -> np.ndarray:
+        """Phase arc number per (rover epoch, satellite, slot): it changes at every slip flag of the rover or of
+        the base epoch matched to it (-1 where the rover epoch has no base epoch)."""
+        jb = np.maximum(self.jb, 0)
+        n_b = int(self.Cb.max()) + 1 if self.Cb.size else 1
+        out = self.Cr.astype(np.int64) * n_b + self.Cb[jb]
+        out[self.jb < 0] = -1
+        return out
 
     def base_zd(self, j: int) -> ZeroDiff:
         if j not in self._zb:
@@ -176,14 +190,23 @@ class _Engine:
                                           self.base_pos, g, self.opts.humidity)
         return self._zb[j]
 
-    def rover_zd(self, k: int, x0: np.ndarray) -> ZeroDiff:
+    def rover_zd(self, k: int, x0: np.ndarray, reuse_within_m: float | None = None) -> ZeroDiff:
+        """Rover epoch k modelled at x0 (ECEF m); with `reuse_within_m` the last model of that epoch is returned
+        when it was made within that distance of x0 (its point is ``extra['p_rx']``)."""
+        last = self._zr.get(k)
+        if reuse_within_m is not None and last is not None and \
+                np.linalg.norm(last.extra["p_rx"] - x0) <= reuse_within_m:
+            return last
         if k not in self._geo:
             pr0 = np.full(len(self.sats), np.nan)
             for f in range(self.F):
                 pr0 = np.where(np.isfinite(pr0), pr0, self.Pr[k, :, f])
             self._geo[k] = satellite_geometry(self.nav, self.sats, self.t[k], pr0, x0)
-        return zero_difference(self.nav, self.sats, self.t[k], self.Pr[k], self.Lr[k], self.freq, x0,
-                               self._geo[k], self.opts.humidity)
+        zr = zero_difference(self.nav, self.sats, self.t[k], self.Pr[k], self.Lr[k], self.freq, x0,
+                             self._geo[k], self.opts.humidity)
+        zr.extra["p_rx"] = np.array(x0, float)
+        self._zr[k] = zr
+        return zr
 
 
 def _slipped(C: np.ndarray, a: int, b: int) -> np.ndarray:
@@ -195,7 +218,7 @@ def _slipped(C: np.ndarray, a: int, b: int) -> np.ndarray:
 class _Pass:
     """One EKF pass over the rover epochs in the given order."""
 
-    def __init__(self, eng: _Engine, order: np.ndarray, p_init: np.ndarray):
+    def __init__(self, eng: CarrierPair, order: np.ndarray, p_init: np.ndarray):
         self.e, self.order = eng, order
         m, F = len(eng.sats), eng.F
         self.n = 3 + m * F
@@ -637,7 +660,7 @@ def ppk(rover: CarrierObs, base: CarrierObs, nav: BroadcastNav, base_pos_ecef, o
     Epochs without double differences have status 'none' (the caller may fill them with SPP, 'single').
     """
     opts = opts or PpkOptions()
-    eng = _Engine(rover, base, nav, base_pos_ecef, opts)
+    eng = CarrierPair(rover, base, nav, base_pos_ecef, opts)
     p0 = np.asarray(p_init if p_init is not None else rover.p_approx_ecef, float)
     if not np.all(np.isfinite(p0)):
         p0 = np.asarray(base_pos_ecef, float)
@@ -658,7 +681,7 @@ def ppk(rover: CarrierObs, base: CarrierObs, nav: BroadcastNav, base_pos_ecef, o
     return PpkResult(t_gps=eng.t.copy(), status=status, p=p, P=P, ratio=ratio, n_sat=n_sat, n_fixed_amb=n_fix,
                      age_s=np.where(eng.jb >= 0, eng.age, np.nan), forward=fw, backward=bw, sats=eng.sats,
                      signals_rover=dict(rover.signals), signals_base=dict(base.signals),
-                     slips_rover=eng.slips_rover, slips_base=eng.slips_base, options=opts)
+                     slips_rover=eng.slips_rover, slips_base=eng.slips_base, options=opts, pair=eng)
 
 
 PPK_CSV_COLUMNS = ["gps_week", "gps_sow", "x", "y", "z", "fix", "n_sat", "ratio", "sx", "sy", "sz", "sxy", "sxz",

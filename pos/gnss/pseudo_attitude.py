@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from dgcal.fields.constants import G0
 from dgcal.fields.frames import R_body_to_ned_from_rph
@@ -28,13 +28,16 @@ from dgcal.fields.frames import R_body_to_ned_from_rph
 
 @dataclass
 class PseudoAttitude:
-    """Pseudo roll/pitch/yaw (deg, yaw in [0, 360)), Euler rates (deg/s), body rates (rad/s), validity mask."""
+    """Pseudo roll/pitch/yaw (deg, yaw in [0, 360)), Euler rates (deg/s), body rates (rad/s), validity mask, and
+    (when the velocity noise is known) the 1-sigma of roll/pitch/yaw (deg) from that noise alone."""
 
     t: np.ndarray
     rph: np.ndarray
     rph_rate: np.ndarray
     omega_b: np.ndarray
     valid: np.ndarray
+    sigma_rph: np.ndarray | None = None
+    sigma_v_mps: float | None = None
 
     @property
     def R_body_to_ned(self) -> np.ndarray:
@@ -60,13 +63,40 @@ def time_derivative(t: np.ndarray, y: np.ndarray, window_s: float = 0.0) -> np.n
     return np.gradient(y, t, axis=0)
 
 
+def velocity_noise(t: np.ndarray, v_ned: np.ndarray) -> float:
+    """White noise (m/s, per axis) of a velocity series from its second differences (robust: 1.4826 MAD / sqrt 6)."""
+    d2 = np.diff(np.asarray(v_ned, float), 2, axis=0)
+    if len(d2) < 3:
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0))) / np.sqrt(6.0))
+
+
+def derivative_gain(t: np.ndarray, window_s: float) -> float:
+    """Noise gain (1/s) of `time_derivative`: the sigma of the derivative of white noise of unit sigma."""
+    t = np.asarray(t, float)
+    step = float(np.median(np.diff(t)))
+    n = int(round(window_s / step)) if window_s > 0 else 0
+    if n >= 3:
+        n = n + 1 if n % 2 == 0 else n
+        n = min(n, len(t) - (1 - len(t) % 2))
+    if n >= 3:
+        return float(np.linalg.norm(savgol_coeffs(n, 2, deriv=1, delta=step)))
+    return float(np.sqrt(0.5) / step)  # central differences
+
+
 def pseudo_attitude(t: np.ndarray, v_ned: np.ndarray, a_ned: np.ndarray | None = None, g: float = G0,
-                    window_s: float = 0.8, min_speed: float = 3.0) -> PseudoAttitude:
+                    window_s: float = 0.8, min_speed: float = 3.0, sigma_v_mps: float | str | None = None
+                    ) -> PseudoAttitude:
     """Pseudo attitude (seed 001 eq. 1-8) from GNSS NED velocity (m/s) at GPS times t (s).
 
     `a_ned` (m/s^2) is the velocity's derivative; if None it is computed (Savitzky-Golay over `window_s`
     when > 0; 0.8 s suits 10 Hz Doppler velocities with 2 cm/s noise: roll RMS 0.3 deg in 25 deg turns;
     sparser data fall back to central differences). Samples slower than `min_speed` m/s are invalid (NaN).
+    `sigma_v_mps` (m/s per axis, or 'auto': estimated by `velocity_noise`) adds `sigma_rph`: roll through the
+    derivative's noise gain and eq. 5, plus the derivative's smoothing error where the acceleration changes
+    quickly (a quadratic fit over a window of half-width w misses 0.1 w^2 |d3V/dt3| of the derivative, taken
+    from the data), pitch and yaw through the velocity direction (eq. 6, 7). The coordinated-flight
+    assumption itself (no sideslip acceleration) is not covered.
     """
     t = np.asarray(t, float)
     V = np.asarray(v_ned, float)
@@ -94,4 +124,27 @@ def pseudo_attitude(t: np.ndarray, v_ned: np.ndarray, a_ned: np.ndarray | None =
     rph[~valid] = np.nan
     rph_rate[~valid] = np.nan
     omega[~valid] = np.nan
-    return PseudoAttitude(t=t, rph=rph, rph_rate=rph_rate, omega_b=omega, valid=valid)
+    sig = None
+    if sigma_v_mps is not None:
+        sv = velocity_noise(t, V) if isinstance(sigma_v_mps, str) else float(sigma_v_mps)
+        sa = np.full((len(t), 3), sv * (derivative_gain(t, window_s) if a_ned is None else 0.0))
+        if a_ned is None and window_s > 0:
+            d3v = time_derivative(t, time_derivative(t, A, 2 * window_s), 2 * window_s)  # m/s^4
+            sa = np.hypot(sa, 0.1 * (0.5 * window_s) ** 2 * np.abs(d3v))
+        # roll: d(roll)/dA along the three axes (finite differences of eq. 1-5), times the derivative's error
+        dr2 = np.zeros(len(t))
+        for i in range(3):
+            dA = np.zeros(3)
+            dA[i] = 1e-3
+            A2 = A + dA
+            An2 = A2 - (np.sum(A2 * V, axis=1)[:, None] / s2) * V
+            L2 = An2 - g_n
+            den2 = np.linalg.norm(L2, axis=1) * np.linalg.norm(p, axis=1)
+            r2 = np.arcsin(np.clip(np.sum(L2 * p, axis=1) / np.where(valid, den2, 1.0), -1.0, 1.0))
+            dr2 += ((r2 - roll) / 1e-3 * sa[:, i]) ** 2
+        vh = np.hypot(V[:, 0], V[:, 1])
+        sig = np.degrees(np.column_stack([np.sqrt(dr2), sv / np.sqrt(speed2), sv / np.where(vh > 0, vh, np.nan)]))
+        sig[~valid] = np.nan
+        sigma_v_mps = sv
+    return PseudoAttitude(t=t, rph=rph, rph_rate=rph_rate, omega_b=omega, valid=valid, sigma_rph=sig,
+                          sigma_v_mps=None if sigma_v_mps is None else float(sigma_v_mps))

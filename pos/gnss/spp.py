@@ -53,13 +53,15 @@ def _has_position(p) -> bool:
 
 
 def prepare_epoch(raw: GnssEpoch, nav: BroadcastNav, p_rx_ecef: np.ndarray | None,
-                  opts: SppOptions = SppOptions()) -> GnssEpoch:
+                  opts: SppOptions | None = None) -> GnssEpoch:
     """Model one raw epoch at the approximate receiver position ``p_rx_ecef`` (m, ECEF; None: unknown).
 
     Drops satellites without valid healthy ephemeris, of unwanted systems, or (when the position
     is known) below the elevation mask. Without a position the travel time is taken from the
     pseudorange and no atmosphere is modelled (a first pass for SPP).
     """
+    if opts is None:
+        opts = SppOptions()
     keep = np.isin(raw.system, list(opts.systems)) & np.isfinite(raw.pr_m)
     ep = raw.subset(keep)
     p, v, clk, drift, ura, ok = states_at_transmission(nav, ep.sat, ep.t_gps, ep.pr_m)
@@ -180,8 +182,10 @@ def _chi2_limit(dof: int, alpha: float) -> float:
 
 
 def solve_epoch(raw: GnssEpoch, nav: BroadcastNav, p_guess: np.ndarray | None,
-                opts: SppOptions = SppOptions()) -> EpochSolution:
+                opts: SppOptions | None = None) -> EpochSolution:
     """SPP of one raw epoch: position, per-system clocks, velocity, drift, covariances, DOP."""
+    if opts is None:
+        opts = SppOptions()
     x_prep = np.asarray(p_guess, float) if _has_position(p_guess) else None
     rejected: list[str] = []
     fail = EpochSolution(raw.t_gps, False, np.full(3, np.nan), np.full((3, 3), np.nan), {}, {},
@@ -283,9 +287,11 @@ class SppSolution:
     residuals_m: list[dict[str, float]] = field(default_factory=list)
 
 
-def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions = SppOptions(),
+def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None,
         progress: bool = False) -> SppSolution:
     """SPP of every epoch; each epoch starts from the previous solution (or the header position)."""
+    if opts is None:
+        opts = SppOptions()
     sols = []
     guess = obs.p_approx_ecef if _has_position(obs.p_approx_ecef) else None
     it = obs.epochs
@@ -307,17 +313,17 @@ def collect(sols: list[EpochSolution], systems: list[str]) -> SppSolution:
         t_gps=arr(lambda s: s.t_gps), ok=np.array([s.ok for s in sols], dtype=bool),
         p_ecef=arr(lambda s: s.p_ecef).reshape(n, 3), cov_p=arr(lambda s: s.cov_p).reshape(n, 3, 3),
         v_ecef=arr(lambda s: s.v_ecef).reshape(n, 3), cov_v=arr(lambda s: s.cov_v).reshape(n, 3, 3),
-        clk_m={k: arr(lambda s: s.clk_m.get(k, np.nan)) for k in systems},
-        clk_sigma_m={k: arr(lambda s: s.clk_sigma_m.get(k, np.nan)) for k in systems},
+        clk_m={k: arr(lambda s, k=k: s.clk_m.get(k, np.nan)) for k in systems},
+        clk_sigma_m={k: arr(lambda s, k=k: s.clk_sigma_m.get(k, np.nan)) for k in systems},
         drift_mps=arr(lambda s: s.drift_mps), drift_sigma_mps=arr(lambda s: s.drift_sigma_mps),
         n_sat=np.array([s.n_sat for s in sols], dtype=int),
-        dop={k: arr(lambda s: s.dop.get(k, np.nan)) for k in ("gdop", "pdop", "hdop", "vdop")},
+        dop={k: arr(lambda s, k=k: s.dop.get(k, np.nan)) for k in ("gdop", "pdop", "hdop", "vdop")},
         chi2_dof=arr(lambda s: s.chi2_dof), used=[s.used for s in sols],
         rejected=[s.rejected for s in sols], epochs=[s.epoch for s in sols],
         residuals_m=[s.residuals_m for s in sols])
 
 
-def load_gnss(obs_path, nav_path, opts: SppOptions = SppOptions(), progress: bool = False
+def load_gnss(obs_path, nav_path, opts: SppOptions | None = None, progress: bool = False
               ) -> tuple[GnssObservations, SppSolution]:
     """Read RINEX obs + nav, run SPP, and return the epochs modelled at the SPP positions.
 
@@ -325,6 +331,8 @@ def load_gnss(obs_path, nav_path, opts: SppOptions = SppOptions(), progress: boo
     used by SPP (mask applied, RAIM rejections removed) with all front-end fields filled.
     This is the input a tightly coupled smoother needs.
     """
+    if opts is None:
+        opts = SppOptions()
     nav = read_rinex_nav(nav_path)
     raw = read_rinex_obs(obs_path, systems=opts.systems)
     sol = spp(raw, nav, opts, progress=progress)

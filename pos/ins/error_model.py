@@ -12,11 +12,14 @@ units (deg/sqrt(h), deg/h, m/s/sqrt(h), mg, ppm, deg).
 """
 from __future__ import annotations
 
+import tomllib
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
 from dgcal.fields.constants import G0
+from dgcal.fields.errors import InputError
 
 DEG = np.pi / 180.0
 
@@ -40,6 +43,8 @@ class ImuErrorModel:
     accel_scale_sigma: float = 0.0
     gyro_misalign_sigma: float = 0.0
     accel_misalign_sigma: float = 0.0
+    gyro_range: float = 0.0      # rad/s, measurement range (0: not given)
+    accel_range: float = 0.0     # m/s^2 (0: not given)
 
     @classmethod
     def from_datasheet(cls, name: str, *, gyro_arw_deg_rt_h: float, gyro_bias_instability_deg_h: float,
@@ -155,14 +160,106 @@ GRADES: dict[str, ImuErrorModel] = {
 
 
 def imu_grade(grade: str | ImuErrorModel | dict) -> ImuErrorModel:
-    """An error model by preset name ('navigation', 'adis16488', 'adis16405', 'consumer'), dict or instance."""
+    """An error model by preset name ('navigation', 'adis16488', 'adis16405', 'consumer'), dict, instance, or the
+    path of a datasheet TOML file (`read_imu_datasheet`)."""
     if isinstance(grade, ImuErrorModel):
         return grade
     if isinstance(grade, dict):
         return ImuErrorModel.from_dict(grade)
+    if isinstance(grade, Path) or str(grade).lower().endswith(".toml"):
+        return read_imu_datasheet(grade)
     key = str(grade).lower().replace("-", "").replace("_", "")
     aliases = {"tactical": "adis16488", "mems": "consumer", "nav": "navigation"}
     key = aliases.get(key, key)
     if key not in GRADES:
         raise ValueError(f"unknown IMU grade {grade!r} (one of {', '.join(GRADES)})")
     return GRADES[key]
+
+
+# --------------------------------------------------------------------------------------------- datasheet TOML
+# accepted keys of a datasheet TOML: name -> factor to the SI field (None: handled separately)
+_RT_H = 60.0                     # 1/sqrt(s) per 1/sqrt(h)
+_GYRO_KEYS = {
+    "arw_deg_rt_h": ("gyro_arw", DEG / _RT_H), "noise_density_deg_s_rt_hz": ("gyro_arw", DEG),
+    "noise_density_mdps_rt_hz": ("gyro_arw", DEG * 1e-3),
+    "bias_instability_deg_h": ("gyro_bias_instability", DEG / 3600.0),
+    "bias_instability_deg_s": ("gyro_bias_instability", DEG),
+    "bias_tau_s": ("gyro_bias_tau_s", 1.0),
+    "turn_on_deg_s": ("gyro_bias_sigma", DEG), "turn_on_deg_h": ("gyro_bias_sigma", DEG / 3600.0),
+    "rrw_deg_h_rt_h": ("gyro_bias_rw", DEG / 3600.0 / _RT_H),
+    "rrw_deg_s2_rt_hz": ("gyro_bias_rw", DEG),
+    "scale_ppm": ("gyro_scale_sigma", 1e-6), "scale_percent": ("gyro_scale_sigma", 1e-2),
+    "misalign_deg": ("gyro_misalign_sigma", DEG), "misalign_percent": ("gyro_misalign_sigma", 1e-2),
+    "range_deg_s": ("gyro_range", DEG),
+}
+_ACCEL_KEYS = {
+    "vrw_m_s_rt_h": ("accel_vrw", 1.0 / _RT_H), "noise_density_ug_rt_hz": ("accel_vrw", 1e-6 * G0),
+    "noise_density_m_s2_rt_hz": ("accel_vrw", 1.0),
+    "bias_instability_mg": ("accel_bias_instability", 1e-3 * G0),
+    "bias_instability_ug": ("accel_bias_instability", 1e-6 * G0),
+    "bias_tau_s": ("accel_bias_tau_s", 1.0),
+    "turn_on_mg": ("accel_bias_sigma", 1e-3 * G0), "turn_on_ug": ("accel_bias_sigma", 1e-6 * G0),
+    "rrw_m_s2_rt_h": ("accel_bias_rw", 1.0 / _RT_H), "rrw_ug_rt_hz": ("accel_bias_rw", 1e-6 * G0),
+    "scale_ppm": ("accel_scale_sigma", 1e-6), "scale_percent": ("accel_scale_sigma", 1e-2),
+    "misalign_deg": ("accel_misalign_sigma", DEG), "misalign_percent": ("accel_misalign_sigma", 1e-2),
+    "range_g": ("accel_range", G0), "range_m_s2": ("accel_range", 1.0),
+}
+
+
+def imu_model_from_datasheet_dict(d: dict, source: str = "datasheet") -> ImuErrorModel:
+    """An ImuErrorModel from a datasheet dict: `name`, optional `base` (a preset whose values are kept where the
+    datasheet is silent), `[gyro]` and `[accel]` tables with unit-suffixed keys (ARW deg/sqrt(h) or noise density
+    deg/s/sqrt(Hz), bias instability deg/h, VRW m/s/sqrt(h) or ug/sqrt(Hz), mg, ppm, %, range deg/s and g)."""
+    allowed = {"name", "base", "gyro", "accel", "model", "manufacturer", "notes"}
+    bad = [k for k in d if k not in allowed]
+    if bad:
+        raise InputError(f"unknown key {bad[0]!r} (one of {', '.join(sorted(allowed))})", source, field=bad[0])
+    base = d.get("base")
+    if base is not None:
+        try:
+            start = asdict(imu_grade(str(base)))
+        except ValueError as exc:
+            raise InputError(str(exc), source, field="base") from None
+    else:
+        start = asdict(ImuErrorModel("datasheet", 0.0, 0.0))
+    start["name"] = str(d.get("name", Path(source).stem if source else "datasheet"))
+    seen: dict[str, str] = {}
+    for sect, keys in (("gyro", _GYRO_KEYS), ("accel", _ACCEL_KEYS)):
+        tab = d.get(sect, {})
+        if not isinstance(tab, dict):
+            raise InputError("must be a table", source, field=sect)
+        for k, v in tab.items():
+            if k not in keys:
+                raise InputError(f"unknown key (one of {', '.join(keys)})", source, field=f"{sect}.{k}")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
+                raise InputError(f"must be a number >= 0, not {v!r}", source, field=f"{sect}.{k}")
+            name, factor = keys[k]
+            if name in seen:
+                raise InputError(f"{name} given twice ({seen[name]} and {k})", source, field=f"{sect}.{k}")
+            seen[name] = k
+            start[name] = float(v) * factor
+    for req in ("gyro_arw", "accel_vrw"):
+        if start[req] <= 0:
+            raise InputError("the datasheet needs the white noise (gyro arw_deg_rt_h or noise_density_deg_s_rt_hz, "
+                             "accel vrw_m_s_rt_h or noise_density_ug_rt_hz) or a base preset", source,
+                             field="gyro" if req == "gyro_arw" else "accel")
+    for tau in ("gyro_bias_tau_s", "accel_bias_tau_s"):
+        if start[tau] <= 0:
+            raise InputError("must be > 0", source, field=tau.replace("_bias_tau_s", ".bias_tau_s"))
+    return ImuErrorModel(**start)
+
+
+def read_imu_datasheet(path: str | Path) -> ImuErrorModel:
+    """`--imu-grade FILE.toml`: an IMU error model from its datasheet figures (see
+    `imu_model_from_datasheet_dict`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", path, field="--imu-grade")
+    try:
+        d = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read: {exc}", path) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {str(exc).split(' (at line')[0]}", path, getattr(exc, "lineno", None)) \
+            from None
+    return imu_model_from_datasheet_dict(d, str(path))

@@ -21,9 +21,10 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 
 # factors to rad (increments) / rad/s (rates), m/s (increments) / m/s^2 (rates)
-_GYRO_UNITS = {"rad": 1.0, "deg": np.pi / 180.0, "rad/s": 1.0, "deg/s": np.pi / 180.0,
-               "deg/h": np.pi / 180.0 / 3600.0}
-_ACC_UNITS = {"m/s": 1.0, "m/s2": 1.0, "m/s^2": 1.0, "g": G0, "mg": G0 * 1e-3}
+GYRO_UNITS = {"rad": 1.0, "deg": np.pi / 180.0, "rad/s": 1.0, "deg/s": np.pi / 180.0,
+              "deg/h": np.pi / 180.0 / 3600.0}
+ACC_UNITS = {"m/s": 1.0, "m/s2": 1.0, "m/s^2": 1.0, "g": G0, "mg": G0 * 1e-3}
+_GYRO_UNITS, _ACC_UNITS = GYRO_UNITS, ACC_UNITS
 
 
 @dataclass
@@ -96,8 +97,11 @@ def estimate_rate_hz(t: np.ndarray) -> float:
     return float(round(rate)) if round(rate) > 0 and abs(rate - round(rate)) < 1e-3 * rate else rate
 
 
-def _data_lines(path: Path) -> tuple[list[str], np.ndarray, str | None, int]:
-    """Non-blank, non-comment lines, their 1-based line numbers, and a header line if the first is not numeric."""
+def data_lines(path: Path, header: str | bool = "auto", delimiter: str | None = None
+               ) -> tuple[list[str], np.ndarray, str | None, int]:
+    """Non-blank, non-comment (`#`, `%`) lines, their 1-based line numbers and the header line (or None).
+
+    `header` "auto": the first line is a header when its first field is not a number; True/False force it."""
     if not path.is_file():
         raise InputError("file not found", path)
     try:
@@ -106,42 +110,61 @@ def _data_lines(path: Path) -> tuple[list[str], np.ndarray, str | None, int]:
         raise InputError(f"cannot read: {exc}", path) from None
     all_lines = raw.splitlines()
     keep = [i for i, s in enumerate(all_lines) if s.strip() and not s.lstrip().startswith(("#", "%"))]
-    header, header_line = None, 0
+    header_text, header_line = None, 0
     if keep:
-        first = all_lines[keep[0]].replace(",", " ").split()
-        try:
-            float(first[0])
-        except ValueError:
-            header, header_line = all_lines[keep[0]], keep[0] + 1
+        first_line = all_lines[keep[0]]
+        if header == "auto":
+            sep = delimiter if delimiter not in (None, "ws") else ","
+            first = first_line.replace(sep, " ").replace(",", " ").split()
+            try:
+                float(first[0])
+                is_header = False
+            except (ValueError, IndexError):
+                is_header = True
+        else:
+            is_header = bool(header)
+        if is_header:
+            header_text, header_line = first_line, keep[0] + 1
             keep = keep[1:]
     if not keep:
         raise InputError("no IMU data rows", path)
-    return [all_lines[i] for i in keep], np.asarray(keep) + 1, header, header_line
+    return [all_lines[i] for i in keep], np.asarray(keep) + 1, header_text, header_line
 
 
-def _parse_numeric(path: Path, rows: list[str], lines: np.ndarray, ncols_needed: int, delim: str | None
-                   ) -> np.ndarray:
-    """All rows as a float array (vectorised); on failure locate and report the first bad line/field."""
+def parse_numeric(path: Path, rows: list[str], lines: np.ndarray, ncols_needed: int, delim: str | None,
+                  usecols: list[int] | None = None) -> np.ndarray:
+    """The rows' columns (all, or `usecols`) as floats (vectorised np.loadtxt); on failure the first bad
+    line and column is reported (InputError)."""
+    sep = None if delim == "ws" else delim
+    arr = None
     try:
-        arr = np.loadtxt(rows, delimiter=delim, ndmin=2, dtype=float)
-        if arr.shape[1] >= ncols_needed and np.isfinite(arr).all():
+        with np.errstate(all="ignore"):
+            arr = np.loadtxt(rows, delimiter=sep, ndmin=2, dtype=float, usecols=usecols)
+        ncols = arr.shape[1] if usecols is None else max(usecols) + 1
+        if ncols >= ncols_needed and np.isfinite(arr).all():
             return arr
-    except ValueError:
+    except (ValueError, IndexError):
         arr = None
+    check = None if usecols is None else set(usecols)
     for k, s in enumerate(rows):
-        toks = [c.strip() for c in (s.split(delim) if delim else s.split())]
+        toks = [c.strip() for c in (s.split(sep) if sep else s.split())]
         if len(toks) < ncols_needed:
             raise InputError(f"expected at least {ncols_needed} columns, found {len(toks)}", path, int(lines[k]))
         for j, tok in enumerate(toks):
+            if check is not None and j not in check:
+                continue
             try:
                 v = float(tok)
             except ValueError:
-                raise InputError(f"not a number: {tok!r}", path, int(lines[k]), f"column {j + 1}") from None
+                raise InputError(f"not a number: {tok[:40]!r}", path, int(lines[k]), f"column {j + 1}") from None
             if not np.isfinite(v):
-                raise InputError(f"not a finite number: {tok!r}", path, int(lines[k]), f"column {j + 1}")
+                raise InputError(f"not a finite number: {tok[:40]!r}", path, int(lines[k]), f"column {j + 1}")
     if arr is None:  # ragged rows that each have enough columns
         raise InputError("rows have different numbers of columns", path)
     return arr
+
+
+_data_lines, _parse_numeric = data_lines, parse_numeric
 
 
 def _to_gps_time(path: Path, lines: np.ndarray, time: np.ndarray, gps_week: int | None, time_kind: str
@@ -166,8 +189,9 @@ def _check_time(path: Path, lines: np.ndarray, t: np.ndarray) -> None:
         raise InputError(f"time does not increase ({t[k]!r} after {t[k - 1]!r})", path, int(lines[k]), "time")
 
 
-def _finish(path: Path, lines: np.ndarray, t: np.ndarray, g: np.ndarray, a: np.ndarray, kind: str,
-            rate_hz: float | None, R_sensor_to_body: np.ndarray | None) -> ImuData:
+def finish_imu(path: Path, lines: np.ndarray, t: np.ndarray, g: np.ndarray, a: np.ndarray, kind: str,
+               rate_hz: float | None, R_sensor_to_body: np.ndarray | None) -> ImuData:
+    """ImuData (body FRD increments) from parsed times (GPS s), gyro and accel columns (SI) of `kind`."""
     _check_time(path, lines, t)
     rate = float(rate_hz) if rate_hz else estimate_rate_hz(t)
     if kind == "increments":
@@ -186,7 +210,7 @@ def read_kf_gins(path: str | Path, gps_week: int | None = None, rate_hz: float |
     rows, lines, _, _ = _data_lines(path)
     arr = _parse_numeric(path, rows, lines, 7, None)
     t = _to_gps_time(path, lines, arr[:, 0], gps_week, "sow")
-    return _finish(path, lines, t, arr[:, 1:4].copy(), arr[:, 4:7].copy(), "increments", rate_hz, None)
+    return finish_imu(path, lines, t, arr[:, 1:4].copy(), arr[:, 4:7].copy(), "increments", rate_hz, None)
 
 
 def read_imu_text(path: str | Path, columns: Sequence[str | int] | None = None, kind: str = "increments",
@@ -227,7 +251,7 @@ def read_imu_text(path: str | Path, columns: Sequence[str | int] | None = None, 
     t = _to_gps_time(path, lines, arr[:, idx[0]], gps_week, time_kind)
     g = arr[:, idx[1:4]] * _GYRO_UNITS[gyro_unit]
     a = arr[:, idx[4:7]] * _ACC_UNITS[accel_unit]
-    return _finish(path, lines, t, g, a, kind, rate_hz, R_sensor_to_body)
+    return finish_imu(path, lines, t, g, a, kind, rate_hz, R_sensor_to_body)
 
 
 def write_kf_gins(path: str | Path, imu: ImuData) -> None:
@@ -266,4 +290,4 @@ def read_imu_csv(path: str | Path, kind: str = "increments", rate_hz: float | No
     idx = [names.index(c) for c in need]
     arr = _parse_numeric(path, rows, lines, max(idx) + 1, ",")
     t = arr[:, idx[0]] * SECONDS_PER_WEEK + arr[:, idx[1]]
-    return _finish(path, lines, t, arr[:, idx[2:5]], arr[:, idx[5:8]], kind, rate_hz, None)
+    return finish_imu(path, lines, t, arr[:, idx[2:5]], arr[:, idx[5:8]], kind, rate_hz, None)

@@ -18,7 +18,7 @@ import numpy as np
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
-from dgcal.fields.io.formats import Trajectory
+from dgcal.fields.io.formats import Trajectory, read_trajectory
 
 SBET_FIELDS = ("time", "lat", "lon", "alt", "vx", "vy", "vz", "roll", "pitch", "heading", "wander",
                "ax", "ay", "az", "wx", "wy", "wz")
@@ -137,3 +137,59 @@ def read_sbet_with_sigmas(sbet_path: str | Path, smrmsg_path: str | Path, gps_we
                          f"[{t[0]:.3f}, {t[-1]:.3f}]", smrmsg_path, field="time")
     sb.trajectory.sigma = np.column_stack([np.interp(t, ts, sig[:, j]) for j in range(6)])
     return sb
+
+
+def smrmsg_path_for(sbet_path: str | Path) -> Path:
+    """The accuracy file beside an SBET, named as POSPac names it: sbet_X.out -> smrmsg_X.out (else X_smrmsg.out)."""
+    p = Path(sbet_path)
+    if p.name.lower().startswith("sbet"):
+        return p.with_name("smrmsg" + p.name[4:])
+    return p.with_name(p.stem + "_smrmsg" + (p.suffix or ".out"))
+
+
+def write_sbet_files(path: str | Path, traj: Trajectory) -> list[Path]:
+    """Write a trajectory as SBET (wander 0, body rates/accelerations 0) and, when it has sigmas, its SMRMSG
+    (`smrmsg_path_for`); returns the paths written."""
+    path = Path(path)
+    write_sbet(path, traj)
+    out = [path]
+    if traj.sigma is not None:
+        sp = smrmsg_path_for(path)
+        write_smrmsg(sp, traj)
+        out.append(sp)
+    return out
+
+
+def is_sbet_file(path: str | Path) -> bool:
+    """True for a headerless binary SBET: a whole number of 136-byte records whose first is plausible
+    (seconds of week, latitude/longitude in radians)."""
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        with open(p, "rb") as fh:
+            head = fh.read(SBET_DTYPE.itemsize)
+    except OSError:
+        return False
+    if size == 0 or size % SBET_DTYPE.itemsize or len(head) < SBET_DTYPE.itemsize:
+        return False
+    r = np.frombuffer(head, SBET_DTYPE, 1)[0]
+    return bool(0 <= r["time"] < SECONDS_PER_WEEK * 1.01 and abs(r["lat"]) <= np.pi / 2 and abs(r["lon"]) <= 2 * np.pi
+                and -1e4 < r["alt"] < 1e5)
+
+
+def read_any_trajectory(path: str | Path, near_t: float | None = None, gps_week: int | None = None) -> Trajectory:
+    """A trajectory from dgcal's CSV or an SBET (with its SMRMSG beside it, if there); an SBET's seconds of week
+    get `gps_week`, else the week that puts them nearest to `near_t` (continuous GPS s, e.g. the first event)."""
+    path = Path(path)
+    if not is_sbet_file(path):
+        return read_trajectory(path)
+    if gps_week is None:
+        if near_t is None:
+            raise InputError("an SBET holds seconds of week only: give the GPS week (or the events file)", path,
+                             field="time")
+        first = float(np.frombuffer(open(path, "rb").read(8), "<f8")[0])
+        gps_week = int(np.round((float(near_t) - first) / SECONDS_PER_WEEK))
+    sp = smrmsg_path_for(path)
+    if sp.is_file():
+        return read_sbet_with_sigmas(path, sp, gps_week).trajectory
+    return read_sbet(path, gps_week).trajectory

@@ -24,18 +24,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from dgcal.fields.frames import R_body_to_ned_from_rph
+from dgcal.fields.pose import so3_exp
 
 # forward camera looking along body x: camera x = body y (right), camera y = body z (down), camera z = body x
 R_CAM_TO_BODY_FORWARD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-
-
-def exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (3,) rad."""
-    th = float(np.linalg.norm(w))
-    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if th < 1e-12:
-        return np.eye(3) + K
-    return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th ** 2 * K @ K
 
 
 def track_features(img1: np.ndarray, img2: np.ndarray, mask: np.ndarray | None = None, max_corners: int = 500,
@@ -81,6 +73,8 @@ class Foe:
     rms_rad: float
     R_residual: np.ndarray = field(default_factory=lambda: np.eye(3))  # applied to frame-2 rays after dR
     sigma_rotation_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cov_formal: np.ndarray | None = None   # from the residual scatter, tracks taken as independent
+    n_blocks: int = 0                      # image blocks of the delete-a-block jackknife (0: not used)
 
     @property
     def t_hat_cam(self) -> np.ndarray:
@@ -90,7 +84,7 @@ class Foe:
 
 
 def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = "xyz", huber_k: float = 2.0,
-                       min_flow_rad: float = 1e-4) -> Foe:
+                       min_flow_rad: float = 1e-4, blocks: np.ndarray | None = None) -> Foe:
     """FOE of de-rotated flow (rays d1 -> d2') by weighted line intersection — the seed's weighted voting
     done as robust least squares (Huber). Residual of a line: its flow vector's component perpendicular to
     the direction from the FOE, L sin(angle), which has the same variance (the tracking noise) for every
@@ -98,7 +92,11 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     times distance/flow length, ~10x), so the residual rotation of the GNSS pseudo-rates is estimated
     jointly: about the optical axis ("z", the noisy pseudo roll-rate) it turns flow tangentially, which no
     FOE shift can mimic; about "x"/"y" it is separable from translation because translational flow scales
-    with inverse depth and a forward camera over ground sees a wide range of depths."""
+    with inverse depth and a forward camera over ground sees a wide range of depths.
+
+    `blocks` (an image-region label per ray) turns on the delete-a-block jackknife for `cov`: tracking errors
+    are correlated between neighbouring tracks (shared texture, the warp, the residual rotation), which the
+    formal covariance (`cov_formal`, tracks independent) misses by a factor of about two."""
     x1 = d1[:, :2] / d1[:, 2:3]
     x2 = d2[:, :2] / d2[:, 2:3]
     f = x2 - x1
@@ -114,7 +112,7 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     def rot(p):
         w = np.zeros(3)
         w[axes] = p[2:]
-        return exp_so3(w)
+        return so3_exp(w)
 
     def res(p):
         e = p[:2]
@@ -133,6 +131,7 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     e0 = np.linalg.lstsq(n, np.einsum("ij,ij->i", n, x1), rcond=None)[0]
     p0 = np.r_[e0, np.zeros(len(axes))]
     r0 = res(p0)
+    D2_all, x1_all = D2, x1
     scale = max(1.4826 * float(np.median(np.abs(r0))), 1e-9)
     sol = least_squares(res, p0, loss="huber", f_scale=huber_k * scale, x_scale="jac")
     r = res(sol.x)
@@ -146,8 +145,37 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     mask = np.zeros(len(keep), bool)
     mask[np.flatnonzero(keep)[inl]] = True
     R_res = rot(sol.x) if axes else np.eye(3)
-    return Foe(e=sol.x[:2], cov=cov[:2, :2], inliers=mask, rms_rad=float(np.sqrt(s2)), R_residual=R_res,
-               sigma_rotation_rad=np.sqrt(np.diag(cov)[2:]))
+    cov_e = cov[:2, :2]
+    nb = 0
+    if blocks is not None:
+        lab = np.asarray(blocks)[keep][inl]
+        ids = np.unique(lab)
+        if len(ids) >= 6:
+            sub_x1, sub_D2 = x1_all[inl], D2_all[inl]
+            est = []
+            for b in ids:  # refit without one block, from the full solution
+                m = lab != b
+                est.append(_refit(sub_x1[m], sub_D2[m], sol.x, axes, huber_k * scale))
+            est = np.array(est)
+            nb = len(ids)
+            dev = est - est.mean(axis=0)
+            cov_j = (nb - 1) / nb * dev.T @ dev
+            cov_e = cov_j[:2, :2]
+    return Foe(e=sol.x[:2], cov=cov_e, inliers=mask, rms_rad=float(np.sqrt(s2)), R_residual=R_res,
+               sigma_rotation_rad=np.sqrt(np.diag(cov)[2:]), cov_formal=cov[:2, :2], n_blocks=nb)
+
+
+def _refit(x1: np.ndarray, D2: np.ndarray, p0: np.ndarray, axes: list[int], f_scale: float) -> np.ndarray:
+    """FOE and residual rotation (as `focus_of_expansion`) of a subset of the flow, from `p0`."""
+    def res(p):
+        w = np.zeros(3)
+        w[axes] = p[2:]
+        d = D2 @ so3_exp(w).T if axes else D2
+        g = d[:, :2] / d[:, 2:3] - x1
+        q = x1 - p[:2]
+        rho = np.maximum(np.linalg.norm(q, axis=1), 1e-6)
+        return (g[:, 0] * q[:, 1] - g[:, 1] * q[:, 0]) / rho
+    return least_squares(res, p0, loss="huber", f_scale=f_scale, x_scale="jac").x
 
 
 def pitch_yaw_from_velocity(v_hat_b: np.ndarray, v_ned: np.ndarray, roll_deg: float) -> tuple[float, float]:
@@ -190,6 +218,12 @@ class FlowAttitude:
     sigma_agl_m: float
     n_tracks: int
     n_inliers: int
+    sigma_roll: float = float("nan")      # the pseudo-roll's (given)
+    foe: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))   # FOE, normalised image coordinates
+    foe_cov: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
+    pseudo_pitch: float = float("nan")    # flight-path angle (deg)
+    pseudo_yaw: float = float("nan")      # course over ground (deg)
+    n_blocks: int = 0
 
 
 def ground_mask(camera, R_cam_to_ned: np.ndarray, min_depression_deg: float = 12.0, step: int = 1) -> np.ndarray:
@@ -216,45 +250,114 @@ def _apply_h(H: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return p[:, :2] / p[:, 2:3]
 
 
+def mean_velocity(t: np.ndarray, v_ned: np.ndarray, t1: float, t2: float, n: int = 41) -> tuple[np.ndarray, float]:
+    """Mean of a sampled velocity (linear between samples) over [t1, t2] (s) — the camera's chord over a frame
+    pair divided by its length — and the noise gain of that mean (sigma of the mean / sigma of one sample)."""
+    t = np.asarray(t, float)
+    tt = np.linspace(t1, t2, n)
+    W = np.zeros((n, len(t)))
+    j = np.clip(np.searchsorted(t, tt) - 1, 0, len(t) - 2)
+    a = np.clip((tt - t[j]) / (t[j + 1] - t[j]), 0.0, 1.0)
+    W[np.arange(n), j] = 1 - a
+    W[np.arange(n), j + 1] += a
+    w = np.trapezoid(W, tt, axis=0) / (t2 - t1) if t2 > t1 else W[0]
+    return w @ np.asarray(v_ned, float), float(np.linalg.norm(w))
+
+
+def _agl_of(d1: np.ndarray, d2: np.ndarray, e: np.ndarray, v_ned: np.ndarray, roll: float, R_cam_to_body,
+            baseline: float) -> np.ndarray:
+    """Height above level ground (m) of each track for a FOE `e` (normalised) and baseline (m)."""
+    t_c = np.array([e[0], e[1], 1.0]) / np.hypot(np.hypot(e[0], e[1]), 1.0)
+    p, y = pitch_yaw_from_velocity(np.asarray(R_cam_to_body) @ t_c, v_ned, roll)
+    R = R_body_to_ned_from_rph(roll, p, y) @ R_cam_to_body
+    return height_above_ground(depth_from_flow(d1, d2, t_c, baseline), d1 @ R.T)
+
+
+def _agl_sigma(d1, d2, foe, v_ned, roll, R_cam_to_body, baseline, sigma_v, labels, med) -> float:
+    """1-sigma (m) of the median height above ground: the FOE's covariance and the baseline's (GNSS speed) error
+    propagated, and the tracks' scatter by the delete-a-block jackknife (or the median's standard error)."""
+    def m(e, b=baseline, sel=None):
+        a = _agl_of(d1 if sel is None else d1[sel], d2 if sel is None else d2[sel], e, v_ned, roll, R_cam_to_body, b)
+        a = a[np.isfinite(a) & (a > 0)]
+        return float(np.median(a)) if len(a) else np.nan
+    J = np.array([(m(foe.e + h) - med) / 1e-5 for h in np.eye(2) * 1e-5])
+    var = float(J @ foe.cov @ J) + (med * sigma_v / max(np.linalg.norm(v_ned), 1e-9)) ** 2
+    if labels is not None and len(np.unique(labels)) >= 6:
+        ids = np.unique(labels)
+        est = np.array([m(foe.e, sel=labels != b) for b in ids])
+        est = est[np.isfinite(est)]
+        var += (len(est) - 1) / len(est) * float(np.sum((est - est.mean()) ** 2))
+    else:
+        a = _agl_of(d1, d2, foe.e, v_ned, roll, R_cam_to_body, baseline)
+        a = a[np.isfinite(a) & (a > 0)]
+        var += (1.4826 * np.median(np.abs(a - med)) * 1.2533) ** 2 / max(len(a), 1)
+    return float(np.sqrt(var))
+
+
+def image_blocks(uv: np.ndarray, image_size, n: int = 5) -> np.ndarray:
+    """Label (int) of the cell of an n x n grid over the image that holds each pixel (M,2)."""
+    w, h = image_size
+    i = np.clip((np.asarray(uv)[:, 0] / w * n).astype(int), 0, n - 1)
+    j = np.clip((np.asarray(uv)[:, 1] / h * n).astype(int), 0, n - 1)
+    return j * n + i
+
+
 def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_rph1_deg: np.ndarray,
                   omega_b: np.ndarray, v_ned_mid: np.ndarray, R_cam_to_body: np.ndarray = R_CAM_TO_BODY_FORWARD,
-                  min_depression_deg: float = 10.0, max_corners: int = 600, refine: int = 1,
-                  agl_guess_m: float | None = None) -> FlowAttitude:
+                  min_depression_deg: float = 10.0, max_corners: int = 600, refine: int = 2,
+                  agl_guess_m: float | None = None, sigma_roll_deg: float = 0.0, sigma_v_mps: float = 0.0,
+                  blocks: int = 5) -> FlowAttitude:
     """Seed 001 attitude from one frame pair `dt` s apart: pseudo-roll (deg) at frame 1, pseudo body rates
-    `omega_b` (rad/s) over the pair for the de-rotation, GNSS velocity (NED m/s) at mid-pair (= the chord).
+    `omega_b` (rad/s) over the pair for the de-rotation, GNSS velocity (NED m/s) along the chord: its mean over
+    the pair (`mean_velocity`; the velocity at mid-pair differs from it where the path's curvature changes).
 
     `refine` extra passes warp frame 2 by the ground-plane homography of the previous pass (attitude, FOE,
     AGL) before tracking, so Lucas-Kanade measures only a small, locally uniform residual flow — plain LK
-    over-estimates the strongly non-uniform ground flow of a forward camera by a few per cent. The warp
-    uses the pinhole part of the camera (distortion is handled by `camera.ray` in the geometry)."""
+    over-estimates the strongly non-uniform ground flow of a forward camera by a few per cent, and its bias
+    follows the residual flow, which moves every track's FOE line alike; two passes converge it to a few
+    hundredths of a degree. The warp uses the pinhole part of the camera (distortion is handled by
+    `camera.ray` in the geometry).
+
+    Sigmas of pitch and yaw: the FOE covariance by the delete-a-block jackknife over a `blocks` x `blocks`
+    image grid (tracking errors are correlated between neighbours; 0: the formal covariance), plus the
+    pseudo-roll's `sigma_roll_deg` and the GNSS velocity's `sigma_v_mps` (per axis) propagated through
+    `pitch_yaw_from_velocity`, plus the change of pitch and yaw in the last pass (what the warp still moves)."""
     rph1 = np.asarray(pseudo_rph1_deg, float)
     R_c1 = R_body_to_ned_from_rph(*rph1) @ R_cam_to_body
     mask = ground_mask(camera, R_c1, min_depression_deg, step=4)
     w_c = np.asarray(R_cam_to_body, float).T @ np.asarray(omega_b, float)
-    dR = exp_so3(w_c * dt)  # camera-2 axes -> camera-1 axes
+    dR = so3_exp(w_c * dt)  # camera-2 axes -> camera-1 axes
     speed = float(np.linalg.norm(v_ned_mid))
     K = camera.pinhole_K()
     H = None
     if agl_guess_m is not None:
         n_c1 = R_c1.T @ np.array([0.0, 0.0, 1.0])
         H = ground_homography(K, dR, (R_c1.T @ v_ned_mid) * dt, n_c1, agl_guess_m)
-    for it in range(refine + 1):
+    prev = None
+    pitch = yaw = None  # the previous pass's, for `prev`
+    for k in range(refine + 1):
         if H is None:
             uv1, uv2 = track_features(img1, img2, mask, max_corners=max_corners)
         else:
             w, h = camera.image_size
-            img2w = cv2.warpPerspective(np.asarray(img2, np.float32), H, (w, h),
-                                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+            src = np.asarray(img2, np.float32)
+            img2w = cv2.warpPerspective(src, H, (w, h), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                                        borderMode=cv2.BORDER_REPLICATE)
+            img2w = np.clip(img2w, float(src.min()), float(src.max()))  # cubic overshoot
             uv1, uvw = track_features(img1, img2w, mask, max_corners=max_corners)
             uv2 = _apply_h(H, uvw)
         if len(uv1) < 8:
             raise ValueError(f"only {len(uv1)} tracked ground features")
         d1, d2 = derotate(camera, uv1, uv2, dR)
-        foe = focus_of_expansion(d1, d2)
+        last = k == refine
+        foe = focus_of_expansion(d1, d2, blocks=image_blocks(uv1, camera.image_size, blocks) if blocks and last
+                                 else None)
         d2 = d2 @ foe.R_residual.T
         dR_used = foe.R_residual @ dR
         t_c = foe.t_hat_cam
         v_b = R_cam_to_body @ t_c
+        if k:
+            prev = (pitch, yaw)
         pitch, yaw = pitch_yaw_from_velocity(v_b, v_ned_mid, rph1[0])
         inl = foe.inliers
         D = depth_from_flow(d1[inl], d2[inl], t_c, speed * dt)
@@ -266,19 +369,24 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
         med = float(np.median(agl))
         n_c1 = R_c1_est.T @ np.array([0.0, 0.0, 1.0])
         H = ground_homography(K, dR_used, t_c * speed * dt, n_c1, med)
-    # sigma of pitch/yaw from the FOE covariance (numerical Jacobian)
-    J = np.zeros((2, 2))
-    for i in range(2):
-        de = np.zeros(2)
-        de[i] = 1e-5
-        t = np.array([foe.e[0] + de[0], foe.e[1] + de[1], 1.0])
-        p_i, y_i = pitch_yaw_from_velocity(R_cam_to_body @ t, v_ned_mid, rph1[0])
-        J[:, i] = [(p_i - pitch) / 1e-5, ((y_i - yaw + 180.0) % 360.0 - 180.0) / 1e-5]
-    C = J @ foe.cov @ J.T
-    sig_agl = float(1.4826 * np.median(np.abs(agl - med)) * 1.2533 / np.sqrt(len(agl)))
+    # sigma of pitch/yaw: FOE, pseudo-roll and GNSS velocity through pitch_yaw_from_velocity (numerical Jacobians)
+    def py(e, v, r):
+        p_, y_ = pitch_yaw_from_velocity(R_cam_to_body @ np.array([e[0], e[1], 1.0]), v, r)
+        return np.array([p_ - pitch, (y_ - yaw + 180.0) % 360.0 - 180.0])
+    J = np.column_stack([py(foe.e + h, v_ned_mid, rph1[0]) / 1e-5 for h in np.eye(2) * 1e-5])
+    Jv = np.column_stack([py(foe.e, v_ned_mid + h, rph1[0]) / 1e-4 for h in np.eye(3) * 1e-4])
+    Jr = py(foe.e, v_ned_mid, rph1[0] + 1e-4) / 1e-4
+    C = J @ foe.cov @ J.T + sigma_v_mps ** 2 * Jv @ Jv.T + sigma_roll_deg ** 2 * np.outer(Jr, Jr)
+    if prev is not None:  # the warp's own effect: what the last pass still changed
+        d = np.array([pitch - prev[0], (yaw - prev[1] + 180.0) % 360.0 - 180.0])
+        C = C + np.diag(d ** 2)
+    sig_agl = _agl_sigma(d1[inl], d2[inl], foe, v_ned_mid, rph1[0], R_cam_to_body, speed * dt, sigma_v_mps,
+                         image_blocks(uv1[inl], camera.image_size, blocks) if blocks else None, med)
     pp = np.degrees(np.arctan2(-v_ned_mid[2], np.hypot(v_ned_mid[0], v_ned_mid[1])))
-    py = np.degrees(np.arctan2(v_ned_mid[1], v_ned_mid[0]))
+    pyaw = np.degrees(np.arctan2(v_ned_mid[1], v_ned_mid[0]))
     return FlowAttitude(roll=float(rph1[0]), pitch=pitch, yaw=yaw, sigma_pitch=float(np.sqrt(C[0, 0])),
                         sigma_yaw=float(np.sqrt(C[1, 1])), pitch_offset=float(pitch - pp),
-                        yaw_offset=float((yaw - py + 180.0) % 360.0 - 180.0), agl_m=med, sigma_agl_m=sig_agl,
-                        n_tracks=int(len(uv1)), n_inliers=int(inl.sum()))
+                        yaw_offset=float((yaw - pyaw + 180.0) % 360.0 - 180.0), agl_m=med, sigma_agl_m=sig_agl,
+                        n_tracks=int(len(uv1)), n_inliers=int(inl.sum()), sigma_roll=float(sigma_roll_deg),
+                        foe=np.array(foe.e, float), foe_cov=np.array(foe.cov, float), pseudo_pitch=float(pp),
+                        pseudo_yaw=float(pyaw % 360.0), n_blocks=int(foe.n_blocks))

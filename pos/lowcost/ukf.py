@@ -27,9 +27,10 @@ from dgcal.fields.io.formats import Trajectory
 from dgcal.pos.ins.error_model import ImuErrorModel, imu_grade
 from dgcal.pos.ins.nav_frame import NavFrame
 
-N_STATE = 15
-N_NOISE = 12  # accel white, gyro white, accel-bias rw, gyro-bias rw
+N_STATE = 15  # the seed's states; with GNSS error states 18
+N_NOISE = 12  # accel white, gyro white, accel-bias rw, gyro-bias rw (+ GNSS error driving noise)
 _ANG = slice(6, 9)
+_GNSS_ERR = slice(15, 18)
 
 
 @dataclass
@@ -45,17 +46,30 @@ class UkfOptions:
     init_pos_sigma_m: float = 3.0
     use_velocity: bool = True
     earth_rotation: bool = True
-    # unmodelled scale factor + misalignment (fraction of the rate / specific force), entered as process noise
-    # whose variance over `scale_corr_s` equals that of the systematic error it stands for
-    gyro_scale_noise: float = 3e-3
-    accel_scale_noise: float = 3e-3
-    scale_corr_s: float = 3.0
+    # unmodelled scale factor and misalignment errors, entered as process noise whose variance over `scale_corr_s`
+    # equals that of the systematic error they stand for, per axis: (scale * w_i)^2 + misalign^2 * sum_j!=i w_j^2
+    # for the gyro rates w (rad/s), and the same for the specific force's change from its running mean (its
+    # steady part acts as a bias, which the bias states take); None: the IMU error model's sigmas
+    gyro_scale_noise: float | None = None
+    accel_scale_noise: float | None = None
+    gyro_misalign_noise: float | None = None
+    accel_misalign_noise: float | None = None
+    scale_corr_s: float = 20.0
+    f_mean_tau_s: float = 30.0
+    # GNSS position errors are correlated over about a minute (multipath, orbits, atmosphere): three
+    # first-order Gauss-Markov states (nav frame, m) carry them, with the fix sigma minus `gnss_white_m` as their
+    # sigma and `gnss_corr_s` as correlation time; the white part is the measurement noise. Off: the seed's
+    # 15 states with the fixes taken as white (position sigmas then far too small at 50 Hz).
+    gnss_error_states: bool = True
+    gnss_corr_s: float = 60.0
+    gnss_white_m: float = 0.2
 
 
 @dataclass
 class UkfSolution:
-    """Filtered states at the IMU epochs `t` (GPS s): positions/velocities in `frame` (NED), Euler angles (deg),
-    biases (accel m/s^2, gyro rad/s) and the 15x15 covariances (K,15,15) in the state's units (rad for angles)."""
+    """Filtered states at the GNSS epochs `t` (GPS s): IMU positions/velocities in `frame` (NED), Euler angles
+    (deg), biases (accel m/s^2, gyro rad/s), the GNSS position errors (K,3, m, nav; zeros without error states)
+    and the covariances (K,n,n; n = 15, or 18 with the GNSS error states) in the state's units (rad for angles)."""
 
     frame: NavFrame
     t: np.ndarray
@@ -67,6 +81,12 @@ class UkfSolution:
     innovations: np.ndarray
     nis: np.ndarray
     info: dict = field(default_factory=dict)
+    gnss_error: np.ndarray | None = None
+
+    @property
+    def sigma_p_nav(self) -> np.ndarray:
+        """1-sigma of the IMU position along the nav axes (K,3) m."""
+        return np.sqrt(np.einsum("kii->ki", self.P[:, 0:3, 0:3]))
 
     @property
     def sigma_rph_deg(self) -> np.ndarray:
@@ -175,40 +195,67 @@ def _mean_cov(chi: np.ndarray, sp: SigmaPoints, ang: slice | None) -> tuple[np.n
 
 
 class StrapdownUkf:
-    """The filter: `predict(dtheta, dvel, dt)` over a block of IMU samples, `update(z, R)` with a GNSS fix."""
+    """The filter: `predict(dtheta, dvel, dt)` over a block of IMU samples, `update(z, R)` with a GNSS fix.
+
+    With `opts.gnss_error_states` the state carries three Gauss-Markov GNSS position errors after the seed's 15
+    (`sigma_gnss` sets their steady-state sigma, nav axes, m; updated per fix)."""
 
     def __init__(self, frame: NavFrame, x0: np.ndarray, P0: np.ndarray, noise: ImuErrorModel, opts: UkfOptions):
         self.frame, self.opts, self.noise = frame, opts, noise
         self.x = np.asarray(x0, float).copy()
         self.P = np.asarray(P0, float).copy()
+        self.n_x = len(self.x)
+        self.gm = self.n_x > N_STATE
+        self.n_q = N_NOISE + (3 if self.gm else 0)
+        self.sigma_gnss = np.ones(3)
+        self.f_mean: np.ndarray | None = None   # running mean of the specific force (m/s^2, body)
         self.g_nav = np.array([0.0, 0.0, frame.gravity])
         self.w_ie = np.array(frame.omega_ie_nav) if opts.earth_rotation else np.zeros(3)
-        self.sp_aug = SigmaPoints(N_STATE + N_NOISE, opts.alpha, opts.beta, opts.kappa)
-        self.sp = SigmaPoints(N_STATE, opts.alpha, opts.beta, opts.kappa)
+        self.sp_aug = SigmaPoints(self.n_x + self.n_q, opts.alpha, opts.beta, opts.kappa)
+        self.sp = SigmaPoints(self.n_x, opts.alpha, opts.beta, opts.kappa)
 
-    def _noise_cov(self, T: float, w_rms: float, f_rms: float) -> np.ndarray:
-        """Covariance of the augmented process noise over a block of length T (s)."""
-        n = self.noise
-        c = self.opts.scale_corr_s / T
-        q_g = n.gyro_arw ** 2 / T + (self.opts.gyro_scale_noise * w_rms) ** 2 * c
-        q_a = n.accel_vrw ** 2 / T + (self.opts.accel_scale_noise * f_rms) ** 2 * c
-        return np.diag(np.r_[[q_a] * 3, [q_g] * 3, [n.accel_bias_rw ** 2 * T] * 3, [n.gyro_bias_rw ** 2 * T] * 3])
+    @staticmethod
+    def _axis_var(x2: np.ndarray, scale: float, mis: float) -> np.ndarray:
+        """Per-axis variance (3,) of scale (fraction) and misalignment (rad) errors for mean squares x2 (3,)."""
+        return scale ** 2 * x2 + mis ** 2 * (x2.sum() - x2)
+
+    def _noise_cov(self, T: float, w2: np.ndarray, df2: np.ndarray) -> np.ndarray:
+        """Covariance of the augmented process noise over a block of length T (s); w2, df2 the per-axis mean
+        squares of the rates (rad/s)^2 and of the specific force's change from its running mean (m/s^2)^2."""
+        n, o = self.noise, self.opts
+        c = o.scale_corr_s / T
+        pick = lambda v, d: d if v is None else v  # noqa: E731
+        q_g = n.gyro_arw ** 2 / T + self._axis_var(w2, pick(o.gyro_scale_noise, n.gyro_scale_sigma),
+                                                    pick(o.gyro_misalign_noise, n.gyro_misalign_sigma)) * c
+        q_a = n.accel_vrw ** 2 / T + self._axis_var(df2, pick(o.accel_scale_noise, n.accel_scale_sigma),
+                                                     pick(o.accel_misalign_noise, n.accel_misalign_sigma)) * c
+        q = list(q_a) + list(q_g) + [n.accel_bias_rw ** 2 * T] * 3 + [n.gyro_bias_rw ** 2 * T] * 3
+        if self.gm:
+            phi = np.exp(-T / self.opts.gnss_corr_s)
+            q += list(self.sigma_gnss ** 2 * (1 - phi ** 2))
+        return np.diag(q)
 
     def predict(self, dtheta: np.ndarray, dvel: np.ndarray, dt: np.ndarray) -> None:
         """Propagate through IMU increments (M,3) rad and m/s over intervals dt (M,) s (seed eq. 6-10)."""
         T = float(dt.sum())
-        w_rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", dtheta, dtheta) / dt ** 2)))
-        f_rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", dvel, dvel) / dt ** 2)))
-        n = N_STATE + N_NOISE
+        w2 = np.mean((dtheta / dt[:, None]) ** 2, axis=0)
+        f = dvel / dt[:, None]
+        if self.f_mean is None:
+            self.f_mean = f.mean(axis=0)
+        df2 = np.mean((f - self.f_mean) ** 2, axis=0)
+        a = min(1.0, T / self.opts.f_mean_tau_s)
+        self.f_mean = (1 - a) * self.f_mean + a * f.mean(axis=0)
+        nx = self.n_x
+        n = nx + self.n_q
         xa = np.zeros(n)
-        xa[:N_STATE] = self.x
+        xa[:nx] = self.x
         Pa = np.zeros((n, n))
-        Pa[:N_STATE, :N_STATE] = self.P
-        Pa[N_STATE:, N_STATE:] = self._noise_cov(T, w_rms, f_rms)
+        Pa[:nx, :nx] = self.P
+        Pa[nx:, nx:] = self._noise_cov(T, w2, df2)
         chi = self.sp_aug.points(xa, Pa)
         p, v, e = chi[:, 0:3].copy(), chi[:, 3:6].copy(), chi[:, 6:9].copy()
         ba, bg = chi[:, 9:12], chi[:, 12:15]
-        na, ng = chi[:, 15:18], chi[:, 18:21]
+        na, ng = chi[:, nx:nx + 3], chi[:, nx + 3:nx + 6]
         # earth rate in body axes, frozen over the (short) block
         w_ie_b = _dcm(e).transpose(0, 2, 1) @ self.w_ie
         w_cor = 2.0 * self.w_ie
@@ -223,22 +270,26 @@ class StrapdownUkf:
             v_new = v + h * a_nav
             p = p + (0.5 * h) * (v + v_new)
             v, e = v_new, e_new
-        chi_x = np.empty((len(chi), N_STATE))
+        chi_x = np.empty((len(chi), nx))
         chi_x[:, 0:3], chi_x[:, 3:6], chi_x[:, 6:9] = p, v, wrap_pi(e)
-        chi_x[:, 9:12], chi_x[:, 12:15] = ba + chi[:, 21:24], bg + chi[:, 24:27]
+        chi_x[:, 9:12], chi_x[:, 12:15] = ba + chi[:, nx + 6:nx + 9], bg + chi[:, nx + 9:nx + 12]
+        if self.gm:
+            chi_x[:, _GNSS_ERR] = np.exp(-T / self.opts.gnss_corr_s) * chi[:, _GNSS_ERR] + chi[:, nx + 12:nx + 15]
         self.x, self.P = _mean_cov(chi_x, self.sp_aug, _ANG)
 
     def h(self, chi: np.ndarray, w_b: np.ndarray, with_velocity: bool) -> np.ndarray:
-        """Antenna position (and velocity) in nav for state sigma points (S,15); seed eq. 5 plus the lever arm."""
+        """Antenna position (and velocity) in nav for state sigma points (S,n); seed eq. 5 plus the lever arm and
+        the GNSS error states."""
         lever = np.asarray(self.opts.lever_arm_b, float)
-        if not lever.any():  # seed eq. 5: H = [I6 0]
-            return chi[:, 0:6].copy() if with_velocity else chi[:, 0:3].copy()
-        R = _dcm(chi[:, _ANG])
-        y = chi[:, 0:3] + R @ lever
-        if not with_velocity:
-            return y
-        v = chi[:, 3:6] + R @ np.cross(w_b, lever)
-        return np.column_stack([y, v])
+        if lever.any():
+            R = _dcm(chi[:, _ANG])
+            y = chi[:, 0:3] + R @ lever
+            v = chi[:, 3:6] + R @ np.cross(w_b, lever)
+        else:  # seed eq. 5: H = [I6 0]
+            y, v = chi[:, 0:3].copy(), chi[:, 3:6]
+        if self.gm:
+            y = y + chi[:, _GNSS_ERR]
+        return np.column_stack([y, v]) if with_velocity else y
 
     def update(self, z: np.ndarray, Rz: np.ndarray, w_b: np.ndarray) -> tuple[np.ndarray, float]:
         """GNSS update (seed eq. 11-19) with z = antenna p_nav (3) [+ v_nav (3)], covariance Rz; returns
@@ -262,11 +313,13 @@ class StrapdownUkf:
 
 def run_ukf(imu, fixes, grade: str | ImuErrorModel, opts: UkfOptions | None = None, frame: NavFrame | None = None,
             progress: bool = False) -> UkfSolution:
-    """Run the 15-state UKF over an IMU record with GNSS fixes; states at every GNSS epoch (and IMU end).
+    """Run the 15-state UKF (+ 3 GNSS error states, `UkfOptions.gnss_error_states`) over an IMU record with GNSS
+    fixes; states at every GNSS epoch.
 
-    imu: `dgcal.pos.ins.imu_data.ImuData` (body FRD increments, GPS s). fixes: `dgcal.pos.smoother.initial.GnssFixes` (antenna
-    ECEF positions, optional velocities, sigmas in NED). grade: `ImuErrorModel` or preset name (carried as
-    its `smoother_noise()`).
+    imu: `dgcal.pos.ins.imu_data.ImuData` (body FRD increments, GPS s). fixes: `dgcal.pos.smoother.initial.GnssFixes`
+    (antenna ECEF positions, optional velocities, sigmas in NED). grade: `ImuErrorModel` or preset name (carried
+    as its `smoother_noise()`). Each fix sigma is split into a white part (`gnss_white_m`, the measurement noise)
+    and a correlated part (the Gauss-Markov states' sigma).
     The filter starts at the first fix with level attitude and heading = GNSS course.
     """
     opts = opts or UkfOptions()
@@ -286,13 +339,28 @@ def run_ukf(imu, fixes, grade: str | ImuErrorModel, opts: UkfOptions | None = No
     if len(start) == 0:
         raise ValueError("no GNSS fix with ground speed > 3 m/s inside the IMU span to start the UKF")
     j0 = int(start[0])
-    x0 = np.zeros(N_STATE)
+    gm = bool(opts.gnss_error_states)
+    if gm:  # fix sigma = white (measurement noise) + correlated (Gauss-Markov states)
+        white = np.minimum(opts.gnss_white_m, 0.7 * sp_fix)
+        sig_e = np.sqrt(np.clip(sp_fix ** 2 - white ** 2, 1e-6, None))
+        sp_meas = white
+    else:
+        sig_e, sp_meas = None, sp_fix
+    x0 = np.zeros(N_STATE + (3 if gm else 0))
     x0[0:3], x0[3:6] = p_fix[j0], v_fix[j0]
     x0[8] = np.arctan2(v_fix[j0, 1], v_fix[j0, 0])
-    P0 = np.diag(np.r_[[opts.init_pos_sigma_m ** 2] * 3, [opts.init_vel_sigma_mps ** 2] * 3,
-                       np.radians(opts.init_att_sigma_deg) ** 2, [noise.accel_bias_sigma ** 2] * 3,
-                       [noise.gyro_bias_sigma ** 2] * 3])
+    p0 = np.r_[[opts.init_pos_sigma_m ** 2] * 3, [opts.init_vel_sigma_mps ** 2] * 3,
+               np.radians(opts.init_att_sigma_deg) ** 2, [noise.accel_bias_sigma ** 2] * 3,
+               [noise.gyro_bias_sigma ** 2] * 3]
+    if gm:
+        p0 = np.r_[p0, sig_e[j0] ** 2]
+    P0 = np.diag(p0)
+    if gm:  # the first fix is p + e + white: p starts there, perfectly anti-correlated with the error state
+        P0[0:3, 0:3] = np.diag(sig_e[j0] ** 2 + sp_meas[j0] ** 2)
+        P0[0:3, _GNSS_ERR] = P0[_GNSS_ERR, 0:3] = -np.diag(sig_e[j0] ** 2)
     f = StrapdownUkf(frame, x0, P0, noise, opts)
+    if gm:
+        f.sigma_gnss = sig_e[j0]
     dt_all = imu.dt
     t_imu = imu.t
     i = int(np.searchsorted(t_imu, t_fix[j0], side="right"))
@@ -300,7 +368,7 @@ def run_ukf(imu, fixes, grade: str | ImuErrorModel, opts: UkfOptions | None = No
     out_t, out_x, out_P, innov, nis = [t_prev], [f.x.copy()], [f.P.copy()], [np.full(6, np.nan)], [np.nan]
     if has_v:
         zz = np.hstack([p_fix, v_fix])
-        rr = np.hstack([sp_fix, sv_fix]) ** 2
+        rr = np.hstack([sp_meas, sv_fix]) ** 2
     it = range(j0 + 1, len(t_fix))
     if progress:
         it = tqdm(it, desc="ukf", unit="fix", leave=False)
@@ -326,8 +394,10 @@ def run_ukf(imu, fixes, grade: str | ImuErrorModel, opts: UkfOptions | None = No
             z = zz[j]
             Rz = np.diag(rr[j])
         else:
-            z, Rz = p_fix[j], np.diag(sp_fix[j] ** 2)
+            z, Rz = p_fix[j], np.diag(sp_meas[j] ** 2)
         nu, q = f.update(z, Rz, w_b)
+        if gm:
+            f.sigma_gnss = sig_e[j]
         out_t.append(tj)
         out_x.append(f.x.copy())
         out_P.append(f.P.copy())
@@ -340,7 +410,9 @@ def run_ukf(imu, fixes, grade: str | ImuErrorModel, opts: UkfOptions | None = No
                        rph_deg=_deg_rph(X[:, 6:9]),
                        bias=X[:, 9:15], P=np.array(out_P), innovations=np.array(innov), nis=np.array(nis),
                        info={"n_updates": len(out_t) - 1, "alpha": opts.alpha, "beta": opts.beta,
-                             "kappa": opts.kappa, "velocity_updates": bool(has_v)})
+                             "kappa": opts.kappa, "velocity_updates": bool(has_v), "n_states": int(X.shape[1]),
+                             "gnss_error_states": gm, "gnss_corr_s": opts.gnss_corr_s if gm else None},
+                       gnss_error=X[:, _GNSS_ERR] if gm else np.zeros((len(X), 3)))
 
 
 def _deg_rph(e: np.ndarray) -> np.ndarray:

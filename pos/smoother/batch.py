@@ -17,7 +17,10 @@ import numpy as np
 from dgcal.fields.constants import C_LIGHT
 from dgcal.pos.ins.error_model import ImuErrorModel, imu_grade
 from dgcal.pos.ins.nav_frame import NavFrame
+from dgcal.pos.gnss.dd import CarrierInput
+from dgcal.pos.smoother.carrier import atmosphere_position_covariance, dd_residuals, keyframe_dd_factors
 from dgcal.pos.smoother.covariance import KeyframeBlocks, smoothed_covariances
+from dgcal.pos.smoother.static import static_ends, static_white_noise, zero_motion_factors
 from dgcal.pos.smoother.factors import (B, CLK, DRIFT, V, X, ZERO, clock_factors, doppler_factors, position_factor,
                                   pseudorange_factors, velocity_factor)
 from dgcal.pos.smoother.preintegration import (gravity_correction_b, interval_params, preintegrate,
@@ -47,6 +50,9 @@ class SmootherOptions:
     lc_velocity: bool = True
     max_iterations: int = 30
     covariances: bool = True
+    dd_outlier_sigma: float = 5.0   # TC with a base: double differences beyond this (normalised) are dropped
+    zupt: bool = True               # a static start/end of the data as zero-motion information (smoother.static)
+    static_noise: bool = True       # raise the IMU white noise to what the static start/end shows
 
 
 @dataclass
@@ -102,6 +108,9 @@ class Problem:
     params: object = None
     iterations: int = 0
     accel: np.ndarray | None = None  # the (gravity-corrected) accelerometer rates the IMU factors used
+    dd: dict = field(default_factory=dict)  # keyframe -> DDFactorData (TC with a base station)
+    lever_arm_b: np.ndarray | None = None
+    carrier: CarrierInput | None = None
 
 
 def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
@@ -111,8 +120,10 @@ def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
 
 def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu_noise: ImuErrorModel,
                   opts: SmootherOptions, mode: str = "tc", epochs_at_key: list | None = None,
-                  lc_fixes: GnssFixes | None = None) -> Problem:
-    """Assemble the factor graph: priors, IMU (zero biases), GNSS (TC epochs or LC fixes) and clock factors."""
+                  lc_fixes: GnssFixes | None = None, carrier: CarrierInput | None = None,
+                  static: np.ndarray | None = None) -> Problem:
+    """Assemble the factor graph: priors, IMU (zero biases), GNSS (TC epochs or LC fixes) and clock factors;
+    with `carrier` (TC with a base) the double differences replace the pseudoranges of their keyframes."""
     K = len(t_key)
     lever = np.asarray(opts.lever_arm_b, float)
     params = preintegration_params(imu_noise, frame, opts.earth_rotation)
@@ -149,6 +160,9 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     n_sat = np.zeros(K, int)
     gnss_update = np.zeros(K, bool)
     systems: list = []
+    dd: dict = {}
+    if mode == "tc" and carrier is not None:
+        dd = keyframe_dd_factors(t_key, carrier.at(t_key), lever, frame, carrier.phase_corr, carrier.code_corr, X)
     if mode == "tc":
         systems = sorted({str(s) for ep in epochs_at_key if ep is not None for s in ep.system},
                          key=lambda s: "GECJRIS".find(s))
@@ -170,13 +184,19 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
             clock_groups.append(clock_factors(systems, k, t_key[k + 1] - t_key[k], opts.clock_bias_rw_m,
                                               opts.clock_drift_rw_mps, values))
         for k, ep in enumerate(epochs_at_key):
+            if k in dd:
+                f, data = dd[k]
+                epoch_factors[k].append(("dd", f))
+                n_sat[k] = len(set(data.cur.sat.tolist()) | set(data.cur.ref.tolist()))
+                gnss_update[k] = True
             if ep is None or ep.n == 0:
                 continue
             r_approx = frame.to_ecef(p_ant[k])
-            n_sat[k] = ep.n
-            gnss_update[k] = True
-            for f in pseudorange_factors(k, ep, r_approx, lever, ecef_T_nav, opts.huber_k):
-                epoch_factors[k].append(("pr", f))
+            if k not in dd:
+                n_sat[k] = ep.n
+                gnss_update[k] = True
+                for f in pseudorange_factors(k, ep, r_approx, lever, ecef_T_nav, opts.huber_k):
+                    epoch_factors[k].append(("pr", f))
             if opts.use_doppler:
                 for f in doppler_factors(k, ep, r_approx, lever, omega_b[k], ecef_T_nav,
                                          opts.huber_k):
@@ -187,7 +207,8 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
         for j, k in enumerate(idx):
             if abs(t_key[k] - lc.t[j]) > 1e-3 or not np.all(np.isfinite(lc.p_ecef[j])):
                 continue
-            epoch_factors[k].append(("pos", position_factor(k, frame.from_ecef(lc.p_ecef[j]), lc.sigma_ned[j],
+            noise = lc.sigma_ned[j] if lc.cov_ned is None else lc.cov_ned[j]
+            epoch_factors[k].append(("pos", position_factor(k, frame.from_ecef(lc.p_ecef[j]), noise,
                                                             lever, opts.huber_k)))
             gnss_update[k] = True
             n_sat[k] = 1
@@ -196,6 +217,9 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
                 v_lever = R[k] @ np.cross(omega_b[k], lever)
                 epoch_factors[k].append(("vel", velocity_factor(k, v_nav - v_lever, lc.sigma_v_ned[j])))
 
+    if static is not None and static.any():
+        for k, kind, f in zero_motion_factors(static, t_key):
+            epoch_factors[k].append((kind, f))
     for f in prior + imu_factors:
         graph.add(f)
     for g in clock_groups:
@@ -205,7 +229,8 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
         for _, f in fl:
             graph.add(f)
     return Problem(graph, values, frame, t_key, systems, pims, epoch_factors, imu_factors, clock_groups, prior,
-                   n_sat, gnss_update, omega_b, params)
+                   n_sat, gnss_update, omega_b, params, dd={k: v[1] for k, v in dd.items()}, lever_arm_b=lever,
+                   carrier=carrier)
 
 
 def rebuild_imu(problem: Problem, imu, imu_noise: ImuErrorModel, opts: SmootherOptions, first: NavSolution) -> Problem:
@@ -231,11 +256,66 @@ def rebuild_imu(problem: Problem, imu, imu_noise: ImuErrorModel, opts: SmootherO
     return dataclasses.replace(problem, graph=graph, pims=pims, imu_factors=imu_factors, accel=accel)
 
 
+def screen_dd(problem: Problem, values, threshold: float) -> int:
+    """Drop the double differences whose residual at `values` exceeds `threshold` sigmas (an undetected slip or a
+    wrong integer: phase rows of that arc pair are dropped at every keyframe) and rebuild the keyframes' double
+    difference factors in place; returns the number of rows dropped."""
+    if not problem.dd:
+        return 0
+    bad_rows: dict = {}
+    n_bad: dict = {}
+    iono, tropo = problem.carrier.atmosphere
+    for k, data in problem.dd.items():
+        e, sig = dd_residuals(data, values, X, problem.lever_arm_b, problem.frame)
+        absolute = data.cur.mode == 0
+        sig[absolute] = np.sqrt(sig[absolute] ** 2 + np.diag(data.cur.atmosphere_covariance(iono, tropo))[absolute])
+        bad = np.abs(e / sig) > threshold
+        if bad.any():
+            bad_rows[k] = bad
+            for tr, b in zip(data.cur.track, bad):
+                if b and tr[0] in (0, 2):
+                    n_bad[tr] = n_bad.get(tr, 0) + 1
+    if not bad_rows:
+        return 0
+    # a phase track failing at three keyframes or more has a slip or a wrong integer: it goes altogether
+    bad_tracks = {tr for tr, n in n_bad.items() if n >= 3}
+    dd_at_key = [None] * len(problem.t_key)
+    dropped = 0
+    for k, data in problem.dd.items():
+        keep = np.array([tr not in bad_tracks for tr in data.cur.track], bool)
+        if k in bad_rows:
+            keep &= ~bad_rows[k]
+        dropped += int((~keep).sum())
+        dd_at_key[k] = data.cur.subset(keep) if keep.any() else None
+    c = problem.carrier
+    new = keyframe_dd_factors(problem.t_key, dd_at_key, problem.lever_arm_b, problem.frame, c.phase_corr,
+                              c.code_corr, X)
+    for k in range(len(problem.t_key)):
+        fl = [(kind, f) for kind, f in problem.epoch_factors[k] if kind != "dd"]
+        if k in new:
+            fl.insert(0, ("dd", new[k][0]))
+        problem.epoch_factors[k] = fl
+    problem.dd = {k: v[1] for k, v in new.items()}
+    graph = gtsam.NonlinearFactorGraph()
+    for f in problem.prior_factors + problem.imu_factors:
+        graph.add(f)
+    for g in problem.clock_factor_groups:
+        for f in g:
+            graph.add(f)
+    for fl in problem.epoch_factors:
+        for _, f in fl:
+            graph.add(f)
+    problem.graph = graph
+    return dropped
+
+
 def optimize(problem: Problem, max_iterations: int = 30):
     """Levenberg-Marquardt over the whole graph; returns the optimised gtsam.Values."""
     p = gtsam.LevenbergMarquardtParams()
     p.setMaxIterations(max_iterations)
-    p.setRelativeErrorTol(1e-7)
+    # stop when the cost changes by less than 1e-5 relative: with costs of 1e3-1e5 that is a chi-square change far
+    # below one, i.e. nothing the covariances could resolve (1e-7 bought two more iterations)
+    p.setRelativeErrorTol(1e-5)
     p.setAbsoluteErrorTol(1e-7)
     # a navigation-grade IMU makes the normal equations so stiff that only heavily damped steps succeed:
     # let lambda grow past gtsam's default bound (1e5) instead of stopping without a single step
@@ -271,6 +351,13 @@ def gnss_residuals(problem: Problem, values) -> dict:
     out: dict = {}
     for k, fl in enumerate(problem.epoch_factors):
         for kind, f in fl:
+            if kind == "dd":
+                data = problem.dd[k]
+                e, sig = dd_residuals(data, values, X, problem.lever_arm_b, problem.frame)
+                names = np.where(data.cur.kind == 1, "ddc", np.where(data.cur.mode == 1, "ddp_float", "ddp"))
+                for j in range(len(e)):
+                    out.setdefault(str(names[j]), []).append((k, e[j], sig[j]))
+                continue
             e = np.atleast_1d(f.unwhitenedError(values))
             w = np.atleast_1d(f.whitenedError(values))
             for j in range(len(e)):
@@ -285,6 +372,21 @@ def add_marginals(sol: NavSolution, problem: Problem, values) -> None:
     sol.cov_pose = P[:, :6, :6].copy()
     sol.cov_vel = P[:, 6:9, 6:9].copy()
     sol.cov_block = P
+
+
+def add_atmosphere_budget(sol: NavSolution, problem: Problem) -> None:
+    """Add the position covariance that the differential atmosphere left in the double differences causes
+    (`dgcal.pos.smoother.carrier.atmosphere_position_covariance`; nearly constant per satellite, so no amount
+    of smoothing averages it out) to the keyframes' pose (and block) covariances, body axes."""
+    iono, tropo = problem.carrier.atmosphere
+    P = atmosphere_position_covariance(problem.dd, sol, problem.lever_arm_b, iono, tropo)
+    if P is None:
+        return
+    Pb = np.swapaxes(sol.R_body_to_nav, 1, 2) @ P @ sol.R_body_to_nav
+    sol.cov_pose[:, 3:, 3:] += Pb
+    if sol.cov_block is not None:
+        sol.cov_block[:, 3:6, 3:6] += Pb
+    sol.info["atmosphere_budget_m"] = np.sqrt(np.median(np.einsum("kii->ki", P), axis=0)).round(4).tolist()
 
 
 def solution_values(sol: NavSolution, problem: Problem):
@@ -315,6 +417,16 @@ def _coarse_noise(noise: ImuErrorModel) -> ImuErrorModel | None:
         if low else None
 
 
+def _static_spans(t_key: np.ndarray, static: np.ndarray | None) -> list:
+    """[start, end] (s from the first keyframe) of the static start and end runs."""
+    if static is None or not static.any():
+        return []
+    k = np.nonzero(static)[0]
+    cut = np.nonzero(np.diff(k) > 1)[0]
+    runs = np.split(k, cut + 1)
+    return [[round(float(t_key[r[0]] - t_key[0]), 2), round(float(t_key[r[-1]] - t_key[0]), 2)] for r in runs]
+
+
 def keyframe_times(imu, t_obs: np.ndarray) -> np.ndarray:
     """Keyframes (GPS s): the GNSS epochs inside the IMU span, gaps filled at the median epoch interval."""
     t0 = imu.t[0] - imu.dt[0]
@@ -335,13 +447,14 @@ def _nearest_gap(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOptions | None = None,
            mode: str = "tc", gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
-           second_pass: bool = True) -> NavSolution:
+           second_pass: bool = True, carrier: CarrierInput | None = None) -> NavSolution:
     """Smoothed trajectory over the whole flight.
 
     imu: `dgcal.pos.ins.imu_data.ImuData` (body FRD increments). fixes: GNSS positions to initialise (SPP) and, in LC
     mode, the measurements unless `lc_fixes` is given. gnss: `GnssObservations` (TC mode). grade: an
     `ImuErrorModel` or a preset name (the smoother carries its `smoother_noise()`). The keyframes are the
-    GNSS epochs (TC) or fix times (LC) in the IMU span.
+    GNSS epochs (TC) or fix times (LC) in the IMU span. carrier: double differences against a base station
+    (TC): they replace the pseudoranges of their keyframes (`dgcal.pos.smoother.carrier`).
     """
     opts = opts or SmootherOptions()
     noise = imu_grade(grade).smoother_noise()
@@ -362,7 +475,13 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         raise ValueError(f"unknown mode {mode!r}")
     timing = {}
     t0 = time.perf_counter()
-    problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes)
+    static = static_ends(imu, t_key, lc_fixes or fixes if mode == "lc" else fixes) if opts.zupt else None
+    measured = static_white_noise(imu, t_key, static) if opts.static_noise else None
+    if measured is not None and (measured[0] > noise.gyro_arw or measured[1] > noise.accel_vrw):
+        # the IMU is noisier at rest than its model (vibration): never smooth with less noise than it shows
+        noise = dataclasses.replace(noise, gyro_arw=max(noise.gyro_arw, measured[0]),
+                                    accel_vrw=max(noise.accel_vrw, measured[1]))
+    problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes, carrier, static)
     timing["build_s"] = time.perf_counter() - t0
     iterations = []
     coarse = _coarse_noise(noise)
@@ -371,7 +490,7 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         # attack by degrees) a huge, badly conditioned residual on which LM stalls at iteration 0: solve with
         # tactical-grade noise first and start the real model from there
         t0 = time.perf_counter()
-        p0 = build_problem(imu, frame, t_key, fixes, coarse, opts, mode, epochs, lc_fixes)
+        p0 = build_problem(imu, frame, t_key, fixes, coarse, opts, mode, epochs, lc_fixes, carrier, static)
         problem.values = optimize(p0, opts.max_iterations)
         iterations.append(p0.iterations)
         timing["coarse_pass_s"] = time.perf_counter() - t0
@@ -380,6 +499,11 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
     timing["optimize_s"] = time.perf_counter() - t0
     iterations.append(problem.iterations)
     sol = read_states(problem, values)
+    dropped = screen_dd(problem, values, opts.dd_outlier_sigma) if opts.dd_outlier_sigma else 0
+    if dropped and not second_pass:
+        problem.values = values
+        values = optimize(problem, opts.max_iterations)
+        sol = read_states(problem, values)
     if second_pass:
         # re-preintegrate with the gravity correction and about the estimated biases, start from pass one
         t0 = time.perf_counter()
@@ -392,10 +516,19 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
     sol.residuals = gnss_residuals(problem, values)
     sol.info = {"mode": mode, "keyframes": len(t_key), "factors": problem.graph.size(),
                 "error_final": problem.graph.error(values), "systems": problem.systems,
-                "lm_iterations": iterations}
+                "lm_iterations": iterations, "dd_rows_dropped": dropped,
+                "static_keyframes": int(static.sum()) if static is not None else 0,
+                "static_white_noise": None if measured is None else
+                {"gyro_arw_deg_rt_h": round(float(np.degrees(measured[0]) * 60.0), 4),
+                 "accel_vrw_m_s_rt_h": round(float(measured[1] * 60.0), 4)},
+                "imu_noise_used": {"gyro_arw_deg_rt_h": round(float(np.degrees(noise.gyro_arw) * 60.0), 4),
+                                   "accel_vrw_m_s_rt_h": round(float(noise.accel_vrw * 60.0), 4)},
+                "static_start_end_s": _static_spans(t_key, static)}
     if opts.covariances:
         t0 = time.perf_counter()
         add_marginals(sol, problem, values)
+        if problem.dd and problem.carrier is not None:
+            add_atmosphere_budget(sol, problem)
         timing["covariance_s"] = time.perf_counter() - t0
     sol.info["timing"] = {k: round(v, 2) for k, v in timing.items()}
     sol.problem, sol.values = problem, values

@@ -1,8 +1,9 @@
 """gtsam factors of the GNSS/INS smoother: keys, TC pseudorange/Doppler, LC position/velocity, receiver clock.
 
 Units: the receiver clock bias variables are in seconds (gtsam's `PseudorangeFactorArm` convention), one
-per constellation and keyframe; the common clock drift variable is in s/s. The GNSS front end (dgcal.pos.gnss.observations)
-gives satellite positions already rotated for the Earth's rotation (Sagnac) and range measurements corrected
+per constellation and keyframe; the common clock drift variable is in s/s. The GNSS front end
+(dgcal.pos.gnss.observations) gives satellite positions already rotated for the Earth's rotation (Sagnac) and
+range measurements corrected
 for satellite clock, ionosphere and troposphere; gtsam's factors add their own Sagnac term, so the same
 term (evaluated at the approximate receiver position) is added to the measurement to cancel it.
 """
@@ -55,7 +56,7 @@ def sagnac_m(sat_pos_ecef: np.ndarray, p_rx_ecef: np.ndarray) -> np.ndarray:
 
 def sagnac_rate_mps(sat_pos_ecef, sat_vel_ecef, p_rx_ecef) -> np.ndarray:
     """Time derivative (m/s) of `sagnac_m` for a static receiver (as gtsam's Doppler factors compute it)."""
-    s, v, r = np.atleast_2d(sat_pos_ecef), np.atleast_2d(sat_vel_ecef), np.asarray(p_rx_ecef, float)
+    v, r = np.atleast_2d(sat_vel_ecef), np.asarray(p_rx_ecef, float)
     return OMEGA_EARTH / C_LIGHT * (v[:, 0] * r[1] - v[:, 1] * r[0])
 
 
@@ -125,8 +126,11 @@ def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: fl
 
 
 def position_factor(k: int, p_ant_nav, sigma_ned, lever_arm_b, huber_k=None):
-    """LC: antenna position (nav frame, m) with per-axis sigmas (m), through the lever arm."""
-    base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma_ned, float))
+    """LC: antenna position (nav frame, m) with per-axis sigmas (m) or a full 3x3 covariance (m^2), through the
+    lever arm."""
+    s = np.asarray(sigma_ned, float)
+    base = (gtsam.noiseModel.Gaussian.Covariance(s) if s.shape == (3, 3)
+            else gtsam.noiseModel.Diagonal.Sigmas(s))
     if huber_k is not None:
         base = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(huber_k)), base)
     return gtsam.GPSFactorArm(X(k), np.asarray(p_ant_nav, float), np.asarray(lever_arm_b, float), base)

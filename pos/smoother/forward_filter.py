@@ -108,6 +108,7 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
     out = gtsam.Values()
     P = np.empty((K, n, n))
     innov: dict = {}
+    nis: dict = {}
     Lam = None
     scale = KeyframeBlocks(1, systems).scale
     for k in range(K):
@@ -140,6 +141,8 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
                 innov.setdefault(kind, []).append((k, e[j], sig[j]))
         order = [key for i in range(nb) for key in _flat(keys(k - nb + 1 + i))]
         sc = np.tile(scale, nb)
+        if nb == 2 and problem.epoch_factors[k]:
+            _normalised_innovations(problem, k, vals, order, has_zero, sc, Lam, n, nis)
         for _ in range(iterations):
             H, eta = _dense_system(graph, vals, order, has_zero, sc)
             if nb == 2:
@@ -174,8 +177,70 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
     sol.cov_vel = P[:, 6:9, 6:9].copy()
     sol.cov_block = P
     sol.residuals = {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in innov.items()}
-    sol.info = {"mode": "forward"}
+    sol.info = {"mode": "forward",
+                "nis": {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in nis.items()}}
     return sol
+
+
+def _normalised_innovations(problem: Problem, k: int, vals, order: list, has_zero: bool, sc: np.ndarray, Lam,
+                            n: int, out: dict) -> None:
+    """Normalised innovation squared of every GNSS factor of keyframe k at the IMU prediction:
+    b' (A P A' + I)^-1 b with A, b the factor's whitened Jacobian and error and P the predicted covariance of
+    keyframes k-1 and k (the filtered k-1 and the IMU and clock factors to k). Appends (k, NIS, dim) per kind."""
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(problem.imu_factors[k - 1])
+    if k - 1 < len(problem.clock_factor_groups):
+        for f in problem.clock_factor_groups[k - 1]:
+            graph.add(f)
+    H, _ = _dense_system(graph, vals, order, has_zero, sc)
+    H[:n, :n] += Lam
+    try:
+        Pj = np.linalg.inv(0.5 * (H + H.T))
+    except np.linalg.LinAlgError:
+        return
+    by_kind: dict = {}
+    for kind, f in problem.epoch_factors[k]:
+        g, present = by_kind.setdefault(kind, (gtsam.NonlinearFactorGraph(), set()))
+        g.add(f)
+        present.update(int(key) for key in f.keys())
+    for kind, (g, present) in by_kind.items():
+        # one whitened Jacobian for all factors of the kind (columns in `order`, ZERO last and dropped)
+        lin = g.linearize(vals)
+        A_all, b = lin.jacobian(_restrict(present, order, has_zero))
+        cols = _columns(present, order)
+        Af = np.zeros((A_all.shape[0], 2 * n))
+        Af[:, cols] = A_all[:, :len(cols)] * sc[cols]         # clock columns in metres, as P
+        S = Af @ Pj @ Af.T + np.eye(A_all.shape[0])
+        try:
+            v = float(b @ np.linalg.solve(S, b))
+        except np.linalg.LinAlgError:
+            continue
+        out.setdefault(kind, []).append((k, v, A_all.shape[0]))
+
+
+def _restrict(present: set, keys: list, has_zero: bool):
+    """An ordering of the keys a linearised graph has (state keys in the order of `keys`; ZERO last)."""
+    o = gtsam.Ordering()
+    for key in keys:
+        if key in present:
+            o.push_back(key)
+    if has_zero and ZERO() in present:
+        o.push_back(ZERO())
+    return o
+
+
+def _columns(present: set, keys: list) -> list:
+    """Column indices (in the two-block layout of `keys`) of the present state keys, in order."""
+    cols = []
+    for j, key in enumerate(keys):
+        dim = {ord("x"): 6, ord("b"): 6, ord("v"): 3}.get(gtsam.Symbol(key).chr(), 1)
+        if key in present:
+            cols.extend(range(_offset(keys, j), _offset(keys, j) + dim))
+    return cols
+
+
+def _offset(keys: list, j: int) -> int:
+    return sum({ord("x"): 6, ord("b"): 6, ord("v"): 3}.get(gtsam.Symbol(key).chr(), 1) for key in keys[:j])
 
 
 def _sigmas(f) -> np.ndarray:

@@ -23,7 +23,8 @@ from dgcal.pos.smoother.factors import sagnac_m
 class GnssFixes:
     """Antenna positions (and optionally velocities) from GNSS: SPP for initialisation, or the LC input.
 
-    t (N,) GPS s; p_ecef (N,3) m; sigma_ned (N,3) m; v_ecef (N,3) m/s or None; sigma_v_ned (N,3) m/s or None.
+    t (N,) GPS s; p_ecef (N,3) m; sigma_ned (N,3) m; v_ecef (N,3) m/s or None; sigma_v_ned (N,3) m/s or None;
+    cov_ned (N,3,3) m^2 or None: the full position covariance (local NED), used instead of sigma_ned when given.
     """
 
     t: np.ndarray
@@ -31,6 +32,7 @@ class GnssFixes:
     sigma_ned: np.ndarray
     v_ecef: np.ndarray | None = None
     sigma_v_ned: np.ndarray | None = None
+    cov_ned: np.ndarray | None = None
 
 
 def interp_rows(t_new: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -55,16 +55,27 @@ def solution_trajectory(sol) -> Trajectory:
     return to_trajectory(sol.frame, sol.t, sol.p_nav, sol.v_nav, sol.R_body_to_nav, cov_p, cov_r)
 
 
+def output_times(t_key: np.ndarray, rate_hz: float) -> np.ndarray:
+    """The keyframes (GPS s) plus the multiples of 1/rate_hz between them; a multiple within a thousandth of a
+    step of a keyframe is the keyframe (at 1e9 s, float multiples of 0.1 s are off by up to a microsecond: a
+    tolerance on the difference alone could drop the keyframe and misplace every later interval)."""
+    step = 1.0 / rate_hz
+    k0 = np.ceil(t_key[0] / step - 1e-6)
+    n = int(np.floor(t_key[-1] / step - k0 + 1e-6)) + 1
+    grid = (k0 + np.arange(max(n, 0))) * step
+    grid = grid[(grid > t_key[0]) & (grid < t_key[-1])]
+    j = np.clip(np.searchsorted(t_key, grid), 1, len(t_key) - 1)
+    near = np.minimum(np.abs(grid - t_key[j - 1]), np.abs(grid - t_key[j]))
+    return np.union1d(t_key, grid[near > 1e-3 * step])
+
+
 def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
     """The trajectory at `rate_hz` (plus the keyframes): IMU mechanisation from each keyframe with its
     estimated biases, the small closure error at the next keyframe spread linearly over the interval;
     sigmas interpolated linearly in variance between keyframes."""
 
     t_key = sol.t
-    step = 1.0 / rate_hz
-    grid = np.arange(np.ceil(t_key[0] / step) * step, t_key[-1], step)
-    t_out = np.union1d(t_key, grid[(grid > t_key[0]) & (grid < t_key[-1])])
-    t_out = t_out[np.concatenate([[True], np.diff(t_out) > 1e-6])]
+    t_out = output_times(t_key, rate_hz)
     accel = problem.accel if problem.accel is not None else (
         imu.accel_m_s2 + gravity_correction_b(imu.t, t_key, sol.R_body_to_nav, sol.p_nav, sol.frame))
     seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_out, imu.dt[0])

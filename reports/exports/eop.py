@@ -1,8 +1,19 @@
 """EOP exports (and readers, for round trips) to mapping software: COLMAP text model, Pix4D external
 orientation file, Metashape OPK CSV, ODM `geo.txt`, and dgcal's eop.csv.
 
-Angles: Pix4D, Metashape and ODM files carry PATB omega/phi/kappa in degrees exactly as dgcal's EOP file
-(M = Rx(omega) Ry(phi) Rz(kappa) from photo axes x right, y up, z back to the map CRS axes).
+Angles: Pix4D and Metashape files carry PATB omega/phi/kappa in degrees exactly as dgcal's EOP file
+(M = Rx(omega) Ry(phi) Rz(kappa) from photo axes x right, y up, z back to the map CRS axes); the Pix4D header
+is Pix4D's own `imageName X Y Z Omega Phi Kappa`.
+ODM geo.txt carries yaw, pitch, roll (ODM's convention for a nadir camera: yaw 0 = image top to north, pitch
+0 = nadir, roll 0), which ODM/OpenSfM turn into omega/phi/kappa with `odm_opk_from_ypr` (a copy of
+opendm/photo.py `compute_opk`, also opensfm/exif.py `extract_opk`) and then into the camera rotation in the
+local level frame (opensfm geometry.rotation_from_opk: the PATB matrix, world East, North, Up). That formula
+builds its "NED to world" matrix from the ECEF north vector and (0, 0, -1), so it is no rotation away from
+longitude -90 deg: the yaw/pitch/roll a camera's attitude would give come out as other omega/phi/kappa.
+`write_odm_geo` therefore writes the yaw/pitch/roll that ODM's own formula turns into the camera's true
+omega/phi/kappa (solved per image by Newton's method, 1e-10 deg) in the local East/North/Up frame at the
+camera (the EOP's grid angles turned by the meridian convergence); `read_odm_geo` reads them back the way
+ODM does.
 COLMAP: a map grid is not a Cartesian frame (scale factor, convergence), so the model is written in the
 block's local ENU frame (`colmap/georef.json` names its origin and the map CRS); images.txt holds
 world-to-camera quaternions (w, x, y, z) and translations of the CV camera frame, as COLMAP expects.
@@ -16,7 +27,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dgcal.calib.camera.files import colmap_cameras_txt_string
-from dgcal.fields.crs import LocalENU, MapGrid, parse_crs
+from dgcal.fields.crs import LocalENU, MapGrid, geodetic_to_ecef, parse_crs
+from dgcal.fields.frames import R_ENU_TO_NED, R_photo_to_map_from_opk, opk_from_R_photo_to_map
+from dgcal.fields.io.gcp_files import odm_crs_to_pyproj
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, write_eop
@@ -115,10 +128,13 @@ def read_colmap(in_dir: Path) -> tuple[EOP, MapGrid]:
 
 
 # --- Pix4D, Metashape, ODM -----------------------------------------------------------------------
+PIX4D_HEADER = "imageName X Y Z Omega Phi Kappa"   # as Pix4D writes its calibrated_external_camera_parameters.txt
+
+
 def write_pix4d(path: Path, eop: EOP) -> None:
-    """Pix4D external orientation file (`imageName X Y Z omega phi kappa`, space separated, degrees)."""
+    """Pix4D external orientation file (`imageName X Y Z Omega Phi Kappa`, space separated, degrees)."""
     with atomic_write(path) as fh:
-        fh.write("imageName X Y Z omega phi kappa\n")
+        fh.write(PIX4D_HEADER + "\n")
         for i in range(len(eop.image)):
             fh.write(f"{eop.image[i]} " + " ".join(f"{v:.8f}" for v in eop.xyz[i]) + " "
                      + " ".join(f"{v:.10f}" for v in eop.opk[i]) + "\n")
@@ -127,9 +143,10 @@ def write_pix4d(path: Path, eop: EOP) -> None:
 def _read_rows(path: Path, sep: str | None, skip: int, ncols: int, what: str):
     path = Path(path)
     try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InputError(f"cannot read {what} ({exc.strerror})", path) from None
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read {what} ({getattr(exc, 'strerror', None) or exc.__class__.__name__})", path) \
+            from None
     names, vals = [], []
     for n, ln in enumerate(text.splitlines(), 1):
         if n <= skip or not ln.strip() or ln.lstrip().startswith("#"):
@@ -138,9 +155,12 @@ def _read_rows(path: Path, sep: str | None, skip: int, ncols: int, what: str):
         if len(tok) < ncols + 1:
             raise InputError(f"a {what} line needs an image name and {ncols} numbers", path, n)
         try:
-            vals.append([float(v) for v in tok[1:ncols + 1]])
+            row = [float(v) for v in tok[1:ncols + 1]]
         except ValueError:
             raise InputError("not a number", path, n, "X") from None
+        if not all(np.isfinite(row)):
+            raise InputError("not a finite number", path, n, "X")
+        vals.append(row)
         names.append(tok[0])
     v = np.array(vals, float).reshape(-1, ncols)
     return np.array(names, dtype=object), v
@@ -170,30 +190,123 @@ def read_metashape(path: Path) -> EOP:
     return EOP(names, v[:, :3], v[:, 3:6])
 
 
+_CBB = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])   # ODM: image axes -> body (swap X/Y, flip Z)
+
+
+def _odm_cen(lat_deg: np.ndarray, lon_deg: np.ndarray, alt: np.ndarray) -> np.ndarray:
+    """ODM's 'NED to world' matrices (N,3,3): columns the ECEF north vector (a 1e-7 deg latitude step),
+    (0,0,-1) x north, and (0,0,-1), exactly as opendm/photo.py compute_opk forms them."""
+    d = 1e-7
+    xnp = geodetic_to_ecef(lat_deg + d, lon_deg, alt) - geodetic_to_ecef(lat_deg - d, lon_deg, alt)
+    xnp = xnp / np.linalg.norm(xnp, axis=-1, keepdims=True)
+    znp = np.broadcast_to(np.array([0.0, 0.0, -1.0]), xnp.shape)
+    ynp = np.cross(znp, xnp)
+    return np.stack([xnp, ynp, znp], axis=-1)
+
+
+def _odm_cnb(ypr_deg: np.ndarray) -> np.ndarray:
+    """ODM's yaw/pitch/roll matrix Rz(yaw) Ry(pitch) Rx(roll), (N,3,3)."""
+    y, p, r = np.radians(ypr_deg).T
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    return np.stack([np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+                     np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+                     np.stack([-sp, cp * sr, cp * cr], -1)], axis=-2)
+
+
+def odm_opk_from_ypr(lat_deg, lon_deg, alt_m, ypr_deg) -> np.ndarray:
+    """Omega, phi, kappa (deg) that ODM/OpenSfM compute from geo.txt yaw/pitch/roll (deg) at a camera's
+    latitude, longitude (deg) and altitude (opendm/photo.py compute_opk, vectorised); (N,3)."""
+    lat, lon, alt = (np.atleast_1d(np.asarray(v, float)) for v in (lat_deg, lon_deg, alt_m))
+    ceb = _odm_cen(lat, lon, alt) @ _odm_cnb(np.atleast_2d(ypr_deg)) @ _CBB
+    return np.degrees(np.column_stack([np.arctan2(-ceb[:, 1, 2], ceb[:, 2, 2]),
+                                       np.arcsin(np.clip(ceb[:, 0, 2], -1.0, 1.0)),
+                                       np.arctan2(-ceb[:, 0, 1], ceb[:, 0, 0])]))
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + 180.0) % 360.0 - 180.0
+
+
+def odm_ypr_for_opk(lat_deg, lon_deg, alt_m, opk_enu_deg) -> np.ndarray:
+    """The geo.txt yaw/pitch/roll (deg) that ODM's `odm_opk_from_ypr` turns into `opk_enu_deg` (PATB, local
+    East/North/Up at the camera); Newton's method from the attitude a true NED-to-ENU matrix would give."""
+    lat, lon, alt = (np.atleast_1d(np.asarray(v, float)) for v in (lat_deg, lon_deg, alt_m))
+    target = np.atleast_2d(np.asarray(opk_enu_deg, float))
+    M = R_photo_to_map_from_opk(target[:, 0], target[:, 1], target[:, 2]).reshape(-1, 3, 3)
+    cnb0 = R_ENU_TO_NED @ M @ _CBB.T
+    ypr = np.column_stack([np.degrees(np.arctan2(cnb0[:, 1, 0], cnb0[:, 0, 0])),
+                           np.degrees(-np.arcsin(np.clip(cnb0[:, 2, 0], -1, 1))),
+                           np.degrees(np.arctan2(cnb0[:, 2, 1], cnb0[:, 2, 2]))])
+    h = 1e-6
+    for _ in range(30):
+        f = _wrap(odm_opk_from_ypr(lat, lon, alt, ypr) - target)
+        if np.max(np.abs(f)) < 1e-11:
+            break
+        J = np.empty((len(ypr), 3, 3))
+        for j in range(3):
+            d = np.zeros(3)
+            d[j] = h
+            J[:, :, j] = _wrap(odm_opk_from_ypr(lat, lon, alt, ypr + d) - odm_opk_from_ypr(lat, lon, alt, ypr - d)) \
+                / (2 * h)
+        ypr = ypr - np.linalg.solve(J, f[:, :, None])[:, :, 0]
+    f = _wrap(odm_opk_from_ypr(lat, lon, alt, ypr) - target)
+    if np.max(np.abs(f)) > 1e-8:
+        k = int(np.argmax(np.max(np.abs(f), axis=1)))
+        raise InputError(f"no ODM yaw/pitch/roll gives omega/phi/kappa {target[k].round(6).tolist()} at latitude "
+                         f"{lat[k]:.4f} (ODM's conversion degenerates near the equator)", field="--formats")
+    ypr[:, 0] = np.mod(ypr[:, 0], 360.0)
+    return ypr
+
+
+def _grid_opk_to_enu(grid: MapGrid, xyz: np.ndarray, opk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(geodetic lat, lon, h (N,3); omega/phi/kappa in the local ENU frame at each camera (N,3), deg)."""
+    geo = grid.to_geodetic(xyz)
+    M_grid = R_photo_to_map_from_opk(opk[:, 0], opk[:, 1], opk[:, 2]).reshape(-1, 3, 3)
+    R_enu_to_grid = grid.R_enu_to_grid_at(xyz).reshape(-1, 3, 3)
+    return geo, opk_from_R_photo_to_map(np.swapaxes(R_enu_to_grid, 1, 2) @ M_grid).reshape(-1, 3)
+
+
 def write_odm_geo(path: Path, eop: EOP, grid: MapGrid) -> None:
-    """ODM geo.txt: the CRS on the first line, then `image x y z omega phi kappa [horz_acc vert_acc]`."""
+    """ODM geo.txt: the CRS on the first line, then `image x y z yaw pitch roll [horz_acc vert_acc]` in ODM's
+    convention (see the module docstring: the yaw/pitch/roll ODM turns into the EOP's camera rotation)."""
     epsg = grid.crs.to_epsg()
     head = f"EPSG:{epsg}" if epsg else grid.crs.to_proj4()
     has = eop.sigma is not None
+    # the coordinates as written: ODM differences a 1e-7 deg latitude step, so its angles change by ~1e-6 deg
+    # with the last digits of the position; solve at the very coordinates ODM will read
+    xyz = np.array([[float(f"{v:.8f}") for v in row] for row in np.asarray(eop.xyz, float)]).reshape(-1, 3)
+    geo, opk_enu = _grid_opk_to_enu(grid, xyz, np.asarray(eop.opk, float))
+    ypr = odm_ypr_for_opk(geo[:, 0], geo[:, 1], geo[:, 2], opk_enu) if len(eop.image) else np.zeros((0, 3))
     with atomic_write(path) as fh:
         fh.write(head + "\n")
         for i in range(len(eop.image)):
-            row = [str(eop.image[i])] + [f"{v:.8f}" for v in eop.xyz[i]] + [f"{v:.10f}" for v in eop.opk[i]]
+            row = [str(eop.image[i])] + [f"{v:.8f}" for v in eop.xyz[i]] + [f"{v:.10f}" for v in ypr[i]]
             if has:
                 row += [f"{np.hypot(eop.sigma[i, 0], eop.sigma[i, 1]):.4f}", f"{eop.sigma[i, 2]:.4f}"]
             fh.write(" ".join(row) + "\n")
 
 
 def read_odm_geo(path: Path) -> tuple[EOP, MapGrid]:
-    """EOPs and the CRS from an ODM geo.txt."""
+    """EOPs (grid omega/phi/kappa) and the CRS from an ODM geo.txt, its yaw/pitch/roll read the way ODM reads them
+    (`odm_opk_from_ypr` in the local East/North/Up frame, turned to grid axes by the meridian convergence)."""
     path = Path(path)
     try:
-        first = path.read_text().splitlines()[0].strip()
-    except (OSError, IndexError):
+        first = path.read_text(encoding="utf-8").splitlines()[0].strip()
+    except (OSError, IndexError, UnicodeDecodeError):
         raise InputError("cannot read the CRS line of geo.txt", path, 1) from None
-    crs = parse_crs(first, f"{path}:1")
+    crs = parse_crs(odm_crs_to_pyproj(first), f"{path}:1")
     names, v = _read_rows(path, None, 1, 6, "geo.txt")
-    return EOP(names, v[:, :3], v[:, 3:6]), MapGrid(crs)
+    grid = MapGrid(crs)
+    if not len(names):
+        return EOP(names, v[:, :3], v[:, 3:6]), grid
+    geo = grid.to_geodetic(v[:, :3])
+    if not np.all(np.isfinite(geo)):
+        k = int(np.flatnonzero(~np.all(np.isfinite(geo), axis=1))[0])
+        raise InputError(f"coordinates {v[k, :3].tolist()} are not valid in {first}", path, field="x")
+    opk_enu = odm_opk_from_ypr(geo[:, 0], geo[:, 1], geo[:, 2], v[:, 3:6])
+    M_enu = R_photo_to_map_from_opk(opk_enu[:, 0], opk_enu[:, 1], opk_enu[:, 2]).reshape(-1, 3, 3)
+    opk = opk_from_R_photo_to_map(grid.R_enu_to_grid_at(v[:, :3]).reshape(-1, 3, 3) @ M_enu).reshape(-1, 3)
+    return EOP(names, v[:, :3], opk), grid
 
 
 def export_all(out_dir: Path, eop: EOP, grid: MapGrid, camera=None, formats=FORMATS, points_map=None,

@@ -1,0 +1,177 @@
+"""`dgcal pos --mode ukf`: seed 000's 15-state UKF (with three GNSS error states) on the pos pipeline's inputs, the
+gtsam LC smoother on the same fixes beside it, and both against a true trajectory when one is given.
+
+The accuracy table has one row per solution and quantity (roll, pitch, heading deg; north, east, down m):
+the median 1-sigma the solution claims and, with a truth, the error's mean, std, RMS and the normalised
+error RMS (error / claimed sigma: 1 when the sigmas are honest), over the epochs after `skip_s` of
+convergence that both solutions share.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dgcal.fields.crs import geodetic_to_ecef
+from dgcal.fields.errors import InputError
+from dgcal.fields.frames import R_ecef_to_ned
+from dgcal.fields.io.csv_tables import read_table
+from dgcal.fields.io.formats import Trajectory, read_trajectory
+from dgcal.pos.ins.interpolate import interpolate_trajectory, trajectory_at_events
+from dgcal.pos.lowcost.ukf import UkfOptions, UkfSolution, run_ukf
+from dgcal.pos.smoother.batch import SmootherOptions, smooth
+from dgcal.pos.smoother.initial import GnssFixes
+from dgcal.pos.smoother.output import solution_trajectory
+
+# `dgcal pos --mode ukf --set KEY=VALUE` keys (dgcal.pos.lowcost.ukf.UkfOptions fields and the comparison)
+UKF_SETTINGS = {"compare": bool, "compare_rate": float, "skip_s": float, "gnss_error_states": bool,
+                "gnss_corr_s": float, "gnss_white_m": float, "scale_corr_s": float, "alpha": float}
+QUANTITIES = ("roll", "pitch", "heading", "north", "east", "down")
+
+
+@dataclass
+class UkfPosResult:
+    """`dgcal pos --mode ukf`: the UKF solution, its trajectory at the output rate and at every fix, the events'
+    poses, the comparison smoother's keyframes (or None), the truth (or None), the accuracy table and summary."""
+
+    mode: str
+    ukf: UkfSolution
+    trajectory: Trajectory
+    keyframes: Trajectory
+    events: Trajectory | None
+    fixes: GnssFixes
+    smoother: Trajectory | None = None
+    truth: Trajectory | None = None
+    table: list[dict] = field(default_factory=list)
+    summary: dict = field(default_factory=dict)
+
+
+def decimate(tr: Trajectory, rate_hz: float) -> Trajectory:
+    """Every k-th sample of a trajectory so its rate is at most `rate_hz` (Hz), keeping the last one."""
+    dt = float(np.median(np.diff(tr.t))) if len(tr.t) > 1 else 1.0
+    k = max(1, int(round(1.0 / (rate_hz * dt))))
+    idx = np.unique(np.r_[np.arange(0, len(tr.t), k), len(tr.t) - 1])
+    return Trajectory(tr.t[idx], tr.lat[idx], tr.lon[idx], tr.h[idx], tr.v_ned[idx], tr.rph[idx],
+                      None if tr.sigma is None else tr.sigma[idx])
+
+
+def errors_vs_truth(tr: Trajectory, truth: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """Errors of `tr` against `truth` interpolated at its epochs: attitude (N,3) deg (heading wrapped) and position
+    (N,3) m along the truth's local north, east, down."""
+    st = interpolate_trajectory(truth, tr.t)
+    d_att = tr.rph - st.rph
+    d_att[:, 2] = (d_att[:, 2] + 180.0) % 360.0 - 180.0
+    p = np.asarray(geodetic_to_ecef(tr.lat, tr.lon, tr.h), float).reshape(-1, 3)
+    d_pos = np.einsum("nij,nj->ni", R_ecef_to_ned(st.lat, st.lon), p - st.p_ecef)
+    return d_att, d_pos
+
+
+def accuracy_rows(name: str, tr: Trajectory, truth: Trajectory | None) -> list[dict]:
+    """Accuracy-table rows of one solution (see the module documentation)."""
+    rows = []
+    e = None
+    if truth is not None:
+        d_att, d_pos = errors_vs_truth(tr, truth)
+        e = np.column_stack([d_att, d_pos])
+    sig = tr.sigma[:, [3, 4, 5, 0, 1, 2]] if tr.sigma is not None else None
+    for i, q in enumerate(QUANTITIES):
+        r = {"solution": name, "quantity": q, "unit": "deg" if i < 3 else "m",
+             "median_sigma": None if sig is None else float(np.median(sig[:, i]))}
+        if e is not None:
+            x = e[:, i]
+            r.update(mean=float(x.mean()), std=float(x.std()), rms=float(np.sqrt(np.mean(x ** 2))))
+            if sig is not None:
+                r["normalised_rms"] = float(np.sqrt(np.mean((x / sig[:, i]) ** 2)))
+        rows.append(r)
+    return rows
+
+
+def _common(tr: Trajectory, t: np.ndarray) -> Trajectory:
+    """The samples of `tr` at times `t` (each within 1 ms of one of them)."""
+    j = np.clip(np.searchsorted(tr.t, t - 1e-3), 0, len(tr.t) - 1)
+    ok = np.abs(tr.t[j] - t) < 1e-3
+    j = j[ok]
+    return Trajectory(tr.t[j], tr.lat[j], tr.lon[j], tr.h[j], tr.v_ned[j], tr.rph[j],
+                      None if tr.sigma is None else tr.sigma[j])
+
+
+def process_ukf(imu, grade, lever_arm_b, fixes: GnssFixes, events=None, rate_hz: float = 10.0,
+                ukf_opts: UkfOptions | None = None, compare: bool = True, compare_rate_hz: float = 10.0,
+                smoother_opts: SmootherOptions | None = None, truth: Trajectory | None = None, skip_s: float = 30.0,
+                progress: bool = False) -> UkfPosResult:
+    """Run the UKF on IMU + GNSS fixes (antenna lever arm `lever_arm_b`, body FRD m), the LC smoother on the same
+    fixes at `compare_rate_hz` when `compare`, and the accuracy table (against `truth` when given)."""
+    opts = ukf_opts or UkfOptions()
+    opts.lever_arm_b = np.asarray(lever_arm_b, float)
+    u = run_ukf(imu, fixes, grade, opts, progress=progress)
+    key = u.to_trajectory()
+    traj = decimate(key, rate_hz)
+    ev = trajectory_at_events(key, events) if events is not None and len(events) else None
+    sm_tr = None
+    if compare:
+        step = max(1, int(round(1.0 / (compare_rate_hz * np.median(np.diff(fixes.t))))))
+        s = slice(None, None, step)
+        lc = GnssFixes(fixes.t[s], fixes.p_ecef[s], fixes.sigma_ned[s],
+                       None if fixes.v_ecef is None else fixes.v_ecef[s],
+                       None if fixes.sigma_v_ned is None else fixes.sigma_v_ned[s],
+                       None if fixes.cov_ned is None else fixes.cov_ned[s])
+        sopts = smoother_opts or SmootherOptions()
+        sopts.lever_arm_b = np.asarray(lever_arm_b, float)
+        sm = smooth(imu, lc, grade, sopts, mode="lc", frame=u.frame)
+        sm_tr = solution_trajectory(sm)
+    # compare on the epochs both have, after the convergence time
+    t = key.t[key.t >= key.t[0] + skip_s]
+    if sm_tr is not None:
+        t = sm_tr.t[(sm_tr.t >= key.t[0] + skip_s) & (sm_tr.t <= key.t[-1])]
+    if truth is not None:
+        t = t[(t >= truth.t[0]) & (t <= truth.t[-1])]
+    if len(t) < 2:
+        raise InputError(f"fewer than two epochs after the {skip_s:g} s the filter needs to converge", field="--imu")
+    table = accuracy_rows("ukf", _common(key, t), truth)
+    if sm_tr is not None:
+        table += accuracy_rows("smoother", _common(sm_tr, t), truth)
+    res = UkfPosResult("ukf", u, traj, key, ev, fixes, sm_tr, truth, table)
+    res.summary = summarize_ukf(res, skip_s, int(len(t)))
+    return res
+
+
+def summarize_ukf(res: UkfPosResult, skip_s: float, n_compared: int) -> dict:
+    """Numbers for pos_summary.json of `--mode ukf`."""
+    s = res.keyframes.sigma
+    u = res.ukf
+    nis = u.nis[np.isfinite(u.nis)]
+    out = {"mode": "ukf", "filter": f"UKF, {u.info.get('n_states', 15)} states (seed 000's 15"
+           + (" + 3 GNSS error states)" if u.info.get("gnss_error_states") else ")"),
+           "keyframes": int(len(u.t)), "t_start_gps": float(u.t[0]), "t_end_gps": float(u.t[-1]),
+           "nav_frame_origin_deg_m": [u.frame.lat0, u.frame.lon0, u.frame.h0],
+           "median_sigma_m": np.median(s[:, :3], axis=0).round(4).tolist(),
+           "median_sigma_deg": np.median(s[:, 3:], axis=0).round(5).tolist(),
+           "max_sigma_m": np.max(s[:, :3], axis=0).round(3).tolist(),
+           "gyro_bias_deg_h_mean": np.degrees(u.bias[:, 3:].mean(0) * 3600).round(3).tolist(),
+           "accel_bias_mg_mean": (u.bias[:, :3].mean(0) / 9.80665e-3).round(4).tolist(),
+           "nis_mean": float(nis.mean()) if len(nis) else None,
+           "events": int(len(res.events.t)) if res.events is not None else 0,
+           "compared_epochs": n_compared, "skip_s": skip_s, "truth": res.truth is not None,
+           "smoother_compared": res.smoother is not None, "accuracy": res.table}
+    return out
+
+
+def read_true_trajectory(path) -> Trajectory:
+    """A true trajectory: dgcal's trajectory CSV, or a simulator's `truth_trajectory.csv`
+    (t_gps,lat,lon,h,vn,ve,vd,roll,pitch,heading)."""
+    head = ""
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            head = fh.readline().lower()
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc}", path) from None
+    if "gps_week" in head:
+        return read_trajectory(path)
+    cols = ("t_gps", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "heading")
+    tab = read_table(path, cols)
+    t = tab["t_gps"]
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if len(back):
+        raise InputError("time does not increase", tab.path, int(tab.lines[back[0] + 1]), "t_gps")
+    return Trajectory(t, tab["lat"], tab["lon"], tab["h"], np.column_stack([tab["vn"], tab["ve"], tab["vd"]]),
+                      np.column_stack([tab["roll"], tab["pitch"], tab["heading"]]), path=tab.path)

@@ -1,0 +1,202 @@
+"""Double-difference carrier-phase and code factors of the TC smoother (gtsam `CustomFactor`, one per keyframe).
+
+A keyframe's factor holds all its double differences (``dgcal.pos.gnss.dd.DDEpoch``: phase with the arcs'
+integer ambiguities, and code) as measurements of the rover antenna's range differences,
+``h_i(X) = |s_i - p(X)| - |s_ref - p(X)|`` with ``p(X) = ecef_T_nav (t + R lever)`` (ECEF m), the antenna at
+the lever arm of the IMU pose X. The receiver clocks cancel; no state is added.
+
+**Time-correlated errors** (multipath): each double difference's error is taken as a first-order
+autoregressive sequence along its track (the same pair of arcs at consecutive keyframes) with coefficient
+``rho = share * exp(-dt / tau)`` (``share``: the time-correlated share of the variance, which matches the
+lag-one autocorrelation of white noise plus a Gauss-Markov error). A tracked row enters pre-whitened,
+``(h_k - z_k) - rho (h_{k-1} - z_{k-1})``, so the factor spans keyframes k-1 and k (the block-tridiagonal
+structure of the smoother is kept); its covariance is ``C * M`` with C the double-difference covariance
+and ``M = 1 - rho^2`` unless both rows are new (1). With white errors the smoother would average the
+epochs bridged by the IMU as independent and report sigmas several times too small.
+
+Jacobians: Pose3 local coordinates [rotation, translation] (body axes): ``dp/dtheta = -R [lever]x``,
+``dp/dt = R`` in nav axes, ``dh_i/dp = -(e_i - e_ref)`` with e the unit vectors antenna -> satellite.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from dgcal.pos.gnss.dd import DDEpoch
+from dgcal.pos.ins.nav_frame import NavFrame
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def range_differences(dd: DDEpoch, pose, lever_b: np.ndarray, frame: NavFrame) -> tuple[np.ndarray, np.ndarray]:
+    """h (n,) m: |s_i - p| - |s_ref - p| at the antenna of `pose` (gtsam Pose3 in nav), and dh/dpose (n,6)."""
+    M = pose.matrix()
+    R = M[:3, :3]
+    Rne = frame.R_nav_to_ecef
+    p = Rne @ (M[:3, 3] + R @ lever_b) + frame.origin_ecef
+    di, dr = dd.sat_pos - p, dd.ref_pos - p
+    ri = np.sqrt(np.einsum("ij,ij->i", di, di))
+    rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
+    G = (dr / rr[:, None] - di / ri[:, None]) @ (Rne @ R)                  # dh / d(body-axes translation) (n,3)
+    J = np.empty((len(ri), 6))
+    J[:, 3:] = G
+    J[:, :3] = np.cross(lever_b, G)                                          # -G [lever]x: rows lever x g
+    return ri - rr, J
+
+
+@dataclass
+class DDFactorData:
+    """What one keyframe's double-difference factor holds (also for residuals): the rows at keyframe k (float rows
+    only where tracked), the previous keyframe's rows (or None), each row's index there (-1: new), its
+    coefficient on the previous error (0 new, the AR coefficient for a tracked absolute row, 1 for a float row:
+    a time difference) and the covariance of the combined rows."""
+
+    k: int
+    cur: DDEpoch
+    prev: DDEpoch | None
+    prev_index: np.ndarray
+    rho: np.ndarray
+    cov: np.ndarray
+
+    def raw_residuals(self, pose, lever_b, frame) -> np.ndarray:
+        """Unwhitened residuals h - z (m) of the rows at keyframe k (float rows: including their ambiguity)."""
+        return range_differences(self.cur, pose, lever_b, frame)[0] - self.cur.z
+
+
+def whitening(cur: DDEpoch, prev: DDEpoch | None, dt: float, phase: tuple[float, float],
+              code: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rows kept (float rows need their track at `prev`), their index in `prev` (-1 if new), their coefficient on
+    the previous error and the covariance of the combined rows (see the module docstring).
+
+    phase/code: (tau s, share) of the time-correlated errors (tau <= 0: white). With lag-one coefficients
+    c_a, c_b of two rows and r the AR coefficient of their kind, the combined errors e_k - c e_{k-1} have the
+    covariance C_ab (1 - (c_a + c_b) r + c_a c_b); the time differences of float rows are counted twice as
+    uncertain (consecutive differences share an epoch, which is not modelled: never over-confident).
+    """
+    idx = np.full(cur.n, -1)
+    if prev is not None:
+        where = {tr: j for j, tr in enumerate(prev.track)}
+        idx = np.array([where.get(tr, -1) for tr in cur.track], dtype=int)
+    keep = (cur.mode == 0) | (idx >= 0)
+    idx = idx[keep]
+    kind = cur.kind[keep]
+    mode = cur.mode[keep]
+    r = np.zeros(len(idx))
+    for kd, (tau, share) in ((0, phase), (1, code)):
+        if tau > 0 and share > 0 and np.isfinite(dt):
+            r[kind == kd] = share * np.exp(-dt / tau)
+    coef = np.where(idx < 0, 0.0, np.where(mode == 1, 1.0, r))
+    sub = cur.subset(keep)
+    C = sub.covariance()
+    M = 1.0 - (coef[:, None] + coef[None, :]) * r[:, None] + coef[:, None] * coef[None, :]
+    td = mode == 1
+    M[np.ix_(td, td)] *= 2.0
+    return keep, idx, coef, C * M
+
+
+def dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.ndarray, frame: NavFrame):
+    """The gtsam CustomFactor of one keyframe's double differences (keys X_prev (may be None) and X_cur)."""
+    lever = np.asarray(lever_b, float)
+    cur, prev = data.cur, data.prev
+    tracked = (data.prev_index >= 0) & (data.rho != 0)
+    use_prev = X_prev is not None and prev is not None and tracked.any()
+    if use_prev:
+        pj = data.prev_index[tracked]
+        prev_rows = prev.subset(np.isin(np.arange(prev.n), pj))
+        order = np.searchsorted(np.nonzero(np.isin(np.arange(prev.n), pj))[0], pj)
+        rho_t = data.rho[tracked]
+    keys = [X_prev, X_cur] if use_prev else [X_cur]
+    noise = gtsam.noiseModel.Gaussian.Covariance(data.cov)
+
+    def error(this, values, H):
+        pose = values.atPose3(keys[-1])
+        h, J = range_differences(cur, pose, lever, frame)
+        e = h - cur.z
+        if use_prev:
+            hp, Jp = range_differences(prev_rows, values.atPose3(keys[0]), lever, frame)
+            e[tracked] -= rho_t * (hp - prev_rows.z)[order]
+        if H is not None:
+            if use_prev:
+                Jprev = np.zeros((cur.n, 6))
+                Jprev[tracked] = -rho_t[:, None] * Jp[order]
+                H[0] = Jprev
+                H[1] = J
+            else:
+                H[0] = J
+        return e
+
+    return gtsam.CustomFactor(noise, keys, error)
+
+
+def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavFrame, phase_corr: tuple,
+                        code_corr: tuple, X) -> dict:
+    """keyframe -> (CustomFactor, DDFactorData) for every keyframe with double differences; rows tracked from
+    the previous keyframe are whitened against it when it is the previous epoch (dt <= 2.5 median steps)."""
+    out = {}
+    dt_nom = float(np.median(np.diff(t_key))) if len(t_key) > 1 else 1.0
+    for k, cur in enumerate(dd_at_key):
+        if cur is None or cur.n == 0:
+            continue
+        prev = dd_at_key[k - 1] if k > 0 else None
+        dt = float(t_key[k] - t_key[k - 1]) if k > 0 else np.inf
+        if prev is None or dt > 2.5 * dt_nom:
+            prev = None
+        keep, idx, coef, cov = whitening(cur, prev, dt, phase_corr, code_corr)
+        if not keep.any():
+            continue
+        data = DDFactorData(k, cur.subset(keep), prev, idx, coef, cov)
+        out[k] = (dd_factor(X(k - 1) if prev is not None else None, X(k), data, lever_b, frame), data)
+    return out
+
+
+def dd_residuals(data: DDFactorData, values, X, lever_b, frame: NavFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals (m) of a keyframe's double differences and their sigmas (m): absolute rows h - z with the noise
+    sigma of the row, float rows as the time difference (h - z)_k - (h - z)_{k-1} with its sigma."""
+    lever = np.asarray(lever_b, float)
+    cur = data.cur
+    e = data.raw_residuals(values.atPose3(X(data.k)), lever, frame)
+    sig = np.sqrt(np.diag(cur.covariance()))
+    td = cur.mode == 1
+    if td.any():
+        prev = data.prev.subset(np.isin(np.arange(data.prev.n), data.prev_index[td]))
+        order = np.searchsorted(np.nonzero(np.isin(np.arange(data.prev.n), data.prev_index[td]))[0],
+                                data.prev_index[td])
+        ep = range_differences(prev, values.atPose3(X(data.k - 1)), lever, frame)[0] - prev.z
+        e[td] -= ep[order]
+        sig[td] = np.sqrt(np.diag(data.cov))[td]
+    return e, sig
+
+
+def atmosphere_position_covariance(dd: dict, sol, lever_b, iono_ppm: float, tropo_zenith_m: float):
+    """Position covariance (K,3,3) m^2, nav axes, that the differential-atmosphere errors of the fixed phase double
+    differences cause: per keyframe the weighted least-squares map of the rows onto the antenna position,
+    A = (G' W G)^-1 G' W, applied to the rows' atmosphere covariance (`DDEpoch.atmosphere_covariance`);
+    keyframes without enough fixed rows take the nearest keyframe's. None if no keyframe has them."""
+    K = len(sol.t)
+    P = np.full((K, 3, 3), np.nan)
+    lever = np.asarray(lever_b, float)
+    frame = sol.frame
+    for k, data in dd.items():
+        fx = (data.cur.kind == 0) & (data.cur.mode == 0)
+        if fx.sum() < 4:
+            continue
+        rows = data.cur.subset(fx)
+        pose = gtsam.Pose3(gtsam.Rot3(sol.R_body_to_nav[k]), sol.p_nav[k])
+        G = range_differences(rows, pose, lever, frame)[1][:, 3:] @ sol.R_body_to_nav[k].T   # d h / d p_nav
+        W = np.linalg.inv(rows.covariance())
+        N = G.T @ W @ G
+        if np.linalg.cond(N) > 1e8:
+            continue
+        A = np.linalg.solve(N, G.T @ W)
+        P[k] = A @ rows.atmosphere_covariance(iono_ppm, tropo_zenith_m) @ A.T
+    have = np.nonzero(np.isfinite(P[:, 0, 0]))[0]
+    if len(have) == 0:
+        return None
+    near = have[np.clip(np.searchsorted(have, np.arange(K)), 0, len(have) - 1)]
+    prev = have[np.clip(np.searchsorted(have, np.arange(K)) - 1, 0, len(have) - 1)]
+    pick = np.where(np.abs(prev - np.arange(K)) < np.abs(near - np.arange(K)), prev, near)
+    return P[pick]

@@ -1,0 +1,185 @@
+"""System calibration (lever arm, boresight, exposure delay of `dgcal mount`) in the conventions of the programs
+that apply it: Metashape's GPS/INS offset, Applanix POSPac MMS, NovAtel Inertial Explorer, Pix4D.
+
+dgcal's own convention (docs/conventions.md): lever arm `l_b` = IMU origin -> camera perspective centre in the
+body frame (FRD), m; boresight `R_cam_to_body` (CV camera axes x right, y down, z forward); delay = t_exposure -
+t_event. Every export writes the values with the frame they are in; `read_calibration_export` reads any of the
+files back into dgcal's convention (round trip exact to the printed digits: 1e-9 m, 1e-10 deg).
+
+- POSPac MMS (Applanix): "reference to sensor" lever arm in the IMU/vehicle frame x forward, y right, z down
+  (the same as dgcal's FRD); the sensor frame of a nominal nadir camera is aligned with it: x = top of the image
+  (-y_cv), y = right (x_cv), z = viewing direction (z_cv); boresight angles (tx, ty, tz) = roll, pitch, heading
+  (Z-Y-X) of the sensor frame in the vehicle frame: R_sensor_to_vehicle = Rz(tz) Ry(ty) Rx(tx) (deg and arc
+  minutes).
+- Inertial Explorer (NovAtel Waypoint): vehicle frame x right, y forward, z up (RFU): lever arm IMU -> camera in
+  it; camera frame of a nominal nadir camera x right, y = top of the image, z up (back, photogrammetric);
+  boresight (rx, ry, rz) with R_camera_to_vehicle = Rz(rz) Ry(ry) Rx(rx) (deg).
+- Metashape (Reference settings / Camera Calibration > GPS/INS Offset): antenna offset = the position reference
+  point (GNSS antenna, or the IMU when an IMU trajectory is imported) relative to the camera centre in the
+  camera frame (x right, y down, z forward), m; camera orientation offset (yaw, pitch, roll) = the rotation
+  between the nominal camera of the imported yaw/pitch/roll (nadir, image top to the heading) and the real one:
+  R_cam_to_body = R_CAM_TO_BODY_NADIR Rz(-yaw) Rx(pitch) Ry(roll), angles in deg, about the camera's own
+  z (view), x (right), y (down) axes.
+- Pix4D (camera rig relatives / Image Properties Editor "lever arm"): the antenna or IMU relative to the camera
+  in the camera frame (x right, y down, z forward) as Metashape, boresight as the PATB omega/phi/kappa of the
+  photogrammetric camera (x right, y up, z back) in the body FRD frame: R_photo_to_body = Rx(om) Ry(ph) Rz(ka).
+These conventions follow the programs' manuals as dgcal reads them; they are checked by round trips here, not
+against files written by those programs (none is public).
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from dgcal.calib.mounting.common import MountingResult
+from dgcal.fields.errors import InputError
+from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, R_CV_TO_PHOTO
+from dgcal.fields.io.csv_tables import atomic_write
+
+CALIBRATION_FORMATS = ("metashape", "pospac", "inertial-explorer", "pix4d")
+ARCMIN_PER_DEG = 60.0
+R_FRD_TO_RFU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])   # vehicle FRD -> IE's RFU
+R_CV_TO_APPLANIX = R_CAM_TO_BODY_NADIR        # CV camera -> POSPac sensor frame (x top of image, y right, z view)
+R_CV_TO_IE = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])   # CV -> x right, y top, z back
+
+
+def _zyx(R: np.ndarray) -> np.ndarray:
+    """(rx, ry, rz) deg with R = Rz(rz) Ry(ry) Rx(rx)."""
+    z, y, x = Rotation.from_matrix(R).as_euler("ZYX", degrees=True)
+    return np.array([x, y, z])
+
+
+def _R_zyx(a) -> np.ndarray:
+    """Rz(a[2]) Ry(a[1]) Rx(a[0]) from degrees."""
+    return Rotation.from_euler("ZYX", [a[2], a[1], a[0]], degrees=True).as_matrix()
+
+
+def metashape_ypr_offset(R_cam_to_body: np.ndarray) -> np.ndarray:
+    """Metashape camera orientation offset (yaw, pitch, roll deg): R_cam_to_body = R_CAM_TO_BODY_NADIR
+    Rz(-yaw) Rx(pitch) Ry(roll) (rotations about the camera's z, x, y axes)."""
+    R = R_CAM_TO_BODY_NADIR.T @ np.asarray(R_cam_to_body, float)
+    mz, x, y = Rotation.from_matrix(R).as_euler("ZXY", degrees=True)
+    return np.array([-mz, x, y])
+
+
+def R_cam_to_body_from_metashape_ypr(ypr) -> np.ndarray:
+    """Inverse of `metashape_ypr_offset`."""
+    yaw, pitch, roll = (float(v) for v in ypr)
+    return R_CAM_TO_BODY_NADIR @ Rotation.from_euler("ZXY", [-yaw, pitch, roll], degrees=True).as_matrix()
+
+
+def calibration_values(mount: MountingResult, fmt: str, reference_lever_arm_m=(0.0, 0.0, 0.0)) -> dict:
+    """The numbers `fmt` asks for, in its frames (see the module docstring); `reference_lever_arm_m` = IMU ->
+    the position reference point (GNSS antenna) in body FRD, m, for the camera-frame offsets of Metashape/Pix4D."""
+    l_b = np.asarray(mount.lever_arm_m, float)
+    R = np.asarray(mount.R_cam_to_body, float)
+    ref = np.asarray(reference_lever_arm_m, float)
+    out = {"format": fmt, "delay_s": float(mount.delay_s), "method": mount.method}
+    if fmt == "pospac":
+        b = _zyx(R @ R_CV_TO_APPLANIX.T)
+        out.update(lever_arm_xyz_m=l_b.tolist(), frame="vehicle x forward, y right, z down",
+                   boresight_tx_ty_tz_deg=b.tolist(), boresight_tx_ty_tz_arcmin=(b * ARCMIN_PER_DEG).tolist())
+    elif fmt == "inertial-explorer":
+        R_ie = R_FRD_TO_RFU @ R @ R_CV_TO_IE.T
+        out.update(lever_arm_xyz_m=(R_FRD_TO_RFU @ l_b).tolist(), frame="vehicle x right, y forward, z up",
+                   boresight_rx_ry_rz_deg=_zyx(R_ie).tolist())
+    elif fmt == "metashape":
+        out.update(antenna_offset_xyz_m=(R.T @ (ref - l_b)).tolist(), frame="camera x right, y down, z forward",
+                   camera_orientation_offset_yaw_pitch_roll_deg=metashape_ypr_offset(R).tolist(),
+                   reference_lever_arm_body_m=ref.tolist())
+    elif fmt == "pix4d":
+        R_photo_to_body = R @ R_CV_TO_PHOTO.T
+        opk = Rotation.from_matrix(R_photo_to_body).as_euler("XYZ", degrees=True)
+        out.update(lever_arm_xyz_m=(R.T @ (ref - l_b)).tolist(), frame="camera x right, y down, z forward",
+                   boresight_omega_phi_kappa_deg=opk.tolist(), reference_lever_arm_body_m=ref.tolist())
+    else:
+        raise InputError(f"unknown calibration format {fmt!r} (one of {', '.join(CALIBRATION_FORMATS)})",
+                         field="--calibration-formats")
+    return out
+
+
+FILE_NAMES = {"metashape": "metashape_gps_ins_offset.txt", "pospac": "pospac_lever_arm_boresight.txt",
+              "inertial-explorer": "inertial_explorer_lever_arm_boresight.txt",
+              "pix4d": "pix4d_lever_arm_boresight.txt"}
+
+
+def write_calibration_export(path: Path, mount: MountingResult, fmt: str, reference_lever_arm_m=(0, 0, 0)) -> dict:
+    """Write one program's values as `key: numbers` lines under a `#` header naming the frames; returns them."""
+    v = calibration_values(mount, fmt, reference_lever_arm_m)
+    doc = __doc__.split("\n- ")
+    head = next((d for d in doc if d.lower().startswith({"pospac": "pospac", "inertial-explorer": "inertial",
+                                                          "metashape": "metashape", "pix4d": "pix4d"}[fmt])), "")
+    with atomic_write(path) as fh:
+        fh.write(f"# dgcal mounting ({mount.method}) for {fmt}\n")
+        for ln in " ".join(head.split()).split(". "):
+            fh.write(f"# {ln.strip().rstrip('.')}\n")
+        for k, val in v.items():
+            if isinstance(val, list):
+                fh.write(f"{k}: " + " ".join(f"{x:.10f}" for x in val) + "\n")
+            elif isinstance(val, float):
+                fh.write(f"{k}: {val:.9f}\n")
+            else:
+                fh.write(f"{k}: {val}\n")
+    return v
+
+
+def write_calibration_exports(out_dir: Path, mount: MountingResult, formats=CALIBRATION_FORMATS,
+                              reference_lever_arm_m=(0.0, 0.0, 0.0)) -> dict:
+    """Every requested program's file under `out_dir` plus `calibration_exports.json`; returns {format: path}."""
+    out_dir = Path(out_dir)
+    paths, values = {}, {}
+    for f in formats:
+        p = out_dir / FILE_NAMES.get(f, "x")
+        values[f] = write_calibration_export(p, mount, f, reference_lever_arm_m)
+        paths[f] = p
+    with atomic_write(out_dir / "calibration_exports.json") as fh:
+        json.dump(values, fh, indent=2)
+    return paths
+
+
+def read_calibration_export(path: Path) -> tuple[str, np.ndarray, np.ndarray, float]:
+    """(format, lever arm IMU -> camera body FRD m, R_cam_to_body, delay s) from a file of
+    `write_calibration_export` (for Metashape/Pix4D the file's reference_lever_arm_body_m is used)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read ({getattr(exc, 'strerror', None) or exc.__class__.__name__})", path) from None
+    kv: dict[str, str] = {}
+    lines: dict[str, int] = {}
+    for n, ln in enumerate(text.splitlines(), 1):
+        if not ln.strip() or ln.lstrip().startswith("#"):
+            continue
+        m = re.match(r"^\s*([\w-]+)\s*:\s*(.*)$", ln)
+        if m is None:
+            raise InputError("expected 'key: values'", path, n)
+        kv[m.group(1)], lines[m.group(1)] = m.group(2).strip(), n
+
+    def vec(key: str, n: int = 3) -> np.ndarray:
+        if key not in kv:
+            raise InputError("missing", path, field=key)
+        try:
+            a = np.array([float(x) for x in kv[key].split()])
+        except ValueError:
+            raise InputError("not numbers", path, lines[key], key) from None
+        if a.shape != (n,) or not np.all(np.isfinite(a)):
+            raise InputError(f"expected {n} finite numbers", path, lines[key], key)
+        return a
+    fmt = kv.get("format", "")
+    delay = float(vec("delay_s", 1)[0])
+    if fmt == "pospac":
+        return fmt, vec("lever_arm_xyz_m"), _R_zyx(vec("boresight_tx_ty_tz_deg")) @ R_CV_TO_APPLANIX, delay
+    if fmt == "inertial-explorer":
+        R = R_FRD_TO_RFU.T @ _R_zyx(vec("boresight_rx_ry_rz_deg")) @ R_CV_TO_IE
+        return fmt, R_FRD_TO_RFU.T @ vec("lever_arm_xyz_m"), R, delay
+    if fmt == "metashape":
+        R = R_cam_to_body_from_metashape_ypr(vec("camera_orientation_offset_yaw_pitch_roll_deg"))
+        return fmt, vec("reference_lever_arm_body_m") - R @ vec("antenna_offset_xyz_m"), R, delay
+    if fmt == "pix4d":
+        R = Rotation.from_euler("XYZ", vec("boresight_omega_phi_kappa_deg"), degrees=True).as_matrix() @ R_CV_TO_PHOTO
+        return fmt, vec("reference_lever_arm_body_m") - R @ vec("lever_arm_xyz_m"), R, delay
+    raise InputError(f"unknown format {fmt!r}", path, lines.get("format"), "format")

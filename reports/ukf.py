@@ -1,0 +1,136 @@
+"""Files and HTML report of `dgcal pos --mode ukf` (dgcal.pos.lowcost.ukf_pos): the UKF trajectory, events,
+the accuracy table beside the LC smoother (against the truth when given), sigma envelopes and innovations."""
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.io.formats import write_trajectory
+from dgcal.pos.lowcost.ukf_pos import UkfPosResult, errors_vs_truth
+from dgcal.reports.html import HtmlReport, new_figure
+
+ACCURACY_COLUMNS = ("solution", "quantity", "unit", "median_sigma", "mean", "std", "rms", "normalised_rms")
+SEED000 = {"roll": 2.6, "pitch": 2.1}  # seed 000 (real flight, vs a vertical gyro): std of the UKF errors, deg
+
+
+def write_accuracy_csv(path: Path, table: list[dict]) -> None:
+    """The accuracy table as CSV (columns ACCURACY_COLUMNS; empty where there is no truth)."""
+    with atomic_write(path) as fh:
+        fh.write(",".join(ACCURACY_COLUMNS) + "\n")
+        for r in table:
+            fh.write(",".join("" if r.get(c) is None else (f"{r[c]:.6g}" if isinstance(r[c], float) else str(r[c]))
+                              for c in ACCURACY_COLUMNS) + "\n")
+
+
+def _sigmas(res: UkfPosResult):
+    fig, axs = new_figure(9, 5.5, nrows=2, sharex=True)
+    k = res.keyframes
+    t = k.t - k.t[0]
+    for j, name in enumerate(("north", "east", "down")):
+        axs[0].plot(t, k.sigma[:, j], lw=0.8, label=f"UKF {name}")
+    for j, name in enumerate(("roll", "pitch", "heading")):
+        axs[1].plot(t, k.sigma[:, 3 + j], lw=0.8, label=f"UKF {name}")
+    if res.smoother is not None and res.smoother.sigma is not None:
+        ts = res.smoother.t - k.t[0]
+        axs[0].plot(ts, np.linalg.norm(res.smoother.sigma[:, :3], axis=1), "--", lw=0.8, color="grey",
+                    label="smoother 3D")
+        axs[1].plot(ts, res.smoother.sigma[:, 3], "--", lw=0.8, color="grey", label="smoother roll")
+    axs[0].set_ylabel("position sigma (m)")
+    axs[1].set_ylabel("attitude sigma (deg)")
+    axs[1].set_xlabel("time since start (s)")
+    for a in axs:
+        a.set_yscale("log")
+        a.legend(fontsize=7, ncol=3)
+        a.grid(alpha=0.3)
+    return fig
+
+
+def _errors(res: UkfPosResult):
+    fig, axs = new_figure(9, 7, nrows=3, sharex=True)
+    k = res.keyframes
+    d_att, _ = errors_vs_truth(k, res.truth)
+    t = k.t - k.t[0]
+    for i, (a, name) in enumerate(zip(axs, ("roll", "pitch", "heading"))):
+        a.plot(t, d_att[:, i], lw=0.7, label="UKF error")
+        a.fill_between(t, -k.sigma[:, 3 + i], k.sigma[:, 3 + i], alpha=0.25, label="UKF 1 sigma")
+        if res.smoother is not None:
+            ds, _ = errors_vs_truth(res.smoother, res.truth)
+            a.plot(res.smoother.t - k.t[0], ds[:, i], lw=0.7, label="smoother error")
+        a.set_ylabel(f"{name} (deg)")
+        a.grid(alpha=0.3)
+    axs[0].legend(fontsize=7, ncol=3)
+    axs[-1].set_xlabel("time since start (s)")
+    return fig
+
+
+def _innovations(res: UkfPosResult):
+    fig, ax = new_figure(9, 3)
+    u = res.ukf
+    ax.plot(u.t - u.t[0], u.nis, ".", ms=1, alpha=0.5)
+    ax.axhline(1.0, color="#d33", lw=0.7)
+    ax.set_yscale("log")
+    ax.set_ylabel("NIS / dof")
+    ax.set_xlabel("time since start (s)")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
+    """One-file HTML report of a `dgcal pos --mode ukf` run."""
+    s = res.summary
+    rep = HtmlReport("GNSS/INS trajectory (seed 000 UKF)")
+    rep.kv_table([("filter", s["filter"]), ("epochs (one per GNSS fix)", s["keyframes"]),
+                  ("duration (s)", round(s["t_end_gps"] - s["t_start_gps"], 1)),
+                  ("median sigma N/E/D (m)", s["median_sigma_m"]),
+                  ("median sigma roll/pitch/heading (deg)", s["median_sigma_deg"]),
+                  ("gyro bias mean x/y/z (deg/h)", s["gyro_bias_deg_h_mean"]),
+                  ("accelerometer bias mean x/y/z (mg)", s["accel_bias_mg_mean"]),
+                  ("mean normalised innovation squared per dof", s["nis_mean"]),
+                  ("events", s["events"]), ("epochs compared (after convergence)", s["compared_epochs"])])
+    warn = []
+    if s["nis_mean"] is not None and s["nis_mean"] > 2.0:
+        warn.append(f"innovations are {s['nis_mean']:.1f} times their predicted variance: check --imu-grade and the "
+                    "GNSS sigmas")
+    rows = res.table
+    if res.truth is not None:
+        for r in rows:
+            z = r.get("normalised_rms")
+            if z is not None and not 0.5 <= z <= 2.0:
+                warn.append(f"{r['solution']} {r['quantity']}: error / sigma RMS {z:.2f} (1 when the sigmas are "
+                            "honest)")
+    rep.warnings(warn)
+    rep.heading("Accuracy: the UKF beside the smoother")
+    rep.text("Median 1-sigma each solution claims" + (", and its errors against the true trajectory (mean, std, "
+             "RMS) with the RMS of error / sigma" if res.truth is not None else " (give --truth for the errors)")
+             + f", over the epochs after the first {s['skip_s']:g} s that both share. Seed 000 (real flight, "
+             f"vs a vertical gyro): roll std {SEED000['roll']} deg, pitch std {SEED000['pitch']} deg.")
+    rep.table(list(ACCURACY_COLUMNS), [[r.get(c) for c in ACCURACY_COLUMNS] for r in rows])
+    rep.heading("Sigma envelopes").figure(_sigmas(res), "1-sigma of the UKF (and the smoother, dashed)")
+    if res.truth is not None:
+        rep.heading("Errors against the truth").figure(_errors(res), "Attitude errors with the UKF's 1-sigma band")
+    rep.heading("Innovations").figure(_innovations(res), "Normalised innovation squared per degree of freedom")
+    return rep.write(path)
+
+
+def write_ukf_outputs(out_dir: str | Path, res: UkfPosResult, names: Mapping[str, str]) -> dict[str, Path]:
+    """`dgcal pos --mode ukf`'s files in `out_dir`, by role in `names`: trajectory (output rate), events (one row per
+    event), trajectory_fixes (every fix epoch), accuracy (CSV), summary (JSON), report (HTML); returns the paths."""
+    out = Path(out_dir)
+    paths = {"trajectory": out / names["trajectory"]}
+    write_trajectory(paths["trajectory"], res.trajectory)
+    if res.events is not None:
+        paths["events"] = out / names["events"]
+        write_trajectory(paths["events"], res.events)
+    paths["trajectory_fixes"] = out / names["trajectory_fixes"]
+    write_trajectory(paths["trajectory_fixes"], res.keyframes)
+    paths["accuracy"] = out / names["accuracy"]
+    write_accuracy_csv(paths["accuracy"], res.table)
+    paths["summary"] = out / names["summary"]
+    with atomic_write(paths["summary"]) as fh:
+        json.dump(res.summary, fh, indent=2)
+    paths["report"] = write_ukf_report(out / names["report"], res)
+    return paths
