@@ -35,6 +35,7 @@ from dgcal.pos.ins.imu_formats import ImuFormat, imu_format, read_imu
 from dgcal.pos.ins.sbet import read_any_trajectory, read_sbet, write_sbet_files
 from dgcal.pos.ins.time_tags import read_time_tag
 from dgcal.pos.ins.ulog import read_ulog_camera_capture, read_ulog_imu
+from dgcal.pos.ros_bags import read_rosbag_imu, read_rosbag_navsatfix
 from dgcal.pos.ins.interpolate import interpolate_trajectory
 from dgcal.pos.lowcost.sync import synchronise
 from dgcal.pos.lowcost.ukf import run_ukf
@@ -60,6 +61,7 @@ __all__ = [
     "ImuData", "read_imu_csv", "read_imu_text", "read_kf_gins", "read_rinex_obs", "read_rinex_nav",
     "SppOptions", "spp", "PosOptions", "PosResult", "run_pos", "interpolate_trajectory", "run_ukf", "synchronise",
     "ImuFormat", "imu_format", "read_imu", "read_time_tag", "read_ulog_imu", "read_ulog_camera_capture",
+    "read_rosbag_imu", "read_rosbag_navsatfix",
     "read_imu_datasheet", "GnssSolution", "read_gnss_solution", "read_rtklib_pos", "write_rtklib_pos",
     "read_nmea_gga", "read_any_events", "read_mrk", "read_utc_events", "read_sbet", "write_sbet_files",
     "read_any_trajectory",

@@ -33,8 +33,10 @@ from dgcal.pos.ins.error_model import imu_grade
 from dgcal.pos.ins.imu_data import read_imu_csv, read_kf_gins
 from dgcal.pos.ins.imu_formats import imu_format, read_imu
 from dgcal.pos.ins.interpolate import interpolate_trajectory, trajectory_at_events
+from dgcal.pos.ins.ulog import is_ulog, read_ulog_imu
 from dgcal.pos.lowcost.ukf import UkfOptions
 from dgcal.pos.lowcost.ukf_pos import UKF_SETTINGS, UkfPosResult, process_ukf, read_true_trajectory
+from dgcal.pos.ros_bags import is_ros_bag, read_rosbag_imu, read_rosbag_navsatfix
 from dgcal.pos.smoother.batch import SmootherOptions, smooth
 from dgcal.pos.smoother.forward_filter import forward_solution
 from dgcal.pos.smoother.initial import GnssFixes
@@ -320,6 +322,14 @@ def load_imu(path, gps_week: int | None = None, fmt=None, overrides=(), tag=None
     `overrides` (KEY=VALUE), the time-tag file `tag` and `time_offset_s` added to every sample time. Without a
     description the content decides: a header with gps_week = dgcal's CSV, else KF-GINS text (sow dθ dv)."""
     path = Path(path)
+    if fmt is None and not overrides and tag is None and path.exists() and is_ros_bag(path):
+        imu = read_rosbag_imu(path)
+        imu.t = imu.t + float(time_offset_s)
+        return imu
+    if fmt is None and not overrides and tag is None and path.is_file() and is_ulog(path):
+        imu = read_ulog_imu(path)
+        imu.t = imu.t + float(time_offset_s)
+        return imu
     if not path.is_file():
         raise InputError("file not found", path)
     if fmt is None and not overrides and tag is None:
@@ -330,6 +340,13 @@ def load_imu(path, gps_week: int | None = None, fmt=None, overrides=(), tag=None
         return imu
     f = imu_format(fmt if fmt is not None else "kf-gins", overrides, time_offset_s=time_offset_s)
     return read_imu(path, f, tag=tag, gps_week=gps_week)
+
+
+def _read_lc_input(path, fmt: str | None, nmea_date: str | None) -> GnssSolution:
+    """LC antenna positions from a solution file (pos.gnss.solution_files) or a ROS bag's NavSatFix messages."""
+    if fmt == "rosbag" or (fmt is None and Path(path).exists() and is_ros_bag(path)):
+        return read_rosbag_navsatfix(path)
+    return read_gnss_solution(path, fmt, nmea_date)
 
 
 def sniff_imu_file(path) -> str:
@@ -526,7 +543,7 @@ def run_pos(opts: PosOptions) -> PosResult:
         raise InputError("tc mode needs --rinex-obs and --rinex-nav", field="--rinex-obs")
     withheld = None
     if opts.gnss:
-        sol = select_quality(read_gnss_solution(opts.gnss, opts.gnss_format, opts.nmea_date), opts.gnss_quality)
+        sol = select_quality(_read_lc_input(opts.gnss, opts.gnss_format, opts.nmea_date), opts.gnss_quality)
         if opts.t_start is not None or opts.t_end is not None:
             keep = (sol.t >= (opts.t_start if opts.t_start is not None else -np.inf)) & \
                    (sol.t <= (opts.t_end if opts.t_end is not None else np.inf))

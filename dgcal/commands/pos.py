@@ -61,7 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ar-ratio", type=float, default=3.0, help="ppk: ratio-test threshold of ambiguity fixing")
     p.add_argument("--frequencies", type=int, default=3, choices=(1, 2, 3),
                    help="ppk: frequencies per system (L1/L2/L5, E1/E5a/E5b, ...)")
-    p.add_argument("--imu", metavar="IMU", help="IMU file (tc/lc): dgcal CSV, KF-GINS text, or as --imu-format says")
+    p.add_argument("--imu", metavar="IMU", help="IMU file (tc/lc): dgcal CSV, KF-GINS text, a PX4 .ulg, a ROS 1/2 bag "
+                   "(sensor_msgs/Imu), or as --imu-format says")
     p.add_argument("--imu-format", metavar="NAME|FILE.toml", default=None,
                    help="IMU file description: a preset (dgcal, kf-gins, rtklibexplorer, rtklibexplorer-sf) or a TOML "
                    "file (columns, units, time, axes; docs/formats.md)")
@@ -78,8 +79,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--events-format", choices=("dgcal", "mrk", "utc-csv", "px4"), default=None,
                    help="format of --events (default: recognised by content)")
     p.add_argument("--gnss", metavar="GNSS", help="GNSS antenna positions for lc mode: dgcal gnss.csv, RTKLIB .pos "
-                   "(llh or xyz, with its covariance) or NMEA GGA")
-    p.add_argument("--gnss-format", choices=("dgcal-csv", "rtklib-pos", "nmea"), default=None,
+                   "(llh or xyz, with its covariance), NMEA GGA or a ROS 1/2 bag (sensor_msgs/NavSatFix)")
+    p.add_argument("--gnss-format", choices=("dgcal-csv", "rtklib-pos", "nmea", "rosbag"), default=None,
                    help="format of --gnss (default: recognised by content)")
     p.add_argument("--gnss-quality", default=None, metavar="Q[,Q]",
                    help="lc: fix qualities of --gnss to use (fixed, float, sbas, dgps, single, ppp; default all)")

@@ -26,13 +26,25 @@ from dgcal.pos.ins.imu_data import ImuData, estimate_rate_hz
 GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
 
 
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+
+
+def is_ulog(path: str | Path) -> bool:
+    """True when the file starts with the ULog magic bytes."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(7) == ULOG_MAGIC
+    except OSError:
+        return False
+
+
 def _open(path: Path, topics: list[str]):
     """A pyulog ULog of `topics`; any failure of the library is one InputError naming the file."""
     if not path.is_file():
         raise InputError("file not found", path)
     with open(path, "rb") as fh:
         magic = fh.read(7)
-    if magic != b"ULog\x01\x12\x35":
+    if magic != ULOG_MAGIC:
         raise InputError(f"not a PX4 ULog file (starts {magic!r})", path, field="header")
     try:
         return ULog(str(path), topics, disable_str_exceptions=True)
