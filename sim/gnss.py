@@ -590,21 +590,44 @@ def simulate_rover_base(t_gps: np.ndarray, p_rover_ecef: np.ndarray, v_rover_ece
         out[name] = dict(P=P, L=Lm / lam[None], D=D, snr=np.round(snr, 3), vis=vis, el=el)
         if name == "rover":
             vis_r = vis.copy()
-    # rover outages: keep the satellites that were highest at the window start
+    out["rover"]["vis"] = _rover_outages(vis_r, out["rover"]["el"], t, outages)
+    restarts = _phase_arcs(out, t, sats, sysv, F, rng)
+    truth_slips = _cycle_slips(out["rover"], t, sats, F, slips, n_random_slips, rng)
+    signals = {(s, f): CARRIER_SIGNALS[s][f] for s in systems if s in CARRIER_SIGNALS for f in range(F)}
+    res = {name: _carrier_obs(name, out[name], t, sats, freq, signals, pos0, P_r if name == "rover" else p_b, rng)
+           for name, pos0 in (("rover", P_r[0]), ("base", p_b))}
+    truth = {"t_gps": t, "p_ecef": P_r, "v_ecef": V_r, "base_ecef": p_b, "clock": truth_clk,
+             "slips": truth_slips, "restarts": restarts, "errors": err.as_dict(),
+             "tropo_zenith_residual_m": float(tropo_res), "outages": [list(o) for o in outages]}
+    return CarrierSimulation(res["rover"], res["base"], nav, p_b, truth)
+
+
+def _rover_outages(vis: np.ndarray, el: np.ndarray, t: np.ndarray, outages) -> np.ndarray:
+    """Visibility (n_ep, m) with the rover keeping, inside each outage (t0, t1, max_sats), only the `max_sats`
+    satellites that were highest at t0."""
+    vis = vis.copy()
+    m = vis.shape[1]
     for (a, b, nmax) in outages:
         kk = np.nonzero((t >= a - 1e-9) & (t <= b + 1e-9))[0]
         if len(kk) == 0:
             continue
-        el0 = np.where(vis_r[kk[0]], out["rover"]["el"][kk[0]], -np.inf)
+        el0 = np.where(vis[kk[0]], el[kk[0]], -np.inf)
         keep = np.argsort(-el0)[:int(nmax)] if nmax > 0 else np.array([], int)
         mask = np.zeros(m, bool)
         mask[keep] = True
-        vis_r[kk] &= mask[None]
-    out["rover"]["vis"] = vis_r
-    truth_slips, restarts = [], []
-    phase_offset = {name: {s: rng.uniform(0, 1, F) for s in set(sysv)} for name in out}
+        vis[kk] &= mask[None]
+    return vis
+
+
+def _phase_arcs(out: dict, t: np.ndarray, sats: list, sysv: np.ndarray, F: int, rng) -> list:
+    """Integer ambiguities per phase arc and a receiver phase offset per system and slot added to each receiver's
+    phase (cycles), loss-of-lock indicators at every restart; returns the rover's restarts (t, sat)."""
+    restarts = []
+    m = len(sats)
+    phase_offset = {name: {s: rng.uniform(0, 1, F) for s in sorted(set(sysv))} for name in out}
     for name, o in out.items():
         vis = o["vis"]
+        n_ep = vis.shape[0]
         start = vis & ~np.vstack([np.zeros((1, m), bool), vis[:-1]])           # first epoch of every arc
         arc = np.cumsum(start, axis=0)                                          # arc number per (epoch, sat)
         N = rng.integers(-10 ** 6, 10 ** 6, size=(int(arc.max()) + 1, m, F)).astype(float)
@@ -617,40 +640,46 @@ def simulate_rover_base(t_gps: np.ndarray, p_rover_ecef: np.ndarray, v_rover_ece
         if name == "rover":
             restarts = [(float(t[k]), sats[i]) for k, i in zip(*np.nonzero(restart))]
         o.update(L=L, lli=lli)
-    # cycle slips on the rover
+    return restarts
+
+
+def _cycle_slips(rover: dict, t: np.ndarray, sats: list, F: int, slips, n_random: int, rng) -> list:
+    """Add the cycle slips `slips` (t_gps, sat, slot, cycles, flagged) and `n_random` drawn ones (half flagged) to
+    the rover's phase from their epoch on, LLI 1 at the flagged ones; returns them all."""
     slip_list = list(slips)
-    if n_random_slips:
-        vis = out["rover"]["vis"]
-        cand = np.argwhere(vis[5:-5]) + [5, 0]
-        pick = cand[rng.choice(len(cand), size=min(n_random_slips, len(cand)), replace=False)]
+    if n_random:
+        cand = np.argwhere(rover["vis"][5:-5]) + [5, 0]
+        pick = cand[rng.choice(len(cand), size=min(n_random, len(cand)), replace=False)]
         for q, (k, i) in enumerate(pick):
             cyc = int(rng.integers(1, 20)) * int(rng.choice([-1, 1]))
             slip_list.append((float(t[k]), sats[i], int(rng.integers(0, F)), cyc, bool(q % 2 == 0)))
+    truth = []
     for (ts, sat, f, cycles, flagged) in slip_list:
         i = sats.index(sat)
         k = t >= ts - 1e-9
-        out["rover"]["L"][k, i, f] += cycles
+        rover["L"][k, i, f] += cycles
         if flagged and k.any():
-            out["rover"]["lli"][np.argmax(k), i, f] |= 1
-        truth_slips.append((float(ts), sat, int(f), int(cycles), bool(flagged)))
-    signals = {(s, f): CARRIER_SIGNALS[s][f] for s in systems if s in CARRIER_SIGNALS for f in range(F)}
-    res = {}
-    for name, pos0 in (("rover", P_r[0]), ("base", p_b)):
-        o = out[name]
-        hide = ~o["vis"][:, :, None].repeat(F, axis=2)
-        arrs = {}
-        for key in ("P", "L", "D", "snr"):
-            a = o[key].copy()
-            a[hide] = np.nan
-            arrs[key] = a
-        lli = o["lli"].copy()
-        lli[hide] = 0
-        res[name] = CarrierObs(source=f"simulation ({name})", t_gps=t.copy(), sats=list(sats), freq_hz=freq.copy(),
-                               P=arrs["P"], L=arrs["L"], D=arrs["D"], snr=arrs["snr"], lli=lli,
-                               signals=dict(signals), p_approx_ecef=pos0 + rng.normal(0, 2.0, 3),
-                               receiver="DGCAL SIM", antenna="SIM", power_failure=np.zeros(n_ep, dtype=bool),
-                               epoch_line=np.arange(n_ep), truth={"p_ecef": (P_r if name == "rover" else p_b).copy()})
-    truth = {"t_gps": t, "p_ecef": P_r, "v_ecef": V_r, "base_ecef": p_b, "clock": truth_clk,
-             "slips": truth_slips, "restarts": restarts, "errors": err.as_dict(),
-             "tropo_zenith_residual_m": float(tropo_res), "outages": [list(o) for o in outages]}
-    return CarrierSimulation(res["rover"], res["base"], nav, p_b, truth)
+            rover["lli"][np.argmax(k), i, f] |= 1
+        truth.append((float(ts), sat, int(f), int(cycles), bool(flagged)))
+    return truth
+
+
+def _carrier_obs(name: str, o: dict, t: np.ndarray, sats: list, freq: np.ndarray, signals: dict,
+                 pos0: np.ndarray, p_true: np.ndarray, rng) -> CarrierObs:
+    """The CarrierObs of one receiver: observations hidden where the satellite is not tracked, an approximate
+    header position 2 m off the true one."""
+    F = freq.shape[1]
+    hide = ~o["vis"][:, :, None].repeat(F, axis=2)
+    arrs = {}
+    for key in ("P", "L", "D", "snr"):
+        a = o[key].copy()
+        a[hide] = np.nan
+        arrs[key] = a
+    lli = o["lli"].copy()
+    lli[hide] = 0
+    n_ep = len(t)
+    return CarrierObs(source=f"simulation ({name})", t_gps=t.copy(), sats=list(sats), freq_hz=freq.copy(),
+                      P=arrs["P"], L=arrs["L"], D=arrs["D"], snr=arrs["snr"], lli=lli,
+                      signals=dict(signals), p_approx_ecef=pos0 + rng.normal(0, 2.0, 3),
+                      receiver="DGCAL SIM", antenna="SIM", power_failure=np.zeros(n_ep, dtype=bool),
+                      epoch_line=np.arange(n_ep), truth={"p_ecef": p_true.copy()})

@@ -191,83 +191,13 @@ def _synchronise(gnss_t, logger_counter, pps, photo, images, trigger, image_cloc
     # 1. the PPS: drift and sub-second phase
     clock = fit_pps_clock(l_ax.t, l_ax.fill(pps), valid=rec, inverted=st.pps_inverted, dt_s=dt,
                           max_drift=st.max_drift_ppm * 1e-6)
-    found, exp_, spur = clock.n_edges, clock.n_expected, clock.n_spurious
-    fig = f"{found} edges of {exp_} expected, {spur} spurious"
-    if found < 0.8 * exp_ or spur > max(2, 0.05 * found):
-        checks.fail("pps-edges", fig, "found >= 80 % of expected, spurious <= 5 %",
-                    f"{fig}: PPS line noisy or intermittent (or --pps-inverted?)", field="pps")
-    checks.add("pps-edges", "warn" if found < exp_ or spur else "pass", fig, "found >= 80 % of expected")
-    fig = (f"residual RMS {clock.residual_rms_s * 1e3:.2f} ms, max {clock.residual_max_s * 1e3:.2f} ms, "
-           f"sampling interval {dt * 1e3:.1f} ms")
-    if not clock.consistent and clock.residual_max_s > dt:
-        checks.fail("clock-fit", fig, "max <= sampling interval",
-                    f"{fig}: the PPS edges do not follow one linear clock (clock jumps, wrong --rate, jitter?)")
-    checks.add("clock-fit", "pass" if clock.consistent else "warn", fig,
-               "every edge inside its two samples" if clock.consistent else "max <= sampling interval",
-               "" if clock.consistent else "no clock is consistent with every edge: least squares used")
-    ppm = clock.drift * 1e6
-    fig = f"{ppm:+.1f} ppm" + (f" ({clock.drift_range[0] * 1e6:+.0f} to {clock.drift_range[1] * 1e6:+.0f} ppm "
-                               "consistent with the edges)" if clock.consistent else " (least squares)")
-    if abs(ppm) > st.max_drift_ppm:
-        checks.fail("drift", fig, f"|drift| <= {st.max_drift_ppm:g} ppm",
-                    f"logger clock drift {fig} is beyond a crystal's +-{st.max_drift_ppm:g} ppm (wrong --rate?)")
-    checks.add("drift", "pass", fig, f"|drift| <= {st.max_drift_ppm:g} ppm")
+    _pps_checks(checks, clock, st, dt)
     # 2. the whole second
-    sig_name = "laser" if laser is not None and np.isfinite(laser).sum() > 10 else (
-        "baro" if baro is not None and np.isfinite(baro).sum() > 10 else None)
-    sig_val = laser if sig_name == "laser" else baro
-    coarse, figs = _coarse(checks, st, clock, g_ax, l_ax, rec, gnss_h, sig_name, sig_val, logger_gps_time)
-    clock, figs = resolve_whole_seconds(clock, coarse)
-    fig = f"{coarse.method}: bound {figs['bound_s']:.3f} s"
-    if not figs["resolvable"]:
-        checks.fail("coarse-alignment", fig, "bound < 0.45 s", f"{fig}: cannot pick the whole GPS second"
-                    + (f" (correlation peak {figs.get('peak_correlation')}, next {figs.get('second_peak_correlation')};"
-                       " a longer record, or --end-gap if the recorders stopped together)"
-                       if "peak_correlation" in figs else ""))
-    checks.add("coarse-alignment", "pass", fig, "bound < 0.45 s")
-    fig = f"coarse - PPS = {figs['residual_s'] * 1e3:+.1f} ms after the whole second"
-    lim = f"|.| <= {figs['residual_limit_s'] * 1e3:.0f} ms"
-    if figs["contradicted"]:
-        checks.fail("coarse-vs-pps", fig, lim, f"{fig}: the PPS fit contradicts the {coarse.method} alignment")
-    checks.add("coarse-vs-pps", "pass", fig, lim)
-    if st.end_gap_s is not None and not coarse.method.startswith("stream ends"):
-        ends = coarse_by_ends(g_ax.t[-1], l_ax.t[-1], st.end_gap_s)
-        d = float(ends.gps_at_ref - clock.to_gps(ends.t_ref))
-        fig = f"stream ends - clock = {d:+.2f} s"
-        if abs(d) > st.end_gap_s + figs["bound_s"] + 0.02:
-            checks.fail("coarse-vs-pps", fig, f"|.| <= --end-gap {st.end_gap_s:g} s",
-                        f"{fig}: the recorders did not stop within the declared {st.end_gap_s:g} s")
-        checks.add("coarse-vs-pps", "pass", fig, f"|.| <= --end-gap {st.end_gap_s:g} s")
-    fig = f"+-{clock.max_error_s * 1e3:.2f} ms"
-    lim = f"<= {st.max_time_error_s * 1e3:.1f} ms"
-    if not clock.max_error_s <= st.max_time_error_s:
-        sweep = abs(clock.drift) * (l_ax.t[-1] - l_ax.t[0])
-        checks.fail("clock-bound", fig, lim, f"the PPS pins the logger clock only to {fig} over the record (the "
-                    f"sampling phase swept about {sweep * 1e3:.0f} ms against the {dt * 1e3:.0f} ms sample interval; "
-                    "about two intervals pin it: a longer record helps; --max-time-error to accept)")
-    checks.add("clock-bound", "pass", fig, lim)
+    clock, coarse, figs, sig_val = _whole_second(checks, st, clock, g_ax, l_ax, rec, gnss_h, laser, baro,
+                                                 logger_gps_time, dt)
     t_gps = clock.to_gps(l_ax.t)
     # 3. exposures
-    spikes = detect_spikes(t_gps[rec], l_ax.fill(photo)[rec], tau=st.tau, blackout_s=st.blackout_s,
-                           polarity=st.photo_polarity)
-    if len(spikes):
-        q = float(np.median(spikes.fit_rms) / spikes.noise)
-        fig = f"fit RMS {q:.2f} x the channel noise"
-        if q > 2.5:
-            checks.fail("spike-fit", fig, "<= 2.5", f"{fig}: the pulse model does not fit the spikes (check --tau "
-                        f"{st.tau:g} s and --blackout {st.blackout_s:g} s)")
-        checks.add("spike-fit", "pass" if q <= 1.5 else "warn", fig, "<= 2.5")
-    trig = None
-    if trigger is not None:
-        trig = match_triggers(trigger_times(t_gps[rec], l_ax.fill(trigger)[rec] > 0.5), spikes.t_exposure,
-                              st.max_lag_s)
-        nu = len(trig.unmatched_spikes)
-        fig = f"{nu} of {len(spikes)} spikes without a trigger in the {st.max_lag_s:g} s before"
-        if nu > max(2, 0.1 * len(spikes)):
-            checks.fail("spikes-vs-triggers", fig, "<= 10 %", f"{fig}: false detections (light changes, wrong "
-                        "polarity?) or a trigger channel that misses commands")
-        checks.add("spikes-vs-triggers", "warn" if nu else "pass", fig, "<= 10 %",
-                   f"{fig} (a lost trigger packet?)" if nu else "")
+    spikes, trig = _exposures(checks, st, t_gps, l_ax, rec, photo, trigger)
     # 4. images
     images = list(images)
     match = pair_images(images, spikes.t_exposure, image_clock)
@@ -305,6 +235,96 @@ def _synchronise(gnss_t, logger_counter, pps, photo, images, trigger, image_cloc
                       None if gnss_h is None else g_ax.fill(gnss_h), None if h_l is None else l_ax.fill(h_l),
                       coarse, figs, match, checks, sig[keep], bound[keep],
                       np.array([pairs[i][1] for i in keep], int), unmatched, len(images))
+
+
+def _pps_checks(checks: Checks, clock, st: SyncSettings, dt: float) -> None:
+    """Checks of the PPS fit: edges found vs expected, residuals vs the sampling interval, a plausible drift."""
+    found, exp_, spur = clock.n_edges, clock.n_expected, clock.n_spurious
+    fig = f"{found} edges of {exp_} expected, {spur} spurious"
+    if found < 0.8 * exp_ or spur > max(2, 0.05 * found):
+        checks.fail("pps-edges", fig, "found >= 80 % of expected, spurious <= 5 %",
+                    f"{fig}: PPS line noisy or intermittent (or --pps-inverted?)", field="pps")
+    checks.add("pps-edges", "warn" if found < exp_ or spur else "pass", fig, "found >= 80 % of expected")
+    fig = (f"residual RMS {clock.residual_rms_s * 1e3:.2f} ms, max {clock.residual_max_s * 1e3:.2f} ms, "
+           f"sampling interval {dt * 1e3:.1f} ms")
+    if not clock.consistent and clock.residual_max_s > dt:
+        checks.fail("clock-fit", fig, "max <= sampling interval",
+                    f"{fig}: the PPS edges do not follow one linear clock (clock jumps, wrong --rate, jitter?)")
+    checks.add("clock-fit", "pass" if clock.consistent else "warn", fig,
+               "every edge inside its two samples" if clock.consistent else "max <= sampling interval",
+               "" if clock.consistent else "no clock is consistent with every edge: least squares used")
+    ppm = clock.drift * 1e6
+    fig = f"{ppm:+.1f} ppm" + (f" ({clock.drift_range[0] * 1e6:+.0f} to {clock.drift_range[1] * 1e6:+.0f} ppm "
+                               "consistent with the edges)" if clock.consistent else " (least squares)")
+    if abs(ppm) > st.max_drift_ppm:
+        checks.fail("drift", fig, f"|drift| <= {st.max_drift_ppm:g} ppm",
+                    f"logger clock drift {fig} is beyond a crystal's +-{st.max_drift_ppm:g} ppm (wrong --rate?)")
+    checks.add("drift", "pass", fig, f"|drift| <= {st.max_drift_ppm:g} ppm")
+
+
+def _whole_second(checks: Checks, st: SyncSettings, clock, g_ax, l_ax, rec, gnss_h, laser, baro, logger_gps_time,
+                  dt: float):
+    """The whole GPS second of the logger clock from the coarse alignment (height signal, GNSS time column or
+    stream ends) with its checks; returns (clock, coarse alignment, its figures, the height signal used)."""
+    sig_name = "laser" if laser is not None and np.isfinite(laser).sum() > 10 else (
+        "baro" if baro is not None and np.isfinite(baro).sum() > 10 else None)
+    sig_val = laser if sig_name == "laser" else baro
+    coarse, figs = _coarse(checks, st, clock, g_ax, l_ax, rec, gnss_h, sig_name, sig_val, logger_gps_time)
+    clock, figs = resolve_whole_seconds(clock, coarse)
+    fig = f"{coarse.method}: bound {figs['bound_s']:.3f} s"
+    if not figs["resolvable"]:
+        checks.fail("coarse-alignment", fig, "bound < 0.45 s", f"{fig}: cannot pick the whole GPS second"
+                    + (f" (correlation peak {figs.get('peak_correlation')}, next {figs.get('second_peak_correlation')};"
+                       " a longer record, or --end-gap if the recorders stopped together)"
+                       if "peak_correlation" in figs else ""))
+    checks.add("coarse-alignment", "pass", fig, "bound < 0.45 s")
+    fig = f"coarse - PPS = {figs['residual_s'] * 1e3:+.1f} ms after the whole second"
+    lim = f"|.| <= {figs['residual_limit_s'] * 1e3:.0f} ms"
+    if figs["contradicted"]:
+        checks.fail("coarse-vs-pps", fig, lim, f"{fig}: the PPS fit contradicts the {coarse.method} alignment")
+    checks.add("coarse-vs-pps", "pass", fig, lim)
+    if st.end_gap_s is not None and not coarse.method.startswith("stream ends"):
+        ends = coarse_by_ends(g_ax.t[-1], l_ax.t[-1], st.end_gap_s)
+        d = float(ends.gps_at_ref - clock.to_gps(ends.t_ref))
+        fig = f"stream ends - clock = {d:+.2f} s"
+        if abs(d) > st.end_gap_s + figs["bound_s"] + 0.02:
+            checks.fail("coarse-vs-pps", fig, f"|.| <= --end-gap {st.end_gap_s:g} s",
+                        f"{fig}: the recorders did not stop within the declared {st.end_gap_s:g} s")
+        checks.add("coarse-vs-pps", "pass", fig, f"|.| <= --end-gap {st.end_gap_s:g} s")
+    fig = f"+-{clock.max_error_s * 1e3:.2f} ms"
+    lim = f"<= {st.max_time_error_s * 1e3:.1f} ms"
+    if not clock.max_error_s <= st.max_time_error_s:
+        sweep = abs(clock.drift) * (l_ax.t[-1] - l_ax.t[0])
+        checks.fail("clock-bound", fig, lim, f"the PPS pins the logger clock only to {fig} over the record (the "
+                    f"sampling phase swept about {sweep * 1e3:.0f} ms against the {dt * 1e3:.0f} ms sample interval; "
+                    "about two intervals pin it: a longer record helps; --max-time-error to accept)")
+    checks.add("clock-bound", "pass", fig, lim)
+    return clock, coarse, figs, sig_val
+
+
+def _exposures(checks: Checks, st: SyncSettings, t_gps, l_ax, rec, photo, trigger):
+    """Exposure spikes of the light sensor (GPS s) and their triggers, with the fit and trigger checks."""
+    spikes = detect_spikes(t_gps[rec], l_ax.fill(photo)[rec], tau=st.tau, blackout_s=st.blackout_s,
+                           polarity=st.photo_polarity)
+    if len(spikes):
+        q = float(np.median(spikes.fit_rms) / spikes.noise)
+        fig = f"fit RMS {q:.2f} x the channel noise"
+        if q > 2.5:
+            checks.fail("spike-fit", fig, "<= 2.5", f"{fig}: the pulse model does not fit the spikes (check --tau "
+                        f"{st.tau:g} s and --blackout {st.blackout_s:g} s)")
+        checks.add("spike-fit", "pass" if q <= 1.5 else "warn", fig, "<= 2.5")
+    trig = None
+    if trigger is not None:
+        trig = match_triggers(trigger_times(t_gps[rec], l_ax.fill(trigger)[rec] > 0.5), spikes.t_exposure,
+                              st.max_lag_s)
+        nu = len(trig.unmatched_spikes)
+        fig = f"{nu} of {len(spikes)} spikes without a trigger in the {st.max_lag_s:g} s before"
+        if nu > max(2, 0.1 * len(spikes)):
+            checks.fail("spikes-vs-triggers", fig, "<= 10 %", f"{fig}: false detections (light changes, wrong "
+                        "polarity?) or a trigger channel that misses commands")
+        checks.add("spikes-vs-triggers", "warn" if nu else "pass", fig, "<= 10 %",
+                   f"{fig} (a lost trigger packet?)" if nu else "")
+    return spikes, trig
 
 
 def trigger_times(t: np.ndarray, on: np.ndarray) -> np.ndarray:
