@@ -187,3 +187,33 @@ def test_tie_blunders_dropped_and_named():
     assert len(blunders & dropped) >= 0.99 * len(blunders)
     assert len(dropped - blunders) <= 0.01 * (len(tie) - len(bad))    # <= 1 % of the good ones
     assert res.summary["n_dropped_tie_observations"] == len(dropped)
+
+
+def _check_rmse(res) -> float:
+    d = np.array([c["dENU_m"] for c in res.check if c["evaluated"]])
+    return float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
+
+
+def test_gross_errors_in_ground_and_tie_measurements():
+    """Issue 16: 5 % of all image measurements (control, check and tie points) 5-50 px off: every one flagged, at
+    most 1 % of the good ones rejected, the check-point RMSE within 1.5x of the clean run."""
+    sim = simulate_block(6, BlockPattern(n_strips=(3,), images_per_strip=(12,)), n_control=10, n_tie=4000)
+    clean = triangulate(sim.camera, sim.points, sim.measurements, sim.crs, TriangulationOptions())
+    rng = np.random.default_rng(1)
+    meas = copy.deepcopy(sim.measurements)
+    ids = meas.id.astype(str)
+    bad = rng.choice(len(ids), int(0.05 * len(ids)), replace=False)
+    towards_centre = np.sign(np.array(sim.camera.image_size) / 2 - meas.xy[bad])
+    meas.xy[bad] += towards_centre * rng.uniform(5, 50, (len(bad), 2))
+    res = triangulate(sim.camera, sim.points, meas, sim.crs, TriangulationOptions())
+    flagged = {(d["image"], d["id"]) for d in res.dropped}
+    flagged |= {(s["image"], s["id"]) for s in res.summary["suspects"] if s["kind"] == "measurement" and s["removed"]}
+    blunders = {(str(meas.image[k]), str(meas.id[k])) for k in bad}
+    ground = {b for b in blunders if not b[1].startswith("T")}
+    assert len(ground) >= 5 and ground <= flagged                     # every ground blunder flagged
+    n_bad_rays = dict(zip(*np.unique(ids[bad], return_counts=True)))
+    n_rays = dict(zip(*np.unique(ids, return_counts=True)))
+    minority = {b for b in blunders if 2 * n_bad_rays[b[1]] < n_rays[b[1]]}
+    assert minority <= flagged
+    assert len(flagged - blunders) <= 0.01 * (len(ids) - len(bad))
+    assert _check_rmse(res) <= 1.5 * _check_rmse(clean)
