@@ -400,7 +400,7 @@ class PosOptions:
     """Inputs and settings of `dgcal pos` in every mode: spp (RINEX -> antenna positions), tc or lc (GNSS/INS
     smoothing of IMU + RINEX, or IMU + gnss.csv for lc, with camera events)."""
 
-    mode: str = "spp"                       # spp | tc | lc
+    mode: str = "spp"                       # spp | ppk | tc | lc | ukf
     rinex_obs: Path | None = None           # RINEX observations of the rover
     rinex_nav: tuple[Path, ...] = ()        # broadcast navigation file(s)
     imu: Path | None = None                 # tc/lc: IMU file (dgcal CSV, KF-GINS text, or as `imu_format` says)

@@ -100,13 +100,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--t-start", type=float, default=None, help="first epoch, continuous GPS seconds")
     p.add_argument("--t-end", type=float, default=None, help="last epoch, continuous GPS seconds")
     p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
-                   help="GNSS antenna lever arm in the IMU body frame, m (tc/lc)")
+                   help="GNSS antenna lever arm in the IMU body frame, m (tc/lc/ukf)")
     p.add_argument("--imu-grade", default=None,
-                   help="IMU error model (tc/lc): a preset (navigation, adis16488, adis16405, consumer) or a datasheet "
+                   help="IMU error model (tc/lc/ukf; default adis16488): a preset (navigation, adis16488, adis16405, "
+                   "consumer) or a datasheet "
                    "TOML file (ARW, VRW, bias instabilities, scale factors, range; docs/formats.md)")
     p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                    help="further option (repeatable): smoother settings for tc/lc, dgcal.pos.gnss.ppk.PpkOptions "
-                   "fields for ppk")
+                   "fields for ppk, UKF settings for ukf (dgcal.pos.lowcost.ukf_pos.UKF_SETTINGS)")
     p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="known antenna position (ECEF, m) for the spp/ppk summary and report")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

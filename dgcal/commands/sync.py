@@ -31,7 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--blackout", type=float, default=0.06, help="camera viewfinder blackout (mirror-up) time (s)")
     p.add_argument("--end-gap", type=float, default=None, metavar="S",
                    help="the recorders stopped within S s of each other (default: unknown; the laser/baro "
-                   "alignment then fixes the whole second, and S only cross-checks it)")
+                   "alignment then fixes the whole second, and S only cross-checks it); below 0.45 s to pick the whole "
+                   "second from the ends alone")
     p.add_argument("--search-range", type=float, default=None, metavar="S",
                    help="coarse search within S s of the stream-end offset (default: the whole overlap)")
     p.add_argument("--max-drift-ppm", type=float, default=200.0, help="plausible crystal drift (ppm)")

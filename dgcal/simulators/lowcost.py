@@ -20,5 +20,5 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     write_lowcost_dataset(args.out, simulate_lowcost_flight(duration_s=args.duration, seed=args.seed), args.seed)
-    print(f"wrote {args.out}/imu.csv, gnss_fixes.csv, truth_trajectory.csv, truth.json")
+    print(f"wrote {args.out}/imu.csv, gnss_fixes.csv, gnss.csv, events.csv, truth_trajectory.csv, truth.json")
     return 0

@@ -243,7 +243,8 @@ def _pps_checks(checks: Checks, clock, st: SyncSettings, dt: float) -> None:
     fig = f"{found} edges of {exp_} expected, {spur} spurious"
     if found < 0.8 * exp_ or spur > max(2, 0.05 * found):
         checks.fail("pps-edges", fig, "found >= 80 % of expected, spurious <= 5 %",
-                    f"{fig}: PPS line noisy or intermittent (or --pps-inverted?)", field="pps")
+                    f"{fig}: PPS line noisy or intermittent (or an inverted PPS: pps_inverted = true under "
+                    "[signals] of --logger-format)", field="pps")
     checks.add("pps-edges", "warn" if found < exp_ or spur else "pass", fig, "found >= 80 % of expected")
     fig = (f"residual RMS {clock.residual_rms_s * 1e3:.2f} ms, max {clock.residual_max_s * 1e3:.2f} ms, "
            f"sampling interval {dt * 1e3:.1f} ms")
