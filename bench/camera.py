@@ -1,5 +1,6 @@
 """Benchmark of camera calibration: the self-calibrating adjustment for 60 images x ~1000 corners beside
-OpenCV calibrateCamera on the same measurements (time and accuracy against the simulated truth), target
+OpenCV calibrateCamera on the same measurements (median time of alternating runs, the ratio, and accuracy
+against the simulated truth for both), target
 refinement, ChArUco detection time per 20 MP image, the real webcam videos of ../shared/data/charuco-webcam
 (detection against OpenCV's own ChArUco detector, RMS against calibrateCamera, timings) and `--model auto` on
 mrcal's corners. Run by hand: `.venv/bin/python bench/camera.py`."""
@@ -42,34 +43,61 @@ def opencv_calibrate(pts, img, ids, xy, size, rational=False):
     return time.perf_counter() - t0, rms, cam
 
 
-def bench_adjustment(n_images: int, square_m: float, seed: int) -> None:
+def bench_adjustment(n_images: int, square_m: float, seed: int, repeats: int = 3) -> None:
+    """dgcal's self-calibration beside OpenCV calibrateCamera on the same measurements: every solver run
+    `repeats` times, the solvers alternating (the machine is shared), the median time; RMS and the projection
+    difference from the truth over the frame (px) for both."""
     from dgcal.calib.selfcal.diagnostics import projection_difference
     from dgcal.calib.selfcal.adjustment import adjust
     size = (5472, 3648)
     truth, pts, img, ids, xy = simulate(n_images, square_m, seed, size)
     n_img = len(set(img.tolist()))
     print(f"simulated: {n_img} images, {len(pts.ids)} field corners, {len(xy)} observations "
-          f"({len(xy) / n_img:.0f} per image), 0.1 px noise, {size[0]}x{size[1]} px")
-    print(f"{'solver':34s} {'time s':>8s} {'RMS px':>8s} {'truth diff RMS':>15s} {'max px':>8s}")
-    runs = (("fraser7", "none", ()), ("fraser7", "none", ("B2",)), ("opencv8", "none", ()),
-            ("fraser7", "free", ()))
-    for model, refine, fixed in runs:
-        t0 = time.perf_counter()
-        res = adjust(pts.ids, pts.xyz, img, ids, xy, size, model, refine_targets=refine, fixed=fixed)
-        dt = time.perf_counter() - t0
-        d_rms, d_max, _ = projection_difference(truth, res.camera)
-        label = "dgcal " + model + (" + targets" if refine != "none" else "") + \
-            (f" ({', '.join(fixed)} held)" if fixed else "")
-        print(f"{label:34s} {dt:8.2f} {res.rms_px:8.4f} {d_rms:15.4f} {d_max:8.4f}   ({res.iterations} iterations)")
-        if model == "fraser7" and refine == "none" and not fixed:
-            e = (res.camera.params - truth.params) / res.camera.sigmas
-            print(f"{'':34s} parameter errors / sigma: max {np.max(np.abs(e[res.free])):.2f}, "
-                  f"RMS {np.sqrt(np.mean(e[res.free] ** 2)):.2f}")
-    for rational in (False, True):
-        dt, rms, cam = opencv_calibrate(pts, img, ids, xy, size, rational)
+          f"({len(xy) / n_img:.0f} per image), 0.1 px noise, {size[0]}x{size[1]} px; median of {repeats} "
+          "alternating runs")
+
+    def dgcal_run(model, refine, fixed):
+        def run():
+            t0 = time.perf_counter()
+            res = adjust(pts.ids, pts.xyz, img, ids, xy, size, model, refine_targets=refine, fixed=fixed)
+            return time.perf_counter() - t0, res.rms_px, res.camera, res
+        return run
+
+    def opencv_run(rational):
+        def run():
+            dt, rms, cam = opencv_calibrate(pts, img, ids, xy, size, rational)
+            return dt, rms, cam, None
+        return run
+
+    solvers = {   # label -> (run, the OpenCV solver it is compared with)
+        "dgcal fraser7": (dgcal_run("fraser7", "none", ()), "OpenCV 5-coeff"),
+        "dgcal fraser7 (B2 held)": (dgcal_run("fraser7", "none", ("B2",)), "OpenCV 5-coeff"),
+        "dgcal opencv8": (dgcal_run("opencv8", "none", ()), "OpenCV rational"),
+        "dgcal fraser7 + targets": (dgcal_run("fraser7", "free", ()), "OpenCV 5-coeff"),
+        "OpenCV 5-coeff": (opencv_run(False), None),
+        "OpenCV rational": (opencv_run(True), None),
+    }
+    runs: dict[str, list] = {k: [] for k in solvers}
+    first = {label: run()[0] for label, (run, _) in solvers.items()}   # warm-up: first calls in this process
+    for _ in range(repeats):
+        for label, (run, _) in solvers.items():
+            runs[label].append(run())
+    times = {k: float(np.median([r[0] for r in v])) for k, v in runs.items()}
+    print(f"{'solver':26s} {'time s':>7s} {'vs OpenCV':>10s} {'RMS px':>8s} {'truth diff RMS px':>18s} "
+          f"{'max px':>8s}")
+    for label, (_, peer) in solvers.items():
+        dt, rms, cam, res = runs[label][-1]
         d_rms, d_max, _ = projection_difference(truth, cam)
-        print(f"{'OpenCV calibrateCamera ' + ('rational' if rational else '5-coeff'):34s} {dt:8.2f} {rms:8.4f} "
-              f"{d_rms:15.4f} {d_max:8.4f}")
+        ratio = f"{times[label] / times[peer]:9.2f}x" if peer else f"{'':10s}"
+        extra = f"   ({res.iterations} iterations)" if res is not None else ""
+        print(f"{label:26s} {times[label]:7.3f} {ratio} {rms:8.4f} {d_rms:18.4f} {d_max:8.4f}{extra}")
+        if label == "dgcal fraser7":
+            e = (res.camera.params - truth.params) / res.camera.sigmas
+            print(f"{'':26s} parameter errors / sigma: max {np.max(np.abs(e[res.free])):.2f}, "
+                  f"RMS {np.sqrt(np.mean(e[res.free] ** 2)):.2f}")
+    print("(vs OpenCV: dgcal's median time over OpenCV's, fraser7 beside the 5-coefficient model, opencv8 beside "
+          "the rational one; RMS px = sqrt(mean |v|^2) over the points for both; after one untimed warm-up call "
+          "of each, whose times were: " + ", ".join(f"{k} {v:.3f} s" for k, v in first.items()) + ")")
 
 
 def bench_detection(n_images: int) -> None:
@@ -148,10 +176,11 @@ def main() -> None:
     p.add_argument("--images", type=int, default=60)
     p.add_argument("--square", type=float, default=0.06, help="ChArUco square (m): 0.06 gives ~1000 corners")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--repeats", type=int, default=3, help="alternating runs of every solver (median time)")
     p.add_argument("--detect-images", type=int, default=3, help="20 MP images to render and detect (0: skip)")
     p.add_argument("--skip-real", action="store_true", help="skip the webcam and mrcal runs")
     a = p.parse_args()
-    bench_adjustment(a.images, a.square, a.seed)
+    bench_adjustment(a.images, a.square, a.seed, a.repeats)
     if a.detect_images:
         bench_detection(a.detect_images)
     if not a.skip_real:

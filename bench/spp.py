@@ -1,12 +1,22 @@
-"""SPP on the real SEPT RINEX data: dgcal vs RTKLIB's pntpos (via pyrtklib), and SPP speed.
+"""SPP on the real SEPT RINEX data: dgcal beside RTKLIB (pyrtklib) on the same files, time and accuracy.
 
-Run: .venv/bin/python bench/spp.py [OBS NAV]
-Prints the 3D RMS / mean ENU error of both solvers against the known antenna position, and the
-wall time per epoch of dgcal's SPP on real and simulated data.
+Run: .venv/bin/python bench/spp.py [OBS NAV] [--repeats 3]
+
+1. Per call, each in a fresh process (median of `--repeats` alternating runs): `dgcal pos --mode spp
+   --no-report`, the same with the HTML report, and RTKLIB's rnx2rtkp engine (postpos in single mode, through
+   pyrtklib: the process's wall time, and postpos's own time, which is what the rnx2rtkp binary spends after its
+   start-up).
+2. In one process: dgcal's `spp_files` (read both files, position every epoch, summary) beside RTKLIB's postpos.
+3. Accuracy of both against the known antenna position (3D RMS, mean and spread in E/N/U), and their difference.
+4. dgcal's SPP on 600 simulated epochs (speed, error and sigma honesty).
 """
 from __future__ import annotations
 
+import argparse
+import json
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -17,9 +27,14 @@ sys.path.insert(0, str(ROOT))
 
 DATA = ROOT.parent / "shared" / "data" / "rinex-sept"
 REF_ECEF = np.array([-3962108.673, 3381309.574, 3668678.638])
+DGCAL = Path(sys.executable).with_name("dgcal")
 
-
-from dgcal.pos.gnss.rtklib import rtklib_pntpos  # noqa: E402  (after the sys.path set-up)
+_RTKLIB_CALL = """import json, sys, time
+t0 = time.perf_counter()
+from dgcal.pos.gnss.rtklib import rtklib_spp
+r = rtklib_spp(sys.argv[1], sys.argv[2])
+print(json.dumps({"run_s": r["run_s"], "n": len(r["t_gps"]), "in_process_s": time.perf_counter() - t0}))
+"""
 
 
 def enu_errors(p_ecef: np.ndarray) -> np.ndarray:
@@ -37,53 +52,122 @@ def summary(name: str, p: np.ndarray) -> str:
             f"std E/N/U {e[:, 0].std():5.3f} {e[:, 1].std():5.3f} {e[:, 2].std():5.3f} m")
 
 
-def main() -> None:
-    obs_path = sys.argv[1] if len(sys.argv) > 2 else str(DATA / "SEPT078M1.21O")
-    nav_path = sys.argv[2] if len(sys.argv) > 2 else str(DATA / "SEPT078M.21P")
-    from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
-    from dgcal.pos.gnss.spp import SppOptions, spp
-
+def _wall(cmd: list[str]) -> tuple[float, str]:
     t0 = time.perf_counter()
-    nav = read_rinex_nav(nav_path)
-    obs = read_rinex_obs(obs_path)
-    t1 = time.perf_counter()
-    sol = spp(obs, nav, SppOptions())
-    t2 = time.perf_counter()
-    print(f"read RINEX {t1 - t0:.2f} s; dgcal SPP {len(obs)} epochs in {t2 - t1:.2f} s "
-          f"({1e3 * (t2 - t1) / len(obs):.1f} ms/epoch)")
-    print(summary("dgcal", sol.p_ecef[sol.ok]))
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    return time.perf_counter() - t0, out.stdout
+
+
+def per_call(obs_path: str, nav_path: str, repeats: int) -> None:
+    """Wall time of one call in a fresh process: dgcal's command (with and without the report) and RTKLIB."""
+    try:
+        import pyrtklib  # noqa: F401
+        have_rtklib = True
+    except ImportError:
+        have_rtklib = False
+    runs: dict[str, list[float]] = {"dgcal --no-report": [], "dgcal (with report)": [], "RTKLIB process": [],
+                                    "RTKLIB postpos": []}
+    with tempfile.TemporaryDirectory() as d:
+        base = [str(DGCAL), "pos", "--mode", "spp", "--rinex-obs", obs_path, "--rinex-nav", nav_path,
+                "--no-progress"]
+        for k in range(repeats):
+            runs["dgcal --no-report"].append(_wall(base + ["--out", f"{d}/a{k}", "--no-report"])[0])
+            if have_rtklib:
+                dt, out = _wall([sys.executable, "-c", _RTKLIB_CALL, obs_path, nav_path])
+                runs["RTKLIB process"].append(dt)
+                runs["RTKLIB postpos"].append(json.loads(out.strip().splitlines()[-1])["run_s"])
+            runs["dgcal (with report)"].append(_wall(base + ["--out", f"{d}/b{k}"])[0])
+    med = {k: float(np.median(v)) for k, v in runs.items() if v}
+    print(f"1. one call, fresh process ({len(obs_epochs(obs_path))} epochs; median of {repeats} alternating runs)")
+    for k, v in med.items():
+        ratio = f"  {v / med['RTKLIB postpos']:6.1f}x RTKLIB's postpos" if "RTKLIB postpos" in med else ""
+        print(f"   {k:22s} {v:6.3f} s{ratio}")
+    if not have_rtklib:
+        print("   (pyrtklib not installed: .venv/bin/pip install pyrtklib==0.2.7)")
+    else:
+        print("   (RTKLIB process: python + pyrtklib import + postpos; postpos: the engine's own time, reading "
+              "included, i.e. rnx2rtkp without its start-up)")
+
+
+def obs_epochs(obs_path: str) -> list:
+    from dgcal.pos.gnss.rinex import read_rinex_obs
+    return read_rinex_obs(obs_path).epochs
+
+
+def in_process(obs_path: str, nav_path: str, repeats: int):
+    """dgcal's spp_files beside RTKLIB's postpos in this process (median of alternating runs); the last results."""
+    from dgcal.pos.gnss.spp import SppOptions, spp_files
+    try:
+        from dgcal.pos.gnss.rtklib import rtklib_spp
+        import pyrtklib  # noqa: F401
+    except ImportError:
+        rtklib_spp = None
+    t_d, t_r, run, rk = [], [], None, None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        run = spp_files(obs_path, [nav_path], SppOptions())
+        t_d.append(time.perf_counter() - t0)
+        if rtklib_spp is not None:
+            rk = rtklib_spp(obs_path, nav_path)
+            t_r.append(rk["run_s"])
+    n = len(run.solution.t_gps)
+    print(f"2. in one process (median of {repeats} alternating runs)")
+    line = f"   dgcal spp_files {np.median(t_d):.3f} s ({1e3 * np.median(t_d) / n:.2f} ms/epoch)"
+    if t_r:
+        line += (f"; RTKLIB postpos {np.median(t_r):.3f} s ({1e3 * np.median(t_r) / n:.2f} ms/epoch); "
+                 f"ratio {np.median(t_d) / np.median(t_r):.1f}x")
+    print(line)
+    return run, rk
+
+
+def accuracy(run, rk) -> None:
+    sol = run.solution
+    print("3. accuracy against the known antenna position")
+    print("   " + summary("dgcal", sol.p_ecef[sol.ok]))
     sig = np.sqrt(np.mean(np.diagonal(sol.cov_p, axis1=1, axis2=2)[sol.ok], axis=0))
-    print(f"dgcal    mean sigma X/Y/Z {sig[0]:.2f} {sig[1]:.2f} {sig[2]:.2f} m; mean n_sat "
+    print(f"   dgcal    mean sigma X/Y/Z {sig[0]:.2f} {sig[1]:.2f} {sig[2]:.2f} m; mean n_sat "
           f"{sol.n_sat[sol.ok].mean():.1f}, PDOP {np.nanmean(sol.dop['pdop']):.2f}; "
           f"speed RMS {np.sqrt(np.nanmean(np.sum(sol.v_ecef ** 2, axis=1))):.3f} m/s")
-    try:
-        t3 = time.perf_counter()
-        tr, pr = rtklib_pntpos(obs_path, nav_path)
-        t4 = time.perf_counter()
-        print(f"RTKLIB pntpos {len(tr)} epochs in {t4 - t3:.2f} s")
-        print(summary("RTKLIB", pr))
-        common, ia, ib = np.intersect1d(np.round(sol.t_gps, 3), np.round(tr, 3), return_indices=True)
-        d = sol.p_ecef[ia] - pr[ib]
-        print(f"dgcal - RTKLIB over {len(common)} common epochs: RMS 3D "
-              f"{np.sqrt(np.mean(np.sum(d ** 2, axis=1))):.3f} m")
-    except ImportError:
-        print("pyrtklib not installed: .venv/bin/pip install pyrtklib==0.2.7")
+    if rk is None:
+        return
+    print("   " + summary("RTKLIB", rk["p_ecef"]))
+    common, ia, ib = np.intersect1d(np.round(sol.t_gps, 3), np.round(rk["t_gps"], 3), return_indices=True)
+    d = sol.p_ecef[ia] - rk["p_ecef"][ib]
+    rms = np.sqrt(np.mean(np.sum(d ** 2, axis=1)))
+    print(f"   dgcal - RTKLIB over {len(common)} common epochs: RMS 3D {rms:.3f} m")
 
-    # simulated: a 10-minute circle at 1 Hz
+
+def simulated(nav_path: str) -> None:
+    """A 10-minute circle at 1 Hz simulated from the same broadcast orbits."""
+    from dgcal.pos.gnss.rinex import read_rinex_nav
+    from dgcal.pos.gnss.spp import SppOptions, spp
     from dgcal.sim.gnss import DEFAULT_T0_GPS, circle_trajectory, simulate_gnss
+    nav = read_rinex_nav(nav_path)
     t = DEFAULT_T0_GPS + np.arange(0.0, 600.0)
     p, v = circle_trajectory(t, 35.3, 139.5, 100.0, 200.0, 15.0)
     t5 = time.perf_counter()
     sim = simulate_gnss(t, p, v, nav, seed=3, systems=("G", "E", "J"), prepare=False)
     t6 = time.perf_counter()
-    s2 = spp(sim, nav, SppOptions(code_sigma_zenith_m=0.5, doppler_sigma_zenith_mps=0.05,
-                                  model_errors=False))
+    s2 = spp(sim, nav, SppOptions(code_sigma_zenith_m=0.5, doppler_sigma_zenith_mps=0.05, model_errors=False))
     t7 = time.perf_counter()
     err = s2.p_ecef - p
     sig = np.sqrt(np.diagonal(s2.cov_p, axis1=1, axis2=2))
-    print(f"simulate 600 epochs {t6 - t5:.2f} s; SPP {t7 - t6:.2f} s; error RMS X/Y/Z "
-          f"{np.sqrt(np.mean(err ** 2, axis=0)).round(3)} m; normalised RMS "
+    print(f"4. simulated 600 epochs in {t6 - t5:.2f} s; SPP {t7 - t6:.2f} s ({1e3 * (t7 - t6) / 600:.2f} ms/epoch); "
+          f"error RMS X/Y/Z {np.sqrt(np.mean(err ** 2, axis=0)).round(3)} m; normalised RMS "
           f"{np.sqrt(np.mean((err / sig) ** 2, axis=0)).round(2)}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("files", nargs="*", metavar="OBS NAV", help="RINEX observation and navigation files "
+                    "(default: ../shared/data/rinex-sept)")
+    ap.add_argument("--repeats", type=int, default=3, help="alternating runs of each (median time)")
+    a = ap.parse_args()
+    obs_path, nav_path = a.files if len(a.files) == 2 else (str(DATA / "SEPT078M1.21O"), str(DATA / "SEPT078M.21P"))
+    per_call(obs_path, nav_path, a.repeats)
+    run, rk = in_process(obs_path, nav_path, a.repeats)
+    accuracy(run, rk)
+    simulated(nav_path)
 
 
 if __name__ == "__main__":

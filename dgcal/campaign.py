@@ -4,8 +4,10 @@ Each step is a dgcal verb run with arguments built from the campaign file (docs/
 of `CHAIN` declares, in its command module, its section, its output files and `campaign_steps` (how its
 section becomes its argv; dgcal.steps), and `plan()` is a loop over them. A step is
 skipped when its fingerprint (its arguments and the contents of its input files) matches its last
-successful run, its outputs are still there and no step before it that it depends on ran again; so an
-interrupted or edited campaign resumes where it must. The run ends with the calibration report
+successful run (DIR/.dgcal-state.json, written after the step), its output folder is still the complete one it
+wrote (its manifest, dgcal.fields.io.atomic) and no step before it that it depends on ran again; so an
+interrupted (even killed) or edited campaign resumes where it must, after the leftovers of the interrupted
+run are cleaned up. The run ends with the calibration report
 (DIR/report.html, DIR/report.json).
 
 Campaign file (TOML, paths relative to it)::
@@ -25,35 +27,115 @@ Every section may add `args = [...]`: extra arguments of its verb.
 from __future__ import annotations
 
 import json
+import re
 import sys
 import time
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 from dgcal.commands import camera, check, mount, pos, triangulate
 from dgcal.fields.errors import InputError
-from dgcal.steps import Campaign, Step
+from dgcal.fields.io import validate
+from dgcal.fields.io.atomic import MANIFEST, atomic_write, clean_stale, file_sha256, manifest_problems, staged_dir
+from dgcal.fields.io.text_files import read_text
+from dgcal.steps import Campaign, Step, file_digest
 
-__all__ = ["CHAIN", "STATE", "Campaign", "DemoOptions", "Step", "load_campaign", "plan", "run_campaign", "run_demo"]
+__all__ = ["CHAIN", "STATE", "Campaign", "DemoOptions", "Step", "load_campaign", "load_state", "plan", "run_campaign",
+           "run_demo"]
 
 STATE = ".dgcal-state.json"
+STATE_VERSION = 2   # {"version", "steps": {name: record}} (dgcal.campaign._record)
 CHAIN = (camera, triangulate, pos, mount, check)  # the verbs of a campaign, in order (dgcal.steps)
 
 
 def load_campaign(path: Path) -> dict:
-    """The campaign TOML with paths made absolute; InputError naming the file on syntax errors."""
+    """The campaign TOML with paths made absolute; InputError naming the file (and the key, `section.key`) on
+    syntax errors and on values of the wrong type or out of range (`check_campaign`)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("campaign file not found", path)
+    text = read_text(path)
     try:
-        cfg = tomllib.loads(path.read_text())
+        cfg = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not valid TOML: {exc}", path) from None
+        raise InputError(f"not valid TOML: {' '.join(str(exc).split())}", path) from None
+    except RecursionError:
+        raise InputError("not valid TOML: nested too deeply", path) from None
+    check_campaign(cfg, path, text)
     cfg["_base"] = path.parent.resolve()
     cfg["_path"] = path.resolve()
     return cfg
+
+
+# the keys of a campaign file and their kinds: path (text), text, list of texts, image size, 3-vector, ...
+_CAMPAIGN_KEYS: dict[str | None, dict[str, tuple]] = {
+    None: {"crs": ("text",), "name": ("text",), "truth": ("path",)},
+    "camera": {"camera_json": ("path",), "field": ("path",), "measurements": ("path",), "images": ("path",),
+               "image_size": ("image_size",), "model": ("text",)},
+    "triangulation": {"eop": ("path",), "gcp": ("path",), "measurements": ("path",), "images": ("path",)},
+    "pos": {"trajectory": ("path",), "events": ("path",), "imu": ("path",), "gnss": ("path",),
+            "rinex_obs": ("path",), "rinex_nav": ("path",), "rinex_base": ("path",), "mode": ("text",),
+            "imu_grade": ("text",), "base_position": ("vec3", 1e8), "lever_arm_gnss": ("vec3", 1000.0),
+            "frequencies": ("int", 1, 3), "set": ("texts",)},
+    "mount": {"method": ("text",), "compare": ("texts",), "measurements": ("path",),
+              "pos_common_fraction": ("number", 0.0, 1.0)},
+    "check": {"gcp": ("path",), "measurements": ("path",), "events": ("path",), "trajectory": ("path",)},
+}
+
+
+def _toml_line(text: str, section: str | None, key: str) -> int | None:
+    """The line of `key = ...` in [section] (top level for None), for error messages."""
+    start = 0
+    if section is not None:
+        m = re.search(rf"^\s*\[\s*{re.escape(section)}\s*\]", text, re.M)
+        if m is None:
+            return None
+        start = m.end()
+    m = re.compile(rf"^\s*{re.escape(key)}\s*=", re.M).search(text, start)
+    return None if m is None else text.count("\n", 0, m.start()) + 1
+
+
+def check_campaign(cfg: dict, path: Path, text: str = "") -> None:
+    """Every known key of a campaign file of the right type: paths and names are texts, `args`/`set`/`compare`
+    lists of texts, `image_size` two whole pixel counts, vectors three finite numbers, fractions in [0, 1];
+    an InputError names the file, line and key (`section.key`)."""
+    for section, keys in _CAMPAIGN_KEYS.items():
+        table = cfg if section is None else cfg.get(section)
+        if table is None:
+            continue
+        if not isinstance(table, dict):
+            raise InputError(f"'{section}' must be a [{section}] table", path, _toml_line(text, None, section),
+                             section)
+        for key, kind in {**keys, **({} if section is None else {"args": ("texts",)})}.items():
+            if key not in table:
+                continue
+            v, name, line = table[key], key if section is None else f"{section}.{key}", _toml_line(text, section, key)
+            what = kind[0]
+            if what in ("path", "text"):
+                if not isinstance(v, str) or (what == "path" and not v.strip()):
+                    raise InputError(f"must be a {'file name' if what == 'path' else 'text'} in quotes, not "
+                                     f"{_short(v)}", path, line, name)
+            elif what == "texts":
+                if not isinstance(v, list) or not all(isinstance(x, (str, int, float)) and not isinstance(x, bool)
+                                                      for x in v):
+                    raise InputError(f"must be a list of texts [\"...\", ...], not {_short(v)}", path, line, name)
+            elif what == "image_size":
+                if not isinstance(v, list) or len(v) != 2:
+                    raise InputError(f"must be [width, height] (px), not {_short(v)}", path, line, name)
+                validate.image_size(v[0], v[1], path, line, name)
+            elif what == "vec3":
+                validate.vector(v, 3, path, line, name, -kind[1], kind[1])
+            elif what == "int":
+                validate.integer(v, kind[1], kind[2], path, line, name)
+            elif what == "number":
+                validate.in_range(v, kind[1], kind[2], path, line, name)
+
+
+def _short(v) -> str:
+    s = repr(v)
+    return s if len(s) <= 40 else s[:37] + "..."
 
 
 def plan_campaign(cfg: dict, out: Path) -> Campaign:
@@ -65,7 +147,26 @@ def plan_campaign(cfg: dict, out: Path) -> Campaign:
         verb.campaign_steps(c)
     if not c.steps:
         raise InputError("the campaign has no step to run", cfg["_path"])
+    for step in c.steps:
+        check_step_argv(step, cfg["_path"])
     return c
+
+
+def check_step_argv(step: Step, path: Path) -> None:
+    """The command line a step will run parses (a misspelt `model` or an unknown option in `args` is an
+    InputError naming the campaign file now, not an argparse exit in the middle of the run)."""
+    import contextlib
+    import io
+
+    from dgcal.cli import build_parser
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            build_parser(step.argv).parse_args(step.argv)
+    except SystemExit:
+        msg = next((ln for ln in reversed(err.getvalue().splitlines()) if "error:" in ln), "invalid arguments")
+        raise InputError(f"step {step.name}: {msg.split('error:', 1)[-1].strip()} (dgcal {' '.join(step.argv)[:200]})",
+                         path) from None
 
 
 def plan(cfg: dict, out: Path) -> list[Step]:
@@ -84,10 +185,14 @@ def report_files(c: Campaign) -> dict:
 
 
 def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[list[str]], int] | None = None,
-                 log=sys.stderr, report: bool = True) -> dict:
+                 log=sys.stderr, report: bool = True, rerun: Sequence[str] = ()) -> dict:
     """Run (or resume) a campaign into `out`; returns {"steps": {name: "ran"|"skipped"}, "timings_s": {...},
-    "report": path or None}. A step is skipped when its fingerprint matches the last successful run, its
-    outputs exist and no step it follows ran; a failing step raises InputError (earlier results are kept)."""
+    "report": path or None}. First what an interrupted run left is cleaned up (`clean_stale` on every output
+    folder of the plan and on `out`). A step is skipped when its record in DIR/.dgcal-state.json (written
+    after it finished) still holds: same argv and input contents, its output folder complete per its manifest
+    and the very one it wrote, no step it follows ran, and it is not named in `rerun` (step names such as
+    `mount_iso`, or verbs: `mount` is every mounting step); `force` reruns everything. A failing step raises
+    InputError (earlier results are kept)."""
     from dgcal.cli import main as dgcal_main
 
     runner = runner or dgcal_main
@@ -95,31 +200,32 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     out = Path(out)
     planned = plan_campaign(cfg, out)
     steps = planned.steps
+    forced = _rerun_steps(steps, rerun, cfg["_path"])
     out_abs = out.resolve()
     for step in steps:  # every campaign file must be there before anything runs
         for p in step.inputs:
             if not Path(p).exists() and out_abs not in Path(p).resolve().parents:
                 raise InputError(f"input of step {step.name} not found", p)
     out.mkdir(parents=True, exist_ok=True)
+    clean_stale(out)                      # the report's staging, killed writes of the state file
+    for step in steps:                    # staging and set-aside folders of killed steps (old outputs put back)
+        clean_stale(step.out_dir)
     state_path = out / STATE
-    state = {}
-    if state_path.is_file() and not force:
-        try:
-            state = json.loads(state_path.read_text())
-        except (OSError, json.JSONDecodeError):
-            state = {}  # a damaged state file only costs a full rerun
+    records = {} if force else load_state(state_path)
+    cache = {k: v for r in records.values() for k, v in r.get("inputs", {}).items()}
     done: dict[str, str] = {}
     timings: dict[str, float] = {}
     for step in steps:
-        fp = step.fingerprint()
-        upstream_ran = any(done.get(n) == "ran" for n in step.after)
-        if state.get(step.name) == fp and not upstream_ran and all(p.exists() for p in step.outputs):
+        fp = step.fingerprint(cache)
+        why = ("--force" if force else "--rerun" if step.name in forced
+               else _why_rerun(step, records.get(step.name), fp, [n for n in step.after if done.get(n) == "ran"]))
+        if why is None:
             done[step.name] = "skipped"
             print(f"[{step.name}] up to date, skipped", file=log)
             continue
-        print(f"[{step.name}] dgcal {' '.join(step.argv)}", file=log, flush=True)
-        state.pop(step.name, None)
-        _save_state(state_path, state)
+        print(f"[{step.name}] ({why}) dgcal {' '.join(step.argv)}", file=log, flush=True)
+        records.pop(step.name, None)
+        _save_state(state_path, records)
         t0 = time.perf_counter()
         try:
             rc = runner(step.argv)
@@ -134,24 +240,84 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
         missing = [str(p) for p in step.outputs if not p.exists()]
         if missing:
             raise InputError(f"step {step.name} did not write {', '.join(missing)}", cfg["_path"])
-        state[step.name] = fp
-        _save_state(state_path, state)
+        records[step.name] = _record(step, fp, cache)   # the record last: only a finished step is done
+        _save_state(state_path, records)
         done[step.name] = "ran"
         print(f"[{step.name}] done in {timings[step.name]:.1f} s", file=log, flush=True)
     result = {"steps": done, "timings_s": timings, "report": None}
     if report:
         from dgcal.reports.campaign import write_campaign_report
         t0 = time.perf_counter()
-        paths = write_campaign_report(cfg, out, report_files(planned), steps=done, timings=timings)
+        with staged_dir(out, merge=True) as tmp:   # report.json and report.html together, the manifest last
+            write_campaign_report(cfg, out, report_files(planned), steps=done, timings=timings, into=tmp)
         timings["report"] = time.perf_counter() - t0
-        result["report"] = str(Path(paths["html"]).resolve())
+        result["report"] = str((out / "report.html").resolve())
     return result
 
 
-def _save_state(path: Path, state: dict) -> None:
-    tmp = path.with_suffix(".part")
-    tmp.write_text(json.dumps(state, indent=1))
-    tmp.replace(path)
+def _rerun_steps(steps: list[Step], names: Sequence[str], campaign: Path) -> set[str]:
+    """The steps `--rerun` names: step names (mount_iso) or verbs (mount: every mounting step)."""
+    chosen: set[str] = set()
+    for n in names:
+        hit = {s.name for s in steps if n in (s.name, s.verb)}
+        if not hit:
+            raise InputError(f"--rerun {n}: no such step in this campaign (steps: "
+                             f"{', '.join(s.name for s in steps)})", campaign)
+        chosen |= hit
+    return chosen
+
+
+def _why_rerun(step: Step, rec: dict | None, fp: str, upstream: list[str]) -> str | None:
+    """Why a step must run again, or None when its record shows it up to date."""
+    if rec is None:
+        return "not run yet"
+    if rec.get("fingerprint") != fp:
+        if rec.get("argv") != step.argv:
+            return "arguments changed"
+        changed = [Path(k).name for k, v in rec.get("input_sha256", {}).items()
+                   if not Path(k).is_file() or file_digest(Path(k)) != v]
+        return f"input changed: {', '.join(changed[:3])}" if changed else "inputs changed"
+    if upstream:
+        return f"after {', '.join(upstream)}"
+    problems = [] if step.out_dir is None else manifest_problems(step.out_dir)
+    missing = [p.name for p in step.outputs if not p.exists()]
+    if problems or missing:
+        return f"outputs incomplete: {(problems or missing)[0]}"
+    if step.out_dir is not None and _manifest_digest(step.out_dir) != rec.get("outputs"):
+        return "outputs replaced since it ran"
+    return None
+
+
+def _manifest_digest(folder: Path) -> str | None:
+    p = Path(folder) / MANIFEST
+    return file_sha256(p) if p.is_file() else None
+
+
+def _record(step: Step, fp: str, cache: dict) -> dict:
+    """What the state file keeps of a finished step: fingerprint, argv, the stamps and SHA-256 of its input
+    files, the digest of its output folder's manifest."""
+    keys = [str(q.resolve()) for _, q in step.input_files()]
+    return {"fingerprint": fp, "argv": step.argv, "finished_unix": time.time(),
+            "input_sha256": {k: file_digest(Path(k), cache) for k in keys},
+            "inputs": {k: cache[k] for k in keys if k in cache},
+            "outputs": None if step.out_dir is None else _manifest_digest(step.out_dir)}
+
+
+def load_state(path: Path) -> dict:
+    """The finished steps' records of DIR/.dgcal-state.json (step name -> record); {} when there is none or
+    it is damaged or of an earlier version (which only costs a full rerun)."""
+    try:
+        state = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(state, dict) or state.get("version") != STATE_VERSION or not isinstance(state.get("steps"), dict):
+        return {}
+    return {k: v for k, v in state["steps"].items() if isinstance(v, dict)}
+
+
+def _save_state(path: Path, records: dict) -> None:
+    with atomic_write(path) as fh:
+        json.dump({"version": STATE_VERSION, "steps": records}, fh, indent=1)
 
 
 @dataclass

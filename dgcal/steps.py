@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.atomic import file_sha256
 
 
 @dataclass
@@ -22,7 +24,7 @@ class Step:
     """One verb of the chain: its argv, the files it reads, the files it must leave behind, the steps it follows.
 
     `files` holds every output the verb declares (role -> path), `label` what tells steps of one verb apart
-    (the mounting method as the campaign names it).
+    (the mounting method as the campaign names it), `out_dir` the folder the verb writes (its --out).
     """
 
     name: str
@@ -32,34 +34,56 @@ class Step:
     after: list[str] = field(default_factory=list)
     label: str = ""
     files: dict[str, Path] = field(default_factory=dict)
+    out_dir: Path | None = None
 
     @property
     def verb(self) -> str:
         """The dgcal verb the step runs (argv[0])."""
         return self.argv[0]
 
-    def fingerprint(self) -> str:
-        """SHA-256 of the argv and of the contents of every input file (folders: every file in them)."""
-        h = hashlib.sha256(json.dumps(self.argv).encode())
+    def input_files(self) -> list[tuple[str, Path]]:
+        """Every input file with the name it is hashed under (folders: every file in them, by relative path);
+        InputError when an input is missing."""
+        files = []
         for p in self.inputs:
             p = Path(p)
             if p.is_dir():
-                for q in sorted(p.rglob("*")):
-                    if q.is_file():
-                        h.update(str(q.relative_to(p)).encode())
-                        _hash_file(h, q)
+                files += [(q.relative_to(p).as_posix(), q) for q in sorted(p.rglob("*")) if q.is_file()]
             elif p.is_file():
-                h.update(p.name.encode())
-                _hash_file(h, p)
+                files.append((p.name, p))
             else:
                 raise InputError(f"input of step {self.name} not found", p)
+        return files
+
+    def fingerprint(self, cache: dict | None = None) -> str:
+        """SHA-256 of the argv and of the contents of every input file (folders: every file in them).
+
+        `cache` (resolved path -> [size, mtime_ns, inode, sha256]) saves reading a file again whose size,
+        modification time and inode are those recorded; it is updated with every file read."""
+        h = hashlib.sha256(json.dumps(self.argv).encode())
+        for name, q in self.input_files():
+            h.update(name.encode())
+            h.update(file_digest(q, cache).encode())
         return h.hexdigest()
 
 
-def _hash_file(h, path: Path) -> None:
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
+_RACY_NS = 3_000_000_000  # files modified less than 3 s ago are hashed again next time
+
+
+def file_digest(path: Path, cache: dict | None = None) -> str:
+    """SHA-256 of a file, from `cache` (resolved path -> [size, mtime_ns, inode, sha256]) when its size,
+    modification time and inode are the recorded ones; a file read is entered in `cache`, unless it changed in
+    the last seconds (a change within the file system's timestamp resolution would go unseen)."""
+    st = path.stat()
+    key, stamp = str(path.resolve()), [st.st_size, st.st_mtime_ns, st.st_ino]
+    if cache is not None:
+        hit = cache.get(key)
+        if isinstance(hit, list) and len(hit) == 4 and hit[:3] == stamp:
+            return str(hit[3])
+    digest = file_sha256(path)
+    if cache is not None and time.time_ns() - st.st_mtime_ns > _RACY_NS:
+        cache[key] = [*stamp, digest]
+    return digest
 
 
 class Campaign:
@@ -132,7 +156,8 @@ class Campaign:
         """Append a step whose verb writes `outputs` (role -> file name) into `out_dir`; `required` roles must
         exist after it ran (and for it to count as up to date)."""
         files = {role: Path(out_dir) / fname for role, fname in outputs.items()}
-        step = Step(name, list(argv), list(inputs), [files[r] for r in required], list(after), label, files)
+        step = Step(name, list(argv), list(inputs), [files[r] for r in required], list(after), label, files,
+                    Path(out_dir))
         self.steps.append(step)
         return step
 

@@ -20,8 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from dgcal.fields.constants import GPS_EPOCH_UNIX_S
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
 from dgcal.fields.io.csv_tables import atomic_write, read_table
+from dgcal.fields.io.text_files import read_text
 from dgcal.fields.io.formats import Events, gps_seconds, read_events, week_sow
 from dgcal.fields.io.timescales import gps_from_unix_gpst, gps_from_unix_utc, unix_from_calendar
 from dgcal.pos.ins.ulog import read_ulog_camera_capture
@@ -77,12 +80,7 @@ def _diagnose(line: str) -> str:
 def read_mrk(path: str | Path) -> MrkRecords:
     """Read a DJI `.MRK` timestamp file; InputError naming file, line and field on malformed rows."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError("file not found", path)
-    try:
-        text = path.read_text(encoding="utf-8-sig", errors="strict")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read: {exc}", path) from None
+    text = read_text(path)
     rows, lines = [], []
     for ln, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
@@ -95,22 +93,30 @@ def read_mrk(path: str | Path) -> MrkRecords:
     if not rows:
         raise InputError("no MRK rows", path)
 
-    def col(k, typ=float):
-        return np.array([typ(r[k]) for r in rows])
-    week, sow = col("week", int), col("sow")
-    t = gps_seconds(week, sow)
+    def col(k):
+        return np.array([float(r[k]) for r in rows])
     lines_a = np.array(lines)
+    week, sow = col("week"), col("sow")
+    validate.gps_week_sow(week, sow, path, lines_a, ("[week]", "seconds of week"))
+    for k, name, lim in (("lat", "Lat", 90.0), ("lon", "Lon", 360.0), ("h", "Ellh", validate.MAX_HEIGHT_M),
+                         ("n", "N offset", 1e6), ("e", "E offset", 1e6), ("v", "V offset", 1e6)):
+        validate.values_in_range(col(k), -lim, lim, path, name, lines_a)
+    for k in ("sn", "se", "sv"):
+        validate.positive_values(col(k), path, "sigmas", lines_a, hi=1e6, strict=False, what="sigma")
+    validate.whole_values(col("idx"), 0, 10 ** 9, path, "index", lines_a)
+    validate.whole_values(col("q"), 0, 10 ** 6, path, "Q", lines_a)
+    t = gps_seconds(week, sow)
     back = np.flatnonzero(np.diff(t) <= 0)
     if back.size:
         raise InputError("event time does not increase", path, int(lines_a[back[0] + 1]), "seconds of week")
-    idx = col("idx", int)
+    idx = col("idx").astype(np.int64)
     dup = np.flatnonzero(np.diff(np.sort(idx)) == 0)
     if dup.size:
         i = int(np.sort(idx)[dup[0]])
         raise InputError(f"photo index {i} appears twice", path, int(lines_a[np.flatnonzero(idx == i)[1]]), "index")
     return MrkRecords(index=idx, t=t, offset_nev_m=np.column_stack([col("n"), col("e"), col("v")]) * 1e-3,
                       lat=col("lat"), lon=col("lon"), h=col("h"),
-                      sigma_nev_m=np.column_stack([col("sn"), col("se"), col("sv")]), quality=col("q", int),
+                      sigma_nev_m=np.column_stack([col("sn"), col("se"), col("sv")]), quality=col("q").astype(np.int64),
                       lines=lines_a, path=path)
 
 
@@ -171,6 +177,8 @@ def read_utc_events(path: str | Path, leap_seconds: float | None = None) -> Even
                 raise InputError(str(exc), path, int(tab.lines[i]), col) from None
         if not np.isfinite(u[i]):
             raise InputError("not a finite time", path, int(tab.lines[i]), col)
+    validate.values_in_range(u, GPS_EPOCH_UNIX_S, GPS_EPOCH_UNIX_S + validate.GPS_SECONDS_MAX, path, col, tab.lines,
+                             unit="s")
     t = gps_from_unix_utc(u, leap_seconds) if col == "utc" else gps_from_unix_gpst(u)
     image = np.array([str(v) for v in tab["image"]], dtype=object)
     _, first = np.unique(image, return_index=True)

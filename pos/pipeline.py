@@ -32,6 +32,7 @@ from dgcal.pos.gnss.solution_files import GnssSolution, read_gnss_solution, sele
 from dgcal.pos.ins.error_model import imu_grade
 from dgcal.pos.ins.imu_data import read_imu_csv, read_kf_gins
 from dgcal.pos.ins.imu_formats import imu_format, read_imu
+from dgcal.pos.ins.integrity import ImuIntegrity, ImuIntegrityOptions, check_imu
 from dgcal.pos.ins.interpolate import interpolate_trajectory, trajectory_at_events
 from dgcal.pos.ins.ulog import is_ulog, read_ulog_imu
 from dgcal.pos.lowcost.ukf import UkfOptions
@@ -40,6 +41,7 @@ from dgcal.pos.ros_bags import is_ros_bag, read_rosbag_imu, read_rosbag_navsatfi
 from dgcal.pos.smoother.batch import SmootherOptions, smooth
 from dgcal.pos.smoother.forward_filter import forward_solution
 from dgcal.pos.smoother.initial import GnssFixes
+from dgcal.pos.smoother.integrity import gnss_warnings
 from dgcal.pos.smoother.output import densify, solution_trajectory
 
 
@@ -154,8 +156,13 @@ def tc_epochs(raw, nav, spp_sol, opts):
 def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_opts=None,
             lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool = True,
             smoother_opts=None, progress: bool = False, carrier: tuple | None = None,
-            ppk_opts: PpkOptions | None = None, dd_opts: DDOptions | None = None) -> PosResult:
+            ppk_opts: PpkOptions | None = None, dd_opts: DDOptions | None = None,
+            imu_checks: ImuIntegrityOptions | None = None) -> PosResult:
     """Run SPP (when RINEX is given), the smoother (TC or LC), the forward solution and the outputs in memory.
+
+    The IMU data are checked first (dgcal.pos.ins.integrity.check_imu: order, duplicates, gaps, spikes; a gap
+    too long to bridge is a ResultError) and the GNSS epochs screened in the smoother; what was found is in
+    `summary['integrity']` and one line per finding in `summary['warnings']`.
 
     carrier: (rover, base `dgcal.pos.gnss.carrier.CarrierObs`, base ECEF m) for TC with carrier phase: PPK, the
     arcs' integers and the double differences (`dgcal.pos.gnss.dd.carrier_front_end`) replace the pseudoranges.
@@ -164,6 +171,7 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
         raise InputError(f"mode must be tc or lc, not {mode!r}", field="--mode")
     opts = smoother_opts or SmootherOptions()
     opts.lever_arm_b = np.asarray(lever_arm_b, float)
+    imu, imu_report = check_imu(imu, imu_checks)
     spp_sol = fixes = gnss = None
     timing = {}
     t0 = time.perf_counter()
@@ -208,9 +216,27 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     res = PosResult(mode, sol, fw, dense, solution_trajectory(sol), solution_trajectory(fw) if fw else None, ev,
                     spp_sol, fixes, carrier=fe)
     res.summary = summarize(res)
+    add_integrity(res.summary, imu_report, sol.info.get("gnss_rejected", []))
     if fe is not None:
         res.summary["carrier"] = carrier_summary(res)
     return res
+
+
+def add_integrity(summary: dict, imu_report: ImuIntegrity | None = None, gnss_rejected: list | None = None,
+                  rinex_warnings: list | None = None) -> None:
+    """Put the data-integrity findings into a summary: `integrity` (IMU issues and bridges, rejected GNSS
+    epochs and observations, RINEX record problems) and one line per finding in `warnings` (appended)."""
+    it = summary.setdefault("integrity", {})
+    w = summary.setdefault("warnings", [])
+    if imu_report is not None:
+        it["imu"] = imu_report.summary()
+        w += imu_report.warnings()
+    if gnss_rejected is not None:
+        it["gnss_rejected"] = [{k: v for k, v in r.items() if k != "keyframe"} for r in gnss_rejected]
+        w += gnss_warnings(gnss_rejected)
+    if rinex_warnings:
+        it.setdefault("rinex", []).extend(rinex_warnings)
+        w += list(rinex_warnings)
 
 
 def fixes_with_ppk(fixes: GnssFixes, res: PpkResult) -> GnssFixes:
@@ -367,7 +393,8 @@ def sniff_imu_file(path) -> str:
 _SETTINGS = {"rate": float, "forward": bool, "model_errors": bool, "use_doppler": bool, "earth_rotation": bool,
              "huber_k": float, "clock_bias_rw_m": float, "clock_drift_rw_mps": float, "prior_pos_sigma_m": float,
              "prior_vel_sigma_mps": float, "lc_velocity": bool, "max_iterations": int, "dd_outlier_sigma": float,
-             "zupt": bool, "static_noise": bool}
+             "zupt": bool, "static_noise": bool, "gnss_outlier_sigma": float, "imu_max_gap_s": float}
+_IMU_SETTINGS = {"imu_max_gap_s": "max_gap_s"}   # --set keys of the IMU checks (dgcal.pos.ins.integrity)
 
 
 def parse_settings(items) -> dict:
@@ -386,7 +413,7 @@ def parse_settings(items) -> dict:
                 if v not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
                     raise ValueError(v)
                 out[key] = v in ("1", "true", "yes", "on")
-            elif key == "huber_k" and v in ("none", "off"):
+            elif key in ("huber_k", "gnss_outlier_sigma") and v in ("none", "off"):
                 out[key] = None
             else:
                 out[key] = typ(v)
@@ -464,11 +491,14 @@ def run_spp(opts: PosOptions) -> SppRun:
             raise InputError("required for --mode spp", field="--" + name)
     sopts = _spp_options(opts)
     nav = read_rinex_nav(opts.rinex_nav[0], list(opts.rinex_nav[1:]))
-    obs = read_rinex_obs(opts.rinex_obs, systems=sopts.systems, t_start=opts.t_start, t_end=opts.t_end)
+    rx = read_obs_file(opts.rinex_obs, t_start=opts.t_start, t_end=opts.t_end)
+    obs = read_rinex_obs(opts.rinex_obs, systems=sopts.systems, rinex=rx)
     sol = spp(obs, nav, sopts, progress=opts.progress)
     if not sol.ok.any():
         raise InputError("no epoch could be positioned (too few satellites with ephemeris?)", opts.rinex_obs)
     summary = spp_summary(sol, obs, nav, sopts)
+    if rx.warnings:
+        add_integrity(summary, rinex_warnings=rx.warnings)
     ref = None
     if opts.reference_ecef is not None:
         ref = np.asarray(opts.reference_ecef, float)
@@ -506,7 +536,8 @@ def tc_carrier_inputs(opts: PosOptions, nav, spp_opts, extra: dict):
     base = carrier_observations(bs.rinex, systems, popts.n_freq)
     info = {"rinex_base": str(opts.rinex_base), "base_ecef_m": bs.ecef.tolist(), "base_position_source": bs.source,
             "base_spp_ecef_m": bs.spp_ecef.tolist() if bs.spp_ecef is not None else None,
-            "base_minus_spp_m": bs.minus_spp_m, "warnings": bs.warnings + list(nav.warnings)}
+            "base_minus_spp_m": bs.minus_spp_m, "warnings": bs.warnings + list(nav.warnings),
+            "rinex_warnings": list(rover_rx.warnings) + list(bs.rinex.warnings)}
     return (rover, base, bs.ecef), raw, popts, dd_opts, info
 
 
@@ -528,6 +559,7 @@ def run_pos(opts: PosOptions) -> PosResult:
     raw = nav = lc = None
     spp_opts = None
     carrier = popts = dd_opts = base_info = None
+    rinex_warnings: list = []
     week = int(np.floor(events.t[0] / SECONDS_PER_WEEK)) if events is not None and len(events) else None
     if opts.rinex_obs and opts.rinex_nav:
         spp_opts = _spp_options(opts, model_errors=bool(extra.pop("model_errors", True)), strict=False)
@@ -535,8 +567,11 @@ def run_pos(opts: PosOptions) -> PosResult:
         nav = read_rinex_nav(navs[0], navs[1:])
         if mode == "tc" and opts.rinex_base:
             carrier, raw, popts, dd_opts, base_info = tc_carrier_inputs(opts, nav, spp_opts, extra)
+            rinex_warnings = base_info.pop("rinex_warnings")
         else:
-            raw = read_rinex_obs(opts.rinex_obs, systems=spp_opts.systems, t_start=opts.t_start, t_end=opts.t_end)
+            rx = read_obs_file(opts.rinex_obs, t_start=opts.t_start, t_end=opts.t_end)
+            raw = read_rinex_obs(opts.rinex_obs, systems=spp_opts.systems, rinex=rx)
+            rinex_warnings = list(rx.warnings)
         if len(raw.epochs):
             week = int(np.floor(raw.epochs[0].t_gps / SECONDS_PER_WEEK))
     elif mode == "tc":
@@ -570,14 +605,18 @@ def run_pos(opts: PosOptions) -> PosResult:
     for k in _DD_SETTINGS:               # without a base station the double-difference settings do nothing
         extra.pop(k, None)
     ukf_kw = {k: extra.pop(k) for k in list(extra) if k in UKF_SETTINGS}
+    checks = ImuIntegrityOptions(**{_IMU_SETTINGS[k]: extra.pop(k) for k in list(extra) if k in _IMU_SETTINGS})
     sm = SmootherOptions(**extra)
     try:
         if mode == "ukf":
+            imu, imu_report = check_imu(imu, checks)
             res = ukf_mode(opts, imu, grade, lever, raw, nav, spp_opts, lc, events, rate, sm, ukf_kw)
+            add_integrity(res.summary, imu_report)
         else:
             res = process(mode, imu, grade, lever, raw_obs=raw, nav=nav, spp_opts=spp_opts, lc_fixes=lc,
                           events=events, rate_hz=rate, forward=forward, smoother_opts=sm, progress=opts.progress,
-                          carrier=carrier, ppk_opts=popts, dd_opts=dd_opts)
+                          carrier=carrier, ppk_opts=popts, dd_opts=dd_opts, imu_checks=checks)
+        add_integrity(res.summary, rinex_warnings=rinex_warnings)
     except InputError:
         raise
     except ValueError as exc:
@@ -789,7 +828,7 @@ def run_ppk(opts: PosOptions) -> PpkRun:
     rover_rx = read_obs_file(opts.rinex_obs, t_start=opts.t_start, t_end=opts.t_end, systems=popts.systems)
     bs = read_base(opts, rover_rx, nav, sopts, popts.systems, popts.max_age_s)
     base_rx, base, src, base_spp, d_spp = bs.rinex, bs.ecef, bs.source, bs.spp_ecef, bs.minus_spp_m
-    warnings += bs.warnings
+    warnings += list(rover_rx.warnings) + list(base_rx.warnings) + bs.warnings
     # rover: SPP of the first epochs (start of the filter) and of epochs without double differences
     rover_raw = read_rinex_obs(opts.rinex_obs, systems=sopts.systems, rinex=rover_rx)
     p_init = None

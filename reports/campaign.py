@@ -478,21 +478,23 @@ def _short(v):
 
 
 def write_campaign_report(cfg: dict, out: Path, files: dict, steps: dict | None = None,
-                          timings: dict | None = None) -> dict:
+                          timings: dict | None = None, into: Path | None = None) -> dict:
     """Write DIR/report.json and DIR/report.html for the campaign outputs in `out`; returns their paths.
 
     `files` are the step files the verbs declare (dgcal.campaign.report_files): "camera", "triangulation",
     "pos", "check" (role -> path) and "mounts" (method as the campaign names it -> role -> path; the first
-    is the campaign's method).
+    is the campaign's method). `into`: write the two files there instead (a staging folder that becomes
+    `out`; the links of the page stay relative to `out`).
     """
     out = Path(out)
+    dest = out if into is None else Path(into)
     d = collect(cfg, out, files, steps, timings)
     page = build_html(d, out, cfg, files)
-    with atomic_write(out / "report.json") as fh:
+    with atomic_write(dest / "report.json") as fh:
         json.dump(d, fh, indent=1, default=_json_default)
-    with atomic_write(out / "report.html", encoding="utf-8") as fh:
+    with atomic_write(dest / "report.html", encoding="utf-8") as fh:
         fh.write(page)
-    return {"html": out / "report.html", "json": out / "report.json"}
+    return {"html": dest / "report.html", "json": dest / "report.json"}
 
 
 def _json_default(o):

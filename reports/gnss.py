@@ -1,9 +1,13 @@
-"""HTML report of a GNSS single-point positioning run: track, sigma envelopes, satellites, DOP, residuals."""
+"""HTML report of a GNSS single-point positioning run: track, sigma envelopes, satellites, DOP, residuals.
+
+matplotlib (through dgcal.reports.html) is imported only when a report is drawn: `write_spp_outputs(...,
+report=False)` (`dgcal pos --mode spp --no-report`) writes gnss.csv and the summary without it."""
 from __future__ import annotations
 
 import json
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -11,8 +15,9 @@ from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.gnss.spp import enu_sigmas, write_gnss_csv
-from dgcal.pos.pipeline import SppRun
-from dgcal.reports.html import HtmlReport, new_figure
+
+if TYPE_CHECKING:
+    from dgcal.pos.gnss.spp import SppRun
 
 
 def _enu(sol, ref_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -26,6 +31,7 @@ def _enu(sol, ref_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def write_spp_report(path: str | Path, sol, summary: dict, ref_ecef: np.ndarray | None = None) -> Path:
     """Write ``gnss_report.html`` for an ``SppSolution`` (``ref_ecef``: known position, else the median)."""
+    from dgcal.reports.html import HtmlReport, new_figure   # why: matplotlib only when a report is drawn
     ok = sol.ok
     rep = HtmlReport("dgcal pos — GNSS single-point positioning")
     rep.kv_table([("observations", summary.get("rinex_obs", "")),
@@ -106,13 +112,17 @@ def write_spp_report(path: str | Path, sol, summary: dict, ref_ecef: np.ndarray 
     return rep.write(path)
 
 
-def write_spp_outputs(out_dir: str | Path, run: SppRun, names: Mapping[str, str]) -> dict[str, Path]:
+def write_spp_outputs(out_dir: str | Path, run: SppRun, names: Mapping[str, str],
+                      report: bool = True) -> dict[str, Path]:
     """`dgcal pos --mode spp`'s files in `out_dir`, named by role in `names`: gnss (gnss.csv, ECEF m),
-    gnss_summary (JSON) and gnss_report (HTML); returns the paths by role."""
+    gnss_summary (JSON) and, unless `report` is False, gnss_report (HTML); returns the paths written by role.
+    `run`: a dgcal.pos.gnss.spp.SppRun (or anything with its solution, summary and reference_ecef)."""
     out = Path(out_dir)
-    paths = {role: out / names[role] for role in ("gnss", "gnss_summary", "gnss_report")}
+    roles = ("gnss", "gnss_summary") + (("gnss_report",) if report else ())
+    paths = {role: out / names[role] for role in roles}
     write_gnss_csv(paths["gnss"], run.solution)
     with atomic_write(paths["gnss_summary"]) as fh:
         json.dump(run.summary, fh, indent=2)
-    write_spp_report(paths["gnss_report"], run.solution, run.summary, run.reference_ecef)
+    if report:
+        write_spp_report(paths["gnss_report"], run.solution, run.summary, run.reference_ecef)
     return paths

@@ -168,6 +168,26 @@ def _ppk_vs_tc(res):
     return fig
 
 
+def _integrity_section(rep: HtmlReport, it: Mapping) -> None:
+    """The data-integrity findings: IMU samples sorted, dropped, bridged or replaced; GNSS epochs and
+    observations rejected; RINEX records skipped, sorted or dropped (nothing when all is clean)."""
+    imu = it.get("imu") or {}
+    rows = [[i["kind"], f"{i['t0_gps']:.3f}", f"{i['t1_gps']:.3f}", i["n"], i["detail"]] for i in imu.get("issues", [])]
+    rows += [[f"GNSS {r['kind']}", f"{r['t_gps']:.3f}", "", 1, r["detail"]] for r in it.get("gnss_rejected", [])]
+    rows += [["RINEX", "", "", "", w] for w in it.get("rinex", [])]
+    if not rows:
+        return
+    rep.heading("Data integrity")
+    rep.text("What the checks of the inputs found and did before smoothing (dgcal.pos.ins.integrity, "
+             "dgcal.pos.smoother.integrity, the RINEX reader): IMU samples sorted, dropped, bridged (gaps, with the "
+             "smoother's IMU noise raised over them) or replaced (spikes); GNSS epochs and observations rejected; "
+             "RINEX records skipped, sorted or dropped. Times are continuous GPS seconds.")
+    rep.table(["what", "from (GPS s)", "to (GPS s)", "samples", "detail"], rows[:500])
+    more = max(0, len(rows) - 500) + int(imu.get("issues_not_listed", 0))
+    if more:
+        rep.text(f"{more} more findings in pos_summary.json.")
+
+
 def write_pos_report(path: str | Path, res) -> Path:
     """Write DIR/report.html for a dgcal.pos.pipeline.PosResult."""
     s = res.summary
@@ -189,7 +209,9 @@ def write_pos_report(path: str | Path, res) -> Path:
             warn.append(f"{kind} residuals are {st['rms_normalised']:.1f} times their sigma: check the noise settings")
     if s["epochs_without_gnss_update"] > 0:
         warn.append(f"{s['epochs_without_gnss_update']} keyframes without a GNSS update (IMU only there)")
+    warn += list(s.get("warnings", []))
     rep.warnings(warn)
+    _integrity_section(rep, s.get("integrity", {}))
     c = s.get("carrier")
     if c is not None and res.carrier is not None:
         ints = c.get("integers") or {}

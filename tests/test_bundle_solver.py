@@ -163,3 +163,108 @@ def test_compiled_schur_sum_with_an_image_measuring_a_point_twice(monkeypatch):
     dense = normals.reduce(nrm, 1e-3).S
     monkeypatch.setattr(normals, "DENSE_SCHUR_MAX", 0)
     np.testing.assert_allclose(normals.reduce(nrm, 1e-3).S, dense, rtol=1e-10, atol=1e-9 * np.abs(dense).max())
+
+
+def _known_points_problem(shuffle=False):
+    """The image observations of `_problem` with the points known (no point unknowns: self-calibration on a
+    target field), 40 per image, sorted by image unless shuffled."""
+    prob, start = _problem()
+    img = prob.blocks[0]
+    order = np.random.default_rng(5).permutation(len(img)) if shuffle else np.arange(len(img))
+    blk = ImageObservations(img.camera, img.pose[order], img.point[order], img.uv[order], img.sigma[order], INTR, 0,
+                            points_fixed=True)
+    return Problem([blk], prob.n_poses, prob.n_points, len(INTR), point_free=np.zeros((prob.n_points, 3), bool)), start
+
+
+def _item_sums(prob, state):
+    """NumPy reference of the camera-side normals of one block of known points: sums of per-item products."""
+    N, G = prob.n_poses, prob.n_globals
+    ev = prob.blocks[0].evaluate(state, True)
+    U = np.zeros((6 * N + G, 6 * N + G))
+    g = np.zeros(6 * N + G)
+    for k in range(len(ev.r)):
+        cols = np.r_[6 * ev.pose[k] + np.arange(6), 6 * N + ev.glob]
+        J = np.hstack([ev.J_pose[k], ev.J_glob[k]])
+        U[np.ix_(cols, cols)] += J.T @ J
+        g[cols] += J.T @ ev.r[k]
+    return U, g
+
+
+@pytest.mark.parametrize("shuffle", [False, True])
+def test_normals_of_known_points_pose_by_pose_equal_the_item_sums(shuffle, monkeypatch):
+    from dgcal.bundle.solver import normals
+    prob, start = _known_points_problem(shuffle)
+    assert len(prob.blocks[0]) >= normals.PER_POSE_PRODUCTS_MIN * prob.n_poses   # the per-pose products
+    U_ref, g_ref = _item_sums(prob, start)
+    nrm = linearise(prob, start)
+    np.testing.assert_allclose(nrm.U, U_ref, rtol=1e-12, atol=1e-12 * np.abs(U_ref).max())
+    np.testing.assert_allclose(nrm.g_c, g_ref, rtol=1e-12, atol=1e-12 * np.abs(g_ref).max())
+    # the few-items-per-pose route (one sparse indicator product) and the item-by-item camera frames
+    monkeypatch.setattr(normals, "PER_POSE_PRODUCTS_MIN", 10 ** 9)
+    monkeypatch.setattr(ImageObservations, "RUN_MIN", 10 ** 9)
+    prob2, _ = _known_points_problem(shuffle)
+    nrm2 = linearise(prob2, start)
+    np.testing.assert_allclose(nrm2.U, U_ref, rtol=1e-12, atol=1e-12 * np.abs(U_ref).max())
+    np.testing.assert_allclose(nrm2.g_c, g_ref, rtol=1e-12, atol=1e-12 * np.abs(g_ref).max())
+    assert nrm2.cost == pytest.approx(nrm.cost, rel=1e-12)
+
+
+def _redundancy_reference(cov, block):
+    """The redundancy numbers by the sparse matrix D = A_c - A_x V^-1 W^T of every row (NumPy/scipy)."""
+    import scipy.sparse as sp
+    ev = cov.normals.evals[block]
+    k, d = ev.r.shape
+    N, M, nc = cov.problem.n_poses, cov.problem.n_points, cov.problem.n_camera_side
+    A = np.zeros((k * d, nc))
+    rows = np.arange(k * d).reshape(k, d)
+    if ev.J_pose is not None:
+        for a in range(6):
+            np.add.at(A, (rows, 6 * ev.pose[:, None] + a), ev.J_pose[:, :, a])
+    if ev.J_glob is not None:
+        for c, gcol in enumerate(ev.glob):
+            A[rows, 6 * N + gcol] += ev.J_glob[:, :, c]
+    q = np.zeros(k * d)
+    D = A
+    if ev.J_point is not None and M:
+        Vinv = cov.reduced.Vinv[ev.point]
+        q += np.einsum("kai,kij,kaj->ka", ev.J_point, Vinv, ev.J_point).ravel()
+        AxV = np.einsum("kai,kij->kaj", ev.J_point, Vinv).reshape(k * d, 3)
+        Ax_V = sp.csr_matrix((AxV.ravel(), (np.repeat(np.arange(k * d), 3),
+                                            np.repeat(3 * ev.point[:, None] + np.arange(3), d, axis=0).ravel())),
+                             shape=(k * d, 3 * M))
+        D = A - (Ax_V @ cov.normals.W.T).toarray()
+    Q = np.nan_to_num(cov.Q_cc)
+    q += np.einsum("ri,ij,rj->r", D, Q, D)
+    return (1.0 - q).reshape(k, d)
+
+
+def test_compiled_redundancy_numbers_equal_the_sparse_product():
+    prob, start = _problem()
+    img = prob.blocks[0]
+    for name in ("pose", "point"):          # a point measured twice in one image too
+        setattr(img, name, np.r_[getattr(img, name), getattr(img, name)[:1]])
+    img.uv = np.vstack([img.uv, img.uv[:1] + 0.5])
+    img.sigma = np.vstack([img.sigma, img.sigma[:1]])
+    sol = minimise(prob, start)
+    cov = Covariance.at(prob, normals_at(prob, sol))
+    for b in range(len(prob.blocks)):
+        ref = _redundancy_reference(cov, b)
+        np.testing.assert_allclose(cov.redundancy_numbers(b), ref, rtol=1e-9, atol=1e-12)
+        items = np.arange(0, len(prob.blocks[b]), 3)            # a subset, in chunks of 7 items
+        np.testing.assert_allclose(cov.redundancy_numbers(b, items, chunk=7), ref[items], rtol=1e-9, atol=1e-12)
+
+
+def test_compiled_pose_global_and_global_point_couplings_equal_the_item_sums():
+    prob, start = _problem()
+    only = Problem([prob.blocks[0]], prob.n_poses, prob.n_points, prob.n_globals)
+    nrm = linearise(only, start)
+    ev = nrm.evals[0]
+    N, M, G = only.n_poses, only.n_points, only.n_globals
+    U_pg = np.zeros((6 * N, G))
+    Wg = np.zeros((G, 3 * M))
+    for k in range(len(ev.r)):
+        U_pg[6 * ev.pose[k] + np.arange(6)[:, None], ev.glob[None, :]] += ev.J_pose[k].T @ ev.J_glob[k]
+        Wg[ev.glob[:, None], 3 * ev.point[k] + np.arange(3)[None, :]] += ev.J_glob[k].T @ ev.J_point[k]
+    scale = np.abs(U_pg).max()
+    np.testing.assert_allclose(nrm.U[:6 * N, 6 * N:], U_pg, rtol=1e-12, atol=1e-13 * scale)
+    np.testing.assert_allclose(nrm.Wg, Wg, rtol=1e-12, atol=1e-13 * np.abs(Wg).max())

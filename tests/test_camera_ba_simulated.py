@@ -97,6 +97,34 @@ def test_outliers_are_rejected_and_listed():
     assert rms < 0.05, rms
 
 
+def test_start_poses_by_plain_pnp_and_ransac_only_where_gross_errors_call_for_it(monkeypatch):
+    from dgcal.calib.selfcal import adjustment
+    truth, pts, img, ids, xy = scene(7, n_images=30, square_m=0.16)
+    ransac_images = []          # the image of every RANSAC call, found by its first pixel
+    ransac = adjustment._pnp_ransac
+
+    def counted(obj, uv, *a):
+        ransac_images.append(img[np.flatnonzero(np.all(xy_now == uv[0], axis=1))[0]])
+        return ransac(obj, uv, *a)
+    monkeypatch.setattr(adjustment, "_pnp_ransac", counted)
+    xy_now = xy
+    clean = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7")
+    first = set(ransac_images)
+    n_images = len(set(img.tolist()))
+    assert len(first) <= 0.2 * n_images          # plain IPPE for most (RANSAC where the lens bends corners past 2 %)
+    # gross errors (far beyond PnP's 2 % of the frame) in three more images: RANSAC there too, and they are rejected
+    names = [n for n in dict.fromkeys(img.tolist()) if n not in first][:3]
+    bad = np.concatenate([np.flatnonzero(img == n)[:4] for n in names])
+    xy_now = xy.copy()
+    xy_now[bad] += 1500.0
+    ransac_images.clear()
+    res = adjust(pts.ids, pts.xyz, img, ids, xy_now, SIZE, "fraser7")
+    assert set(names) <= set(ransac_images) and len(set(ransac_images) - set(names)) <= 0.2 * n_images
+    assert {(img[k], ids[k]) for k in bad} <= {(r.image, r.id) for r in res.rejected}
+    d = np.abs(res.camera.params - clean.camera.params)
+    assert np.all(d <= 3 * clean.camera.sigmas), d / clean.camera.sigmas
+
+
 def test_fixed_parameters_stay_and_have_zero_sigma():
     truth, pts, img, ids, xy = scene(8, n_images=30, square_m=0.16)
     res = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7", fixed=("K3", "B2"))

@@ -151,7 +151,7 @@ def test_loaders_name_file_and_field(tmp_path):
     p.write_text("hello\n")
     with pytest.raises(InputError, match="unrecognised camera file"):
         cf.load_camera(p)
-    with pytest.raises(InputError, match="cannot read"):
+    with pytest.raises(InputError, match="missing.json: file not found"):
         cf.load_camera(tmp_path / "missing.json")
 
 

@@ -12,6 +12,7 @@ import pytest
 from dgcal.campaign import Step, load_campaign, plan, run_campaign
 from dgcal.cli import build_parser
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.atomic import staged_dir
 
 TOML = """crs = "EPSG:32651"
 [camera]
@@ -136,9 +137,9 @@ def test_failing_step_stops_and_is_not_recorded(tmp_path):
         ran.append(argv[0])
         if argv[0] == "pos":
             return 2
-        Path(argv[argv.index("--out") + 1]).mkdir(parents=True, exist_ok=True)
-        for name in ("camera.json", "eop.csv"):
-            (Path(argv[argv.index("--out") + 1]) / name).write_text("x")
+        with staged_dir(argv[argv.index("--out") + 1]) as d:   # as the verbs write: a folder with its manifest
+            for name in ("camera.json", "eop.csv"):
+                (d / name).write_text("x")
         return 0
 
     with pytest.raises(InputError, match="step pos failed"):

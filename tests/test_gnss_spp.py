@@ -115,3 +115,26 @@ def test_cli_writes_gnss_csv(shared_data, tmp_path):
     assert rc == 0
     tab = read_table(out3 / "gnss.csv", ["x", "y", "z", "n_sat"])
     assert np.all(tab["n_sat"] == 10)
+
+
+def test_cli_no_report_writes_the_csv_and_summary_without_html(shared_data, tmp_path):
+    """--no-report: the same gnss.csv and gnss_summary.json as with the report, no HTML; and neither matplotlib
+    nor the GNSS/INS pipeline is imported on the way (what keeps a call under a second)."""
+    import json
+    import subprocess
+    import sys
+    from dgcal.cli import main
+    args = ["pos", "--mode", "spp", "--rinex-obs", str(shared_data / OBS), "--rinex-nav", str(shared_data / NAV),
+            "--no-progress"]
+    full, bare = tmp_path / "full", tmp_path / "bare"
+    assert main(args + ["--out", str(full)]) == 0
+    assert main(args + ["--out", str(bare), "--no-report"]) == 0
+    assert (full / "gnss_report.html").is_file()
+    assert not (bare / "gnss_report.html").exists() and not list(bare.glob("*.html"))
+    assert (bare / "gnss.csv").read_bytes() == (full / "gnss.csv").read_bytes()
+    assert json.loads((bare / "gnss_summary.json").read_text()) == json.loads((full / "gnss_summary.json").read_text())
+    code = ("import sys; from dgcal.cli import main; rc = main(sys.argv[1:]); "
+            "print(rc, 'matplotlib' in sys.modules, 'dgcal.pos.pipeline' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code, *args, "--out", str(tmp_path / "sub"), "--no-report"],
+                         capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["0", "False", "False"]

@@ -95,7 +95,7 @@ def test_errors_name_the_bad_input(files, tmp_path, capsys):
     assert rc == 2 and "kml" in capsys.readouterr().err
     # an event outside the trajectory is named
     ev = (m / "events.csv").read_text().splitlines()
-    ev.append("LATE.JPG,2200,999999.0")
+    ev.append("LATE.JPG,2200,600000.0")   # a valid time after the trajectory ends
     (tmp_path / "events.csv").write_text("\n".join(ev) + "\n")
     rc = main(["export", "--mounting", str(good), "--trajectory", str(m / "trajectory.csv"), "--events",
                str(tmp_path / "events.csv"), "--crs", "EPSG:32651", "--formats", "eop", "--out", str(tmp_path / "e2")])

@@ -17,7 +17,6 @@ from typing import Callable, Sequence
 import numpy as np
 
 from dgcal.calib.camera.models import CameraModel
-from dgcal.fields.frames import skew
 from dgcal.fields.pose import Poses
 
 INVALID_COST = 1e12   # cost of an item that cannot be evaluated (a point behind its camera)
@@ -103,10 +102,35 @@ class ImageObservations(Block):
             cam.params[self.param_idx] = globals_[self.glob]
         return cam
 
+    RUN_MIN = 32     # items per pose from which the pose products go pose by pose (self-calibration: ~1000)
+
+    def _pose_runs(self, n_poses: int) -> list[tuple[int, slice]] | None:
+        """(pose, rows) of every pose when the items are sorted by pose with RUN_MIN or more per pose, else None;
+        cached while the pose array stays the same object."""
+        cached = getattr(self, "_runs", None)
+        if cached is not None and cached[0] is self.pose and cached[1] == n_poses:
+            return cached[2]
+        p = self.pose
+        runs = None
+        if (len(p) >= self.RUN_MIN * max(n_poses, 1) and p.min() >= 0 and p.max() < n_poses
+                and np.all(p[1:] >= p[:-1])):
+            b = np.searchsorted(p, np.arange(n_poses + 1))
+            runs = [(i, slice(int(b[i]), int(b[i + 1]))) for i in range(n_poses) if b[i + 1] > b[i]]
+        self._runs = (p, n_poses, runs)
+        return runs
+
     def evaluate(self, state: State, jacobians: bool) -> BlockEval:
         cam = self.camera_at(state.globals)
-        R = state.poses.R_world_to_cam[self.pose]
-        Xc = np.einsum("kij,kj->ki", R, state.points[self.point] - state.poses.C_world[self.pose])
+        R_all, C_all = state.poses.R_world_to_cam, state.poses.C_world
+        runs = self._pose_runs(len(C_all))
+        if runs is None:
+            R = R_all[self.pose]
+            Xc = np.einsum("kij,kj->ki", R, state.points[self.point] - C_all[self.pose])
+        else:                       # many items per pose, sorted: one small matrix product per pose
+            Xc = state.points[self.point]
+            for i, s in runs:
+                Xc[s] -= C_all[i]
+                Xc[s] = Xc[s] @ R_all[i].T
         valid = Xc[:, 2] > 0
         if not jacobians:
             with np.errstate(all="ignore"):
@@ -114,16 +138,40 @@ class ImageObservations(Block):
             return BlockEval(r, valid & np.isfinite(r).all(1))
         with np.errstate(all="ignore"):
             uv, J_int, JX = cam.project_with_jacobians(Xc, params=len(self.glob) > 0)
-        w = (1.0 / self.sigma)[:, :, None]
-        JXw = JX * w
-        JR = np.matmul(JXw, R)
+        w = 1.0 / self.sigma
+        JXw = JX * w[:, :, None]
+        if runs is None:
+            JR = np.matmul(JXw, R)
+        else:
+            JR = np.empty_like(JXw)
+            JXw2, JR2 = JXw.reshape(-1, 3), JR.reshape(-1, 3)
+            for i, s in runs:
+                np.matmul(JXw2[2 * s.start:2 * s.stop], R_all[i], out=JR2[2 * s.start:2 * s.stop])
         # dX_cam/dC = -R;  dX_cam/dtheta = [X_cam]x (R_cam_to_world <- R_cam_to_world Exp(dtheta))
-        J_pose = np.concatenate([-JR, np.matmul(JXw, skew(Xc))], axis=2)
+        J_pose = np.empty((len(Xc), 2, 6))
+        np.negative(JR, out=J_pose[:, :, :3])
+        np.matmul(JXw, _cross_matrices(Xc), out=J_pose[:, :, 3:])
         r = (uv - self.uv) / self.sigma
         valid &= np.isfinite(r).all(1)
         return BlockEval(r, valid, self.pose, J_pose, None if self.points_fixed else self.point,
                          None if self.points_fixed else JR, self.glob,
-                         J_int[:, :, self.param_idx] * w if len(self.glob) else None)
+                         self._intrinsic_jacobian(J_int, w) if len(self.glob) else None)
+
+    def _intrinsic_jacobian(self, J_int: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """The whitened Jacobian of the unknown intrinsics (all of the model's, or a selection)."""
+        if len(self.param_idx) == J_int.shape[2] and np.array_equal(self.param_idx, np.arange(J_int.shape[2])):
+            J_int *= w[:, :, None]            # the camera's fresh array: whitened in place
+            return J_int
+        return J_int[:, :, self.param_idx] * w[:, :, None]
+
+
+def _cross_matrices(v: np.ndarray) -> np.ndarray:
+    """[v]x of every row of v (k,3) -> (k,3,3): dgcal.fields.frames.skew, filled in place (no stacking)."""
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
+    return S
 
 
 class PointPriors(Block):

@@ -8,11 +8,12 @@ use the same factors. Parameters that are held or that nothing observes get NaN 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
+from dgcal.bundle.solver.kernels import redundancy_quadratic
 from dgcal.bundle.solver.normals import Normals, Problem, Reduced, reduce, solve_normals, solve_reduced
 
 
@@ -24,6 +25,8 @@ class Covariance:
     normals: Normals
     reduced: Reduced
     Q_cc: np.ndarray
+    _Qc: np.ndarray | None = field(default=None, repr=False)
+    _WT: sp.csr_matrix | None = field(default=None, repr=False)
 
     @classmethod
     def at(cls, problem: Problem, normals: Normals) -> "Covariance":
@@ -73,51 +76,67 @@ class Covariance:
         return out
 
     # --- observations -------------------------------------------------------------------
-    def redundancy_numbers(self, block: int, items: np.ndarray | None = None, chunk: int = 4000) -> np.ndarray:
-        """(k,dim) redundancy numbers of the whitened residuals of items of block number `block`."""
+    def redundancy_numbers(self, block: int, items: np.ndarray | None = None, chunk: int = 100_000) -> np.ndarray:
+        """(k,dim) redundancy numbers of the whitened residuals of items of block number `block`.
+
+        r = 1 - diag(D Q_cc D^T) - diag(A_x V^-1 A_x^T) with D = A_c - A_x V^-1 W^T (a row's camera-side part
+        and its point's elimination), summed point by point in a compiled kernel (`redundancy_quadratic`)."""
         ev = self.normals.evals[block]
         k_all, d = ev.r.shape
         items = np.arange(k_all) if items is None else np.atleast_1d(np.asarray(items, int))
         N = self.problem.n_poses
-        nc = self.problem.n_camera_side
         M = self.problem.n_points
         out = np.empty((len(items), d))
-        Qc = np.nan_to_num(self.Q_cc)
+        Qc = self._Q_finite()
+        with_point = ev.J_point is not None and M > 0
+        WT = self._W_transposed() if with_point else None
         for s0 in range(0, len(items), chunk):
             it = items[s0:s0 + chunk]
             k = len(it)
-            rows = np.arange(k * d).reshape(k, d)
-            r_, c_, v_ = [], [], []
+            cols, vals = [], []
             if ev.J_pose is not None:
-                cols = 6 * ev.pose[it][:, None] + np.arange(6)
-                r_.append(np.broadcast_to(rows[:, :, None], (k, d, 6)).ravel())
-                c_.append(np.broadcast_to(cols[:, None, :], (k, d, 6)).ravel())
-                v_.append(ev.J_pose[it].ravel())
+                cols.append(np.broadcast_to((6 * ev.pose[it][:, None] + np.arange(6))[:, None, :], (k, d, 6)))
+                vals.append(ev.J_pose[it])
             if ev.J_glob is not None:
                 g = len(ev.glob)
-                r_.append(np.broadcast_to(rows[:, :, None], (k, d, g)).ravel())
-                c_.append(np.broadcast_to((6 * N + ev.glob)[None, None, :], (k, d, g)).ravel())
-                v_.append(ev.J_glob[it].ravel())
-            def cat(a):
-                return np.concatenate(a) if a else np.zeros(0)
-            A_c = sp.csr_matrix((cat(v_), (cat(r_).astype(int), cat(c_).astype(int))), shape=(k * d, nc))
+                cols.append(np.broadcast_to((6 * N + ev.glob)[None, None, :], (k, d, g)))
+                vals.append(ev.J_glob[it])
+            n_a = sum(c.shape[2] for c in cols)
+            a_idx = np.concatenate(cols, axis=2).reshape(-1).astype(np.int64) if cols else np.zeros(0, np.int64)
+            a_val = np.concatenate(vals, axis=2).reshape(-1).astype(float) if vals else np.zeros(0)
+            a_ptr = np.arange(k * d + 1, dtype=np.int64) * n_a
             q = np.zeros(k * d)
-            if ev.J_point is not None and M:
+            if with_point:
                 Jx = ev.J_point[it]                                   # (k,d,3)
                 Vinv = self.reduced.Vinv[ev.point[it]]                # (k,3,3)
                 q += np.einsum("kai,kij,kaj->ka", Jx, Vinv, Jx).ravel()
-                # B = A_x V^-1 W^T: the point part pushed onto the camera side through the coupling
-                AxV = np.einsum("kai,kij->kaj", Jx, Vinv)              # (k,d,3)
-                pcols = 3 * ev.point[it][:, None] + np.arange(3)
-                Ax_V = sp.csr_matrix((AxV.ravel(), (np.repeat(np.arange(k * d), 3),
-                                                    np.repeat(pcols, d, axis=0).ravel())), shape=(k * d, 3 * M))
-                D = (A_c - Ax_V @ self.normals.W.T).tocsr()
+            if with_point and WT is not None:
+                U = np.einsum("kai,kij->kaj", Jx, Vinv).reshape(k * d, 3)   # A_x V^-1 per row
+                row_point = np.repeat(ev.point[it].astype(np.int64), d)
+                wt_ptr, wt_idx, wt_val = WT.indptr, WT.indices, WT.data
             else:
-                D = A_c
-            DQ = D @ Qc
-            q += np.asarray(D.multiply(DQ).sum(axis=1)).ravel()
+                U = np.zeros((k * d, 3))
+                row_point = np.full(k * d, -1, np.int64)
+                wt_ptr, wt_idx, wt_val = np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0)
+            order = np.argsort(row_point, kind="stable").astype(np.int64)
+            redundancy_quadratic(Qc, a_ptr, a_idx, a_val, np.ascontiguousarray(U), row_point, order,
+                                 np.asarray(wt_ptr, np.int64), np.asarray(wt_idx, np.int64),
+                                 np.asarray(wt_val, float), q)
             out[s0:s0 + k] = (1.0 - q).reshape(k, d)
         return out
+
+    def _Q_finite(self) -> np.ndarray:
+        """Q_cc with the NaN of held/unobserved parameters as 0 (C order), computed once."""
+        if self._Qc is None:
+            self._Qc = np.ascontiguousarray(np.nan_to_num(self.Q_cc))
+        return self._Qc
+
+    def _W_transposed(self) -> sp.csr_matrix | None:
+        """W^T (3M, nc) in CSR, computed once."""
+        if self._WT is None and self.normals.W is not None:
+            self._WT = self.normals.W.T.tocsr()
+            self._WT.sum_duplicates()
+        return self._WT
 
     def response(self, b_c: np.ndarray, b_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """N^-1 [b_c; b_x]: e.g. the estimate's response to a disturbance with J^T B = [b_c; b_x]."""

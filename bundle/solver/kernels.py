@@ -1,7 +1,11 @@
-"""Compiled kernels (numba) of the engine's two hot loops: the per-item normal-equation products and the
-pose-pose Schur complement sum over the points. Both walk the observations once, in C speed, without the
-(k,6,6) temporaries of the vectorised NumPy form; `normals.py` calls them, the NumPy form is the reference
-in tests/test_bundle_solver.py.
+"""Compiled kernels (numba) of the engine's hot loops over image observations with point unknowns: the per-item
+normal-equation products (with the pose, the point and the globals), the pose-pose Schur complement sum over
+the points and the redundancy numbers' quadratic forms. Each walks the observations once, in C speed, without
+the (k,6,6) temporaries of the vectorised NumPy form; `normals.py` and `covariance.py` call them, the NumPy forms
+are the references in tests/test_bundle_solver.py.
+
+Problems without point unknowns (a camera calibrated on a known target field) stay in NumPy: numba's first call
+in a process costs 0.3-0.7 s, more than such an adjustment takes.
 """
 from __future__ import annotations
 
@@ -85,3 +89,109 @@ def pose_pose_schur(Y, W, pose, order, starts, N, n_threads):  # pragma: no cove
                 for y in range(6):
                     S[6 * q + y, 6 * p + x] = S[6 * p + x, 6 * q + y]
     return S
+
+
+@njit(cache=True)
+def accumulate_pose_globals(J_pose, pose, J_glob, U_pg):  # pragma: no cover - compiled
+    """Add one block's pose-global couplings J_pose^T J_glob to U_pg (N,6,Gb). J_pose (k,d,6); J_glob (k,d,Gb);
+    pose (k,)."""
+    k, d, Gb = J_glob.shape
+    for n in range(k):
+        i = pose[n]
+        for e in range(d):
+            for a in range(6):
+                ja = J_pose[n, e, a]
+                for b in range(Gb):
+                    U_pg[i, a, b] += ja * J_glob[n, e, b]
+
+
+@njit(cache=True)
+def accumulate_global_points(J_glob, J_point, point, Wg):  # pragma: no cover - compiled
+    """Add one block's global-point couplings J_glob^T J_point to Wg (Gb,M,3). J_glob (k,d,Gb); J_point (k,d,3)."""
+    k, d, Gb = J_glob.shape
+    for n in range(k):
+        j = point[n]
+        for g in range(Gb):
+            for b in range(3):
+                s = 0.0
+                for e in range(d):
+                    s += J_glob[n, e, g] * J_point[n, e, b]
+                Wg[g, j, b] += s
+
+
+@njit(cache=True)
+def redundancy_quadratic(Q, a_ptr, a_idx, a_val, U, row_point, order, wt_ptr, wt_idx, wt_val, q):  # pragma: no cover
+    """q[r] += D_r Q D_r^T for whitened observation rows D_r = A_r - U_r^T W_j^T (the camera-side row A_r pushed
+    through the elimination of its point j, none when row_point[r] < 0), without forming D.
+
+    Q (nc,nc) symmetric; A in CSR (a_ptr, a_idx, a_val), (R, nc); U (R,3) = the row's A_x V_j^-1; W^T in CSR
+    (3M, nc); `order` sorts the rows by point. Per point j, with Z = Q W_j on the columns the point and its rows
+    touch: D_r Q D_r^T = A_r Q A_r^T - 2 A_r Z U_r + U_r^T (W_j^T Z) U_r."""
+    nc = Q.shape[0]
+    pos = np.full(nc, -1, np.int64)
+    supp = np.empty(nc, np.int64)
+    Z = np.zeros((nc, 3))
+    R = len(order)
+    u = 0
+    while u < R:
+        j = row_point[order[u]]
+        v = u
+        while v < R and row_point[order[v]] == j:
+            v += 1
+        ns = 0
+        if j >= 0:
+            for b in range(3):
+                for p in range(wt_ptr[3 * j + b], wt_ptr[3 * j + b + 1]):
+                    c = wt_idx[p]
+                    if pos[c] < 0:
+                        pos[c] = ns
+                        supp[ns] = c
+                        ns += 1
+            for t in range(u, v):
+                r = order[t]
+                for p in range(a_ptr[r], a_ptr[r + 1]):
+                    c = a_idx[p]
+                    if pos[c] < 0:
+                        pos[c] = ns
+                        supp[ns] = c
+                        ns += 1
+            for x in range(ns):
+                Z[x, 0] = 0.0
+                Z[x, 1] = 0.0
+                Z[x, 2] = 0.0
+            for b in range(3):
+                for p in range(wt_ptr[3 * j + b], wt_ptr[3 * j + b + 1]):
+                    s = wt_idx[p]
+                    wv = wt_val[p]
+                    for x in range(ns):
+                        Z[x, b] += Q[s, supp[x]] * wv      # Q symmetric: row access
+            H = np.zeros((3, 3))
+            for b in range(3):
+                for p in range(wt_ptr[3 * j + b], wt_ptr[3 * j + b + 1]):
+                    x = pos[wt_idx[p]]
+                    for c in range(3):
+                        H[b, c] += wt_val[p] * Z[x, c]
+        for t in range(u, v):
+            r = order[t]
+            t1 = 0.0
+            for p1 in range(a_ptr[r], a_ptr[r + 1]):
+                c1 = a_idx[p1]
+                s = 0.0
+                for p2 in range(a_ptr[r], a_ptr[r + 1]):
+                    s += Q[c1, a_idx[p2]] * a_val[p2]
+                t1 += a_val[p1] * s
+            if j >= 0:
+                u0, u1, u2 = U[r, 0], U[r, 1], U[r, 2]
+                t2 = 0.0
+                for p in range(a_ptr[r], a_ptr[r + 1]):
+                    x = pos[a_idx[p]]
+                    t2 += a_val[p] * (Z[x, 0] * u0 + Z[x, 1] * u1 + Z[x, 2] * u2)
+                t3 = (u0 * (H[0, 0] * u0 + H[0, 1] * u1 + H[0, 2] * u2)
+                      + u1 * (H[1, 0] * u0 + H[1, 1] * u1 + H[1, 2] * u2)
+                      + u2 * (H[2, 0] * u0 + H[2, 1] * u1 + H[2, 2] * u2))
+                q[r] += t1 - 2.0 * t2 + t3
+            else:
+                q[r] += t1
+        for x in range(ns):
+            pos[supp[x]] = -1
+        u = v

@@ -14,7 +14,8 @@ import scipy.sparse as sp
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from dgcal.bundle.solver.blocks import INVALID_COST, Block, BlockEval, State
-from dgcal.bundle.solver.kernels import accumulate_items, pose_pose_schur
+from dgcal.bundle.solver.kernels import (accumulate_global_points, accumulate_items, accumulate_pose_globals,
+                                        pose_pose_schur)
 from dgcal.bundle.solver.robust import robust_cost_and_weight
 
 V_REGULARISATION = 1e-10   # added to the point blocks' diagonal (whitened units: a prior of ~1e5 sigma)
@@ -169,6 +170,43 @@ def _tdot(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return np.matmul(A.transpose(0, 2, 1), B)
 
 
+PER_POSE_PRODUCTS_MIN = 32   # items per pose from which a block's pose sums are one matrix product per pose
+
+
+def _pose_products(cache: dict, A: np.ndarray, B: np.ndarray | None, r: np.ndarray, pose: np.ndarray,
+                   N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Per pose, the sums over its items of A^T A (N,6,6), A^T r (N,6) and A^T B (N,6,Gb) (None without B): one
+    BLAS product per pose over its rows when the poses have many items (self-calibration: ~1000 per image),
+    else one sparse indicator product over the stacked per-item products."""
+    k, d = r.shape
+    if k < PER_POSE_PRODUCTS_MIN * max(N, 1):
+        by_pose = _grouper(cache, "pose", pose, N)
+        return (by_pose.sum(_tdot(A, A)), by_pose.sum(np.einsum("kda,kd->ka", A, r)),
+                None if B is None else by_pose.sum(_tdot(A, B)))
+    runs = cache.get("pose_runs")
+    if runs is None or runs[0] is not pose or runs[1] != N:
+        order = None if np.all(pose[1:] >= pose[:-1]) else np.argsort(pose, kind="stable")
+        bounds = np.searchsorted(pose if order is None else pose[order], np.arange(N + 1))
+        runs = cache["pose_runs"] = (pose, N, order, d * bounds)
+    _, _, order, rows = runs
+
+    def stacked(X):
+        X = X if order is None else X[order]
+        return X.reshape(k * d, -1)
+    A2, r2 = stacked(A), stacked(r)[:, 0]
+    B2 = None if B is None else stacked(B)
+    AA, Ar = np.zeros((N, 6, 6)), np.zeros((N, 6))
+    AB = None if B is None else np.zeros((N, 6, B.shape[2]))
+    for i in np.flatnonzero(rows[1:] > rows[:-1]):
+        s = slice(rows[i], rows[i + 1])
+        a = A2[s]
+        AA[i] = a.T @ a
+        Ar[i] = a.T @ r2[s]
+        if AB is not None:
+            AB[i] = a.T @ B2[s]
+    return AA, Ar, AB
+
+
 def _weighted(problem: Problem, ev: BlockEval, b: Block) -> tuple[BlockEval, float, np.ndarray]:
     """The evaluation whitened by the robust weights (IRLS) and masked by the held parameters."""
     e2 = np.sum(ev.r * ev.r, axis=1)
@@ -177,12 +215,20 @@ def _weighted(problem: Problem, ev: BlockEval, b: Block) -> tuple[BlockEval, flo
     sw = np.where(ev.valid, np.sqrt(w), 0.0)
     ev.r = np.where(ev.valid[:, None], ev.r, 0.0) * sw[:, None]
     if ev.J_pose is not None:
-        ev.J_pose = np.nan_to_num(ev.J_pose) * (sw * problem.pose_free[ev.pose])[:, None, None]
+        ev.J_pose = _scaled(ev.J_pose, (sw * problem.pose_free[ev.pose])[:, None, None])
     if ev.J_point is not None:
-        ev.J_point = np.nan_to_num(ev.J_point) * sw[:, None, None] * problem.point_free[ev.point][:, None, :]
+        ev.J_point = _scaled(ev.J_point, (sw[:, None] * problem.point_free[ev.point])[:, None, :])
     if ev.J_glob is not None:
-        ev.J_glob = np.nan_to_num(ev.J_glob) * sw[:, None, None] * problem.global_free[ev.glob][None, None, :]
+        ev.J_glob = _scaled(ev.J_glob, sw[:, None, None] * problem.global_free[ev.glob][None, None, :])
     return ev, cost, np.where(ev.valid, w, 0.0)
+
+
+def _scaled(J: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """np.nan_to_num(J) * s, without the copies when J is finite and every factor is 1 (no robust weight, nothing
+    held, nothing invalid: the usual case)."""
+    if not np.isfinite(J).all():
+        J = np.nan_to_num(J)
+    return J if np.all(s == 1.0) else J * s
 
 
 def linearise(problem: Problem, state: State) -> Normals:
@@ -212,21 +258,25 @@ def linearise(problem: Problem, state: State) -> Normals:
             blk = np.empty((len(r), 6, 3))
             accumulate_items(np.ascontiguousarray(r), np.ascontiguousarray(A), ev.pose.astype(np.int64),
                              np.ascontiguousarray(C), ev.point.astype(np.int64), U_pp, g_p, V, g_x, blk)
-        if A is not None:
-            by_pose = _grouper(cache, "pose", ev.pose, N)
-            if not fused:
-                U_pp += by_pose.sum(_tdot(A, A))
-                g_p += by_pose.sum(np.einsum("kda,kd->ka", A, r))
+        if A is not None and not fused:
+            # items without a point unknown (image observations of known points, priors, POS): NumPy
+            AA, Ar, AB = _pose_products(cache, A, B, r, ev.pose, N)
+            U_pp += AA
+            g_p += Ar
+            if B is not None:
+                U_pg[:, :, ev.glob] += AB
+        elif A is not None and B is not None:
+            U_pg_b = np.zeros((N, 6, B.shape[2]))
+            accumulate_pose_globals(np.ascontiguousarray(A), ev.pose.astype(np.int64), np.ascontiguousarray(B), U_pg_b)
+            U_pg[:, :, ev.glob] += U_pg_b
         if B is not None:
             g = ev.glob
             Bf = B.reshape(-1, len(g))
             U_gg[np.ix_(g, g)] += Bf.T @ Bf
             g_g[g] += Bf.T @ r.ravel()
-            if A is not None:
-                U_pg[:, :, g] += by_pose.sum(_tdot(A, B))
         if C is not None and M:
-            by_point = _grouper(cache, "point", ev.point, M)
             if not fused:
+                by_point = _grouper(cache, "point", ev.point, M)
                 V += by_point.sum(_tdot(C, C))
                 g_x += by_point.sum(np.einsum("kda,kd->ka", C, r))
             if A is not None:
@@ -238,7 +288,10 @@ def linearise(problem: Problem, state: State) -> Normals:
                     pat = cache["coupling"] = CouplingPattern(ev.pose, ev.point, N, M)
                 patterns.append(pat)
             if B is not None:
-                Wg[ev.glob] += by_point.sum(_tdot(B, C)).transpose(1, 0, 2)
+                Wg_b = np.zeros((len(ev.glob), M, 3))
+                accumulate_global_points(np.ascontiguousarray(B), np.ascontiguousarray(C), ev.point.astype(np.int64),
+                                         Wg_b)
+                Wg[ev.glob] += Wg_b
         evals.append(ev)
         weights.append(w)
         offsets.append(row)

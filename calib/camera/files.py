@@ -19,8 +19,10 @@ import yaml
 
 from dgcal.calib.camera import conversions as conv
 from dgcal.calib.camera.models import MODELS, CameraModel, Fisheye, model_class
-from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
+from dgcal.fields.io.atomic import atomic_write
+from dgcal.fields.io.text_files import read_text
 
 
 # ---------------------------------------------------------------------------------------------
@@ -107,32 +109,86 @@ def write_camera_json(path: str | Path, model: CameraModel, sigmas=None, stats: 
 
 
 def camera_from_json_dict(d: dict, path: str | Path | None = None) -> CameraModel:
-    """A camera model (with sigmas, if any) from a camera.json dict."""
+    """A camera model (with sigmas, if any) from a camera.json dict; every value checked (image size, finite
+    parameters, positive focal length) with an InputError naming the file and field."""
     for key in ("model", "image_size"):
         if key not in d:
             raise InputError("camera.json lacks this field", path, field=key)
     if not isinstance(d["model"], str) or d["model"] not in MODELS:
-        raise InputError(f"unknown camera model {d['model']!r} ({', '.join(MODELS)})", path, field="model")
+        raise InputError(f"unknown camera model {str(d['model'])[:40]!r} ({', '.join(MODELS)})", path, field="model")
     cls = model_class(d["model"])
     size = d["image_size"]
     if not (isinstance(size, list) and len(size) == 2):
         raise InputError("image_size must be [width, height]", path, field="image_size")
+    size = validate.image_size(size[0], size[1], path, field="image_size")
     params = d.get("parameters")
     if not isinstance(params, dict):
         # camera.json written by others may hold only the opencv block
-        if isinstance(d.get("opencv"), dict):
-            return conv.from_opencv(d["opencv"], tuple(size), d["model"])
+        ocv = d.get("opencv")
+        if isinstance(ocv, dict):
+            missing = [k for k in ("fx", "fy", "cx", "cy") if k not in ocv]
+            if missing:
+                raise InputError(f"the opencv block lacks {', '.join(missing)}", path, field=f"opencv.{missing[0]}")
+            vals = {k: _param(v, path, None, f"opencv.{k}") for k, v in ocv.items() if k in conv.OPENCV8_KEYS}
+            for k in ("fx", "fy"):
+                _focal(vals[k], path, None, f"opencv.{k}")
+            try:
+                cam = conv.from_opencv(vals, size, d["model"])
+            except InputError as e:
+                raise _relocated(e, path, None, "opencv.") from None
+            return check_camera(cam, path)
         raise InputError("camera.json lacks the parameters", path, field="parameters")
     missing = [k for k in cls.PARAMS if k not in params]
     if missing:
         raise InputError(f"missing parameter {missing[0]!r} of {cls.NAME}", path, field=f"parameters.{missing[0]}")
-    try:
-        cam = cls(tuple(size), [float(params[k]) for k in cls.PARAMS])
-    except (TypeError, ValueError):
-        raise InputError("parameters must be numbers", path, field="parameters") from None
+    cam = cls(size, [_param(params[k], path, None, f"parameters.{k}") for k in cls.PARAMS])
+    check_camera(cam, path)
     sig = d.get("sigmas")
     if isinstance(sig, dict) and all(k in sig for k in cls.PARAMS):
-        cam.sigmas = np.array([np.nan if sig[k] is None else float(sig[k]) for k in cls.PARAMS])
+        cam.sigmas = np.array([np.nan if sig[k] is None else validate.non_negative(sig[k], path, None,
+                                                                                   f"sigmas.{k}")
+                               for k in cls.PARAMS])
+    return cam
+
+
+def _relocated(e: InputError, path, line=None, prefix: str = "") -> InputError:
+    """The InputError `e` of a conversion (which knows no file) again, naming the file and line."""
+    return InputError(e.reason, path, line if line is not None else e.line,
+                      None if e.field is None else prefix + e.field)
+
+
+MAX_CAMERA_PARAM = 1e7   # |any camera parameter| (px or unitless): larger is a broken file
+MAX_FOCAL_PX = 1e7       # px
+
+
+def _param(v, path, line, field) -> float:
+    return validate.in_range(v, -MAX_CAMERA_PARAM, MAX_CAMERA_PARAM, path, line, field)
+
+
+def _focal(v, path, line, field) -> float:
+    """A focal length: finite, positive, below MAX_FOCAL_PX (a negative one would turn every kappa by 180 deg)."""
+    v = validate.finite(v, path, line, field)
+    if not v > 0:
+        raise InputError(f"the focal length must be positive, got {v:.6g}", path, line, field)
+    if v > MAX_FOCAL_PX:
+        raise InputError(f"implausible focal length {v:.6g} px (more than {MAX_FOCAL_PX:g})", path, line, field)
+    return v
+
+
+_FOCALS = {"fraser7": (("f", "f"), ("f + B1", "f+B1")), "opencv8": (("fx", "fx"), ("fy", "fy")),
+           "fisheye": (("fx", "fx"), ("fy", "fy"))}
+
+
+def check_camera(cam: CameraModel, path=None, line=None) -> CameraModel:
+    """`cam` when its image size is plausible (1..100000 px), every parameter finite and its focal lengths positive;
+    else an InputError naming the file and the parameter (`parameters.NAME`)."""
+    validate.image_size(*cam.image_size, path, line, "image_size")
+    for k, v in zip(cam.PARAMS, cam.params):
+        _param(v, path, line, f"parameters.{k}")
+    d = cam.as_dict()
+    for expr, name in _FOCALS.get(cam.NAME, ()):
+        val = d["f"] + d["B1"] if expr == "f + B1" else d[expr]
+        _focal(val, path, line, f"parameters.{name}")
     return cam
 
 
@@ -173,47 +229,153 @@ def write_opencv_yaml(path: str | Path, model: CameraModel, region=None) -> floa
     return err
 
 
-def parse_opencv_yaml(text: str, path: str | Path | None = None) -> CameraModel:
-    """A camera model from OpenCV FileStorage text (YAML or XML)."""
-    try:
-        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except (cv2.error, SystemError) as e:
-        last = (str(e).strip().splitlines() or [type(e).__name__])[-1]
-        raise InputError(f"not a readable OpenCV FileStorage file ({last})", path) from None
-    try:
-        def node(*names):
-            for n in names:
-                nd = fs.getNode(n)
-                if not nd.empty():
-                    return nd, n
-            raise InputError("missing in OpenCV FileStorage file", path, field=names[0])
+class _OpenCVYamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader that also reads OpenCV's `!!opencv-matrix` (and any `!!opencv-*`) nodes as plain
+    mappings (rows, cols, dt, data)."""
 
-        Kn, _ = node("camera_matrix", "K", "cameraMatrix")
-        Dn, dname = node("distortion_coefficients", "dist_coeffs", "D", "distCoeffs")
-        try:
-            K, dist = Kn.mat(), Dn.mat()
-        except cv2.error:
-            raise InputError("camera_matrix and the distortion must be OpenCV matrices (!!opencv-matrix)", path,
-                             field="camera_matrix") from None
-        if K is None or K.shape != (3, 3):
-            raise InputError("camera_matrix must be a 3x3 matrix", path, field="camera_matrix")
-        if dist is None:
-            raise InputError("distortion coefficients must be a matrix", path, field=dname)
-        wn, _ = node("image_width", "width")
-        hn, _ = node("image_height", "height")
-        size = (int(wn.real()), int(hn.real()))
-        name = fs.getNode("dgcal_model").string() or None
-    finally:
-        fs.release()
-    if abs(K[0, 1]) > 0:
-        raise InputError("camera_matrix with skew is not supported", path, field="camera_matrix")
-    d = conv.opencv_from_K_dist(K, dist)
-    if name not in ("fraser7", "opencv8"):
-        name = None
+
+def _opencv_tagged(loader: yaml.SafeLoader, suffix: str, node):
+    if isinstance(node, yaml.MappingNode):
+        return loader.construct_mapping(node, deep=True)
+    if isinstance(node, yaml.SequenceNode):
+        return loader.construct_sequence(node, deep=True)
+    return loader.construct_scalar(node)
+
+
+_OpenCVYamlLoader.add_multi_constructor("tag:yaml.org,2002:opencv-", _opencv_tagged)
+# OpenCV writes `%YAML:1.0` (older versions) or `%YAML 1.2`: PyYAML reads YAML 1.1 and knows no `%YAML:` form
+_OPENCV_YAML_HEADER = re.compile(r"\A\ufeff?[ \t]*%YAML[: \t][ \t]*1\.[0-9]+[^\n]*")
+
+
+def _load_yaml(text: str, path, loader=yaml.SafeLoader):
+    """The document of a YAML text; syntax errors (and documents too deep to build) raise InputError with the
+    line."""
     try:
-        return conv.from_opencv(d, size, name)
+        return yaml.load(text, Loader=loader)   # a SafeLoader (or _OpenCVYamlLoader, a SafeLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        problem = " ".join(str(getattr(exc, "problem", None) or type(exc).__name__).split())[:120]
+        raise InputError(f"invalid YAML ({problem})", path, None if mark is None else mark.line + 1) from None
+    except RecursionError:
+        raise InputError("invalid YAML (nested too deeply)", path) from None
+
+
+def _opencv_yaml_dict(text: str, path) -> dict:
+    d = _load_yaml(_OPENCV_YAML_HEADER.sub("%YAML 1.1", text, count=1), path, _OpenCVYamlLoader)
+    if not isinstance(d, dict):
+        raise InputError("an OpenCV FileStorage YAML must hold a mapping of names to values", path)
+    return d
+
+
+def _opencv_xml_dict(text: str, path) -> dict:
+    """The top-level nodes of an OpenCV FileStorage XML (<opencv_storage>): matrices (type_id="opencv-matrix")
+    as {rows, cols, dt, data}, other nodes as their text."""
+    root = _xml_root(text, path)
+    if root.tag != "opencv_storage":
+        raise InputError(f"expected <opencv_storage>, found <{root.tag[:40]}>", path)
+    out: dict = {}
+    for el in root:
+        if len(el):
+            out[el.tag] = {c.tag: (c.text or "").strip() for c in el}
+            if "data" in out[el.tag]:
+                out[el.tag]["data"] = out[el.tag]["data"].split()
+        else:
+            out[el.tag] = (el.text or "").strip()
+    return out
+
+
+def _opencv_matrix(node, path, line, name: str) -> np.ndarray:
+    """An OpenCV matrix node {rows, cols, dt, data} (or a plain list of numbers) as a (rows, cols) array of
+    finite numbers."""
+    if isinstance(node, dict):
+        missing = [k for k in ("rows", "cols", "data") if k not in node]
+        if missing:
+            raise InputError(f"an OpenCV matrix needs rows, cols and data (missing {', '.join(missing)})", path,
+                             line, name)
+        rows = validate.integer(node["rows"], 1, 64, path, line, f"{name}.rows")
+        cols = validate.integer(node["cols"], 1, 64, path, line, f"{name}.cols")
+        data = node["data"]
+    elif isinstance(node, list):
+        rows, cols, data = None, None, node
+    else:
+        raise InputError("must be an OpenCV matrix (!!opencv-matrix with rows, cols, data)", path, line, name)
+    if isinstance(data, list) and data and all(isinstance(r, list) for r in data):
+        data = [x for r in data for x in r]
+    if not isinstance(data, list):
+        raise InputError("matrix data must be a list of numbers", path, line, f"{name}.data")
+    if rows is None:
+        rows, cols = 1, len(data)
+    if len(data) != rows * cols:
+        raise InputError(f"matrix data holds {len(data)} numbers, rows x cols = {rows} x {cols} needs {rows * cols}",
+                         path, line, f"{name}.data")
+    vals = [validate.in_range(x, -MAX_CAMERA_PARAM, MAX_CAMERA_PARAM, path, line, f"{name}.data") for x in data]
+    return np.array(vals, float).reshape(rows, cols)
+
+
+def _opencv_node(d: dict, line_of, path, *names: str, required: bool = True):
+    for n in names:
+        if n in d and d[n] is not None:
+            return d[n], n, line_of(n)
+    if required:
+        raise InputError("missing in the OpenCV FileStorage file", path, None, names[0])
+    return None, names[0], None
+
+
+def camera_from_opencv_dict(d: dict, path=None, line_of=lambda key: None) -> CameraModel:
+    """A camera model from the nodes of an OpenCV FileStorage file (camera_matrix, distortion_coefficients,
+    image_width, image_height, dgcal_model; the usual other names of the first two too), every value checked."""
+    Kn, kname, kline = _opencv_node(d, line_of, path, "camera_matrix", "K", "cameraMatrix")
+    K = _opencv_matrix(Kn, path, kline, kname)
+    if K.shape != (3, 3):
+        if K.size != 9:
+            raise InputError(f"camera_matrix must be a 3x3 matrix, got {K.shape[0]} x {K.shape[1]}", path, kline,
+                             kname)
+        K = K.reshape(3, 3)
+    Dn, dname, dline = _opencv_node(d, line_of, path, "distortion_coefficients", "dist_coeffs", "D", "distCoeffs")
+    dist = _opencv_matrix(Dn, path, dline, dname).ravel()
+    if dist.size not in (4, 5, 8, 12, 14):
+        raise InputError(f"needs 4, 5, 8, 12 or 14 distortion coefficients, got {dist.size}", path, dline, dname)
+    _check_K(K, path, kline, kname)
+    wn, wname, wline = _opencv_node(d, line_of, path, "image_width", "width")
+    hn, hname, hline = _opencv_node(d, line_of, path, "image_height", "height")
+    size = (validate.image_side(wn, path, wline, wname), validate.image_side(hn, path, hline, hname))
+    name = d.get("dgcal_model")
+    name = name if name in ("fraser7", "opencv8") else None
+    ocv = conv.opencv_from_K_dist(K, dist)
+    try:
+        return conv.from_opencv(ocv, size, name)
     except InputError as e:
-        raise InputError(str(e), path, field=e.field) from None
+        raise _relocated(e, path, dline) from None
+
+
+def _check_K(K: np.ndarray, path, line, name: str) -> None:
+    """A camera matrix [fx 0 cx; 0 fy cy; 0 0 1] with positive focal lengths."""
+    if K[0, 1] != 0:
+        raise InputError("camera_matrix with skew is not supported", path, line, name)
+    if K[1, 0] or K[2, 0] or K[2, 1] or abs(K[2, 2] - 1.0) > 1e-12:
+        raise InputError("camera_matrix must be [fx 0 cx; 0 fy cy; 0 0 1]", path, line, name)
+    for v, what in ((K[0, 0], "fx"), (K[1, 1], "fy")):
+        _focal(v, path, line, f"{name}.{what}")
+    for v, what in ((K[0, 2], "cx"), (K[1, 2], "cy")):
+        validate.in_range(v, -validate.MAX_PIXEL, validate.MAX_PIXEL, path, line, f"{name}.{what}")
+
+
+def parse_opencv_yaml(text: str, path: str | Path | None = None) -> CameraModel:
+    """A camera model from OpenCV FileStorage text, YAML (`%YAML:1.0`, `!!opencv-matrix`) or XML
+    (<opencv_storage>), read with PyYAML / ElementTree: a malformed file is an InputError naming the file, line
+    and field, never a cv2 error or a native abort (cv2.FileStorage is not used to read)."""
+    if text.lstrip("\ufeff \t\r\n").startswith("<"):
+        d = _opencv_xml_dict(text, path)
+
+        def line_of(key):
+            m = re.search(rf"<{re.escape(key)}[\s>/]", text)
+            return None if m is None else text.count("\n", 0, m.start()) + 1
+    else:
+        d = _opencv_yaml_dict(text, path)
+
+        def line_of(key):
+            return _yaml_line(text, key)
+    return camera_from_opencv_dict(d, path, line_of)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -260,20 +422,20 @@ def parse_colmap_cameras_txt(text: str, path: str | Path | None = None,
         tok = s.split()
         if len(tok) < 4:
             raise InputError("a camera line needs CAMERA_ID MODEL WIDTH HEIGHT PARAMS", path, lineno)
-        try:
-            cid, w, h = int(tok[0]), int(tok[2]), int(tok[3])
-        except ValueError:
-            raise InputError("CAMERA_ID, WIDTH, HEIGHT must be integers", path, lineno, "CAMERA_ID") from None
+        cid = validate.integer(tok[0], 0, 2 ** 63 - 1, path, lineno, "CAMERA_ID")
+        w = validate.image_side(tok[2], path, lineno, "WIDTH")
+        h = validate.image_side(tok[3], path, lineno, "HEIGHT")
         if camera_id is not None and cid != camera_id:
             continue
-        try:
-            params = [float(t) for t in tok[4:]]
-        except ValueError:
-            raise InputError("camera params must be numbers", path, lineno, "PARAMS") from None
+        keys = conv.COLMAP_PARAMS.get(tok[1], ())
+        params = [_param(t, path, lineno, keys[i] if i < len(keys) else "PARAMS") for i, t in enumerate(tok[4:])]
+        for i, k in enumerate(keys[:len(params)]):
+            if k in ("f", "fx", "fy"):
+                _focal(params[i], path, lineno, k)
         try:
             return conv.from_colmap(tok[1], w, h, params)
         except InputError as e:
-            raise InputError(str(e), path, lineno, e.field) from None
+            raise _relocated(e, path, lineno) from None
     raise InputError("no camera found" + ("" if camera_id is None else f" with id {camera_id}"), path,
                      field="CAMERA_ID")
 
@@ -315,15 +477,28 @@ def _xml_root(text: str, path) -> ET.Element:
         raise InputError(f"invalid XML ({e})", path, e.position[0] if e.position else None) from None
 
 
-def _float(el: ET.Element | None, path, name: str, n: int = 1):
+def _text(el: ET.Element | None, path, name: str) -> str:
     if el is None or el.text is None:
         raise InputError("missing", path, field=name)
-    try:
-        v = [float(t.strip('"')) for t in el.text.split()]
-    except ValueError:
-        raise InputError(f"not a number: {el.text.strip()!r}", path, field=name) from None
-    if len(v) != n:
-        raise InputError(f"needs {n} number(s), got {len(v)}", path, field=name)
+    return el.text.strip().strip('"')
+
+
+def _size2(el: ET.Element | None, path, name: str) -> tuple[int, int]:
+    """An image size `W H` (MicMac SzIm, NbPix)."""
+    parts = _text(el, path, name).split()
+    if len(parts) != 2:
+        raise InputError(f"needs 2 numbers, got {len(parts)}", path, field=name)
+    return validate.image_size(parts[0], parts[1], path, field=name)
+
+
+def _float(el: ET.Element | None, path, name: str, n: int = 1):
+    """The `n` finite numbers of an XML element's text (a float when n = 1)."""
+    if el is None or el.text is None:
+        raise InputError("missing", path, field=name)
+    parts = el.text.split()
+    if len(parts) != n:
+        raise InputError(f"needs {n} number(s), got {len(parts)}", path, field=name)
+    v = [_param(t.strip('"'), path, None, name) for t in parts]
     return v[0] if n == 1 else np.array(v)
 
 
@@ -368,13 +543,12 @@ def parse_metashape_xml(text: str, path=None, name: str = "fraser7",
         raise InputError(f"only frame cameras are supported, not {proj.strip()!r}", path, field="projection")
     res = cal.find("resolution")
     if res is not None:
-        try:
-            size = (int(res.get("width")), int(res.get("height")))
-        except (TypeError, ValueError):
-            raise InputError("resolution needs width and height", path, field="resolution") from None
+        if res.get("width") is None or res.get("height") is None:
+            raise InputError("resolution needs width and height", path, field="resolution")
+        size = validate.image_size(res.get("width"), res.get("height"), path, field="resolution")
     else:
-        size = (int(_float(cal.find("width"), path, "width")), int(_float(cal.find("height"), path, "height")))
-    vals = {"f": _float(cal.find("f"), path, "f")}
+        size = tuple(validate.image_side(_text(cal.find(k), path, k), path, None, k) for k in ("width", "height"))
+    vals = {"f": _focal(_float(cal.find("f"), path, "f"), path, None, "f")}
     for k in conv.METASHAPE_KEYS[1:]:
         el = cal.find(k)
         if el is not None:
@@ -382,7 +556,7 @@ def parse_metashape_xml(text: str, path=None, name: str = "fraser7",
     try:
         return conv.from_metashape(vals, size, name)
     except InputError as e:
-        raise InputError(str(e), path, field=e.field) from None
+        raise _relocated(e, path) from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -399,8 +573,8 @@ def parse_micmac_v1(text: str, path=None) -> conv.MicMacV1:
         raise InputError(f"only eConvApero_DistM2C calibrations are supported, not {conv_name}", path,
                          field="KnownConv")
     PP = _float(cic.find("PP"), path, "PP", 2)
-    F = _float(cic.find("F"), path, "F")
-    size = tuple(int(v) for v in _float(cic.find("SzIm"), path, "SzIm", 2))
+    F = _focal(_float(cic.find("F"), path, "F"), path, None, "F")
+    size = _size2(cic.find("SzIm"), path, "SzIm")
     dists = cic.findall("CalibDistortion")
     if len(dists) != 1:
         raise InputError("exactly one <CalibDistortion> is supported", path, field="CalibDistortion")
@@ -434,8 +608,8 @@ def parse_mmvii_calib(text: str, path=None) -> conv.MicMacMMVII:
     proj = (ic.findtext("Projection") or "").strip().strip('"')
     if proj != "Stenope":
         raise InputError(f"only the Stenope projection is supported, not {proj!r}", path, field="Projection")
-    size = tuple(int(v) for v in _float(ic.find("PixelFrame/NbPix"), path, "NbPix", 2))
-    F = _float(ic.find("PerfectProj/F"), path, "F")
+    size = _size2(ic.find("PixelFrame/NbPix"), path, "NbPix")
+    F = _focal(_float(ic.find("PerfectProj/F"), path, "F"), path, None, "F")
     PP = _float(ic.find("PerfectProj/PP"), path, "PP", 2)
     dist = ic.find("Distorsion")
     K, kw = [], {}
@@ -470,46 +644,35 @@ def parse_ros_camera_info(text: str, path=None) -> CameraModel:
     """A ROS `camera_info` calibration YAML (camera_calibration_parsers: image_width, image_height,
     camera_matrix/distortion_coefficients {rows, cols, data}, distortion_model plumb_bob | rational_polynomial).
     ROS pixels (image_geometry) follow OpenCV: the top-left pixel's centre is (0, 0), as dgcal's."""
-    try:
-        d = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise InputError(f"invalid YAML ({getattr(exc, 'problem', None) or 'syntax'})", path,
-                         None if mark is None else mark.line + 1) from None
+    d = _load_yaml(text, path)
     if not isinstance(d, dict):
         raise InputError("a camera_info YAML must hold a mapping", path)
 
     def mat(key: str, n: tuple[int, ...]) -> np.ndarray:
-        node = d.get(key)
+        node, line = d.get(key), _yaml_line(text, key)
         if not isinstance(node, dict) or "data" not in node:
-            raise InputError("missing {rows, cols, data}", path, _yaml_line(text, key), key)
-        try:
-            a = np.asarray(node["data"], float).ravel()
-        except (TypeError, ValueError):
-            raise InputError("data must be numbers", path, _yaml_line(text, key), key) from None
-        if a.size not in n or not np.all(np.isfinite(a)):
-            raise InputError(f"data must hold {' or '.join(map(str, n))} finite numbers, got {a.size}", path,
-                             _yaml_line(text, key), key)
-        return a
+            raise InputError("missing {rows, cols, data}", path, line, key)
+        data = node["data"]
+        if not isinstance(data, list):
+            raise InputError("data must be a list of numbers", path, line, key)
+        if len(data) not in n:
+            raise InputError(f"data must hold {' or '.join(map(str, n))} finite numbers, got {len(data)}", path,
+                             line, key)
+        return np.array([_param(x, path, line, key) for x in data], float)
 
-    for key in ("image_width", "image_height"):
-        v = d.get(key)
-        if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-            raise InputError(f"must be a positive whole number, not {v!r}", path, _yaml_line(text, key), key)
+    size = tuple(validate.image_side(d.get(key), path, _yaml_line(text, key), key)
+                 for key in ("image_width", "image_height"))
     K = mat("camera_matrix", (9,)).reshape(3, 3)
     model_name = str(d.get("distortion_model", "plumb_bob")).strip()
     if model_name not in ("plumb_bob", "rational_polynomial"):
-        raise InputError(f"distortion model {model_name!r} is not supported (plumb_bob, rational_polynomial)", path,
-                         _yaml_line(text, "distortion_model"), "distortion_model")
+        raise InputError(f"distortion model {model_name[:40]!r} is not supported (plumb_bob, rational_polynomial)",
+                         path, _yaml_line(text, "distortion_model"), "distortion_model")
     dist = mat("distortion_coefficients", (4, 5) if model_name == "plumb_bob" else (8, 12, 14))
-    if abs(K[0, 1]) > 0 or abs(K[2, 2] - 1.0) > 1e-12 or K[1, 0] or K[2, 0] or K[2, 1]:
-        raise InputError("camera_matrix must be [fx 0 cx; 0 fy cy; 0 0 1]", path, _yaml_line(text, "camera_matrix"),
-                         "camera_matrix")
-    size = (int(d["image_width"]), int(d["image_height"]))
+    _check_K(K, path, _yaml_line(text, "camera_matrix"), "camera_matrix")
     try:
         return conv.from_opencv(conv.opencv_from_K_dist(K, dist), size, None)
     except InputError as e:
-        raise InputError(str(e), path, field=e.field) from None
+        raise _relocated(e, path, _yaml_line(text, "distortion_coefficients")) from None
 
 
 def _yaml_line(text: str, key: str) -> int | None:
@@ -531,16 +694,15 @@ def read_camera_with_error(path: str | Path, model: str | None = None) -> tuple[
     multi-camera COLMAP or Metashape file. `model` ('fraser7'/'opencv8') asks for a conversion. Returns (model,
     max error px of any fitted conversion, 0 if exact)."""
     path, cam_id = _split_camera_id(Path(path))
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as e:
-        raise InputError(f"cannot read camera file ({e.strerror})", path) from None
+    text = read_text(path)
     head = text.lstrip()[:4000]
     if head.startswith("{"):
         try:
             d = json.loads(text)
         except json.JSONDecodeError as e:
             raise InputError(f"invalid JSON ({e.msg})", path, e.lineno) from None
+        except (ValueError, RecursionError) as e:   # a 5000-digit integer, nesting too deep
+            raise InputError(f"invalid JSON ({_one_line(e)})", path) from None
         if not isinstance(d, dict):
             raise InputError("camera.json must hold an object", path)
         cam, err = camera_from_json_dict(d, path), 0.0
@@ -550,19 +712,43 @@ def read_camera_with_error(path: str | Path, model: str | None = None) -> tuple[
         cam, err = parse_opencv_yaml(text, path), 0.0
     elif head.startswith("<"):
         if "CalibrationInternConique" in head or "InternalCalibration" in head:
-            return conv.from_micmac(parse_micmac(text, path), model or "fraser7")
+            mm = parse_micmac(text, path)
+            cam, err = _converting(path, lambda: conv.from_micmac(mm, model or "fraser7"))
+            return check_camera(cam, path), err
         if "<calibration" in text:
-            return parse_metashape_xml(text, path, model or "fraser7", cam_id)
+            cam, err = _converting(path, lambda: parse_metashape_xml(text, path, model or "fraser7", cam_id))
+            return check_camera(cam, path), err
         raise InputError("unrecognised XML camera file (expected Metashape, MicMac or OpenCV)", path)
-    elif re.search(r"^\s*\d+\s+[A-Z_]+\s+\d+\s+\d+", text, re.M):
+    elif re.search(r"^\s*\d+\s+[A-Z_]+\s+[-+.\w]+\s+[-+.\w]+", text, re.M):
         cam, err = parse_colmap_cameras_txt(text, path, cam_id), 0.0
     else:
         raise InputError("unrecognised camera file (expected camera.json, OpenCV YAML, COLMAP cameras.txt, "
                          "Metashape or MicMac XML)", path)
+    check_camera(cam, path)
     if model is not None and model != cam.NAME:
-        cam, err2 = conv.convert_model(cam, model)
+        cam, err2 = _converting(path, lambda: conv.convert_model(cam, model))
+        check_camera(cam, path)
         err = max(err, err2)
     return cam, err
+
+
+def _one_line(exc: BaseException, limit: int = 120) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _converting(path, convert):
+    """`convert()` (a fitted conversion between camera models); a camera whose numbers make the fit fail
+    (overflowing projections, a singular system) is an InputError naming the file."""
+    try:
+        with np.errstate(all="ignore"):
+            out = convert()
+    except InputError:
+        raise
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError, ZeroDivisionError) as exc:
+        raise InputError(f"this camera cannot be converted ({type(exc).__name__}: {_one_line(exc)}); are its "
+                         "parameters plausible?", path) from None
+    return out
 
 
 def read_camera(path: str | Path, model: str | None = None) -> CameraModel:

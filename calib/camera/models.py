@@ -261,7 +261,7 @@ class Fraser7(CameraModel):
         J[:, 1, 0] = xyd[:, 1]
         J[:, 0, 1] = 1.0
         J[:, 1, 2] = 1.0
-        J[:, :, 3:8] = self.pixel_jacobian()[None] @ D
+        np.matmul(self.pixel_jacobian()[None], D, out=J[:, :, 3:8])   # in place: no (n,2,5) temporary
         J[:, 0, 8] = xyd[:, 0]
         J[:, 0, 9] = xyd[:, 1]
         return J

@@ -157,6 +157,9 @@ def check_points_dg(grid: MapGrid, traj: Trajectory, events: Events, mount: Moun
     if (~ok).any():
         warnings.append(f"{int((~ok).sum())} check points seen in fewer than {min_rays} images: "
                         + ", ".join(np.array(ids_used)[~ok][:10]))
+    if not ok.any():
+        raise InputError(f"no check point is seen in {min_rays} or more images with events: nothing to check",
+                         meas.path, field="id")
     ids = np.array(ids_used, dtype=object)[ok]
     X_world = res.xyz[ok]
     xyz_dg = world.to_map(X_world)

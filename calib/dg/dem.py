@@ -17,9 +17,11 @@ import tifffile
 
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
 
 _PIXEL_SCALE, _TIEPOINT, _TRANSFORM, _GEOKEYS, _NODATA = 33550, 33922, 34264, 34735, 42113
 _KEY_RASTER, _KEY_GEOG, _KEY_PROJ = 1025, 2048, 3072
+MAX_DEM_SAMPLES = 400_000_000    # 20 000 x 20 000 heights: larger is a damaged header, not a DEM
 
 
 @dataclass
@@ -67,9 +69,9 @@ class Dem:
 def _geokeys(tags) -> dict[int, object]:
     if _GEOKEYS not in tags:
         return {}
-    k = np.asarray(tags[_GEOKEYS], int)
+    k = np.asarray(tags[_GEOKEYS], int).ravel()
     out = {}
-    for i in range(1, int(k[3]) + 1):
+    for i in range(1, min(int(k[3]), len(k) // 4 - 1) + 1):
         key, loc, count, val = k[4 * i:4 * i + 4]
         if loc == 0:
             out[int(key)] = int(val)
@@ -83,27 +85,45 @@ def read_geotiff_dem(path: str | Path, band: int = 0) -> Dem:
         raise InputError("DEM file not found", path)
     try:
         with tifffile.TiffFile(path) as tf:
+            if not tf.pages:
+                raise InputError("a TIFF without images", path)
             page = tf.pages[0]
+            n = int(np.prod(page.shape)) if page.shape else 0
+            if not 0 < n <= MAX_DEM_SAMPLES:
+                raise InputError(f"implausible DEM size {page.shape} (1 to {MAX_DEM_SAMPLES} samples)", path)
             tags = {t.code: t.value for t in page.tags.values()}
             data = page.asarray()
-    except (tifffile.TiffFileError, ValueError, OSError) as e:
-        raise InputError(f"not a readable TIFF ({e})", path) from None
+            keys = _geokeys(tags)
+    except InputError:
+        raise
+    except Exception as e:  # noqa: BLE001 - tifffile parses users' bytes: whatever it trips on, the file is bad
+        raise InputError(f"not a readable TIFF ({type(e).__name__}: {' '.join(str(e).split())[:100]})", path) \
+            from None
     if data.ndim == 3:
         data = data[..., band] if data.shape[-1] < data.shape[0] else data[band]
+    if data.ndim != 2 or not np.issubdtype(data.dtype, np.number):
+        raise InputError(f"a DEM must be one band of numbers, not {data.shape} {data.dtype}", path)
     H = np.asarray(data, float)
-    keys = _geokeys(tags)
     pixel_is_point = keys.get(_KEY_RASTER, 1) == 2
-    if _TRANSFORM in tags:
-        T = np.asarray(tags[_TRANSFORM], float).reshape(4, 4)
-        A = np.array([[T[0, 0], T[0, 1], T[0, 3]], [T[1, 0], T[1, 1], T[1, 3]]])
-    elif _PIXEL_SCALE in tags and _TIEPOINT in tags:
-        sx, sy = np.asarray(tags[_PIXEL_SCALE], float)[:2]
-        tp = np.asarray(tags[_TIEPOINT], float)[:6]
-        i, j, x, y = tp[0], tp[1], tp[3], tp[4]
-        A = np.array([[sx, 0.0, x - i * sx], [0.0, -sy, y + j * sy]])
-    else:
-        raise InputError("no georeferencing (ModelPixelScale+ModelTiepoint or ModelTransformation tag)", path,
-                         field="GeoTIFF tags")
+    try:
+        if _TRANSFORM in tags:
+            T = np.asarray(tags[_TRANSFORM], float).reshape(4, 4)
+            A = np.array([[T[0, 0], T[0, 1], T[0, 3]], [T[1, 0], T[1, 1], T[1, 3]]])
+        elif _PIXEL_SCALE in tags and _TIEPOINT in tags:
+            sx, sy = np.asarray(tags[_PIXEL_SCALE], float)[:2]
+            tp = np.asarray(tags[_TIEPOINT], float)[:6]
+            i, j, x, y = tp[0], tp[1], tp[3], tp[4]
+            A = np.array([[sx, 0.0, x - i * sx], [0.0, -sy, y + j * sy]])
+        else:
+            raise InputError("no georeferencing (ModelPixelScale+ModelTiepoint or ModelTransformation tag)", path,
+                             field="GeoTIFF tags")
+    except (TypeError, ValueError, IndexError) as e:
+        if isinstance(e, InputError):
+            raise
+        raise InputError("unreadable georeferencing tags", path, field="GeoTIFF tags") from None
+    validate.values_in_range(A.ravel(), -validate.MAX_COORDINATE_M, validate.MAX_COORDINATE_M, path, "GeoTIFF tags")
+    if abs(np.linalg.det(A[:, :2])) < 1e-12:
+        raise InputError("the pixel size is zero (a singular georeferencing)", path, field="GeoTIFF tags")
     if not pixel_is_point:  # the affine refers to pixel corners; move it to pixel centres
         A[:, 2] += 0.5 * A[:, 0] + 0.5 * A[:, 1]
     if _NODATA in tags:
@@ -111,9 +131,14 @@ def read_geotiff_dem(path: str | Path, band: int = 0) -> Dem:
             nd = float(str(tags[_NODATA]).strip("\x00 "))
             H[H == nd] = np.nan
         except ValueError:
-            raise InputError(f"bad GDAL_NODATA value {tags[_NODATA]!r}", path, field="GDAL_NODATA") from None
+            raise InputError(f"bad GDAL_NODATA value {str(tags[_NODATA])[:40]!r}", path, field="GDAL_NODATA") \
+                from None
+    H[~np.isfinite(H)] = np.nan
+    if np.any(np.abs(H[np.isfinite(H)]) > validate.MAX_HEIGHT_M):
+        raise InputError(f"heights beyond +-{validate.MAX_HEIGHT_M:g} m (a no-data value without GDAL_NODATA?)",
+                         path)
     epsg = keys.get(_KEY_PROJ) or keys.get(_KEY_GEOG)
-    crs = f"EPSG:{epsg}" if epsg and epsg != 32767 else None
+    crs = f"EPSG:{epsg}" if epsg and epsg != 32767 and 0 < epsg < 10 ** 6 else None
     return Dem(H, A, crs, path)
 
 

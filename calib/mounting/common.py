@@ -17,7 +17,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
 from dgcal.fields.io.formats import EOP, Events, Trajectory
+from dgcal.fields.io.text_files import read_text
 from dgcal.fields.pose import Poses
 from dgcal.fields.world import World
 from dgcal.pos.ins.interpolate import interpolate_trajectory
@@ -234,28 +236,54 @@ class MountingResult:
 
     @classmethod
     def from_json(cls, d: dict, source: str | None = None) -> "MountingResult":
-        """A result from a `mounting.json` record (missing covariance: from the sigmas)."""
-        try:
-            R = np.array(d["boresight_R_cam_to_body"], float).reshape(3, 3)
-            lever = np.array(d["lever_arm_m"], float).reshape(3)
-            delay = float(d.get("delay_s", 0.0))
-            if "covariance" in d:
-                cov = np.array(d["covariance"], float).reshape(7, 7)
-            else:
-                s = np.r_[d.get("delay_sigma_s", 0.0), d.get("lever_arm_sigma_m", [0, 0, 0]),
-                          np.radians(d.get("boresight_sigma_deg", [0, 0, 0]))]
-                cov = np.diag(np.asarray(s, float) ** 2)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"not a mounting record: {exc}", source) from None
+        """A result from a `mounting.json` record (missing covariance: from the sigmas); every number checked
+        (finite, a lever arm within +-1000 m, a delay within +-1 h, sigmas >= 0, a symmetric covariance with
+        a non-negative diagonal, a rotation matrix) with an InputError naming the file and field."""
+        if not isinstance(d, dict):
+            raise InputError("not a mounting record: expected a JSON object", source)
+
+        def req(key):
+            if key not in d:
+                raise InputError("not a mounting record: missing", source, field=key)
+            return d[key]
+
+        R = validate.matrix(req("boresight_R_cam_to_body"), (3, 3), source, None, "boresight_R_cam_to_body")
+        lever = validate.vector(req("lever_arm_m"), 3, source, None, "lever_arm_m", -validate.MAX_LEVER_ARM_M,
+                                validate.MAX_LEVER_ARM_M)
+        delay = validate.in_range(d.get("delay_s", 0.0), -validate.MAX_DELAY_S, validate.MAX_DELAY_S, source, None,
+                                  "delay_s", "s")
+        if "covariance" in d:
+            cov = _covariance(d["covariance"], source, "covariance")
+        else:
+            s = np.r_[validate.non_negative(d.get("delay_sigma_s", 0.0), source, None, "delay_sigma_s",
+                                            validate.MAX_DELAY_S),
+                      validate.vector(d.get("lever_arm_sigma_m", [0, 0, 0]), 3, source, None, "lever_arm_sigma_m",
+                                      0.0, validate.MAX_LEVER_ARM_M),
+                      np.radians(validate.vector(d.get("boresight_sigma_deg", [0, 0, 0]), 3, source, None,
+                                                 "boresight_sigma_deg", 0.0, 360.0))]
+            cov = np.diag(s ** 2)
         if abs(np.linalg.det(R) - 1) > 1e-3 or np.max(np.abs(R.T @ R - np.eye(3))) > 1e-3:
             raise InputError("boresight_R_cam_to_body is not a rotation matrix", source,
                              field="boresight_R_cam_to_body")
         U, _, Vt = np.linalg.svd(R)
         per_epoch = d.get("per_epoch") if isinstance(d.get("per_epoch"), dict) else {}
-        extra = {k: d[k] for k in ("pos_common_fraction", "covariance_random") if k in d}
-        return cls(str(d.get("method", "unknown")), lever, U @ Vt, delay, cov, int(d.get("n_epochs", 0)),
-                   list(d.get("rejected_epochs", [])), list(d.get("warnings", [])), per_epoch, extra,
-                   str(d.get("method_canonical", "")))
+        if not isinstance(per_epoch.get("image", []), list):
+            raise InputError("must be a list of image names", source, field="per_epoch.image")
+        extra = {}
+        if "pos_common_fraction" in d:
+            extra["pos_common_fraction"] = validate.in_range(d["pos_common_fraction"], 0.0, 1.0, source, None,
+                                                             "pos_common_fraction")
+        if "covariance_random" in d:
+            extra["covariance_random"] = _covariance(d["covariance_random"], source, "covariance_random").tolist()
+        lists = {}
+        for key in ("rejected_epochs", "warnings"):
+            v = d.get(key, [])
+            if not isinstance(v, list):
+                raise InputError("must be a list", source, field=key)
+            lists[key] = [str(x) for x in v]
+        n_epochs = validate.integer(d.get("n_epochs", 0), 0, 10 ** 9, source, None, "n_epochs")
+        return cls(str(d.get("method", "unknown")), lever, U @ Vt, delay, cov, n_epochs,
+                   lists["rejected_epochs"], lists["warnings"], per_epoch, extra, str(d.get("method_canonical", "")))
 
     def covariance_for_flight(self, images) -> np.ndarray:
         """Mounting covariance to use for DG of `images`.
@@ -272,10 +300,26 @@ class MountingResult:
         return self.cov
 
 
+def _covariance(value, source, name: str) -> np.ndarray:
+    """A 7x7 covariance of a mounting record: finite, |entries| <= 1e12, symmetric, diagonal >= 0."""
+    C = validate.matrix(value, (7, 7), source, None, name)
+    if np.max(np.abs(C)) > 1e12:
+        raise InputError("implausibly large covariance entries (more than 1e12)", source, field=name)
+    if np.any(np.diag(C) < 0):
+        raise InputError("negative variance on the diagonal", source, field=name)
+    if np.max(np.abs(C - C.T)) > 1e-9 * max(1.0, float(np.max(np.abs(C)))):
+        raise InputError("the covariance is not symmetric", source, field=name)
+    return C
+
+
 def read_mounting_json(path: str | Path) -> MountingResult:
-    """A mounting calibration from a `mounting.json` file (of `dgcal mount`); InputError naming the file."""
+    """A mounting calibration from a `mounting.json` file (of `dgcal mount`); InputError naming the file (and
+    the field: every number is checked, a NaN lever arm never reaches a comparison or a DG check)."""
+    text = read_text(path)
     try:
-        d = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot read mounting file ({exc})", path) from None
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"cannot read mounting file (invalid JSON: {exc.msg})", path, exc.lineno) from None
+    except (ValueError, RecursionError) as exc:   # a 5000-digit integer, nesting too deep
+        raise InputError(f"cannot read mounting file (invalid JSON: {type(exc).__name__})", path) from None
     return MountingResult.from_json(d, str(path))

@@ -81,12 +81,12 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     rejected: list[dict] = []
     for _ in range(MAX_SNOOPING_ROUNDS):
         # data snooping on the image measurements: the worst measurement of each point whose w-test fails
-        bad = _image_blunders(prob, nrm, blk, critical_w)
+        bad, w_all = _image_blunders(prob, nrm, blk, critical_w)
         if not len(bad):
             break
         rpx = nrm.evals[0].r[bad] * blk.sig_uv[bad]
         rejected += [{"image": str(blk.meas.image[k]), "id": str(blk.meas.id[k]), "residual_px": rpx[n].tolist(),
-                      "w": float(w)} for n, (k, w) in enumerate(zip(bad, _image_w(prob, nrm)[bad]))]
+                      "w": float(w)} for n, (k, w) in enumerate(zip(bad, w_all[bad]))]
         keep = np.ones(len(blk.obs_img), bool)
         keep[bad] = False
         blk = blk.subset(keep)
@@ -118,16 +118,17 @@ def _image_w(prob: Problem, nrm) -> np.ndarray:
     return np.where(r > 0.02, w, 0.0).max(1)
 
 
-def _image_blunders(prob: Problem, nrm, blk: "_IsoBlock", critical: float) -> np.ndarray:
+def _image_blunders(prob: Problem, nrm, blk: "_IsoBlock", critical: float) -> tuple[np.ndarray, np.ndarray]:
     """Rows of the worst measurement of each point with a w-test above `critical` (several at once, one per
-    point: a blunder also inflates the other rays of its own point, rarely those of others)."""
+    point: a blunder also inflates the other rays of its own point, rarely those of others), and every
+    measurement's |w|."""
     w = _image_w(prob, nrm)
     cand = np.flatnonzero(w > critical)
     if not len(cand):
-        return cand
+        return cand, w
     order = cand[np.argsort(-w[cand])]
     _, first = np.unique(blk.obs_pt[order], return_index=True)
-    return np.sort(order[first])
+    return np.sort(order[first]), w
 
 
 @dataclass

@@ -126,28 +126,67 @@ def _plane_frame(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
 
 
 def _pnp(obj: np.ndarray, img: np.ndarray, K: np.ndarray, planar: bool, thresh_px: float):
-    """Pose (R_obj_to_cam, t) and inlier mask of one image by RANSAC PnP with a distortion-free K."""
-    obj32 = np.ascontiguousarray(obj, np.float64)
-    img32 = np.ascontiguousarray(img, np.float64)
-    flags = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_EPNP
-    try:
-        ok, rvec, tvec, inl = cv2.solvePnPRansac(obj32, img32, K, None, iterationsCount=200,
-                                                 reprojectionError=thresh_px, confidence=0.999, flags=flags)
-    except cv2.error:
-        ok = False
-    if not ok or inl is None or len(inl) < 6:
+    """Pose (R_obj_to_cam, t) and inlier mask of one image with a distortion-free K: plain PnP on every point
+    (IPPE on a plane, SQPnP otherwise); only when a residual beyond `thresh_px` calls for it, RANSAC PnP and an
+    iterative refinement on its inliers (the adjustment refines every pose anyway: a start pose from all points
+    needs no refinement of its own, the iteration counts and results are the same)."""
+    obj64 = np.ascontiguousarray(obj, np.float64)
+    img64 = np.ascontiguousarray(img, np.float64)
+    if len(obj64) < 6:
         return None
-    mask = np.zeros(len(obj), bool)
-    mask[inl.ravel()] = True
-    ok, rvec, tvec = cv2.solvePnP(obj32[mask], img32[mask], K, None, rvec, tvec, True, cv2.SOLVEPNP_ITERATIVE)
-    if not ok:
-        return None
+    pose = _pnp_all(obj64, img64, K, planar)
+    if pose is not None and np.all(_pinhole_errors(obj64, img64, K, *pose) <= thresh_px):
+        rvec, tvec = pose
+        mask = np.ones(len(obj64), bool)
+    else:                     # outliers (or no plain solution): RANSAC, refined on its inliers
+        pose, mask = _pnp_ransac(obj64, img64, K, planar, thresh_px)
+        if pose is None:
+            return None
+        ok, rvec, tvec = cv2.solvePnP(obj64[mask], img64[mask], K, None, pose[0], pose[1], True,
+                                      cv2.SOLVEPNP_ITERATIVE)
+        if not ok:
+            return None
     R = cv2.Rodrigues(rvec)[0]
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(tvec))):
         return None
     if np.median((obj[mask] @ R.T + tvec.ravel())[:, 2]) <= 0:
         return None
     return R, tvec.ravel(), mask
+
+
+def _pnp_all(obj: np.ndarray, img: np.ndarray, K: np.ndarray, planar: bool):
+    """(rvec, tvec) of plain PnP on all points (IPPE for a plane, SQPnP otherwise), None when it fails."""
+    try:
+        ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP)
+    except cv2.error:
+        return None
+    if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+        return None
+    return rvec, tvec
+
+
+def _pinhole_errors(obj: np.ndarray, img: np.ndarray, K: np.ndarray, rvec, tvec) -> np.ndarray:
+    """Reprojection error norms (px) through the pinhole K; inf behind the camera."""
+    Xc = obj @ cv2.Rodrigues(rvec)[0].T + np.ravel(tvec)
+    with np.errstate(all="ignore"):
+        uv = Xc[:, :2] / Xc[:, 2:3] @ K[:2, :2].T + K[:2, 2]
+        e = np.linalg.norm(uv - img, axis=1)
+    return np.where((Xc[:, 2] > 0) & np.isfinite(e), e, np.inf)
+
+
+def _pnp_ransac(obj: np.ndarray, img: np.ndarray, K: np.ndarray, planar: bool, thresh_px: float):
+    """((rvec, tvec), inlier mask) of RANSAC PnP, (None, None) without a pose of 6 inliers or more."""
+    flags = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_EPNP
+    try:
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, img, K, None, iterationsCount=200,
+                                                 reprojectionError=thresh_px, confidence=0.999, flags=flags)
+    except cv2.error:
+        ok = False
+    if not ok or inl is None or len(inl) < 6:
+        return None, None
+    mask = np.zeros(len(obj), bool)
+    mask[inl.ravel()] = True
+    return (rvec, tvec), mask
 
 
 def _focal_guess(groups, xyz, image_size, planar, plane_xyz) -> float:
@@ -262,7 +301,8 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     plane_xyz = (obs.field_xyz - c0) @ R_field_to_plane.T
     if planar:
         plane_xyz[:, 2] = 0.0
-    groups = [(i, obs.obs_pt[obs.obs_img == i], obs.xy[obs.obs_img == i]) for i in range(M)]
+    rows = obs.rows_by_image()
+    groups = [(i, obs.obs_pt[rows[i]], obs.xy[rows[i]]) for i in range(M)]
     groups_ok = [g for g in groups if len(g[1]) >= min_points_per_image]
     if len(groups_ok) < 3:
         raise InputError(f"only {len(groups_ok)} image(s) with at least {min_points_per_image} target "
@@ -315,23 +355,38 @@ class _Observations:
         """Indices of image names."""
         return [self.image_names.index(k) for k in names]
 
+    def rows_by_image(self) -> list[np.ndarray]:
+        """The observation rows of every image (M index arrays, ascending)."""
+        order = np.argsort(self.obs_img, kind="stable")
+        bounds = np.searchsorted(self.obs_img[order], np.arange(self.M + 1))
+        return [order[bounds[i]:bounds[i + 1]] for i in range(self.M)]
+
 
 def _observations(field_ids, field_xyz, meas_image, meas_id, meas_xy, meas_sigma) -> _Observations:
     """Index the measurements by image and target; InputError for a target id not in the field."""
     field_ids = np.asarray(field_ids).astype(str)
-    pid = {k: i for i, k in enumerate(field_ids)}
     meas_image = np.asarray(meas_image).astype(str)
     meas_id = np.asarray(meas_id).astype(str)
     sig = np.ones((len(meas_id), 2)) if meas_sigma is None else np.asarray(meas_sigma, float).copy()
     sig[~np.isfinite(sig)] = 1.0
-    unknown = [k for k in dict.fromkeys(meas_id) if k not in pid]
-    if unknown:
+    # target index of every measurement by sorted search (of a duplicated field id the last, as a dict keeps)
+    by_id = np.argsort(field_ids, kind="stable")
+    sorted_ids = field_ids[by_id]
+    at = np.searchsorted(sorted_ids, meas_id, side="right") - 1
+    found = at >= 0
+    found[found] = sorted_ids[at[found]] == meas_id[found]
+    if not found.all():
+        unknown = list(dict.fromkeys(meas_id[~found].tolist()))
         raise InputError(f"target id(s) not in the field: {', '.join(unknown[:5])}", field="id")
-    image_names = list(dict.fromkeys(meas_image.tolist()))
-    img_index = {k: i for i, k in enumerate(image_names)}
+    obs_pt = by_id[at].astype(int)
+    # images in the order of their first measurement
+    names, first, inverse = np.unique(meas_image, return_index=True, return_inverse=True)
+    by_first = np.argsort(first, kind="stable")
+    rank = np.empty(len(names), int)
+    rank[by_first] = np.arange(len(names))
+    image_names = names[by_first].tolist()
     return _Observations(field_ids, np.asarray(field_xyz, float), meas_image, meas_id, np.asarray(meas_xy, float), sig,
-                         np.array([img_index[k] for k in meas_image], int), np.array([pid[k] for k in meas_id], int),
-                         image_names)
+                         rank[inverse.ravel()], obs_pt, image_names)
 
 
 def _initial_camera(cls, model: str, initial: CameraModel | None, groups_ok, field_xyz, plane_xyz, planar: bool,
@@ -361,16 +416,17 @@ class _InitialPoses:
 
 def _initial_poses(obs: _Observations, cam: CameraModel, with_camera: bool, plane_xyz, planar: bool,
                    R_field_to_plane: np.ndarray, c0: np.ndarray, min_points: int, progress) -> _InitialPoses:
-    """Every image's start pose by RANSAC PnP in the field's plane frame (images with too few targets or no pose
-    are dropped; PnP outliers leave the adjustment)."""
+    """Every image's start pose by PnP in the field's plane frame, RANSAC where outliers call for it (images with
+    too few targets or no pose are dropped; PnP outliers leave the adjustment)."""
     w, h = cam.image_size
     K0 = cam.pinhole_K()
     M = obs.M
     out = _InitialPoses(np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)), np.ones(obs.n, bool), [],
                         np.array([""] * obs.n, dtype=object))
+    rows = obs.rows_by_image()
     for i in (range(M) if progress is None else progress(range(M))):
-        m = obs.obs_img == i
-        if m.sum() < min_points:
+        m = rows[i]
+        if len(m) < min_points:
             out.dropped.append(obs.image_names[i])
             out.active[m] = False
             out.reason[m] = "image dropped: too few targets"
@@ -387,7 +443,7 @@ def _initial_poses(obs: _Observations, cam: CameraModel, with_camera: bool, plan
         Rp, tp, inl = pose
         out.R[i] = Rp @ R_field_to_plane
         out.t[i] = tp - Rp @ R_field_to_plane @ c0
-        out.active[np.flatnonzero(m)[~inl]] = False
+        out.active[m[~inl]] = False
     return out
 
 

@@ -33,6 +33,7 @@ from dgcal.calib.selfcal.frames import VIDEO_SUFFIXES, FrameChoice, choose_frame
 from dgcal.calib.selfcal.model_choice import ModelComparison, compare_models
 from dgcal.calib.selfcal.uncertainty import UncertaintyMap, converted_uncertainty_map, uncertainty_map
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
 from dgcal.fields.frames import opk_from_R_cam_to_map
 from dgcal.fields.io.csv_tables import atomic_write, write_table
 from dgcal.fields.io.formats import (Measurements, Points, read_measurements, read_points, write_measurements,
@@ -187,6 +188,10 @@ def _check_measurements(meas: Measurements, field: Points, image_size) -> None:
         n_bad = len(set(ids[bad].tolist()))
         raise InputError(f"target id {ids[k]!r} is not in the field file{f' {field.path}' if field.path else ''}"
                          f" ({n_bad} unknown id(s))", meas.path, line, "id")
+    n_targets = len(set(ids.tolist()))
+    if n_targets < 4:
+        raise InputError(f"only {n_targets} different target(s) measured: a calibration needs at least 4 (and many "
+                         "more, over several photos)", meas.path, field="id")
     w, h = image_size
     for c, lim, name in ((0, w, "x"), (1, h, "y")):
         out = (meas.xy[:, c] < -0.5) | (meas.xy[:, c] > lim - 0.5)
@@ -339,9 +344,9 @@ def calibrate_camera(field: Points | str | Path | None = None, measurements: Mea
         meas = read_measurements(measurements) if isinstance(measurements, (str, Path)) else measurements
         if image_size is None:
             raise InputError("the image size (width, height in px) is needed with measurements", meas.path)
-    image_size = (int(image_size[0]), int(image_size[1]))
-    if image_size[0] <= 0 or image_size[1] <= 0:
-        raise InputError(f"image size must be positive, got {image_size}", field="image_size")
+    if len(image_size) != 2:
+        raise InputError(f"the image size is (width, height), not {image_size!r}", field="image_size")
+    image_size = validate.image_size(image_size[0], image_size[1], field="image_size")
     _check_measurements(meas, pts, image_size)
     if isinstance(initial, (str, Path)):
         initial = load_camera(initial)

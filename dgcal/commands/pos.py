@@ -111,6 +111,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="known antenna position (ECEF, m) for the spp/ppk summary and report")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--no-report", action="store_true",
+                   help="spp: skip the HTML report (gnss.csv and gnss_summary.json are still written)")
 
 
 def pos_options(args: argparse.Namespace) -> PosOptions:
@@ -136,19 +138,32 @@ def pos_options(args: argparse.Namespace) -> PosOptions:
                       gnss_outages=tup(getattr(args, "gnss_outages", None)), truth=getattr(args, "truth", None))
 
 
+def spp_options(args: argparse.Namespace):
+    """The dgcal.pos.gnss.spp.SppOptions of a parsed `dgcal pos --mode spp` command line."""
+    from dgcal.fields.errors import InputError
+    from dgcal.pos.gnss.spp import SppOptions
+    systems = tuple(s for s in str(args.systems).upper() if s in "GECJ")
+    if not systems:
+        raise InputError(f"no known constellation in '{args.systems}'", field="--systems")
+    return SppOptions(elev_mask_deg=args.elev_mask, code_sigma_zenith_m=args.code_sigma,
+                      doppler_sigma_zenith_mps=args.doppler_sigma, systems=systems, raim=not args.no_raim)
+
+
 def run(args: argparse.Namespace) -> int:
     from dgcal.fields.io.csv_tables import staged_dir
-    opts = pos_options(args)
-    if opts.mode == "spp":
-        from dgcal.pos.pipeline import run_spp
+    if args.mode == "spp":
+        # the GNSS modules only (not dgcal.pos.pipeline, whose GNSS/INS imports take longer than the SPP)
+        from dgcal.pos.gnss.spp import spp_files
         from dgcal.reports.gnss import write_spp_outputs
-        sp = run_spp(opts)
+        sp = spp_files(args.rinex_obs, tuple(args.rinex_nav or ()), spp_options(args), t_start=args.t_start,
+                       t_end=args.t_end, reference_ecef=args.reference, progress=not args.no_progress)
         with staged_dir(args.out) as tmp:
-            write_spp_outputs(tmp, sp, SPP_OUTPUTS)
+            write_spp_outputs(tmp, sp, SPP_OUTPUTS, report=not args.no_report)
         s = sp.summary
         print(f"{Path(args.out) / SPP_OUTPUTS['gnss']}: {s['n_fixed']}/{s['n_epochs']} epochs, "
               f"median sigma 3D {s['median_sigma_3d_m']:.2f} m", file=sys.stderr)
         return 0
+    opts = pos_options(args)
     if opts.mode == "ppk":
         from dgcal.pos.pipeline import run_ppk
         from dgcal.reports.ppk import write_ppk_outputs
@@ -168,6 +183,8 @@ def run(args: argparse.Namespace) -> int:
     from dgcal.pos.pipeline import run_pos
     from dgcal.reports.pos import write_pos_outputs
     res = run_pos(opts)
+    for w in res.summary.get("warnings", []):       # data integrity (IMU, GNSS epochs, RINEX records)
+        print(f"warning: {w}", file=sys.stderr)
     if opts.mode == "ukf":
         from dgcal.reports.ukf import write_ukf_outputs
         with staged_dir(args.out) as tmp:

@@ -1,5 +1,6 @@
 """Run a calibration campaign: camera field -> triangulation -> POS -> mounting (and the methods compared) ->
-DG check, resumable (a finished step is skipped unless its inputs changed), ending with the calibration
+DG check, resumable (a finished step is skipped unless its arguments or inputs changed or its outputs are
+incomplete; an interrupted run's leftovers are cleaned up first), ending with the calibration
 report DIR/report.html and DIR/report.json. The campaign file is described in docs/campaign.md."""
 from __future__ import annotations
 
@@ -14,6 +15,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("campaign", type=Path, metavar="CAMPAIGN.toml", help="campaign file (paths relative to it)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (one sub-folder per step)")
     p.add_argument("--force", action="store_true", help="rerun every step even when it is up to date")
+    p.add_argument("--rerun", nargs="+", default=[], metavar="STEP",
+                   help="rerun these steps (and every step after them that reads their outputs) even when up to "
+                        "date: step names as --dry-run lists them (mount_iso) or verbs (mount: every mounting step)")
     p.add_argument("--dry-run", action="store_true", help="list the steps and their commands, run nothing")
 
 
@@ -23,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
         for step in plan(load_campaign(args.campaign), args.out):
             print(f"[{step.name}] dgcal {' '.join(step.argv)}")
         return 0
-    res = run_campaign(args.campaign, args.out, force=args.force)
+    res = run_campaign(args.campaign, args.out, force=args.force, rerun=args.rerun)
     ran = [k for k, v in res["steps"].items() if v == "ran"]
     print(f"{len(ran)} step(s) ran, {len(res['steps']) - len(ran)} up to date; "
           + ", ".join(f"{k} {v:.1f} s" for k, v in res["timings_s"].items()))

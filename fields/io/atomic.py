@@ -7,16 +7,21 @@
 - `out` holds only a previous output of dgcal (every entry is listed in its manifest `.dgcal-outputs.json`):
   `out` is renamed aside, the staging folder renamed into place, the old folder removed — an interrupted
   run leaves the old outputs or the new ones, never a mixture;
-- `out` holds other files too (a user's folder): the new files are moved in one by one, and the manifest,
-  written last, is what marks the set complete (`read_manifest`).
-A stale staging or set-aside folder of an interrupted run is cleaned up at the next `staged_dir(out)`: the
-old outputs are put back when the new ones never arrived.
+- `out` holds other files too (a user's folder, or `merge=True`: a campaign folder holding the steps' folders
+  beside its report): the new files are moved in one by one, and the manifest, written last, is what marks
+  the set complete (`read_manifest`).
+The manifest lists every file with its size and SHA-256 (`entries`), so a folder can be checked against it
+(`manifest_problems`). A stale staging or set-aside folder of an interrupted run, and the temporary files of
+an interrupted `atomic_write` in `out`, are cleaned up at the next `staged_dir(out)` (or `clean_stale(out)`):
+the old outputs are put back when the new ones never arrived.
 """
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
+import re
 import shutil
 import tempfile
 import time
@@ -50,6 +55,10 @@ def atomic_write(path: str | Path, mode: str = "w", **kw) -> Iterator:
         raise
 
 
+# what `atomic_write` leaves when killed: .NAME.XXXXXXXX.part (mkstemp's eight random characters)
+_PARTIAL = re.compile(r"^\..+\.[a-z0-9_]{8}\.part$")
+
+
 def _siblings(out: Path, kind: str) -> list[Path]:
     return sorted(out.parent.glob(f".{out.name}.{kind}.*")) if out.parent.is_dir() else []
 
@@ -66,9 +75,13 @@ def clean_stale(out: str | Path) -> None:
                 os.replace(p, out)
                 continue
         shutil.rmtree(p, ignore_errors=True)
-    if out.is_dir():   # staging folders of the earlier layout, inside the output folder
+    if out.is_dir():   # staging folders of the earlier layout, inside the output folder; killed atomic writes
         for p in out.glob(".staging.*"):
             shutil.rmtree(p, ignore_errors=True)
+        for p in out.glob(".*.part"):
+            if _PARTIAL.match(p.name) and p.is_file():
+                with contextlib.suppress(OSError):
+                    p.unlink()
 
 
 def read_manifest(out: str | Path) -> dict | None:
@@ -78,6 +91,36 @@ def read_manifest(out: str | Path) -> dict | None:
         return json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 (hex) of a file's contents."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def manifest_problems(out: str | Path, hashes: bool = False) -> list[str]:
+    """What keeps `out` from being the complete output set its manifest describes: no manifest, a listed
+    file missing or of another size (or, with `hashes`, other contents). Empty when the folder is whole.
+    Manifests of earlier versions (no `entries`) are checked for the presence of their files only."""
+    out = Path(out)
+    m = read_manifest(out)
+    if m is None:
+        return [f"{out}: no manifest {MANIFEST} (incomplete or not written by dgcal)"]
+    entries = m.get("entries") or {f: None for f in m.get("files", [])}
+    problems = []
+    for name, e in entries.items():
+        p = out / name
+        if not p.is_file():
+            problems.append(f"{p}: listed in the manifest but missing")
+        elif e is not None and p.stat().st_size != e.get("size"):
+            problems.append(f"{p}: size {p.stat().st_size} B, the manifest says {e.get('size')} B")
+        elif e is not None and hashes and file_sha256(p) != e.get("sha256"):
+            problems.append(f"{p}: contents differ from the manifest's SHA-256")
+    return problems
 
 
 def _ours(out: Path) -> bool:
@@ -90,26 +133,29 @@ def _ours(out: Path) -> bool:
     return all(p.name in top for p in out.iterdir())
 
 
-def _write_manifest(folder: Path, files: list[str]) -> None:
+def _write_manifest(folder: Path, files: list[str], entries: dict) -> None:
     with atomic_write(folder / MANIFEST) as fh:
-        json.dump({"files": files, "written_unix": time.time()}, fh, indent=1)
+        json.dump({"files": files, "entries": entries, "written_unix": time.time()}, fh, indent=1)
 
 
 @contextlib.contextmanager
-def staged_dir(out: str | Path) -> Iterator[Path]:
-    """Yield a staging folder whose contents become `out` only if the block succeeds (see the module doc)."""
+def staged_dir(out: str | Path, merge: bool = False) -> Iterator[Path]:
+    """Yield a staging folder whose contents become `out` only if the block succeeds (see the module doc);
+    `merge`: always move the new files into `out` (never swap the folder), for a folder holding more."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     clean_stale(out)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging.", dir=out.parent))
+    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; the output folder should get the user's usual mode
     try:
         yield tmp
-        files = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
+        files = sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if p.is_file())
+        entries = {f: {"size": (tmp / f).stat().st_size, "sha256": file_sha256(tmp / f)} for f in files}
         if not out.exists():
-            _write_manifest(tmp, files)
+            _write_manifest(tmp, files, entries)
             os.replace(tmp, out)
-        elif out.is_dir() and _ours(out):
-            _write_manifest(tmp, files)
+        elif out.is_dir() and not merge and _ours(out):
+            _write_manifest(tmp, files, entries)
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
             os.rmdir(old)
             os.replace(out, old)
@@ -126,6 +172,6 @@ def staged_dir(out: str | Path) -> Iterator[Path]:
                 else:
                     dest.parent.mkdir(parents=True, exist_ok=True)
                     os.replace(p, dest)
-            _write_manifest(out, files)
+            _write_manifest(out, files, entries)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -31,7 +31,7 @@ class Table:
         return self.cols.get(name, default)
 
 
-CHUNK_ROWS = 65536      # rows parsed per NumPy conversion: memory stays near the arrays' own size
+CHUNK_ROWS = 16384      # rows parsed per NumPy conversion: memory stays near the arrays' own size
 
 
 def _to_float(vals: list[str], path: Path, lines: list[int], name: str) -> np.ndarray:
@@ -92,9 +92,13 @@ class _Columns:
 
     def table(self) -> "Table":
         self.flush()
-        cols = {n: (np.concatenate(c) if c else np.empty(0, dtype=object if n in self.text else float))
-                for n, c in self.done.items()}
+        cols = {}
+        for n in list(self.done):      # one column at a time, its chunks freed: the peak is one column over
+            c = self.done.pop(n)
+            cols[n] = np.concatenate(c) if c else np.empty(0, dtype=object if n in self.text else float)
+            del c
         lines = np.concatenate(self.done_lines) if self.done_lines else np.empty(0, dtype=np.int64)
+        self.done_lines = []
         return Table(self.path, cols, lines)
 
 

@@ -13,6 +13,7 @@ import numpy as np
 
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
 from dgcal.fields.io.csv_tables import Table, read_table, write_table
 
 TRAJECTORY_COLUMNS = ("gps_week", "gps_sow", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "heading")
@@ -50,25 +51,41 @@ class _GpsTimed:
         return len(self.t)
 
 
-def _duplicates(values: np.ndarray) -> list:
-    uniq, counts = np.unique(values.astype(str), return_counts=True)
-    return [str(u) for u in uniq[counts > 1]]
+def _first_repeat(*columns: np.ndarray) -> int | None:
+    """The first row (in file order) whose values in `columns` appeared in an earlier row, or None.
+
+    Rows are sorted by the values' hashes (8 bytes a row, no copy of the strings; a str caches its hash) and
+    rows with equal hashes are compared by value, so a hash collision is never taken for a repeat."""
+    n = len(columns[0])
+    if n < 2:
+        return None
+    hashes = [np.fromiter(map(hash, c.tolist() if c.dtype != object else c), np.int64, n) for c in columns]
+    order = np.lexsort(hashes[::-1])                   # stable: equal keys keep file order
+    same = np.ones(n - 1, bool)
+    for h in hashes:
+        hs = h[order]
+        same &= hs[1:] == hs[:-1]
+        del hs
+    best = None
+    for j in np.flatnonzero(same):
+        a, b = int(order[j]), int(order[j + 1])
+        if all(c[a] == c[b] for c in columns) and (best is None or b < best):
+            best = b
+    return best
 
 
-def _check_finite(tab: Table, names) -> None:
-    for n in names:
-        bad = ~np.isfinite(tab[n])
-        if bad.any():
-            raise InputError("not a finite number", tab.path, int(tab.lines[np.argmax(bad)]), n)
-
-
-def _check_positive(tab: Table, names) -> None:
+def _check(tab: Table, names, lo: float, hi: float, allow_nan: bool = False, unit: str = "") -> None:
+    """Columns `names` (those present) finite and within [lo, hi]; the first bad row's line is named."""
     for n in names:
         if n in tab:
-            v = tab[n]
-            bad = np.isfinite(v) & (v <= 0)
-            if bad.any():
-                raise InputError("sigma must be positive", tab.path, int(tab.lines[np.argmax(bad)]), n)
+            validate.values_in_range(tab[n], lo, hi, tab.path, n, tab.lines, allow_nan, unit)
+
+
+def _check_sigmas(tab: Table, names, hi: float, allow_nan: bool, strict: bool = True) -> None:
+    """Sigma columns `names` (those present) finite, positive (or zero unless `strict`) and <= hi."""
+    for n in names:
+        if n in tab:
+            validate.positive_values(tab[n], tab.path, n, tab.lines, allow_nan, hi, strict, what="sigma")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -96,13 +113,12 @@ class Points:
 def read_points(path: str | Path) -> Points:
     """Read a field/ground point CSV `id,x,y,z[,sx,sy,sz][,role]` (m)."""
     tab = read_table(path, ("id", "x", "y", "z"), ("sx", "sy", "sz", "role"))
-    _check_finite(tab, ("x", "y", "z"))
-    _check_positive(tab, ("sx", "sy", "sz"))
-    ids = tab["id"].astype(str)
-    dup = _duplicates(ids)
-    if dup:
-        line = int(tab.lines[list(ids).index(dup[0], list(ids).index(dup[0]) + 1)])
-        raise InputError(f"duplicate point id {dup[0]!r}", tab.path, line, "id")
+    _check(tab, ("x", "y", "z"), -validate.MAX_COORDINATE_M, validate.MAX_COORDINATE_M, unit="m")
+    _check_sigmas(tab, ("sx", "sy", "sz"), validate.MAX_COORDINATE_M, allow_nan=True)
+    ids = tab["id"]
+    k = _first_repeat(ids)
+    if k is not None:
+        raise InputError(f"duplicate point id {ids[k]!r}", tab.path, int(tab.lines[k]), "id")
     n = len(tab)
     sigma = np.column_stack([tab.get(c, np.full(n, np.nan)) for c in ("sx", "sy", "sz")])
     role = tab.get("role", np.full(n, "", dtype=object)).astype(object)
@@ -112,7 +128,7 @@ def read_points(path: str | Path) -> Points:
         i = int(np.argmax(bad))
         raise InputError(f"role must be 'control' or 'check', got {role[i]!r}", tab.path, int(tab.lines[i]), "role")
     xyz = np.column_stack([tab["x"], tab["y"], tab["z"]])
-    return Points(ids.astype(object), xyz, sigma, role, tab.lines, tab.path)
+    return Points(ids, xyz, sigma, role, tab.lines, tab.path)
 
 
 def write_points(path: str | Path, pts: Points, with_role: bool | None = None) -> None:
@@ -159,19 +175,17 @@ class Measurements:
 def read_measurements(path: str | Path) -> Measurements:
     """Read image measurements `image,id,x,y[,sx,sy]` (px, OpenCV pixel convention)."""
     tab = read_table(path, ("image", "id", "x", "y"), ("sx", "sy"))
-    _check_finite(tab, ("x", "y"))
-    _check_positive(tab, ("sx", "sy"))
-    image, ids = tab["image"].astype(str), tab["id"].astype(str)
-    key = np.char.add(np.char.add(image.astype(str), "\x1f"), ids.astype(str))
-    dup = _duplicates(key)
-    if dup:
-        im, pid = dup[0].split("\x1f")
-        idx = np.nonzero(key == dup[0])[0][1]
-        raise InputError(f"point {pid!r} measured twice in image {im!r}", tab.path, int(tab.lines[idx]), "id")
+    _check(tab, ("x", "y"), -validate.MAX_PIXEL, validate.MAX_PIXEL, unit="px")
+    _check_sigmas(tab, ("sx", "sy"), validate.MAX_PIXEL, allow_nan=True)
+    image, ids = tab["image"], tab["id"]      # object arrays of the table's shared strings (no copies)
+    k = _first_repeat(image, ids)
+    if k is not None:
+        raise InputError(f"point {ids[k]!r} measured twice in image {image[k]!r}", tab.path, int(tab.lines[k]),
+                         "id")
     n = len(tab)
-    sigma = np.column_stack([tab.get("sx", np.full(n, np.nan)), tab.get("sy", np.full(n, np.nan))])
-    return Measurements(image.astype(object), ids.astype(object), np.column_stack([tab["x"], tab["y"]]),
-                        sigma, tab.lines, tab.path)
+    xy = np.column_stack([tab.cols.pop("x"), tab.cols.pop("y")])
+    sigma = np.column_stack([tab.cols.pop("sx", np.full(n, np.nan)), tab.cols.pop("sy", np.full(n, np.nan))])
+    return Measurements(image, ids, xy, sigma, tab.lines, tab.path)
 
 
 def write_measurements(path: str | Path, m: Measurements) -> None:
@@ -203,10 +217,24 @@ class Trajectory(_GpsTimed):
     path: Path | None = None
 
 
+def _check_trajectory(tab: Table) -> None:
+    """GPS weeks and seconds of week, latitudes within +-90 deg, longitudes, heights, velocities and angles
+    finite and plausible; the sigma columns (when all are given) finite and not negative."""
+    validate.gps_week_sow(tab["gps_week"], tab["gps_sow"], tab.path, tab.lines)
+    _check(tab, ("lat",), -90.0, 90.0, unit="deg")
+    _check(tab, ("lon",), -360.0, 360.0, unit="deg")
+    _check(tab, ("h",), -validate.MAX_HEIGHT_M, validate.MAX_HEIGHT_M, unit="m")
+    _check(tab, ("vn", "ve", "vd"), -validate.MAX_SPEED_M_S, validate.MAX_SPEED_M_S, unit="m/s")
+    _check(tab, ("roll", "pitch", "heading"), -validate.MAX_ANGLE_DEG, validate.MAX_ANGLE_DEG, unit="deg")
+    if all(c in tab for c in TRAJECTORY_SIGMA_COLUMNS):
+        _check_sigmas(tab, TRAJECTORY_SIGMA_COLUMNS[:3], validate.MAX_HEIGHT_M, allow_nan=False, strict=False)
+        _check_sigmas(tab, TRAJECTORY_SIGMA_COLUMNS[3:], validate.MAX_ANGLE_DEG, allow_nan=False, strict=False)
+
+
 def read_trajectory(path: str | Path) -> Trajectory:
     """Read a trajectory CSV (INTERFACES.md columns, optional sigma columns and leading `image`)."""
     tab = read_table(path, TRAJECTORY_COLUMNS, TRAJECTORY_SIGMA_COLUMNS + ("image",))
-    _check_finite(tab, TRAJECTORY_COLUMNS)
+    _check_trajectory(tab)
     t = gps_seconds(tab["gps_week"], tab["gps_sow"])
     image = tab.get("image")
     if image is None:
@@ -252,13 +280,12 @@ class Events(_GpsTimed):
 def read_events(path: str | Path) -> Events:
     """Read an events CSV `image,gps_week,gps_sow`."""
     tab = read_table(path, ("image", "gps_week", "gps_sow"))
-    _check_finite(tab, ("gps_week", "gps_sow"))
-    image = tab["image"].astype(str)
-    dup = _duplicates(image)
-    if dup:
-        idx = np.nonzero(image == dup[0])[0][1]
-        raise InputError(f"image {dup[0]!r} has two events", tab.path, int(tab.lines[idx]), "image")
-    return Events(image.astype(object), gps_seconds(tab["gps_week"], tab["gps_sow"]), tab.lines, tab.path)
+    validate.gps_week_sow(tab["gps_week"], tab["gps_sow"], tab.path, tab.lines)
+    image = tab["image"]
+    k = _first_repeat(image)
+    if k is not None:
+        raise InputError(f"image {image[k]!r} has two events", tab.path, int(tab.lines[k]), "image")
+    return Events(image, gps_seconds(tab["gps_week"], tab["gps_sow"]), tab.lines, tab.path)
 
 
 def write_events(path: str | Path, ev: Events) -> None:
@@ -294,17 +321,18 @@ def read_eop(path: str | Path) -> EOP:
     req = tuple(c.lower() for c in EOP_COLUMNS)
     opt = tuple(c.lower() for c in EOP_SIGMA_COLUMNS)
     tab = read_table(path, req, opt)
-    _check_finite(tab, req[1:])
-    image = tab["image"].astype(str)
-    dup = _duplicates(image)
-    if dup:
-        idx = np.nonzero(image == dup[0])[0][1]
-        raise InputError(f"image {dup[0]!r} appears twice", tab.path, int(tab.lines[idx]), "image")
+    _check(tab, ("x", "y", "z"), -validate.MAX_COORDINATE_M, validate.MAX_COORDINATE_M, unit="m")
+    _check(tab, ("omega", "phi", "kappa"), -validate.MAX_ANGLE_DEG, validate.MAX_ANGLE_DEG, unit="deg")
+    image = tab["image"]
+    k = _first_repeat(image)
+    if k is not None:
+        raise InputError(f"image {image[k]!r} appears twice", tab.path, int(tab.lines[k]), "image")
     sig = None
     if all(c in tab for c in opt):
+        _check_sigmas(tab, opt[:3], validate.MAX_COORDINATE_M, allow_nan=False)
+        _check_sigmas(tab, opt[3:], validate.MAX_ANGLE_DEG, allow_nan=False)
         sig = np.column_stack([tab[c] for c in opt])
-        _check_positive(tab, opt)
-    return EOP(image.astype(object), np.column_stack([tab["x"], tab["y"], tab["z"]]),
+    return EOP(image, np.column_stack([tab["x"], tab["y"], tab["z"]]),
                np.column_stack([tab["omega"], tab["phi"], tab["kappa"]]), sig, None, tab.lines, tab.path)
 
 

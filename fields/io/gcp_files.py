@@ -19,8 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from dgcal.fields.io import validate
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.text_files import read_text
 from dgcal.fields.io.formats import Measurements, Points, read_measurements, read_points
 
 _WGS84_UTM = re.compile(r"^\s*WGS84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.I)
@@ -63,12 +65,7 @@ def read_odm_gcp_list(path: str | Path) -> tuple[str, Points, Measurements]:
     The same point name appearing with different coordinates is an error naming both lines.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError("file not found", path)
-    try:
-        lines = path.read_text(encoding="utf-8-sig").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read: {exc}", path) from None
+    lines = read_text(path).splitlines()
     crs_line = None
     pts: dict[str, tuple[np.ndarray, int]] = {}
     img, pid, xy, ln = [], [], [], []
@@ -85,17 +82,9 @@ def read_odm_gcp_list(path: str | Path) -> tuple[str, Points, Measurements]:
         if len(f) < 6:
             raise InputError(f"expected 'geo_x geo_y geo_z im_x im_y image_name [gcp_name]', got {len(f)} fields",
                              path, no)
-        try:
-            vals = [float(v) for v in f[:5]]
-        except ValueError:
-            bad = next(i for i, v in enumerate(f[:5]) if not _isfloat(v))
-            raise InputError(f"not a number: {f[bad]!r}", path, no,
-                             ("geo_x", "geo_y", "geo_z", "im_x", "im_y")[bad]) from None
+        vals = [validate.in_range(t, -lim, lim, path, no, name) for t, name, lim in
+                zip(f[:5], ("geo_x", "geo_y", "geo_z", "im_x", "im_y"), _ODM_LIMITS)]
         X = np.array(vals[:3])
-        if not np.all(np.isfinite(vals)):
-            bad = next(i for i, v in enumerate(vals) if not np.isfinite(v))
-            raise InputError(f"not a finite number: {f[bad]!r}", path, no,
-                             ("geo_x", "geo_y", "geo_z", "im_x", "im_y")[bad])
         if len(f) > 6:
             name = f[6]
         else:
@@ -141,12 +130,7 @@ def write_odm_gcp_list(path: str | Path, crs: str, points: Points, meas: Measure
             fh.write("%.6f %.6f %.6f %.4f %.4f %s %s\n" % (*X, *meas.xy[i], meas.image[i], p))
 
 
-def _isfloat(v: str) -> bool:
-    try:
-        float(v)
-        return True
-    except ValueError:
-        return False
+_ODM_LIMITS = (validate.MAX_COORDINATE_M,) * 3 + (validate.MAX_PIXEL,) * 2
 
 
 def _no_duplicate_measurements(meas: Measurements) -> None:
@@ -161,9 +145,7 @@ def _no_duplicate_measurements(meas: Measurements) -> None:
 
 # ---------------------------------------------------------------------------------------------
 def _xml(path: Path, root_tag: str) -> tuple[ET.Element, str]:
-    if not path.is_file():
-        raise InputError("file not found", path)
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = read_text(path)
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
@@ -181,17 +163,14 @@ def _line_of(text: str, needle: str, start: int = 0) -> tuple[int | None, int]:
     return (None, start) if pos < 0 else (text.count("\n", 0, pos) + 1, pos + 1)
 
 
-def _numbers(el: ET.Element | None, n: int, path, line, field) -> np.ndarray:
+def _numbers(el: ET.Element | None, n: int, path, line, field, limit: float = validate.MAX_COORDINATE_M) \
+        -> np.ndarray:
     if el is None or el.text is None:
         raise InputError("missing value", path, line, field)
     parts = el.text.split()
-    try:
-        vals = np.array([float(v) for v in parts])
-    except ValueError:
-        raise InputError(f"not a number in {el.text.strip()!r}", path, line, field) from None
-    if len(vals) != n:
-        raise InputError(f"expected {n} numbers, got {len(vals)}", path, line, field)
-    return vals
+    if len(parts) != n:
+        raise InputError(f"expected {n} numbers, got {len(parts)}", path, line, field)
+    return np.array([validate.in_range(v, -limit, limit, path, line, field) for v in parts])
 
 
 def read_micmac_points(path: str | Path) -> Points:
@@ -213,7 +192,10 @@ def read_micmac_points(path: str | Path) -> Points:
             raise InputError(f"duplicate point id {name!r}", path, line, "NamePt")
         xyz.append(_numbers(el.find("Pt"), 3, path, line, "Pt"))
         inc = el.find("Incertitude")
-        sig.append(_numbers(inc, 3, path, line, "Incertitude") if inc is not None else np.full(3, np.nan))
+        s = _numbers(inc, 3, path, line, "Incertitude") if inc is not None else np.full(3, np.nan)
+        if np.any(s <= 0):
+            raise InputError("a sigma must be positive", path, line, "Incertitude")
+        sig.append(s)
         ids.append(name)
         lines.append(line or 0)
     if not ids:
@@ -238,7 +220,7 @@ def read_micmac_measurements(path: str | Path) -> Measurements:
             p = (m.findtext("NamePt") or "").strip()
             if not p:
                 raise InputError("missing value", path, line, "NamePt")
-            xy.append(_numbers(m.find("PtIm"), 2, path, line, "PtIm"))
+            xy.append(_numbers(m.find("PtIm"), 2, path, line, "PtIm", validate.MAX_PIXEL))
             img.append(name)
             pid.append(p)
             lines.append(line or 0)
@@ -250,11 +232,20 @@ def read_micmac_measurements(path: str | Path) -> Measurements:
     return meas
 
 
+def _head(p: Path, size: int = 2000) -> str:
+    """The start of a file (without leading blanks) to recognise its format; '' when it cannot be read (the
+    reader chosen then says why)."""
+    try:
+        with open(p, "rb") as fh:
+            return fh.read(size).decode("utf-8", errors="replace").lstrip("\ufeff").lstrip()
+    except OSError:
+        return ""
+
+
 def read_any_points(path: str | Path) -> tuple[Points, str | None]:
     """Ground points from a dgcal CSV or a MicMac XML; with the CRS when the file names one (else None)."""
     p = Path(path)
-    head = p.read_text(encoding="utf-8", errors="replace")[:2000].lstrip() if p.is_file() else ""
-    if head.startswith("<"):
+    if _head(p).startswith("<"):
         return read_micmac_points(p), None
     if is_odm_gcp_list(p):
         crs, pts, _ = read_odm_gcp_list(p)
@@ -265,8 +256,7 @@ def read_any_points(path: str | Path) -> tuple[Points, str | None]:
 def read_any_measurements(path: str | Path) -> tuple[Measurements, str | None, Points | None]:
     """Image measurements from a dgcal CSV, an ODM gcp_list.txt (with its CRS and points) or a MicMac XML."""
     p = Path(path)
-    head = p.read_text(encoding="utf-8", errors="replace")[:2000].lstrip() if p.is_file() else ""
-    if head.startswith("<"):
+    if _head(p).startswith("<"):
         return read_micmac_measurements(p), None, None
     if is_odm_gcp_list(p):
         crs, pts, meas = read_odm_gcp_list(p)

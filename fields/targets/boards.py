@@ -41,6 +41,7 @@ import numpy as np
 
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.io.text_files import read_text
 from dgcal.fields.io.formats import Points, write_points
 
 BOARD_TYPES = ("charuco", "chessboard", "aruco-grid")
@@ -64,6 +65,10 @@ def cv_dictionary(name: str):
         hint = f" (did you mean {', '.join(near[:3])}?)" if near else " (e.g. DICT_4X4_1000, DICT_5X5_250)"
         raise InputError(f"unknown ArUco dictionary {name!r}{hint}", field="dictionary")
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+
+
+MAX_BOARD_SQUARES = 1000                     # squares (markers) across a board
+MIN_BOARD_SIDE_M, MAX_BOARD_SIDE_M = 1e-4, 100.0   # m, the side of a square
 
 
 @dataclass(frozen=True)
@@ -92,16 +97,22 @@ class Board:
                                  f" >= {1 if self.type == 'aruco-grid' else 2}, got {v!r}", field=k)
         if self.type != "aruco-grid" and (self.columns - 1) * (self.rows - 1) < 4:
             raise InputError(f"a {self.columns} x {self.rows} board has fewer than 4 inner corners", field="columns")
-        if not (isinstance(self.square_m, (int, float)) and math.isfinite(self.square_m) and self.square_m > 0):
-            raise InputError(f"square side must be a positive number of metres, got {self.square_m!r}",
-                             field="square_m")
+        for k in ("columns", "rows"):
+            if getattr(self, k) > MAX_BOARD_SQUARES:
+                raise InputError(f"implausible board: more than {MAX_BOARD_SQUARES} across, got {getattr(self, k)}",
+                                 field=k)
+        if not (isinstance(self.square_m, (int, float)) and math.isfinite(self.square_m)
+                and MIN_BOARD_SIDE_M <= self.square_m <= MAX_BOARD_SIDE_M):
+            raise InputError(f"square side must be a number of metres in [{MIN_BOARD_SIDE_M:g}, {MAX_BOARD_SIDE_M:g}],"
+                             f" got {self.square_m!r}", field="square_m")
         if self.type == "chessboard":
             return
         if self.marker_m is None:
             raise InputError(f"a {self.type} board needs the marker side", field="marker_m")
-        if not (isinstance(self.marker_m, (int, float)) and 0 < self.marker_m and math.isfinite(self.marker_m)):
-            raise InputError(f"marker side must be a positive number of metres, got {self.marker_m!r}",
-                             field="marker_m")
+        if not (isinstance(self.marker_m, (int, float)) and math.isfinite(self.marker_m)
+                and 0.01 * self.square_m <= self.marker_m):
+            raise InputError(f"marker side must be a positive number of metres (at least 1 % of the square), got "
+                             f"{self.marker_m!r}", field="marker_m")
         if self.type == "charuco" and not self.marker_m < self.square_m:
             raise InputError(f"the marker ({self.marker_m:g} m) must be smaller than the square ({self.square_m:g} m)",
                              field="marker_m")
@@ -325,22 +336,21 @@ def board_from_dict(d: dict, path: str | Path | None = None, text: str = "") -> 
         return Board(**kw)
     except InputError as exc:
         key = exc.field
-        raise InputError(str(exc).split(": ", 1)[-1] if key else str(exc), path,
-                         _key_line(text, key) if key else None, key) from None
+        raise InputError(exc.reason, path, _key_line(text, key) if key else None, key) from None
 
 
 def read_board(path: str | Path) -> Board:
     """Read a board TOML file (see the module doc); InputError naming the file, line and field."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"cannot read the board file ({exc.strerror or exc})", p) from None
+    text = read_text(p, encoding="utf-8")
     try:
         d = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"line (\d+)", str(exc))
-        raise InputError(f"not valid TOML ({str(exc).split(' (at')[0]})", p, int(m.group(1)) if m else None) from None
+        raise InputError(f"not valid TOML ({' '.join(str(exc).split(' (at')[0].split())})", p,
+                         int(m.group(1)) if m else None) from None
+    except RecursionError:
+        raise InputError("not valid TOML (nested too deeply)", p) from None
     if "board" in d and isinstance(d["board"], dict):   # a [board] table is accepted too
         d = d["board"]
     return board_from_dict(d, p, text)
@@ -409,9 +419,9 @@ def load_board_layout(field_csv: str | Path) -> Board | None:
     if not p.is_file():
         return None
     try:
-        d = json.loads(p.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"cannot read field layout: {exc}", p) from None
+        d = json.loads(read_text(p))
+    except (ValueError, RecursionError) as exc:
+        raise InputError(f"cannot read field layout: {' '.join(str(exc).split())[:120]}", p) from None
     if not isinstance(d, dict) or d.get("kind") != BOARD_LAYOUT_KIND:
         return None
     return board_from_dict({k: v for k, v in d.items() if k != "kind"}, p)

@@ -26,6 +26,7 @@ import numpy as np
 
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.io.text_files import read_text
 from dgcal.fields.io.formats import Points, write_points
 
 DICTIONARIES = ("DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000", "DICT_7X7_1000", "DICT_4X4_250",
@@ -58,6 +59,14 @@ class TargetField:
 
     def __post_init__(self):
         self.blocks = tuple(b if isinstance(b, Block) else Block(**b) for b in self.blocks)
+        for name in ("diameter_m", "square_m", "marker_m", "sigma_xy_m", "sigma_z_m"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or abs(v) > 1000:
+                raise InputError(f"{name} must be a finite number of metres (at most 1000), not {v!r}",
+                                 field=name)
+        if not (self.diameter_m > 0 and self.square_m > 0) or self.diameter_m / self.square_m > 2000:
+            raise InputError(f"a plate of {self.diameter_m} m with {self.square_m} m squares is implausible "
+                             "(more than 2000 squares across)", field="square_m")
         if not (self.diameter_m > 0 and self.square_m > 0 and 0 < self.marker_m < self.square_m):
             raise InputError(f"field sizes must satisfy 0 < marker ({self.marker_m}) < square ({self.square_m}) "
                              f"and diameter > 0 ({self.diameter_m})")
@@ -198,6 +207,8 @@ class TargetField:
         keys = {f for f in cls.__dataclass_fields__}
         try:
             return cls(**{k: v for k, v in d.items() if k in keys})
+        except InputError as exc:
+            raise InputError(f"bad field layout: {exc.reason}", path, field=exc.field) from None
         except (TypeError, ValueError) as exc:
             raise InputError(f"bad field layout: {exc}", path) from None
 
@@ -254,9 +265,9 @@ def load_layout(field_csv: str | Path) -> TargetField | None:
     if not p.is_file():
         return None
     try:
-        d = json.loads(p.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"cannot read field layout: {exc}", p) from None
+        d = json.loads(read_text(p))
+    except (ValueError, RecursionError) as exc:
+        raise InputError(f"cannot read field layout: {' '.join(str(exc).split())[:120]}", p) from None
     if not isinstance(d, dict) or d.get("kind") != "dgcal-charuco-plate":
         return None
     return TargetField.from_dict(d, p)

@@ -11,12 +11,16 @@ every version come out in the same form. Times are GPS time (``BDT`` files are s
 ``GLO`` (UTC) file by the leap seconds).
 
 Fields are decoded with NumPy over all records of a system at once; a malformed field is reported
-as ``InputError`` naming the file, the line and the observation code.
+as ``InputError`` naming the file, the line and the observation code. Epoch records are checked for their
+structure: a satellite count that disagrees with the lines that follow skips the record, epochs out of time
+order are sorted, repeated epochs dropped, each with a warning naming the file and line
+(``RinexObsFile.warnings``).
 """
 from __future__ import annotations
 
 import datetime as _dt
 import gzip
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -118,7 +122,9 @@ class RinexObsFile:
     ``t_gps``: epoch times (continuous GPS seconds); ``power_failure``: epoch flag 1 (all carrier
     phases of that epoch may have slipped); ``epoch_line``: the line of each epoch record (for messages);
     ``epoch_sats``: the satellites of each epoch in file order. ``p_approx_ecef`` is NaN when the
-    header has no (or a zero) APPROX POSITION XYZ.
+    header has no (or a zero) APPROX POSITION XYZ. ``warnings``: epoch records skipped (satellite count
+    inconsistent with the lines that follow), sorted into time order or dropped (repeated), each naming the file
+    and line.
     """
 
     path: str
@@ -139,6 +145,7 @@ class RinexObsFile:
     first_obs_line: int = 0
     header_lines: int = 0
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)   # epoch records skipped, sorted or dropped (file:line)
 
     def __len__(self) -> int:
         return len(self.t_gps)
@@ -345,32 +352,100 @@ def _sat_id(raw: str, file_system: str, path: Path, ln: int) -> str:
     return f"{s}{int(num):02d}"
 
 
-def read_obs_file(path: str | Path, t_start: float | None = None, t_end: float | None = None,
-                  systems: str | None = None) -> RinexObsFile:
-    """Read a RINEX 2.10/2.11/3.x observation file: every code of every system (``systems``: letters to
-    keep, default all), epochs in [t_start, t_end] (continuous GPS s) only."""
-    path = Path(path)
-    lines = read_lines(path)
-    h = _parse_header(lines, path)
+# an epoch header of RINEX 2 (F11.7 seconds, flag, satellite count), or the blank-epoch form of event records
+_EPOCH2 = re.compile(r"^ [ \d]\d [ \d]\d [ \d]\d [ \d]\d [ \d]\d[ \d]{2}\d\.\d{7}  [0-6][ \d]{2}\d"
+                     r"|^ {28}[2-5][ \d]{2}\d")
+
+
+@dataclass
+class _Record:
+    """One observation epoch record: its line index, time (GPS s), flag, satellite ids and per satellite
+    (line index, field text)."""
+
+    i: int
+    t: float
+    flag: int
+    ids: list
+    body: list
+
+
+def _next_epoch(lines: list[str], j: int, v3: bool) -> int:
+    """Index of the first epoch header line at or after j (len(lines) if none)."""
+    n = len(lines)
+    while j < n and not (lines[j].startswith(">") if v3 else _EPOCH2.match(lines[j])):
+        j += 1
+    return j
+
+
+def _at_record_end(lines: list[str], j: int, v3: bool) -> bool:
+    """Whether the first non-blank line at or after j starts an epoch record (or the file ends there)."""
+    n = len(lines)
+    while j < n and not lines[j].strip():
+        j += 1
+    return j >= n or (lines[j].startswith(">") if v3 else bool(_EPOCH2.match(lines[j])))
+
+
+def _record_v3(lines: list[str], i: int, nsat: int):
+    """Satellite ids and bodies of the RINEX 3 record at line index i claiming `nsat` satellites, and the index
+    after it; None when the lines that follow do not hold exactly `nsat` satellite records."""
+    n = len(lines)
+    end = i + 1 + nsat
+    if end > n or any(lines[j].startswith(">") for j in range(i + 1, end)) or not _at_record_end(lines, end, True):
+        return None
+    return [lines[j][:3] for j in range(i + 1, end)], [(j, lines[j][3:]) for j in range(i + 1, end)], end
+
+
+def _record_v2(lines: list[str], i: int, nsat: int, per_sat_lines: int):
+    """As `_record_v3` for RINEX 2: the satellite list (12 per line, continuation lines blank in columns 1-32),
+    then `per_sat_lines` lines per satellite; None when the list, the bodies or what follows them disagree with
+    the count (a field beyond the last id, a body line that is an epoch header, no epoch header after)."""
+    n = len(lines)
+    ids, j, cont = [], i, lines[i]
+    for k in range(nsat):
+        if k > 0 and k % 12 == 0:
+            j += 1
+            if j >= n or lines[j][:32].strip():
+                return None
+            cont = lines[j]
+        ids.append(cont[32 + 3 * (k % 12):35 + 3 * (k % 12)])
+    if nsat % 12 and cont[32 + 3 * (nsat % 12):35 + 3 * (nsat % 12)].strip():
+        return None                                     # more satellites listed than claimed
+    if any(not re.fullmatch(r"[A-Z ][ \d]\d", r.ljust(3)[:3]) for r in ids):
+        return None
+    j += 1
+    end = j + nsat * per_sat_lines
+    if end > n or any(_EPOCH2.match(lines[m]) for m in range(j, end)) or not _at_record_end(lines, end, False):
+        return None
+    body = [(j + per_sat_lines * k, "".join(lines[m].ljust(80)[:80] for m in range(j + per_sat_lines * k,
+                                                                                   j + per_sat_lines * (k + 1))))
+            for k in range(nsat)]
+    return ids, body, end
+
+
+def _special_record_end(lines: list[str], i: int, flag: int, nsat: int, v3: bool, per_sat_lines: int,
+                        path: Path) -> int:
+    """The index after an event record (flags 2-5: `nsat` header lines; 6: cycle-slip records)."""
+    n = len(lines)
+    if flag == 4 and any(("OBS TYPES" in lines[j][60:] or "TYPES OF OBSERV" in lines[j][60:])
+                         for j in range(i + 1, min(i + 1 + nsat, n))):
+        raise InputError("observation types change inside the file (event flag 4): not supported",
+                         path, i + 1, "EPOCH FLAG")
+    if flag == 6:
+        return i + 1 + (nsat if v3 else (nsat * per_sat_lines + (max(nsat - 1, 0) // 12)))
+    return i + 1 + nsat
+
+
+def _scan_records(lines: list[str], h: dict, path: Path, t_start, t_end, warnings: list) -> list[_Record]:
+    """The observation records in [t_start, t_end] (GPS s), in file order. A record whose satellite count
+    disagrees with the lines that follow is skipped with a warning naming its line (the reading resumes at the
+    next epoch header)."""
     v3 = h["version"] >= 3.0
     offset = _time_offset(h, path)
-    keep_sys = set(systems) if systems else set(KNOWN_SYSTEMS)
-    if v3:
-        types = {s: list(c) for s, c in h["obs_types"].items()}
-    else:
-        types = {}
-        for s in KNOWN_SYSTEMS:
-            types[s] = [rinex2_code(s, c, h["version"]) or f"?{c}" for c in h["types2"]]
-    # per system: record text rows (fields only), the line number of every field, epoch and sat ids
-    rows: dict[str, list[str]] = {s: [] for s in types}
-    fline: dict[str, list] = {s: [] for s in types}
-    where: dict[str, list[tuple[int, str]]] = {s: [] for s in types}
-    t_list, pf_list, ln_list, sats_list = [], [], [], []
-    n_types2 = len(h["types2"])
-    per_sat_lines = (n_types2 + 4) // 5 if not v3 else 1
+    per_sat_lines = (len(h["types2"]) + 4) // 5 if not v3 else 1
+    out: list[_Record] = []
     i = h["end"] + 1
-    n_lines = len(lines)
-    while i < n_lines:
+    n = len(lines)
+    while i < n:
         line = lines[i]
         ln = i + 1
         if not line.strip():
@@ -385,52 +460,71 @@ def read_obs_file(path: str | Path, t_start: float | None = None, t_end: float |
             flag = _int(line[28:29], path, ln, "EPOCH FLAG", 0)
             nsat = _int(line[29:32], path, ln, "NUMBER OF SATELLITES", 0)
         if flag > 1:
-            # special records: 2-5 are nsat header/event lines, 6 cycle-slip records (observation format)
-            if flag == 4 and any(("OBS TYPES" in lines[j][60:] or "TYPES OF OBSERV" in lines[j][60:])
-                                 for j in range(i + 1, min(i + 1 + nsat, n_lines))):
-                raise InputError("observation types change inside the file (event flag 4): not supported",
-                                 path, ln, "EPOCH FLAG")
-            if flag == 6:
-                skip = nsat if v3 else (nsat * per_sat_lines + (max(nsat - 1, 0) // 12))
-            else:
-                skip = nsat
-            i += 1 + skip
+            nxt = _special_record_end(lines, i, flag, nsat, v3, per_sat_lines, path)
+            if nxt > n or not _at_record_end(lines, nxt, v3):
+                nxt = _next_epoch(lines, i + 1, v3)
+                warnings.append(f"{path}:{ln}: event record (flag {flag}) claims {nsat} lines that do not follow it: "
+                                "skipped to the next epoch")
+            i = nxt
             continue
         t = _epoch_time(line, v3, path, ln) + offset
-        if v3:
-            ids = [lines[i + 1 + k][:3] if i + 1 + k < n_lines else "" for k in range(nsat)]
-            body = [(i + 1 + k, lines[i + 1 + k][3:] if i + 1 + k < n_lines else "") for k in range(nsat)]
-            nxt = i + 1 + nsat
-        else:
-            ids, j, cont = [], i, line
-            for k in range(nsat):
-                if k > 0 and k % 12 == 0:
-                    j += 1
-                    if j >= n_lines:
-                        raise InputError("file ends inside an epoch record", path, j, "SATELLITES")
-                    cont = lines[j]
-                ids.append(cont[32 + 3 * (k % 12):35 + 3 * (k % 12)])
-            j += 1
-            body = []
-            for _k in range(nsat):
-                parts = [lines[j + m].ljust(80)[:80] if j + m < n_lines else "" for m in range(per_sat_lines)]
-                body.append((j, "".join(parts)))
-                j += per_sat_lines
-            nxt = j
-        if nxt > n_lines:
-            raise InputError("file ends inside an epoch record", path, n_lines, "OBSERVATIONS")
-        if t_end is not None and t > t_end + 1e-6:
-            break
-        i = nxt
-        if t_start is not None and t < t_start - 1e-6:
+        rec = _record_v3(lines, i, nsat) if v3 else _record_v2(lines, i, nsat, per_sat_lines)
+        if rec is None:
+            nxt = _next_epoch(lines, i + 1, v3)
+            follow = nxt - i - 1 if v3 else None
+            warnings.append(f"{path}:{ln}: epoch record claims {nsat} satellites" +
+                            (f", {follow} satellite lines follow" if follow is not None else
+                             ", which the lines that follow do not hold") + ": record skipped")
+            i = nxt
             continue
-        k_ep = len(t_list)
-        t_list.append(t)
-        pf_list.append(flag == 1)
-        ln_list.append(ln)
-        ep_sats = []
-        for raw_id, (lno, rec) in zip(ids, body):
-            sid = _sat_id(raw_id, h["file_system"], path, (lno + 1) if v3 else ln)
+        ids, body, i = rec
+        if (t_start is not None and t < t_start - 1e-6) or (t_end is not None and t > t_end + 1e-6):
+            continue
+        out.append(_Record(ln - 1, t, flag, ids, body))
+    return out
+
+
+def _ordered(recs: list[_Record], path: Path, warnings: list) -> list[_Record]:
+    """Records in time order: an epoch earlier than the one before it is moved (sorted, with a warning); an
+    epoch repeating an earlier one's time is dropped (the first in the file kept, with a warning)."""
+    if len(recs) < 2:
+        return recs
+    t = np.array([r.t for r in recs])
+    back = np.flatnonzero(t[1:] < np.maximum.accumulate(t)[:-1]) + 1
+    for k in back:
+        j = int(np.argmax(t[:k]))
+        warnings.append(f"{path}:{recs[k].i + 1}: epoch {_stamp(t[k])} comes after the later epoch {_stamp(t[j])} "
+                        f"(line {recs[j].i + 1}): epochs sorted into time order")
+    order = np.argsort(t, kind="stable")
+    recs = [recs[k] for k in order]
+    t = t[order]
+    dup = np.flatnonzero(np.diff(t) < 1e-6) + 1
+    for k in dup:
+        first = k - 1
+        while first > 0 and t[k] - t[first - 1] < 1e-6:
+            first -= 1
+        warnings.append(f"{path}:{recs[k].i + 1}: epoch {_stamp(t[k])} repeats the epoch of line {recs[first].i + 1}:"
+                        " dropped (the first kept)")
+    drop = set(dup.tolist())
+    return [r for k, r in enumerate(recs) if k not in drop]
+
+
+def _stamp(t_gps: float) -> str:
+    d = GPS_EPOCH + _dt.timedelta(seconds=float(t_gps))
+    return d.strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+
+
+def _system_arrays(recs: list[_Record], types: dict, keep_sys: set, h: dict, path: Path, warnings: list):
+    """Per system the SystemObs of the records, and each epoch's satellites in file order."""
+    v3 = h["version"] >= 3.0
+    rows: dict[str, list[str]] = {s: [] for s in types}
+    fline: dict[str, list] = {s: [] for s in types}
+    where: dict[str, list[tuple[int, str]]] = {s: [] for s in types}
+    sats_list = []
+    for k_ep, r in enumerate(recs):
+        ep_sats: list[str] = []
+        for raw_id, (lno, rec) in zip(r.ids, r.body):
+            sid = _sat_id(raw_id, h["file_system"], path, (lno + 1) if v3 else r.i + 1)
             s = sid[0]
             if s not in types:
                 if v3:
@@ -439,15 +533,16 @@ def read_obs_file(path: str | Path, t_start: float | None = None, t_end: float |
                 continue
             if s not in keep_sys:
                 continue
+            if sid in ep_sats:
+                warnings.append(f"{path}:{lno + 1}: satellite {sid} twice in the epoch record of line {r.i + 1}: "
+                                "the second dropped")
+                continue
             ep_sats.append(sid)
             rows[s].append(rec)
             where[s].append((k_ep, sid))
-            if v3:
-                fline[s].append(np.full(len(types[s]), lno + 1))
-            else:
-                fline[s].append(lno + 1 + np.arange(len(types[s])) // 5)
+            fline[s].append(np.full(len(types[s]), lno + 1) if v3 else lno + 1 + np.arange(len(types[s])) // 5)
         sats_list.append(ep_sats)
-    n_ep = len(t_list)
+    n_ep = len(recs)
     out_sys: dict[str, SystemObs] = {}
     for s in types:
         if not rows[s] or s not in keep_sys:
@@ -465,15 +560,36 @@ def read_obs_file(path: str | Path, t_start: float | None = None, t_end: float |
         V[ep, sj], L[ep, sj], S[ep, sj] = val, lli, ssi
         keep = [k for k, c in enumerate(codes) if not c.startswith("?")]
         out_sys[s] = SystemObs(sats, [codes[k] for k in keep], V[:, :, keep], L[:, :, keep], S[:, :, keep])
-    t = np.array(t_list, dtype=float)
-    if n_ep > 1 and np.any(np.diff(t) <= 0):
-        k = int(np.nonzero(np.diff(t) <= 0)[0][0]) + 1
-        raise InputError("epoch time does not increase", path, ln_list[k], "EPOCH")
+    return out_sys, sats_list
+
+
+def read_obs_file(path: str | Path, t_start: float | None = None, t_end: float | None = None,
+                  systems: str | None = None) -> RinexObsFile:
+    """Read a RINEX 2.10/2.11/3.x observation file: every code of every system (``systems``: letters to
+    keep, default all), epochs in [t_start, t_end] (continuous GPS s) only.
+
+    Epoch records are checked: a satellite count that disagrees with the lines that follow skips the record,
+    an epoch out of time order is sorted in, a repeated epoch (or a satellite repeated in a record) is
+    dropped — each with a warning naming the file and line in ``RinexObsFile.warnings``."""
+    path = Path(path)
+    lines = read_lines(path)
+    h = _parse_header(lines, path)
+    v3 = h["version"] >= 3.0
+    keep_sys = set(systems) if systems else set(KNOWN_SYSTEMS)
+    if v3:
+        types = {s: list(c) for s, c in h["obs_types"].items()}
+    else:
+        types = {s: [rinex2_code(s, c, h["version"]) or f"?{c}" for c in h["types2"]] for s in KNOWN_SYSTEMS}
+    warnings: list[str] = []
+    recs = _ordered(_scan_records(lines, h, path, t_start, t_end, warnings), path, warnings)
+    out_sys, sats_list = _system_arrays(recs, types, keep_sys, h, path, warnings)
     obs_types = {s: [c for c in types[s] if not c.startswith("?")] for s in types
                  if v3 or s in out_sys}
     return RinexObsFile(path=str(path), version=h["version"], marker=h["marker"], receiver=h["receiver"],
                         antenna=h["antenna"], p_approx_ecef=h["p_approx"], antenna_delta_hen=h["delta_hen"],
                         interval_s=h["interval"], time_system=h["time_system"] or "GPS", obs_types=obs_types,
-                        t_gps=t, power_failure=np.array(pf_list, dtype=bool),
-                        epoch_line=np.array(ln_list, dtype=int), epoch_sats=sats_list, systems=out_sys,
-                        first_obs_line=h["end"] + 2, header_lines=h["end"] + 1)
+                        t_gps=np.array([r.t for r in recs], dtype=float),
+                        power_failure=np.array([r.flag == 1 for r in recs], dtype=bool),
+                        epoch_line=np.array([r.i + 1 for r in recs], dtype=int), epoch_sats=sats_list,
+                        systems=out_sys, first_obs_line=h["end"] + 2, header_lines=h["end"] + 1,
+                        warnings=warnings)

@@ -45,7 +45,7 @@ def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
     return np.array(ts), np.array(ps)
 
 
-_PPK_FIELDS = ("mode", "soltype", "nf", "navsys", "elmin", "modear", "ionoopt", "tropopt", "refpos", "sateph")
+_POSTPOS_FIELDS = ("mode", "soltype", "nf", "navsys", "elmin", "modear", "ionoopt", "tropopt", "refpos", "sateph")
 
 
 def rtklib_ppk(rover_obs: str, nav_path: str, base_obs: str, base_ecef, elev_mask_deg: float = 10.0,
@@ -53,6 +53,26 @@ def rtklib_ppk(rover_obs: str, nav_path: str, base_obs: str, base_ecef, elev_mas
                fix_and_hold: bool = True) -> dict:
     """RTKLIB's PPK (postpos, as rnx2rtkp) on RINEX files: per epoch t_gps, p_ecef (m), q (1 fix, 2 float, 5 single),
     ns, ratio and the run time (s). Broadcast orbits, Saastamoinen, broadcast ionosphere, LAMBDA ratio 3."""
+    import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
+    settings = {"mode": rk.PMODE_STATIC if static else rk.PMODE_KINEMA,
+                "soltype": {"forward": 0, "backward": 1, "combined": 2}[solution], "nf": int(n_freq),
+                "modear": 3 if fix_and_hold else 1}
+    return _postpos([str(rover_obs), str(nav_path), str(base_obs)], settings, elev_mask_deg, systems, base_ecef)
+
+
+def rtklib_spp(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0, systems: str = "GEJ") -> dict:
+    """RTKLIB's single-point positioning as rnx2rtkp runs it (postpos, PMODE_SINGLE: Klobuchar, Saastamoinen,
+    broadcast orbits) on RINEX files: per epoch t_gps, p_ecef (m), q (5 single), ns, and the run time (s) of
+    postpos itself (reading the files included, the process start not)."""
+    import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
+    return _postpos([str(obs_path), str(nav_path)], {"mode": rk.PMODE_SINGLE, "soltype": 0, "nf": 1},
+                    elev_mask_deg, systems, None)
+
+
+def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: str, base_ecef) -> dict:
+    """RTKLIB's postpos on `files` (rnx2rtkp's engine) with the prcopt fields `settings` and dgcal's shared
+    settings (broadcast orbits and ionosphere, Saastamoinen, ratio 3, `base_ecef` when given); prcopt_default is
+    restored afterwards. Returns the solution file's epochs as arrays and the run time."""
     import os
     import tempfile
     import time
@@ -60,24 +80,23 @@ def rtklib_ppk(rover_obs: str, nav_path: str, base_obs: str, base_ecef, elev_mas
     import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
 
     popt, sopt, fopt = rk.prcopt_default, rk.solopt_default, rk.filopt_t()
-    saved = {k: getattr(popt, k) for k in _PPK_FIELDS}
+    saved = {k: getattr(popt, k) for k in _POSTPOS_FIELDS}
     saved_rb = [popt.rb[i] for i in range(3)]
     saved_thres = popt.thresar[0]
     saved_posf = sopt.posf
     try:
-        popt.mode = rk.PMODE_STATIC if static else rk.PMODE_KINEMA
-        popt.soltype = {"forward": 0, "backward": 1, "combined": 2}[solution]
-        popt.nf = int(n_freq)
+        for k, v in settings.items():
+            setattr(popt, k, v)
         popt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS, "C": rk.SYS_CMP}[s] for s in systems)
         popt.elmin = np.radians(elev_mask_deg)
-        popt.modear = 3 if fix_and_hold else 1
         popt.ionoopt = rk.IONOOPT_BRDC
         popt.tropopt = rk.TROPOPT_SAAS
         popt.sateph = rk.EPHOPT_BRDC
         popt.refpos = 0
         popt.thresar[0] = 3.0
-        for i in range(3):
-            popt.rb[i] = float(base_ecef[i])
+        if base_ecef is not None:
+            for i in range(3):
+                popt.rb[i] = float(base_ecef[i])
         sopt.posf = rk.SOLF_XYZ
         with tempfile.TemporaryDirectory() as d:
             out_path = os.path.join(d, "rtklib.pos")
@@ -86,8 +105,7 @@ def rtklib_ppk(rover_obs: str, nav_path: str, base_obs: str, base_ecef, elev_mas
                 buf[i] = c
             buf[len(out_path)] = "\0"
             t0 = time.perf_counter()
-            rk.postpos(rk.gtime_t(), rk.gtime_t(), 0.0, 0.0, popt, sopt, fopt,
-                       [str(rover_obs), str(nav_path), str(base_obs)], 3, buf, "", "")
+            rk.postpos(rk.gtime_t(), rk.gtime_t(), 0.0, 0.0, popt, sopt, fopt, files, len(files), buf, "", "")
             run_s = time.perf_counter() - t0
             rows = []
             with open(out_path) as fh:

@@ -29,7 +29,10 @@ _GYRO_UNITS, _ACC_UNITS = GYRO_UNITS, ACC_UNITS
 
 @dataclass
 class ImuData:
-    """IMU increments in body FRD: `t` (N,) GPS s at interval end, `dtheta` (N,3) rad, `dvel` (N,3) m/s."""
+    """IMU increments in body FRD: `t` (N,) GPS s at interval end, `dtheta` (N,3) rad, `dvel` (N,3) m/s.
+
+    `bridges`: spans whose samples were interpolated (gaps, spikes) by `dgcal.pos.ins.integrity.check_imu`, with
+    the extra white noise the smoother carries over them (`dgcal.pos.ins.integrity.Bridge`)."""
 
     t: np.ndarray
     dtheta: np.ndarray
@@ -37,6 +40,7 @@ class ImuData:
     rate_hz: float
     path: Path | None = None
     lines: np.ndarray | None = field(default=None, repr=False)
+    bridges: list = field(default_factory=list, repr=False)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -80,12 +84,14 @@ class ImuData:
         i0, i1 = np.searchsorted(self.t, t0, side="left"), np.searchsorted(self.t, t1, side="right")
         sl = slice(i0, i1)
         return ImuData(self.t[sl], self.dtheta[sl], self.dvel[sl], self.rate_hz, self.path,
-                       None if self.lines is None else self.lines[sl])
+                       None if self.lines is None else self.lines[sl],
+                       [b for b in self.bridges if b.t1 > t0 and b.t0 < t1])
 
     def rotated(self, R_sensor_to_body: np.ndarray) -> "ImuData":
         """The same data with the axes rotated by a fixed sensor-to-body rotation."""
         R = np.asarray(R_sensor_to_body, float)
-        return ImuData(self.t, self.dtheta @ R.T, self.dvel @ R.T, self.rate_hz, self.path, self.lines)
+        return ImuData(self.t, self.dtheta @ R.T, self.dvel @ R.T, self.rate_hz, self.path, self.lines,
+                       [b.rotated(R) for b in self.bridges])
 
 
 def estimate_rate_hz(t: np.ndarray) -> float:

@@ -21,6 +21,8 @@ from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_ecef_to_ned
 from dgcal.fields.io.csv_tables import read_table
+from dgcal.fields.io import validate
+from dgcal.fields.io.text_files import open_text
 from dgcal.fields.io.formats import Trajectory
 from dgcal.pos.gnss.pseudo_attitude import PseudoAttitude, pseudo_attitude
 from dgcal.pos.gnss.solution_files import read_gnss_solution
@@ -80,11 +82,8 @@ def read_gnss_velocity(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """GNSS velocity (t GPS s, NED m/s): CSV t_gps,vn,ve,vd or gps_week,gps_sow,vn,ve,vd, or a GNSS solution file
     (dgcal gnss.csv, RTKLIB .pos) with velocities."""
     path = Path(path)
-    try:
-        with open(path, encoding="utf-8-sig") as fh:
-            head = fh.readline().lower()
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc}", path) from None
+    with open_text(path) as lines_in:
+        head = next(lines_in, "").lower()
     names = [c.strip() for c in head.split(",")]
     if "vn" in names and ("t_gps" in names or "gps_sow" in names):
         timecols = ("t_gps",) if "t_gps" in names else ("gps_week", "gps_sow")
@@ -102,6 +101,8 @@ def read_gnss_velocity(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     bad = np.flatnonzero(~np.all(np.isfinite(v), axis=1))
     if len(bad):
         raise InputError("velocity not a finite number", path, int(lines[bad[0]]), "vn")
+    validate.values_in_range(v, -validate.MAX_SPEED_M_S, validate.MAX_SPEED_M_S, path, "vn", lines, unit="m/s")
+    validate.gps_seconds_values(t, path, "t_gps" if "t_gps" in names else "gps_sow", lines)
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         raise InputError("time does not increase", path, int(lines[back[0] + 1]), "t_gps")

@@ -43,6 +43,8 @@ import numpy as np
 
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
+from dgcal.fields.io.text_files import read_text
 
 LOGGER_ROLES = ("counter", "pps", "photo", "trigger", "laser", "baro", "gps_time")
 REQUIRED_ROLES = ("counter", "pps", "photo")
@@ -108,12 +110,12 @@ def _check_unit(path, role: str, unit: str) -> str:
 def read_logger_format(path: str | Path) -> LoggerFormat:
     """A LoggerFormat from a TOML description (see the module documentation); unknown keys are errors."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError("file not found", path)
     try:
-        cfg = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"not a TOML file: {exc}", path) from None
+        cfg = tomllib.loads(read_text(path, encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not a TOML file: {' '.join(str(exc).split())}", path) from None
+    except RecursionError:
+        raise InputError("not a TOML file: nested too deeply", path) from None
     fmt = LoggerFormat(source=str(path))
     top = {"rate_hz", "counter_bits", "delimiter", "header", "columns", "units", "signals", "gnss"}
     for k in cfg:
@@ -121,10 +123,13 @@ def read_logger_format(path: str | Path) -> LoggerFormat:
             raise InputError(f"unknown key (one of {', '.join(sorted(top))})", path, field=k)
     header = bool(cfg.get("header", True))
     cols = dict(fmt.columns) if header else {}
+    for name in ("columns", "units", "signals", "gnss"):
+        if name in cfg and not isinstance(cfg[name], dict):
+            raise InputError(f"must be a [{name}] table", path, field=name)
     for role, col in (cfg.get("columns") or {}).items():
         if role not in LOGGER_ROLES:
             raise InputError(f"unknown role (one of {', '.join(LOGGER_ROLES)})", path, field=f"columns.{role}")
-        if not isinstance(col, (str, int)) or (not header and not isinstance(col, int)):
+        if not isinstance(col, (str, int)) or isinstance(col, bool) or (not header and not isinstance(col, int)):
             raise InputError("a column name (or a 0-based index when header = false)", path, field=f"columns.{role}")
         cols[role] = col
     if "columns" in cfg:  # a description lists its columns: optional roles it leaves out are absent
@@ -142,20 +147,18 @@ def read_logger_format(path: str | Path) -> LoggerFormat:
     for k in g:
         if k not in ("rate_hz", "delimiter", "header", "week", "time", "height"):
             raise InputError("unknown key (rate_hz, delimiter, header, week, time, height)", path, field=f"gnss.{k}")
-    try:
-        rate = float(cfg.get("rate_hz", fmt.rate_hz))
-        bits = int(cfg.get("counter_bits", fmt.counter_bits))
-        pol = int(sig.get("photo_polarity", 0))
-        level = float(sig.get("trigger_level", 0.5))
-        grate = None if g.get("rate_hz") is None else float(g["rate_hz"])
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"bad number: {exc}", path) from None
-    if not (rate > 0 and np.isfinite(rate)):
-        raise InputError("must be a positive rate (Hz)", path, field="rate_hz")
-    if bits < 0 or bits > 63:
-        raise InputError("must be 0-63", path, field="counter_bits")
-    if pol not in (-1, 0, 1):
-        raise InputError("must be -1, 0 or +1", path, field="signals.photo_polarity")
+    rate = validate.positive(cfg.get("rate_hz", fmt.rate_hz), path, None, "rate_hz", hi=1e6)
+    bits = validate.integer(cfg.get("counter_bits", fmt.counter_bits), 0, 63, path, None, "counter_bits")
+    pol = validate.integer(sig.get("photo_polarity", 0), -1, 1, path, None, "signals.photo_polarity")
+    level = validate.finite(sig.get("trigger_level", 0.5), path, None, "signals.trigger_level")
+    grate = None if g.get("rate_hz") is None else validate.positive(g["rate_hz"], path, None, "gnss.rate_hz", hi=1e6)
+    for key, table in (("header", cfg), ("pps_inverted", sig), ("header", g)):
+        if key in table and not isinstance(table[key], bool):
+            raise InputError("must be true or false", path, field=key if table is cfg else
+                             f"{'signals' if table is sig else 'gnss'}.{key}")
+    for key in ("time", "week", "height"):
+        if key in g and not isinstance(g[key], (str, int)) or isinstance(g.get(key), bool):
+            raise InputError("a column name (or a 0-based index)", path, field=f"gnss.{key}")
     delim = str(cfg.get("delimiter", ","))
     gdelim = str(g.get("delimiter", ","))
     for name, d in (("delimiter", delim), ("gnss.delimiter", gdelim)):
@@ -172,12 +175,7 @@ def read_logger_format(path: str | Path) -> LoggerFormat:
 def _read_columns(path: Path, delimiter: str, header: bool, wanted: dict, required: tuple[str, ...]
                   ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Numeric columns by role from a delimited text file; (values by role, file line of each row)."""
-    if not path.is_file():
-        raise InputError("file not found", path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read: {exc}", path) from None
+    text = read_text(path)
     sep = _DELIMS.get(delimiter, delimiter)
     rows, lines, names, header_line = [], [], None, None
     for ln, raw in enumerate(text.splitlines(), start=1):
@@ -209,18 +207,14 @@ def _read_columns(path: Path, delimiter: str, header: bool, wanted: dict, requir
     lines_a = np.array(lines, dtype=int)
     for role, j in idx.items():
         col = wanted[role]
-        try:
-            out[role] = np.array([float(r[j]) if j < len(r) and r[j] != "" else np.nan for r in rows])
-        except ValueError:
-            for i, r in enumerate(rows):  # find the culprit for a one-line error
-                try:
-                    float(r[j]) if j < len(r) and r[j] != "" else None
-                except ValueError:
-                    raise InputError(f"not a number: {r[j]!r}", path, int(lines_a[i]), str(col)) from None
+        out[role] = np.array([validate.number(r[j], path, int(lines_a[i]), str(col)) if j < len(r) and r[j] != ""
+                              else np.nan for i, r in enumerate(rows)])
         bad = ~np.isfinite(out[role])
         if role in required and bad.any():
             i = int(np.argmax(bad))
             raise InputError("missing or non-finite value", path, int(lines_a[i]), str(col))
+        # optional values may be missing (NaN), never infinite or beyond what a float64 counts exactly
+        validate.values_in_range(out[role], -2.0 ** 53, 2.0 ** 53, path, str(col), lines_a, allow_nan=True)
     return out, lines_a
 
 
@@ -291,7 +285,10 @@ def read_gnss_log(path: str | Path, fmt: GnssLogFormat | None = None) -> GnssLog
     wanted = {"time": fmt.time, "week": fmt.week, "height": fmt.height}
     req = ("time", "week") if fmt.week is not None else ("time",)
     cols, lines = _read_columns(path, fmt.delimiter, fmt.header, wanted, req)
+    if "week" in cols:
+        validate.gps_week_sow(cols["week"], cols["time"], path, lines, (str(fmt.week), str(fmt.time)))
     t = cols["time"] + (cols["week"] * SECONDS_PER_WEEK if "week" in cols else 0.0)
+    validate.gps_seconds_values(t, path, str(fmt.time), lines)
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         raise InputError("time does not increase", path, int(lines[back[0] + 1]), str(fmt.time))

@@ -32,6 +32,7 @@ from threadpoolctl import threadpool_limits
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError, ResultError
 from dgcal.fields.io.csv_tables import read_table
+from dgcal.fields.io import validate
 from dgcal.fields.io.formats import Events
 from dgcal.pos.lowcost.exposure import ImageMatch, Spikes, TriggerMatch, detect_spikes, pair_images, match_triggers
 from dgcal.pos.lowcost.logger_format import (LENGTH_UNITS, LoggerFormat, read_gnss_log, read_logger,
@@ -418,8 +419,17 @@ def synchronise_logger_files(opts: SyncOptions) -> SyncResult:
     week = int(np.floor(g.t[0] / SECONDS_PER_WEEK))
     lg = read_logger(opts.logger, fmt, gps_week=week)
     names, clock = read_images(opts.images)
-    return synchronise(g.t, lg.counter, lg.pps, lg.photo, names, trigger=lg.trigger, image_clock=clock,
-                       gnss_h=g.h, laser=lg.laser, baro=lg.baro, logger_gps_time=lg.gps_time, settings=st)
+    try:
+        return synchronise(g.t, lg.counter, lg.pps, lg.photo, names, trigger=lg.trigger, image_clock=clock,
+                           gnss_h=g.h, laser=lg.laser, baro=lg.baro, logger_gps_time=lg.gps_time, settings=st)
+    except InputError as exc:
+        packet = getattr(exc, "packet", None)
+        if exc.path is not None or packet is None:
+            raise
+        path, lines, col = ((opts.logger, lg.lines, fmt.columns.get("counter")) if exc.field == "counter"
+                            else (opts.gnss_log, g.lines, fmt.gnss.time))
+        raise InputError(exc.reason, path, int(lines[packet]) if packet < len(lines) else None,
+                         str(col)) from None
 
 
 def read_images(images: Path) -> tuple[list[str], np.ndarray | None]:
@@ -437,8 +447,22 @@ def read_images(images: Path) -> tuple[list[str], np.ndarray | None]:
     im = read_table(images, ("image",), ("camera_time_s",))
     clock = im.get("camera_time_s")
     if clock is not None and not np.all(np.isfinite(clock)):
-        clock = None
+        validate.values_in_range(clock, -MAX_CAMERA_CLOCK_S, MAX_CAMERA_CLOCK_S, images, "camera_time_s", im.lines,
+                                 allow_nan=True, unit="s")
+        clock = None     # some times missing: the images are paired by order
+    if clock is not None:
+        validate.values_in_range(clock, -MAX_CAMERA_CLOCK_S, MAX_CAMERA_CLOCK_S, images, "camera_time_s", im.lines,
+                                 unit="s")
+        span = float(clock.max() - clock.min()) if len(clock) else 0.0
+        if span > MAX_CAMERA_SPAN_S:
+            i = int(np.argmax(np.abs(clock - np.median(clock))))
+            raise InputError(f"the camera times span {span:.6g} s: more than {MAX_CAMERA_SPAN_S:g} s for one flight",
+                             images, int(im.lines[i]), "camera_time_s")
     return [str(x) for x in im["image"]], clock
+
+
+MAX_CAMERA_CLOCK_S = 1e11      # s, |camera time| (any origin; Unix seconds are 1.7e9)
+MAX_CAMERA_SPAN_S = 7 * 86400.0  # s, the camera times of one flight span less than a week
 
 
 def _exif_time(path: Path) -> float | None:

@@ -37,12 +37,19 @@ class RestoredAxis:
         return np.asarray(values)[self.source]
 
 
+def _packet_error(message: str, what: str, index: int) -> InputError:
+    """An InputError about recorded packet `index` (its `packet` attribute), for the reader to name the file line."""
+    e = InputError(message, field=what)
+    e.packet = index
+    return e
+
+
 def _restore(ticks: np.ndarray, what: str) -> RestoredAxis:
     """Slots from integer tick numbers of recorded packets (strictly increasing)."""
     steps = np.diff(ticks)
     if np.any(steps <= 0):
         i = int(np.argmax(steps <= 0)) + 1
-        raise InputError(f"{what} does not increase at packet {i} (step {steps[i - 1]})", field=what)
+        raise _packet_error(f"{what} does not increase at packet {i} (step {steps[i - 1]})", what, i)
     n = int(ticks[-1] - ticks[0]) + 1
     slot = (ticks - ticks[0]).astype(int)
     source = np.zeros(n, dtype=int)
@@ -61,7 +68,7 @@ def restore_from_time_tags(t_tag: np.ndarray, dt: float) -> RestoredAxis:
     resid = (t_tag - t_tag[0]) - ticks * dt
     if np.max(np.abs(resid)) > 0.25 * dt:
         i = int(np.argmax(np.abs(resid)))
-        raise InputError(f"time tag of packet {i} is {resid[i]:+.4f} s off the {dt} s grid", field="time tag")
+        raise _packet_error(f"time tag of packet {i} is {resid[i]:+.4f} s off the {dt} s grid", "time tag", i)
     ax = _restore(ticks, "time tag")
     ax.t = t_tag[0] + ax.t * dt
     return ax

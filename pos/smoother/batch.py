@@ -27,6 +27,7 @@ from dgcal.pos.smoother.preintegration import (gravity_correction_b, interval_pa
                                                preintegration_params, split_at_keyframes)
 from dgcal.pos.smoother.initial import (GnssFixes, anchor_attitude, initial_clocks, initial_track,
                                propagate_attitude)
+from dgcal.pos.smoother.integrity import reject_outliers, screen_fixes, with_bridges
 
 
 @dataclass
@@ -36,6 +37,9 @@ class SmootherOptions:
     lever_arm_b: IMU origin -> GNSS antenna phase centre, body FRD, m.
     clock_bias_rw_m / clock_drift_rw_mps: receiver clock process densities (m/sqrt(s), m/s/sqrt(s)).
     huber_k: Huber threshold (in sigmas) of the GNSS factors; None for plain least squares.
+    gnss_outlier_sigma: GNSS screening (dgcal.pos.smoother.integrity): fixes the IMU's acceleration bound makes
+    impossible are rejected before the graph is built, and factors whose post-fit residual fails the chi-square
+    test at this many sigmas after the first pass; None: neither.
     """
 
     lever_arm_b: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -53,6 +57,7 @@ class SmootherOptions:
     dd_outlier_sigma: float = 5.0   # TC with a base: double differences beyond this (normalised) are dropped
     zupt: bool = True               # a static start/end of the data as zero-motion information (smoother.static)
     static_noise: bool = True       # raise the IMU white noise to what the static start/end shows
+    gnss_outlier_sigma: float | None = 5.0   # GNSS epoch screening and post-fit rejection (None: off)
 
 
 @dataclass
@@ -129,7 +134,9 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     params = preintegration_params(imu_noise, frame, opts.earth_rotation)
     seg = split_at_keyframes(imu.t, imu.gyro_rad_s, imu.accel_m_s2, t_key, imu.dt[0])
     biases = [gtsam.imuBias.ConstantBias()] * (K - 1)
-    pims = preintegrate(params, seg, biases, interval_params(imu_noise, frame, seg, opts.earth_rotation))
+    per_interval = with_bridges(interval_params(imu_noise, frame, seg, opts.earth_rotation), imu, imu_noise, frame,
+                                t_key, opts.earth_rotation)
+    pims = preintegrate(params, seg, biases, per_interval)
 
     p_ant, v_ant = initial_track(t_key, fixes, frame)
     a, R_a = anchor_attitude(t_key, v_ant)
@@ -241,7 +248,8 @@ def rebuild_imu(problem: Problem, imu, imu_noise: ImuErrorModel, opts: SmootherO
     seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_key, imu.dt[0])
     biases = [gtsam.imuBias.ConstantBias(b[:3], b[3:]) for b in first.bias[:-1]]
     pims = preintegrate(problem.params, seg, biases,
-                        interval_params(imu_noise, problem.frame, seg, opts.earth_rotation))
+                        with_bridges(interval_params(imu_noise, problem.frame, seg, opts.earth_rotation), imu,
+                                     imu_noise, problem.frame, t_key, opts.earth_rotation))
     imu_factors = [gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
                    for k in range(len(t_key) - 1)]
     graph = gtsam.NonlinearFactorGraph()
@@ -445,6 +453,25 @@ def _nearest_gap(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.minimum(np.abs(grid - t[i - 1]), np.abs(grid - t[i]))
 
 
+def _screen_inputs(imu, fixes: GnssFixes, lc_fixes: GnssFixes | None, mode: str, k_sigma: float):
+    """`screen_fixes` on the initialising fixes and (when they are other fixes) on the LC measurements; the
+    rejections say which input they came from ('initial track' for fixes that only initialise)."""
+    same = lc_fixes is None or lc_fixes is fixes
+    out = []
+    clean, rej = screen_fixes(fixes, imu, k_sigma)
+    for r in rej:
+        r["input"] = "gnss" if (mode == "lc" and same) else "initial track"
+    out += rej
+    if not same:
+        lc_fixes, rej = screen_fixes(lc_fixes, imu, k_sigma)
+        for r in rej:
+            r["input"] = "gnss"
+        out += rej
+    else:
+        lc_fixes = clean if lc_fixes is not None else None
+    return clean, lc_fixes, out
+
+
 def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOptions | None = None,
            mode: str = "tc", gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
            second_pass: bool = True, carrier: CarrierInput | None = None) -> NavSolution:
@@ -458,6 +485,9 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
     """
     opts = opts or SmootherOptions()
     noise = imu_grade(grade).smoother_noise()
+    rejected: list = []
+    if opts.gnss_outlier_sigma:
+        fixes, lc_fixes, rejected = _screen_inputs(imu, fixes, lc_fixes, mode, opts.gnss_outlier_sigma)
     if frame is None:
         ok = np.all(np.isfinite(fixes.p_ecef), axis=1)
         frame = NavFrame.at_ecef(fixes.p_ecef[ok].mean(axis=0))
@@ -500,7 +530,9 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
     iterations.append(problem.iterations)
     sol = read_states(problem, values)
     dropped = screen_dd(problem, values, opts.dd_outlier_sigma) if opts.dd_outlier_sigma else 0
-    if dropped and not second_pass:
+    post = reject_outliers(problem, values, opts.gnss_outlier_sigma) if opts.gnss_outlier_sigma else []
+    rejected += post
+    if (dropped or post) and not second_pass:
         problem.values = values
         values = optimize(problem, opts.max_iterations)
         sol = read_states(problem, values)
@@ -523,7 +555,7 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
                  "accel_vrw_m_s_rt_h": round(float(measured[1] * 60.0), 4)},
                 "imu_noise_used": {"gyro_arw_deg_rt_h": round(float(np.degrees(noise.gyro_arw) * 60.0), 4),
                                    "accel_vrw_m_s_rt_h": round(float(noise.accel_vrw * 60.0), 4)},
-                "static_start_end_s": _static_spans(t_key, static)}
+                "static_start_end_s": _static_spans(t_key, static), "gnss_rejected": rejected}
     if opts.covariances:
         t0 = time.perf_counter()
         add_marginals(sol, problem, values)

@@ -38,7 +38,9 @@ from scipy.spatial.transform import Rotation
 from dgcal.calib.mounting.common import MountingResult
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, R_CV_TO_PHOTO
+from dgcal.fields.io import validate
 from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.io.text_files import read_text
 
 CALIBRATION_FORMATS = ("metashape", "pospac", "inertial-explorer", "pix4d")
 ARCMIN_PER_DEG = 60.0
@@ -145,10 +147,7 @@ def read_calibration_export(path: Path) -> tuple[str, np.ndarray, np.ndarray, fl
     """(format, lever arm IMU -> camera body FRD m, R_cam_to_body, delay s) from a file of
     `write_calibration_export` (for Metashape/Pix4D the file's reference_lever_arm_body_m is used)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read ({getattr(exc, 'strerror', None) or exc.__class__.__name__})", path) from None
+    text = read_text(path)
     kv: dict[str, str] = {}
     lines: dict[str, int] = {}
     for n, ln in enumerate(text.splitlines(), 1):
@@ -162,13 +161,12 @@ def read_calibration_export(path: Path) -> tuple[str, np.ndarray, np.ndarray, fl
     def vec(key: str, n: int = 3) -> np.ndarray:
         if key not in kv:
             raise InputError("missing", path, field=key)
-        try:
-            a = np.array([float(x) for x in kv[key].split()])
-        except ValueError:
-            raise InputError("not numbers", path, lines[key], key) from None
-        if a.shape != (n,) or not np.all(np.isfinite(a)):
+        parts = kv[key].split()
+        if len(parts) != n:
             raise InputError(f"expected {n} finite numbers", path, lines[key], key)
-        return a
+        lim = validate.MAX_DELAY_S if key == "delay_s" else validate.MAX_LEVER_ARM_M if "lever" in key or \
+            "offset_xyz" in key else validate.MAX_ANGLE_DEG
+        return np.array([validate.in_range(x, -lim, lim, path, lines[key], key) for x in parts])
     fmt = kv.get("format", "")
     delay = float(vec("delay_s", 1)[0])
     if fmt == "pospac":

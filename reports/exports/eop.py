@@ -32,7 +32,9 @@ from dgcal.fields.frames import R_ENU_TO_NED, R_photo_to_map_from_opk, opk_from_
 from dgcal.fields.io.gcp_files import odm_crs_to_pyproj
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
 from dgcal.fields.io.formats import EOP, write_eop
+from dgcal.fields.io.text_files import read_text
 from dgcal.fields.pose import Poses
 from dgcal.fields.world import World
 
@@ -102,24 +104,34 @@ def write_colmap(out_dir: Path, eop: EOP, grid: MapGrid, camera, points_map: dic
 def read_colmap(in_dir: Path) -> tuple[EOP, MapGrid]:
     """EOPs in the map CRS from a COLMAP text model written by `write_colmap` (georef.json needed)."""
     in_dir = Path(in_dir)
+    gpath = in_dir / "georef.json"
     try:
-        g = json.loads((in_dir / "georef.json").read_text())
+        g = json.loads(read_text(gpath))
         lat0, lon0, h0 = g["origin_lat_lon_h"]
-        grid = MapGrid(g["map_crs"])
-    except (OSError, KeyError, ValueError) as exc:
-        raise InputError(f"cannot read georef.json ({exc})", in_dir / "georef.json") from None
+        crs = g["map_crs"]
+    except (KeyError, TypeError, ValueError, RecursionError) as exc:
+        raise InputError(f"cannot read georef.json ({type(exc).__name__}: {' '.join(str(exc).split())[:80]})",
+                         gpath) from None
+    lat0 = validate.in_range(lat0, -90.0, 90.0, gpath, None, "origin_lat_lon_h")
+    lon0 = validate.in_range(lon0, -360.0, 360.0, gpath, None, "origin_lat_lon_h")
+    h0 = validate.in_range(h0, -validate.MAX_HEIGHT_M, validate.MAX_HEIGHT_M, gpath, None, "origin_lat_lon_h")
+    if not isinstance(crs, str):
+        raise InputError("must be a CRS text", gpath, field="map_crs")
+    grid = MapGrid(parse_crs(crs, str(gpath)))
     world = World(grid, LocalENU(lat0, lon0, h0))
     names, R, t = [], [], []
     path = in_dir / "images.txt"
-    rows = [(n, ln) for n, ln in enumerate(path.read_text().splitlines(), 1) if not ln.startswith("#")]
+    rows = [(n, ln) for n, ln in enumerate(read_text(path).splitlines(), 1) if not ln.startswith("#")]
     for n, ln in rows[0::2]:
         tok = ln.split()
         if len(tok) < 10:
             raise InputError("an image line needs IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME", path, n)
-        try:
-            qw, qx, qy, qz, tx, ty, tz = (float(v) for v in tok[1:8])
-        except ValueError:
-            raise InputError("quaternion and translation must be numbers", path, n, "QW") from None
+        qw, qx, qy, qz = (validate.in_range(v, -1e3, 1e3, path, n, k) for v, k in zip(tok[1:5], ("QW", "QX", "QY",
+                                                                                                  "QZ")))
+        tx, ty, tz = (validate.in_range(v, -validate.MAX_COORDINATE_M, validate.MAX_COORDINATE_M, path, n, k)
+                      for v, k in zip(tok[5:8], ("TX", "TY", "TZ")))
+        if not 0.5 < np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz) < 2.0:
+            raise InputError("QW QX QY QZ is not a unit quaternion", path, n, "QW")
         names.append(" ".join(tok[9:]))
         R.append(Rotation.from_quat([qx, qy, qz, qw]).as_matrix())
         t.append([tx, ty, tz])
@@ -140,13 +152,13 @@ def write_pix4d(path: Path, eop: EOP) -> None:
                      + " ".join(f"{v:.10f}" for v in eop.opk[i]) + "\n")
 
 
+_ROW_FIELDS = ("X", "Y", "Z", "omega", "phi", "kappa", "sX", "sY", "sZ", "somega", "sphi", "skappa")
+_ROW_LIMITS = (validate.MAX_COORDINATE_M,) * 3 + (validate.MAX_ANGLE_DEG,) * 3 + (validate.MAX_COORDINATE_M,) * 6
+
+
 def _read_rows(path: Path, sep: str | None, skip: int, ncols: int, what: str):
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read {what} ({getattr(exc, 'strerror', None) or exc.__class__.__name__})", path) \
-            from None
+    text = read_text(path)
     names, vals = [], []
     for n, ln in enumerate(text.splitlines(), 1):
         if n <= skip or not ln.strip() or ln.lstrip().startswith("#"):
@@ -154,12 +166,8 @@ def _read_rows(path: Path, sep: str | None, skip: int, ncols: int, what: str):
         tok = [t.strip() for t in (ln.split(sep) if sep else ln.split())]
         if len(tok) < ncols + 1:
             raise InputError(f"a {what} line needs an image name and {ncols} numbers", path, n)
-        try:
-            row = [float(v) for v in tok[1:ncols + 1]]
-        except ValueError:
-            raise InputError("not a number", path, n, "X") from None
-        if not all(np.isfinite(row)):
-            raise InputError("not a finite number", path, n, "X")
+        row = [validate.in_range(v, -lim, lim, path, n, k)
+               for v, k, lim in zip(tok[1:ncols + 1], _ROW_FIELDS, _ROW_LIMITS)]
         vals.append(row)
         names.append(tok[0])
     v = np.array(vals, float).reshape(-1, ncols)
@@ -290,10 +298,10 @@ def read_odm_geo(path: Path) -> tuple[EOP, MapGrid]:
     """EOPs (grid omega/phi/kappa) and the CRS from an ODM geo.txt, its yaw/pitch/roll read the way ODM reads them
     (`odm_opk_from_ypr` in the local East/North/Up frame, turned to grid axes by the meridian convergence)."""
     path = Path(path)
-    try:
-        first = path.read_text(encoding="utf-8").splitlines()[0].strip()
-    except (OSError, IndexError, UnicodeDecodeError):
-        raise InputError("cannot read the CRS line of geo.txt", path, 1) from None
+    lines = read_text(path).splitlines()
+    if not lines:
+        raise InputError("empty geo.txt: the first line must be the CRS", path, 1)
+    first = lines[0].strip()
     crs = parse_crs(odm_crs_to_pyproj(first), f"{path}:1")
     names, v = _read_rows(path, None, 1, 6, "geo.txt")
     grid = MapGrid(crs)
