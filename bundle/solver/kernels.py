@@ -2,7 +2,7 @@
 normal-equation products (with the pose, the point and the globals), the pose-pose Schur complement sum over
 the points and the redundancy numbers' quadratic forms. Each walks the observations once, in C speed, without
 the (k,6,6) temporaries of the vectorised NumPy form; `normals.py` and `covariance.py` call them, the NumPy forms
-are the references in tests/test_bundle_solver.py.
+are the references in tests/bundle/test_bundle_solver.py.
 
 Problems without point unknowns (a camera calibrated on a known target field) stay in NumPy: numba's first call
 in a process costs 0.3-0.7 s, more than such an adjustment takes.

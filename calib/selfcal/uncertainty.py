@@ -15,7 +15,7 @@ eliminated: a refined field's uncertainty is in it) is propagated to the project
 The reported sigma is the worst-direction standard deviation (the square root of the larger eigenvalue of the
 2x2 covariance), in px, as mrcal reports it. The same propagation gives the uncertainty of a converted model
 (e.g. the OpenCV block) through the Jacobian of the conversion (dgcal.calib.camera.conversions.conversion_jacobian).
-Checked against the spread of re-calibrations over noise realisations (tests/test_camera_uncertainty.py).
+Checked against the spread of re-calibrations over noise realisations (tests/calib/selfcal/test_camera_uncertainty.py).
 """
 from __future__ import annotations
 

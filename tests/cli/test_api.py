@@ -6,7 +6,7 @@ from pathlib import Path
 import dgcal
 from dgcal import api
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_every_api_name_is_importable_and_the_same_object_on_the_package():

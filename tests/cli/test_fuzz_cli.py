@@ -1,6 +1,6 @@
 """Fuzzing every `dgcal` verb through its input files (issue 16): `dgcal.cli.main([...])` on a small valid data
 set of each verb with one input file mutated (truncated, random bytes, invalid UTF-8, NaN / inf / 1e308 numbers,
-missing columns, unclosed quotes; tests/test_fuzz_readers.py's mutations). Every run exits 0 (or 1 where the
+missing columns, unclosed quotes; tests/fields/test_fuzz_readers.py's mutations). Every run exits 0 (or 1 where the
 verb says so) or 2 with one `dgcal VERB: error: ...` line naming a file; never a traceback, never the
 internal-error exit 3, never a native abort.
 

@@ -5,7 +5,7 @@ inserted, replaced, lines dropped/doubled/swapped, truncation, invalid UTF-8, un
 numbers replaced by NaN, inf, 1e308, 1e-320, 25-digit integers or nothing) either reads or fails with one
 InputError line naming the file: never another exception, never a native abort.
 
-tests/test_formats_fuzz.py fuzzes the readers of issue 13 (GNSS solutions, DJI MRK, IMU descriptions, SBET,
+tests/fields/test_formats_fuzz.py fuzzes the readers of issue 13 (GNSS solutions, DJI MRK, IMU descriptions, SBET,
 time tags, Metashape, ROS camera_info, ODM files); this file covers the rest. The default run tries
 `DEFAULT_CASES` mutations per reader; `pytest -m fuzz` runs `LONG_CASES` (>= 2000) each.
 """

@@ -12,7 +12,7 @@ import dgcal.sim
 import dgcal.simulators
 from dgcal.campaign import CHAIN
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LIBRARY = ("fields", "calib", "bundle", "pos", "reports", "sim")
 
 

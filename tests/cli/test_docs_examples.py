@@ -17,7 +17,7 @@ import pytest
 
 from dgcal.cli import build_parser, main
 
-DOCS = Path(__file__).resolve().parents[1] / "docs"
+DOCS = Path(__file__).resolve().parents[2] / "docs"
 FILES = ("lowcost_payload.md", "timesync.md")
 
 # (doc, a substring naming the line) -> why the line cannot run here: it reads the user's own files

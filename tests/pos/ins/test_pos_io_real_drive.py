@@ -16,7 +16,7 @@ from dgcal.pos.ins.imu_formats import R_sensor_to_body_from_euler_zyx, imu_forma
 from dgcal.pos.ins.sbet import read_any_trajectory
 from dgcal.pos.ins.time_tags import read_time_tag
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "examples"
+DOCS = Path(__file__).resolve().parents[3] / "docs" / "examples"
 
 
 def _drive(shared_data: Path) -> Path:
