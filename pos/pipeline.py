@@ -19,7 +19,6 @@ from dgcal.fields.constants import G0, SECONDS_PER_WEEK
 from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_ecef_to_ned
-from dgcal.fields.io.csv_tables import read_table
 from dgcal.pos.gnss.carrier import carrier_observations
 from dgcal.pos.gnss.dd import DDOptions, carrier_front_end
 from dgcal.pos.gnss.observations import GnssObservations
@@ -99,37 +98,6 @@ def fixes_from_solution(sol: GnssSolution) -> GnssFixes:
     bad = np.linalg.eigvalsh(cov)[:, 0] <= 0
     cov[bad] = np.einsum("ni,ij->nij", floor[bad] ** 2, np.eye(3))
     return GnssFixes(sol.t, sol.p_ecef, floor, v, s_v, cov)
-
-
-def read_gnss_csv(path) -> GnssFixes:
-    """LC input: gnss.csv of `dgcal pos --mode spp` (or any CSV with gps_week,gps_sow,x,y,z[,sx..,vx..])."""
-    tab = read_table(path, ("gps_week", "gps_sow", "x", "y", "z"), ("sx", "sy", "sz", "vx", "vy", "vz",
-                                                                     "svx", "svy", "svz"))
-    for name in ("x", "y", "z"):
-        bad = np.flatnonzero(~np.isfinite(tab[name]))
-        if len(bad):
-            raise InputError("not a finite number", tab.path, int(tab.lines[bad[0]]), name)
-    t = tab["gps_week"] * SECONDS_PER_WEEK + tab["gps_sow"]
-    back = np.flatnonzero(np.diff(t) <= 0)
-    if len(back):
-        raise InputError("time does not increase", tab.path, int(tab.lines[back[0] + 1]), "gps_sow")
-    p = np.column_stack([tab["x"], tab["y"], tab["z"]])
-    n = len(t)
-
-    def ned_sigma(cols, default):
-        if not all(c in tab for c in cols):
-            return np.full((n, 3), default)
-        s = np.column_stack([tab[c] for c in cols])
-        geo = ecef_to_geodetic(p)
-        Rn = R_ecef_to_ned(geo[:, 0], geo[:, 1])
-        C = Rn @ (s[:, :, None] ** 2 * np.eye(3)) @ np.swapaxes(Rn, 1, 2)
-        return np.sqrt(np.einsum("nii->ni", C))
-    s_p = ned_sigma(("sx", "sy", "sz"), 3.0)
-    v = s_v = None
-    if all(c in tab for c in ("vx", "vy", "vz")):
-        v = np.column_stack([tab["vx"], tab["vy"], tab["vz"]])
-        s_v = ned_sigma(("svx", "svy", "svz"), 0.2)
-    return GnssFixes(t, p, s_p, v, s_v)
 
 
 def tc_epochs(raw, nav, spp_sol, opts):

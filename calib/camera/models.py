@@ -267,7 +267,26 @@ class Fraser7(CameraModel):
         return J
 
 
-class OpenCV8(CameraModel):
+class OpenCVPixels(CameraModel):
+    """A model whose linear part is OpenCV's K: fx, fy, cx, cy (px) are its first four parameters, no skew."""
+
+    def to_pixels(self, xyd):
+        fx, fy, cx, cy = self.params[:4]
+        return np.column_stack([fx * xyd[:, 0] + cx, fy * xyd[:, 1] + cy])
+
+    def from_pixels(self, uv):
+        fx, fy, cx, cy = self.params[:4]
+        return np.column_stack([(uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy])
+
+    def pinhole_K(self):
+        fx, fy, cx, cy = self.params[:4]
+        return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+
+    def pixel_jacobian(self):
+        return np.diag(self.params[:2]).astype(float)
+
+
+class OpenCV8(OpenCVPixels):
     """OpenCV rational model: fx, fy, cx, cy (px), k1, k2, p1, p2, k3, k4, k5, k6 (OpenCV's order)."""
 
     NAME = "opencv8"
@@ -294,21 +313,6 @@ class OpenCV8(CameraModel):
         x, y, r2 = _radial_r2(np.atleast_2d(xy))
         rad, drad = self._rad(r2)
         return _brown_distort_jacobian(x, y, rad, drad, p1, p2)
-
-    def to_pixels(self, xyd):
-        fx, fy, cx, cy = self.params[:4]
-        return np.column_stack([fx * xyd[:, 0] + cx, fy * xyd[:, 1] + cy])
-
-    def from_pixels(self, uv):
-        fx, fy, cx, cy = self.params[:4]
-        return np.column_stack([(uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy])
-
-    def pinhole_K(self):
-        fx, fy, cx, cy = self.params[:4]
-        return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
-
-    def pixel_jacobian(self):
-        return np.diag(self.params[:2]).astype(float)
 
     def opencv_K_dist(self):
         return self.pinhole_K(), self.params[4:].copy()
@@ -344,7 +348,7 @@ class OpenCV8(CameraModel):
         return J
 
 
-class Fisheye(CameraModel):
+class Fisheye(OpenCVPixels):
     """Kannala-Brandt / OpenCV fisheye (cv::fisheye, COLMAP OPENCV_FISHEYE): fx, fy, cx, cy (px), k1..k4 on the
     angle theta = atan(r) of the ray from the optical axis: theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6
     + k4 theta^8), distorted = (x, y) theta_d / r, u = fx xd + cx, v = fy yd + cy (no skew; rays within 90 deg of
@@ -400,21 +404,6 @@ class Fisheye(CameraModel):
         with np.errstate(invalid="ignore", divide="ignore"):
             k = np.where(thd > 1e-15, r / np.where(thd > 1e-15, thd, 1.0), 1.0)
         return xyd * k[:, None]
-
-    def to_pixels(self, xyd):
-        fx, fy, cx, cy = self.params[:4]
-        return np.column_stack([fx * xyd[:, 0] + cx, fy * xyd[:, 1] + cy])
-
-    def from_pixels(self, uv):
-        fx, fy, cx, cy = self.params[:4]
-        return np.column_stack([(uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy])
-
-    def pinhole_K(self):
-        fx, fy, cx, cy = self.params[:4]
-        return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
-
-    def pixel_jacobian(self):
-        return np.diag(self.params[:2]).astype(float)
 
     def _param_jacobian(self, xy, xyd):
         r = np.hypot(xy[:, 0], xy[:, 1])

@@ -43,6 +43,7 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.text_files import read_text
 from dgcal.fields.io.formats import Points, write_points
+from dgcal.fields.targets.plate import read_layout_json
 
 BOARD_TYPES = ("charuco", "chessboard", "aruco-grid")
 INCH_M = 0.0254
@@ -415,13 +416,8 @@ def write_board_field(field_csv: str | Path, board: Board) -> Points:
 
 def load_board_layout(field_csv: str | Path) -> Board | None:
     """The board described beside a field CSV (`field.json` of kind dgcal-board), or None."""
-    p = Path(field_csv).with_suffix(".json")
-    if not p.is_file():
+    found = read_layout_json(field_csv, BOARD_LAYOUT_KIND)
+    if found is None:
         return None
-    try:
-        d = json.loads(read_text(p))
-    except (ValueError, RecursionError) as exc:
-        raise InputError(f"cannot read field layout: {' '.join(str(exc).split())[:120]}", p) from None
-    if not isinstance(d, dict) or d.get("kind") != BOARD_LAYOUT_KIND:
-        return None
+    d, p = found
     return board_from_dict({k: v for k, v in d.items() if k != "kind"}, p)

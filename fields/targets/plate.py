@@ -259,8 +259,9 @@ def write_field(field_csv: str | Path, tf: TargetField) -> Points:
     return pts
 
 
-def load_layout(field_csv: str | Path) -> TargetField | None:
-    """The field layout stored beside a field CSV, or None when there is none."""
+def read_layout_json(field_csv: str | Path, kind: str) -> tuple[dict, Path] | None:
+    """The layout JSON beside a field CSV and its path when its `kind` is `kind`, else None (no file, another
+    kind); a file that is not JSON is an InputError naming it."""
     p = layout_path(field_csv)
     if not p.is_file():
         return None
@@ -268,6 +269,12 @@ def load_layout(field_csv: str | Path) -> TargetField | None:
         d = json.loads(read_text(p))
     except (ValueError, RecursionError) as exc:
         raise InputError(f"cannot read field layout: {' '.join(str(exc).split())[:120]}", p) from None
-    if not isinstance(d, dict) or d.get("kind") != "dgcal-charuco-plate":
+    if not isinstance(d, dict) or d.get("kind") != kind:
         return None
-    return TargetField.from_dict(d, p)
+    return d, p
+
+
+def load_layout(field_csv: str | Path) -> TargetField | None:
+    """The field layout stored beside a field CSV, or None when there is none."""
+    found = read_layout_json(field_csv, "dgcal-charuco-plate")
+    return None if found is None else TargetField.from_dict(*found)

@@ -27,7 +27,7 @@ from dgcal.pos.smoother.preintegration import (gravity_correction_b, interval_pa
                                                preintegration_params, split_at_keyframes)
 from dgcal.pos.smoother.initial import (GnssFixes, anchor_attitude, initial_clocks, initial_track,
                                propagate_attitude)
-from dgcal.pos.smoother.integrity import reject_outliers, screen_fixes, with_bridges
+from dgcal.pos.smoother.integrity import assemble_graph, reject_outliers, screen_fixes, with_bridges
 
 
 @dataclass
@@ -252,16 +252,9 @@ def rebuild_imu(problem: Problem, imu, imu_noise: ImuErrorModel, opts: SmootherO
                                      imu_noise, problem.frame, t_key, opts.earth_rotation))
     imu_factors = [gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
                    for k in range(len(t_key) - 1)]
-    graph = gtsam.NonlinearFactorGraph()
-    for f in problem.prior_factors + imu_factors:
-        graph.add(f)
-    for g in problem.clock_factor_groups:
-        for f in g:
-            graph.add(f)
-    for fl in problem.epoch_factors:
-        for _, f in fl:
-            graph.add(f)
-    return dataclasses.replace(problem, graph=graph, pims=pims, imu_factors=imu_factors, accel=accel)
+    new = dataclasses.replace(problem, pims=pims, imu_factors=imu_factors, accel=accel)
+    new.graph = assemble_graph(new)
+    return new
 
 
 def screen_dd(problem: Problem, values, threshold: float) -> int:
@@ -304,16 +297,7 @@ def screen_dd(problem: Problem, values, threshold: float) -> int:
             fl.insert(0, ("dd", new[k][0]))
         problem.epoch_factors[k] = fl
     problem.dd = {k: v[1] for k, v in new.items()}
-    graph = gtsam.NonlinearFactorGraph()
-    for f in problem.prior_factors + problem.imu_factors:
-        graph.add(f)
-    for g in problem.clock_factor_groups:
-        for f in g:
-            graph.add(f)
-    for fl in problem.epoch_factors:
-        for _, f in fl:
-            graph.add(f)
-    problem.graph = graph
+    problem.graph = assemble_graph(problem)
     return dropped
 
 
