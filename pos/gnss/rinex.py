@@ -150,7 +150,7 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
         fh = _LineCounter(text)
         try:
             nav = dec._decode_nav(fh, nav, append=k > 0)
-        except (ValueError, IndexError, KeyError) as exc:
+        except (ValueError, IndexError, KeyError, OverflowError) as exc:   # inf or 1e300 in a record overflows
             raise InputError(f"cannot decode navigation record: {exc}", p, fh.line) from None
         if nav == -1:
             raise InputError("RINEX version not supported by the decoder", p, 1)

@@ -48,9 +48,12 @@ def _num(s: str, path, ln: int, name: str) -> float:
     if not t:
         return 0.0
     try:
-        return float(t.replace("D", "E").replace("d", "e"))
+        v = float(t.replace("D", "E").replace("d", "e"))
     except ValueError:
         raise InputError(f"not a number: {t!r}", path, ln, name) from None
+    if not np.isfinite(v):
+        raise InputError(f"not a finite number: {t!r}", path, ln, name)
+    return v
 
 
 def parse_nav_header(lines: list[str], path: Path) -> NavHeader:
@@ -67,11 +70,11 @@ def parse_nav_header(lines: list[str], path: Path) -> NavHeader:
     except ValueError:
         raise InputError("bad RINEX version", path, 1, "RINEX VERSION") from None
     typ = first[20:21]
-    if ver < 2.0 or ver >= 4.0:
+    if not 2.0 <= ver < 4.0:                    # written so that a 'nan' version fails it too
         raise InputError(f"RINEX version {ver} is not supported (need 2.10-3.05)", path, 1, "RINEX VERSION")
     if ver >= 3.0 and typ != "N":
         raise InputError(f"not a navigation file (type '{typ}')", path, 1, "RINEX VERSION / TYPE")
-    if ver < 3.0 and typ not in "NGHEJ":
+    if ver < 3.0 and typ not in ("N", "G", "H", "E", "J"):
         raise InputError(f"not a navigation file (type '{typ}')", path, 1, "RINEX VERSION / TYPE")
     coef: dict[str, list[float]] = {}
     leap = 18
@@ -125,6 +128,8 @@ def _rinex2_gps_to_3(lines: list[str], hdr: NavHeader, path: Path) -> list[str]:
             prn = int(line[0:2])
             yy, mo, dd, hh, mi = (int(line[2 + 3 * k:5 + 3 * k]) for k in range(5))
             sec = float(line[17:22])
+            if not 0.0 <= sec < 61.0:               # also refuses nan and inf
+                raise ValueError(sec)
         except ValueError:
             raise InputError(f"bad PRN / EPOCH {line[:22].strip()!r}", path, ln, "PRN / EPOCH / SV CLK") from None
         year = yy + (2000 if yy < 80 else 1900)

@@ -194,7 +194,7 @@ def _parse_header(lines: list[str], path: Path) -> dict:
         version = float(first[:9])
     except ValueError:
         raise InputError("bad RINEX version", path, 1, "RINEX VERSION") from None
-    if version < 2.0 or version >= 4.0:
+    if not 2.0 <= version < 4.0:                # written so that a 'nan' version fails it too
         raise InputError(f"RINEX version {version} is not supported (need 2.10-3.05)", path, 1, "RINEX VERSION")
     typ = first[20:21]
     if typ != "O":

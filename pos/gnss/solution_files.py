@@ -29,6 +29,8 @@ from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_ecef_to_ned
 from dgcal.fields.io.csv_tables import atomic_write, read_table
+from dgcal.fields.io import validate
+from dgcal.fields.io.text_files import read_text
 from dgcal.fields.io.timescales import (calendar_from_unix, gps_from_unix_gpst, gps_from_unix_utc,
                                         unix_from_calendar, unix_utc_from_gps)
 
@@ -165,13 +167,7 @@ def _pos_header(path: Path, lines: list[str]) -> tuple[int, str, str, list[str],
 def read_rtklib_pos(path: str | Path) -> GnssSolution:
     """Read an RTKLIB `.pos` solution file (llh or xyz, any time format/system) with its covariance."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError("file not found", path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read: {exc}", path) from None
-    lines = text.splitlines()
+    lines = read_text(path).splitlines()
     hdr_i, tsys, kind, names, sep = _pos_header(path, lines)
     data = [(i + 1, ln) for i, ln in enumerate(lines) if i > hdr_i and ln.strip() and not ln.lstrip().startswith("%")]
     if not data:
@@ -351,12 +347,7 @@ def read_nmea_gga(path: str | Path, date: str | None = None, leap_seconds: float
     """Read the GGA fixes of an NMEA-0183 log (UTC times; the date from RMC sentences or `date` YYYY-MM-DD),
     heights = altitude + geoid separation (ellipsoidal); sigmas from GST sentences or NMEA_DEFAULT_SIGMA."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError("file not found", path)
-    try:
-        text = path.read_text(encoding="ascii", errors="strict")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as ASCII NMEA: {exc}", path) from None
+    text = read_text(path, encoding="ascii")
     day_u = None
     if date is not None:
         try:
@@ -497,15 +488,31 @@ def write_nmea_gga(path: str | Path, sol: GnssSolution, leap_seconds: float | No
 
 
 # --------------------------------------------------------------------------------------------- dgcal gnss.csv
+def _check_gnss_csv(tab) -> None:
+    """Times, positions, sigmas and velocities of a gnss.csv finite and physically plausible (sigmas and the
+    signed-root cross terms may be empty: defaults then), else InputError naming the row and column."""
+    validate.gps_week_sow(tab["gps_week"], tab["gps_sow"], tab.path, tab.lines)
+    big = validate.MAX_COORDINATE_M
+    for name in ("x", "y", "z"):
+        validate.values_in_range(tab[name], -big, big, tab.path, name, tab.lines, unit="m")
+    limits = {"sx": big, "sy": big, "sz": big, "svx": validate.MAX_SPEED_M_S, "svy": validate.MAX_SPEED_M_S,
+              "svz": validate.MAX_SPEED_M_S}
+    for name, hi in limits.items():
+        if name in tab:
+            validate.positive_values(tab[name], tab.path, name, tab.lines, allow_nan=True, hi=hi, strict=False,
+                                     what="sigma")
+    for name, hi in (("sxy", big), ("sxz", big), ("syz", big), ("vx", validate.MAX_SPEED_M_S),
+                     ("vy", validate.MAX_SPEED_M_S), ("vz", validate.MAX_SPEED_M_S)):
+        if name in tab:
+            validate.values_in_range(tab[name], -hi, hi, tab.path, name, tab.lines, allow_nan=True)
+
+
 def read_gnss_csv(path: str | Path) -> GnssSolution:
     """dgcal's gnss.csv (spp/ppk): ECEF position with sx,sy,sz (+ PPK's signed-root sxy,sxz,syz), velocity."""
     tab = read_table(path, ("gps_week", "gps_sow", "x", "y", "z"),
                      ("sx", "sy", "sz", "sxy", "sxz", "syz", "vx", "vy", "vz", "svx", "svy", "svz"),
                      text=("fix", "rejected"))
-    for name in ("x", "y", "z"):
-        bad = np.flatnonzero(~np.isfinite(tab[name]))
-        if len(bad):
-            raise InputError("not a finite number", tab.path, int(tab.lines[bad[0]]), name)
+    _check_gnss_csv(tab)
     t = tab["gps_week"] * SECONDS_PER_WEEK + tab["gps_sow"]
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):

@@ -19,6 +19,7 @@ import numpy as np
 from dgcal.fields.constants import G0, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.fields.io.text_files import read_text
 
 # factors to rad (increments) / rad/s (rates), m/s (increments) / m/s^2 (rates)
 GYRO_UNITS = {"rad": 1.0, "deg": np.pi / 180.0, "rad/s": 1.0, "deg/s": np.pi / 180.0,
@@ -94,10 +95,10 @@ class ImuData:
                        [b.rotated(R) for b in self.bridges])
 
 
-def estimate_rate_hz(t: np.ndarray) -> float:
-    """Nominal sampling rate (Hz) from the median time step."""
+def estimate_rate_hz(t: np.ndarray, path: Path | None = None) -> float:
+    """Nominal sampling rate (Hz) from the median time step; `path` names the file in the error."""
     if len(t) < 2:
-        raise InputError("need at least two IMU samples to know the sampling rate")
+        raise InputError("need at least two IMU samples to know the sampling rate", path)
     rate = float(1.0 / np.median(np.diff(t)))
     # continuous GPS seconds (~1.4e9) carry ~0.2 us rounding; snap to the nominal integer rate
     return float(round(rate)) if round(rate) > 0 and abs(rate - round(rate)) < 1e-3 * rate else rate
@@ -108,13 +109,7 @@ def data_lines(path: Path, header: str | bool = "auto", delimiter: str | None = 
     """Non-blank, non-comment (`#`, `%`) lines, their 1-based line numbers and the header line (or None).
 
     `header` "auto": the first line is a header when its first field is not a number; True/False force it."""
-    if not path.is_file():
-        raise InputError("file not found", path)
-    try:
-        raw = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read: {exc}", path) from None
-    all_lines = raw.splitlines()
+    all_lines = read_text(path).splitlines()
     keep = [i for i, s in enumerate(all_lines) if s.strip() and not s.lstrip().startswith(("#", "%"))]
     header_text, header_line = None, 0
     if keep:
@@ -199,7 +194,7 @@ def finish_imu(path: Path, lines: np.ndarray, t: np.ndarray, g: np.ndarray, a: n
                rate_hz: float | None, R_sensor_to_body: np.ndarray | None) -> ImuData:
     """ImuData (body FRD increments) from parsed times (GPS s), gyro and accel columns (SI) of `kind`."""
     _check_time(path, lines, t)
-    rate = float(rate_hz) if rate_hz else estimate_rate_hz(t)
+    rate = float(rate_hz) if rate_hz else estimate_rate_hz(t, path)
     if kind == "increments":
         imu = ImuData(t, g, a, rate, path, lines)
     elif kind == "rates":

@@ -544,18 +544,6 @@ READERS = {
                                                                    "load_board_layout")),
 }
 
-# Readers in packages other engineers are editing now (pos/gnss, pos/ins): their fuzz failures are reported, not
-# fixed here; the test is an expected failure while the failure is there and passes once it is fixed.
-KNOWN_OPEN = {
-    "rinex-nav-2": "pos/gnss/rinex_nav.py: a damaged file type letter is a KeyError, an inf IODC an OverflowError "
-                   "inside cssrlib",
-    "rinex-nav-3": "pos/gnss/rinex_nav.py: a damaged file type letter is a KeyError",
-    "imu-csv": "pos/ins/imu_data.py estimate_rate_hz: 'need at least two IMU samples' names no file",
-    "imu-kf-gins": "pos/ins/imu_data.py estimate_rate_hz: 'need at least two IMU samples' names no file",
-    "imu-text": "pos/ins/imu_data.py estimate_rate_hz: 'need at least two IMU samples' names no file",
-}
-
-
 def check_one(reader, p: Path, data: bytes) -> None:
     """Write `data` to `p` and read it: a result or one InputError line naming the file."""
     p.write_bytes(data)
@@ -579,13 +567,7 @@ def _fuzz(name: str, tmp_path_factory, n: int) -> None:
     @given(OPS)
     def run(ops):
         check_one(reader, p, mutate(sample, ops))
-    if name not in KNOWN_OPEN:
-        run()
-        return
-    try:
-        run()
-    except Exception as exc:  # noqa: BLE001 - reported as an expected failure with what failed
-        pytest.xfail(f"{KNOWN_OPEN[name]} ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})")
+    run()
 
 
 @pytest.mark.parametrize("name", sorted(READERS))
