@@ -38,7 +38,7 @@ from dgcal.pos.lowcost.ukf import UkfOptions
 from dgcal.pos.lowcost.ukf_pos import UKF_SETTINGS, UkfPosResult, process_ukf, read_true_trajectory
 from dgcal.pos.ros_bags import is_ros_bag, read_rosbag_imu, read_rosbag_navsatfix
 from dgcal.pos.smoother.batch import SmootherOptions, smooth
-from dgcal.pos.smoother.forward_filter import forward_solution
+from dgcal.pos.smoother.forward_filter import forward_solution, linear_forward_solution
 from dgcal.pos.smoother.initial import GnssFixes
 from dgcal.pos.smoother.integrity import gnss_warnings
 from dgcal.pos.smoother.output import densify, solution_trajectory
@@ -122,7 +122,7 @@ def tc_epochs(raw, nav, spp_sol, opts):
 
 
 def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_opts=None,
-            lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool = True,
+            lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool | str = True,
             smoother_opts=None, progress: bool = False, carrier: tuple | None = None,
             ppk_opts: PpkOptions | None = None, dd_opts: DDOptions | None = None,
             imu_checks: ImuIntegrityOptions | None = None) -> PosResult:
@@ -134,6 +134,10 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
 
     carrier: (rover, base `dgcal.pos.gnss.carrier.CarrierObs`, base ECEF m) for TC with carrier phase: PPK, the
     arcs' integers and the double differences (`dgcal.pos.gnss.dd.carrier_front_end`) replace the pseudoranges.
+
+    forward: True for the forward solution and normalised innovations of the smoother's problem linearised at its
+    solution (`linear_forward_solution`, cheap), "filter" for the iterated filter about its own estimates
+    (`forward_solution`), False for none.
     """
     if mode not in ("tc", "lc"):
         raise InputError(f"mode must be tc or lc, not {mode!r}", field="--mode")
@@ -174,7 +178,11 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
                  carrier=fe.input if fe is not None else None)
     timing["smoother_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    fw = forward_solution(sol.problem, sol.values) if forward else None
+    fw = None
+    if forward == "filter":
+        fw = forward_solution(sol.problem, sol.values)
+    elif forward:
+        fw = linear_forward_solution(sol.problem, sol.values)
     timing["forward_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     dense = densify(sol, sol.problem, imu, rate_hz)
@@ -361,7 +369,8 @@ def sniff_imu_file(path) -> str:
 _SETTINGS = {"rate": float, "forward": bool, "model_errors": bool, "use_doppler": bool, "earth_rotation": bool,
              "huber_k": float, "clock_bias_rw_m": float, "clock_drift_rw_mps": float, "prior_pos_sigma_m": float,
              "prior_vel_sigma_mps": float, "lc_velocity": bool, "max_iterations": int, "dd_outlier_sigma": float,
-             "zupt": bool, "static_noise": bool, "gnss_outlier_sigma": float, "imu_max_gap_s": float}
+             "zupt": bool, "static_noise": bool, "gnss_outlier_sigma": float, "imu_max_gap_s": float,
+             "code_bias": bool, "code_bias_tau_s": float, "forward_filter": bool}
 _IMU_SETTINGS = {"imu_max_gap_s": "max_gap_s"}   # --set keys of the IMU checks (dgcal.pos.ins.integrity)
 
 
@@ -430,6 +439,7 @@ class PosOptions:
     ar_ratio: float = 3.0                   # ppk: ratio-test threshold
     n_freq: int = 3                         # ppk: frequencies per system (1-3)
     truth: Path | None = None               # ukf: true trajectory for the accuracy table (trajectory CSV or sim truth)
+    forward_filter: bool = False            # tc/lc: the forward solution from the iterated filter, not the linear pass
 
 
 def _spp_options(opts: PosOptions, model_errors: bool = True, strict: bool = True):
@@ -570,6 +580,8 @@ def run_pos(opts: PosOptions) -> PosResult:
             raise InputError("fewer than two IMU samples between --t-start and --t-end", opts.imu)
     rate = float(extra.pop("rate", 10.0))
     forward = bool(extra.pop("forward", True))
+    if extra.pop("forward_filter", False) or opts.forward_filter:
+        forward = "filter"
     for k in _DD_SETTINGS:               # without a base station the double-difference settings do nothing
         extra.pop(k, None)
     ukf_kw = {k: extra.pop(k) for k in list(extra) if k in UKF_SETTINGS}

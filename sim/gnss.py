@@ -6,13 +6,15 @@ the navigation file used and ``truth.json``.
 
 Model (consistent with ``dgcal.pos.gnss.spp.prepare_epoch``, so SPP on the output is unbiased)::
 
-    pr = c*tau + c*(dt_rx + isb[sys]) - c*dt_sat(t_tx) + I_klobuchar + T_saastamoinen + n_pr
+    pr = c*tau + c*(dt_rx + isb[sys]) - c*dt_sat(t_tx) + I_klobuchar + T_saastamoinen + b_sat + n_pr
     rr = d(rho)/dt + c*ddt_rx - c*ddt_sat + n_rr,     doppler_hz = -rr / wavelength
 
 where ``tau`` solves the light-time equation exactly (Earth rotation during travel included)
 and ``d(rho)/dt`` is the numerical derivative of that exact range. The receiver time tag is
 ``t_tag = t_true + dt_rx``: the antenna position at the tag is ``p(t_tag) - v * dt_rx``.
-Noise sigmas depend on elevation (``dgcal.pos.gnss.corrections.code_sigma_m``).
+Noise sigmas depend on elevation (``dgcal.pos.gnss.corrections.code_sigma_m``). ``b_sat`` is zero unless a
+``CodeErrorModel`` is given: then every satellite's pseudoranges carry the slow error that real broadcast orbits,
+clocks and atmosphere models leave (a Gauss-Markov sequence scaled by the front end's own budget).
 """
 from __future__ import annotations
 
@@ -29,7 +31,7 @@ from dgcal.fields.crs import LocalENU, ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir
 from dgcal.pos.gnss.carrier import CarrierObs
-from dgcal.pos.gnss.corrections import code_sigma_m, klobuchar_delay_m, saastamoinen_delay_m
+from dgcal.pos.gnss.corrections import code_sigma_m, klobuchar_delay_m, model_sigma_m, saastamoinen_delay_m
 from dgcal.pos.gnss.ephemeris import satellite_states
 from dgcal.pos.gnss.observations import GnssEpoch, GnssObservations
 from dgcal.pos.gnss.rinex import BroadcastNav, read_rinex_nav, signal_frequency_hz, write_rinex_obs
@@ -55,6 +57,24 @@ class RxClock:
     q_bias: float = 1.0e-19
     q_drift: float = 4.0e-19
     isb_m: dict[str, float] = field(default_factory=lambda: {"G": 0.0, "J": 0.0, "E": 2.5, "C": -4.0})
+
+
+@dataclass
+class CodeErrorModel:
+    """Slow pseudorange errors of each satellite, as the broadcast models leave them on real data.
+
+    Per satellite: `scale` times the front end's budget (`dgcal.pos.gnss.corrections.model_sigma_m`: a share of the
+    Klobuchar delay, the troposphere, the ephemeris's URA; elevation dependent) times a unit-variance first-order
+    Gauss-Markov sequence of correlation time `tau_s`. `scale` 1 draws exactly what the smoother's code-bias states
+    (`dgcal.pos.smoother.code_bias`) assume; real receivers in multipath see more.
+    """
+
+    scale: float = 1.0
+    tau_s: float = 1800.0
+
+    def as_dict(self) -> dict:
+        """The model as a JSON-ready dict."""
+        return dict(self.__dict__)
 
 
 def _load_nav(nav, t_span: tuple[float, float] | None = None, systems=("G", "E", "C"),
@@ -165,7 +185,8 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
                   nav=None, rx_clock: RxClock | None = None, seed: int = 0,
                   sigma_pr: float = 0.5, sigma_doppler: float = 0.05,
                   outages: list[tuple[float, float, int]] = (), systems=("G", "E"),
-                  elev_mask_deg: float = 10.0, prepare: bool = True) -> GnssObservations:
+                  elev_mask_deg: float = 10.0, prepare: bool = True,
+                  code_errors: CodeErrorModel | None = None) -> GnssObservations:
     """Pseudoranges (m) and Doppler (Hz) of an antenna moving along an ECEF trajectory.
 
     ``traj_t_gps`` (N,) continuous GPS seconds (the receiver epochs), ``p_ecef_antenna`` (N,3) m,
@@ -176,7 +197,8 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
     (t0, t1, max_sats) -- between t0 and t1 only the ``max_sats`` highest satellites are kept.
     ``sigma_pr``/``sigma_doppler``: zenith noise (m, m/s). With ``prepare`` the epochs are run
     through ``dgcal.pos.gnss.spp.prepare_epoch`` at the true positions (sigmas = the simulated noise, no
-    model-error budget), else they are raw. ``truth`` holds the true states per epoch:
+    model-error budget), else they are raw. ``code_errors``: add each satellite's slow error
+    (`CodeErrorModel`; truth["code_bias_m"] {sat: (t_gps, bias m)}). ``truth`` holds the true states per epoch:
     ``p_ecef``, ``v_ecef``, ``clk_m`` {sys: c*(dt_rx)+isb} (m), ``drift_mps``, ``t_gps``, and
     ``nav`` (the ``BroadcastNav`` used, e.g. to run ``dgcal.pos.gnss.spp.spp`` on raw output).
     """
@@ -187,10 +209,12 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
     P = np.asarray(p_ecef_antenna, float).reshape(-1, 3)
     V = np.asarray(v_ecef, float).reshape(-1, 3)
     bias, drift = _clock_series(t, clk, rng)
+    code_bias: dict = {}
     raw_epochs = _simulate_raw(t, P, V, bias, drift, nav, clk, rng, sigma_pr, sigma_doppler,
-                               outages, systems, elev_mask_deg)
+                               outages, systems, elev_mask_deg, code_errors, code_bias)
     truth = {"t_gps": t, "p_ecef": P, "v_ecef": V, "drift_mps": C_LIGHT * drift,
-             "clk_m": {s: C_LIGHT * bias + clk.isb_m.get(s, 0.0) for s in systems}, "nav": nav}
+             "clk_m": {s: C_LIGHT * bias + clk.isb_m.get(s, 0.0) for s in systems}, "nav": nav,
+             "code_bias_m": code_bias}
     obs = GnssObservations(epochs=raw_epochs, receiver="DGCAL SIM", p_approx_ecef=P[0].copy(),
                            signals={s: SIGNAL[s] for s in systems}, source="simulation", truth=truth)
     if prepare:
@@ -199,8 +223,10 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
 
 
 def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_doppler, outages,
-                  systems, elev_mask_deg) -> list[GnssEpoch]:
-    """Raw epochs, vectorised over all (epoch, satellite) pairs."""
+                  systems, elev_mask_deg, code_errors: CodeErrorModel | None = None,
+                  code_bias_out: dict | None = None) -> list[GnssEpoch]:
+    """Raw epochs, vectorised over all (epoch, satellite) pairs; the satellites' slow errors (m) go into
+    `code_bias_out` {sat: (t_gps, bias)}."""
 
     n_ep = len(t)
     t_true = t - bias                        # receiver tags run ahead of true time by dt_rx
@@ -229,7 +255,7 @@ def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_
     if len(K) == 0:
         return []
     t_s0 = t_true[K] - 0.075
-    ps, vs, clk_s, clk_d, _, ok = satellite_states(nav, S, t_s0)
+    ps, vs, clk_s, clk_d, ura, ok = satellite_states(nav, S, t_s0)
     acc = _ecef_acceleration(ps, vs)
     rho, tau, prot = _range_at(ps, vs, acc, t_s0, p_rx[K], t_true[K])
     el, az = elev_azim(K, prot)
@@ -241,7 +267,7 @@ def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_
                 m[idx[np.argsort(-el[idx])[nmax:]]] = False
     sel = np.nonzero(m)[0]
     K, S = K[sel], [S[i] for i in sel]
-    ps, vs, acc, clk_s, clk_d = ps[sel], vs[sel], acc[sel], clk_s[sel], clk_d[sel]
+    ps, vs, acc, clk_s, clk_d, ura = ps[sel], vs[sel], acc[sel], clk_s[sel], clk_d[sel], ura[sel]
     rho, tau, el, az, t_s0 = rho[sel], tau[sel], el[sel], az[sel], t_s0[sel]
     h_d = 0.01
     rho_p, _, _ = _range_at(ps, vs, acc, t_s0, p_rx[K] + V[K] * h_d, t_true[K] + h_d)
@@ -258,6 +284,14 @@ def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_
     s_rr = code_sigma_m(el, sigma_doppler)
     pr = (rho + C_LIGHT * bias[K] + isb - C_LIGHT * dts + iono + tropo
           + s_pr * rng.standard_normal(len(K)))
+    if code_errors is not None:
+        b = _satellite_code_errors(code_errors, t, K, S, el, iono, ura, nav, rng)
+        pr = pr + b
+        if code_bias_out is not None:
+            sat_of = np.array(S)
+            for s in sorted(set(S)):
+                i = np.flatnonzero(sat_of == s)
+                code_bias_out[s] = (t[K[i]], b[i])
     rr_meas = rr + C_LIGHT * drift[K] - C_LIGHT * clk_d + s_rr * rng.standard_normal(len(K))
     cn0 = np.round(30.0 + 20.0 * np.sin(el), 3)
     out = []
@@ -273,6 +307,20 @@ def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_
             sat_clk_s=nan.copy(), sat_clk_drift=nan.copy(), iono_m=nan.copy(), tropo_m=nan.copy(),
             elev_deg=nan.copy(), azim_deg=nan.copy(), sigma_pr_m=s_pr[a:b], sigma_rr_mps=s_rr[a:b]))
     return out
+
+
+def _satellite_code_errors(model: CodeErrorModel, t: np.ndarray, K: np.ndarray, S: list, el: np.ndarray,
+                           iono: np.ndarray, ura: np.ndarray, nav, rng) -> np.ndarray:
+    """Slow error (m) of every (epoch K, satellite S) pair: `model.scale` x the front end's budget x a unit
+    Gauss-Markov sequence per satellite over all epochs (drawn in sorted satellite order, so a seed gives the
+    same errors in every process)."""
+    sats = sorted(set(S))
+    col = {s: j for j, s in enumerate(sats)}
+    dt = np.r_[0.0, np.diff(t)]
+    u = _gauss_markov(len(t), (len(sats),), dt, model.tau_s, rng)
+    share = 1.0 if getattr(nav, "ion_source", "") == "default" else 0.5
+    sigma = model_sigma_m(el, iono, np.where(np.isfinite(ura), ura, 2.0), iono_share=share)
+    return model.scale * sigma * u[K, [col[s] for s in S]]
 
 
 def prepare_simulated(obs: GnssObservations, nav: BroadcastNav, sigma_pr: float,
@@ -495,7 +543,7 @@ def _receiver_geometry(nav, sats, t, pos, vel, bias, elev_mask_deg):
     K = np.repeat(np.arange(n_ep), m)
     S = list(sats) * n_ep
     t_s0 = t_true[K] - 0.075
-    ps, vs, clk_s, clk_d, _, ok = satellite_states(nav, S, t_s0)
+    ps, vs, clk_s, clk_d, ura, ok = satellite_states(nav, S, t_s0)
     ps = np.where(ok[:, None], ps, 2.6e7)
     vs = np.where(ok[:, None], vs, 0.0)
     acc = _ecef_acceleration(ps, vs)

@@ -29,7 +29,8 @@ from dgcal.pos.gnss.carrier import write_rinex_carrier
 from dgcal.pos.gnss.rinex import write_rinex_obs
 from dgcal.pos.ins.error_model import imu_grade as grade_of
 from dgcal.pos.ins.imu_data import write_imu_csv
-from dgcal.sim.gnss import DEFAULT_T0_GPS, CarrierErrorModel, load_nav, simulate_gnss, simulate_rover_base
+from dgcal.sim.gnss import (DEFAULT_T0_GPS, CarrierErrorModel, CodeErrorModel, load_nav, simulate_gnss,
+                           simulate_rover_base)
 from dgcal.sim.imu import simulate_imu
 from dgcal.sim.trajectory import camera_events, simulate_true_trajectory
 
@@ -62,14 +63,17 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
                  n_strips: int = 6, strip_length_m: float = 600.0, strip_spacing_m: float = 80.0,
                  misalignment: bool = True, carrier: bool = True, base_offset_enu_m=(1200.0, -700.0, 0.0),
                  total_outage_s: float = 10.0, n_slips: int = 6,
-                 carrier_errors: CarrierErrorModel | None = None) -> PosSimulation:
+                 carrier_errors: CarrierErrorModel | None = None,
+                 code_errors: CodeErrorModel | None = None) -> PosSimulation:
     """Simulate a flight (seconds, metres, degrees; GPS time from the navigation file's day).
 
     The outage (`outage_sats` highest satellites kept) starts at `outage_start_s` after take-off (default:
     60 % of the flight, on a strip or turn). GNSS epochs are at whole GPS seconds at 1 Hz. With `carrier`, the
     rover antenna and a static base at `base_offset_enu_m` from the site (ground height) also get dual-frequency
     code and carrier phase (`dgcal.sim.gnss.simulate_rover_base`): the same three-satellite window, a total
-    outage of `total_outage_s` at 30 % of the flight (0: none) and `n_slips` random cycle slips.
+    outage of `total_outage_s` at 30 % of the flight (0: none) and `n_slips` random cycle slips. `code_errors`: the
+    satellites' slow pseudorange errors of real broadcast models (`dgcal.sim.gnss.CodeErrorModel`; default none:
+    the rover's code then fits the front end's models exactly, so process it with model_errors=False).
     """
     nav = load_nav(nav)
     week = int(DEFAULT_T0_GPS // SECONDS_PER_WEEK)
@@ -91,7 +95,8 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     t0 = t_gnss[0] + (0.6 * (t_gnss[-1] - t_gnss[0]) if outage_start_s is None else outage_start_s)
     outage = (float(t0), float(t0 + outage_s), int(outage_sats))
     obs = simulate_gnss(t_gnss, p_ant, v_ant, nav=nav, seed=seed + 2, sigma_pr=sigma_pr,
-                        sigma_doppler=sigma_doppler, outages=[outage], systems=tuple(systems), prepare=False)
+                        sigma_doppler=sigma_doppler, outages=[outage], systems=tuple(systems), prepare=False,
+                        code_errors=code_errors)
     events = camera_events(traj, interval_s=event_interval_s)
     inside = (events.t > t_gnss[0] + 1.0) & (events.t < t_gnss[-1] - 1.0)  # the smoothed span
     events.image, events.t = events.image[inside], events.t[inside]

@@ -110,6 +110,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "fields for ppk, UKF settings for ukf (dgcal.pos.lowcost.ukf_pos.UKF_SETTINGS)")
     p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="known antenna position (ECEF, m) for the spp/ppk summary and report")
+    p.add_argument("--forward-filter", action="store_true",
+                   help="tc/lc: trajectory_forward.csv and the innovations from an iterated Kalman filter about its "
+                   "own estimates (slower) instead of the forward pass of the smoother's linearised problem")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--no-report", action="store_true",
                    help="spp: skip the HTML report (gnss.csv and gnss_summary.json are still written)")
@@ -135,7 +138,8 @@ def pos_options(args: argparse.Namespace) -> PosOptions:
                       events_format=getattr(args, "events_format", None),
                       gnss_format=getattr(args, "gnss_format", None), gnss_quality=getattr(args, "gnss_quality", None),
                       nmea_date=getattr(args, "nmea_date", None),
-                      gnss_outages=tup(getattr(args, "gnss_outages", None)), truth=getattr(args, "truth", None))
+                      gnss_outages=tup(getattr(args, "gnss_outages", None)), truth=getattr(args, "truth", None),
+                      forward_filter=bool(getattr(args, "forward_filter", False)))
 
 
 def spp_options(args: argparse.Namespace):

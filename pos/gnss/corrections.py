@@ -106,9 +106,10 @@ def code_sigma_m(elev: np.ndarray, zenith_m: float = 0.3) -> np.ndarray:
     return zenith_m * np.sqrt(0.5 + 0.5 / s ** 2)
 
 
-def model_sigma_m(elev: np.ndarray, iono_m: np.ndarray, ura_m: np.ndarray | float = 2.0
-                  ) -> np.ndarray:
-    """Sigma (m) of the broadcast-model errors: 50 % of Klobuchar, 0.3 m zenith tropo, orbit/clock URA."""
+def model_sigma_m(elev: np.ndarray, iono_m: np.ndarray, ura_m: np.ndarray | float = 2.0,
+                  iono_share: float = 0.5) -> np.ndarray:
+    """Sigma (m) of the broadcast-model errors: `iono_share` of the Klobuchar delay (50 % with the day's
+    coefficients), 0.3 m zenith tropo, orbit/clock URA."""
     s = np.sin(np.maximum(np.asarray(elev, float), np.radians(2.0)))
     tropo = 0.3 / (s + 0.1)
-    return np.sqrt((0.5 * np.asarray(iono_m)) ** 2 + tropo ** 2 + np.asarray(ura_m) ** 2)
+    return np.sqrt((iono_share * np.asarray(iono_m)) ** 2 + tropo ** 2 + np.asarray(ura_m) ** 2)

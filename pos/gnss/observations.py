@@ -60,7 +60,10 @@ class GnssEpoch:
     ``range_rate_mps = -wavelength_m * doppler_hz`` (m/s), ``cn0_dbhz``.
     Front-end products (broadcast ephemeris and models, see the module docstring):
     ``sat_pos_ecef`` (n,3) m, ``sat_vel_ecef`` (n,3) m/s, ``sat_clk_s`` s, ``sat_clk_drift`` s/s,
-    ``iono_m``, ``tropo_m`` m, ``elev_deg``, ``azim_deg``, ``sigma_pr_m``, ``sigma_rr_mps``.
+    ``iono_m``, ``tropo_m`` m, ``elev_deg``, ``azim_deg``, ``sigma_pr_m``, ``sigma_rr_mps``;
+    ``sigma_pr_bias_m``: the part of ``sigma_pr_m`` that is a slowly varying error of the satellite (the broadcast
+    orbit, clock and atmosphere models' budget; 0 where the models are exact): ``sigma_pr_m`` is its root sum of
+    squares with the receiver noise. SPP uses the total per epoch; the smoother carries the bias as a state.
     """
 
     t_gps: float
@@ -82,6 +85,7 @@ class GnssEpoch:
     sigma_pr_m: np.ndarray
     sigma_rr_mps: np.ndarray
     p_approx_ecef: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    sigma_pr_bias_m: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -97,6 +101,13 @@ class GnssEpoch:
     def rr_corr_mps(self) -> np.ndarray:
         """Corrected range rate (m/s): ``e.(v_sat - v_rx) + c*ddt_rx + noise``; NaN without Doppler."""
         return self.range_rate_mps + C_LIGHT * self.sat_clk_drift
+
+    @property
+    def sigma_pr_noise_m(self) -> np.ndarray:
+        """Sigma (m) of the pseudorange's white receiver noise: ``sigma_pr_m`` without the satellite bias part."""
+        if self.sigma_pr_bias_m is None:
+            return self.sigma_pr_m
+        return np.sqrt(np.clip(self.sigma_pr_m ** 2 - self.sigma_pr_bias_m ** 2, 0.0, None))
 
     @property
     def clock_group(self) -> np.ndarray:
@@ -115,7 +126,7 @@ class GnssEpoch:
         for name, val in self.__dict__.items():
             if name == "sat":
                 kw[name] = [self.sat[i] for i in idx]
-            elif name in ("t_gps", "p_approx_ecef"):
+            elif name in ("t_gps", "p_approx_ecef") or val is None:
                 kw[name] = val
             else:
                 kw[name] = np.asarray(val)[idx]

@@ -95,8 +95,13 @@ def prepare_epoch(raw: GnssEpoch, nav: BroadcastNav, p_rx_ecef: np.ndarray | Non
         elev, azim = np.full(n, np.pi / 2), np.zeros(n)
         iono, tropo = np.zeros(n), np.zeros(n)
     sig = code_sigma_m(elev, opts.code_sigma_zenith_m)
+    bias = np.zeros(n)
     if opts.model_errors:
-        sig = np.hypot(sig, model_sigma_m(elev, iono, ura))
+        # default Klobuchar coefficients are not the day's ionosphere: their error is the whole delay, not half
+        share = 1.0 if getattr(nav, "ion_source", "") == "default" else 0.5
+        bias = model_sigma_m(elev, iono, ura, iono_share=share)
+        sig = np.hypot(sig, bias)
+    ep.sigma_pr_bias_m = bias
     ep.sat_pos_ecef, ep.sat_vel_ecef = p_rot, v_rot
     ep.sat_clk_s, ep.sat_clk_drift = clk, drift
     ep.iono_m, ep.tropo_m = iono, tropo

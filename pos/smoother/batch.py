@@ -19,6 +19,8 @@ from dgcal.pos.ins.error_model import ImuErrorModel, imu_grade
 from dgcal.pos.ins.nav_frame import NavFrame
 from dgcal.pos.gnss.dd import CarrierInput
 from dgcal.pos.smoother.carrier import atmosphere_position_covariance, dd_residuals, keyframe_dd_factors
+from dgcal.pos.smoother.code_bias import CB, CodeBiasArcs, bias_estimates, bias_process_factors, code_bias_arcs, \
+    insert_initial
 from dgcal.pos.smoother.covariance import KeyframeBlocks, smoothed_covariances
 from dgcal.pos.smoother.static import static_ends, static_white_noise, zero_motion_factors
 from dgcal.pos.smoother.factors import (B, CLK, DRIFT, V, X, ZERO, clock_factors, doppler_factors, position_factor,
@@ -58,6 +60,8 @@ class SmootherOptions:
     zupt: bool = True               # a static start/end of the data as zero-motion information (smoother.static)
     static_noise: bool = True       # raise the IMU white noise to what the static start/end shows
     gnss_outlier_sigma: float | None = 5.0   # GNSS epoch screening and post-fit rejection (None: off)
+    code_bias: bool = True          # TC: each satellite's slow pseudorange error as a Gauss-Markov state
+    code_bias_tau_s: float = 1800.0  # its correlation time (s; broadcast orbit, clock and atmosphere errors)
 
 
 @dataclass
@@ -83,6 +87,7 @@ class NavSolution:
     gnss_update: np.ndarray | None = None
     residuals: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    code_bias: dict = field(default_factory=dict)  # TC: sat -> (keyframes, estimated pseudorange bias m)
     problem: object = field(default=None, repr=False)  # the Problem it came from (forward pass, outputs)
     values: object = field(default=None, repr=False)  # its gtsam Values (the linearisation point)
 
@@ -116,6 +121,22 @@ class Problem:
     dd: dict = field(default_factory=dict)  # keyframe -> DDFactorData (TC with a base station)
     lever_arm_b: np.ndarray | None = None
     carrier: CarrierInput | None = None
+    code_bias: CodeBiasArcs | None = None   # TC: the satellites' code-bias arcs (dgcal.pos.smoother.code_bias)
+    bias_factor_groups: list = field(default_factory=list)  # per keyframe: the code-bias process factors ending there
+
+    def ordering(self) -> gtsam.Ordering:
+        """Elimination order: keyframe by keyframe (each block's variables together), the pinned ZERO last."""
+        where = self.blocks().where
+        o = gtsam.Ordering()
+        for _, _, key in sorted((loc[0], loc[1], key) for key, loc in where.items() if loc is not None):
+            o.push_back(key)
+        if self.values.exists(ZERO()):
+            o.push_back(ZERO())
+        return o
+
+    def blocks(self, K: int | None = None, first: int = 0) -> KeyframeBlocks:
+        """The keyframe block layout of this problem (all keyframes, or K of them from `first`)."""
+        return KeyframeBlocks(len(self.t_key) if K is None else K, self.systems, first, self.code_bias)
 
 
 def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
@@ -144,7 +165,6 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     p_imu = p_ant - np.einsum("kij,j->ki", R, lever)
     omega_b = _imu_rate_at(imu, t_key)
 
-    graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for k in range(K):
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R[k]), p_imu[k]))
@@ -168,6 +188,8 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     gnss_update = np.zeros(K, bool)
     systems: list = []
     dd: dict = {}
+    arcs: CodeBiasArcs | None = None
+    bias_groups: list = []
     if mode == "tc" and carrier is not None:
         dd = keyframe_dd_factors(t_key, carrier.at(t_key), lever, frame, carrier.phase_corr, carrier.code_corr, X)
     if mode == "tc":
@@ -190,6 +212,13 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
         for k in range(K - 1):
             clock_groups.append(clock_factors(systems, k, t_key[k + 1] - t_key[k], opts.clock_bias_rw_m,
                                               opts.clock_drift_rw_mps, values))
+        if opts.code_bias:
+            arcs = code_bias_arcs(t_key, epochs_at_key, opts.code_bias_tau_s, skip=set(dd))
+            if len(arcs):
+                insert_initial(arcs, values)
+                bias_groups = [[] for _ in range(K)]
+                for k, f in bias_process_factors(arcs, t_key, values):
+                    bias_groups[k].append(f)
         for k, ep in enumerate(epochs_at_key):
             if k in dd:
                 f, data = dd[k]
@@ -202,7 +231,8 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
             if k not in dd:
                 n_sat[k] = ep.n
                 gnss_update[k] = True
-                for f in pseudorange_factors(k, ep, r_approx, lever, ecef_T_nav, opts.huber_k):
+                for f in pseudorange_factors(k, ep, r_approx, lever, ecef_T_nav, opts.huber_k,
+                                             bias_key=arcs.key if arcs is not None else None):
                     epoch_factors[k].append(("pr", f))
             if opts.use_doppler:
                 for f in doppler_factors(k, ep, r_approx, lever, omega_b[k], ecef_T_nav,
@@ -227,17 +257,12 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     if static is not None and static.any():
         for k, kind, f in zero_motion_factors(static, t_key):
             epoch_factors[k].append((kind, f))
-    for f in prior + imu_factors:
-        graph.add(f)
-    for g in clock_groups:
-        for f in g:
-            graph.add(f)
-    for fl in epoch_factors:
-        for _, f in fl:
-            graph.add(f)
-    return Problem(graph, values, frame, t_key, systems, pims, epoch_factors, imu_factors, clock_groups, prior,
-                   n_sat, gnss_update, omega_b, params, dd={k: v[1] for k, v in dd.items()}, lever_arm_b=lever,
-                   carrier=carrier)
+    problem = Problem(None, values, frame, t_key, systems, pims, epoch_factors, imu_factors, clock_groups, prior,
+                      n_sat, gnss_update, omega_b, params, dd={k: v[1] for k, v in dd.items()}, lever_arm_b=lever,
+                      carrier=carrier, code_bias=arcs if arcs is not None and len(arcs) else None,
+                      bias_factor_groups=bias_groups)
+    problem.graph = assemble_graph(problem)
+    return problem
 
 
 def rebuild_imu(problem: Problem, imu, imu_noise: ImuErrorModel, opts: SmootherOptions, first: NavSolution) -> Problem:
@@ -312,6 +337,9 @@ def optimize(problem: Problem, max_iterations: int = 30):
     # a navigation-grade IMU makes the normal equations so stiff that only heavily damped steps succeed:
     # let lambda grow past gtsam's default bound (1e5) instead of stopping without a single step
     p.setlambdaUpperBound(1e12)
+    # eliminate keyframe by keyframe: the graph is a chain of keyframe blocks, and COLAMD, blind to that, takes
+    # more iterations once the satellites' code biases add thousands of scalar variables
+    p.setOrdering(problem.ordering())
     opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, p)
     values = opt.optimize()
     problem.iterations = opt.iterations()
@@ -334,8 +362,11 @@ def read_states(problem: Problem, values) -> NavSolution:
     clock = {s: np.array([values.atDouble(CLK(s, k)) for k in range(K)]) for s in problem.systems}
     drift = (np.array([values.atDouble(DRIFT(k)) for k in range(K)]) if problem.systems
              else np.zeros(K))
-    return NavSolution(problem.frame, problem.t_key.copy(), p, v, R, b, clock, drift,
-                       n_sat=problem.n_sat.copy(), gnss_update=problem.gnss_update.copy())
+    sol = NavSolution(problem.frame, problem.t_key.copy(), p, v, R, b, clock, drift,
+                      n_sat=problem.n_sat.copy(), gnss_update=problem.gnss_update.copy())
+    if problem.code_bias is not None:
+        sol.code_bias = bias_estimates(problem.code_bias, values)
+    return sol
 
 
 def gnss_residuals(problem: Problem, values) -> dict:
@@ -359,8 +390,7 @@ def gnss_residuals(problem: Problem, values) -> dict:
 
 def add_marginals(sol: NavSolution, problem: Problem, values) -> None:
     """Fill cov_pose / cov_vel (and the full keyframe block `cov_block`) from the linearised graph."""
-    blocks = KeyframeBlocks(len(sol.t), problem.systems)
-    P = smoothed_covariances(problem.graph, values, blocks)
+    P = smoothed_covariances(problem.graph, values, problem.blocks())
     sol.cov_pose = P[:, :6, :6].copy()
     sol.cov_vel = P[:, 6:9, 6:9].copy()
     sol.cov_block = P
@@ -392,6 +422,11 @@ def solution_values(sol: NavSolution, problem: Problem):
             vals.insert(CLK(s, k), float(sol.clock[s][k]))
         if problem.systems:
             vals.insert(DRIFT(k), float(sol.drift[k]))
+    arcs = problem.code_bias
+    for a in range(len(arcs) if arcs is not None else 0):
+        ks, bias = sol.code_bias[arcs.sat[a]]
+        for k in range(arcs.k0[a], arcs.k1[a] + 1):
+            vals.insert(CB(arcs.slot[a], k), -float(bias[np.searchsorted(ks, k)]))
     if problem.values.exists(ZERO()):
         vals.insert(ZERO(), 0.0)
     return vals

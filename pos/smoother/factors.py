@@ -69,16 +69,28 @@ def robust(sigma: float, dim: int = 1, huber_k: float | None = 1.345):
 
 
 def pseudorange_factors(k: int, epoch, p_approx_ecef, lever_arm_b, ecef_T_nav, huber_k=1.345,
-                        sigma_scale: float = 1.0) -> list:
-    """PseudorangeFactorArm per satellite of a `GnssEpoch` at keyframe k (one clock key per constellation)."""
+                        sigma_scale: float = 1.0, bias_key=None) -> list:
+    """A pseudorange factor per satellite of a `GnssEpoch` at keyframe k (one clock key per constellation).
+
+    `bias_key(sat, k)`: the key of the satellite's code-bias state (`dgcal.pos.smoother.code_bias`) or None; with
+    one the factor is a `DifferentialPseudorangeFactorArm` on it with the receiver noise only
+    (`GnssEpoch.sigma_pr_noise_m`), else a `PseudorangeFactorArm` with the whole sigma."""
     pr = epoch.pr_corr_m + sagnac_m(epoch.sat_pos_ecef, p_approx_ecef)
+    noise = epoch.sigma_pr_noise_m
     out = []
     for i in range(epoch.n):
         if not np.isfinite(pr[i]):
             continue
-        out.append(gtsam.PseudorangeFactorArm(
-            X(k), CLK(str(epoch.system[i]), k), float(pr[i]), epoch.sat_pos_ecef[i], lever_arm_b, ecef_T_nav,
-            0.0, robust(epoch.sigma_pr_m[i] * sigma_scale, 1, huber_k)))
+        key = bias_key(epoch.sat[i], k) if bias_key is not None else None
+        clk = CLK(str(epoch.system[i]), k)
+        if key is None:
+            out.append(gtsam.PseudorangeFactorArm(
+                X(k), clk, float(pr[i]), epoch.sat_pos_ecef[i], lever_arm_b, ecef_T_nav,
+                0.0, robust(epoch.sigma_pr_m[i] * sigma_scale, 1, huber_k)))
+        else:
+            out.append(gtsam.DifferentialPseudorangeFactorArm(
+                X(k), clk, key, float(pr[i]), epoch.sat_pos_ecef[i], lever_arm_b, ecef_T_nav,
+                0.0, robust(noise[i] * sigma_scale, 1, huber_k)))
     return out
 
 

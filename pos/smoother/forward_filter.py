@@ -1,44 +1,64 @@
-"""Forward-only (filter) solution for comparison with the smoother: an iterated extended Kalman filter in
-information form built from the smoother's own factors.
+"""Forward-only (filter) solutions for comparison with the smoother: the forward pass of its linearised problem (the default) or an iterated extended Kalman filter in information form built from the smoother's own factors.
 
-At epoch k the filtered Gaussian of keyframe k-1 (mean and information, all its variables) is combined with
-the factors that reach keyframe k (IMU k-1 -> k, clock process, the GNSS of epoch k); the two-keyframe
-problem is solved by Gauss-Newton about the IMU prediction (relinearised each iteration), and keyframe k-1
-is marginalised out (Schur complement). Each state therefore uses only the data up to its own epoch, and
-the filter linearises about its own estimates, as an EKF does. The smoother uses the same factors plus the
-future, so the difference between the two is the benefit of smoothing.
+`linear_forward_solution` runs the Kalman filter of the smoother's problem linearised at the smoothed solution
+(`dgcal.pos.smoother.covariance.forward_innovations`): each keyframe from the data up to its epoch, with the
+normalised innovations of every measurement kind; it is what the smoother's forward sweep computes, cheap and
+consistent with the smoother by construction.
+
+`forward_solution` (opt-in, `dgcal pos --forward-filter`): at epoch k the filtered Gaussian of keyframe k-1 (mean
+and information, all its variables) is combined with the factors that reach keyframe k (IMU k-1 -> k, clock and
+code-bias processes, the GNSS of epoch k); the two-keyframe problem is solved by Gauss-Newton about the IMU
+prediction (relinearised each iteration), and keyframe k-1 is marginalised out (Schur complement). Each state
+therefore uses only the data up to its own epoch, and the filter linearises about its own estimates, as an EKF
+does; started from a poor attitude (a walker's first epochs) it can stay inconsistent for the whole record.
 Innovations: the GNSS factor errors at the IMU prediction, before the update.
 """
 from __future__ import annotations
 
 import gtsam
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from dgcal.pos.smoother.batch import NavSolution, Problem, read_states
-from dgcal.pos.smoother.covariance import KeyframeBlocks
+from dgcal.pos.smoother.covariance import forward_innovations
+from dgcal.pos.smoother.integrity import factor_kinds
 from dgcal.pos.smoother.factors import CLK, DRIFT, ZERO, B, V, X
 
 
-def _dense_system(graph, vals, key_order: list, has_zero: bool, scale: np.ndarray):
-    """Dense information matrix and vector of a small graph linearised at `vals`, columns in `key_order`
-    (ZERO, a pinned constant, last and dropped), scaled so the clock variables are in metres."""
-
+def _dense_system(graph, vals, entries: list, has_zero: bool, scale: np.ndarray):
+    """Dense information matrix and vector of a small graph linearised at `vals` in the layout of `entries`
+    ((key, offset, dim) of the variables present; ZERO, a pinned constant, dropped), scaled so the clock
+    variables are in metres; positions of the layout without a variable get unit information."""
     order = gtsam.Ordering()
-    for key in key_order:
+    for key, _, _ in entries:
         order.push_back(key)
     if has_zero:
         order.push_back(ZERO())
     Hb = graph.linearize(vals).augmentedHessian(order)
-    m = len(scale)
-    H = Hb[:m, :m] * scale[:, None] * scale[None, :]
-    eta = Hb[:m, -1] * scale
+    cols = _columns(entries)
+    m = len(cols)
+    N = len(scale)
+    H = np.zeros((N, N))
+    eta = np.zeros(N)
+    H[np.ix_(cols, cols)] = Hb[:m, :m]
+    eta[cols] = Hb[:m, -1]
+    H *= scale[:, None] * scale[None, :]
+    eta *= scale
+    missing = np.ones(N, bool)
+    missing[cols] = False
+    H[missing, missing] = 1.0
     return H, eta
+
+
+def _columns(entries: list) -> np.ndarray:
+    """Layout positions of the variables of `entries`, in order."""
+    return np.array([c for _, off, dim in entries for c in range(off, off + dim)], int)
 
 
 def _step_factors(problem: Problem) -> list:
     """Factors of the graph grouped by the latest keyframe they touch."""
     K = len(problem.t_key)
-    where = KeyframeBlocks(K, problem.systems).where
+    where = problem.blocks().where
     out: list = [[] for _ in range(K)]
     g = problem.graph
     for i in range(g.size()):
@@ -48,36 +68,96 @@ def _step_factors(problem: Problem) -> list:
     return out
 
 
-def _flat(keys_block) -> list:
-    xk, vk, bk, ck, dk = keys_block
-    return [xk, vk, bk, *ck] + ([dk] if dk is not None else [])
+def _retract(vals, entries: list, dx: np.ndarray) -> None:
+    """Apply a correction in the block layout (clocks in s, code biases in m) to the variables of `entries`."""
+    for key, off, dim in entries:
+        d = dx[off:off + dim]
+        c = gtsam.Symbol(key).chr()
+        if c == ord("x"):
+            vals.update(key, vals.atPose3(key).retract(d))
+        elif c == ord("v"):
+            vals.update(key, vals.atPoint3(key) + d)
+        elif c == ord("b"):
+            b = vals.atConstantBias(key).vector() + d
+            vals.update(key, gtsam.imuBias.ConstantBias(b[:3], b[3:]))
+        else:
+            vals.update(key, vals.atDouble(key) + float(d[0]))
 
 
-def _retract(vals, keys_block, dx, systems):
-    """Apply a block correction (pose 6, vel 3, bias 6, clocks, drift; clocks in s) to gtsam Values."""
-    xk, vk, bk, ck, dk = keys_block
-    vals.update(xk, vals.atPose3(xk).retract(dx[:6]))
-    vals.update(vk, vals.atPoint3(vk) + dx[6:9])
-    b = vals.atConstantBias(bk).vector() + dx[9:15]
-    vals.update(bk, gtsam.imuBias.ConstantBias(b[:3], b[3:]))
-    for j, key in enumerate(ck):
-        vals.update(key, vals.atDouble(key) + dx[15 + j])
-    if dk is not None:
-        vals.update(dk, vals.atDouble(dk) + dx[15 + len(ck)])
-
-
-def _local(vals_a, vals_b, keys_block, n):
-    """Local coordinates of block values b relative to a (clocks in s)."""
-    xk, vk, bk, ck, dk = keys_block
+def _local(vals_a, vals_b, entries: list, n: int) -> np.ndarray:
+    """Local coordinates (block layout, clocks in s) of the variables of `entries` in b relative to a."""
     d = np.zeros(n)
-    d[:6] = vals_a.atPose3(xk).localCoordinates(vals_b.atPose3(xk))
-    d[6:9] = vals_b.atPoint3(vk) - vals_a.atPoint3(vk)
-    d[9:15] = vals_b.atConstantBias(bk).vector() - vals_a.atConstantBias(bk).vector()
-    for j, key in enumerate(ck):
-        d[15 + j] = vals_b.atDouble(key) - vals_a.atDouble(key)
-    if dk is not None:
-        d[15 + len(ck)] = vals_b.atDouble(dk) - vals_a.atDouble(dk)
+    for key, off, _dim in entries:
+        c = gtsam.Symbol(key).chr()
+        if c == ord("x"):
+            d[off:off + 6] = vals_a.atPose3(key).localCoordinates(vals_b.atPose3(key))
+        elif c == ord("v"):
+            d[off:off + 3] = vals_b.atPoint3(key) - vals_a.atPoint3(key)
+        elif c == ord("b"):
+            d[off:off + 6] = vals_b.atConstantBias(key).vector() - vals_a.atConstantBias(key).vector()
+        else:
+            d[off] = vals_b.atDouble(key) - vals_a.atDouble(key)
     return d
+
+
+def _copy(dst, src, entries: list) -> None:
+    """Insert the variables of `entries` from Values `src` into `dst`."""
+    for key, _, _ in entries:
+        c = gtsam.Symbol(key).chr()
+        if c == ord("x"):
+            dst.insert(key, src.atPose3(key))
+        elif c == ord("v"):
+            dst.insert(key, src.atPoint3(key))
+        elif c == ord("b"):
+            dst.insert(key, src.atConstantBias(key))
+        else:
+            dst.insert(key, src.atDouble(key))
+
+
+def linear_forward_solution(problem: Problem, values) -> NavSolution:
+    """The forward (filtered) solution of the smoother's problem linearised at its solution `values`: each
+    keyframe's states and covariance from the data up to its own epoch, and the normalised innovations of every
+    measurement kind (`info["nis"]`), from one pass of `dgcal.pos.smoother.covariance.forward_innovations`.
+
+    Linearised about the smoothed trajectory, it is the Kalman filter the smoother's forward sweep runs: cheap, and
+    free of the divergence a filter started from a poor initial attitude can show (`forward_solution`, the
+    iterated filter about its own estimates, is the opt-in alternative)."""
+    layout = problem.blocks()
+    graph = problem.graph
+    kinds_f = factor_kinds(problem)
+    names = sorted({kd[0] for kd in kinds_f if kd is not None})
+    code = np.array([-1 if kd is None else names.index(kd[0]) for kd in kinds_f], int)
+    dims = np.array([graph.at(i).dim() for i in range(graph.size())], int)
+    dx, P, nis, innov = forward_innovations(graph, values, layout, np.repeat(code, dims), names)
+    sol = _retracted(read_states(problem, values), dx, layout)
+    # innovations in measurement units: the whitened innovation times the row's sigma (exact for the independent
+    # rows of the GNSS factors; for the correlated double differences of a keyframe, an approximation)
+    rows: dict = {}
+    start = np.r_[0, np.cumsum(dims)]
+    for i, kd in enumerate(kinds_f):
+        if kd is None:
+            continue
+        sig = _sigmas(graph.at(i))
+        w = innov[start[i]:start[i + 1]]
+        for j in range(len(w)):
+            rows.setdefault(kd[0], []).append((kd[1], w[j] * sig[min(j, len(sig) - 1)], sig[min(j, len(sig) - 1)]))
+    sol.residuals = {kind: tuple(np.array(c) for c in zip(*rr)) for kind, rr in rows.items()}
+    sol.cov_pose = P[:, :6, :6].copy()
+    sol.cov_vel = P[:, 6:9, 6:9].copy()
+    sol.cov_block = P
+    sol.info = {"mode": "forward", "nis": {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in nis.items()}}
+    return sol
+
+
+def _retracted(sol: NavSolution, dx: np.ndarray, layout) -> NavSolution:
+    """`sol` moved by block corrections dx (K,n): pose by gtsam's Pose3 chart (rotation R Exp(w), translation
+    t + R v, to first order), velocity, IMU biases and clocks (s, s/s) additively; code biases are left out."""
+    R = sol.R_body_to_nav @ Rotation.from_rotvec(dx[:, :3]).as_matrix()
+    p = sol.p_nav + np.einsum("kij,kj->ki", sol.R_body_to_nav, dx[:, 3:6])
+    clock = {s: sol.clock[s] + dx[:, 15 + j] for j, s in enumerate(layout.systems)}
+    drift = sol.drift + dx[:, 15 + len(layout.systems)] if layout.systems else sol.drift
+    return NavSolution(sol.frame, sol.t, p, sol.v_nav + dx[:, 6:9], R, sol.bias + dx[:, 9:15], clock, drift,
+                       n_sat=sol.n_sat, gnss_update=sol.gnss_update)
 
 
 def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavSolution:
@@ -89,46 +169,44 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
 
     K = len(problem.t_key)
     systems = problem.systems
-    n = KeyframeBlocks(1, systems).n
+    layout = problem.blocks()
+    n = layout.n
+    entries_at = _entries_by_keyframe(layout, K)
     steps = _step_factors(problem)
     has_zero = problem.values.exists(ZERO())
-
-    def keys(k):
-        return (X(k), V(k), B(k), [CLK(s, k) for s in systems], DRIFT(k) if systems else None)
-
-    def insert_block(vals, k, pose, vel, bias, clk, drift):
-        vals.insert(X(k), pose)
-        vals.insert(V(k), vel)
-        vals.insert(B(k), bias)
-        for s in systems:
-            vals.insert(CLK(s, k), float(clk[s]))
-        if systems:
-            vals.insert(DRIFT(k), float(drift))
+    arcs = problem.code_bias
 
     out = gtsam.Values()
     P = np.empty((K, n, n))
     innov: dict = {}
     nis: dict = {}
     Lam = None
-    scale = KeyframeBlocks(1, systems).scale
+    scale = layout.scale
     for k in range(K):
         vals = gtsam.Values()
         if has_zero:
             vals.insert(ZERO(), 0.0)
         if k == 0:
-            init = problem.values
-            insert_block(vals, 0, init.atPose3(X(0)), init.atPoint3(V(0)), init.atConstantBias(B(0)),
-                         {s: init.atDouble(CLK(s, 0)) for s in systems},
-                         init.atDouble(DRIFT(0)) if systems else 0.0)
+            _copy(vals, problem.values, entries_at[0])
             nb = 1
         else:
+            _copy(vals, out, entries_at[k - 1])
             pose0, vel0, b0 = out.atPose3(X(k - 1)), out.atPoint3(V(k - 1)), out.atConstantBias(B(k - 1))
-            clk0 = {s: out.atDouble(CLK(s, k - 1)) for s in systems}
-            dr0 = out.atDouble(DRIFT(k - 1)) if systems else 0.0
-            insert_block(vals, k - 1, pose0, vel0, b0, clk0, dr0)
             ns = problem.pims[k - 1].predict(gtsam.NavState(pose0.rotation(), pose0.translation(), vel0), b0)
             dt = problem.t_key[k] - problem.t_key[k - 1]
-            insert_block(vals, k, ns.pose(), ns.velocity(), b0, {s: clk0[s] + dr0 * dt for s in systems}, dr0)
+            vals.insert(X(k), ns.pose())
+            vals.insert(V(k), ns.velocity())
+            vals.insert(B(k), b0)
+            if systems:
+                dr0 = out.atDouble(DRIFT(k - 1))
+                for s in systems:
+                    vals.insert(CLK(s, k), out.atDouble(CLK(s, k - 1)) + dr0 * dt)
+                vals.insert(DRIFT(k), dr0)
+            for key, _, _ in entries_at[k]:
+                if gtsam.Symbol(key).chr() == ord("q"):
+                    prev = arcs.previous(key, k)
+                    phi = float(np.exp(-dt / arcs.tau_s))
+                    vals.insert(key, phi * out.atDouble(prev) if prev is not None else 0.0)
             nb = 2
             prior_vals = gtsam.Values(vals)
         graph = gtsam.NonlinearFactorGraph()
@@ -139,23 +217,22 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
             sig = _sigmas(f)
             for j in range(len(e)):
                 innov.setdefault(kind, []).append((k, e[j], sig[j]))
-        order = [key for i in range(nb) for key in _flat(keys(k - nb + 1 + i))]
+        ents = entries_at[k] if nb == 1 else entries_at[k - 1] + [(key, off + n, d) for key, off, d in entries_at[k]]
         sc = np.tile(scale, nb)
         if nb == 2 and problem.epoch_factors[k]:
-            _normalised_innovations(problem, k, vals, order, has_zero, sc, Lam, n, nis)
+            _normalised_innovations(problem, k, vals, ents, has_zero, sc, Lam, n, nis)
         for _ in range(iterations):
-            H, eta = _dense_system(graph, vals, order, has_zero, sc)
+            H, eta = _dense_system(graph, vals, ents, has_zero, sc)
             if nb == 2:
-                d0 = _local(vals, prior_vals, keys(k - 1), n) / scale  # prior mean relative to vals, metres
+                d0 = _local(vals, prior_vals, entries_at[k - 1], n) / scale  # prior mean relative to vals, metres
                 H[:n, :n] += Lam
                 eta[:n] += Lam @ d0
-            dx = np.linalg.solve(H, eta)
-            for i in range(nb):
-                _retract(vals, keys(k - nb + 1 + i), dx[i * n:(i + 1) * n] * scale, systems)
-            if np.max(np.abs(dx)) < 1e-4:
+            dx = np.linalg.solve(H, eta) * sc
+            _retract(vals, ents, dx)
+            if np.max(np.abs(dx / sc)) < 1e-4:
                 break
         # marginal information of keyframe k (at the last linearisation point)
-        H, _ = _dense_system(graph, vals, order, has_zero, sc)
+        H, _ = _dense_system(graph, vals, ents, has_zero, sc)
         if nb == 2:
             H[:n, :n] += Lam
             Lam = H[n:, n:] - H[n:, :n] @ np.linalg.solve(H[:n, :n], H[:n, n:])
@@ -164,14 +241,7 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
         Lam = 0.5 * (Lam + Lam.T)
         Pk = np.linalg.inv(Lam)
         P[k] = 0.5 * (Pk + Pk.T) * scale[:, None] * scale[None, :]
-        xk, vk, bk, ck, dk = keys(k)
-        out.insert(xk, vals.atPose3(xk))
-        out.insert(vk, vals.atPoint3(vk))
-        out.insert(bk, vals.atConstantBias(bk))
-        for key in ck:
-            out.insert(key, vals.atDouble(key))
-        if dk is not None:
-            out.insert(dk, vals.atDouble(dk))
+        _copy(out, vals, entries_at[k])
     sol = read_states(problem, out)
     sol.cov_pose = P[:, :6, :6].copy()
     sol.cov_vel = P[:, 6:9, 6:9].copy()
@@ -182,17 +252,32 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
     return sol
 
 
-def _normalised_innovations(problem: Problem, k: int, vals, order: list, has_zero: bool, sc: np.ndarray, Lam,
+def _entries_by_keyframe(layout, K: int) -> list:
+    """Per keyframe, the (key, offset, dim) of its variables in the block layout (ZERO excluded)."""
+    out: list = [[] for _ in range(K)]
+    for key, loc in layout.where.items():
+        if loc is not None:
+            out[loc[0]].append((key, loc[1], loc[2]))
+    for e in out:
+        e.sort(key=lambda x: x[1])
+    return out
+
+
+def _normalised_innovations(problem: Problem, k: int, vals, ents: list, has_zero: bool, sc: np.ndarray, Lam,
                             n: int, out: dict) -> None:
     """Normalised innovation squared of every GNSS factor of keyframe k at the IMU prediction:
     b' (A P A' + I)^-1 b with A, b the factor's whitened Jacobian and error and P the predicted covariance of
-    keyframes k-1 and k (the filtered k-1 and the IMU and clock factors to k). Appends (k, NIS, dim) per kind."""
+    keyframes k-1 and k (the filtered k-1 and the IMU, clock and code-bias process factors to k). Appends
+    (k, NIS, dim) per kind."""
     graph = gtsam.NonlinearFactorGraph()
     graph.add(problem.imu_factors[k - 1])
-    if k - 1 < len(problem.clock_factor_groups):
-        for f in problem.clock_factor_groups[k - 1]:
+    groups = [problem.clock_factor_groups[k - 1]] if k - 1 < len(problem.clock_factor_groups) else []
+    if k < len(problem.bias_factor_groups):
+        groups.append(problem.bias_factor_groups[k])
+    for g in groups:
+        for f in g:
             graph.add(f)
-    H, _ = _dense_system(graph, vals, order, has_zero, sc)
+    H, _ = _dense_system(graph, vals, ents, has_zero, sc)
     H[:n, :n] += Lam
     try:
         Pj = np.linalg.inv(0.5 * (H + H.T))
@@ -204,10 +289,11 @@ def _normalised_innovations(problem: Problem, k: int, vals, order: list, has_zer
         g.add(f)
         present.update(int(key) for key in f.keys())
     for kind, (g, present) in by_kind.items():
-        # one whitened Jacobian for all factors of the kind (columns in `order`, ZERO last and dropped)
+        # one whitened Jacobian for all factors of the kind (columns in the order of `ents`, ZERO last, dropped)
+        sub = [e for e in ents if e[0] in present]
         lin = g.linearize(vals)
-        A_all, b = lin.jacobian(_restrict(present, order, has_zero))
-        cols = _columns(present, order)
+        A_all, b = lin.jacobian(_restrict(sub, has_zero and ZERO() in present))
+        cols = _columns(sub)
         Af = np.zeros((A_all.shape[0], 2 * n))
         Af[:, cols] = A_all[:, :len(cols)] * sc[cols]         # clock columns in metres, as P
         S = Af @ Pj @ Af.T + np.eye(A_all.shape[0])
@@ -218,29 +304,14 @@ def _normalised_innovations(problem: Problem, k: int, vals, order: list, has_zer
         out.setdefault(kind, []).append((k, v, A_all.shape[0]))
 
 
-def _restrict(present: set, keys: list, has_zero: bool):
-    """An ordering of the keys a linearised graph has (state keys in the order of `keys`; ZERO last)."""
+def _restrict(entries: list, zero: bool):
+    """An ordering of the keys of `entries` (and ZERO last)."""
     o = gtsam.Ordering()
-    for key in keys:
-        if key in present:
-            o.push_back(key)
-    if has_zero and ZERO() in present:
+    for key, _, _ in entries:
+        o.push_back(key)
+    if zero:
         o.push_back(ZERO())
     return o
-
-
-def _columns(present: set, keys: list) -> list:
-    """Column indices (in the two-block layout of `keys`) of the present state keys, in order."""
-    cols = []
-    for j, key in enumerate(keys):
-        dim = {ord("x"): 6, ord("b"): 6, ord("v"): 3}.get(gtsam.Symbol(key).chr(), 1)
-        if key in present:
-            cols.extend(range(_offset(keys, j), _offset(keys, j) + dim))
-    return cols
-
-
-def _offset(keys: list, j: int) -> int:
-    return sum({ord("x"): 6, ord("b"): 6, ord("v"): 3}.get(gtsam.Symbol(key).chr(), 1) for key in keys[:j])
 
 
 def _sigmas(f) -> np.ndarray:

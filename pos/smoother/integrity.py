@@ -192,13 +192,24 @@ def assemble_graph(problem) -> gtsam.NonlinearFactorGraph:
     graph = gtsam.NonlinearFactorGraph()
     for f in problem.prior_factors + problem.imu_factors:
         graph.add(f)
-    for g in problem.clock_factor_groups:
+    for g in problem.clock_factor_groups + problem.bias_factor_groups:
         for f in g:
             graph.add(f)
     for fl in problem.epoch_factors:
         for _, f in fl:
             graph.add(f)
     return graph
+
+
+def factor_kinds(problem) -> list:
+    """The kind of every factor of `assemble_graph(problem)`, in its order: None for priors and processes, else
+    (kind, keyframe) of a keyframe's measurement (GNSS factors, zero-motion information)."""
+    n_process = (len(problem.prior_factors) + len(problem.imu_factors)
+                 + sum(len(g) for g in problem.clock_factor_groups + problem.bias_factor_groups))
+    out: list = [None] * n_process
+    for k, fl in enumerate(problem.epoch_factors):
+        out.extend((kind, k) for kind, _ in fl)
+    return out
 
 
 _KIND = {"pos": "position", "vel": "velocity", "pr": "pseudorange", "dop": "Doppler"}
