@@ -11,13 +11,14 @@ dtheta a right perturbation of R_cam_to_world (camera axes).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
 from dgcal.bundle.solver.blocks import CentrePriors, GlobalPriors, ImageObservations, PointPriors, State
 from dgcal.bundle.solver.covariance import Covariance
 from dgcal.bundle.solver.lm import LMOptions, minimise, normals_at
-from dgcal.bundle.solver.normals import Problem
+from dgcal.bundle.solver.normals import Normals, Problem
 from dgcal.calib.camera.models import CameraModel
 from dgcal.fields.pose import Poses
 
@@ -57,6 +58,9 @@ class BundleOptions:
     tolerance: float = 1e-8        # relative cost decrease that stops the iterations
     tol_chi2: float = 1e-3         # ... or a chi^2 gain below this (parameters within ~0.03 sigma of the minimum:
                                    # a flat valley no longer crawls to the iteration limit)
+    tol_step: float = 1e-2         # ... or a step that moves no pose or intrinsic by this much of its (conditional)
+                                   # sigma: the camera side has converged while ill-determined tie points (two
+                                   # near-parallel rays) still crawl in depth, gaining chi^2 without moving it
     aposteriori: bool = True       # scale covariances by max(sigma0^2, 1): inflate when the fit is worse than
                                    # the stated sigmas, never shrink (precise tie points must not make the
                                    # GCP-driven datum look better than its own sigmas say)
@@ -71,8 +75,6 @@ class BundleResult:
     R_world_to_cam: np.ndarray
     C_world: np.ndarray
     X_world: np.ndarray
-    cov_pose: np.ndarray               # (n,6,6) [C (m), dtheta (rad)] (dgcal.fields.pose)
-    cov_intrinsics: np.ndarray         # (p,p) in the order of `refine`
     refine: tuple[str, ...]
     sigma0: float                      # a-posteriori sigma of unit weight
     redundancy: int
@@ -83,8 +85,25 @@ class BundleResult:
     cost_history: list[float]
     stop_reason: str = ""
     inputs: BundleInput = field(repr=False, default=None)
-    covariance: Covariance = field(repr=False, default=None)
+    problem: Problem = field(repr=False, default=None)
+    normals: Normals = field(repr=False, default=None)    # undamped, at the solution
     aposteriori: bool = True
+
+    @cached_property
+    def covariance(self) -> Covariance:
+        """Cofactors of the solution, computed on first use (the inverse of the reduced system: the most
+        expensive part of a large block, which a run that wants only the orientation never pays)."""
+        return Covariance.at(self.problem, self.normals)
+
+    @cached_property
+    def cov_pose(self) -> np.ndarray:
+        """(n,6,6) pose covariances [C (m), dtheta (rad)] (dgcal.fields.pose), scaled by `scale2`."""
+        return self.covariance.pose_cofactors() * self.scale2
+
+    @cached_property
+    def cov_intrinsics(self) -> np.ndarray:
+        """(p,p) covariance of the refined intrinsics in the order of `refine`, scaled by `scale2`."""
+        return self.covariance.global_cofactors() * self.scale2
 
     @property
     def poses(self) -> Poses:
@@ -119,7 +138,7 @@ class BundleResult:
     def standardized_residuals(self, obs_idx) -> np.ndarray:
         """Baarda's standardised residuals (len,2) of pixel observations (a-priori sigma)."""
         k = np.atleast_1d(obs_idx)
-        r_white = self.covariance.normals.evals[0].r[k]        # weighted, whitened residuals
+        r_white = self.normals.evals[0].r[k]                    # weighted, whitened residuals
         return r_white / np.sqrt(self.redundancy_numbers(k))
 
 
@@ -154,19 +173,14 @@ def adjust(inp: BundleInput, options: BundleOptions | None = None) -> BundleResu
     opt = options or BundleOptions()
     prob, state = problem_of(inp, opt)
     sol = minimise(prob, state, LMOptions(max_iterations=opt.max_iterations, tol_rel=opt.tolerance,
-                                          tol_chi2=opt.tol_chi2, lambda_up=8.0, lambda_down=5.0,
+                                          tol_chi2=opt.tol_chi2, tol_step=opt.tol_step, lambda_up=8.0, lambda_down=5.0,
                                           verbose=opt.verbose))
     nrm = normals_at(prob, sol)
-    cov = Covariance.at(prob, nrm)
     redundancy = int(nrm.redundancy)
     sigma0 = float(np.sqrt(nrm.cost / redundancy)) if redundancy > 0 else float("nan")
     res = BundleResult(inp.camera, sol.state.poses.R_world_to_cam, sol.state.poses.C_world, sol.state.points,
-                       np.empty((0, 6, 6)), np.empty((0, 0)), tuple(inp.refine), sigma0, redundancy,
-                       np.empty((0, 2)), nrm.weights[0], sol.iterations, sol.converged, sol.history,
-                       sol.stop_reason, inp, cov, opt.aposteriori)
-    s2 = res.scale2
-    res.cov_pose = cov.pose_cofactors() * s2
-    res.cov_intrinsics = cov.global_cofactors() * s2
+                       tuple(inp.refine), sigma0, redundancy, np.empty((0, 2)), nrm.weights[0], sol.iterations,
+                       sol.converged, sol.history, sol.stop_reason, inp, prob, nrm, opt.aposteriori)
     img = prob.blocks[0]
     cam = img.camera_at(sol.state.globals)
     if len(inp.refine):

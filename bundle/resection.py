@@ -68,6 +68,32 @@ def triangulate_midpoint(C_world: np.ndarray, d_world: np.ndarray) -> tuple[np.n
     return X, float(np.degrees(np.arccos(cosang.min())))
 
 
+def triangulate_tracks(C_world: np.ndarray, R_world_to_cam: np.ndarray, rays_cam: np.ndarray,
+                       starts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`triangulate_midpoint` of many tracks at once: rays C + t R^T ray (k items, sorted by track; `starts` (p,)
+    where each track begins). Returns the points (p,3) m, each track's widest ray angle (p,) deg and whether
+    the point lies in front of all its cameras (p,)."""
+    d = np.einsum("kji,kj->ki", R_world_to_cam, rays_cam)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    A = np.add.reduceat(P, starts, axis=0)
+    b = np.add.reduceat(np.einsum("kij,kj->ki", P, C_world), starts, axis=0)
+    X = np.einsum("pij,pj->pi", np.linalg.pinv(A), b)      # the least-squares (minimum-norm) point, as lstsq
+    # every pair of rays of a track: the widest angle
+    k = len(d)
+    length = np.diff(np.append(starts, k))
+    track = np.repeat(np.arange(len(starts)), length)
+    n_pair = length[track]
+    a = np.repeat(np.arange(k), n_pair)
+    first = np.repeat(starts[track], n_pair)
+    b_idx = first + np.arange(len(a)) - np.repeat(np.cumsum(n_pair) - n_pair, n_pair)
+    cos_min = np.minimum.reduceat(np.clip(np.sum(d[a] * d[b_idx], axis=1), -1, 1), np.cumsum(length * length)
+                                  - length * length)
+    depth = np.einsum("kij,kj->ki", R_world_to_cam, X[track] - C_world)[:, 2]
+    in_front = np.logical_and.reduceat(depth > 0, starts)
+    return X, np.degrees(np.arccos(cos_min)), in_front
+
+
 def grow_orientation(camera: CameraModel, n_images: int, obs_image: np.ndarray, obs_point: np.ndarray,
                      obs_uv: np.ndarray, X_known: np.ndarray, R0: np.ndarray | None = None,
                      C0: np.ndarray | None = None, min_angle_deg: float = 1.0,
@@ -101,15 +127,10 @@ def grow_orientation(camera: CameraModel, n_images: int, obs_image: np.ndarray, 
             order = np.argsort(op[sel], kind="stable")
             ks = np.nonzero(sel)[0][order]
             pts, starts = np.unique(op[ks], return_index=True)
-            ends = np.append(starts[1:], len(ks))
-            for p, a, b in zip(pts, starts, ends):
-                kk = ks[a:b]
-                used[p] = len(kk)
-                d_w = np.einsum("kji,kj->ki", R[oi[kk]], rays[kk])
-                Xp, ang = triangulate_midpoint(C[oi[kk]], d_w)
-                depth = np.einsum("kij,kj->ki", R[oi[kk]], Xp - C[oi[kk]])[:, 2]
-                if ang >= min_angle_deg and (depth > 0).all():
-                    X_tie[p] = Xp
+            used[pts] = np.diff(np.append(starts, len(ks)))
+            Xp, ang, depth_ok = triangulate_tracks(C[oi[ks]], R[oi[ks]], rays[ks], starts)
+            ok = (ang >= min_angle_deg) & depth_ok
+            X_tie[pts[ok]] = Xp[ok]
         usable = known | np.isfinite(X_tie).all(1)
         # resect the not-yet-oriented image with the most usable points
         per_image = np.bincount(oi[usable[op]], minlength=n_images)

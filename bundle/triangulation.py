@@ -31,16 +31,19 @@ from dgcal.bundle.adjustment import BundleInput, BundleOptions, BundleResult, ad
 from dgcal.bundle.blunders import CRITICAL_W, Suspect
 from dgcal.bundle.initial import initial_orientation
 from dgcal.bundle.intersection import intersect, propagate_pose_covariance
-from dgcal.bundle.resection import pnp
+from dgcal.bundle.resection import pnp, triangulate_tracks
 from dgcal.bundle.solver.blocks import PointPriors
 from dgcal.calib.camera.models import CameraModel
 from dgcal.fields.errors import InputError, ResultError
 from dgcal.fields.io.formats import EOP, Measurements, Points
+from dgcal.fields.pose import Poses
 from dgcal.fields.world import World
 
 DEFAULT_SIGMA_PX = 0.5          # image measurement sigma when the file gives none
 DEFAULT_GCP_SIGMA_M = (0.02, 0.02, 0.03)
 _CHI2_MEDIAN_2D = float(np.sqrt(2 * np.log(2)))   # median of the norm of a 2-D standard normal
+START_CUT_FACTOR = 4.0     # the cut at the initial orientation, in units of the tie-outlier cut (gross errors only)
+START_CUT_ROUNDS = 10      # rounds of that cut at most (the worst ray of each point per round)
 
 
 @dataclass
@@ -238,6 +241,7 @@ class _Adjuster:
         self.is_prior = np.isfinite(blk.X_prior).all(1)     # control points whose coordinates are observations
         self.res: BundleResult | None = None
         self.img_keep = self.pt_keep = self.obs_keep = None
+        self.runs: list[dict] = []           # every adjustment: iterations, converged, why it stopped, seconds
 
     def bundle_input(self) -> BundleInput:
         b = self.blk
@@ -268,10 +272,13 @@ class _Adjuster:
                            [b.point_ids[j] for j in pt_keep], self.X[pt_keep], im_map[b.oi[k]], pt_map[b.op[k]],
                            b.uv[k], b.sig[k], Xp[pt_keep], b.S_prior[pt_keep], cp, cs, tuple(self.opt.refine))
 
-    def run(self) -> BundleResult:
-        bopt = BundleOptions(loss=self.opt.loss, loss_scale=self.opt.loss_scale, aposteriori=self.opt.aposteriori,
-                             verbose=self.opt.verbose)
+    def run(self, loss: str | None = None) -> BundleResult:
+        bopt = BundleOptions(loss=loss or self.opt.loss, loss_scale=self.opt.loss_scale,
+                             aposteriori=self.opt.aposteriori, verbose=self.opt.verbose)
+        t0 = time.perf_counter()
         res = adjust(self.bundle_input(), bopt)
+        self.runs.append({"iterations": int(res.iterations), "converged": bool(res.converged),
+                          "stop_reason": res.stop_reason, "seconds": round(time.perf_counter() - t0, 3)})
         self.R[self.img_keep], self.C[self.img_keep] = res.R_world_to_cam, res.C_world
         self.X[self.pt_keep] = res.X_world
         self.oriented[:] = False
@@ -302,27 +309,88 @@ class _Adjuster:
 
 
 def _drop_tie_outliers(adj: _Adjuster, msgs: list[str], dropped: list[dict]) -> bool:
-    """Drop tie observations whose standardised residual exceeds `tie_outlier_sigma` robust sigmas (the scale
-    from the median, so a first pass full of mismatches does not loosen the cut); True if any."""
-    res, b, opt = adj.res, adj.blk, adj.opt
-    k = adj.obs_keep
+    """Drop tie observations of the last adjustment whose standardised residual exceeds `tie_outlier_sigma`
+    robust sigmas; True if any."""
+    return _cut_ties(adj, adj.obs_keep, adj.res.obs_point, adj.res.residuals_px, adj.opt.tie_outlier_sigma, msgs,
+                     dropped, worst_only=False) > 0
+
+
+def _drop_gross_ties_at_start(adj: _Adjuster, msgs: list[str], dropped: list[dict]) -> bool:
+    """The same cut on the residuals of the initial orientation, before any adjustment: SIFT mismatches hundreds
+    of sigmas off would otherwise drag the first adjustment through dozens of slow robust iterations. Only
+    gross errors (`START_CUT_FACTOR` times the usual cut), and the worst ray of each point at a time, the points
+    intersected again from their remaining rays in between: a blunder throws a point that is not yet fitted so
+    far that its good rays look gross too."""
+    rays = None
+    cut = 0
+    k = START_CUT_FACTOR * adj.opt.tie_outlier_sigma
+    for _ in range(START_CUT_ROUNDS):
+        bi = adj.bundle_input()
+        X = bi.X_world
+        if cut:
+            rays = adj.camera.ray(adj.blk.uv) if rays is None else rays
+            X = _intersected_ties(bi, rays[adj.obs_keep])
+            adj.X[adj.pt_keep] = X
+        Xc = Poses(bi.R_world_to_cam, bi.C_world).to_cam(X[bi.obs_point], bi.obs_image)
+        with np.errstate(all="ignore"):
+            r = bi.camera.project(Xc) - bi.obs_uv
+        r[~(Xc[:, 2] > 0) | ~np.isfinite(r).all(1)] = np.inf       # behind the camera or not projectable: gross
+        n = _cut_ties(adj, adj.obs_keep, bi.obs_point, r, k, None, dropped, worst_only=True)
+        if not n:
+            break
+        cut += n
+    if cut:
+        _warn(msgs, f"{cut} tie observation(s) beyond {k:g} robust sigmas at the initial orientation dropped (listed "
+                    "in the summary)", adj.opt.verbose)
+    return cut > 0
+
+
+def _intersected_ties(bi: BundleInput, rays: np.ndarray) -> np.ndarray:
+    """The points of a bundle input with every tie point intersected from its rays (camera frame, one per
+    observation) at the input's poses; control points and ties whose rays do not meet in front stay."""
+    X = bi.X_world.copy()
+    order = np.argsort(bi.obs_point, kind="stable")
+    pts, starts = np.unique(bi.obs_point[order], return_index=True)
+    oi = bi.obs_image[order]
+    Xp, angle, in_front = triangulate_tracks(bi.C_world[oi], bi.R_world_to_cam[oi], rays[order], starts)
+    tie = ~np.isfinite(np.asarray(bi.point_prior, float)).all(1)[pts]
+    ok = tie & in_front & (angle > 0.0) & np.isfinite(Xp).all(1)
+    X[pts[ok]] = Xp[ok]
+    return X
+
+
+def _cut_ties(adj: _Adjuster, rows: np.ndarray, point: np.ndarray, residuals_px: np.ndarray, k: float,
+              msgs: list[str] | None, dropped: list[dict], worst_only: bool) -> int:
+    """Drop tie observations `rows` (of the block) whose standardised residual (px residuals of their points
+    `point`) exceeds k robust sigmas (the scale from the median, so a pass full of mismatches
+    does not loosen the cut; `worst_only`: the worst ray of each point only); how many (warned into `msgs`)."""
+    b, opt = adj.blk, adj.opt
     # standardised by the approximate redundancy of a ray of a point seen L times (its 3 coordinates are
     # shared by the 2L residuals): a blunder in one of few rays is half absorbed by the point
-    L = np.bincount(res.obs_point, minlength=len(adj.pt_keep))[res.obs_point]
+    L = np.bincount(point, minlength=int(point.max(initial=-1)) + 1)[point]
     r_approx = np.clip(1.0 - 1.5 / np.maximum(L, 1), 0.1, 1.0)
-    e = np.linalg.norm(res.residuals_px / b.sig[k], axis=1) / np.sqrt(r_approx)
+    e = np.linalg.norm(residuals_px / b.sig[rows], axis=1) / np.sqrt(r_approx)
     s_rob = max(float(np.median(e)) / _CHI2_MEDIAN_2D, 1.0)
-    tie = b.kind[b.op[k]] != "control"
-    bad = tie & (e > opt.tie_outlier_sigma * s_rob)
+    tie = b.kind[b.op[rows]] != "control"
+    bad = tie & (e > k * s_rob)
+    if worst_only and bad.any():
+        by_point = np.lexsort((-e, point))          # each point's rays, worst first
+        first = np.r_[True, point[by_point][1:] != point[by_point][:-1]]
+        worst = np.zeros(len(e), bool)
+        worst[by_point[first]] = True
+        bad &= worst
     if not bad.any():
-        return False
+        return 0
     for r in np.flatnonzero(bad):
-        dropped.append({"image": b.images[b.oi[k[r]]], "id": b.point_ids[b.op[k[r]]], "reason": "outlier",
-                        "residual_px": [float(v) for v in res.residuals_px[r]], "standardised": float(e[r])})
-    adj.active[k[bad]] = False
-    _warn(msgs, f"{int(bad.sum())} tie observation(s) beyond {opt.tie_outlier_sigma:g} robust sigmas "
-                f"({opt.tie_outlier_sigma * s_rob:.1f} sigma) dropped (listed in the summary)", opt.verbose)
-    return True
+        fin = np.isfinite(residuals_px[r]).all()
+        dropped.append({"image": b.images[b.oi[rows[r]]], "id": b.point_ids[b.op[rows[r]]], "reason": "outlier",
+                        "residual_px": [float(v) for v in residuals_px[r]] if fin else None,
+                        "standardised": float(e[r]) if fin else None})
+    adj.active[rows[bad]] = False
+    if msgs is not None:
+        _warn(msgs, f"{int(bad.sum())} tie observation(s) beyond {k:g} robust sigmas ({k * s_rob:.1f} sigma) "
+                    "dropped (listed in the summary)", opt.verbose)
+    return int(bad.sum())
 
 
 def equivalent_w(T: float, dof: int) -> float:
@@ -415,6 +483,8 @@ def _adjust_and_clean(adj: _Adjuster, msgs: list[str]) -> tuple[list[Suspect], l
     suspects: list[Suspect] = []
     dropped: list[dict] = []
     rounds = {"adjustments": 0, "tie_rounds": 0, "retries": 0, "snooping": 0}
+    if (adj.blk.kind != "control").any() and _drop_gross_ties_at_start(adj, msgs, dropped):
+        rounds["tie_rounds"] += 1
     adj.run()
     rounds["adjustments"] += 1
     for _ in range(6):
@@ -487,7 +557,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
               if nm else f"image {blk.images[i]} has no measurements: left out", opt.verbose)
     out = _outputs(camera, res, adj, geo, points, meas, images_k, blk, msgs, opt, suspects, unknown_ids, P_world)
     out.dropped = dropped
-    out.summary.update({"initial_orientation": init.method, "rounds": rounds,
+    out.summary.update({"initial_orientation": init.method, "rounds": rounds, "adjustment_runs": adj.runs,
                         "n_dropped_tie_observations": len(dropped), "dropped_tie_observations": dropped[:1000]})
     out.problems = _problems(res, adj, blk, opt)
     out.summary["problems"] = out.problems

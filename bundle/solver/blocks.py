@@ -16,6 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from dgcal.bundle.solver.kernels import pose_point_jacobians, to_camera
 from dgcal.calib.camera.models import CameraModel
 from dgcal.fields.pose import Poses
 
@@ -124,8 +125,9 @@ class ImageObservations(Block):
         R_all, C_all = state.poses.R_world_to_cam, state.poses.C_world
         runs = self._pose_runs(len(C_all))
         if runs is None:
-            R = R_all[self.pose]
-            Xc = np.einsum("kij,kj->ki", R, state.points[self.point] - C_all[self.pose])
+            R_all = np.ascontiguousarray(R_all)
+            Xc = to_camera(R_all, np.ascontiguousarray(C_all), np.ascontiguousarray(state.points), self.pose,
+                           self.point)
         else:                       # many items per pose, sorted: one small matrix product per pose
             Xc = state.points[self.point]
             for i, s in runs:
@@ -139,18 +141,18 @@ class ImageObservations(Block):
         with np.errstate(all="ignore"):
             uv, J_int, JX = cam.project_with_jacobians(Xc, params=len(self.glob) > 0)
         w = 1.0 / self.sigma
-        JXw = JX * w[:, :, None]
-        if runs is None:
-            JR = np.matmul(JXw, R)
+        J_pose = np.empty((len(Xc), 2, 6))
+        JR = np.empty((len(Xc), 2, 3))
+        if runs is None:             # one compiled pass per item (aerial blocks: ~10 items per pose-point pair)
+            pose_point_jacobians(np.ascontiguousarray(JX), w, R_all, self.pose, Xc, J_pose, JR)
         else:
-            JR = np.empty_like(JXw)
+            JXw = JX * w[:, :, None]
             JXw2, JR2 = JXw.reshape(-1, 3), JR.reshape(-1, 3)
             for i, s in runs:
                 np.matmul(JXw2[2 * s.start:2 * s.stop], R_all[i], out=JR2[2 * s.start:2 * s.stop])
-        # dX_cam/dC = -R;  dX_cam/dtheta = [X_cam]x (R_cam_to_world <- R_cam_to_world Exp(dtheta))
-        J_pose = np.empty((len(Xc), 2, 6))
-        np.negative(JR, out=J_pose[:, :, :3])
-        np.matmul(JXw, _cross_matrices(Xc), out=J_pose[:, :, 3:])
+            # dX_cam/dC = -R;  dX_cam/dtheta = [X_cam]x (R_cam_to_world <- R_cam_to_world Exp(dtheta))
+            np.negative(JR, out=J_pose[:, :, :3])
+            np.matmul(JXw, _cross_matrices(Xc), out=J_pose[:, :, 3:])
         r = (uv - self.uv) / self.sigma
         valid &= np.isfinite(r).all(1)
         return BlockEval(r, valid, self.pose, J_pose, None if self.points_fixed else self.point,

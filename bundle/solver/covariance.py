@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg.lapack import dpotri
 
 from dgcal.bundle.solver.kernels import redundancy_quadratic
 from dgcal.bundle.solver.normals import Normals, Problem, Reduced, reduce, solve_normals, solve_reduced
@@ -31,10 +32,10 @@ class Covariance:
     @classmethod
     def at(cls, problem: Problem, normals: Normals) -> "Covariance":
         """Cofactors from undamped normals (see `dgcal.bundle.solver.lm.normals_at`)."""
-        red = reduce(normals, 0.0)
+        # dense: the whole inverse is wanted, which a sparse factor gives no cheaper than LAPACK
+        red = reduce(normals, 0.0, dense=True)
         nc = problem.n_camera_side
-        Q = solve_reduced(red, np.eye(nc)) if nc else np.zeros((0, 0))
-        Q = 0.5 * (Q + Q.T)
+        Q = _inverse(red) if nc else np.zeros((0, 0))
         bad = ~normals.observed_c
         Q[bad, :] = np.nan
         Q[:, bad] = np.nan
@@ -141,6 +142,23 @@ class Covariance:
     def response(self, b_c: np.ndarray, b_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """N^-1 [b_c; b_x]: e.g. the estimate's response to a disturbance with J^T B = [b_c; b_x]."""
         return solve_normals(self.normals, self.reduced, np.nan_to_num(b_c), np.nan_to_num(b_x))
+
+
+def _inverse(red: Reduced) -> np.ndarray:
+    """S^-1 (symmetric) from the scaled Cholesky factor by LAPACK's potri (a third of a solve with the identity),
+    or through `solve_reduced` when S is singular."""
+    if red.factor is None:
+        Q = solve_reduced(red, np.eye(len(red.scale)))
+        return 0.5 * (Q + Q.T)
+    c, lower = red.factor
+    inv, info = dpotri(c, lower=lower)
+    if info != 0:
+        Q = solve_reduced(red, np.eye(len(red.scale)))
+        return 0.5 * (Q + Q.T)
+    tri = np.tril(inv) if lower else np.triu(inv)
+    Q = tri + tri.T
+    Q[np.diag_indices_from(Q)] *= 0.5
+    return Q / np.outer(red.scale, red.scale)
 
 
 def normal_rhs(problem: Problem, normals: Normals, block: int, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

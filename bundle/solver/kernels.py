@@ -195,3 +195,127 @@ def redundancy_quadratic(Q, a_ptr, a_idx, a_val, U, row_point, order, wt_ptr, wt
         for x in range(ns):
             pos[supp[x]] = -1
         u = v
+
+
+@njit(cache=True)
+def pose_pair_pattern(pose, order, starts, N):  # pragma: no cover - compiled
+    """The upper (p <= q) 6x6 blocks of the reduced camera system: every (p, p) and every pair of poses that
+    share a point. Returns lut (N,N) int32 (block number of (p, q), -1 for none; p <= q) and the block rows and
+    columns (n_blocks,) in row-major order. `order`/`starts` as in `pose_pose_schur` (by point, then pose)."""
+    mark = np.zeros((N, N), np.bool_)
+    for p in range(N):
+        mark[p, p] = True
+    for j in range(len(starts) - 1):
+        for u in range(starts[j], starts[j + 1]):
+            pa = pose[order[u]]
+            for v in range(u + 1, starts[j + 1]):
+                mark[pa, pose[order[v]]] = True
+    lut = np.full((N, N), -1, np.int32)
+    n = 0
+    for p in range(N):
+        for q in range(p, N):
+            if mark[p, q]:
+                lut[p, q] = n
+                n += 1
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    for p in range(N):
+        for q in range(p, N):
+            k = lut[p, q]
+            if k >= 0:
+                rows[k] = p
+                cols[k] = q
+    return lut, rows, cols
+
+
+@njit(cache=True, parallel=True)
+def pose_pose_schur_blocks(Y, W, pose, order, starts, lut, n_blocks, n_threads):  # pragma: no cover - compiled
+    """sum_j W_j V_j^-1 W_j^T over the points as its upper 6x6 blocks (n_blocks,6,6) of `pose_pair_pattern`'s
+    lut: the block-sparse form of `pose_pose_schur` (no dense 6N x 6N accumulator, nothing to mirror)."""
+    M = len(starts) - 1
+    parts = np.zeros((n_threads, n_blocks, 6, 6))
+    for t in prange(n_threads):
+        B = parts[t]
+        for j in range(t * M // n_threads, (t + 1) * M // n_threads):
+            for u in range(starts[j], starts[j + 1]):
+                a = order[u]
+                pa = pose[a]
+                for v in range(u, starts[j + 1]):
+                    b = order[v]
+                    pb = pose[b]
+                    k = lut[pa, pb]
+                    for x in range(6):
+                        y0, y1, y2 = Y[a, x, 0], Y[a, x, 1], Y[a, x, 2]
+                        for y in range(6):
+                            B[k, x, y] += y0 * W[b, y, 0] + y1 * W[b, y, 1] + y2 * W[b, y, 2]
+                    if v != u and pa == pb:   # the same image twice in a track: both orders of the pair
+                        for x in range(6):
+                            for y in range(6):
+                                B[k, x, y] += (Y[b, x, 0] * W[a, y, 0] + Y[b, x, 1] * W[a, y, 1]
+                                               + Y[b, x, 2] * W[a, y, 2])
+    S = parts[0]
+    for t in range(1, n_threads):
+        S += parts[t]
+    return S
+
+
+@njit(cache=True)
+def coupling_dot(blocks, pose, point, x, out):  # pragma: no cover - compiled
+    """out (6N,q) += Wp x for x (3M,q), Wp given by its per-item blocks (k,6,3) at (pose, point)."""
+    q = x.shape[1]
+    for n in range(len(pose)):
+        i = 6 * pose[n]
+        j = 3 * point[n]
+        for c in range(q):
+            x0, x1, x2 = x[j, c], x[j + 1, c], x[j + 2, c]
+            for a in range(6):
+                out[i + a, c] += blocks[n, a, 0] * x0 + blocks[n, a, 1] * x1 + blocks[n, a, 2] * x2
+
+
+@njit(cache=True)
+def coupling_tdot(blocks, pose, point, y, out):  # pragma: no cover - compiled
+    """out (3M,q) += Wp^T y for y (6N,q), Wp given by its per-item blocks (k,6,3) at (pose, point)."""
+    q = y.shape[1]
+    for n in range(len(pose)):
+        i = 6 * pose[n]
+        j = 3 * point[n]
+        for c in range(q):
+            for b in range(3):
+                s = 0.0
+                for a in range(6):
+                    s += blocks[n, a, b] * y[i + a, c]
+                out[j + b, c] += s
+
+
+@njit(cache=True)
+def pose_point_jacobians(JX, w, R, pose, Xc, J_pose, J_point):  # pragma: no cover - compiled
+    """Whitened Jacobians of image observations from d(uv)/d(X_cam) JX (k,2,3), the whitening w = 1/sigma (k,2),
+    the rotations R (N,3,3) world -> camera, each item's pose (k,) and X_cam (k,3): J_point = w JX R (k,2,3) and
+    J_pose = [-J_point, w JX [X_cam]x] (k,2,6) (`dgcal.fields.pose`: C += dC, R_cam_to_world Exp(dtheta))."""
+    for n in range(len(pose)):
+        i = pose[n]
+        x0, x1, x2 = Xc[n, 0], Xc[n, 1], Xc[n, 2]
+        for e in range(2):
+            a0, a1, a2 = JX[n, e, 0] * w[n, e], JX[n, e, 1] * w[n, e], JX[n, e, 2] * w[n, e]
+            for c in range(3):
+                v = a0 * R[i, 0, c] + a1 * R[i, 1, c] + a2 * R[i, 2, c]
+                J_point[n, e, c] = v
+                J_pose[n, e, c] = -v
+            # a [x]_x with [x]_x = [[0,-x2,x1],[x2,0,-x0],[-x1,x0,0]]
+            J_pose[n, e, 3] = a1 * x2 - a2 * x1
+            J_pose[n, e, 4] = a2 * x0 - a0 * x2
+            J_pose[n, e, 5] = a0 * x1 - a1 * x0
+
+
+@njit(cache=True)
+def to_camera(R, C, X, pose, point):  # pragma: no cover - compiled
+    """X_cam (k,3) = R[pose] (X[point] - C[pose]) for every item (R (N,3,3) world -> camera, C (N,3), X (M,3))."""
+    k = len(pose)
+    out = np.empty((k, 3))
+    for n in range(k):
+        i = pose[n]
+        j = point[n]
+        d0, d1, d2 = X[j, 0] - C[i, 0], X[j, 1] - C[i, 1], X[j, 2] - C[i, 2]
+        for a in range(3):
+            out[n, a] = R[i, a, 0] * d0 + R[i, a, 1] * d1 + R[i, a, 2] * d2
+    return out

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dgcal.bundle.solver.blocks import State
-from dgcal.bundle.solver.normals import Normals, Problem, linearise, step
+from dgcal.bundle.solver.normals import Normals, Problem, linearise, reduce, solve_normals
 
 
 @dataclass
@@ -26,6 +26,7 @@ class LMOptions:
     lambda_up: float = 10.0
     lambda_down: float = 10.0
     max_tries: int = 12             # damping increases per iteration before giving up
+    tol_step: float = 0.0           # ... or when no camera-side parameter moves by this much of its sigma
     verbose: bool = False
 
 
@@ -56,7 +57,8 @@ def minimise(problem: Problem, state: State, options: LMOptions | None = None) -
         improved = False
         for _ in range(opt.max_tries):
             try:
-                dc, dx = step(nrm, lam)
+                red = reduce(nrm, lam)
+                dc, dx = solve_normals(nrm, red, -nrm.g_c, -nrm.g_x)
             except np.linalg.LinAlgError:
                 lam *= opt.lambda_up
                 continue
@@ -76,13 +78,18 @@ def minimise(problem: Problem, state: State, options: LMOptions | None = None) -
         state, cost = cand, new
         history.append(cost)
         lam = max(lam / opt.lambda_down, 1e-12)
+        # the step in units of each camera-side parameter's conditional sigma 1/sqrt(S_ii) (<= its sigma)
+        moved = float(np.max(np.abs(dc) * red.scale, initial=0.0))
         if opt.verbose:
-            print(f"  LM it {it}: cost {cost:.6g}, lambda {lam:.1e}")
+            print(f"  LM it {it}: cost {cost:.6g}, lambda {lam:.1e}, step {moved:.2g} sigma")
         if gain_chi2 < opt.tol_chi2:
             converged, reason = True, f"chi^2 gain {gain_chi2:.2g} < {opt.tol_chi2:g}"
             break
         if rel < opt.tol_rel:
             converged, reason = True, f"relative decrease {rel:.2g} < {opt.tol_rel:g}"
+            break
+        if moved < opt.tol_step:
+            converged, reason = True, f"camera-side step {moved:.2g} sigma < {opt.tol_step:g}"
             break
     return Solution(state, cost, it, converged, reason, history)
 

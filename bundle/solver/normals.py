@@ -15,8 +15,9 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from dgcal.bundle.solver.blocks import INVALID_COST, Block, BlockEval, State
 from dgcal.bundle.solver.kernels import (accumulate_global_points, accumulate_items, accumulate_pose_globals,
-                                        pose_pose_schur)
+                                        coupling_dot, coupling_tdot, pose_pose_schur)
 from dgcal.bundle.solver.robust import robust_cost_and_weight
+from dgcal.bundle.solver.sparse_schur import SPARSE_DENSITY_MAX, SPARSE_MIN_POSES, PairPattern, sparse_factor
 
 V_REGULARISATION = 1e-10   # added to the point blocks' diagonal (whitened units: a prior of ~1e5 sigma)
 
@@ -67,12 +68,15 @@ class Problem:
 
 @dataclass
 class Normals:
-    """J^T J and J^T r in blocks: camera side U (dense, 6N+G), pose-point coupling Wp (block-sparse 6N x 3M,
-    6x3 blocks), global-point coupling Wg (dense G x 3M), point blocks V (M,3,3), gradients g_c, g_x."""
+    """J^T J and J^T r in blocks: camera side U (pose blocks U_pp (N,6,6), pose-global U_pg (N,6,G), globals U_gg
+    (G,G); `U` is the dense 6N+G matrix), pose-point coupling Wp (per-item 6x3 blocks `wp_blocks` at `coupling`;
+    `Wp` is the block-sparse 6N x 3M matrix), global-point coupling Wg (dense G x 3M), point blocks V (M,3,3),
+    gradients g_c, g_x."""
 
-    U: np.ndarray
+    U_pp: np.ndarray
+    U_pg: np.ndarray
+    U_gg: np.ndarray
     g_c: np.ndarray
-    Wp: sp.bsr_matrix | None
     Wg: np.ndarray | None
     V: np.ndarray
     g_x: np.ndarray
@@ -85,6 +89,8 @@ class Normals:
     row_offsets: list[int] = field(default_factory=list)
     wp_blocks: np.ndarray | None = None   # (k,6,3) pose-point coupling of every item with a pose and a point
     coupling: "CouplingPattern | None" = None   # where those blocks sit in Wp
+    _U: np.ndarray | None = field(default=None, repr=False)
+    _Wp: sp.bsr_matrix | None = field(default=None, repr=False)
     _W: sp.csr_matrix | None = field(default=None, repr=False)
 
     @property
@@ -96,6 +102,27 @@ class Normals:
         return self.n_residuals - self.n_unknowns
 
     @property
+    def U(self) -> np.ndarray:
+        """The camera side (6N+G, 6N+G) as one dense matrix (built on first use: large blocks never need it)."""
+        if self._U is None:
+            N, G = len(self.U_pp), len(self.U_gg)
+            U = np.zeros((6 * N + G, 6 * N + G))
+            idx = 6 * np.arange(N)[:, None] + np.arange(6)
+            U[idx[:, :, None], idx[:, None, :]] = self.U_pp
+            U[:6 * N, 6 * N:] = self.U_pg.reshape(6 * N, G)
+            U[6 * N:, :6 * N] = U[:6 * N, 6 * N:].T
+            U[6 * N:, 6 * N:] = self.U_gg
+            self._U = U
+        return self._U
+
+    @property
+    def Wp(self) -> sp.bsr_matrix | None:
+        """The pose-point coupling (6N, 3M) as a block-sparse matrix (built on first use)."""
+        if self._Wp is None and self.wp_blocks is not None:
+            self._Wp = self.coupling.matrix(self.wp_blocks)
+        return self._Wp
+
+    @property
     def W(self) -> sp.csr_matrix | None:
         """The whole camera-side x point coupling (6N+G, 3M) as one sparse matrix."""
         if self._W is None and self.Wp is not None:
@@ -105,14 +132,24 @@ class Normals:
 
     def W_dot(self, x: np.ndarray) -> np.ndarray:
         """W @ x for x (3M,) or (3M,q)."""
-        out = self.Wp @ x
-        return np.concatenate([out, self.Wg @ x]) if self.Wg is not None and len(self.Wg) else out
+        x2 = np.ascontiguousarray(x.reshape(len(x), -1), dtype=float)
+        out = np.zeros((6 * len(self.U_pp), x2.shape[1]))
+        pat = self.coupling
+        coupling_dot(self.wp_blocks, pat.pose64, pat.point64, x2, out)
+        if self.Wg is not None and len(self.Wg):
+            out = np.concatenate([out, self.Wg @ x2])
+        return out.reshape((len(out),) + x.shape[1:])
 
     def WT_dot(self, y: np.ndarray) -> np.ndarray:
         """W^T @ y for y (6N+G,) or (6N+G,q)."""
-        n6 = self.Wp.shape[0]
-        out = self.Wp.T @ y[:n6]
-        return out + self.Wg.T @ y[n6:] if self.Wg is not None and len(self.Wg) else out
+        n6 = 6 * len(self.U_pp)
+        y2 = np.ascontiguousarray(y.reshape(len(y), -1), dtype=float)
+        out = np.zeros((3 * len(self.V), y2.shape[1]))
+        pat = self.coupling
+        coupling_tdot(self.wp_blocks, pat.pose64, pat.point64, y2, out)
+        if self.Wg is not None and len(self.Wg):
+            out += self.Wg.T @ y2[n6:]
+        return out.reshape((len(out),) + y.shape[1:])
 
 
 class Grouper:
@@ -149,8 +186,16 @@ class CouplingPattern:
         self.indices = q
         self.by_pose = Grouper(pose, N)
         self.pose64 = pose.astype(np.int64)
+        self.point64 = point.astype(np.int64)
         self.by_point_order = np.lexsort((pose, point)).astype(np.int64)   # by point, then pose
         self.point_starts = np.searchsorted(point[self.by_point_order], np.arange(M + 1)).astype(np.int64)
+        self._pairs: dict[int, PairPattern] = {}
+
+    def pairs(self, G: int) -> PairPattern:
+        """The sparse pattern of the reduced camera system with G globals (computed once)."""
+        if G not in self._pairs:
+            self._pairs[G] = PairPattern(self.pose64, self.by_point_order, self.point_starts, self.N, G)
+        return self._pairs[G]
 
     def matrix(self, blocks: np.ndarray) -> sp.bsr_matrix:
         """Wp-shaped block-sparse matrix of per-item blocks (k,6,3) (an image seeing a point twice: summed)."""
@@ -235,7 +280,6 @@ def linearise(problem: Problem, state: State) -> Normals:
     """Normal equations at `state` (robust losses as iteratively reweighted least squares), assembled block
     by block from per-item Jacobian products (each item touches at most one pose and one point)."""
     N, M, G = problem.n_poses, problem.n_points, problem.n_globals
-    nc = problem.n_camera_side
     U_pp = np.zeros((N, 6, 6))
     U_pg = np.zeros((N, 6, G))
     U_gg = np.zeros((G, G))
@@ -297,36 +341,26 @@ def linearise(problem: Problem, state: State) -> Normals:
         offsets.append(row)
         row += r.size
         n_valid += int(ev.valid.sum()) * r.shape[1]
-    U = np.zeros((nc, nc))
-    idx = 6 * np.arange(N)[:, None] + np.arange(6)
-    U[idx[:, :, None], idx[:, None, :]] = U_pp
-    U[:6 * N, 6 * N:] = U_pg.reshape(6 * N, G)
-    U[6 * N:, :6 * N] = U[:6 * N, 6 * N:].T
-    U[6 * N:, 6 * N:] = U_gg
     g_c = np.concatenate([g_p.ravel(), g_g])
-    Wp = blocks = pattern = None
+    blocks = pattern = None
     if M and wp_blk:
         if len(wp_blk) == 1:
             blocks, pattern = wp_blk[0], patterns[0]
         else:   # several observation blocks (cameras): one pattern over all their items
             blocks = np.concatenate(wp_blk)
             pattern = CouplingPattern(np.concatenate(wp_pose), np.concatenate(wp_point), N, M)
-        Wp = pattern.matrix(blocks)
-    dU = np.diag(U).copy()
+    # parameters nothing observes (or held) get a unit diagonal: they stay where they are
+    dU = np.concatenate([np.einsum("naa->na", U_pp).ravel(), np.diag(U_gg)])
     observed_c = dU > 0
-    U[np.diag_indices(nc)] = np.where(observed_c, dU, 1.0)
+    np.einsum("naa->na", U_pp)[...] = np.where(observed_c[:6 * N], dU[:6 * N], 1.0).reshape(N, 6)
+    U_gg[np.diag_indices(G)] = np.where(observed_c[6 * N:], dU[6 * N:], 1.0)
     dV = np.einsum("naa->na", V)
     observed_x = (dV > 0).ravel()
     dV[dV <= 0] = 1.0
-    if Wp is None and Wg is not None and not Wg.any():
+    if blocks is None and Wg is not None and not Wg.any():
         Wg = None                     # no point is an unknown (all held or known): nothing to eliminate
-    return Normals(U, g_c, Wp, None if Wg is None else Wg.reshape(G, 3 * M), V, g_x.ravel(), cost, n_valid,
-                   observed_c, observed_x, evals, weights, offsets, blocks, pattern)
-
-
-def _block_diag_csr(blocks: np.ndarray) -> sp.csr_matrix:
-    m = len(blocks)
-    return sp.bsr_matrix((blocks, np.arange(m), np.arange(m + 1)), shape=(3 * m, 3 * m)).tocsr()
+    return Normals(U_pp, U_pg, U_gg, g_c, None if Wg is None else Wg.reshape(G, 3 * M), V, g_x.ravel(), cost,
+                   n_valid, observed_c, observed_x, evals, weights, offsets, blocks, pattern)
 
 
 def _damp(A: np.ndarray, lam: float) -> np.ndarray:
@@ -339,72 +373,103 @@ def _damp(A: np.ndarray, lam: float) -> np.ndarray:
     return Ad
 
 
+def _vinv_dot(Vinv: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """blockdiag(V^-1) @ b for b (3M,) or (3M,q)."""
+    M = len(Vinv)
+    return np.matmul(Vinv, b.reshape(M, 3, -1)).reshape(b.shape)
+
+
 @dataclass
 class Reduced:
-    """The reduced camera system S = U - W V^-1 W^T, its factor and V^-1 (at one damping)."""
+    """The reduced camera system S = U - W V^-1 W^T, its factor and V^-1 (at one damping). Dense: S itself with
+    a Cholesky factor of the scaled S (`factor`); sparse (large blocks): S scaled to a unit diagonal in CSC,
+    S = diag(scale) S_csc diag(scale), with SuperLU's factor (`lu`). Both None when S is singular."""
 
-    S: np.ndarray
+    S: np.ndarray | sp.csc_matrix
     Vinv: np.ndarray
-    Vinv_sp: sp.csr_matrix | None
     scale: np.ndarray
     factor: tuple | None
+    lu: object | None = None
+
+    def dense(self) -> np.ndarray:
+        """S as a dense array."""
+        return self.S.toarray() * np.outer(self.scale, self.scale) if sp.issparse(self.S) else self.S
 
 
 SCHUR_THREADS = max(1, min(2, os.cpu_count() or 1))   # threads of the compiled Schur sum
 DENSE_SCHUR_MAX = 4_000_000   # entries of a (6N x 3M) coupling below which the Schur product is a dense GEMM
 
 
-def reduce(nrm: Normals, lam: float = 0.0) -> Reduced:
-    """Eliminate the points (3x3 blocks) from the damped normal equations."""
-    U = _damp(nrm.U, lam)
+def reduce(nrm: Normals, lam: float = 0.0, dense: bool = False) -> Reduced:
+    """Eliminate the points (3x3 blocks) from the damped normal equations; large blocks whose images share points
+    with few others keep S sparse (`dgcal.bundle.solver.sparse_schur`) unless `dense` is asked for."""
     # a tiny diagonal keeps a point seen along one ray (or nearly parallel rays) invertible
     Vinv = np.linalg.inv(_damp(nrm.V, lam) + V_REGULARISATION * np.eye(3)) if len(nrm.V) else np.zeros((0, 3, 3))
-    Vinv_sp = _block_diag_csr(Vinv) if len(Vinv) else None
-    S = U
-    if nrm.Wp is None and nrm.Wg is not None:
+    if nrm.wp_blocks is None and nrm.Wg is not None:
         raise NotImplementedError("points coupled to globals only")   # every point block has a pose here
-    if nrm.Wp is not None and len(nrm.V):
-        n6, n3 = nrm.Wp.shape
-        pat = nrm.coupling
-        Y = np.matmul(nrm.wp_blocks, Vinv[pat.point])                   # (k,6,3) W_k V_j^-1 per item
-        S = U.copy()
-        if n6 * n3 <= DENSE_SCHUR_MAX:
-            S[:n6, :n6] -= pat.matrix(Y).toarray() @ nrm.Wp.T.toarray()
-        else:     # the points couple only the images that see them: a compiled sum over their tracks
-            S[:n6, :n6] -= pose_pose_schur(Y, nrm.wp_blocks, pat.pose64, pat.by_point_order, pat.point_starts,
-                                           n6 // 6, SCHUR_THREADS)
-        if nrm.Wg is not None and len(nrm.Wg):
-            G = len(nrm.Wg)
-            Wg3 = nrm.Wg.reshape(G, -1, 3)
-            S_pg = pat.by_pose.sum(np.einsum("kia,gka->kig", Y, Wg3[:, pat.point])).reshape(n6, G)
-            S[:n6, n6:] -= S_pg
-            S[n6:, :n6] -= S_pg.T
-            S[n6:, n6:] -= np.einsum("gmi,mij,hmj->gh", Wg3, Vinv, Wg3)
+    if nrm.wp_blocks is None or not len(nrm.V):
+        return _dense_reduced(_damp(nrm.U, lam), Vinv)
+    pat = nrm.coupling
+    N, M = len(nrm.U_pp), len(nrm.V)
+    n6 = 6 * N
+    Y = np.matmul(nrm.wp_blocks, Vinv[pat.point])                   # (k,6,3) W_k V_j^-1 per item
+    G = 0 if nrm.Wg is None else len(nrm.Wg)
+    S_pg = np.zeros((n6, G))
+    S_gg = np.zeros((G, G))
+    if G:
+        Wg3 = nrm.Wg.reshape(G, -1, 3)
+        S_pg = pat.by_pose.sum(np.einsum("kia,gka->kig", Y, Wg3[:, pat.point])).reshape(n6, G)
+        S_gg = np.einsum("gmi,mij,hmj->gh", Wg3, Vinv, Wg3)
+    large = n6 * 3 * M > DENSE_SCHUR_MAX
+    if large and not dense and N >= SPARSE_MIN_POSES and pat.pairs(G).density <= SPARSE_DENSITY_MAX:
+        pairs = pat.pairs(G)
+        B = pairs.schur_blocks(Y, nrm.wp_blocks, pat.pose64, pat.by_point_order, pat.point_starts, SCHUR_THREADS)
+        np.negative(B, out=B)
+        B[pairs.diag_blocks] += _damp(nrm.U_pp, lam)
+        S, s = pairs.matrix(B, nrm.U_pg.reshape(n6, G) - S_pg, _damp(nrm.U_gg, lam) - S_gg)
+        return Reduced(S, Vinv, s, None, sparse_factor(S))
+    S = _damp(nrm.U, lam).copy()
+    if not large:
+        S[:n6, :n6] -= pat.matrix(Y).toarray() @ nrm.Wp.T.toarray()
+    else:     # the points couple only the images that see them: a compiled sum over their tracks
+        S[:n6, :n6] -= pose_pose_schur(Y, nrm.wp_blocks, pat.pose64, pat.by_point_order, pat.point_starts, N,
+                                       SCHUR_THREADS)
+    if G:
+        S[:n6, n6:] -= S_pg
+        S[n6:, :n6] -= S_pg.T
+        S[n6:, n6:] -= S_gg
+    return _dense_reduced(S, Vinv)
+
+
+def _dense_reduced(S: np.ndarray, Vinv: np.ndarray) -> Reduced:
+    """The dense S with its scaled Cholesky factor (None when S is not positive definite)."""
     s = np.sqrt(np.maximum(np.diag(S), 1e-300))
     try:
         factor = cho_factor(S / s[:, None] / s[None, :], check_finite=False)
     except (LinAlgError, ValueError):
         factor = None
-    return Reduced(S, Vinv, Vinv_sp, s, factor)
+    return Reduced(S, Vinv, s, factor)
 
 
 def solve_reduced(red: Reduced, b_c: np.ndarray) -> np.ndarray:
-    """S^-1 b_c (b_c (nc,) or (nc,q)), by the scaled Cholesky factor or least squares when S is singular."""
+    """S^-1 b_c (b_c (nc,) or (nc,q)), by the scaled factor or least squares when S is singular."""
     s = red.scale if b_c.ndim == 1 else red.scale[:, None]
+    if red.lu is not None:
+        return red.lu.solve(np.ascontiguousarray(b_c / s)) / s
     if red.factor is not None:
         return cho_solve(red.factor, b_c / s, check_finite=False) / s
-    return np.linalg.lstsq(red.S, b_c, rcond=None)[0]
+    return np.linalg.lstsq(red.dense(), b_c, rcond=None)[0]
 
 
 def solve_normals(nrm: Normals, red: Reduced, b_c: np.ndarray, b_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """N^-1 [b_c; b_x] through the Schur complement: camera side (nc,...) and point side (3M,...)."""
-    if red.Vinv_sp is None:
+    if not len(red.Vinv):
         return solve_reduced(red, b_c), np.zeros_like(b_x)
-    if nrm.Wp is None:                # points and camera side uncoupled
-        return solve_reduced(red, b_c), red.Vinv_sp @ b_x
-    y = red.Vinv_sp @ b_x
+    if nrm.wp_blocks is None:                # points and camera side uncoupled
+        return solve_reduced(red, b_c), _vinv_dot(red.Vinv, b_x)
+    y = _vinv_dot(red.Vinv, b_x)
     dc = solve_reduced(red, b_c - nrm.W_dot(y))
-    dx = red.Vinv_sp @ (b_x - nrm.WT_dot(dc))
+    dx = _vinv_dot(red.Vinv, b_x - nrm.WT_dot(dc))
     return dc, dx
 
 
