@@ -440,6 +440,7 @@ class PosOptions:
     n_freq: int = 3                         # ppk: frequencies per system (1-3)
     truth: Path | None = None               # ukf: true trajectory for the accuracy table (trajectory CSV or sim truth)
     forward_filter: bool = False            # tc/lc: the forward solution from the iterated filter, not the linear pass
+    iono: str = "klobuchar"                 # spp/tc: klobuchar | auto | iono-free (dgcal.pos.gnss.spp.SppOptions.iono)
 
 
 def _spp_options(opts: PosOptions, model_errors: bool = True, strict: bool = True):
@@ -449,7 +450,7 @@ def _spp_options(opts: PosOptions, model_errors: bool = True, strict: bool = Tru
         raise InputError(f"no known constellation in '{opts.systems}'", field="--systems")
     return SppOptions(elev_mask_deg=opts.elev_mask_deg, code_sigma_zenith_m=opts.code_sigma_m,
                       doppler_sigma_zenith_mps=opts.doppler_sigma_mps, systems=systems or ("G",),
-                      raim=opts.raim, model_errors=model_errors)
+                      raim=opts.raim, model_errors=model_errors, iono=opts.iono)
 
 
 @dataclass

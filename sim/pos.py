@@ -53,6 +53,7 @@ class PosSimulation:
     info: dict = field(default_factory=dict)
     carrier: object = None  # dgcal.sim.gnss.CarrierSimulation: rover + base carrier phase (None if not simulated)
     outages: list = field(default_factory=list)  # the carrier pair's rover outages (t0, t1, max_sats)
+    code_errors: object = None  # dgcal.sim.gnss.CodeErrorModel of the rover's code (None: exact models)
 
 
 def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multirotor", imu_grade="adis16488",
@@ -110,7 +111,8 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
         csim = simulate_rover_base(t_gnss, p_ant, v_ant, base, nav=nav, seed=seed + 3, errors=carrier_errors,
                                    systems=tuple(systems), n_freq=2, outages=outages, n_random_slips=n_slips)
     return PosSimulation(traj, imu, err, obs, nav, events, lever, outage, grade, sigma_pr, sigma_doppler,
-                         {"seed": seed, "flight": kind, "duration_s": duration_s, "rate_hz": rate_hz}, csim, outages)
+                         {"seed": seed, "flight": kind, "duration_s": duration_s, "rate_hz": rate_hz}, csim, outages,
+                         code_errors)
 
 
 def true_trajectory(traj, t) -> object:
@@ -140,7 +142,8 @@ def write_pos_dataset(out, sim: PosSimulation) -> dict:
         "outage": {"t0_gps": sim.outage[0], "t1_gps": sim.outage[1], "max_sats": sim.outage[2]},
         "gnss": {"sigma_pr_zenith_m": sim.sigma_pr, "sigma_doppler_zenith_mps": sim.sigma_doppler,
                  "systems": sorted(sim.obs.signals), "signals": sim.obs.signals,
-                 "model_errors": False, "n_epochs": len(sim.obs.epochs)},
+                 "model_errors": sim.code_errors is not None, "n_epochs": len(sim.obs.epochs),
+                 "code_errors": None if sim.code_errors is None else sim.code_errors.as_dict()},
         "n_events": len(sim.events.t),
         "files": {"imu": "imu.csv", "rinex_obs": "obs.rnx", "rinex_nav": "nav.rnx", "events": "events.csv",
                   "truth_trajectory": "truth_trajectory.csv", "truth_events": "truth_events.csv"},
@@ -148,7 +151,7 @@ def write_pos_dataset(out, sim: PosSimulation) -> dict:
         "command": ("dgcal pos --mode tc --rinex-obs obs.rnx --rinex-nav nav.rnx --imu imu.csv --events events.csv "
                     f"--imu-grade {sim.grade.name} --lever-arm {' '.join('%g' % v for v in sim.lever_arm_b)} "
                     f"--code-sigma {sim.sigma_pr:g} --doppler-sigma {sim.sigma_doppler:g} "
-                    "--set model_errors=false --out OUT"),
+                    + ("" if sim.code_errors is not None else "--set model_errors=false ") + "--out OUT"),
     }
     with staged_dir(out) as d:
         d = Path(d)

@@ -97,6 +97,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--code-sigma", type=float, default=0.3, help="code noise at zenith, m")
     p.add_argument("--doppler-sigma", type=float, default=0.1, help="range-rate noise at zenith, m/s")
     p.add_argument("--no-raim", action="store_true", help="keep all satellites (no outlier rejection)")
+    p.add_argument("--iono", choices=("klobuchar", "auto", "iono-free"), default="klobuchar",
+                   help="spp/tc code ionosphere: the broadcast Klobuchar model on the first code (default), the "
+                   "dual-frequency ionosphere-free combination where a second code exists (auto), or only that")
     p.add_argument("--t-start", type=float, default=None, help="first epoch, continuous GPS seconds")
     p.add_argument("--t-end", type=float, default=None, help="last epoch, continuous GPS seconds")
     p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
@@ -139,7 +142,8 @@ def pos_options(args: argparse.Namespace) -> PosOptions:
                       gnss_format=getattr(args, "gnss_format", None), gnss_quality=getattr(args, "gnss_quality", None),
                       nmea_date=getattr(args, "nmea_date", None),
                       gnss_outages=tup(getattr(args, "gnss_outages", None)), truth=getattr(args, "truth", None),
-                      forward_filter=bool(getattr(args, "forward_filter", False)))
+                      forward_filter=bool(getattr(args, "forward_filter", False)),
+                      iono=getattr(args, "iono", "klobuchar"))
 
 
 def spp_options(args: argparse.Namespace):
@@ -150,7 +154,8 @@ def spp_options(args: argparse.Namespace):
     if not systems:
         raise InputError(f"no known constellation in '{args.systems}'", field="--systems")
     return SppOptions(elev_mask_deg=args.elev_mask, code_sigma_zenith_m=args.code_sigma,
-                      doppler_sigma_zenith_mps=args.doppler_sigma, systems=systems, raim=not args.no_raim)
+                      doppler_sigma_zenith_mps=args.doppler_sigma, systems=systems, raim=not args.no_raim,
+                      iono=args.iono)
 
 
 def run(args: argparse.Namespace) -> int:

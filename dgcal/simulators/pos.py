@@ -6,6 +6,7 @@ import argparse
 
 from dgcal.fields.errors import InputError
 from dgcal.sim import pos
+from dgcal.sim.gnss import CodeErrorModel
 from dgcal.sim.pos import simulate_pos, write_pos_dataset
 
 NAME = "pos"
@@ -25,13 +26,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: ../shared/data/rinex-sept)")
     p.add_argument("--outage-sats", type=int, default=3, help="satellites kept during the 60 s outage")
     p.add_argument("--no-carrier", action="store_true", help="no rover.rnx / base.rnx (carrier phase)")
+    p.add_argument("--code-errors", type=float, default=None, metavar="SCALE",
+                   help="give every satellite of obs.rnx the slow error real broadcast models leave: SCALE x the "
+                   "front end's budget (1: as budgeted; dgcal.sim.gnss.CodeErrorModel). Default: none (exact models)")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         sim = simulate_pos(seed=args.seed, duration_s=args.duration, kind=args.kind, imu_grade=args.imu_grade,
                            rate_hz=args.rate, lever_arm_b=args.lever_arm, nav=args.nav,
-                           outage_sats=args.outage_sats, carrier=not args.no_carrier)
+                           outage_sats=args.outage_sats, carrier=not args.no_carrier,
+                           code_errors=None if args.code_errors is None else CodeErrorModel(scale=args.code_errors))
     except ValueError as exc:  # an unknown IMU grade
         raise InputError(str(exc), field="--imu-grade") from None
     write_pos_dataset(args.out, sim)

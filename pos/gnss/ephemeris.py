@@ -188,6 +188,19 @@ def satellite_states(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray
     return p, v, clk, drift, ura, ok
 
 
+def group_delay_s(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray) -> np.ndarray:
+    """The broadcast group delay (s) that `satellite_states` subtracts for the single-frequency signal (GPS/QZSS
+    TGD, Galileo BGD, BeiDou TGD1) of each satellite at `t_gps`; 0 without an ephemeris. Dual-frequency
+    ionosphere-free users add it back: the broadcast clock refers to that combination."""
+    t_gps = np.array(np.broadcast_to(np.asarray(t_gps, float), (len(sats),)))
+    out = np.zeros(len(sats))
+    for i, sid in enumerate(sats):
+        eph = _select_cached(nav, sid, t_gps[i])
+        if eph is not None:
+            out[i] = float(getattr(eph, "tgd", 0.0) or 0.0)
+    return out
+
+
 def _geo_state(eph, t_gps: float):
     """BeiDou GEO state with cssrlib (velocity by central difference of positions)."""
     t = gtime_from_gps_seconds(t_gps)

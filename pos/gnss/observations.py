@@ -64,6 +64,8 @@ class GnssEpoch:
     ``sigma_pr_bias_m``: the part of ``sigma_pr_m`` that is a slowly varying error of the satellite (the broadcast
     orbit, clock and atmosphere models' budget; 0 where the models are exact): ``sigma_pr_m`` is its root sum of
     squares with the receiver noise. SPP uses the total per epoch; the smoother carries the bias as a state.
+    ``pr2_m``/``wavelength2_m``: a second code of the satellite (raw epochs, None if the file has none); the
+    front end forms the ionosphere-free combination from it (``pr_m`` then holds it and ``iono_m`` is 0).
     """
 
     t_gps: float
@@ -86,6 +88,8 @@ class GnssEpoch:
     sigma_rr_mps: np.ndarray
     p_approx_ecef: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     sigma_pr_bias_m: np.ndarray | None = None
+    pr2_m: np.ndarray | None = None          # second-frequency code (m, NaN where absent), raw epochs only
+    wavelength2_m: np.ndarray | None = None  # its wavelength (m)
 
     @property
     def n(self) -> int:
@@ -149,6 +153,7 @@ class GnssObservations:
     signals: dict[str, str] = field(default_factory=dict)
     source: str = ""
     truth: dict | None = None
+    signals2: dict[str, str] = field(default_factory=dict)  # second code per system (ionosphere-free pairs)
 
     def __len__(self) -> int:
         return len(self.epochs)

@@ -32,6 +32,12 @@ CODE_PRIORITY = {
     "E": ("C1C", "C1X", "C1B"),
     "C": ("C2I", "C1I", "C2X"),
 }
+# The second code of each system for the dual-frequency ionosphere-free combination (first available; L1 as above).
+CODE2_PRIORITY = {
+    "G": ("C2W", "C2L", "C2S", "C2X", "C2P", "C2D", "C5Q", "C5X", "C5I"),
+    "J": ("C2L", "C2S", "C2X", "C5Q", "C5X", "C5I"),
+    "E": ("C5Q", "C5X", "C5I", "C7Q", "C7X", "C7I"),
+}
 # Carrier frequency (Hz) by system and RINEX band digit.
 FREQ_HZ = {
     ("G", "1"): 1575.42e6, ("G", "2"): 1227.60e6, ("G", "5"): 1176.45e6,
@@ -189,12 +195,24 @@ def _choose_signals(obs_types: dict[str, list[str]], systems: Iterable[str]) -> 
     return chosen
 
 
+def _choose_second_codes(obs_types: dict[str, list[str]], signals: dict[str, str]) -> dict[str, str]:
+    """The second code per system for the ionosphere-free combination (first available of CODE2_PRIORITY)."""
+    out = {}
+    for s in signals:
+        have = obs_types.get(s, [])
+        code = next((c for c in CODE2_PRIORITY.get(s, ()) if c in have), None)
+        if code is not None:
+            out[s] = code
+    return out
+
+
 def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
                    t_start: float | None = None, t_end: float | None = None,
                    decimate_s: float | None = None, rinex: RinexObsFile | None = None) -> GnssObservations:
     """Read a RINEX 2.10/2.11/3.x observation file into raw ``GnssEpoch``s (front-end fields NaN).
 
-    One code signal per system (see ``CODE_PRIORITY``) with its Doppler and C/N0. When the file
+    One code signal per system (see ``CODE_PRIORITY``) with its Doppler and C/N0, and a second code where the
+    file has one (``CODE2_PRIORITY``: ``pr2_m``, ``wavelength2_m``, for the ionosphere-free combination). When the file
     has no Doppler for a signal, the range rate is derived from the carrier phase of the same
     signal by central differences between neighbouring epochs (no loss-of-lock flag, gap <= 1.5
     epoch intervals); ``doppler_hz`` is then the equivalent Doppler. Times are GPS time.
@@ -209,6 +227,8 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
         raise InputError(f"no usable code observations for systems {list(systems)} "
                          f"(have {obs_types})", path, field="SYS / # / OBS TYPES")
     wavelength = {s: C_LIGHT / signal_frequency_hz(s, code) for s, code in signals.items()}
+    signals2 = _choose_second_codes(obs_types, signals)
+    wavelength2 = {s: C_LIGHT / signal_frequency_hz(s, code) for s, code in signals2.items()}
     t = rx.t_gps
     keep_t = np.ones(len(t), dtype=bool)
     if rinex is not None:
@@ -228,15 +248,15 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
         def col(c, so=so):
             return so.codes.index(c) if c in so.codes else None
         cols[s] = (so, {so.sats[j]: j for j in range(len(so.sats))}, col(code), col("L" + ba), col("D" + ba),
-                   col("S" + ba))
+                   col("S" + ba), col(signals2[s]) if s in signals2 else None)
     epochs = []
     for k in np.nonzero(keep_t)[0]:
-        sat, pr, ph, dop, cn0, lli = [], [], [], [], [], []
+        sat, pr, pr2, ph, dop, cn0, lli = [], [], [], [], [], [], []
         for sid in rx.epoch_sats[k]:
             c = cols.get(sid[0])
             if c is None:
                 continue
-            so, index, jc, jl, jd, js = c
+            so, index, jc, jl, jd, js, j2 = c
             j = index[sid]
             v = so.val[k, j]
             p = v[jc]
@@ -244,6 +264,8 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
                 continue
             sat.append(sid)
             pr.append(p)
+            q = v[j2] if j2 is not None else np.nan
+            pr2.append(q if np.isfinite(q) and q > 1e6 else np.nan)
             ph.append(v[jl] if jl is not None else np.nan)
             dop.append(v[jd] if jd is not None else np.nan)
             cn0.append(v[js] if js is not None else np.nan)
@@ -261,6 +283,9 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
                        sat_clk_s=nan.copy(), sat_clk_drift=nan.copy(), iono_m=nan.copy(),
                        tropo_m=nan.copy(), elev_deg=nan.copy(), azim_deg=nan.copy(),
                        sigma_pr_m=nan.copy(), sigma_rr_mps=nan.copy())
+        if signals2:
+            ep.pr2_m = np.array(pr2, dtype=float)
+            ep.wavelength2_m = np.array([wavelength2.get(s, np.nan) for s in system])
         ep._phase = np.array(ph, dtype=float)  # cycles; used only to derive a missing Doppler
         ep._lli = np.array(lli, dtype=int)
         epochs.append(ep)
@@ -270,7 +295,7 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
     if not epochs:
         raise InputError("no observation epochs in the requested time span", path)
     return GnssObservations(epochs=epochs, receiver=rx.receiver, p_approx_ecef=rx.p_approx_ecef.copy(),
-                            signals=signals, source=str(path))
+                            signals=signals, source=str(path), signals2=signals2)
 
 
 def _doppler_from_phase(epochs: list[GnssEpoch]) -> None:

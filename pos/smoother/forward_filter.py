@@ -1,4 +1,4 @@
-"""Forward-only (filter) solutions for comparison with the smoother: the forward pass of its linearised problem (the default) or an iterated extended Kalman filter in information form built from the smoother's own factors.
+"""Forward-only solutions beside the smoother: the forward pass of its linearised problem, or an iterated filter.
 
 `linear_forward_solution` runs the Kalman filter of the smoother's problem linearised at the smoothed solution
 (`dgcal.pos.smoother.covariance.forward_innovations`): each keyframe from the data up to its epoch, with the

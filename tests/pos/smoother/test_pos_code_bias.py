@@ -20,7 +20,8 @@ def _epoch(sats, sigma_bias):
     n = len(sats)
     z = np.zeros(n)
     return GnssEpoch(0.0, list(sats), np.array([s[0] for s in sats]), z + 2e7, z, z, z + 0.19, z + 45,
-                     np.ones((n, 3)), z, z, z, z, z, z + 45, z, z + 3.0, z + 0.1, sigma_pr_bias_m=np.asarray(sigma_bias))
+                     np.ones((n, 3)), z, z, z, z, z, z + 45, z, z + 3.0, z + 0.1,
+                     sigma_pr_bias_m=np.asarray(sigma_bias))
 
 
 def test_arcs_share_slots_and_break_after_long_gaps():
@@ -127,7 +128,7 @@ def test_linear_forward_pass_is_honest_and_meets_the_smoother(biased_flights):
     (same data), and the normalised innovations per dimension are about one."""
     z, _ = _pooled(biased_flights, True, "forward")
     assert 0.7 <= z <= 1.4, z
-    for sim, runs in biased_flights:
+    for _, runs in biased_flights:
         r = runs[True]
         assert np.allclose(r.forward.cov_p_nav[-1], r.smoothed.cov_p_nav[-1], rtol=1e-3, atol=1e-6)
         # up to the step left when the smoother stopped (relative cost change 1e-5): millimetres, sigmas metres
