@@ -73,6 +73,8 @@ class PpkOptions:
     outlier_w: float = 5.0                # post-fit w-test threshold (standardised residual)
     code_corr_s: float = 60.0             # correlation time of code errors (multipath); 0: white
     phase_bias_sigma_m: float = 0.01      # time-correlated SD phase errors (multipath, PCV), validation only
+    iono_ppm: float = 0.5                 # differential ionosphere budget of a fixed position (mm per km, slant)
+    tropo_zenith_m: float = 0.0015        # rover zenith troposphere error left by the model (fixed-position budget)
     humidity: float = 0.0                 # Saastamoinen hydrostatic only at both receivers (as RTKLIB relative)
 
 
@@ -440,6 +442,40 @@ class _Pass:
         out.update(status=2, p_float=x[:3].copy(), P_float=P[:3, :3].copy(), p=x[:3].copy(), P=P[:3, :3].copy(),
                    n_sat=len(sats_used), n_amb=int(sum(1 for mm in meta if mm[0] == "phase")))
         self._resolve(x, P, y, H, R, meta, groups, zr, out)
+        if out.get("status") == 3:
+            budget = self._atmosphere_budget(H, R, meta, zr, out["p"])
+            if budget is not None:
+                out["P"] = out["P"] + budget
+
+    def _atmosphere_budget(self, H, R, meta, zr: ZeroDiff, p: np.ndarray) -> np.ndarray | None:
+        """Covariance (3,3) m^2, ECEF, that the differential atmosphere leaves in a fixed position: the weighted
+        least-squares map of the phase double differences onto the position, A = (G'WG)^-1 G'W, applied to their
+        atmosphere covariance (a slant ionosphere error per satellite of `iono_ppm` mm per km from the base times
+        1/sin el, scaled (f_L1/f)^2, and one rover zenith troposphere error, 1/sin el). Nearly constant over an hour,
+        no smoothing averages it out, as `dgcal.pos.smoother.carrier.atmosphere_position_covariance` for TC."""
+        e, o = self.e, self.e.opts
+        ph = [q for q, mm in enumerate(meta) if mm[0] == "phase"]
+        if len(ph) < 4 or (o.iono_ppm <= 0 and o.tropo_zenith_m <= 0):
+            return None
+        G = H[ph][:, :3]
+        W = np.linalg.inv(R[np.ix_(ph, ph)])
+        N = G.T @ W @ G
+        if np.linalg.cond(N) > 1e8:
+            return None
+        A = np.linalg.solve(N, G.T @ W)
+        sats = sorted({meta[q][3] for q in ph} | {meta[q][4] for q in ph})
+        col = {i: j for j, i in enumerate(sats)}
+        mapping = 1.0 / np.sin(np.maximum(zr.elev, np.radians(2.0)))
+        B = np.zeros((len(ph), len(sats) + 1))
+        for r, q in enumerate(ph):
+            _, _, f, i, ref = meta[q]
+            kappa = (1575.42e6 / e.freq[i, f]) ** 2
+            B[r, col[i]] -= kappa            # the phase advances by the ionosphere: -I on phase
+            B[r, col[ref]] += kappa
+            B[r, -1] = mapping[i] - mapping[ref]
+        dist = float(np.linalg.norm(p - e.base_pos))
+        var = np.r_[(o.iono_ppm * 1e-6 * dist * mapping[sats]) ** 2, o.tropo_zenith_m ** 2]
+        return A @ ((B * var) @ B.T) @ A.T
 
     def _resolve(self, x, P, y, H, R, meta, groups, zr, out) -> None:
         e, o = self.e, self.e.opts

@@ -72,10 +72,11 @@ def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, ear
                     window_s: float = 10.0) -> list:
     """Preintegration parameters per keyframe interval, with the scale/misalignment errors as turn noise.
 
-    A scale error s and misalignment m make an error s*d_i + m*sum_{j!=i} d_j proportional to the deviation d
-    of the rate (specific force) from its flight median: it lasts as long as the manoeuvre and vanishes
-    after it, so it is NOT a bias change (a bias allowed to jump at a turn entry stays wrong on the next
-    straight line, which spoiled pitch 3x, and heading 30x on the last strip of a flight). It is added as white
+    A scale error s and misalignment m make an error s*d_i + m*sum_{j!=i} d_j proportional to the rate itself
+    (gyro: d = w, the earth rate is negligible) or to the specific force's deviation from its flight median (the
+    gravity of level flight): it lasts as long as the manoeuvre and vanishes after it, so it is NOT a bias change
+    (a bias allowed to jump at a turn entry stays wrong on the next straight line, which spoiled pitch 3x, and
+    heading 30x on the last strip of a flight). It is added as white
     noise whose integral over the manoeuvre has the variance of the correlated error: an interval with
     deviation |d_k| gets density s^2 |d_k| A_k, A_k the integral of |d| within `window_s` s around it, so a
     turn through an angle A within the window accumulates (s A)^2; a longer manoeuvre (continuous circling) is
@@ -91,15 +92,18 @@ def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, ear
     fbar = np.add.reduceat(seg.accel * seg.dt[:, None], seg.start[:-1]) / T[:, None]
     t_mid = np.cumsum(T) - 0.5 * T
 
-    def turn_density(x, s, m):
-        a = np.abs(x - np.median(x, axis=0))
+    def turn_density(x, s, m, centre):
+        a = np.abs(x - centre)
         c = np.vstack([np.zeros((1, 3)), np.cumsum(a * T[:, None], axis=0)])
         lo = np.searchsorted(t_mid, t_mid - window_s, side="left")
         hi = np.searchsorted(t_mid, t_mid + window_s, side="right")
         aw = a * (c[hi] - c[lo])
         return s ** 2 * aw + m ** 2 * (aw.sum(1, keepdims=True) - aw)
-    qg = turn_density(wbar, noise.gyro_scale_sigma, noise.gyro_misalign_sigma)
-    qa = turn_density(fbar, noise.accel_scale_sigma, noise.accel_misalign_sigma)
+    # the gyro's reference is zero rate, not the flight's median: a flight circling more than half its time
+    # (a calibration orbit) has its circling rate as median, and its straight lines then got the turn noise
+    # (heading sigmas 5x too large there)
+    qg = turn_density(wbar, noise.gyro_scale_sigma, noise.gyro_misalign_sigma, 0.0)
+    qa = turn_density(fbar, noise.accel_scale_sigma, noise.accel_misalign_sigma, np.median(fbar, axis=0))
     out = []
     for k in range(K):
         p = preintegration_params(noise, frame, earth_rotation)
