@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from dgcal.bundle.solver.blocks import CentrePriors, GlobalPriors, ImageObservations, PointPriors, State
 from dgcal.bundle.solver.covariance import Covariance
@@ -22,6 +23,7 @@ from dgcal.bundle.solver.normals import Normals, Problem
 from dgcal.calib.camera.models import CameraModel
 from dgcal.fields.pose import Poses
 
+BLAS_THREADS_MIN_SIZE = 2000   # camera-side unknowns from which the adjustment lets BLAS use several threads
 FIXED_SIGMA = 1e-6   # sigma (m) that stands for "fixed" coordinates: keeps one code path for weighted and fixed
 
 
@@ -172,10 +174,13 @@ def adjust(inp: BundleInput, options: BundleOptions | None = None) -> BundleResu
     """Run the bundle adjustment (pixels, metres, radians inside) and return orientation with covariance."""
     opt = options or BundleOptions()
     prob, state = problem_of(inp, opt)
-    sol = minimise(prob, state, LMOptions(max_iterations=opt.max_iterations, tol_rel=opt.tolerance,
-                                          tol_chi2=opt.tol_chi2, tol_step=opt.tol_step, lambda_up=8.0, lambda_down=5.0,
-                                          verbose=opt.verbose))
-    nrm = normals_at(prob, sol)
+    # the dense products of a few hundred images are small: BLAS threads cost more than they give, and far more
+    # on a busy machine (a 450 x 450 Cholesky 5x slower with two threads competing with other work)
+    with threadpool_limits(limits=1 if prob.n_camera_side <= BLAS_THREADS_MIN_SIZE else None, user_api="blas"):
+        sol = minimise(prob, state, LMOptions(max_iterations=opt.max_iterations, tol_rel=opt.tolerance,
+                                              tol_chi2=opt.tol_chi2, tol_step=opt.tol_step, lambda_up=8.0,
+                                              lambda_down=5.0, verbose=opt.verbose))
+        nrm = normals_at(prob, sol)
     redundancy = int(nrm.redundancy)
     sigma0 = float(np.sqrt(nrm.cost / redundancy)) if redundancy > 0 else float("nan")
     res = BundleResult(inp.camera, sol.state.poses.R_world_to_cam, sol.state.poses.C_world, sol.state.points,

@@ -43,7 +43,7 @@ DEFAULT_SIGMA_PX = 0.5          # image measurement sigma when the file gives no
 DEFAULT_GCP_SIGMA_M = (0.02, 0.02, 0.03)
 _CHI2_MEDIAN_2D = float(np.sqrt(2 * np.log(2)))   # median of the norm of a 2-D standard normal
 START_CUT_FACTOR = 4.0     # the cut at the initial orientation, in units of the tie-outlier cut (gross errors only)
-START_CUT_ROUNDS = 10      # rounds of that cut at most (the worst ray of each point per round)
+START_CUT_ROUNDS = 50      # rounds of that cut at most (the worst ray of each point per round)
 
 
 @dataclass
@@ -312,44 +312,77 @@ def _drop_tie_outliers(adj: _Adjuster, msgs: list[str], dropped: list[dict]) -> 
     """Drop tie observations of the last adjustment whose standardised residual exceeds `tie_outlier_sigma`
     robust sigmas; True if any."""
     return _cut_ties(adj, adj.obs_keep, adj.res.obs_point, adj.res.residuals_px, adj.opt.tie_outlier_sigma, msgs,
-                     dropped, worst_only=False) > 0
+                     dropped) > 0
 
 
 def _drop_gross_ties_at_start(adj: _Adjuster, msgs: list[str], dropped: list[dict]) -> bool:
     """The same cut on the residuals of the initial orientation, before any adjustment: SIFT mismatches hundreds
     of sigmas off would otherwise drag the first adjustment through dozens of slow robust iterations. Only
-    gross errors (`START_CUT_FACTOR` times the usual cut), and the worst ray of each point at a time, the points
-    intersected again from their remaining rays in between: a blunder throws a point that is not yet fitted so
-    far that its good rays look gross too."""
-    rays = None
-    cut = 0
-    k = START_CUT_FACTOR * adj.opt.tie_outlier_sigma
-    for _ in range(START_CUT_ROUNDS):
-        bi = adj.bundle_input()
-        X = bi.X_world
-        if cut:
-            rays = adj.camera.ray(adj.blk.uv) if rays is None else rays
-            X = _intersected_ties(bi, rays[adj.obs_keep])
-            adj.X[adj.pt_keep] = X
-        Xc = Poses(bi.R_world_to_cam, bi.C_world).to_cam(X[bi.obs_point], bi.obs_image)
-        with np.errstate(all="ignore"):
-            r = bi.camera.project(Xc) - bi.obs_uv
-        r[~(Xc[:, 2] > 0) | ~np.isfinite(r).all(1)] = np.inf       # behind the camera or not projectable: gross
-        n = _cut_ties(adj, adj.obs_keep, bi.obs_point, r, k, None, dropped, worst_only=True)
-        if not n:
-            break
-        cut += n
-    if cut:
-        _warn(msgs, f"{cut} tie observation(s) beyond {k:g} robust sigmas at the initial orientation dropped (listed "
-                    "in the summary)", adj.opt.verbose)
-    return cut > 0
-
-
-def _intersected_ties(bi: BundleInput, rays: np.ndarray) -> np.ndarray:
-    """The points of a bundle input with every tie point intersected from its rays (camera frame, one per
-    observation) at the input's poses; control points and ties whose rays do not meet in front stay."""
+    gross errors (`START_CUT_FACTOR` times the usual cut), and the worst ray of each point at a time, the point
+    intersected again from its remaining rays before its next ray is judged (a blunder throws a point that is
+    not yet fitted so far that its good rays look gross too); the scale is the first round's."""
+    bi = adj.bundle_input()
+    rows, point = adj.obs_keep, bi.obs_point
+    poses = Poses(bi.R_world_to_cam, bi.C_world)
+    is_tie = adj.blk.kind[adj.blk.op[rows]] != "control"
     X = bi.X_world.copy()
-    order = np.argsort(bi.obs_point, kind="stable")
+    L = np.bincount(point, minlength=len(X))
+    keep = np.ones(len(rows), bool)
+    e = _standardised(adj, poses, X, bi, np.arange(len(rows)), L)
+    s_rob = max(float(np.median(e)) / _CHI2_MEDIAN_2D, 1.0)
+    k = START_CUT_FACTOR * adj.opt.tie_outlier_sigma
+    rays = None
+    for _ in range(START_CUT_ROUNDS):
+        bad = is_tie & keep & (e > k * s_rob)
+        if not bad.any():
+            break
+        by_point = np.lexsort((-e, point))           # each point's rays, worst first: the worst goes
+        by_point = by_point[bad[by_point]]
+        first = np.r_[True, point[by_point][1:] != point[by_point][:-1]]
+        cut = by_point[first]
+        keep[cut] = False
+        for r in cut:
+            fin = bool(np.isfinite(e[r]))
+            dropped.append({"image": adj.blk.images[adj.blk.oi[rows[r]]], "id": adj.blk.point_ids[adj.blk.op[rows[r]]],
+                            "reason": "outlier at the initial orientation", "residual_px": None,
+                            "standardised": float(e[r]) if fin else None})
+        # the touched points again from their remaining rays, and their rays judged again
+        touched = np.zeros(len(X), bool)
+        touched[point[cut]] = True
+        sub = np.flatnonzero(touched[point] & keep)
+        rays = adj.camera.ray(bi.obs_uv) if rays is None else rays
+        X = _intersected_ties(bi, rays, sub, X)
+        e[sub] = _standardised(adj, poses, X, bi, sub, L)
+    n = int((~keep).sum())
+    if n:
+        adj.active[rows[~keep]] = False
+        adj.X[adj.pt_keep] = X
+        _warn(msgs, f"{n} tie observation(s) beyond {k:g} robust sigmas ({k * s_rob:.1f} sigma) at the initial "
+                    "orientation dropped (listed in the summary)", adj.opt.verbose)
+    return n > 0
+
+
+def _standardised(adj: _Adjuster, poses: Poses, X: np.ndarray, bi: BundleInput, sub: np.ndarray,
+                  L: np.ndarray) -> np.ndarray:
+    """Standardised residual norms (as `_cut_ties`) of observations `sub` of a bundle input with points X; inf
+    behind the camera or where the projection fails."""
+    Xc = poses.to_cam(X[bi.obs_point[sub]], bi.obs_image[sub])
+    with np.errstate(all="ignore"):
+        r = bi.camera.project(Xc) - bi.obs_uv[sub]
+        e = np.linalg.norm(r / bi.obs_sigma[sub], axis=1)
+    e /= np.sqrt(np.clip(1.0 - 1.5 / np.maximum(L[bi.obs_point[sub]], 1), 0.1, 1.0))
+    e[~(Xc[:, 2] > 0) | ~np.isfinite(e)] = np.inf
+    return e
+
+
+def _intersected_ties(bi: BundleInput, rays: np.ndarray, sub: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """X with the tie points of observations `sub` (of a bundle input) intersected from those observations' rays
+    (camera frame, one per observation of the input) at the input's poses; control points and ties whose rays
+    do not meet in front stay."""
+    X = X.copy()
+    if not len(sub):
+        return X
+    order = sub[np.argsort(bi.obs_point[sub], kind="stable")]
     pts, starts = np.unique(bi.obs_point[order], return_index=True)
     oi = bi.obs_image[order]
     Xp, angle, in_front = triangulate_tracks(bi.C_world[oi], bi.R_world_to_cam[oi], rays[order], starts)
@@ -360,10 +393,10 @@ def _intersected_ties(bi: BundleInput, rays: np.ndarray) -> np.ndarray:
 
 
 def _cut_ties(adj: _Adjuster, rows: np.ndarray, point: np.ndarray, residuals_px: np.ndarray, k: float,
-              msgs: list[str] | None, dropped: list[dict], worst_only: bool) -> int:
+              msgs: list[str], dropped: list[dict]) -> int:
     """Drop tie observations `rows` (of the block) whose standardised residual (px residuals of their points
     `point`) exceeds k robust sigmas (the scale from the median, so a pass full of mismatches
-    does not loosen the cut; `worst_only`: the worst ray of each point only); how many (warned into `msgs`)."""
+    does not loosen the cut); how many."""
     b, opt = adj.blk, adj.opt
     # standardised by the approximate redundancy of a ray of a point seen L times (its 3 coordinates are
     # shared by the 2L residuals): a blunder in one of few rays is half absorbed by the point
@@ -373,12 +406,6 @@ def _cut_ties(adj: _Adjuster, rows: np.ndarray, point: np.ndarray, residuals_px:
     s_rob = max(float(np.median(e)) / _CHI2_MEDIAN_2D, 1.0)
     tie = b.kind[b.op[rows]] != "control"
     bad = tie & (e > k * s_rob)
-    if worst_only and bad.any():
-        by_point = np.lexsort((-e, point))          # each point's rays, worst first
-        first = np.r_[True, point[by_point][1:] != point[by_point][:-1]]
-        worst = np.zeros(len(e), bool)
-        worst[by_point[first]] = True
-        bad &= worst
     if not bad.any():
         return 0
     for r in np.flatnonzero(bad):
@@ -387,9 +414,8 @@ def _cut_ties(adj: _Adjuster, rows: np.ndarray, point: np.ndarray, residuals_px:
                         "residual_px": [float(v) for v in residuals_px[r]] if fin else None,
                         "standardised": float(e[r]) if fin else None})
     adj.active[rows[bad]] = False
-    if msgs is not None:
-        _warn(msgs, f"{int(bad.sum())} tie observation(s) beyond {k:g} robust sigmas ({k * s_rob:.1f} sigma) "
-                    "dropped (listed in the summary)", opt.verbose)
+    _warn(msgs, f"{int(bad.sum())} tie observation(s) beyond {k:g} robust sigmas ({k * s_rob:.1f} sigma) "
+                "dropped (listed in the summary)", opt.verbose)
     return int(bad.sum())
 
 

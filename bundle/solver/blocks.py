@@ -123,7 +123,8 @@ class ImageObservations(Block):
     def evaluate(self, state: State, jacobians: bool) -> BlockEval:
         cam = self.camera_at(state.globals)
         R_all, C_all = state.poses.R_world_to_cam, state.poses.C_world
-        runs = self._pose_runs(len(C_all))
+        # per-pose products for known points (self-calibration: numba never loaded); compiled otherwise
+        runs = self._pose_runs(len(C_all)) if self.points_fixed else None
         if runs is None:
             R_all = np.ascontiguousarray(R_all)
             Xc = to_camera(R_all, np.ascontiguousarray(C_all), np.ascontiguousarray(state.points), self.pose,
