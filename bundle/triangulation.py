@@ -328,7 +328,7 @@ def _drop_gross_ties_at_start(adj: _Adjuster, msgs: list[str], dropped: list[dic
     X = bi.X_world.copy()
     L = np.bincount(point, minlength=len(X))
     keep = np.ones(len(rows), bool)
-    e = _standardised(adj, poses, X, bi, np.arange(len(rows)), L)
+    e = _standardised(poses, X, bi, np.arange(len(rows)), L)
     s_rob = max(float(np.median(e)) / _CHI2_MEDIAN_2D, 1.0)
     k = START_CUT_FACTOR * adj.opt.tie_outlier_sigma
     rays = None
@@ -352,7 +352,7 @@ def _drop_gross_ties_at_start(adj: _Adjuster, msgs: list[str], dropped: list[dic
         sub = np.flatnonzero(touched[point] & keep)
         rays = adj.camera.ray(bi.obs_uv) if rays is None else rays
         X = _intersected_ties(bi, rays, sub, X)
-        e[sub] = _standardised(adj, poses, X, bi, sub, L)
+        e[sub] = _standardised(poses, X, bi, sub, L)
     n = int((~keep).sum())
     if n:
         adj.active[rows[~keep]] = False
@@ -362,8 +362,7 @@ def _drop_gross_ties_at_start(adj: _Adjuster, msgs: list[str], dropped: list[dic
     return n > 0
 
 
-def _standardised(adj: _Adjuster, poses: Poses, X: np.ndarray, bi: BundleInput, sub: np.ndarray,
-                  L: np.ndarray) -> np.ndarray:
+def _standardised(poses: Poses, X: np.ndarray, bi: BundleInput, sub: np.ndarray, L: np.ndarray) -> np.ndarray:
     """Standardised residual norms (as `_cut_ties`) of observations `sub` of a bundle input with points X; inf
     behind the camera or where the projection fails."""
     Xc = poses.to_cam(X[bi.obs_point[sub]], bi.obs_image[sub])

@@ -189,6 +189,25 @@ def test_tie_blunders_dropped_and_named():
     assert res.summary["n_dropped_tie_observations"] == len(dropped)
 
 
+def test_gross_tie_mismatches_cut_at_the_start_and_every_adjustment_converges():
+    # SIFT-like mismatches: 1 % of the tie observations hundreds of pixels off; they go before the first
+    # adjustment (cut at the initial orientation), so no adjustment crawls to its iteration limit
+    sim = simulate_block(6, BlockPattern(n_strips=(3,), images_per_strip=(12,)), n_control=10, n_tie=4000)
+    rng = np.random.default_rng(2)
+    meas = copy.deepcopy(sim.measurements)
+    tie = np.flatnonzero(np.char.startswith(meas.id.astype(str), "T"))
+    bad = rng.choice(tie, int(0.01 * len(tie)), replace=False)
+    towards_centre = np.sign(np.array(sim.camera.image_size) / 2 - meas.xy[bad])
+    meas.xy[bad] += towards_centre * rng.uniform(100, 500, (len(bad), 2))
+    res = triangulate(sim.camera, sim.points, meas, sim.crs, TriangulationOptions())
+    runs = res.summary["adjustment_runs"]
+    assert runs and all(r["converged"] for r in runs)
+    start_cut = {(d["image"], d["id"]) for d in res.dropped if d["reason"] == "outlier at the initial orientation"}
+    blunders = {(str(meas.image[k]), str(meas.id[k])) for k in bad}
+    assert len(start_cut & blunders) >= 0.9 * len(blunders) and len(start_cut - blunders) <= 0.1 * len(blunders)
+    assert blunders <= {(d["image"], d["id"]) for d in res.dropped}
+
+
 def _check_rmse(res) -> float:
     d = np.array([c["dENU_m"] for c in res.check if c["evaluated"]])
     return float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
