@@ -25,6 +25,7 @@ from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.frames import R_body_to_ned_from_rph, rph_from_R_body_to_ned
 from dgcal.fields.io.formats import Trajectory
 from dgcal.pos.ins.error_model import ImuErrorModel, imu_grade
+from dgcal.pos.ins.integrity import bridge_densities
 from dgcal.pos.ins.nav_frame import NavFrame
 
 N_STATE = 15  # the seed's states; with GNSS error states 18
@@ -219,9 +220,11 @@ class StrapdownUkf:
         """Per-axis variance (3,) of scale (fraction) and misalignment (rad) errors for mean squares x2 (3,)."""
         return scale ** 2 * x2 + mis ** 2 * (x2.sum() - x2)
 
-    def _noise_cov(self, T: float, w2: np.ndarray, df2: np.ndarray) -> np.ndarray:
+    def _noise_cov(self, T: float, w2: np.ndarray, df2: np.ndarray, bridge=None) -> np.ndarray:
         """Covariance of the augmented process noise over a block of length T (s); w2, df2 the per-axis mean
-        squares of the rates (rad/s)^2 and of the specific force's change from its running mean (m/s^2)^2."""
+        squares of the rates (rad/s)^2 and of the specific force's change from its running mean (m/s^2)^2;
+        `bridge`: per-axis white-noise densities (gyro rad^2/s, accel (m/s)^2/s) of bridged IMU samples in the block
+        (dgcal.pos.ins.integrity), added as the block's constant rate errors (density / T)."""
         n, o = self.noise, self.opts
         c = o.scale_corr_s / T
         pick = lambda v, d: d if v is None else v  # noqa: E731
@@ -229,14 +232,18 @@ class StrapdownUkf:
                                                     pick(o.gyro_misalign_noise, n.gyro_misalign_sigma)) * c
         q_a = n.accel_vrw ** 2 / T + self._axis_var(df2, pick(o.accel_scale_noise, n.accel_scale_sigma),
                                                      pick(o.accel_misalign_noise, n.accel_misalign_sigma)) * c
+        if bridge is not None:
+            q_g = q_g + bridge[0] / T
+            q_a = q_a + bridge[1] / T
         q = list(q_a) + list(q_g) + [n.accel_bias_rw ** 2 * T] * 3 + [n.gyro_bias_rw ** 2 * T] * 3
         if self.gm:
             phi = np.exp(-T / self.opts.gnss_corr_s)
             q += list(self.sigma_gnss ** 2 * (1 - phi ** 2))
         return np.diag(q)
 
-    def predict(self, dtheta: np.ndarray, dvel: np.ndarray, dt: np.ndarray) -> None:
-        """Propagate through IMU increments (M,3) rad and m/s over intervals dt (M,) s (seed eq. 6-10)."""
+    def predict(self, dtheta: np.ndarray, dvel: np.ndarray, dt: np.ndarray, bridge=None) -> None:
+        """Propagate through IMU increments (M,3) rad and m/s over intervals dt (M,) s (seed eq. 6-10); `bridge`:
+        the per-axis noise densities (gyro, accel) of bridged samples in the block, or None."""
         T = float(dt.sum())
         w2 = np.mean((dtheta / dt[:, None]) ** 2, axis=0)
         f = dvel / dt[:, None]
@@ -251,7 +258,7 @@ class StrapdownUkf:
         xa[:nx] = self.x
         Pa = np.zeros((n, n))
         Pa[:nx, :nx] = self.P
-        Pa[nx:, nx:] = self._noise_cov(T, w2, df2)
+        Pa[nx:, nx:] = self._noise_cov(T, w2, df2, bridge)
         chi = self.sp_aug.points(xa, Pa)
         p, v, e = chi[:, 0:3].copy(), chi[:, 3:6].copy(), chi[:, 6:9].copy()
         ba, bg = chi[:, 9:12], chi[:, 12:15]
@@ -369,6 +376,8 @@ def run_ukf(imu, fixes, grade: str | ImuErrorModel, opts: UkfOptions | None = No
     if has_v:
         zz = np.hstack([p_fix, v_fix])
         rr = np.hstack([sp_meas, sv_fix]) ** 2
+    # bridged IMU gaps and spikes (dgcal.pos.ins.integrity.check_imu): their interpolation error as extra noise
+    dens = bridge_densities(getattr(imu, "bridges", []), t_fix[j0:])
     it = range(j0 + 1, len(t_fix))
     if progress:
         it = tqdm(it, desc="ukf", unit="fix", leave=False)
@@ -385,8 +394,11 @@ def run_ukf(imu, fixes, grade: str | ImuErrorModel, opts: UkfOptions | None = No
         frac = h / dt_all[i:i1 + 1]
         keep = h > 1e-9
         if keep.any():
+            br = None
+            if dens is not None and (dens[0][j - j0 - 1].any() or dens[1][j - j0 - 1].any()):
+                br = (np.diag(dens[0][j - j0 - 1]), np.diag(dens[1][j - j0 - 1]))
             f.predict(imu.dtheta[i:i1 + 1][keep] * frac[keep, None], imu.dvel[i:i1 + 1][keep] * frac[keep, None],
-                      h[keep])
+                      h[keep], br)
         i = i1 if t_imu[i1] > tj + 1e-9 else i1 + 1
         t_prev = tj
         w_b = imu.dtheta[min(i1, len(t_imu) - 1)] / dt_all[min(i1, len(t_imu) - 1)] - f.x[12:15]

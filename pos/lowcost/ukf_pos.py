@@ -21,6 +21,7 @@ from dgcal.pos.ins.interpolate import interpolate_trajectory, trajectory_at_even
 from dgcal.pos.lowcost.ukf import UkfOptions, UkfSolution, run_ukf
 from dgcal.pos.smoother.batch import SmootherOptions, smooth
 from dgcal.pos.smoother.initial import GnssFixes
+from dgcal.pos.smoother.integrity import gnss_warnings, screen_fixes
 from dgcal.pos.smoother.output import solution_trajectory
 
 # `dgcal pos --mode ukf --set KEY=VALUE` keys (dgcal.pos.lowcost.ukf.UkfOptions fields and the comparison)
@@ -95,6 +96,9 @@ def _common(tr: Trajectory, t: np.ndarray) -> Trajectory:
                       None if tr.sigma is None else tr.sigma[j])
 
 
+GNSS_OUTLIER_SIGMA = 5.0   # fixes beyond the IMU's acceleration bound plus this many sigmas are rejected
+
+
 def process_ukf(imu, grade, lever_arm_b, fixes: GnssFixes, events=None, rate_hz: float = 10.0,
                 ukf_opts: UkfOptions | None = None, compare: bool = True, compare_rate_hz: float = 10.0,
                 smoother_opts: SmootherOptions | None = None, truth: Trajectory | None = None, skip_s: float = 30.0,
@@ -103,6 +107,8 @@ def process_ukf(imu, grade, lever_arm_b, fixes: GnssFixes, events=None, rate_hz:
     fixes at `compare_rate_hz` when `compare`, and the accuracy table (against `truth` when given)."""
     opts = ukf_opts or UkfOptions()
     opts.lever_arm_b = np.asarray(lever_arm_b, float)
+    # the fixes the IMU's accelerations make impossible never reach the filter (as for the smoother)
+    fixes, rejected = screen_fixes(fixes, imu, GNSS_OUTLIER_SIGMA)
     u = run_ukf(imu, fixes, grade, opts, progress=progress)
     key = u.to_trajectory()
     traj = decimate(key, rate_hz)
@@ -132,6 +138,9 @@ def process_ukf(imu, grade, lever_arm_b, fixes: GnssFixes, events=None, rate_hz:
         table += accuracy_rows("smoother", _common(sm_tr, t), truth)
     res = UkfPosResult("ukf", u, traj, key, ev, fixes, sm_tr, truth, table)
     res.summary = summarize_ukf(res, skip_s, int(len(t)))
+    if rejected:
+        res.summary.setdefault("integrity", {})["gnss_rejected"] = rejected
+        res.summary.setdefault("warnings", []).extend(gnss_warnings(rejected))
     return res
 
 
