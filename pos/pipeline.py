@@ -25,7 +25,7 @@ from dgcal.pos.gnss.observations import GnssObservations
 from dgcal.pos.gnss.ppk import PpkOptions, PpkResult, ppk, ppk_summary
 from dgcal.pos.gnss.rinex import calendar_from_gps_seconds, read_rinex_nav, read_rinex_obs
 from dgcal.pos.gnss.rinex_obs import read_obs_file
-from dgcal.pos.gnss.spp import SppOptions, prepare_epoch, solve_epoch, spp, spp_summary
+from dgcal.pos.gnss.spp import SppOptions, prepare_epochs, solve_epoch, spp, spp_summary
 from dgcal.pos.events import read_any_events
 from dgcal.pos.gnss.solution_files import GnssSolution, read_gnss_solution, select_quality
 from dgcal.pos.ins.error_model import imu_grade
@@ -108,14 +108,13 @@ def tc_epochs(raw, nav, spp_sol, opts):
         raise InputError("fewer than two epochs with a GNSS fix: cannot initialise", raw.source or None)
     t_ok = spp_sol.t_gps[ok]
     p_ok = spp_sol.p_ecef[ok]
-    out = []
-    for i, ep in enumerate(raw.epochs):
-        if ok[i] and spp_sol.epochs[i] is not None:
-            out.append(spp_sol.epochs[i])
-            continue
-        p = np.array([np.interp(ep.t_gps, t_ok, p_ok[:, j]) for j in range(3)])
-        m = prepare_epoch(ep, nav, p, opts)
-        out.append(m if m.n > 0 else None)
+    out = [spp_sol.epochs[i] if ok[i] else None for i in range(len(raw.epochs))]
+    redo = [i for i, e in enumerate(out) if e is None]
+    if redo:
+        t = np.array([raw.epochs[i].t_gps for i in redo])
+        p = np.stack([np.interp(t, t_ok, p_ok[:, j]) for j in range(3)], axis=1)
+        for i, m in zip(redo, prepare_epochs([raw.epochs[i] for i in redo], nav, p, opts)):
+            out[i] = m if m.n > 0 else None
     epochs = [e for e in out if e is not None]
     return GnssObservations(epochs=epochs, receiver=raw.receiver, p_approx_ecef=np.median(p_ok, axis=0),
                             signals=raw.signals, source=raw.source)

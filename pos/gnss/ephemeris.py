@@ -104,8 +104,9 @@ def kepler_states(prm: dict[str, np.ndarray], sys: np.ndarray, t_gps: np.ndarray
     Same model as cssrlib's ``eph2pos`` (tested against it), for many satellites at once.
     Returns position (n,3), velocity (n,3), clock incl. relativity (s), clock drift (s/s).
     """
-    mu = np.array([_MU[s] for s in sys])
-    omge = np.array([_OMGE[s] for s in sys])
+    sys = np.asarray(sys)
+    mu = np.select([sys == s for s in _MU], list(_MU.values()), np.nan)
+    omge = np.select([sys == s for s in _OMGE], list(_OMGE.values()), np.nan)
     dt = t_gps - prm["toe_abs"]
     A = prm["A"]
     Ak = A + np.where(prm["mode"] > 0, dt * prm["Adot"], 0.0)
@@ -169,21 +170,36 @@ def satellite_states(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray
     clk = np.full(n, np.nan)
     drift = np.full(n, np.nan)
     ura = np.full(n, np.nan)
-    ephs = [_select_cached(nav, sid, t_gps[i]) for i, sid in enumerate(sats)]
-    have = np.array([e is not None for e in ephs], dtype=bool)
-    geo = np.array([_is_bds_geo(s) for s in sats], dtype=bool) & have
+    if n == 0:
+        return p, v, clk, drift, ura, np.zeros(0, bool)
+    # the ephemeris is chosen per satellite and 5-minute bucket: select once per distinct pair
+    names, sat_i = np.unique(np.asarray(sats, dtype=object).astype(str), return_inverse=True)
+    bucket = np.floor(t_gps / _SELECT_BUCKET_S).astype(np.int64)
+    pair, pair_i = np.unique(sat_i.astype(np.int64) * (1 << 40) + (bucket - bucket.min()), return_inverse=True)
+    first = np.zeros(len(pair), np.int64)
+    first[pair_i[::-1]] = np.arange(n)[::-1]
+    eph_pair = [_select_cached(nav, str(names[sat_i[j]]), t_gps[j]) for j in first]
+    have_pair = np.array([e is not None for e in eph_pair], bool)
+    ura_pair = np.array([ura_m(str(names[sat_i[j]]), e) if e is not None else np.nan for j, e in zip(first, eph_pair)])
+    geo_sat = np.array([_is_bds_geo(str(name)) for name in names], bool)
+    have = have_pair[pair_i]
+    geo = geo_sat[sat_i] & have
     kep = have & ~geo
     if kep.any():
         idx = np.nonzero(kep)[0]
-        prm = _params(nav, [ephs[i] for i in idx])
-        sysv = np.array([sats[i][0] for i in idx])
+        kp = np.nonzero(have_pair & ~geo_sat[sat_i[first]])[0]
+        prm_pair = _params(nav, [eph_pair[j] for j in kp])
+        where = np.full(len(pair), -1)
+        where[kp] = np.arange(len(kp))
+        sel = where[pair_i[idx]]
+        prm = {k: a[sel] for k, a in prm_pair.items()}
+        sysv = np.array([str(x)[0] for x in names])[sat_i[idx]]
         p[idx], v[idx], c, d = kepler_states(prm, sysv, t_gps[idx])
         clk[idx] = c - prm["tgd"]
         drift[idx] = d
     for i in np.nonzero(geo)[0]:
-        p[i], v[i], clk[i], drift[i] = _geo_state(ephs[i], t_gps[i])
-    for i in np.nonzero(have)[0]:
-        ura[i] = ura_m(sats[i], ephs[i])
+        p[i], v[i], clk[i], drift[i] = _geo_state(eph_pair[pair_i[i]], t_gps[i])
+    ura[have] = ura_pair[pair_i[have]]
     ok = have & np.all(np.isfinite(p), axis=1) & np.isfinite(clk)
     return p, v, clk, drift, ura, ok
 

@@ -2,10 +2,11 @@
 
 ``prepare_epoch`` turns a raw epoch (pseudoranges, Doppler) into a fully modelled one
 (satellite states rotated for Sagnac, Klobuchar/Saastamoinen delays, elevation mask, sigmas;
-see ``dgcal.pos.gnss.observations`` for the exact meaning). ``spp`` solves position + one receiver clock
+see ``dgcal.pos.gnss.observations`` for the exact meaning). ``solve_epoch`` solves position + one receiver clock
 bias per constellation by Gauss-Newton WLS with elevation weights and RAIM-style rejection
 (global chi-square test, then the largest standardised residual is removed), and velocity +
-clock drift from Doppler. Clock biases are reported in metres (c * dt).
+clock drift from Doppler. Clock biases are reported in metres (c * dt). ``spp`` does it for every epoch, each
+starting from the previous epoch's solution; the work runs on all epochs at once (`dgcal.pos.gnss.spp_batch`).
 """
 from __future__ import annotations
 
@@ -14,18 +15,13 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from scipy.special import chdtri  # scipy.stats would cost seconds of import time
-from tqdm import tqdm
 
-from dgcal.fields.constants import C_LIGHT
 from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import write_table
-from dgcal.pos.gnss.ephemeris import group_delay_s, states_at_transmission
-from dgcal.pos.gnss.corrections import (code_sigma_m, elevation_azimuth, klobuchar_delay_m, model_sigma_m,
-                                  sagnac_rotate, saastamoinen_delay_m)
 from dgcal.pos.gnss.observations import CLOCK_GROUP, SYSTEMS, GnssEpoch, GnssObservations, split_gps_time
+from dgcal.pos.gnss.spp_batch import GROUPS, ObsTable, merge_fits, model, solve_epochs, to_epoch
 from dgcal.pos.gnss.rinex import BroadcastNav, read_rinex_nav, read_rinex_obs
 from dgcal.pos.gnss.rinex_obs import read_obs_file
 
@@ -56,9 +52,6 @@ class SppOptions:
     iono: str = "klobuchar"  # klobuchar (first code); auto (ionosphere-free where there is a second code); iono-free
 
 
-IF_CODE_BIAS_M = 1.0   # sigma (m) of the uncorrected code biases in the ionosphere-free combination
-
-
 def _has_position(p) -> bool:
     return p is not None and np.all(np.isfinite(p)) and np.linalg.norm(p) > 6.0e6
 
@@ -71,81 +64,21 @@ def prepare_epoch(raw: GnssEpoch, nav: BroadcastNav, p_rx_ecef: np.ndarray | Non
     is known) below the elevation mask. Without a position the travel time is taken from the
     pseudorange and no atmosphere is modelled (a first pass for SPP).
     """
-    if opts is None:
-        opts = SppOptions()
-    keep = np.isin(raw.system, list(opts.systems)) & np.isfinite(raw.pr_m)
-    dual = _dual_frequency(raw, opts.iono)
-    if opts.iono == "iono-free":
-        keep &= dual
-    ep = raw.subset(keep)
-    dual = dual[keep]
-    p, v, clk, drift, ura, ok = states_at_transmission(nav, ep.sat, ep.t_gps, ep.pr_m)
-    ep = ep.subset(ok)
-    p, v, clk, drift, ura, dual = p[ok], v[ok], clk[ok], drift[ok], ura[ok], dual[ok]
-    known = _has_position(p_rx_ecef)
-    if known:
-        tau = np.linalg.norm(p - p_rx_ecef, axis=1) / C_LIGHT
-        for _ in range(2):
-            pr_, _ = sagnac_rotate(p, v, tau)
-            tau = np.linalg.norm(pr_ - p_rx_ecef, axis=1) / C_LIGHT
-        los = (p - p_rx_ecef) / np.linalg.norm(p - p_rx_ecef, axis=1, keepdims=True)
-    else:
-        tau = np.clip(ep.pr_m / C_LIGHT, 0.06, 0.15)
-        los = p / np.linalg.norm(p, axis=1, keepdims=True)
-    tau_dot = np.sum(los * v, axis=1) / C_LIGHT
-    p_rot, v_rot = sagnac_rotate(p, v, tau, tau_dot)
-    n = ep.n
-    if known:
-        lat, lon, h = ecef_to_geodetic(p_rx_ecef)
-        elev, azim = elevation_azimuth(p_rx_ecef, p_rot, (lat, lon))
-        freq = C_LIGHT / ep.wavelength_m
-        ion = nav.ion_gps
-        iono = klobuchar_delay_m(ep.t_gps, lat, lon, elev, azim, ion, freq)
-        tropo = saastamoinen_delay_m(lat, h, elev, opts.humidity)
-    else:
-        elev, azim = np.full(n, np.pi / 2), np.zeros(n)
-        iono, tropo = np.zeros(n), np.zeros(n)
-    sig = code_sigma_m(elev, opts.code_sigma_zenith_m)
-    if dual.any():
-        # P_IF = (g P1 - P2) / (g - 1), g = (f1/f2)^2: no first-order ionosphere; the broadcast clock refers to the
-        # combination (no group delay); the receiver noise of both codes grows by sqrt(g^2 + 1) / (g - 1)
-        g = np.ones(n)
-        g[dual] = (ep.wavelength2_m[dual] / ep.wavelength_m[dual]) ** 2
-        ep.pr_m = np.where(dual, (g * ep.pr_m - np.nan_to_num(ep.pr2_m)) / np.where(dual, g - 1.0, 1.0), ep.pr_m)
-        clk = clk + np.where(dual, group_delay_s(nav, ep.sat, ep.t_gps), 0.0)
-        iono = np.where(dual, 0.0, iono)
-        sig = np.where(dual, sig * np.sqrt(g ** 2 + 1.0) / np.where(dual, g - 1.0, 1.0), sig)
-    bias = np.zeros(n)
-    if opts.model_errors:
-        # default Klobuchar coefficients are not the day's ionosphere: their error is the whole delay, not half
-        share = 1.0 if getattr(nav, "ion_source", "") == "default" else 0.5
-        bias = model_sigma_m(elev, iono, ura, iono_share=share)
-        # the ionosphere-free combination amplifies the receiver's and the satellite's code biases that no
-        # broadcast message corrects (C1C against C1W, L2C inter-signal, ~1 ns): 2.55 x ~0.4 m
-        bias = np.where(dual, np.hypot(bias, IF_CODE_BIAS_M), bias)
-        sig = np.hypot(sig, bias)
-    ep.sigma_pr_bias_m = bias
-    ep.pr2_m = ep.wavelength2_m = None
-    ep.sat_pos_ecef, ep.sat_vel_ecef = p_rot, v_rot
-    ep.sat_clk_s, ep.sat_clk_drift = clk, drift
-    ep.iono_m, ep.tropo_m = iono, tropo
-    ep.elev_deg, ep.azim_deg = np.degrees(elev), np.degrees(azim)
-    ep.sigma_pr_m = sig
-    ep.sigma_rr_mps = code_sigma_m(elev, opts.doppler_sigma_zenith_mps)
-    ep.p_approx_ecef = np.asarray(p_rx_ecef, float) if known else np.full(3, np.nan)
-    if known:
-        ep = ep.subset(ep.elev_deg >= opts.elev_mask_deg)
-    return ep
+    return prepare_epochs([raw], nav, None if not _has_position(p_rx_ecef) else np.asarray(p_rx_ecef, float)[None],
+                          opts)[0]
 
 
-def _dual_frequency(ep: GnssEpoch, mode: str) -> np.ndarray:
-    """Satellites of a raw epoch whose ionosphere-free combination the front end uses (GPS, QZSS, Galileo with
-    a second code), under the `SppOptions.iono` mode."""
-    if mode not in ("auto", "klobuchar", "iono-free"):
-        raise ValueError(f"iono must be auto, klobuchar or iono-free, not {mode!r}")
-    if mode == "klobuchar" or ep.pr2_m is None:
-        return np.zeros(ep.n, bool)
-    return np.isfinite(ep.pr2_m) & np.isfinite(ep.wavelength2_m) & np.isin(ep.system, ["G", "J", "E"])
+def prepare_epochs(raws: list[GnssEpoch], nav: BroadcastNav, p_rx_ecef: np.ndarray | None,
+                   opts: SppOptions | None = None) -> list[GnssEpoch]:
+    """`prepare_epoch` of many raw epochs at once, epoch e at p_rx_ecef[e] (ECEF m, (E,3); NaN rows or None:
+    unknown)."""
+    opts = opts or SppOptions()
+    tab = ObsTable.from_epochs(raws)
+    E = len(raws)
+    p = np.full((E, 3), np.nan) if p_rx_ecef is None else np.asarray(p_rx_ecef, float).reshape(E, 3)
+    m = model(tab, nav, p, opts, np.arange(E))
+    b = np.searchsorted(m.ep, np.arange(E + 1))
+    return [to_epoch(tab, m, raws[e], e, b[e], b[e + 1]) for e in range(E)]
 
 
 @dataclass
@@ -171,140 +104,34 @@ class EpochSolution:
     epoch: GnssEpoch | None = None
 
 
-def _wls(H: np.ndarray, y: np.ndarray, sigma: np.ndarray):
-    """Weighted LS step: returns (dx, N^-1)."""
-    Hw = H / sigma[:, None]
-    yw = y / sigma
-    N = Hw.T @ Hw
-    Ninv = np.linalg.inv(N)
-    return Ninv @ (Hw.T @ yw), Ninv
-
-
-def _solve_position(ep: GnssEpoch, x0: np.ndarray, systems: list[str], iters: int = 10):
-    """Gauss-Newton for [x, y, z, clk per clock group] (m) on the corrected pseudoranges."""
-    x = x0.copy()
-    y_obs = ep.pr_corr_m
-    sys_col = np.array([systems.index(s) for s in ep.clock_group])
-    Ninv = None
-    for _ in range(iters):
-        d = ep.sat_pos_ecef - x[:3]
-        rho = np.linalg.norm(d, axis=1)
-        e = d / rho[:, None]
-        H = np.zeros((ep.n, 3 + len(systems)))
-        H[:, :3] = -e
-        H[np.arange(ep.n), 3 + sys_col] = 1.0
-        v = y_obs - (rho + x[3 + sys_col])
-        dx, Ninv = _wls(H, v, ep.sigma_pr_m)
-        x += dx
-        if np.linalg.norm(dx) < 1e-4:
-            break
-    d = ep.sat_pos_ecef - x[:3]
-    rho = np.linalg.norm(d, axis=1)
-    H = np.zeros((ep.n, 3 + len(systems)))
-    H[:, :3] = -d / rho[:, None]
-    H[np.arange(ep.n), 3 + sys_col] = 1.0
-    res = y_obs - (rho + x[3 + sys_col])
-    return x, Ninv, H, res
-
-
-def _dops(H_geom: np.ndarray, p_ecef: np.ndarray) -> dict[str, float]:
-    """GDOP/PDOP/HDOP/VDOP of the line-of-sight geometry (one clock column per system)."""
-    try:
-        Q = np.linalg.inv(H_geom.T @ H_geom)
-    except np.linalg.LinAlgError:
-        return {k: np.inf for k in ("gdop", "pdop", "hdop", "vdop")}
-    lat, lon, _ = ecef_to_geodetic(p_ecef)
-    R = R_ecef_to_enu(lat, lon)
-    Qenu = R @ Q[:3, :3] @ R.T
-    return {"gdop": float(np.sqrt(np.trace(Q))), "pdop": float(np.sqrt(np.trace(Q[:3, :3]))),
-            "hdop": float(np.sqrt(Qenu[0, 0] + Qenu[1, 1])), "vdop": float(np.sqrt(Qenu[2, 2]))}
-
-
-def _chi2_limit(dof: int, alpha: float) -> float:
-    return float(chdtri(dof, alpha))
-
-
 def solve_epoch(raw: GnssEpoch, nav: BroadcastNav, p_guess: np.ndarray | None,
                 opts: SppOptions | None = None) -> EpochSolution:
-    """SPP of one raw epoch: position, per-system clocks, velocity, drift, covariances, DOP."""
-    if opts is None:
-        opts = SppOptions()
-    x_prep = np.asarray(p_guess, float) if _has_position(p_guess) else None
-    rejected: list[str] = []
-    fail = EpochSolution(raw.t_gps, False, np.full(3, np.nan), np.full((3, 3), np.nan), {}, {},
-                         np.full(3, np.nan), np.full((3, 3), np.nan), np.nan, np.nan, 0, [], [],
-                         {}, np.nan)
-    for _outer in range(6):
-        ep = prepare_epoch(raw, nav, x_prep, opts)
-        if rejected:
-            ep = ep.subset(~np.isin(ep.sat, rejected))
-        while True:
-            systems = [s for s in SYSTEMS if s in set(ep.clock_group)]
-            n_par = 3 + len(systems)
-            if ep.n < n_par:
-                fail.rejected = rejected
-                fail.n_sat = ep.n
-                return fail
-            x0 = np.zeros(n_par)
-            x0[:3] = x_prep if x_prep is not None else 0.0
-            x, Ninv, H, res = _solve_position(ep, x0, systems)
-            dof = ep.n - n_par
-            chi2 = float(np.sum((res / ep.sigma_pr_m) ** 2))
-            if not (opts.raim and x_prep is not None and dof >= 1 and len(rejected) < opts.max_reject
-                    and chi2 > _chi2_limit(dof, opts.raim_alpha)):
-                break
-            # Baarda-style: remove the observation with the largest standardised residual
-            W = 1.0 / ep.sigma_pr_m ** 2
-            Qv = 1.0 / W - np.einsum("ij,jk,ik->i", H, Ninv, H)
-            w = np.abs(res) / np.sqrt(np.maximum(Qv, 1e-12))
-            worst = int(np.argmax(w))
-            rejected.append(ep.sat[worst])
-            ep = ep.subset(np.arange(ep.n) != worst)
-        moved = np.inf if x_prep is None else np.linalg.norm(x[:3] - x_prep)
-        x_prep = x[:3].copy()
-        if moved < 20.0:
-            break
-    systems = [s for s in SYSTEMS if s in set(ep.clock_group)]
-    H_geom = H.copy()
-    dop = _dops(H_geom, x[:3])
-    if not np.isfinite(dop["gdop"]) or dop["gdop"] > opts.max_gdop:
-        fail.rejected, fail.n_sat = rejected, ep.n
-        return fail
-    dof = ep.n - (3 + len(systems))
-    v, cov_v, drift, drift_sig = _solve_velocity(ep, x[:3])
+    """SPP of one raw epoch: position, per-system clocks, velocity, drift, covariances, DOP.
+
+    The front end models the epoch at the guess (unknown: no atmosphere, see `prepare_epoch`); Gauss-Newton
+    weighted least squares gives position and clocks; while the chi-square test fails (RAIM, with a position)
+    the satellite of the largest standardised residual goes (at most `max_reject`); when the solution moved
+    20 m or more from where the epoch was modelled, it is modelled again there (at most 6 times). Fewer
+    satellites than parameters, or a GDOP beyond `max_gdop`, fail the epoch."""
+    opts = opts or SppOptions()
+    tab = ObsTable.from_epochs([raw])
+    g = np.asarray(p_guess, float)[None] if _has_position(p_guess) else np.full((1, 3), np.nan)
+    fits = solve_epochs(tab, nav, g, opts)
+    b = fits.bounds
+    if not fits.ok[0]:
+        return EpochSolution(raw.t_gps, False, np.full(3, np.nan), np.full((3, 3), np.nan), {}, {},
+                             np.full(3, np.nan), np.full((3, 3), np.nan), np.nan, np.nan, int(fits.n_sat[0]), [],
+                             list(fits.rejected[0]), {}, np.nan)
+    ep = to_epoch(tab, fits.m, raw, 0, b[0], b[1])
+    have = [j for j in range(3) if np.isfinite(fits.clk[0, j])]
     return EpochSolution(
-        t_gps=raw.t_gps, ok=True, p_ecef=x[:3], cov_p=Ninv[:3, :3],
-        clk_m={s: float(x[3 + k]) for k, s in enumerate(systems)},
-        clk_sigma_m={s: float(np.sqrt(Ninv[3 + k, 3 + k])) for k, s in enumerate(systems)},
-        v_ecef=v, cov_v=cov_v, drift_mps=drift, drift_sigma_mps=drift_sig, n_sat=ep.n,
-        used=list(ep.sat), rejected=rejected, dop=dop,
-        chi2_dof=float(np.sum((res / ep.sigma_pr_m) ** 2) / dof) if dof > 0 else np.nan,
-        residuals_m=dict(zip(ep.sat, res.tolist())), epoch=ep)
-
-
-def _solve_velocity(ep: GnssEpoch, p_ecef: np.ndarray):
-    """Velocity (m/s, ECEF) and clock drift (m/s) from corrected range rates; NaN if too few."""
-    m = ep.has_doppler
-    nan3 = np.full(3, np.nan)
-    if m.sum() < 5:
-        return nan3, np.full((3, 3), np.nan), np.nan, np.nan
-    d = ep.sat_pos_ecef[m] - p_ecef
-    e = d / np.linalg.norm(d, axis=1, keepdims=True)
-    # rr_corr = e.(v_sat - v_rx) + drift  ->  rr_corr - e.v_sat = -e.v_rx + drift
-    y = ep.rr_corr_mps[m] - np.sum(e * ep.sat_vel_ecef[m], axis=1)
-    H = np.hstack([-e, np.ones((len(y), 1))])
-    sig = ep.sigma_rr_mps[m]
-    keep = np.ones(len(y), dtype=bool)
-    for _ in range(3):
-        x, Ninv = _wls(H[keep], y[keep], sig[keep])
-        r = y - H @ x
-        # drop gross Doppler errors (5 sigma scaled by the fit's own scatter)
-        s = np.sqrt(max(np.sum((r[keep] / sig[keep]) ** 2) / max(keep.sum() - 4, 1), 1.0))
-        bad = np.abs(r / sig) > 5.0 * s
-        if not np.any(bad & keep) or (keep & ~bad).sum() < 5:
-            break
-        keep &= ~bad
-    return x[:3], Ninv[:3, :3], float(x[3]), float(np.sqrt(Ninv[3, 3]))
+        t_gps=raw.t_gps, ok=True, p_ecef=fits.p[0], cov_p=fits.cov_p[0],
+        clk_m={GROUPS[j]: float(fits.clk[0, j]) for j in have},
+        clk_sigma_m={GROUPS[j]: float(fits.clk_sigma[0, j]) for j in have},
+        v_ecef=fits.v[0], cov_v=fits.cov_v[0], drift_mps=float(fits.drift[0]),
+        drift_sigma_mps=float(fits.drift_sigma[0]), n_sat=int(fits.n_sat[0]), used=list(ep.sat),
+        rejected=list(fits.rejected[0]), dop={k: float(v[0]) for k, v in fits.dop.items()},
+        chi2_dof=float(fits.chi2_dof[0]), residuals_m=dict(zip(ep.sat, fits.res[b[0]:b[1]].tolist())), epoch=ep)
 
 
 @dataclass
@@ -332,38 +159,57 @@ class SppSolution:
 
 def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None,
         progress: bool = False) -> SppSolution:
-    """SPP of every epoch; each epoch starts from the previous solution (or the header position)."""
+    """SPP of every epoch (`solve_epoch`); each epoch starts from the previous epoch's solution (or the header
+    position before the first).
+
+    All epochs are solved at once (`dgcal.pos.gnss.spp_batch.solve_epochs`) from the guesses of the previous
+    round, starting with the header position for all: an epoch's solution depends on its start only through
+    where the models are evaluated (~5e-4 m per metre), so each round brings the epoch-by-epoch result ~2000
+    times closer; an epoch is solved again only while its start moves by 10 um or more (what remains is ~5 nm).
+    `progress` is accepted for the callers (no bar: an hour takes about a second)."""
     if opts is None:
         opts = SppOptions()
-    sols = []
-    guess = obs.p_approx_ecef if _has_position(obs.p_approx_ecef) else None
-    it = obs.epochs
-    if progress:
-        it = tqdm(it, desc="SPP", unit="epoch", leave=False)
-    for raw in it:
-        s = solve_epoch(raw, nav, guess, opts)
-        if s.ok:
-            guess = s.p_ecef
-        sols.append(s)
-    return collect(sols, sorted({CLOCK_GROUP[s] for s in obs.systems}, key=SYSTEMS.index))
-
-
-def collect(sols: list[EpochSolution], systems: list[str]) -> SppSolution:
-    """Stack per-epoch solutions into arrays (NaN where an epoch failed or lacks a system)."""
-    n = len(sols)
-    arr = lambda f: np.array([f(s) for s in sols], dtype=float)  # noqa: E731
+    tab = ObsTable.from_epochs(obs.epochs)
+    E = len(obs.epochs)
+    header = np.asarray(obs.p_approx_ecef, float) if _has_position(obs.p_approx_ecef) else np.full(3, np.nan)
+    guesses = np.tile(header, (E, 1))
+    fits = solve_epochs(tab, nav, guesses, opts)
+    for _ in range(10):
+        new = _previous_fix(fits, header)
+        # an epoch whose start moved by less than 10 um would move by less than 5 nm: only the others again
+        moved = np.flatnonzero(~(np.all(np.abs(new - guesses) < 1e-5, axis=1)
+                                 | np.all(np.isnan(new) & np.isnan(guesses), axis=1)))
+        if not len(moved):
+            break
+        fits = merge_fits(fits, solve_epochs(tab, nav, new, opts, moved), moved)
+        guesses = new
+    b = fits.bounds
+    groups = sorted({CLOCK_GROUP[s] for s in obs.systems}, key=SYSTEMS.index)
+    pa = fits.m.p_approx
+    known = np.all(np.isfinite(pa), axis=1) & (np.linalg.norm(np.nan_to_num(pa), axis=1) > 6e6)
+    epochs = [to_epoch(tab, fits.m, obs.epochs[e], e, b[e], b[e + 1], bool(known[e])) if fits.ok[e] else None
+              for e in range(E)]
+    res = fits.res.tolist()
     return SppSolution(
-        t_gps=arr(lambda s: s.t_gps), ok=np.array([s.ok for s in sols], dtype=bool),
-        p_ecef=arr(lambda s: s.p_ecef).reshape(n, 3), cov_p=arr(lambda s: s.cov_p).reshape(n, 3, 3),
-        v_ecef=arr(lambda s: s.v_ecef).reshape(n, 3), cov_v=arr(lambda s: s.cov_v).reshape(n, 3, 3),
-        clk_m={k: arr(lambda s, k=k: s.clk_m.get(k, np.nan)) for k in systems},
-        clk_sigma_m={k: arr(lambda s, k=k: s.clk_sigma_m.get(k, np.nan)) for k in systems},
-        drift_mps=arr(lambda s: s.drift_mps), drift_sigma_mps=arr(lambda s: s.drift_sigma_mps),
-        n_sat=np.array([s.n_sat for s in sols], dtype=int),
-        dop={k: arr(lambda s, k=k: s.dop.get(k, np.nan)) for k in ("gdop", "pdop", "hdop", "vdop")},
-        chi2_dof=arr(lambda s: s.chi2_dof), used=[s.used for s in sols],
-        rejected=[s.rejected for s in sols], epochs=[s.epoch for s in sols],
-        residuals_m=[s.residuals_m for s in sols])
+        t_gps=tab.t.copy(), ok=fits.ok, p_ecef=fits.p, cov_p=fits.cov_p, v_ecef=fits.v, cov_v=fits.cov_v,
+        clk_m={g: fits.clk[:, GROUPS.index(g)] for g in groups},
+        clk_sigma_m={g: fits.clk_sigma[:, GROUPS.index(g)] for g in groups},
+        drift_mps=fits.drift, drift_sigma_mps=fits.drift_sigma, n_sat=fits.n_sat, dop=fits.dop,
+        chi2_dof=fits.chi2_dof, used=[list(ep.sat) if ep is not None else [] for ep in epochs],
+        rejected=[list(r) for r in fits.rejected], epochs=epochs,
+        residuals_m=[dict(zip(ep.sat, res[b[e]:b[e + 1]])) if ep is not None else {} for e, ep in enumerate(epochs)])
+
+
+def _previous_fix(fits, header: np.ndarray) -> np.ndarray:
+    """Each epoch's start: the last solution before it (the header position before the first)."""
+    E = len(fits.ok)
+    last = np.where(fits.ok, np.arange(E), -1)
+    last = np.maximum.accumulate(last)
+    prev = np.r_[-1, last[:-1]]
+    out = np.tile(header, (E, 1))
+    have = prev >= 0
+    out[have] = fits.p[prev[have]]
+    return out
 
 
 @dataclass

@@ -165,3 +165,40 @@ def test_dual_frequency_ionosphere_free_code(real, shared_data):
     assert errs["iono-free"] < 1.5 and errs["iono-free"] < errs["klobuchar"]
     with pytest.raises(ValueError, match="iono must be"):
         prepare_epoch(ep, nav, REF, SppOptions(iono="dual"))
+
+
+@pytest.mark.parametrize("kw", [{}, {"iono": "auto"}, {"model_errors": False, "systems": ("G",)}])
+def test_batched_spp_equals_the_epoch_by_epoch_chain(real, kw):
+    """`spp` solves all epochs at once in rounds; it must give what `solve_epoch` gives epoch by epoch, each epoch
+    started from the previous solution (to a micrometre), with the same satellites, rejections and modelled epochs."""
+    obs, nav = real
+    opts = SppOptions(**kw)
+    sol = spp(obs, nav, opts)
+    guess = obs.p_approx_ecef
+    for i, raw in enumerate(obs.epochs):
+        s = solve_epoch(raw, nav, guess, opts)
+        assert s.ok == sol.ok[i]
+        if s.ok:
+            guess = s.p_ecef
+            assert np.abs(s.p_ecef - sol.p_ecef[i]).max() < 1e-6
+            assert np.abs(s.v_ecef - sol.v_ecef[i]).max() < 1e-9
+            assert np.allclose(s.cov_p, sol.cov_p[i], rtol=1e-9, atol=1e-12)
+            assert s.used == sol.used[i] and s.rejected == sol.rejected[i] and s.n_sat == sol.n_sat[i]
+            assert np.isclose(s.dop["pdop"], sol.dop["pdop"][i]) and np.isclose(s.chi2_dof, sol.chi2_dof[i])
+            assert all(np.isclose(v, sol.clk_m[g][i], atol=1e-6, rtol=0) for g, v in s.clk_m.items())
+            assert np.allclose(s.epoch.pr_corr_m, sol.epochs[i].pr_corr_m, atol=1e-6, rtol=0)
+
+
+def test_prepare_epochs_equals_prepare_epoch(real):
+    from dgcal.pos.gnss.spp import prepare_epochs
+    obs, nav = real
+    raws = obs.epochs[:8]
+    p = np.tile(REF, (8, 1)) + np.arange(8)[:, None] * 10.0
+    p[3] = np.nan                                    # unknown: modelled without atmosphere
+    many = prepare_epochs(raws, nav, p, SppOptions())
+    for i, raw in enumerate(raws):
+        one = prepare_epoch(raw, nav, None if i == 3 else p[i], SppOptions())
+        assert one.sat == many[i].sat
+        for f in ("pr_corr_m", "sigma_pr_m", "elev_deg", "iono_m", "tropo_m"):
+            assert np.allclose(getattr(one, f), getattr(many[i], f), atol=1e-9, rtol=0), f
+        assert np.allclose(one.sat_pos_ecef, many[i].sat_pos_ecef, atol=1e-6, rtol=0)
