@@ -181,7 +181,7 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     if forward == "filter":
         fw = forward_solution(sol.problem, sol.values)
     elif forward:
-        fw = linear_forward_solution(sol.problem, sol.values)
+        fw = linear_forward_solution(sol.problem, sol.values, sol.rows)
     timing["forward_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     dense = densify(sol, sol.problem, imu, rate_hz)
@@ -288,8 +288,9 @@ def summarize(res: PosResult) -> dict:
         "gyro_bias_deg_h_mean": np.degrees(sol.bias[:, 3:].mean(0) * 3600).round(3).tolist(),
         "accel_bias_mg_mean": (sol.bias[:, :3].mean(0) / (G0 * 1e-3)).round(4).tolist(),
         "residuals": {k: _stats(v) for k, v in sol.residuals.items()},
-        "smoother": {k: sol.info[k] for k in ("lm_iterations", "timing", "static_start_end_s", "static_white_noise",
-                                              "imu_noise_used", "atmosphere_budget_m", "dd_rows_dropped")
+        "smoother": {k: sol.info[k] for k in ("lm_iterations", "second_pass_reoptimised", "timing",
+                                              "static_start_end_s", "static_white_noise", "imu_noise_used",
+                                              "atmosphere_budget_m", "dd_rows_dropped")
                      if k in sol.info},
         "events": int(len(res.events.t)) if res.events is not None else 0,
     }

@@ -19,12 +19,15 @@ from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
 from dgcal.fields.frames import R_ecef_to_ned
 
 
-def normal_gravity(lat_deg: float, h_m: float) -> float:
-    """Normal gravity magnitude (m/s^2) on the WGS84 ellipsoid (Somigliana) with free-air height term."""
+def normal_gravity(lat_deg: float | np.ndarray, h_m: float | np.ndarray) -> float | np.ndarray:
+    """Normal gravity magnitude (m/s^2) on the WGS84 ellipsoid (Somigliana) with free-air height term; latitude
+    (deg) and ellipsoidal height (m) scalars (a float back) or arrays."""
     s2 = np.sin(np.radians(lat_deg)) ** 2
     g0 = 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - 0.00669437999013 * s2)
-    return float(g0 * (1 - 2 * h_m / A_WGS84 * (1 + 1 / 298.257223563 + 0.00344978600308
-                                                  - 2 / 298.257223563 * s2) + 3 * h_m ** 2 / A_WGS84 ** 2))
+    g = g0 * (1 - 2 * np.asarray(h_m, float) / A_WGS84 * (1 + 1 / 298.257223563 + 0.00344978600308
+                                                         - 2 / 298.257223563 * s2) + 3 * np.asarray(h_m, float) ** 2
+              / A_WGS84 ** 2)
+    return float(g) if np.ndim(g) == 0 else g
 
 
 @dataclass(frozen=True)

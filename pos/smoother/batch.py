@@ -21,15 +21,17 @@ from dgcal.pos.gnss.dd import CarrierInput
 from dgcal.pos.smoother.carrier import atmosphere_position_covariance, dd_residuals, keyframe_dd_factors
 from dgcal.pos.smoother.code_bias import CB, CodeBiasArcs, bias_estimates, bias_process_factors, code_bias_arcs, \
     insert_initial
-from dgcal.pos.smoother.covariance import KeyframeBlocks, smoothed_covariances
+from dgcal.pos.smoother.covariance import smoothed_covariances
+from dgcal.pos.smoother.linearised import KeyframeBlocks, KeyframeRows, keyframe_rows
 from dgcal.pos.smoother.static import static_ends, static_white_noise, zero_motion_factors
 from dgcal.pos.smoother.factors import (B, CLK, DRIFT, V, X, ZERO, clock_factors, doppler_factors, position_factor,
                                   pseudorange_factors, velocity_factor)
-from dgcal.pos.smoother.preintegration import (gravity_correction_b, interval_params, preintegrate,
-                                               preintegration_params, split_at_keyframes)
+from dgcal.pos.smoother.preintegration import (ImuSegments, bias_moved, interval_gravity, interval_params,
+                                               preintegrate, preintegration_params, set_gravity, split_at_keyframes)
 from dgcal.pos.smoother.initial import (GnssFixes, anchor_attitude, initial_clocks, initial_track,
                                propagate_attitude)
-from dgcal.pos.smoother.integrity import assemble_graph, reject_outliers, screen_fixes, with_bridges
+from dgcal.pos.smoother.integrity import (assemble_graph, factor_table, reject_outliers, screen_fixes,
+                                          whitened_errors, with_bridges)
 
 
 @dataclass
@@ -90,6 +92,7 @@ class NavSolution:
     code_bias: dict = field(default_factory=dict)  # TC: sat -> (keyframes, estimated pseudorange bias m)
     problem: object = field(default=None, repr=False)  # the Problem it came from (forward pass, outputs)
     values: object = field(default=None, repr=False)  # its gtsam Values (the linearisation point)
+    rows: object = field(default=None, repr=False)    # the problem linearised at `values` (linearised.KeyframeRows)
 
     @property
     def cov_p_nav(self) -> np.ndarray:
@@ -108,7 +111,7 @@ class Problem:
     t_key: np.ndarray
     systems: list
     pims: list
-    epoch_factors: list  # per keyframe: list of (kind, sat, factor) GNSS factors
+    epoch_factors: list  # per keyframe: (kind, factor, sigma) of its measurements (sigma: of pr/dop, else None)
     imu_factors: list
     clock_factor_groups: list
     prior_factors: list
@@ -116,13 +119,17 @@ class Problem:
     gnss_update: np.ndarray
     omega_b: np.ndarray
     params: object = None
+    huber_k: float | None = None     # the Huber threshold of the robust GNSS factors (pr, dop, LC positions)
     iterations: int = 0
-    accel: np.ndarray | None = None  # the (gravity-corrected) accelerometer rates the IMU factors used
+    seg: ImuSegments | None = None   # the IMU pieces of every keyframe interval (what the IMU factors integrated)
+    interval_params: list = field(default_factory=list)  # per interval: its preintegration parameters (gravity)
+    bias_hat: np.ndarray | None = None  # (K-1,6) the bias each interval's preintegration is linearised about
     dd: dict = field(default_factory=dict)  # keyframe -> DDFactorData (TC with a base station)
     lever_arm_b: np.ndarray | None = None
     carrier: CarrierInput | None = None
     code_bias: CodeBiasArcs | None = None   # TC: the satellites' code-bias arcs (dgcal.pos.smoother.code_bias)
     bias_factor_groups: list = field(default_factory=list)  # per keyframe: the code-bias process factors ending there
+    _blocks: KeyframeBlocks | None = field(default=None, repr=False)
 
     def ordering(self) -> gtsam.Ordering:
         """Elimination order: keyframe by keyframe (each block's variables together), the pinned ZERO last."""
@@ -136,6 +143,11 @@ class Problem:
 
     def blocks(self, K: int | None = None, first: int = 0) -> KeyframeBlocks:
         """The keyframe block layout of this problem (all keyframes, or K of them from `first`)."""
+        if K is None and first == 0:
+            # the whole problem's layout is asked for by the ordering, the covariances and the forward pass
+            if self._blocks is None:
+                self._blocks = KeyframeBlocks(len(self.t_key), self.systems, 0, self.code_bias)
+            return self._blocks
         return KeyframeBlocks(len(self.t_key) if K is None else K, self.systems, first, self.code_bias)
 
 
@@ -157,9 +169,11 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     biases = [gtsam.imuBias.ConstantBias()] * (K - 1)
     per_interval = with_bridges(interval_params(imu_noise, frame, seg, opts.earth_rotation), imu, imu_noise, frame,
                                 t_key, opts.earth_rotation)
+    p_ant, v_ant = initial_track(t_key, fixes, frame)
+    # gravity along the initial track; the second pass moves it to the solved one (`refine_imu`)
+    set_gravity(per_interval, interval_gravity(frame, p_ant))
     pims = preintegrate(params, seg, biases, per_interval)
 
-    p_ant, v_ant = initial_track(t_key, fixes, frame)
     a, R_a = anchor_attitude(t_key, v_ant)
     R = propagate_attitude(pims, a, R_a, p_ant, v_ant)
     p_imu = p_ant - np.einsum("kij,j->ki", R, lever)
@@ -222,7 +236,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
         for k, ep in enumerate(epochs_at_key):
             if k in dd:
                 f, data = dd[k]
-                epoch_factors[k].append(("dd", f))
+                epoch_factors[k].append(("dd", f, None))
                 n_sat[k] = len(set(data.cur.sat.tolist()) | set(data.cur.ref.tolist()))
                 gnss_update[k] = True
             if ep is None or ep.n == 0:
@@ -231,13 +245,13 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
             if k not in dd:
                 n_sat[k] = ep.n
                 gnss_update[k] = True
-                for f in pseudorange_factors(k, ep, r_approx, lever, ecef_T_nav, opts.huber_k,
-                                             bias_key=arcs.key if arcs is not None else None):
-                    epoch_factors[k].append(("pr", f))
+                fs, sg = pseudorange_factors(k, ep, r_approx, lever, ecef_T_nav, opts.huber_k,
+                                             bias_key=arcs.key if arcs is not None else None, with_sigma=True)
+                epoch_factors[k] += [("pr", f, sig) for f, sig in zip(fs, sg)]
             if opts.use_doppler:
-                for f in doppler_factors(k, ep, r_approx, lever, omega_b[k], ecef_T_nav,
-                                         opts.huber_k):
-                    epoch_factors[k].append(("dop", f))
+                fs, sg = doppler_factors(k, ep, r_approx, lever, omega_b[k], ecef_T_nav, opts.huber_k,
+                                         with_sigma=True)
+                epoch_factors[k] += [("dop", f, sig) for f, sig in zip(fs, sg)]
     else:
         lc = lc_fixes if lc_fixes is not None else fixes
         idx = np.clip(np.searchsorted(t_key, lc.t - 1e-3), 0, K - 1)
@@ -246,40 +260,57 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
                 continue
             noise = lc.sigma_ned[j] if lc.cov_ned is None else lc.cov_ned[j]
             epoch_factors[k].append(("pos", position_factor(k, frame.from_ecef(lc.p_ecef[j]), noise,
-                                                            lever, opts.huber_k)))
+                                                            lever, opts.huber_k), None))
             gnss_update[k] = True
             n_sat[k] = 1
             if opts.lc_velocity and lc.v_ecef is not None and np.all(np.isfinite(lc.v_ecef[j])):
                 v_nav = lc.v_ecef[j] @ frame.R_nav_to_ecef
                 v_lever = R[k] @ np.cross(omega_b[k], lever)
-                epoch_factors[k].append(("vel", velocity_factor(k, v_nav - v_lever, lc.sigma_v_ned[j])))
+                epoch_factors[k].append(("vel", velocity_factor(k, v_nav - v_lever, lc.sigma_v_ned[j]), None))
 
     if static is not None and static.any():
         for k, kind, f in zero_motion_factors(static, t_key):
-            epoch_factors[k].append((kind, f))
+            epoch_factors[k].append((kind, f, None))
     problem = Problem(None, values, frame, t_key, systems, pims, epoch_factors, imu_factors, clock_groups, prior,
-                      n_sat, gnss_update, omega_b, params, dd={k: v[1] for k, v in dd.items()}, lever_arm_b=lever,
+                      n_sat, gnss_update, omega_b, params, huber_k=opts.huber_k, seg=seg, interval_params=per_interval,
+                      bias_hat=np.zeros((K - 1, 6)), dd={k: v[1] for k, v in dd.items()}, lever_arm_b=lever,
                       carrier=carrier, code_bias=arcs if arcs is not None and len(arcs) else None,
                       bias_factor_groups=bias_groups)
     problem.graph = assemble_graph(problem)
     return problem
 
 
-def rebuild_imu(problem: Problem, imu, imu_noise: ImuErrorModel, opts: SmootherOptions, first: NavSolution) -> Problem:
-    """The same problem with the IMU factors re-preintegrated about `first`'s biases and with the gravity
-    correction of `first`'s trajectory (all other factors are reused)."""
-    t_key = problem.t_key
-    accel = imu.accel_m_s2 + gravity_correction_b(imu.t, first.t, first.R_body_to_nav, first.p_nav, problem.frame)
-    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_key, imu.dt[0])
-    biases = [gtsam.imuBias.ConstantBias(b[:3], b[3:]) for b in first.bias[:-1]]
-    pims = preintegrate(problem.params, seg, biases,
-                        with_bridges(interval_params(imu_noise, problem.frame, seg, opts.earth_rotation), imu,
-                                     imu_noise, problem.frame, t_key, opts.earth_rotation))
-    imu_factors = [gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
-                   for k in range(len(t_key) - 1)]
-    new = dataclasses.replace(problem, pims=pims, imu_factors=imu_factors, accel=accel)
-    new.graph = assemble_graph(new)
-    return new
+def update_gravity(problem: Problem, p_nav: np.ndarray, share: float = 0.0) -> np.ndarray:
+    """Each interval's gravity at the track p_nav (K,3) m, in place (gtsam reads it from the parameters at every
+    evaluation: no new preintegration), where it changes the interval's velocity increment by more than `share`
+    of its white noise; returns those intervals."""
+    seg = problem.seg
+    T = np.add.reduceat(seg.dt, seg.start[:-1])
+    g = interval_gravity(problem.frame, p_nav)
+    old = np.array([p.n_gravity for p in problem.interval_params])
+    noise = np.sqrt(np.array([p.getAccelerometerCovariance()[0, 0] for p in problem.interval_params]) * T)
+    moved = np.flatnonzero(np.linalg.norm(g - old, axis=1) * T > share * noise)
+    set_gravity([problem.interval_params[k] for k in moved], g[moved])
+    return moved
+
+
+def refine_imu(problem: Problem, imu_noise: ImuErrorModel, first: NavSolution, share: float = 0.01) -> bool:
+    """The second pass's IMU factors, in place, where they change materially (an interval's velocity increment by
+    more than `share` of its white noise): the interval's gravity at `first`'s track (`update_gravity`), and the
+    preintegration about `first`'s biases where the bias moved from its linearisation point
+    (`dgcal.pos.smoother.preintegration.bias_moved`; elsewhere gtsam's first-order bias correction holds). True if
+    anything changed: the solution must then be re-optimised."""
+    seg = problem.seg
+    moved_g = update_gravity(problem, first.p_nav, share)
+    which = np.flatnonzero(bias_moved(imu_noise, seg, problem.bias_hat, first.bias[:-1], share))
+    if len(which):
+        biases = {int(k): gtsam.imuBias.ConstantBias(first.bias[k, :3], first.bias[k, 3:]) for k in which}
+        for k, pim in zip(which, preintegrate(problem.params, seg, biases, problem.interval_params, which)):
+            problem.pims[k] = pim
+            problem.imu_factors[k] = gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim)
+            problem.bias_hat[k] = first.bias[k]
+        problem.graph = assemble_graph(problem)
+    return bool(len(moved_g) or len(which))
 
 
 def screen_dd(problem: Problem, values, threshold: float) -> int:
@@ -317,9 +348,9 @@ def screen_dd(problem: Problem, values, threshold: float) -> int:
     new = keyframe_dd_factors(problem.t_key, dd_at_key, problem.lever_arm_b, problem.frame, c.phase_corr,
                               c.code_corr, X)
     for k in range(len(problem.t_key)):
-        fl = [(kind, f) for kind, f in problem.epoch_factors[k] if kind != "dd"]
+        fl = [e for e in problem.epoch_factors[k] if e[0] != "dd"]
         if k in new:
-            fl.insert(0, ("dd", new[k][0]))
+            fl.insert(0, ("dd", new[k][0], None))
         problem.epoch_factors[k] = fl
     problem.dd = {k: v[1] for k, v in new.items()}
     problem.graph = assemble_graph(problem)
@@ -349,16 +380,12 @@ def optimize(problem: Problem, max_iterations: int = 30):
 def read_states(problem: Problem, values) -> NavSolution:
     """Keyframe states from gtsam Values (no covariances)."""
     K = len(problem.t_key)
-    p = np.empty((K, 3))
-    v = np.empty((K, 3))
-    R = np.empty((K, 3, 3))
-    b = np.empty((K, 6))
-    for k in range(K):
-        pose = values.atPose3(X(k))
-        p[k] = pose.translation()
-        R[k] = pose.rotation().matrix()
-        v[k] = values.atPoint3(V(k))
-        b[k] = values.atConstantBias(B(k)).vector()
+    # the problem's only Pose3 and Point3 variables are X(k) and V(k), extracted in key (= keyframe) order
+    poses = gtsam.utilities.extractPose3(values)
+    R = poses[:, :9].reshape(K, 3, 3)
+    p = poses[:, 9:].copy()
+    v = gtsam.utilities.extractPoint3(values).reshape(K, 3)
+    b = np.array([values.atConstantBias(B(k)).vector() for k in range(K)])
     clock = {s: np.array([values.atDouble(CLK(s, k)) for k in range(K)]) for s in problem.systems}
     drift = (np.array([values.atDouble(DRIFT(k)) for k in range(K)]) if problem.systems
              else np.zeros(K))
@@ -369,31 +396,61 @@ def read_states(problem: Problem, values) -> NavSolution:
     return sol
 
 
-def gnss_residuals(problem: Problem, values) -> dict:
-    """Post-fit residuals of the GNSS factors: kind -> (keyframe index (M,), residual (M,) m or m/s, sigma (M,))."""
+def gnss_residuals(problem: Problem, values, rows: KeyframeRows) -> dict:
+    """Post-fit residuals of the GNSS factors: kind -> (keyframe index (M,), residual (M,) m or m/s, sigma (M,)).
+
+    `rows`: the graph linearised at `values` (`dgcal.pos.smoother.linearised.keyframe_rows`); the factors whose
+    sigma was recorded (pseudorange, Doppler) take their errors from it, the few others are evaluated."""
+    tab = factor_table(problem)
+    z = whitened_errors(rows, tab)
     out: dict = {}
-    for k, fl in enumerate(problem.epoch_factors):
-        for kind, f in fl:
-            if kind == "dd":
-                data = problem.dd[k]
-                e, sig = dd_residuals(data, values, X, problem.lever_arm_b, problem.frame)
-                names = np.where(data.cur.kind == 1, "ddc", np.where(data.cur.mode == 1, "ddp_float", "ddp"))
-                for j in range(len(e)):
-                    out.setdefault(str(names[j]), []).append((k, e[j], sig[j]))
-                continue
-            e = np.atleast_1d(f.unwhitenedError(values))
-            w = np.atleast_1d(f.whitenedError(values))
+    for i, (kd, sig) in enumerate(zip(tab.kinds, tab.sigma)):
+        if kd is None or np.isfinite(sig):
+            continue
+        kind, k = kd
+        if kind == "dd":
+            data = problem.dd[k]
+            e, s = dd_residuals(data, values, X, problem.lever_arm_b, problem.frame)
+            names = np.where(data.cur.kind == 1, "ddc", np.where(data.cur.mode == 1, "ddp_float", "ddp"))
             for j in range(len(e)):
-                out.setdefault(kind, []).append((k, e[j], e[j] / w[j] if w[j] != 0 else np.nan))
-    return {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in out.items()}
+                out.setdefault(str(names[j]), []).append((k, e[j], s[j]))
+            continue
+        f = problem.graph.at(i)
+        e = np.atleast_1d(f.unwhitenedError(values))
+        w = np.atleast_1d(f.whitenedError(values))
+        for j in range(len(e)):
+            out.setdefault(kind, []).append((k, e[j], e[j] / w[j] if w[j] != 0 else np.nan))
+    res = {kind: tuple(np.array(c) for c in zip(*r)) for kind, r in out.items()}
+    # the recorded kinds (one row per factor): whitened error times sigma
+    rec = np.flatnonzero(np.isfinite(tab.sigma))
+    names = np.array([tab.kinds[i][0] for i in rec])
+    ks = np.array([tab.kinds[i][1] for i in rec], int)
+    for kind in dict.fromkeys(names.tolist()):
+        m = names == kind
+        i = rec[m]
+        res[kind] = (ks[m], z[tab.start[i]] * tab.sigma[i], tab.sigma[i].copy())
+    return res
 
 
-def add_marginals(sol: NavSolution, problem: Problem, values) -> None:
-    """Fill cov_pose / cov_vel (and the full keyframe block `cov_block`) from the linearised graph."""
-    P = smoothed_covariances(problem.graph, values, problem.blocks())
+def add_marginals(sol: NavSolution, problem: Problem, values, rows: KeyframeRows | None = None,
+                  P: np.ndarray | None = None) -> None:
+    """Fill cov_pose / cov_vel (and the full keyframe block `cov_block`) from the linearised graph (`rows`: already
+    linearised at `values`; `P`: the keyframe blocks' covariances if already computed)."""
+    if P is None:
+        P = smoothed_covariances(problem.graph, values, problem.blocks(), rows)
     sol.cov_pose = P[:, :6, :6].copy()
     sol.cov_vel = P[:, 6:9, 6:9].copy()
     sol.cov_block = P
+
+
+STEP_LEFT = 0.1   # the largest Gauss-Newton step left at the solution, in sigmas of the state it moves
+
+
+def step_left(P: np.ndarray, dx: np.ndarray) -> float:
+    """The largest |step| / sigma over every keyframe state, from the covariances P (K,n,n) and the Gauss-Newton step
+    dx (K,n) of the linearised problem (`dgcal.pos.smoother.covariance.smoothed_covariances`)."""
+    sig = np.sqrt(np.maximum(np.einsum("kii->ki", P), 1e-300))
+    return float(np.max(np.abs(dx) / sig)) if dx.size else 0.0
 
 
 def add_atmosphere_budget(sol: NavSolution, problem: Problem) -> None:
@@ -491,17 +548,27 @@ def _screen_inputs(imu, fixes: GnssFixes, lc_fixes: GnssFixes | None, mode: str,
     return clean, lc_fixes, out
 
 
-def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOptions | None = None,
-           mode: str = "tc", gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
-           second_pass: bool = True, carrier: CarrierInput | None = None) -> NavSolution:
-    """Smoothed trajectory over the whole flight.
+@dataclass
+class Setup:
+    """What the smoother starts from: the first problem (built, not yet optimised), the IMU noise it carries (raised
+    to what a static start/end shows), the screened fixes and what the screening rejected, and the keyframes."""
 
-    imu: `dgcal.pos.ins.imu_data.ImuData` (body FRD increments). fixes: GNSS positions to initialise (SPP) and, in LC
-    mode, the measurements unless `lc_fixes` is given. gnss: `GnssObservations` (TC mode). grade: an
-    `ImuErrorModel` or a preset name (the smoother carries its `smoother_noise()`). The keyframes are the
-    GNSS epochs (TC) or fix times (LC) in the IMU span. carrier: double differences against a base station
-    (TC): they replace the pseudoranges of their keyframes (`dgcal.pos.smoother.carrier`).
-    """
+    problem: Problem
+    noise: ImuErrorModel
+    fixes: GnssFixes
+    lc_fixes: GnssFixes | None
+    epochs: list | None            # TC: the GNSS epoch at each keyframe (None where there is none)
+    static: np.ndarray | None      # (K,) bool: static start/end keyframes
+    measured: tuple | None         # white noise measured at rest (gyro rad/sqrt(s), accel m/s/sqrt(s))
+    rejected: list
+    build_s: float = 0.0
+
+
+def setup_problem(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOptions | None = None,
+                  mode: str = "tc", gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
+                  carrier: CarrierInput | None = None) -> Setup:
+    """The smoother's first problem (arguments as `smooth`): fixes screened, nav frame, keyframes, static
+    start/end and its noise, the graph with its initial values."""
     opts = opts or SmootherOptions()
     noise = imu_grade(grade).smoother_noise()
     rejected: list = []
@@ -522,7 +589,6 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         epochs = None
     else:
         raise ValueError(f"unknown mode {mode!r}")
-    timing = {}
     t0 = time.perf_counter()
     static = static_ends(imu, t_key, lc_fixes or fixes if mode == "lc" else fixes) if opts.zupt else None
     measured = static_white_noise(imu, t_key, static) if opts.static_noise else None
@@ -531,7 +597,25 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         noise = dataclasses.replace(noise, gyro_arw=max(noise.gyro_arw, measured[0]),
                                     accel_vrw=max(noise.accel_vrw, measured[1]))
     problem = build_problem(imu, frame, t_key, fixes, noise, opts, mode, epochs, lc_fixes, carrier, static)
-    timing["build_s"] = time.perf_counter() - t0
+    return Setup(problem, noise, fixes, lc_fixes, epochs, static, measured, rejected, time.perf_counter() - t0)
+
+
+def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOptions | None = None,
+           mode: str = "tc", gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
+           second_pass: bool = True, carrier: CarrierInput | None = None) -> NavSolution:
+    """Smoothed trajectory over the whole flight.
+
+    imu: `dgcal.pos.ins.imu_data.ImuData` (body FRD increments). fixes: GNSS positions to initialise (SPP) and, in LC
+    mode, the measurements unless `lc_fixes` is given. gnss: `GnssObservations` (TC mode). grade: an
+    `ImuErrorModel` or a preset name (the smoother carries its `smoother_noise()`). The keyframes are the
+    GNSS epochs (TC) or fix times (LC) in the IMU span. carrier: double differences against a base station
+    (TC): they replace the pseudoranges of their keyframes (`dgcal.pos.smoother.carrier`).
+    """
+    opts = opts or SmootherOptions()
+    su = setup_problem(imu, fixes, grade, opts, mode, gnss, lc_fixes, frame, carrier)
+    problem, noise, static, measured, rejected = su.problem, su.noise, su.static, su.measured, su.rejected
+    fixes, lc_fixes, epochs, frame, t_key = su.fixes, su.lc_fixes, su.epochs, problem.frame, problem.t_key
+    timing = {"build_s": su.build_s}
     iterations = []
     coarse = _coarse_noise(noise)
     if coarse is not None:
@@ -544,30 +628,62 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         iterations.append(p0.iterations)
         timing["coarse_pass_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    values = optimize(problem, opts.max_iterations)
-    timing["optimize_s"] = time.perf_counter() - t0
+    # gravity follows the track: the initial track can be far off between fixes (an SPP gap is interpolated, the
+    # pseudo-attitude misplaces the IMU), but after two iterations the positions are within a metre of where the
+    # GNSS puts them; each interval's gravity is set there before the iterations go on (so the second pass rarely
+    # finds gravity to change)
+    values = optimize(problem, 2)
     iterations.append(problem.iterations)
+    update_gravity(problem, read_states(problem, values).p_nav)
+    problem.values = values
+    values = optimize(problem, max(opts.max_iterations - problem.iterations, 1))
+    iterations.append(problem.iterations)
+    timing["optimize_s"] = time.perf_counter() - t0
     sol = read_states(problem, values)
+    t0 = time.perf_counter()
+    # one linearisation at the solution serves the outlier test, the residuals, the covariances and the forward
+    # pass, unless the second pass moves the solution
+    rows = keyframe_rows(problem.graph, values, problem.blocks())
     dropped = screen_dd(problem, values, opts.dd_outlier_sigma) if opts.dd_outlier_sigma else 0
-    post = reject_outliers(problem, values, opts.gnss_outlier_sigma) if opts.gnss_outlier_sigma else []
+    post = reject_outliers(problem, rows, opts.gnss_outlier_sigma) if opts.gnss_outlier_sigma else []
     rejected += post
+    reoptimise = False
     if (dropped or post) and not second_pass:
         problem.values = values
         values = optimize(problem, opts.max_iterations)
         sol = read_states(problem, values)
+        rows = None
     if second_pass:
-        # re-preintegrate with the gravity correction and about the estimated biases, start from pass one
+        # gravity along the solved track and the biases, from pass one; re-optimised when they (or the rejections)
+        # changed the problem materially
+        reoptimise = refine_imu(problem, noise, sol) or dropped or post
+        if reoptimise:
+            problem.values = values
+            values = optimize(problem, opts.max_iterations)
+            sol = read_states(problem, values)
+            iterations.append(problem.iterations)
+            rows = None
+    if rows is None:
+        rows = keyframe_rows(problem.graph, values, problem.blocks())
+    timing["second_pass_s"] = time.perf_counter() - t0
+    P = None
+    if opts.covariances:
         t0 = time.perf_counter()
-        problem = rebuild_imu(problem, imu, noise, opts, sol)
-        problem.values = values
-        values = optimize(problem, opts.max_iterations)
-        sol = read_states(problem, values)
-        timing["second_pass_s"] = time.perf_counter() - t0
-        iterations.append(problem.iterations)
-    sol.residuals = gnss_residuals(problem, values)
+        P, dx = smoothed_covariances(problem.graph, values, problem.blocks(), rows, step=True)
+        if step_left(P, dx) > STEP_LEFT:
+            # gtsam stops on the cost's relative change (1e-5); a step still material somewhere sends it on
+            problem.values = values
+            values = optimize(problem, opts.max_iterations)
+            sol = read_states(problem, values)
+            iterations.append(problem.iterations)
+            rows = keyframe_rows(problem.graph, values, problem.blocks())
+            P = smoothed_covariances(problem.graph, values, problem.blocks(), rows)
+        timing["covariance_s"] = time.perf_counter() - t0
+    sol.residuals = gnss_residuals(problem, values, rows)
     sol.info = {"mode": mode, "keyframes": len(t_key), "factors": problem.graph.size(),
                 "error_final": problem.graph.error(values), "systems": problem.systems,
-                "lm_iterations": iterations, "dd_rows_dropped": dropped,
+                "lm_iterations": iterations, "second_pass_reoptimised": bool(second_pass and reoptimise),
+                "dd_rows_dropped": dropped,
                 "static_keyframes": int(static.sum()) if static is not None else 0,
                 "static_white_noise": None if measured is None else
                 {"gyro_arw_deg_rt_h": round(float(np.degrees(measured[0]) * 60.0), 4),
@@ -576,11 +692,9 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
                                    "accel_vrw_m_s_rt_h": round(float(noise.accel_vrw * 60.0), 4)},
                 "static_start_end_s": _static_spans(t_key, static), "gnss_rejected": rejected}
     if opts.covariances:
-        t0 = time.perf_counter()
-        add_marginals(sol, problem, values)
+        add_marginals(sol, problem, values, rows, P)
         if problem.dd and problem.carrier is not None:
             add_atmosphere_budget(sol, problem)
-        timing["covariance_s"] = time.perf_counter() - t0
     sol.info["timing"] = {k: round(v, 2) for k, v in timing.items()}
-    sol.problem, sol.values = problem, values
+    sol.problem, sol.values, sol.rows = problem, values, rows
     return sol

@@ -69,50 +69,54 @@ def robust(sigma: float, dim: int = 1, huber_k: float | None = 1.345):
 
 
 def pseudorange_factors(k: int, epoch, p_approx_ecef, lever_arm_b, ecef_T_nav, huber_k=1.345,
-                        sigma_scale: float = 1.0, bias_key=None) -> list:
-    """A pseudorange factor per satellite of a `GnssEpoch` at keyframe k (one clock key per constellation).
+                        sigma_scale: float = 1.0, bias_key=None, with_sigma: bool = False):
+    """A pseudorange factor per satellite of a `GnssEpoch` at keyframe k (one clock key per constellation); with
+    `with_sigma` the list and the sigma (m) of each factor.
 
     `bias_key(sat, k)`: the key of the satellite's code-bias state (`dgcal.pos.smoother.code_bias`) or None; with
     one the factor is a `DifferentialPseudorangeFactorArm` on it with the receiver noise only
     (`GnssEpoch.sigma_pr_noise_m`), else a `PseudorangeFactorArm` with the whole sigma."""
     pr = epoch.pr_corr_m + sagnac_m(epoch.sat_pos_ecef, p_approx_ecef)
     noise = epoch.sigma_pr_noise_m
-    out = []
+    out, sig = [], []
     for i in range(epoch.n):
         if not np.isfinite(pr[i]):
             continue
         key = bias_key(epoch.sat[i], k) if bias_key is not None else None
         clk = CLK(str(epoch.system[i]), k)
+        s = float((epoch.sigma_pr_m[i] if key is None else noise[i]) * sigma_scale)
         if key is None:
             out.append(gtsam.PseudorangeFactorArm(
-                X(k), clk, float(pr[i]), epoch.sat_pos_ecef[i], lever_arm_b, ecef_T_nav,
-                0.0, robust(epoch.sigma_pr_m[i] * sigma_scale, 1, huber_k)))
+                X(k), clk, float(pr[i]), epoch.sat_pos_ecef[i], lever_arm_b, ecef_T_nav, 0.0, robust(s, 1, huber_k)))
         else:
             out.append(gtsam.DifferentialPseudorangeFactorArm(
                 X(k), clk, key, float(pr[i]), epoch.sat_pos_ecef[i], lever_arm_b, ecef_T_nav,
-                0.0, robust(noise[i] * sigma_scale, 1, huber_k)))
-    return out
+                0.0, robust(s, 1, huber_k)))
+        sig.append(s)
+    return (out, sig) if with_sigma else out
 
 
 def doppler_factors(k: int, epoch, p_approx_ecef, lever_arm_b, omega_b, ecef_T_nav, huber_k=1.345,
-                    sigma_scale: float = 1.0) -> list:
-    """DopplerFactorArm per satellite with Doppler at keyframe k, tied to the drift variable DRIFT(k).
+                    sigma_scale: float = 1.0, with_sigma: bool = False):
+    """DopplerFactorArm per satellite with Doppler at keyframe k, tied to the drift variable DRIFT(k); with
+    `with_sigma` the list and the sigma (m/s) of each factor.
 
     gtsam's factor takes the receiver drift as (clock_curr - clock_prev) / dt; handing it (ZERO, DRIFT(k),
     dt = 1 s) makes that the instantaneous drift state (s/s) rather than the mean over the epoch interval,
     which would differ from it by the clock's random walk (~0.1-0.2 m/s for a TCXO, more than the noise).
     """
     rr = epoch.rr_corr_mps + sagnac_rate_mps(epoch.sat_pos_ecef, epoch.sat_vel_ecef, p_approx_ecef)
-    out = []
+    out, sig = [], []
     for i in range(epoch.n):
         if not np.isfinite(rr[i]):
             continue
+        s = float(epoch.sigma_rr_mps[i] * sigma_scale)
         # wavelength 1 m: the factor's measured range rate is -lambda*D, so D = -rr
         out.append(gtsam.DopplerFactorArm(
             X(k), V(k), ZERO(), DRIFT(k), float(-rr[i]), 1.0, epoch.sat_pos_ecef[i],
-            epoch.sat_vel_ecef[i], p_approx_ecef, lever_arm_b, ecef_T_nav, omega_b, 1.0, 0.0,
-            robust(epoch.sigma_rr_mps[i] * sigma_scale, 1, huber_k)))
-    return out
+            epoch.sat_vel_ecef[i], p_approx_ecef, lever_arm_b, ecef_T_nav, omega_b, 1.0, 0.0, robust(s, 1, huber_k)))
+        sig.append(s)
+    return (out, sig) if with_sigma else out
 
 
 def clock_factors(systems, k: int, dt: float, bias_rw_m: float, drift_rw_mps: float, lin_values) -> list:

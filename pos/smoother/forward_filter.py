@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from dgcal.pos.smoother.batch import NavSolution, Problem, read_states
 from dgcal.pos.smoother.covariance import forward_innovations
-from dgcal.pos.smoother.integrity import factor_kinds
+from dgcal.pos.smoother.integrity import factor_table
 from dgcal.pos.smoother.factors import CLK, DRIFT, ZERO, B, V, X
 
 
@@ -114,38 +114,46 @@ def _copy(dst, src, entries: list) -> None:
             dst.insert(key, src.atDouble(key))
 
 
-def linear_forward_solution(problem: Problem, values) -> NavSolution:
+def linear_forward_solution(problem: Problem, values, rows=None) -> NavSolution:
     """The forward (filtered) solution of the smoother's problem linearised at its solution `values`: each
     keyframe's states and covariance from the data up to its own epoch, and the normalised innovations of every
     measurement kind (`info["nis"]`), from one pass of `dgcal.pos.smoother.covariance.forward_innovations`.
+    `rows`: the problem already linearised at `values` (`NavSolution.rows`).
 
     Linearised about the smoothed trajectory, it is the Kalman filter the smoother's forward sweep runs: cheap, and
     free of the divergence a filter started from a poor initial attitude can show (`forward_solution`, the
     iterated filter about its own estimates, is the opt-in alternative)."""
     layout = problem.blocks()
     graph = problem.graph
-    kinds_f = factor_kinds(problem)
-    names = sorted({kd[0] for kd in kinds_f if kd is not None})
-    code = np.array([-1 if kd is None else names.index(kd[0]) for kd in kinds_f], int)
-    dims = np.array([graph.at(i).dim() for i in range(graph.size())], int)
-    dx, P, nis, innov = forward_innovations(graph, values, layout, np.repeat(code, dims), names)
+    tab = factor_table(problem)
+    names = sorted({kd[0] for kd in tab.kinds if kd is not None})
+    code = np.array([-1 if kd is None else names.index(kd[0]) for kd in tab.kinds], int)
+    dims = np.diff(tab.start)
+    dx, P, nis, innov = forward_innovations(graph, values, layout, np.repeat(code, dims), names, rows)
     sol = _retracted(read_states(problem, values), dx, layout)
     # innovations in measurement units: the whitened innovation times the row's sigma (exact for the independent
     # rows of the GNSS factors; for the correlated double differences of a keyframe, an approximation)
-    rows: dict = {}
-    start = np.r_[0, np.cumsum(dims)]
-    for i, kd in enumerate(kinds_f):
-        if kd is None:
-            continue
+    out: dict = {}
+    rec = np.isfinite(tab.sigma)
+    for i in np.flatnonzero(~rec & (code >= 0)):
+        kind, k = tab.kinds[i]
         sig = _sigmas(graph.at(i))
-        w = innov[start[i]:start[i + 1]]
+        w = innov[tab.start[i]:tab.start[i + 1]]
         for j in range(len(w)):
-            rows.setdefault(kd[0], []).append((kd[1], w[j] * sig[min(j, len(sig) - 1)], sig[min(j, len(sig) - 1)]))
-    sol.residuals = {kind: tuple(np.array(c) for c in zip(*rr)) for kind, rr in rows.items()}
+            s = sig[min(j, len(sig) - 1)]
+            out.setdefault(kind, []).append((k, w[j] * s, s))
+    res = {kind: tuple(np.array(c) for c in zip(*r)) for kind, r in out.items()}
+    i = np.flatnonzero(rec)
+    kinds = np.array([tab.kinds[j][0] for j in i])
+    ks = np.array([tab.kinds[j][1] for j in i], int)
+    for kind in dict.fromkeys(kinds.tolist()):
+        m = kinds == kind
+        res[kind] = (ks[m], innov[tab.start[i[m]]] * tab.sigma[i[m]], tab.sigma[i[m]].copy())
+    sol.residuals = {kind: res[kind] for kind in names if kind in res}
     sol.cov_pose = P[:, :6, :6].copy()
     sol.cov_vel = P[:, 6:9, 6:9].copy()
     sol.cov_block = P
-    sol.info = {"mode": "forward", "nis": {kind: tuple(np.array(c) for c in zip(*rows)) for kind, rows in nis.items()}}
+    sol.info = {"mode": "forward", "nis": {kind: tuple(np.array(c) for c in zip(*r)) for kind, r in nis.items()}}
     return sol
 
 
@@ -212,7 +220,7 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
         graph = gtsam.NonlinearFactorGraph()
         for f in steps[k]:
             graph.add(f)
-        for kind, f in problem.epoch_factors[k]:  # innovations at the prediction
+        for kind, f, _ in problem.epoch_factors[k]:  # innovations at the prediction
             e = np.atleast_1d(f.unwhitenedError(vals))
             sig = _sigmas(f)
             for j in range(len(e)):
@@ -284,7 +292,7 @@ def _normalised_innovations(problem: Problem, k: int, vals, ents: list, has_zero
     except np.linalg.LinAlgError:
         return
     by_kind: dict = {}
-    for kind, f in problem.epoch_factors[k]:
+    for kind, f, _ in problem.epoch_factors[k]:
         g, present = by_kind.setdefault(kind, (gtsam.NonlinearFactorGraph(), set()))
         g.add(f)
         present.update(int(key) for key in f.keys())

@@ -12,11 +12,10 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from dgcal.fields.constants import C_LIGHT
+from dgcal.fields.constants import C_LIGHT, OMEGA_EARTH
 from dgcal.fields.frames import R_body_to_ned_from_rph
 from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude
 from dgcal.pos.ins.nav_frame import NavFrame
-from dgcal.pos.smoother.factors import sagnac_m
 
 
 @dataclass
@@ -84,20 +83,43 @@ def propagate_attitude(pims: list, anchor: int, R_anchor: np.ndarray, p_nav, v_n
     return R
 
 
+def group_medians(group: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The groups present (ascending) and the median of x within each (as np.median: the mean of the middle two
+    of an even count)."""
+    if not len(x):
+        return np.zeros(0, int), np.zeros(0)
+    o = np.lexsort((x, group))
+    g, v = group[o], x[o]
+    first = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    cnt = np.diff(np.r_[first, len(g)])
+    lo = first + (cnt - 1) // 2
+    hi = first + cnt // 2
+    return g[first], 0.5 * (v[lo] + v[hi])
+
+
+def sagnac_rows(sat_pos_ecef: np.ndarray, p_rx_ecef: np.ndarray) -> np.ndarray:
+    """`sagnac_m` with one receiver position per satellite row (N,3) m."""
+    return OMEGA_EARTH / C_LIGHT * (sat_pos_ecef[:, 0] * p_rx_ecef[:, 1] - sat_pos_ecef[:, 1] * p_rx_ecef[:, 0])
+
+
 def initial_clocks(t_key, epochs_at_key, p_ant_nav, frame: NavFrame, systems) -> tuple[dict, np.ndarray]:
     """Receiver clock bias per constellation (s) at keyframes from the pseudoranges at the initial track,
     and the drift (s/s)."""
     K = len(t_key)
     clk = {s: np.full(K, np.nan) for s in systems}
-    for k, ep in enumerate(epochs_at_key):
-        if ep is None or ep.n == 0:
-            continue
-        r = frame.to_ecef(p_ant_nav[k])
-        res = ep.pr_corr_m + sagnac_m(ep.sat_pos_ecef, r) - np.linalg.norm(ep.sat_pos_ecef - r, axis=1)
+    ks = [k for k, ep in enumerate(epochs_at_key) if ep is not None and ep.n > 0]
+    if ks:
+        n = np.array([epochs_at_key[k].n for k in ks])
+        kk = np.repeat(ks, n)
+        sat = np.concatenate([epochs_at_key[k].sat_pos_ecef for k in ks])
+        pr = np.concatenate([epochs_at_key[k].pr_corr_m for k in ks])
+        system = np.concatenate([np.asarray(epochs_at_key[k].system, str) for k in ks])
+        r = frame.to_ecef(p_ant_nav[kk])
+        res = pr + sagnac_rows(sat, r) - np.linalg.norm(sat - r, axis=1)
         for s in systems:
-            m = (ep.system == s) & np.isfinite(res)
-            if m.any():
-                clk[s][k] = np.median(res[m]) / C_LIGHT
+            m = (system == s) & np.isfinite(res)
+            k_s, med = group_medians(kk[m], res[m])
+            clk[s][k_s] = med / C_LIGHT
     ref = None
     for s in systems:
         good = np.isfinite(clk[s])

@@ -21,6 +21,8 @@ preintegration parameters of the keyframe intervals they overlap, so the smoothe
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gtsam
 import numpy as np
 from scipy.special import chdtri
@@ -180,13 +182,6 @@ def _velocity_test(t, p, S, v, sv, idx, imu, k_sigma) -> np.ndarray:
     return bad
 
 
-def _base_whitened(f, values) -> np.ndarray:
-    """A factor's error whitened by its Gaussian noise model (without the robust re-weighting)."""
-    nm = f.noiseModel()
-    base = nm.noise() if hasattr(nm, "noise") else nm
-    return np.atleast_1d(base.whiten(np.atleast_1d(f.unwhitenedError(values))))
-
-
 def assemble_graph(problem) -> gtsam.NonlinearFactorGraph:
     """The factor graph of a problem from its parts (priors, IMU, clock, per-keyframe GNSS factors)."""
     graph = gtsam.NonlinearFactorGraph()
@@ -196,7 +191,7 @@ def assemble_graph(problem) -> gtsam.NonlinearFactorGraph:
         for f in g:
             graph.add(f)
     for fl in problem.epoch_factors:
-        for _, f in fl:
+        for _, f, _ in fl:
             graph.add(f)
     return graph
 
@@ -208,31 +203,95 @@ def factor_kinds(problem) -> list:
                  + sum(len(g) for g in problem.clock_factor_groups + problem.bias_factor_groups))
     out: list = [None] * n_process
     for k, fl in enumerate(problem.epoch_factors):
-        out.extend((kind, k) for kind, _ in fl)
+        out.extend((kind, k) for kind, _, _ in fl)
     return out
+
+
+@dataclass
+class FactorTable:
+    """Every factor of `assemble_graph(problem)` in order: its kind (None: prior or process) and keyframe, its first
+    row in the linearised graph (`start`, one more entry: the row count), the sigma of its measurement where the
+    problem recorded it (pseudorange, Doppler; NaN elsewhere) and its Huber threshold (NaN: not robust)."""
+
+    kinds: list
+    start: np.ndarray
+    sigma: np.ndarray
+    huber: np.ndarray
+
+
+_ROBUST_KINDS = ("pr", "dop", "pos")   # the factors built with the problem's Huber threshold
+
+
+def factor_table(problem) -> FactorTable:
+    """The `FactorTable` of a problem's graph (cached until the graph is rebuilt)."""
+    hit = getattr(problem, "_table", None)
+    if hit is not None and hit[0] is problem.graph:
+        return hit[1]
+    tab = _factor_table(problem)
+    problem._table = (problem.graph, tab)
+    return tab
+
+
+def _factor_table(problem) -> FactorTable:
+    process = (problem.prior_factors + problem.imu_factors
+               + [f for g in problem.clock_factor_groups + problem.bias_factor_groups for f in g])
+    dims = [f.dim() for f in process]
+    sigma = [np.nan] * len(process)
+    huber = [np.nan] * len(process)
+    k_rob = np.nan if problem.huber_k is None else float(problem.huber_k)
+    for fl in problem.epoch_factors:
+        for kind, f, sig in fl:
+            dims.append(1 if sig is not None else f.dim())
+            sigma.append(np.nan if sig is None else sig)
+            huber.append(k_rob if kind in _ROBUST_KINDS else np.nan)
+    return FactorTable(factor_kinds(problem), np.r_[0, np.cumsum(dims)].astype(np.int64), np.array(sigma, float),
+                       np.array(huber, float))
+
+
+def whitened_errors(rows, tab: FactorTable) -> np.ndarray:
+    """Every row's error whitened by its factor's Gaussian noise (without the robust re-weighting), from the graph
+    linearised at the point of interest (`dgcal.pos.smoother.linearised.KeyframeRows`): gtsam's right-hand side is
+    minus the whitened error, scaled by sqrt(w) for a robust factor, w = k/|e| (Huber) beyond k, so
+    |b| = sqrt(k |e|) there and |e| = |b|^2 / k."""
+    n = int(tab.start[-1])
+    b = np.zeros(n)
+    m = min(n, len(rows.b_all))
+    b[:m] = rows.b_all[:m]
+    nb = np.sqrt(np.add.reduceat(b * b, tab.start[:-1])) if n else np.zeros(0)
+    dims = np.diff(tab.start)
+    k = np.repeat(tab.huber, dims)
+    nbr = np.repeat(nb, dims)
+    scale = np.where(np.isfinite(k) & (nbr > np.nan_to_num(k, nan=np.inf)), nbr / np.where(np.isfinite(k), k, 1.0), 1.0)
+    return -b * scale
 
 
 _KIND = {"pos": "position", "vel": "velocity", "pr": "pseudorange", "dop": "Doppler"}
 
 
-def reject_outliers(problem, values, k_sigma: float = 5.0) -> list[dict]:
-    """Remove the GNSS factors whose post-fit residual at `values` fails the chi-square test (module
-    docstring) from `problem` (epoch factors, graph, GNSS-update flags and satellite counts); returns one dict
-    per rejected factor: kind, t_gps, keyframe, normalised residual (sigmas) and detail."""
+def reject_outliers(problem, rows, k_sigma: float = 5.0) -> list[dict]:
+    """Remove the GNSS factors whose post-fit residual fails the chi-square test (module docstring) from `problem`
+    (epoch factors, graph, GNSS-update flags and satellite counts); `rows`: the graph linearised at the solution
+    (`dgcal.pos.smoother.linearised.keyframe_rows`). Returns one dict per rejected factor: kind, t_gps, keyframe,
+    normalised residual (sigmas) and detail."""
     alpha = 2.0 * norm.sf(k_sigma)
-    rows: dict = {}
-    for k, fl in enumerate(problem.epoch_factors):
-        for j, (kind, f) in enumerate(fl):
-            if kind not in _KIND:
-                continue
-            w = _base_whitened(f, values)
-            if np.all(np.isfinite(w)):
-                rows.setdefault(kind, []).append((k, j, float(w @ w), len(w)))
+    tab = factor_table(problem)
+    z = whitened_errors(rows, tab)
+    z2_all = np.add.reduceat(z * z, tab.start[:-1]) if len(z) else np.zeros(0)
+    dims = np.diff(tab.start)
+    finite = np.isfinite(z2_all)
+    first = len(tab.kinds) - sum(len(fl) for fl in problem.epoch_factors)
+    kind_of = np.array([e[0] for fl in problem.epoch_factors for e in fl], dtype=object)
+    k_of = np.repeat(np.arange(len(problem.epoch_factors)), [len(fl) for fl in problem.epoch_factors])
+    j_of = np.concatenate([np.arange(len(fl)) for fl in problem.epoch_factors]) if len(k_of) else np.zeros(0, int)
+    z2_e, dim_e, fin_e = z2_all[first:], dims[first:], finite[first:]
     drop: dict = {}
     out = []
-    for kind, r in rows.items():
-        k, j, z2, d = (np.array(c) for c in zip(*r))
-        dim = int(d[0])
+    for kind in _KIND:
+        sel = np.flatnonzero((kind_of == kind) & fin_e)
+        if not len(sel):
+            continue
+        k, j, z2 = k_of[sel], j_of[sel], z2_e[sel]
+        dim = int(dim_e[sel[0]])
         scale = max(1.0, float(np.median(z2)) / float(chdtri(dim, 0.5)))
         thr = scale * float(chdtri(dim, alpha))
         for i in np.flatnonzero(z2 > thr):
@@ -247,7 +306,7 @@ def reject_outliers(problem, values, k_sigma: float = 5.0) -> list[dict]:
         fl = problem.epoch_factors[k]
         n_pr = sum(1 for j in js if fl[j][0] == "pr")
         problem.epoch_factors[k] = [x for j, x in enumerate(fl) if j not in js]
-        kinds = {kind for kind, _ in problem.epoch_factors[k]}
+        kinds = {e[0] for e in problem.epoch_factors[k]}
         if problem.gnss_update is not None:
             problem.gnss_update[k] = bool(kinds & {"pos", "pr", "dd"})
         if problem.n_sat is not None:

@@ -4,7 +4,6 @@ INTERFACES.md sigma columns.
 """
 from __future__ import annotations
 
-import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -12,7 +11,8 @@ from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.io.formats import Trajectory
 from dgcal.fields.frames import rph_from_R_body_to_ned
 from dgcal.pos.ins.nav_frame import NavFrame
-from dgcal.pos.smoother.preintegration import gravity_correction_b, rotation_compensated_accel, split_at_keyframes
+from dgcal.pos.smoother.mechanisation import predict, preintegrate_means, so3_exp
+from dgcal.pos.smoother.preintegration import rotation_compensated_accel, split_at_keyframes
 
 
 def euler_rate_matrix(rph_deg: np.ndarray) -> np.ndarray:
@@ -70,42 +70,46 @@ def output_times(t_key: np.ndarray, rate_hz: float) -> np.ndarray:
 
 
 def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
-    """The trajectory at `rate_hz` (plus the keyframes): IMU mechanisation from each keyframe with its
-    estimated biases, the small closure error at the next keyframe spread linearly over the interval;
-    sigmas interpolated linearly in variance between keyframes."""
-
+    """The trajectory at `rate_hz` (plus the keyframes): IMU mechanisation from each keyframe with its estimated
+    biases and its interval's gravity (as gtsam's preintegration and prediction compute it,
+    `dgcal.pos.smoother.mechanisation`, every interval at once), the small closure error at the next keyframe spread
+    linearly over the interval; sigmas interpolated linearly in variance between keyframes."""
     t_key = sol.t
+    K = len(t_key)
     t_out = output_times(t_key, rate_hz)
-    accel = problem.accel if problem.accel is not None else (
-        imu.accel_m_s2 + gravity_correction_b(imu.t, t_key, sol.R_body_to_nav, sol.p_nav, sol.frame))
-    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, accel, t_out, imu.dt[0])
-    acc_c = rotation_compensated_accel(seg.gyro, seg.accel, seg.dt)
-    params = problem.params
-    n = len(t_out)
-    P = np.empty((n, 3))
-    Vv = np.empty((n, 3))
-    R = np.empty((n, 3, 3))
+    seg = split_at_keyframes(imu.t, imu.gyro_rad_s, imu.accel_m_s2, t_out, imu.dt[0])
     key_of = np.searchsorted(t_out, t_key - 1e-9)
-    for k in range(len(t_key) - 1):
-        b = gtsam.imuBias.ConstantBias(sol.bias[k, :3], sol.bias[k, 3:])
-        ns0 = gtsam.NavState(gtsam.Rot3(sol.R_body_to_nav[k]), sol.p_nav[k], sol.v_nav[k])
-        pim = gtsam.PreintegratedCombinedMeasurements(params, b)
-        i0, i1 = key_of[k], key_of[k + 1]
-        P[i0], Vv[i0], R[i0] = sol.p_nav[k], sol.v_nav[k], sol.R_body_to_nav[k]
-        f = pim.integrateMeasurement
-        for i in range(i0, i1):
-            for j in range(seg.start[i], seg.start[i + 1]):
-                f(acc_c[j], seg.gyro[j], seg.dt[j])
-            ns = pim.predict(ns0, b)
-            P[i + 1], Vv[i + 1], R[i + 1] = ns.position(), ns.velocity(), ns.attitude().matrix()
-        # closure: spread the mismatch with the next keyframe linearly in time
-        dp = sol.p_nav[k + 1] - P[i1]
-        dv = sol.v_nav[k + 1] - Vv[i1]
-        dr = Rotation.from_matrix(R[i1].T @ sol.R_body_to_nav[k + 1]).as_rotvec()
-        w = (t_out[i0 + 1:i1 + 1] - t_key[k]) / (t_key[k + 1] - t_key[k])
-        P[i0 + 1:i1 + 1] += w[:, None] * dp
-        Vv[i0 + 1:i1 + 1] += w[:, None] * dv
-        R[i0 + 1:i1 + 1] = R[i0 + 1:i1 + 1] @ Rotation.from_rotvec(w[:, None] * dr).as_matrix()
+    # each output sample's keyframe interval, and each piece's interval and place in it
+    out_lane = np.clip(np.searchsorted(key_of, np.arange(len(t_out)), side="right") - 1, 0, K - 2)
+    lane = np.repeat(out_lane[:-1], np.diff(seg.start))
+    first = seg.start[key_of[:-1]]
+    step = np.arange(len(seg.dt)) - first[lane]
+    record = np.zeros(len(seg.dt), bool)
+    record[seg.start[1:] - 1] = True          # the last piece before each output time
+    b = sol.bias[lane]
+    acc = rotation_compensated_accel(seg.gyro, seg.accel, seg.dt) - b[:, :3]
+    (th, dp, dv), _ = preintegrate_means(seg.gyro - b[:, 3:], acc, seg.dt, lane, step, K - 1, record)
+    T = np.cumsum(seg.dt)
+    T = T[record] - np.r_[0.0, T][first][lane[record]]
+    k = lane[record]
+    gravity = np.array([p.n_gravity for p in problem.interval_params])[k]
+    omega = problem.params.getOmegaCoriolis() if problem.params.getOmegaCoriolis() is not None else None
+    Rp, Pp, Vp = predict(sol.R_body_to_nav[k], sol.p_nav[k], sol.v_nav[k], th, dp, dv, T, gravity, omega)
+    P = np.empty((len(t_out), 3))
+    Vv = np.empty((len(t_out), 3))
+    R = np.empty((len(t_out), 3, 3))
+    # closure: spread the mismatch with the next keyframe linearly in time
+    end = key_of[1:]
+    dpk = sol.p_nav[1:] - Pp[end - 1]
+    dvk = sol.v_nav[1:] - Vp[end - 1]
+    drk = Rotation.from_matrix(np.swapaxes(Rp[end - 1], 1, 2) @ sol.R_body_to_nav[1:]).as_rotvec()
+    i = np.arange(1, len(t_out))
+    kk = out_lane[:-1]
+    w = (t_out[i] - t_key[kk]) / (t_key[kk + 1] - t_key[kk])
+    P[i] = Pp + w[:, None] * dpk[kk]
+    Vv[i] = Vp + w[:, None] * dvk[kk]
+    R[i] = Rp @ so3_exp(w[:, None] * drk[kk])
+    P[key_of], Vv[key_of], R[key_of] = sol.p_nav, sol.v_nav, sol.R_body_to_nav
     cov_p = cov_r = None
     if sol.cov_pose is not None:
         cp, cr = sol.cov_p_nav, sol.cov_pose[:, :3, :3]

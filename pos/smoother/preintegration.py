@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.pos.ins.error_model import ImuErrorModel
@@ -70,7 +69,8 @@ def split_at_keyframes(t_imu: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t
 
 def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, earth_rotation: bool = True,
                     window_s: float = 10.0) -> list:
-    """Preintegration parameters per keyframe interval, with the scale/misalignment errors as turn noise.
+    """Preintegration parameters per keyframe interval (one object each: `set_gravity` gives each interval its
+    own gravity), with the scale/misalignment errors as turn noise.
 
     A scale error s and misalignment m make an error s*d_i + m*sum_{j!=i} d_j proportional to the rate itself
     (gyro: d = w, the earth rate is negligible) or to the specific force's deviation from its flight median (the
@@ -81,12 +81,13 @@ def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, ear
     deviation |d_k| gets density s^2 |d_k| A_k, A_k the integral of |d| within `window_s` s around it, so a
     turn through an angle A within the window accumulates (s A)^2; a longer manoeuvre (continuous circling) is
     taken as correlated over the window only (a 180 deg turn at 13 deg/s gets ~90 % of (s A)^2).
-    Returns None entries where nothing is added.
     """
     K = len(seg.start) - 1
-    if not (noise.gyro_scale_sigma or noise.gyro_misalign_sigma or noise.accel_scale_sigma
-            or noise.accel_misalign_sigma) or K < 2:
-        return [None] * K
+    turn = bool(noise.gyro_scale_sigma or noise.gyro_misalign_sigma or noise.accel_scale_sigma
+                or noise.accel_misalign_sigma) and K >= 2
+    out = [preintegration_params(noise, frame, earth_rotation) for _ in range(K)]
+    if not turn:
+        return out
     T = np.add.reduceat(seg.dt, seg.start[:-1])
     wbar = np.add.reduceat(seg.gyro * seg.dt[:, None], seg.start[:-1]) / T[:, None]
     fbar = np.add.reduceat(seg.accel * seg.dt[:, None], seg.start[:-1]) / T[:, None]
@@ -104,13 +105,37 @@ def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, ear
     # (heading sigmas 5x too large there)
     qg = turn_density(wbar, noise.gyro_scale_sigma, noise.gyro_misalign_sigma, 0.0)
     qa = turn_density(fbar, noise.accel_scale_sigma, noise.accel_misalign_sigma, np.median(fbar, axis=0))
-    out = []
-    for k in range(K):
-        p = preintegration_params(noise, frame, earth_rotation)
+    for k, p in enumerate(out):
         p.setGyroscopeCovariance(np.diag(noise.gyro_arw ** 2 + qg[k]))
         p.setAccelerometerCovariance(np.diag(noise.accel_vrw ** 2 + qa[k]))
-        out.append(p)
     return out
+
+
+def keyframe_gravity(frame: NavFrame, p_nav: np.ndarray) -> np.ndarray:
+    """Normal gravity (K,3) m/s^2 in nav axes at nav points p_nav (m): the local Down there, which tilts from nav
+    Down by distance / earth radius (0.009 deg per km), times normal gravity at the point's latitude and height."""
+    geo = ecef_to_geodetic(frame.to_ecef(p_nav)).reshape(-1, 3)
+    gam = normal_gravity(geo[:, 0], geo[:, 2])
+    down_nav = frame.R_nav_to_local_ned(p_nav).reshape(-1, 3, 3)[:, 2, :]
+    return np.asarray(gam)[:, None] * down_nav
+
+
+def interval_gravity(frame: NavFrame, p_nav_key: np.ndarray) -> np.ndarray:
+    """Mean gravity (K-1,3) m/s^2, nav axes, of each keyframe interval of the track p_nav_key (K,3) m.
+
+    gtsam takes gravity constant over an interval and applies it in the prediction (`PreintegrationParams`
+    n_gravity), not in the preintegration: with each interval's own mean the velocity increment carries the
+    integral of the varying gravity exactly for a linear variation (the position increment to g' T^3/12: 3e-6 m
+    at 20 m/s), and the track can be corrected after the preintegration (`set_gravity`)."""
+    g = keyframe_gravity(frame, p_nav_key)
+    return 0.5 * (g[:-1] + g[1:])
+
+
+def set_gravity(per_interval: list, gravity: np.ndarray) -> None:
+    """Give each interval's parameters its gravity (K-1,3) m/s^2, in place: the factors built on them hold the
+    same parameter objects and read gravity at every evaluation, so this needs no new preintegration."""
+    for p, g in zip(per_interval, gravity):
+        p.n_gravity = g
 
 
 def rotation_compensated_accel(gyro: np.ndarray, accel: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -125,14 +150,15 @@ def rotation_compensated_accel(gyro: np.ndarray, accel: np.ndarray, dt: np.ndarr
     return accel + 0.5 * np.asarray(dt, float)[:, None] * np.cross(gyro, accel)
 
 
-def preintegrate(params, seg: ImuSegments, biases, per_interval: list | None = None) -> list:
-    """One PreintegratedCombinedMeasurements per keyframe interval; `biases[k]` is the linearisation bias,
-    `per_interval[k]` (optional) replaces `params` for interval k. The specific force is rotation
-    compensated (`rotation_compensated_accel`)."""
+def preintegrate(params, seg: ImuSegments, biases, per_interval: list | None = None,
+                 which: np.ndarray | None = None) -> list:
+    """One PreintegratedCombinedMeasurements per keyframe interval (or per interval of `which`); `biases[k]` is
+    the linearisation bias, `per_interval[k]` (optional) replaces `params` for interval k. The specific force is
+    rotation compensated (`rotation_compensated_accel`)."""
     out = []
     gyro, dt = seg.gyro, seg.dt
     accel = rotation_compensated_accel(seg.gyro, seg.accel, seg.dt)
-    for k in range(len(seg.start) - 1):
+    for k in (range(len(seg.start) - 1) if which is None else which):
         pk = per_interval[k] if per_interval is not None and per_interval[k] is not None else params
         pim = gtsam.PreintegratedCombinedMeasurements(pk, biases[k])
         f = pim.integrateMeasurement
@@ -142,22 +168,22 @@ def preintegrate(params, seg: ImuSegments, biases, per_interval: list | None = N
     return out
 
 
-def gravity_correction_b(t_imu: np.ndarray, t_key: np.ndarray, R_body_to_nav: np.ndarray, p_nav: np.ndarray,
-                         frame: NavFrame) -> np.ndarray:
-    """Specific-force correction (N,3) m/s^2, body FRD, that makes the constant nav-frame gravity exact.
+def bias_moved(noise: ImuErrorModel, seg: ImuSegments, bias_hat: np.ndarray, bias: np.ndarray,
+               share: float = 0.01) -> np.ndarray:
+    """Keyframe intervals (bool (K-1,)) whose preintegration must be redone about `bias` (K-1,6: accelerometer
+    m/s^2, gyro rad/s) rather than corrected from its linearisation bias `bias_hat` to first order.
 
-    The preintegration uses normal gravity at the frame origin along nav Down; at a point p the true normal
-    gravity is gamma(p) along the local Down, which is tilted from nav Down by distance/R_earth. Adding
-    R_nav_to_body (g(p) - g0) to the accelerometers removes that error. Attitude and position come from a
-    first solution (keyframes), interpolated to the IMU times (slerp / linear).
+    gtsam's factor corrects a preintegration for a bias change d to first order (its bias Jacobians); what that
+    misses is second order: ~(dg T)^2 / 2 in rotation and dg T (da T / 2 + dg T |f| T / 6) in velocity (dg gyro, da
+    accelerometer change, f the specific force). An interval is redone when either exceeds `share` of the
+    interval's own white noise (gyro ARW and accelerometer VRW over T): for an ADIS16488-class IMU that takes a
+    gyro bias beyond ~0.05 deg/s (with a 1 mg accelerometer bias), a consumer IMU's always does.
     """
-
-    tq = np.clip(t_imu, t_key[0], t_key[-1])
-    R = Slerp(t_key, Rotation.from_matrix(R_body_to_nav))(tq).as_matrix()
-    # gravity varies slowly: evaluate it at the keyframes and interpolate
-    geo = ecef_to_geodetic(frame.to_ecef(p_nav))
-    gam = np.array([normal_gravity(la, h) for la, h in zip(geo[:, 0], geo[:, 2])])
-    down_nav = frame.R_nav_to_local_ned(p_nav)[:, 2, :]  # local Down expressed in nav axes
-    dg_key = gam[:, None] * down_nav - np.array([0.0, 0.0, frame.gravity])
-    dg = np.stack([np.interp(tq, t_key, dg_key[:, j]) for j in range(3)], axis=1)
-    return np.einsum("nji,nj->ni", R, dg)
+    T = np.add.reduceat(seg.dt, seg.start[:-1])
+    f = np.linalg.norm(np.add.reduceat(seg.accel * seg.dt[:, None], seg.start[:-1]), axis=1) / T
+    d = np.asarray(bias, float) - np.asarray(bias_hat, float)
+    dg = np.linalg.norm(d[:, 3:], axis=1) * T
+    da = np.linalg.norm(d[:, :3], axis=1) * T
+    e_rot = 0.5 * dg ** 2
+    e_vel = dg * (0.5 * da + dg * f * T / 6.0)
+    return (e_rot > share * noise.gyro_arw * np.sqrt(T)) | (e_vel > share * noise.accel_vrw * np.sqrt(T))

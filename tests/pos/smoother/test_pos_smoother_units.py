@@ -144,16 +144,64 @@ def test_euler_rate_matrix_matches_numerical_derivative():
     assert np.allclose(J, Jn, atol=1e-6)
 
 
-def test_gravity_correction_tilts_with_distance():
-    from dgcal.pos.smoother.preintegration import gravity_correction_b
+def test_gravity_tilts_with_distance():
+    from dgcal.pos.smoother.preintegration import interval_gravity, keyframe_gravity
     f = NavFrame(35.0, 139.0, 50.0)
-    t_key = np.array([0.0, 1.0])
-    R = np.stack([np.eye(3), np.eye(3)])
-    p = np.array([[2000.0, 0.0, 0.0], [2000.0, 0.0, 0.0]])  # 2 km north, level body
-    dg = gravity_correction_b(np.array([0.5]), t_key, R, p, f)[0]
+    p = np.array([[2000.0, 0.0, 0.0], [2000.0, 0.0, 0.0]])  # 2 km north
+    g = keyframe_gravity(f, p)[0]
     # gravity at 2 km north points back towards the origin's vertical: -g d/R along north
-    assert dg[0] == pytest.approx(-f.gravity * 2000.0 / 6.36e6, rel=0.03)
-    assert abs(dg[1]) < 1e-6
+    assert g[0] == pytest.approx(-f.gravity * 2000.0 / 6.36e6, rel=0.03)
+    assert abs(g[1]) < 1e-6 and g[2] == pytest.approx(f.gravity, abs=5e-5)  # latitude: +1.4e-5
+    # 100 m up: the free-air gradient, 0.31 mGal/m
+    assert keyframe_gravity(f, np.array([[0.0, 0.0, -100.0]]))[0, 2] - f.gravity == pytest.approx(-3.086e-4, rel=0.01)
+    gi = interval_gravity(f, np.array([[0.0, 0.0, 0.0], [2000.0, 0.0, 0.0]]))
+    assert gi.shape == (1, 3) and gi[0, 0] == pytest.approx(0.5 * g[0], rel=1e-6)
+
+
+def test_gravity_set_after_preintegration_reaches_the_factor():
+    """gtsam applies gravity in the prediction, from the parameters the factor shares: setting an interval's gravity
+    after its preintegration changes the factor's error as a new preintegration would (exactly)."""
+    from dgcal.pos.ins.error_model import imu_grade
+    from dgcal.pos.smoother.preintegration import ImuSegments, preintegrate, preintegration_params, set_gravity
+    rng = np.random.default_rng(3)
+    frame = NavFrame(23.0, 120.0, 0.0)
+    n = 100
+    seg = ImuSegments(rng.normal(0, 0.1, (n, 3)), rng.normal(0, 1, (n, 3)) + [0, 0, -9.8], np.full(n, 0.01),
+                      np.array([0, n]))
+    noise = imu_grade("adis16488").smoother_noise()
+    pa, pb = preintegration_params(noise, frame), preintegration_params(noise, frame)
+    g = np.array([[1.5e-3, -0.7e-3, frame.gravity + 2e-4]])
+    set_gravity([pb], g)
+    fresh = preintegrate(pb, seg, [gtsam.imuBias.ConstantBias()])[0]
+    late = preintegrate(pa, seg, [gtsam.imuBias.ConstantBias()])[0]
+    set_gravity([pa], g)
+    ns = gtsam.NavState(gtsam.Rot3.Rz(0.3), np.array([10.0, 5.0, -100.0]), np.array([3.0, 4.0, 0.5]))
+    b = gtsam.imuBias.ConstantBias()
+    assert np.allclose(fresh.predict(ns, b).velocity(), late.predict(ns, b).velocity(), atol=1e-12)
+    assert np.allclose(fresh.predict(ns, b).position(), late.predict(ns, b).position(), atol=1e-12)
+
+
+def test_bias_moved_bounds_gtsams_first_order_correction():
+    """Where `bias_moved` says no, the first-order bias correction of a preintegration about zero bias is within
+    its bound of a preintegration about the bias itself; a consumer-grade bias is flagged."""
+    from dgcal.pos.ins.error_model import imu_grade
+    from dgcal.pos.smoother.preintegration import ImuSegments, bias_moved, preintegrate, preintegration_params
+    rng = np.random.default_rng(2)
+    n = 200
+    gyro = np.tile([0.05, -0.02, 0.2], (n, 1)) + rng.normal(0, 0.01, (n, 3))
+    seg = ImuSegments(gyro, np.tile([0.5, 0.3, -9.8], (n, 1)), np.full(n, 0.005), np.array([0, n]))
+    noise = imu_grade("adis16488").smoother_noise()
+    params = preintegration_params(noise, NavFrame(23.0, 120.0, 0.0), earth_rotation=False)
+    for bg, ba, moved in ((5.7e-4, 0.01, False), (8e-3, 0.2, True)):
+        bias = np.r_[np.array([ba, -ba, ba]) / np.sqrt(3), np.array([bg, bg, -bg]) / np.sqrt(3)]
+        assert bias_moved(noise, seg, np.zeros((1, 6)), bias[None], 0.01)[0] == moved
+        b = gtsam.imuBias.ConstantBias(bias[:3], bias[3:])
+        p0 = preintegrate(params, seg, [gtsam.imuBias.ConstantBias()])[0]
+        p1 = preintegrate(params, seg, [b])[0]
+        dv = np.linalg.norm(p0.predict(gtsam.NavState(), b).velocity() - p1.predict(gtsam.NavState(), b).velocity())
+        assert dv <= bg * (0.5 * ba + bg * 9.8 / 6)      # the bound bias_moved uses (T = 1 s)
+        if not moved:
+            assert dv < 0.01 * noise.accel_vrw
 
 
 def _lc_problem(K=40, seed=0):
