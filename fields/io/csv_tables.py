@@ -2,21 +2,25 @@
 from __future__ import annotations
 
 import csv
+from operator import itemgetter
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
 
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.text_files import open_text
+from dgcal.fields.io.labels import Labels
+from dgcal.fields.io.text_files import count_lines, open_text
 from dgcal.fields.io.atomic import atomic_write, staged_dir  # noqa: F401  (their old home, still imported from here)
 
 
 class Table:
-    """Columns of a CSV file: `cols[name]` is a NumPy array (float or str), `lines[i]` the file line of row i."""
+    """Columns of a CSV file: `cols[name]` is a NumPy array (float or str) or `Labels` (coded text columns),
+    `lines[i]` the file line of row i."""
 
     def __init__(self, path: Path, cols: dict[str, np.ndarray], lines: np.ndarray):
         self.path, self.cols, self.lines = path, cols, lines
+        self.groups: dict[str, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self.lines)
@@ -51,91 +55,153 @@ def _to_float(vals: list[str], path: Path, lines: list[int], name: str) -> np.nd
 
 
 class _Columns:
-    """Chunked column builder: numbers become float arrays per chunk, strings are shared between equal cells."""
+    """Column builder over a stream of rows, parsed CHUNK_ROWS at a time straight into arrays sized once for the
+    file's line count (no lists of chunks joined at the end: the memory is the arrays' own). Numbers become
+    floats, strings are shared between equal cells, `coded` text columns become int32 codes into their distinct
+    strings (`Labels`), and the numeric columns of a group share one (n, k) array (x and y as one xy)."""
 
-    def __init__(self, path: Path, header: list[str], wanted: list[str], required: set[str], text: set[str]):
+    def __init__(self, path: Path, header: list[str], wanted: list[str], required: set[str], text: set[str],
+                 coded: set[str], groups: dict[str, tuple[str, ...]], capacity: int):
         self.path, self.wanted, self.required, self.text = path, wanted, required, text
         self.index = [header.index(n) for n in wanted]
-        self.buf: list[list[str]] = [[] for _ in wanted]
-        self.lines: list[int] = []
-        self.done: dict[str, list[np.ndarray]] = {n: [] for n in wanted}
-        self.done_lines: list[np.ndarray] = []
+        self.width = max(self.index) + 1
+        self.codes: dict[str, dict[str, int]] = {n: {} for n in wanted if n in coded}
         self.shared: dict[str, str] = {}
+        self.rows: list[list[str]] = []
+        self.row_lines: list[int] = []
+        self.n = 0
+        self.groups = {g: list(cols) for g, cols in groups.items() if any(c in wanted for c in cols)}
+        self._allocate(max(capacity, 1))
 
-    def add(self, lineno: int, rec: list[str]) -> None:
-        n = len(rec)
-        for k, j in enumerate(self.index):
-            v = rec[j].strip() if j < n else ""
-            if not v:
-                name = self.wanted[k]
-                if name in self.required:
-                    raise InputError("missing value", self.path, lineno, name)
-                v = "" if name in self.text else "nan"
-            self.buf[k].append(v)
-        self.lines.append(lineno)
-        if len(self.lines) >= CHUNK_ROWS:
-            self.flush()
+    def _allocate(self, cap: int) -> None:
+        """Arrays for `cap` rows (np.empty: pages a file never fills are never touched), the rows so far kept."""
+        old = getattr(self, "store", None)
+        store: dict[str, np.ndarray] = {}
+        grouped = {}
+        for g, cols in self.groups.items():
+            # a column of the group that the file lacks stays NaN
+            complete = all(c in self.wanted for c in cols)
+            arr = np.empty((cap, len(cols))) if complete else np.full((cap, len(cols)), np.nan)
+            if old is not None:
+                arr[:self.n] = self.group_store[g][:self.n]
+            grouped[g] = arr
+            for j, c in enumerate(cols):
+                if c in self.wanted:
+                    store[c] = arr[:, j]
+        for name in self.wanted:
+            if name in store:
+                continue
+            dtype = np.int32 if name in self.codes else object if name in self.text else float
+            store[name] = np.empty(cap, dtype)
+            if old is not None:
+                store[name][:self.n] = old[name][:self.n]
+        lines = np.empty(cap, np.int32 if cap < 2**31 else np.int64)
+        if old is not None:
+            lines[:self.n] = self.lines[:self.n]
+        self.store, self.group_store, self.lines, self.cap = store, grouped, lines, cap
+
+    def _column(self, k: int) -> list[str]:
+        """The stripped cells of wanted column k of the buffered rows; a missing required value is an error."""
+        name = self.wanted[k]
+        vals = list(map(str.strip, map(itemgetter(self.index[k]), self.rows)))
+        if "" in vals:
+            i = vals.index("")
+            if name in self.required:
+                raise InputError("missing value", self.path, self.row_lines[i], name)
+            fill = "" if name in self.text else "nan"
+            vals = [v or fill for v in vals]
+        return vals
 
     def flush(self) -> None:
-        if not self.lines:
+        if not self.rows:
             return
+        if min(map(len, self.rows)) < self.width:      # short rows: their missing cells are empty
+            self.rows[:] = [r + [""] * (self.width - len(r)) if len(r) < self.width else r for r in self.rows]
+        k_rows = len(self.rows)
+        if self.n + k_rows > self.cap:                 # more rows than lines counted (the file grew): grow
+            self._allocate(2 * (self.n + k_rows))
+        s = slice(self.n, self.n + k_rows)
         for k, name in enumerate(self.wanted):
-            vals = self.buf[k]
-            if name in self.text:
+            vals = self._column(k)
+            if name in self.codes:
+                index = self.codes[name]
+                put = index.setdefault
+                self.store[name][s] = np.fromiter((put(v, len(index)) for v in vals), np.int32, k_rows)
+            elif name in self.text:
                 shared = self.shared
-                self.done[name].append(np.array([shared.setdefault(v, v) for v in vals], dtype=object))
+                self.store[name][s] = [shared.setdefault(v, v) for v in vals]
             else:
-                self.done[name].append(_to_float(vals, self.path, self.lines, name))
-            self.buf[k] = []
-        self.done_lines.append(np.array(self.lines, dtype=np.int64))
-        self.lines = []
+                self.store[name][s] = _to_float(vals, self.path, self.row_lines, name)
+        self.lines[s] = self.row_lines
+        self.n += k_rows
+        self.rows.clear()          # in place: the reading loop appends to these very lists
+        self.row_lines.clear()
 
     def table(self) -> "Table":
         self.flush()
+        n = self.n
+
+        def trim(a: np.ndarray) -> np.ndarray:
+            # a view keeps the untouched tail unresident; copy only when the file had many non-data lines
+            return a[:n] if n >= 0.75 * self.cap else a[:n].copy()
         cols = {}
-        for n in list(self.done):      # one column at a time, its chunks freed: the peak is one column over
-            c = self.done.pop(n)
-            cols[n] = np.concatenate(c) if c else np.empty(0, dtype=object if n in self.text else float)
-            del c
-        lines = np.concatenate(self.done_lines) if self.done_lines else np.empty(0, dtype=np.int64)
-        self.done_lines = []
-        return Table(self.path, cols, lines)
+        groups = {g: trim(arr) for g, arr in self.group_store.items()}
+        for name in self.wanted:
+            g = next((g for g, c in self.groups.items() if name in c), None)
+            if g is not None:
+                cols[name] = groups[g][:, self.groups[g].index(name)]
+            elif name in self.codes:
+                names = np.empty(len(self.codes[name]), dtype=object)
+                names[:] = list(self.codes[name])
+                cols[name] = Labels(trim(self.store[name]), names)
+            else:
+                cols[name] = trim(self.store[name])
+        tab = Table(self.path, cols, trim(self.lines))
+        tab.groups = groups
+        return tab
 
 
 def read_table(path: str | Path, required: Sequence[str], optional: Sequence[str] = (),
-               text: Iterable[str] = ("image", "id", "role", "name"), allow_empty: bool = False) -> Table:
+               text: Iterable[str] = ("image", "id", "role", "name"), allow_empty: bool = False,
+               coded: Iterable[str] = (), groups: dict[str, tuple[str, ...]] | None = None) -> Table:
     """Read a CSV with a header row; `required` columns must exist, numeric columns are parsed as float.
 
-    Columns named in `text` stay strings; every other required/optional column must parse as a float (ASCII
-    digits). Blank lines and lines starting with '#' are skipped. The file is read as a stream, so memory stays
-    near the size of the arrays. Raises InputError naming file, line and field.
+    Columns named in `text` stay strings (those also in `coded` come back as `Labels`: int32 codes into their
+    distinct strings); every other required/optional column must parse as a float (ASCII digits). `groups`
+    names numeric columns stored together, e.g. {"xy": ("x", "y")}: `tab.groups["xy"]` is one (n,2) array (NaN for
+    a column the file lacks) and `tab["x"]` a view of it. Blank lines and lines starting with '#' are skipped. The
+    file is read as a stream into arrays sized by its line count, so memory stays near the size of the arrays.
+    Raises InputError naming file, line and field.
     """
     path = Path(path)
     text = set(text)
     header: list[str] | None = None
     header_line = 0
     cols: _Columns | None = None
+    capacity = count_lines(path)
     with open_text(path) as lines:
         reader = csv.reader(lines)
-        while True:
-            try:
-                rec = next(reader)
-            except StopIteration:
-                break
-            except csv.Error as exc:
-                raise InputError(f"not a CSV row: {exc}", path, reader.line_num) from None
-            if not rec or rec[0].lstrip().startswith("#") or all(not c.strip() for c in rec):
-                continue
-            if cols is None:
-                header, header_line = [c.strip().lower() for c in rec], reader.line_num
-                missing = [c for c in required if c not in header]
-                if missing:
-                    raise InputError(f"missing column(s) {', '.join(missing)} (header has "
-                                     f"{', '.join(h[:40] for h in header[:30])})", path, header_line)
-                wanted = list(dict.fromkeys(list(required) + [c for c in optional if c in header]))
-                cols = _Columns(path, header, wanted, set(required), text)
-                continue
-            cols.add(reader.line_num, rec)
+        try:
+            for rec in reader:
+                if not rec or not "".join(rec).strip() or rec[0].lstrip().startswith("#"):
+                    continue
+                if cols is None:
+                    header, header_line = [c.strip().lower() for c in rec], reader.line_num
+                    missing = [c for c in required if c not in header]
+                    if missing:
+                        raise InputError(f"missing column(s) {', '.join(missing)} (header has "
+                                         f"{', '.join(h[:40] for h in header[:30])})", path, header_line)
+                    wanted = list(dict.fromkeys(list(required) + [c for c in optional if c in header]))
+                    cols = _Columns(path, header, wanted, set(required), text, set(coded) & text, groups or {},
+                                    capacity)
+                    rows, row_lines = cols.rows, cols.row_lines
+                    continue
+                rows.append(rec)
+                row_lines.append(reader.line_num)
+                if len(rows) >= CHUNK_ROWS:
+                    cols.flush()
+        except csv.Error as exc:
+            raise InputError(f"not a CSV row: {exc}", path, reader.line_num) from None
     if cols is None:
         raise InputError("empty file, expected a header row with columns " + ",".join(required), path)
     tab = cols.table()

@@ -15,6 +15,7 @@ from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
 from dgcal.fields.io.csv_tables import Table, read_table, write_table
+from dgcal.fields.io.labels import Labels
 
 TRAJECTORY_COLUMNS = ("gps_week", "gps_sow", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "heading")
 TRAJECTORY_SIGMA_COLUMNS = ("s_lat_m", "s_lon_m", "s_h_m", "s_roll", "s_pitch", "s_heading")
@@ -148,44 +149,128 @@ def write_points(path: str | Path, pts: Points, with_role: bool | None = None) -
 
 
 # ---------------------------------------------------------------------------------------------
-@dataclass
 class Measurements:
-    """Image measurements: image label, point id, pixel xy (N,2), sigma (N,2) px (NaN = not given)."""
+    """Image measurements: image label, point id, pixel xy (N,2), sigma (N,2) px (NaN = not given).
 
-    image: np.ndarray
-    id: np.ndarray
-    xy: np.ndarray
-    sigma: np.ndarray
-    lines: np.ndarray | None = None
-    path: Path | None = None
+    `image` and `id` are arrays of labels. The reader keeps them as codes into the distinct labels
+    (`image_labels`, `id_labels`: 4 bytes a row) and builds the arrays on first use; `sigma` of a file without
+    sigma columns is built (NaN) on first use too (`stated_sigma` is then None)."""
+
+    def __init__(self, image, id, xy: np.ndarray, sigma: np.ndarray | None, lines: np.ndarray | None = None,
+                 path: Path | None = None):
+        self._image, self._image_labels = _label_parts(image)
+        self._id, self._id_labels = _label_parts(id)
+        self.xy = xy
+        self._sigma = sigma
+        self.lines = lines
+        self.path = path
 
     def __len__(self) -> int:
-        return len(self.id)
+        return len(self.xy)
+
+    def __repr__(self) -> str:
+        return f"Measurements({len(self)} rows, {len(self.images())} images, path={self.path})"
+
+    @property
+    def image(self) -> np.ndarray:
+        """Image label of every row."""
+        if self._image is None:
+            self._image = self._image_labels.values()
+        return self._image
+
+    @image.setter
+    def image(self, value) -> None:
+        self._image, self._image_labels = _label_parts(value)
+
+    @property
+    def id(self) -> np.ndarray:
+        """Point id of every row."""
+        if self._id is None:
+            self._id = self._id_labels.values()
+        return self._id
+
+    @id.setter
+    def id(self, value) -> None:
+        self._id, self._id_labels = _label_parts(value)
+
+    @property
+    def image_labels(self) -> Labels:
+        """The image labels as codes into the distinct labels (first appearance order)."""
+        if self._image_labels is None:
+            self._image_labels = Labels.of(self._image)
+        return self._image_labels
+
+    @property
+    def id_labels(self) -> Labels:
+        """The point ids as codes into the distinct ids (first appearance order)."""
+        if self._id_labels is None:
+            self._id_labels = Labels.of(self._id)
+        return self._id_labels
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """(N,2) px, NaN where not given."""
+        if self._sigma is None:
+            self._sigma = np.full((len(self), 2), np.nan)
+        return self._sigma
+
+    @sigma.setter
+    def sigma(self, value: np.ndarray | None) -> None:
+        self._sigma = value
+
+    @property
+    def stated_sigma(self) -> np.ndarray | None:
+        """(N,2) px as the file states them (NaN where a row gives none), or None when it gives none at all."""
+        return self._sigma
 
     def images(self) -> list[str]:
         """Image labels in order of first appearance."""
+        if self._image is None:
+            lab = self._image_labels
+            return lab.names[lab.present()].tolist()
         return list(dict.fromkeys(self.image.tolist()))
 
     def subset(self, mask) -> "Measurements":
         """The measurements where `mask` is true."""
-        return Measurements(self.image[mask], self.id[mask], self.xy[mask], self.sigma[mask],
+        def part(arr, lab):
+            return arr[mask] if arr is not None else lab.subset(mask)
+        return Measurements(part(self._image, self._image_labels), part(self._id, self._id_labels), self.xy[mask],
+                            None if self._sigma is None else self._sigma[mask],
                             None if self.lines is None else self.lines[mask], self.path)
+
+
+def _label_parts(value) -> tuple[np.ndarray | None, Labels | None]:
+    """(array, None) for an array of labels, (None, labels) for `Labels`."""
+    return (None, value) if isinstance(value, Labels) else (value, None)
+
+
+def _first_repeat_codes(a: np.ndarray, b: np.ndarray, nb: int) -> int | None:
+    """The first row (in file order) whose code pair (a, b) appeared in an earlier row, or None (codes < 2^31)."""
+    if len(a) < 2:
+        return None
+    key = a.astype(np.int64) * max(nb, 1) + b
+    s = np.sort(key)
+    if not (s[1:] == s[:-1]).any():          # the usual case: no repeat, found with one sort
+        return None
+    del s
+    order = np.argsort(key, kind="stable")    # equal keys keep file order: the second of a pair is a repeat
+    ks = key[order]
+    rep = order[1:][ks[1:] == ks[:-1]]
+    return int(rep.min())
 
 
 def read_measurements(path: str | Path) -> Measurements:
     """Read image measurements `image,id,x,y[,sx,sy]` (px, OpenCV pixel convention)."""
-    tab = read_table(path, ("image", "id", "x", "y"), ("sx", "sy"))
+    tab = read_table(path, ("image", "id", "x", "y"), ("sx", "sy"), coded=("image", "id"),
+                     groups={"xy": ("x", "y"), "sigma": ("sx", "sy")})
     _check(tab, ("x", "y"), -validate.MAX_PIXEL, validate.MAX_PIXEL, unit="px")
     _check_sigmas(tab, ("sx", "sy"), validate.MAX_PIXEL, allow_nan=True)
-    image, ids = tab["image"], tab["id"]      # object arrays of the table's shared strings (no copies)
-    k = _first_repeat(image, ids)
+    image, ids = tab["image"], tab["id"]      # Labels: codes into the distinct strings
+    k = _first_repeat_codes(image.codes, ids.codes, len(ids.names))
     if k is not None:
-        raise InputError(f"point {ids[k]!r} measured twice in image {image[k]!r}", tab.path, int(tab.lines[k]),
-                         "id")
-    n = len(tab)
-    xy = np.column_stack([tab.cols.pop("x"), tab.cols.pop("y")])
-    sigma = np.column_stack([tab.cols.pop("sx", np.full(n, np.nan)), tab.cols.pop("sy", np.full(n, np.nan))])
-    return Measurements(image, ids, xy, sigma, tab.lines, tab.path)
+        raise InputError(f"point {ids.names[ids.codes[k]]!r} measured twice in image {image.names[image.codes[k]]!r}",
+                         tab.path, int(tab.lines[k]), "id")
+    return Measurements(image, ids, tab.groups["xy"], tab.groups.get("sigma"), tab.lines, tab.path)
 
 
 def write_measurements(path: str | Path, m: Measurements) -> None:
