@@ -51,6 +51,24 @@ class ObsTable:
             self._group = np.select([self.system == s for s in _GROUP_OF], list(_GROUP_OF.values()), -1)
         return self._group
 
+    def satellite_states(self, nav) -> tuple:
+        """Every row's satellite at transmission (`dgcal.pos.gnss.ephemeris.states_at_transmission`: position,
+        velocity, clock, drift, URA, ok), computed once: they depend on the time and the pseudorange only, not on
+        where the receiver is assumed, so every round of the positioning reuses them."""
+        hit = getattr(self, "_states", None)
+        if hit is None or hit[0] is not nav:
+            ok_pr = np.isfinite(self.raw["pr_m"]) & (self.group >= 0)   # the systems SPP knows
+            n = len(self.ep)
+            out = [np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.full(n, np.nan), np.full(n, np.nan),
+                   np.full(n, np.nan), np.zeros(n, bool)]
+            i = np.flatnonzero(ok_pr)
+            for a, b in zip(out, states_at_transmission(nav, self.sat[i].tolist(), self.t[self.ep[i]],
+                                                        self.raw["pr_m"][i])):
+                a[i] = b
+            hit = (nav, tuple(out))
+            self._states = hit
+        return hit[1]
+
     def subset(self, epochs: np.ndarray) -> "ObsTable":
         """The table of some epochs (indices, ascending), renumbered 0.. in that order."""
         where = np.full(len(self.t), -1)
@@ -139,11 +157,10 @@ def model(tab: ObsTable, nav, p_rx: np.ndarray, opts, epochs: np.ndarray) -> Mod
     if opts.iono == "iono-free":
         keep &= dual
     idx = np.flatnonzero(keep)
+    p, v, clk, drift, ura, ok = (a[idx] for a in tab.satellite_states(nav))
+    idx, p, v, clk, drift, ura = idx[ok], p[ok], v[ok], clk[ok], drift[ok], ura[ok]
     ep = tab.ep[idx]
     pr = tab.raw["pr_m"][idx]
-    sats = tab.sat[idx].tolist()
-    p, v, clk, drift, ura, ok = states_at_transmission(nav, sats, tab.t[ep], pr)
-    idx, ep, pr, p, v, clk, drift, ura = idx[ok], ep[ok], pr[ok], p[ok], v[ok], clk[ok], drift[ok], ura[ok]
     dual = dual[idx]
     known_ep = _known(pos)
     known = known_ep[ep]

@@ -150,11 +150,36 @@ def interpolate_trajectory(traj: Trajectory, t_query, names=None, cov: np.ndarra
     return TrajectoryInterpolator(traj, cov=cov, max_gap_s=max_gap_s, attitude=attitude)(t_query, names)
 
 
+def _max_gap(traj: Trajectory, max_gap_s: float | None) -> float | None:
+    """The interpolator's default gap limit of the whole trajectory (10 median steps)."""
+    t = np.asarray(traj.t, float)
+    return max_gap_s if max_gap_s is not None or len(t) < 2 else 10.0 * float(np.median(np.diff(t)))
+
+
+def _around(traj: Trajectory, t_query: np.ndarray) -> Trajectory:
+    """The samples of `traj` an interpolation at `t_query` reads (the bracketing pair and one on either side, for
+    the node rates): a 10 Hz hour has 36,000 samples and 500 events need 2,000 of them. The whole trajectory when
+    a query falls outside it (the interpolator names the error)."""
+    t = np.asarray(traj.t, float)
+    tq = np.asarray(t_query, float)
+    if len(t) < 4 or not len(tq) or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(tq)) \
+            or tq.min() < t[0] or tq.max() > t[-1]:
+        return traj
+    k = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, len(t) - 2)
+    keep = np.zeros(len(t), bool)
+    for d in (-1, 0, 1, 2):
+        keep[np.clip(k + d, 0, len(t) - 1)] = True
+    if keep.all():
+        return traj
+    sub = {f: (v[keep] if isinstance(v, np.ndarray) and len(v) == len(t) else v) for f, v in traj.__dict__.items()}
+    return type(traj)(**sub)
+
+
 def trajectory_at_events(traj: Trajectory, events: Events, delay_s: float = 0.0,
                          max_gap_s: float | None = None, attitude: str = "cubic") -> Trajectory:
     """Trajectory rows (first column `image`) at the exposure times t_event + delay_s of camera events."""
     t_exp = np.asarray(events.t, float) + delay_s
-    interp = TrajectoryInterpolator(traj, max_gap_s=max_gap_s, attitude=attitude)
+    interp = TrajectoryInterpolator(_around(traj, t_exp), max_gap_s=_max_gap(traj, max_gap_s), attitude=attitude)
     try:
         st = interp(t_exp, names=events.image)
     except InputError as exc:

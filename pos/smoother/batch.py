@@ -18,7 +18,8 @@ from dgcal.fields.constants import C_LIGHT
 from dgcal.pos.ins.error_model import ImuErrorModel, imu_grade
 from dgcal.pos.ins.nav_frame import NavFrame
 from dgcal.pos.gnss.dd import CarrierInput
-from dgcal.pos.smoother.carrier import atmosphere_position_covariance, dd_residuals, keyframe_dd_factors
+from dgcal.pos.smoother.carrier import (atmosphere_position_covariance, dd_residuals, keyframe_dd_factors,
+                                       linear_dd_factor)
 from dgcal.pos.smoother.code_bias import CB, CodeBiasArcs, bias_estimates, bias_process_factors, code_bias_arcs, \
     insert_initial
 from dgcal.pos.smoother.covariance import smoothed_covariances
@@ -121,6 +122,7 @@ class Problem:
     params: object = None
     huber_k: float | None = None     # the Huber threshold of the robust GNSS factors (pr, dop, LC positions)
     iterations: int = 0
+    lm_lambda: float | None = None   # the damping the last optimisation ended with
     seg: ImuSegments | None = None   # the IMU pieces of every keyframe interval (what the IMU factors integrated)
     interval_params: list = field(default_factory=list)  # per interval: its preintegration parameters (gravity)
     bias_hat: np.ndarray | None = None  # (K-1,6) the bias each interval's preintegration is linearised about
@@ -129,6 +131,7 @@ class Problem:
     carrier: CarrierInput | None = None
     code_bias: CodeBiasArcs | None = None   # TC: the satellites' code-bias arcs (dgcal.pos.smoother.code_bias)
     bias_factor_groups: list = field(default_factory=list)  # per keyframe: the code-bias process factors ending there
+    dd_lin: tuple | None = None      # the poses (R (K,3,3), p (K,3)) the double-difference factors are linearised at
     _blocks: KeyframeBlocks | None = field(default=None, repr=False)
 
     def ordering(self) -> gtsam.Ordering:
@@ -205,7 +208,8 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     arcs: CodeBiasArcs | None = None
     bias_groups: list = []
     if mode == "tc" and carrier is not None:
-        dd = keyframe_dd_factors(t_key, carrier.at(t_key), lever, frame, carrier.phase_corr, carrier.code_corr, X)
+        dd = keyframe_dd_factors(t_key, carrier.at(t_key), lever, frame, carrier.phase_corr, carrier.code_corr, X,
+                                 values)
     if mode == "tc":
         systems = sorted({str(s) for ep in epochs_at_key if ep is not None for s in ep.system},
                          key=lambda s: "GECJRIS".find(s))
@@ -275,7 +279,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
                       n_sat, gnss_update, omega_b, params, huber_k=opts.huber_k, seg=seg, interval_params=per_interval,
                       bias_hat=np.zeros((K - 1, 6)), dd={k: v[1] for k, v in dd.items()}, lever_arm_b=lever,
                       carrier=carrier, code_bias=arcs if arcs is not None and len(arcs) else None,
-                      bias_factor_groups=bias_groups)
+                      bias_factor_groups=bias_groups, dd_lin=_poses(values, K) if dd else None)
     problem.graph = assemble_graph(problem)
     return problem
 
@@ -346,35 +350,108 @@ def screen_dd(problem: Problem, values, threshold: float) -> int:
         dd_at_key[k] = data.cur.subset(keep) if keep.any() else None
     c = problem.carrier
     new = keyframe_dd_factors(problem.t_key, dd_at_key, problem.lever_arm_b, problem.frame, c.phase_corr,
-                              c.code_corr, X)
+                              c.code_corr, X, values)
     for k in range(len(problem.t_key)):
         fl = [e for e in problem.epoch_factors[k] if e[0] != "dd"]
         if k in new:
             fl.insert(0, ("dd", new[k][0], None))
         problem.epoch_factors[k] = fl
     problem.dd = {k: v[1] for k, v in new.items()}
+    problem.dd_lin = _poses(values, len(problem.t_key))
     problem.graph = assemble_graph(problem)
     return dropped
 
 
-def optimize(problem: Problem, max_iterations: int = 30):
-    """Levenberg-Marquardt over the whole graph; returns the optimised gtsam.Values."""
+DD_RELINEARISE_M = 1.0       # position move (m) beyond which the double differences are re-linearised
+DD_RELINEARISE_RAD = 5e-4    # attitude move (rad, 0.03 deg)
+
+
+def _poses(values, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """R (K,3,3) body->nav and p (K,3) nav m of the keyframe poses in `values`."""
+    poses = gtsam.utilities.extractPose3(values)
+    return poses[:, :9].reshape(K, 3, 3), poses[:, 9:].copy()
+
+
+def relinearise_dd(problem: Problem, values) -> bool:
+    """Re-linearise the double-difference factors at `values` when a keyframe pose moved from their
+    linearisation point by more than DD_RELINEARISE_M or DD_RELINEARISE_RAD (`dgcal.pos.smoother.carrier.
+    linear_dd_factor`); the graph is rebuilt. True if it was."""
+    if not problem.dd:
+        return False
+    K = len(problem.t_key)
+    R, p = _poses(values, K)
+    if problem.dd_lin is not None:
+        R0, p0 = problem.dd_lin
+        cos = np.clip((np.einsum("kij,kij->k", R, R0) - 1.0) / 2.0, -1.0, 1.0)
+        if np.max(np.linalg.norm(p - p0, axis=1)) <= DD_RELINEARISE_M and np.max(np.arccos(cos)) <= DD_RELINEARISE_RAD:
+            return False
+    new = {k: linear_dd_factor(X(k - 1) if data.prev is not None else None, X(k), data, problem.lever_arm_b,
+                               problem.frame, values) for k, data in problem.dd.items()}
+    for k, f in new.items():
+        problem.epoch_factors[k] = [("dd", f, None) if e[0] == "dd" else e for e in problem.epoch_factors[k]]
+    problem.dd_lin = (R, p)
+    problem.graph = assemble_graph(problem)
+    return True
+
+
+def lm_params(problem: Problem, max_iterations: int = 30, lambda_initial: float | None = None):
+    """The smoother's Levenberg-Marquardt settings."""
     p = gtsam.LevenbergMarquardtParams()
     p.setMaxIterations(max_iterations)
+    if lambda_initial is not None:
+        p.setlambdaInitial(lambda_initial)
     # stop when the cost changes by less than 1e-5 relative: with costs of 1e3-1e5 that is a chi-square change far
     # below one, i.e. nothing the covariances could resolve (1e-7 bought two more iterations)
-    p.setRelativeErrorTol(1e-5)
-    p.setAbsoluteErrorTol(1e-7)
+    p.setRelativeErrorTol(REL_TOL)
+    p.setAbsoluteErrorTol(ABS_TOL)
     # a navigation-grade IMU makes the normal equations so stiff that only heavily damped steps succeed:
     # let lambda grow past gtsam's default bound (1e5) instead of stopping without a single step
     p.setlambdaUpperBound(1e12)
     # eliminate keyframe by keyframe: the graph is a chain of keyframe blocks, and COLAMD, blind to that, takes
     # more iterations once the satellites' code biases add thousands of scalar variables
     p.setOrdering(problem.ordering())
-    opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, p)
-    values = opt.optimize()
-    problem.iterations = opt.iterations()
-    return values
+    return p
+
+
+REL_TOL, ABS_TOL = 1e-5, 1e-7
+
+
+def optimize(problem: Problem, max_iterations: int = 30, hook=None, resume: bool = False):
+    """Levenberg-Marquardt over the whole graph from `problem.values`, stepped as gtsam's own loop does (until the
+    cost changes by less than `REL_TOL` relative or `ABS_TOL` absolute, or `max_iterations`); returns the values.
+
+    `hook(n, values)` runs after iteration n and returns True when it changed parameters of the graph in place
+    (gravity): gtsam's optimiser still holds the cost under the old ones, which its next step is accepted against,
+    so it goes on only when that cost moved by less than a tenth of the last step's decrease, else a new optimiser
+    starts there. `resume`: continue the last optimiser of this graph (the graph unchanged since): a new optimiser's
+    first iteration costs twice a later one (it builds the elimination structure the later ones reuse)."""
+    last = getattr(problem, "_lm", None)
+    if resume and last is not None and last[0] is problem.graph:
+        opt = last[1]
+    else:
+        opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, lm_params(problem, max_iterations))
+    graph = problem.graph
+    cur = opt.error()
+    n = 0
+    while n < max_iterations:
+        opt.iterate()
+        n += 1
+        new = opt.error()
+        if not np.isfinite(new) or cur - new <= ABS_TOL or (cur - new) / cur <= REL_TOL:
+            break
+        if hook is not None and hook(n, opt.values()):
+            e = problem.graph.error(opt.values())
+            # a rebuilt graph (new factors) needs a new optimiser: the old one holds the old factors
+            if problem.graph is not graph or abs(e - new) > 0.1 * (cur - new):
+                opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, opt.values(),
+                                                        lm_params(problem, max_iterations, opt.lambda_()))
+                graph = problem.graph
+            new = e
+        cur = new
+    problem.iterations = n
+    problem.lm_lambda = opt.lambda_()
+    problem._lm = (problem.graph, opt)
+    return opt.values()
 
 
 def read_states(problem: Problem, values) -> NavSolution:
@@ -600,6 +677,18 @@ def setup_problem(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: Smoot
     return Setup(problem, noise, fixes, lc_fixes, epochs, static, measured, rejected, time.perf_counter() - t0)
 
 
+def _dd_converged(problem: Problem, values, max_iterations: int, iterations: list, rounds: int = 3):
+    """`values` once the double differences are linearised where the solution is: re-linearised and re-optimised
+    while the poses moved beyond the thresholds of `relinearise_dd` (at most `rounds` times)."""
+    for _ in range(rounds):
+        if not relinearise_dd(problem, values):
+            break
+        problem.values = values
+        values = optimize(problem, max_iterations)
+        iterations.append(problem.iterations)
+    return values
+
+
 def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOptions | None = None,
            mode: str = "tc", gnss=None, lc_fixes: GnssFixes | None = None, frame: NavFrame | None = None,
            second_pass: bool = True, carrier: CarrierInput | None = None) -> NavSolution:
@@ -632,12 +721,15 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
     # pseudo-attitude misplaces the IMU), but after two iterations the positions are within a metre of where the
     # GNSS puts them; each interval's gravity is set there before the iterations go on (so the second pass rarely
     # finds gravity to change)
-    values = optimize(problem, 2)
+    def gravity_at_track(n: int, vals) -> bool:
+        if n != 2:
+            return False
+        update_gravity(problem, read_states(problem, vals).p_nav)
+        relinearise_dd(problem, vals)
+        return True
+    values = optimize(problem, opts.max_iterations, gravity_at_track)
     iterations.append(problem.iterations)
-    update_gravity(problem, read_states(problem, values).p_nav)
-    problem.values = values
-    values = optimize(problem, max(opts.max_iterations - problem.iterations, 1))
-    iterations.append(problem.iterations)
+    values = _dd_converged(problem, values, opts.max_iterations, iterations)
     timing["optimize_s"] = time.perf_counter() - t0
     sol = read_states(problem, values)
     t0 = time.perf_counter()
@@ -650,7 +742,7 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
     reoptimise = False
     if (dropped or post) and not second_pass:
         problem.values = values
-        values = optimize(problem, opts.max_iterations)
+        values = _dd_converged(problem, optimize(problem, opts.max_iterations), opts.max_iterations, iterations)
         sol = read_states(problem, values)
         rows = None
     if second_pass:
@@ -660,8 +752,9 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         if reoptimise:
             problem.values = values
             values = optimize(problem, opts.max_iterations)
-            sol = read_states(problem, values)
             iterations.append(problem.iterations)
+            values = _dd_converged(problem, values, opts.max_iterations, iterations)
+            sol = read_states(problem, values)
             rows = None
     if rows is None:
         rows = keyframe_rows(problem.graph, values, problem.blocks())
@@ -673,9 +766,10 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         if step_left(P, dx) > STEP_LEFT:
             # gtsam stops on the cost's relative change (1e-5); a step still material somewhere sends it on
             problem.values = values
-            values = optimize(problem, opts.max_iterations)
-            sol = read_states(problem, values)
+            values = optimize(problem, opts.max_iterations, resume=True)
             iterations.append(problem.iterations)
+            values = _dd_converged(problem, values, opts.max_iterations, iterations)
+            sol = read_states(problem, values)
             rows = keyframe_rows(problem.graph, values, problem.blocks())
             P = smoothed_covariances(problem.graph, values, problem.blocks(), rows)
         timing["covariance_s"] = time.perf_counter() - t0

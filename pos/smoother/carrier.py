@@ -1,4 +1,4 @@
-"""Double-difference carrier-phase and code factors of the TC smoother (gtsam `CustomFactor`, one per keyframe).
+"""Double-difference carrier-phase and code factors of the TC smoother (one per keyframe, held linearised).
 
 A keyframe's factor holds all its double differences (``dgcal.pos.gnss.dd.DDEpoch``: phase with the arcs'
 integer ambiguities, and code) as measurements of the rover antenna's range differences,
@@ -98,8 +98,9 @@ def whitening(cur: DDEpoch, prev: DDEpoch | None, dt: float, phase: tuple[float,
     return keep, idx, coef, C * M
 
 
-def dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.ndarray, frame: NavFrame):
-    """The gtsam CustomFactor of one keyframe's double differences (keys X_prev (may be None) and X_cur)."""
+def _dd_model(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.ndarray, frame: NavFrame):
+    """Keys, noise model and error function `error(values, jacobians: bool) -> (e (n,) m, [H (n,6) per key])` of
+    one keyframe's double differences (keys X_prev (may be None) and X_cur)."""
     lever = np.asarray(lever_b, float)
     cur, prev = data.cur, data.prev
     tracked = (data.prev_index >= 0) & (data.rho != 0)
@@ -110,32 +111,69 @@ def dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.nd
         order = np.searchsorted(np.nonzero(np.isin(np.arange(prev.n), pj))[0], pj)
         rho_t = data.rho[tracked]
     keys = [X_prev, X_cur] if use_prev else [X_cur]
-    noise = gtsam.noiseModel.Gaussian.Covariance(data.cov)
 
-    def error(this, values, H):
+    def error(values, jacobians: bool):
         pose = values.atPose3(keys[-1])
         h, J = range_differences(cur, pose, lever, frame)
         e = h - cur.z
+        H = []
         if use_prev:
             hp, Jp = range_differences(prev_rows, values.atPose3(keys[0]), lever, frame)
             e[tracked] -= rho_t * (hp - prev_rows.z)[order]
-        if H is not None:
-            if use_prev:
+            if jacobians:
                 Jprev = np.zeros((cur.n, 6))
                 Jprev[tracked] = -rho_t[:, None] * Jp[order]
-                H[0] = Jprev
-                H[1] = J
-            else:
-                H[0] = J
+                H = [Jprev, J]
+        elif jacobians:
+            H = [J]
+        return e, H
+
+    return keys, data.cov, error
+
+
+def dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.ndarray, frame: NavFrame):
+    """The gtsam CustomFactor of one keyframe's double differences (keys X_prev (may be None) and X_cur): exact,
+    but gtsam hands every Python factor a copy of all the values at each evaluation (2 s an iteration for 900
+    keyframes): the smoother uses `linear_dd_factor`."""
+    keys, cov, model = _dd_model(X_prev, X_cur, data, lever_b, frame)
+
+    def error(this, values, H):
+        e, J = model(values, H is not None)
+        if H is not None:
+            for i, Ji in enumerate(J):
+                H[i] = Ji
         return e
 
-    return gtsam.CustomFactor(noise, keys, error)
+    return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(cov), keys, error)
+
+
+def linear_dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.ndarray, frame: NavFrame,
+                     values):
+    """One keyframe's double differences linearised at `values` (a gtsam LinearContainerFactor: whitened Jacobian
+    and residual, evaluated at other values through the poses' local coordinates). What the linearisation leaves
+    out is second order: |dp|^2 / (2 range) in position (2.5e-8 m for 1 m) and |lever| |dtheta|^2 / 2 in attitude
+    (1e-7 m for 0.03 deg at a 1 m lever arm), so the smoother re-linearises where the poses moved beyond those
+    (`dgcal.pos.smoother.batch.relinearise_dd`)."""
+    keys, cov, model = _dd_model(X_prev, X_cur, data, lever_b, frame)
+    e, H = model(values, True)
+    # whiten as gtsam's Gaussian model does: R'R = C^-1 with R upper triangular
+    L = np.linalg.cholesky(cov)
+    W = np.linalg.inv(L)                          # W' W = C^-1
+    args = []
+    for key, Hi in zip(keys, H):
+        args += [key, W @ Hi]
+    jf = gtsam.JacobianFactor(*args, -(W @ e), gtsam.noiseModel.Unit.Create(len(e)))
+    lin = gtsam.Values()
+    for key in keys:
+        lin.insert(key, values.atPose3(key))
+    return gtsam.LinearContainerFactor(jf, lin)
 
 
 def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavFrame, phase_corr: tuple,
-                        code_corr: tuple, X) -> dict:
-    """keyframe -> (CustomFactor, DDFactorData) for every keyframe with double differences; rows tracked from
-    the previous keyframe are whitened against it when it is the previous epoch (dt <= 2.5 median steps)."""
+                        code_corr: tuple, X, values=None) -> dict:
+    """keyframe -> (factor, DDFactorData) for every keyframe with double differences; rows tracked from the
+    previous keyframe are whitened against it when it is the previous epoch (dt <= 2.5 median steps). The factors
+    are linearised at `values` (`linear_dd_factor`), or exact CustomFactors without them (`dd_factor`)."""
     out = {}
     dt_nom = float(np.median(np.diff(t_key))) if len(t_key) > 1 else 1.0
     for k, cur in enumerate(dd_at_key):
@@ -149,8 +187,17 @@ def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavF
         if not keep.any():
             continue
         data = DDFactorData(k, cur.subset(keep), prev, idx, coef, cov)
-        out[k] = (dd_factor(X(k - 1) if prev is not None else None, X(k), data, lever_b, frame), data)
+        xp = X(k - 1) if prev is not None else None
+        out[k] = (dd_factor(xp, X(k), data, lever_b, frame) if values is None else
+                  linear_dd_factor(xp, X(k), data, lever_b, frame, values), data)
     return out
+
+
+def dd_errors(data: DDFactorData, values, X, lever_b, frame: NavFrame) -> np.ndarray:
+    """Unwhitened errors (m) of keyframe `data.k`'s double-difference factor at `values` (what the factor
+    whitens with `data.cov`)."""
+    keys = [X(data.k - 1), X(data.k)] if data.prev is not None else [X(data.k)]
+    return _dd_model(keys[0] if len(keys) == 2 else None, keys[-1], data, lever_b, frame)[2](values, False)[0]
 
 
 def dd_residuals(data: DDFactorData, values, X, lever_b, frame: NavFrame) -> tuple[np.ndarray, np.ndarray]:

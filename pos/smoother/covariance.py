@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from dgcal.pos.smoother.linearised import KeyframeBlocks, KeyframeRows, keyframe_rows
+from dgcal.pos.smoother.recursions import information_filter, rts_covariances, rts_step, schur_inverses
 
 __all__ = ["KeyframeBlocks", "smoothed_covariances", "forward_pass", "forward_innovations"]
 
@@ -50,30 +51,15 @@ def smoothed_covariances(graph, values, blocks: KeyframeBlocks, rows: KeyframeRo
     D, U, Dn, eD, en = _pair_blocks(rows, blocks)
     D = blocks.pad_inactive(D + Dn)
     e = eD + en
-    K = len(D)
     # forward Schur complements (sequential), then the RTS gains of all keyframes at once and the backward pass
-    Sinv = np.empty_like(D)
-    Sinv[0] = _inv_sym(D[0])
-    ys = np.empty_like(e)
-    ys[0] = e[0]
-    for k in range(1, K):
-        S = D[k] - U[k - 1].T @ (Sinv[k - 1] @ U[k - 1])
-        Si = np.linalg.inv(0.5 * (S + S.T))
-        Sinv[k] = 0.5 * (Si + Si.T)
+    D = np.ascontiguousarray(D)
+    U = np.ascontiguousarray(U)
+    Sinv = schur_inverses(D, U)
     G = Sinv[:-1] @ U
-    Gt = np.swapaxes(G, 1, 2)
-    P = np.empty_like(D)
-    P[K - 1] = Sinv[K - 1]
-    for k in range(K - 2, -1, -1):
-        P[k] = Sinv[k] + G[k] @ P[k + 1] @ Gt[k]
+    P = rts_covariances(Sinv, G)
     if not step:
         return _unscale(P, blocks)
-    for k in range(1, K):
-        ys[k] = e[k] - Gt[k - 1] @ ys[k - 1]
-    dx = np.empty_like(e)
-    dx[K - 1] = Sinv[K - 1] @ ys[K - 1]
-    for k in range(K - 2, -1, -1):
-        dx[k] = Sinv[k] @ ys[k] - G[k] @ dx[k + 1]
+    dx = rts_step(Sinv, G, np.ascontiguousarray(e))
     return _unscale(P, blocks), dx * blocks.scale
 
 
@@ -125,8 +111,8 @@ def forward_innovations(graph, values, blocks: KeyframeBlocks, row_kind: np.ndar
     pad_row = rows.row < 0
     kind = np.where(pad_row, -2, np.asarray(row_kind)[np.where(pad_row, 0, rows.row)])
     proc = kind == -1
-    Jp, gp = rows.normal(proc)
-    Jm, gm = rows.normal(kind >= 0)
+    Jp, gp = rows.normal(proc)          # the process rows come first in each keyframe (the graph's order)
+    Jt, gt = rows.normal()
     pad = np.zeros((K, n))
     if blocks.n_slots:
         pad[~blocks.active] = 1.0
@@ -134,22 +120,7 @@ def forward_innovations(graph, values, blocks: KeyframeBlocks, row_kind: np.ndar
     Jp[:, diag, diag] += pad
     Jp[0, :n, :n] += np.eye(n)       # no keyframe before the first: a decoupled placeholder
     # the filter's information recursion is sequential; everything else runs on all keyframes at once after it
-    Sf = np.empty((K, n, n))
-    yf = np.empty((K, n))
-    Jt = Jp + Jm
-    gt = gp + gm
-    Jll, Jln, Jnl, Jnn = Jt[:, :n, :n], Jt[:, :n, n:], Jt[:, n:, :n], Jt[:, n:, n:]
-    R = np.concatenate([Jln, gt[:, :n, None]], axis=2)
-    S = np.zeros((n, n))
-    y = np.zeros(n)
-    Jll = 0.5 * (Jll + np.swapaxes(Jll, 1, 2))
-    for k in range(K):
-        R[k, :, n] += y
-        G = np.linalg.solve(Jll[k] + S, R[k])
-        S = Jnn[k] - Jnl[k] @ G[:, :n]
-        S = 0.5 * (S + S.T)
-        y = gt[k, n:] - Jnl[k] @ G[:, n]
-        Sf[k], yf[k] = S, y
+    Sf, yf = _filter_information(Jt, gt, pad, n)
     # the prediction of (k-1, k) from the filtered k-1 and the process rows ending at k
     Jp[1:, :n, :n] += Sf[:-1]
     gp[1:, :n] += yf[:-1]
@@ -171,6 +142,17 @@ def forward_innovations(graph, values, blocks: KeyframeBlocks, row_kind: np.ndar
             if np.isfinite(v):
                 nis.setdefault(kinds[kd], []).append((int(k), float(v), int(d)))
     return dx * blocks.scale, _unscale(P, blocks), nis, innov
+
+
+def _filter_information(Jt: np.ndarray, gt: np.ndarray, pad: np.ndarray, n: int):
+    """Information (K,n,n) and vector (K,n) of each keyframe given the rows up to it: Jt, gt (K,2n,2n), (K,2n) the
+    information of the rows whose latest keyframe is k, over (k-1, k); `pad` (K,n) unit information of the empty
+    slots. Sequential: each keyframe's Schur complement after the previous one's (`information_filter`)."""
+    Jt = Jt.copy()
+    diag = np.arange(n, 2 * n)
+    Jt[:, diag, diag] += pad
+    Jt[0, :n, :n] += np.eye(n)
+    return information_filter(Jt, np.ascontiguousarray(gt), n)
 
 
 def _nis(A: np.ndarray, r: np.ndarray, m: np.ndarray, P: np.ndarray):

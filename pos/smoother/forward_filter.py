@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dgcal.pos.smoother.batch import NavSolution, Problem, read_states
+from dgcal.pos.smoother.carrier import dd_errors
 from dgcal.pos.smoother.covariance import forward_innovations
 from dgcal.pos.smoother.integrity import factor_table
 from dgcal.pos.smoother.factors import CLK, DRIFT, ZERO, B, V, X
@@ -137,7 +138,7 @@ def linear_forward_solution(problem: Problem, values, rows=None) -> NavSolution:
     rec = np.isfinite(tab.sigma)
     for i in np.flatnonzero(~rec & (code >= 0)):
         kind, k = tab.kinds[i]
-        sig = _sigmas(graph.at(i))
+        sig = _dd_sigmas(problem, k) if kind == "dd" else _sigmas(graph.at(i))
         w = innov[tab.start[i]:tab.start[i + 1]]
         for j in range(len(w)):
             s = sig[min(j, len(sig) - 1)]
@@ -221,8 +222,10 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
         for f in steps[k]:
             graph.add(f)
         for kind, f, _ in problem.epoch_factors[k]:  # innovations at the prediction
-            e = np.atleast_1d(f.unwhitenedError(vals))
-            sig = _sigmas(f)
+            if kind == "dd":
+                e, sig = dd_errors(problem.dd[k], vals, X, problem.lever_arm_b, problem.frame), _dd_sigmas(problem, k)
+            else:
+                e, sig = np.atleast_1d(f.unwhitenedError(vals)), _sigmas(f)
             for j in range(len(e)):
                 innov.setdefault(kind, []).append((k, e[j], sig[j]))
         ents = entries_at[k] if nb == 1 else entries_at[k - 1] + [(key, off + n, d) for key, off, d in entries_at[k]]
@@ -320,6 +323,11 @@ def _restrict(entries: list, zero: bool):
     if zero:
         o.push_back(ZERO())
     return o
+
+
+def _dd_sigmas(problem: Problem, k: int) -> np.ndarray:
+    """Sigmas (m) of keyframe k's double-difference rows as its factor combines them."""
+    return np.sqrt(np.diag(problem.dd[k].cov))
 
 
 def _sigmas(f) -> np.ndarray:

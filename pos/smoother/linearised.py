@@ -122,10 +122,16 @@ class KeyframeRows:
 
     def normal(self, use: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Information (K,2n,2n) and information vector (K,2n) of each keyframe's rows (those of `use` (K,M) bool,
-        else all): A'A and A'b."""
-        A = self.A if use is None else self.A * use[..., None]
-        At = np.swapaxes(A, 1, 2)
-        return At @ self.A, np.einsum("kmi,km->ki", A, self.b)
+        else all, computed once): A'A and A'b. Only the slots up to the last one used enter the products."""
+        if use is None and getattr(self, "_all", None) is not None:
+            return self._all
+        m = self.A.shape[1] if use is None or not use.any() else int(np.flatnonzero(use.any(axis=0)).max()) + 1
+        A, b = self.A[:, :m], self.b[:, :m]
+        Au = A if use is None else A * use[:, :m, None]
+        out = np.swapaxes(Au, 1, 2) @ A, np.einsum("kmi,km->ki", Au, b)
+        if use is None:
+            self._all = out
+        return out
 
 
 def keyframe_rows(graph, values, blocks: KeyframeBlocks) -> KeyframeRows:
