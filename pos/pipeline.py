@@ -17,7 +17,7 @@ from threadpoolctl import threadpool_limits
 
 from dgcal.fields.constants import G0, SECONDS_PER_WEEK
 from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
-from dgcal.fields.errors import InputError
+from dgcal.fields.errors import InputError, ResultError
 from dgcal.fields.frames import R_ecef_to_ned
 from dgcal.pos.gnss.carrier import carrier_observations
 from dgcal.pos.gnss.dd import DDOptions, carrier_front_end
@@ -42,6 +42,7 @@ from dgcal.pos.smoother.forward_filter import forward_solution, linear_forward_s
 from dgcal.pos.smoother.initial import GnssFixes
 from dgcal.pos.smoother.integrity import gnss_warnings
 from dgcal.pos.smoother.output import densify, solution_trajectory
+from dgcal.pos.smoother.time_offset import estimate_time_offset, shifted_imu, smoother_chi2
 
 
 @dataclass
@@ -124,7 +125,7 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
             lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool | str = True,
             smoother_opts=None, progress: bool = False, carrier: tuple | None = None,
             ppk_opts: PpkOptions | None = None, dd_opts: DDOptions | None = None,
-            imu_checks: ImuIntegrityOptions | None = None) -> PosResult:
+            imu_checks: ImuIntegrityOptions | None = None, estimate_imu_time_offset: bool = False) -> PosResult:
     """Run SPP (when RINEX is given), the smoother (TC or LC), the forward solution and the outputs in memory.
 
     The IMU data are checked first (dgcal.pos.ins.integrity.check_imu: order, duplicates, gaps, spikes; a gap
@@ -137,6 +138,10 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     forward: True for the forward solution and normalised innovations of the smoother's problem linearised at its
     solution (`linear_forward_solution`, cheap), "filter" for the iterated filter about its own estimates
     (`forward_solution`), False for none.
+
+    estimate_imu_time_offset: the IMU-GNSS time offset estimated from the smoother's chi-square profile
+    (`dgcal.pos.smoother.time_offset`, 7-11 smoothings without covariances), applied to the IMU's time tags and
+    reported with its sigma in `summary['imu_time_offset']`; a ResultError when the data cannot determine it.
     """
     if mode not in ("tc", "lc"):
         raise InputError(f"mode must be tc or lc, not {mode!r}", field="--mode")
@@ -172,6 +177,17 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
                                    p_init=fixes.p_ecef[0])
         fixes = fixes_with_ppk(fixes, fe.ppk)
         timing["carrier_front_end_s"] = time.perf_counter() - t0
+    offset = None
+    if estimate_imu_time_offset:
+        t0 = time.perf_counter()
+        offset = estimate_time_offset(smoother_chi2(imu, fixes, grade, opts, mode, gnss, lc_fixes,
+                                                    fe.input if fe is not None else None))
+        if not (np.isfinite(offset.sigma_s) and abs(offset.offset_s) < 10.0):
+            why = offset.note or "the chi-square profile has no minimum within 10 s"
+            raise ResultError(f"the IMU time offset cannot be estimated from these data ({why}); give it with "
+                              "--imu-time-offset", field="--estimate-imu-time-offset")
+        imu = shifted_imu(imu, offset.offset_s)
+        timing["time_offset_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     sol = smooth(imu, fixes, grade, opts, mode=mode, gnss=gnss, lc_fixes=lc_fixes,
                  carrier=fe.input if fe is not None else None)
@@ -191,6 +207,8 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     res = PosResult(mode, sol, fw, dense, solution_trajectory(sol), solution_trajectory(fw) if fw else None, ev,
                     spp_sol, fixes, carrier=fe)
     res.summary = summarize(res)
+    if offset is not None:
+        res.summary["imu_time_offset"] = offset.as_dict()
     add_integrity(res.summary, imu_report, sol.info.get("gnss_rejected", []))
     if fe is not None:
         res.summary["carrier"] = carrier_summary(res)
@@ -414,6 +432,7 @@ class PosOptions:
     imu_set: tuple[str, ...] = ()           # tc/lc: description overrides KEY=VALUE (e.g. units.gyro=deg/s)
     imu_tag: Path | None = None             # tc/lc: RTKLIB time-tag file of a tick-counter IMU log
     imu_time_offset_s: float = 0.0          # tc/lc: added to every IMU sample time (s; a logging delay)
+    estimate_imu_time_offset: bool = False  # tc/lc: estimate the rest of the offset from the data (with its sigma)
     events_format: str | None = None        # events file format (default: recognised by content)
     gnss_format: str | None = None          # lc: rtklib-pos | nmea | dgcal-csv (default: recognised by content)
     gnss_quality: str | None = None         # lc: fix qualities to use, e.g. "fixed,float" (default all)
@@ -596,7 +615,8 @@ def run_pos(opts: PosOptions) -> PosResult:
         else:
             res = process(mode, imu, grade, lever, raw_obs=raw, nav=nav, spp_opts=spp_opts, lc_fixes=lc,
                           events=events, rate_hz=rate, forward=forward, smoother_opts=sm, progress=opts.progress,
-                          carrier=carrier, ppk_opts=popts, dd_opts=dd_opts, imu_checks=checks)
+                          carrier=carrier, ppk_opts=popts, dd_opts=dd_opts, imu_checks=checks,
+                          estimate_imu_time_offset=opts.estimate_imu_time_offset)
         add_integrity(res.summary, rinex_warnings=rinex_warnings)
     except InputError:
         raise

@@ -212,6 +212,12 @@ def write_pos_report(path: str | Path, res) -> Path:
     warn += list(s.get("warnings", []))
     rep.warnings(warn)
     _integrity_section(rep, s.get("integrity", {}))
+    toff = s.get("imu_time_offset")
+    if toff is not None:
+        rep.heading("IMU-GNSS time offset (estimated)")
+        rep.kv_table([("offset added to the IMU tags (ms)", f"{toff['offset_ms']:+.3f} +- {toff['sigma_ms']:.3f}"),
+                      ("smoother runs of the chi-square profile (offset ms, chi-square)",
+                       "; ".join(f"{d:+.1f}: {c:.1f}" for d, c in toff["trials"]))])
     c = s.get("carrier")
     if c is not None and res.carrier is not None:
         ints = c.get("integers") or {}

@@ -73,6 +73,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="RTKLIB time-tag file of a tick-counter IMU log (default: the IMU file + .tag)")
     p.add_argument("--imu-time-offset", type=float, default=0.0, metavar="S",
                    help="seconds added to every IMU sample time (e.g. -0.125 for a logger's delay)")
+    p.add_argument("--estimate-imu-time-offset", action="store_true",
+                   help="tc/lc: estimate the IMU-GNSS time offset (beyond --imu-time-offset) from the data, with its "
+                   "sigma (7-11 smoother runs; needs motion); reported in pos_summary.json imu_time_offset")
     p.add_argument("--events", metavar="EVENTS",
                    help="camera events (tc/lc, optional): dgcal CSV image,gps_week,gps_sow, DJI .MRK, image,utc CSV "
                    "or a PX4 .ulg (camera_capture)")
@@ -138,6 +141,7 @@ def pos_options(args: argparse.Namespace) -> PosOptions:
                       n_freq=getattr(args, "frequencies", 3), imu_format=getattr(args, "imu_format", None),
                       imu_set=tuple(getattr(args, "imu_set", ()) or ()), imu_tag=getattr(args, "imu_tag", None),
                       imu_time_offset_s=float(getattr(args, "imu_time_offset", 0.0) or 0.0),
+                      estimate_imu_time_offset=bool(getattr(args, "estimate_imu_time_offset", False)),
                       events_format=getattr(args, "events_format", None),
                       gnss_format=getattr(args, "gnss_format", None), gnss_quality=getattr(args, "gnss_quality", None),
                       nmea_date=getattr(args, "nmea_date", None),
@@ -213,6 +217,10 @@ def run(args: argparse.Namespace) -> int:
     s = res.summary
     print(f"{Path(args.out) / INS_OUTPUTS['trajectory']}: {opts.mode.upper()} {s['keyframes']} keyframes, "
           f"{s['events']} events, median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg", file=sys.stderr)
+    if "imu_time_offset" in s:
+        o = s["imu_time_offset"]
+        print(f"IMU time offset estimated: {o['offset_ms']:+.2f} +- {o['sigma_ms']:.2f} ms (applied on top of "
+              f"--imu-time-offset {1e3 * opts.imu_time_offset_s:+.1f} ms)", file=sys.stderr)
     w = s.get("withheld_fixes")
     if w and w.get("n"):
         print(f"withheld fixes: {w['n']}, antenna 3D RMS {w['rms_3d_m']} m (N,E,D {w['rms_ned_m']} m), max "

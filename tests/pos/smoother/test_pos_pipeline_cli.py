@@ -122,3 +122,19 @@ def test_bad_settings_and_missing_inputs(dataset, tmp_path):
                            imu_grade="potato"))
     assert _dgcal(["pos", "--mode", "tc", "--imu", str(dataset / "imu.csv"), "--events",
                    str(dataset / "events.csv"), "--out", str(tmp_path / "y")]) == 2
+
+
+def test_imu_time_offset_estimated(dataset, tmp_path, capsys):
+    """A 50 ms logging delay given wrongly as zero... here: the IMU tags moved by +50 ms with --imu-time-offset; the
+    estimate brings them back (-50 ms within 3 sigma) and is reported in the summary and on the console."""
+    out = tmp_path / "toff"
+    assert _dgcal(_pos_args(dataset, out, "tc", ["--set", "rate=5", "--imu-time-offset", "0.05",
+                                                 "--estimate-imu-time-offset"])) == 0
+    o = json.loads((out / "pos_summary.json").read_text())["imu_time_offset"]
+    est, sig = 1e-3 * o["offset_ms"], 1e-3 * o["sigma_ms"]
+    print(f"\nestimated {1e3 * est:+.1f} +- {1e3 * sig:.1f} ms (truth -50 ms)")
+    assert 0 < sig <= 0.02
+    assert abs(est + 0.05) <= 3 * sig
+    assert len(o["trials"]) >= 6
+    assert "IMU time offset estimated" in capsys.readouterr().err
+    assert "IMU-GNSS time offset (estimated)" in (out / "report.html").read_text()
