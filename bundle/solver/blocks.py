@@ -54,18 +54,34 @@ class BlockEval:
 
 
 class Block:
-    """Base of residual blocks: `name`, `dim`, robust `loss` and `loss_scale` (in whitened units)."""
+    """Base of residual blocks: `name`, `dim`, robust `loss` and `loss_scale` (in whitened units).
+
+    A block that can evaluate a part of its items (`chunkable`) gives the engine its parts (`chunks`) and
+    `evaluate(state, jacobians, rows)` of one part (a slice of its items); the engine then never holds the
+    Jacobians of more than one part (`dgcal.bundle.solver.normals.CHUNK_ITEMS`)."""
 
     name: str = "block"
     dim: int = 1
     loss: str = "none"
     loss_scale: float = 3.0
+    chunkable: bool = False
 
     def __len__(self) -> int:
         raise NotImplementedError
 
     def evaluate(self, state: State, jacobians: bool) -> BlockEval:
         raise NotImplementedError
+
+    def chunks(self, n_poses: int, size: int) -> list[slice]:
+        """The parts of about `size` items each, in item order (one part unless `chunkable`)."""
+        return [slice(0, len(self))]
+
+
+def _indices(a) -> np.ndarray:
+    """An index array as given when it is one of integers (int32 indices of 5 M observations stay 20 MB), else
+    as int."""
+    a = np.asarray(a)
+    return a if a.dtype.kind in "iu" else np.asarray(a, int)
 
 
 class ImageObservations(Block):
@@ -82,18 +98,61 @@ class ImageObservations(Block):
                  sigma: np.ndarray, intrinsics: Sequence[str] = (), glob_offset: int = 0,
                  loss: str = "none", loss_scale: float = 3.0, name: str = "image", points_fixed: bool = False):
         self.camera = camera
-        self.pose = np.asarray(pose, int)
-        self.point = np.asarray(point, int)
+        self.pose = _indices(pose)
+        self.point = _indices(point)
         self.uv = np.asarray(uv, float).reshape(-1, 2)
-        self.sigma = np.broadcast_to(np.asarray(sigma, float), self.uv.shape).copy()
+        sigma = np.asarray(sigma, float)
+        # a (k,2) array is used as given (not copied: 80 MB at 5 M items); anything else is broadcast
+        self.sigma = sigma if sigma.shape == self.uv.shape else np.broadcast_to(sigma, self.uv.shape).copy()
         self.intrinsics = tuple(intrinsics)
         self.param_idx = np.array([camera.PARAMS.index(p) for p in self.intrinsics], int)
         self.glob = glob_offset + np.arange(len(self.intrinsics))
         self.loss, self.loss_scale, self.name = loss, loss_scale, name
         self.points_fixed = points_fixed      # the points are known: no point Jacobian
 
+    chunkable = True
+
     def __len__(self) -> int:
         return len(self.pose)
+
+    def chunks(self, n_poses: int, size: int) -> list[slice]:
+        """Parts of `size` items; of known points with per-pose runs (`_pose_runs`), parts of at least `size` items
+        (the last may be smaller) that end where a pose's items end, so each pose's products are the whole
+        block's."""
+        k = len(self)
+        if k <= size:
+            return [slice(0, k)]
+        runs = self._pose_runs(n_poses) if self.points_fixed else None
+        if runs is None:
+            return [slice(a, min(a + size, k)) for a in range(0, k, size)]
+        out, start = [], 0
+        for _, s in runs:
+            if s.stop - start >= size:
+                out.append(slice(start, s.stop))
+                start = s.stop
+        if start < k:
+            out.append(slice(start, k))
+        return out
+
+    def _part(self, rows: slice | None, n_poses: int):
+        """(pose, point, uv, sigma, runs) of the items `rows` (all: None): views, the same objects on every call
+        for the same part (the engine caches by identity), runs relative to the part."""
+        if rows is None or (rows.start == 0 and rows.stop == len(self)):
+            return self.pose, self.point, self.uv, self.sigma, (self._pose_runs(n_poses) if self.points_fixed
+                                                                else None)
+        arrays = (self.pose, self.point, self.uv, self.sigma)
+        cached = self.__dict__.get("_parts")
+        if cached is None or any(a is not b for a, b in zip(cached[0], arrays)):
+            cached = self._parts = (arrays, {})      # the items changed (or first use): new views
+        parts = cached[1]
+        key = (rows.start, rows.stop, n_poses)
+        if key not in parts:
+            runs = self._pose_runs(n_poses) if self.points_fixed else None
+            if runs is not None:
+                runs = [(i, slice(s.start - rows.start, s.stop - rows.start)) for i, s in runs
+                        if s.start >= rows.start and s.stop <= rows.stop]
+            parts[key] = (self.pose[rows], self.point[rows], self.uv[rows], self.sigma[rows], runs)
+        return parts[key]
 
     def camera_at(self, globals_: np.ndarray) -> CameraModel:
         """The camera with the intrinsics of a state's globals."""
@@ -120,32 +179,34 @@ class ImageObservations(Block):
         self._runs = (p, n_poses, runs)
         return runs
 
-    def evaluate(self, state: State, jacobians: bool) -> BlockEval:
+    def evaluate(self, state: State, jacobians: bool, rows: slice | None = None) -> BlockEval:
+        """Whitened residuals (and Jacobians) of every item, or of the part `rows` (a slice of `chunks`)."""
         cam = self.camera_at(state.globals)
         R_all, C_all = state.poses.R_world_to_cam, state.poses.C_world
         # per-pose products for known points (self-calibration: numba never loaded); compiled otherwise
-        runs = self._pose_runs(len(C_all)) if self.points_fixed else None
+        pose, point, uv_m, sigma, runs = self._part(rows, len(C_all))
         if runs is None:
             R_all = np.ascontiguousarray(R_all)
-            Xc = to_camera(R_all, np.ascontiguousarray(C_all), np.ascontiguousarray(state.points), self.pose,
-                           self.point)
+            Xc = to_camera(R_all, np.ascontiguousarray(C_all), np.ascontiguousarray(state.points),
+                           pose.astype(np.int64, copy=False), point.astype(np.int64, copy=False))
         else:                       # many items per pose, sorted: one small matrix product per pose
-            Xc = state.points[self.point]
+            Xc = state.points[point]
             for i, s in runs:
                 Xc[s] -= C_all[i]
                 Xc[s] = Xc[s] @ R_all[i].T
         valid = Xc[:, 2] > 0
         if not jacobians:
             with np.errstate(all="ignore"):
-                r = (cam.project(Xc) - self.uv) / self.sigma
+                r = (cam.project(Xc) - uv_m) / sigma
             return BlockEval(r, valid & np.isfinite(r).all(1))
         with np.errstate(all="ignore"):
             uv, J_int, JX = cam.project_with_jacobians(Xc, params=len(self.glob) > 0)
-        w = 1.0 / self.sigma
+        w = 1.0 / sigma
         J_pose = np.empty((len(Xc), 2, 6))
         JR = np.empty((len(Xc), 2, 3))
         if runs is None:             # one compiled pass per item (aerial blocks: ~10 items per pose-point pair)
-            pose_point_jacobians(np.ascontiguousarray(JX), w, R_all, self.pose, Xc, J_pose, JR)
+            pose_point_jacobians(np.ascontiguousarray(JX), w, R_all, pose.astype(np.int64, copy=False), Xc, J_pose,
+                                 JR)
         else:
             JXw = JX * w[:, :, None]
             JXw2, JR2 = JXw.reshape(-1, 3), JR.reshape(-1, 3)
@@ -154,9 +215,9 @@ class ImageObservations(Block):
             # dX_cam/dC = -R;  dX_cam/dtheta = [X_cam]x (R_cam_to_world <- R_cam_to_world Exp(dtheta))
             np.negative(JR, out=J_pose[:, :, :3])
             np.matmul(JXw, _cross_matrices(Xc), out=J_pose[:, :, 3:])
-        r = (uv - self.uv) / self.sigma
+        r = (uv - uv_m) / sigma
         valid &= np.isfinite(r).all(1)
-        return BlockEval(r, valid, self.pose, J_pose, None if self.points_fixed else self.point,
+        return BlockEval(r, valid, pose, J_pose, None if self.points_fixed else point,
                          None if self.points_fixed else JR, self.glob,
                          self._intrinsic_jacobian(J_int, w) if len(self.glob) else None)
 

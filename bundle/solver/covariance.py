@@ -19,40 +19,123 @@ from dgcal.bundle.solver.normals import Normals, Problem, Reduced, reduce, solve
 
 
 @dataclass
+class CameraSideCofactors:
+    """Q_cc = S^-1 of the camera side (poses, then globals), times `factor`: a dense matrix, or, for a camera side
+    solved by blocks (`dgcal.bundle.solver.normals.Arrow`), its parts, Q_gg = S_g^-1, Q_pg = -E Q_gg,
+    Q_pp = D^-1 + E Q_gg E^T, which hold O(N) numbers where the dense Q holds (6N+G)^2. NaN (dense) or `bad`
+    mark held and unobserved parameters."""
+
+    n_poses: int
+    n_globals: int
+    bad: np.ndarray                        # (6N+G,) bool
+    Q: np.ndarray | None = None            # dense (6N+G, 6N+G)
+    Dinv: np.ndarray | None = None         # (N,6,6)
+    E: np.ndarray | None = None            # (N,6,G)
+    Q_gg: np.ndarray | None = None         # (G,G)
+    factor: float = 1.0
+
+    def scaled(self, f: float) -> "CameraSideCofactors":
+        """The same cofactors times f (e.g. sigma0^2: covariances)."""
+        return CameraSideCofactors(self.n_poses, self.n_globals, self.bad, self.Q, self.Dinv, self.E, self.Q_gg,
+                                   self.factor * f)
+
+    def dense(self) -> np.ndarray:
+        """The whole (6N+G, 6N+G) matrix, NaN where `bad` (of a large block this is large)."""
+        if self.Q is not None:
+            return self.factor * self.Q
+        N, G = self.n_poses, self.n_globals
+        Q = np.zeros((6 * N + G, 6 * N + G))
+        idx = 6 * np.arange(N)[:, None] + np.arange(6)
+        Q[idx[:, :, None], idx[:, None, :]] = self.Dinv
+        E2 = self.E.reshape(6 * N, G)
+        Q[:6 * N, :6 * N] += E2 @ self.Q_gg @ E2.T
+        Q[:6 * N, 6 * N:] = -E2 @ self.Q_gg
+        Q[6 * N:, :6 * N] = Q[:6 * N, 6 * N:].T
+        Q[6 * N:, 6 * N:] = self.Q_gg
+        Q[self.bad, :] = np.nan
+        Q[:, self.bad] = np.nan
+        return self.factor * Q
+
+    def pose_blocks(self) -> np.ndarray:
+        """(N,6,6) the poses' diagonal blocks."""
+        N = self.n_poses
+        if self.Q is not None:
+            idx = 6 * np.arange(N)[:, None] + np.arange(6)
+            return self.factor * self.Q[idx[:, :, None], idx[:, None, :]]
+        P = self.Dinv + np.matmul(np.matmul(self.E, self.Q_gg), self.E.transpose(0, 2, 1))
+        bad = self.bad[:6 * N].reshape(N, 6)
+        P[bad[:, :, None] | bad[:, None, :]] = np.nan
+        return self.factor * P
+
+    def global_block(self, glob: np.ndarray | None = None) -> np.ndarray:
+        """(g,g) the block of globals `glob` (all by default)."""
+        N, G = self.n_poses, self.n_globals
+        g = np.arange(G) if glob is None else np.asarray(glob, int)
+        if self.Q is not None:
+            return self.factor * self.Q[np.ix_(6 * N + g, 6 * N + g)]
+        out = self.Q_gg[np.ix_(g, g)].copy()
+        bad = self.bad[6 * N + g]
+        out[bad, :] = np.nan
+        out[:, bad] = np.nan
+        return self.factor * out
+
+    def sandwich(self, L: np.ndarray) -> np.ndarray:
+        """L Q L^T for L (r, 6N+G), NaN entries of Q taken as 0 (held and unobserved parameters do not vary)."""
+        if self.Q is not None:
+            return self.factor * (L @ np.nan_to_num(self.Q) @ L.T)
+        N = self.n_poses
+        Lm = L * ~self.bad            # Q with its bad rows and columns 0 = L without those columns
+        Lp, Lg = Lm[:, :6 * N].reshape(len(L), N, 6), Lm[:, 6 * N:]
+        # L Q L^T = Lp D^-1 Lp^T + (Lp E - Lg) Q_gg (Lp E - Lg)^T
+        F = np.einsum("rna,nag->rg", Lp, self.E) - Lg
+        return self.factor * (np.einsum("rna,nab,snb->rs", Lp, self.Dinv, Lp) + F @ self.Q_gg @ F.T)
+
+
+@dataclass
 class Covariance:
     """Cofactor blocks of a solved problem (multiply by the chosen variance factor for covariances)."""
 
     problem: Problem
     normals: Normals
     reduced: Reduced
-    Q_cc: np.ndarray
+    camera_side: CameraSideCofactors
     _Qc: np.ndarray | None = field(default=None, repr=False)
     _WT: sp.csr_matrix | None = field(default=None, repr=False)
 
     @classmethod
     def at(cls, problem: Problem, normals: Normals) -> "Covariance":
         """Cofactors from undamped normals (see `dgcal.bundle.solver.lm.normals_at`)."""
-        # dense: the whole inverse is wanted, which a sparse factor gives no cheaper than LAPACK
+        # dense: the whole inverse is wanted, which a sparse factor gives no cheaper than LAPACK; a camera side
+        # without pose-point coupling and with many poses by blocks (`Reduced.arrow`)
         red = reduce(normals, 0.0, dense=True)
         nc = problem.n_camera_side
-        Q = _inverse(red) if nc else np.zeros((0, 0))
         bad = ~normals.observed_c
+        N, G = problem.n_poses, problem.n_globals
+        if red.arrow is not None:
+            a = red.arrow
+            Q_gg = a.solve_globals(np.eye(G)) if G else np.zeros((0, 0))
+            side = CameraSideCofactors(N, G, bad, Dinv=a.Dinv, E=a.E, Q_gg=0.5 * (Q_gg + Q_gg.T))
+            return cls(problem, normals, red, side)
+        Q = _inverse(red) if nc else np.zeros((0, 0))
         Q[bad, :] = np.nan
         Q[:, bad] = np.nan
-        return cls(problem, normals, red, Q)
+        return cls(problem, normals, red, CameraSideCofactors(N, G, bad, Q=Q))
+
+    @property
+    def Q_cc(self) -> np.ndarray:
+        """The camera side's cofactors as one dense matrix (NaN for held/unobserved parameters)."""
+        if self.camera_side.Q is None:
+            self.camera_side.Q = self.camera_side.dense()
+        return self.camera_side.Q
 
     # --- camera side --------------------------------------------------------------------
     def pose_cofactors(self) -> np.ndarray:
         """(N,6,6) per-pose cofactors [C (m), dtheta (rad)]."""
-        N = self.problem.n_poses
-        idx = 6 * np.arange(N)[:, None] + np.arange(6)
-        return self.Q_cc[idx[:, :, None], idx[:, None, :]]
+        return self.camera_side.pose_blocks()
 
     def global_cofactors(self, glob: np.ndarray | None = None) -> np.ndarray:
         """(g,g) cofactor of globals `glob` (all by default)."""
-        N, G = self.problem.n_poses, self.problem.n_globals
-        g = np.arange(G) if glob is None else np.asarray(glob, int)
-        return self.Q_cc[np.ix_(6 * N + g, 6 * N + g)]
+        return self.camera_side.global_block(glob)
 
     # --- points -------------------------------------------------------------------------
     def point_cofactors(self, idx: np.ndarray | None = None, chunk: int = 2000) -> np.ndarray:

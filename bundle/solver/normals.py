@@ -20,6 +20,15 @@ from dgcal.bundle.solver.robust import robust_cost_and_weight
 from dgcal.bundle.solver.sparse_schur import SPARSE_DENSITY_MAX, SPARSE_MIN_POSES, PairPattern, sparse_factor
 
 V_REGULARISATION = 1e-10   # added to the point blocks' diagonal (whitened units: a prior of ~1e5 sigma)
+# items of a chunkable block (image observations) evaluated, weighted and summed into the normal equations at
+# once: the residuals and Jacobians of every item (~1 kB an item) are never held together (5 M observations:
+# ~50 MB for a part instead of 5 GB); each part's sums are added, in item order
+CHUNK_ITEMS = 50_000
+
+
+def _evaluate(b: Block, state: State, jacobians: bool, rows: slice | None) -> BlockEval:
+    """A block's evaluation: all its items (rows None) or a part."""
+    return b.evaluate(state, jacobians) if rows is None else b.evaluate(state, jacobians, rows)
 
 
 @dataclass
@@ -33,6 +42,7 @@ class Problem:
     pose_free: np.ndarray | None = None      # (N,) bool
     point_free: np.ndarray | None = None     # (M,3) bool
     global_free: np.ndarray | None = None    # (G,) bool
+    chunk_items: int | None = None           # items of a chunkable block evaluated at once (None: CHUNK_ITEMS)
 
     def __post_init__(self) -> None:
         N, M, G = self.n_poses, self.n_points, self.n_globals
@@ -44,19 +54,28 @@ class Problem:
     def n_camera_side(self) -> int:
         return 6 * self.n_poses + self.n_globals
 
+    def parts(self, b: Block) -> list[slice | None]:
+        """The parts a block is evaluated in: [None] (all its items at once) unless it is chunkable and larger
+        than `chunk_items`."""
+        if not b.chunkable:
+            return [None]
+        ch = b.chunks(self.n_poses, CHUNK_ITEMS if self.chunk_items is None else self.chunk_items)
+        return [None] if len(ch) == 1 else ch
+
+    def _item_costs(self, b: Block, state: State, rows: slice | None) -> np.ndarray:
+        ev = _evaluate(b, state, False, rows)
+        e2 = np.sum(ev.r * ev.r, axis=1)
+        rho, _ = robust_cost_and_weight(b.loss, b.loss_scale, np.where(ev.valid, e2, 0.0))
+        return np.where(ev.valid, rho, INVALID_COST)
+
     def block_costs(self, state: State) -> list[np.ndarray]:
         """Robust cost of every item of every block (INVALID_COST for items that cannot be evaluated)."""
-        out = []
-        for b in self.blocks:
-            ev = b.evaluate(state, False)
-            e2 = np.sum(ev.r * ev.r, axis=1)
-            rho, _ = robust_cost_and_weight(b.loss, b.loss_scale, np.where(ev.valid, e2, 0.0))
-            out.append(np.where(ev.valid, rho, INVALID_COST))
-        return out
+        return [np.concatenate([self._item_costs(b, state, rows) for rows in self.parts(b)]) for b in self.blocks]
 
     def cost(self, state: State) -> float:
-        """Total robust cost sum(rho(|r|^2)) (= chi^2 without a robust loss)."""
-        return float(sum(c.sum() for c in self.block_costs(state)))
+        """Total robust cost sum(rho(|r|^2)) (= chi^2 without a robust loss), summed part by part."""
+        return float(sum(sum(self._item_costs(b, state, rows).sum() for rows in self.parts(b))
+                         for b in self.blocks))
 
     def retract(self, state: State, dc: np.ndarray, dx: np.ndarray | None) -> State:
         """The state moved by camera-side steps dc (6N+G,) and point steps dx (3M,)."""
@@ -84,14 +103,38 @@ class Normals:
     n_residuals: int
     observed_c: np.ndarray          # (6N+G,) bool: a free camera-side parameter some residual depends on
     observed_x: np.ndarray          # (3M,) bool
-    evals: list[BlockEval] = field(default_factory=list)   # whitened, robust-weighted linearisations
-    weights: list[np.ndarray] = field(default_factory=list)  # robust weight per item and block
+    _evals: list[BlockEval | None] = field(default_factory=list, repr=False)   # None: evaluated in parts
+    _weights: list[np.ndarray | None] = field(default_factory=list, repr=False)
     row_offsets: list[int] = field(default_factory=list)
     wp_blocks: np.ndarray | None = None   # (k,6,3) pose-point coupling of every item with a pose and a point
     coupling: "CouplingPattern | None" = None   # where those blocks sit in Wp
     _U: np.ndarray | None = field(default=None, repr=False)
     _Wp: sp.bsr_matrix | None = field(default=None, repr=False)
     _W: sp.csr_matrix | None = field(default=None, repr=False)
+    problem: Problem | None = field(default=None, repr=False)   # what was linearised, and where (for `evals`)
+    state: State | None = field(default=None, repr=False)
+
+    def _whole(self, b: int) -> None:
+        """Block b's linearisation over all its items, when it was summed in parts (computed on first use)."""
+        if self._evals[b] is None:
+            blk = self.problem.blocks[b]
+            ev, _, w = _weighted(self.problem, blk.evaluate(self.state, True), blk)
+            self._evals[b], self._weights[b] = ev, w
+
+    @property
+    def evals(self) -> list[BlockEval]:
+        """Whitened, robust-weighted linearisation of every block (a block summed in parts is evaluated whole
+        again on first use: covariances of observations, redundancy numbers)."""
+        for b in range(len(self._evals)):
+            self._whole(b)
+        return self._evals
+
+    @property
+    def weights(self) -> list[np.ndarray]:
+        """Robust weight per item and block."""
+        for b in range(len(self._weights)):
+            self._whole(b)
+        return self._weights
 
     @property
     def n_unknowns(self) -> int:
@@ -219,12 +262,13 @@ PER_POSE_PRODUCTS_MIN = 32   # items per pose from which a block's pose sums are
 
 
 def _pose_products(cache: dict, A: np.ndarray, B: np.ndarray | None, r: np.ndarray, pose: np.ndarray,
-                   N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+                   N: int, k_block: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Per pose, the sums over its items of A^T A (N,6,6), A^T r (N,6) and A^T B (N,6,Gb) (None without B): one
     BLAS product per pose over its rows when the poses have many items (self-calibration: ~1000 per image),
-    else one sparse indicator product over the stacked per-item products."""
+    else one sparse indicator product over the stacked per-item products. `k_block`: the items of the whole
+    block when these are a part of it (the choice is the block's)."""
     k, d = r.shape
-    if k < PER_POSE_PRODUCTS_MIN * max(N, 1):
+    if (k if k_block is None else k_block) < PER_POSE_PRODUCTS_MIN * max(N, 1):
         by_pose = _grouper(cache, "pose", pose, N)
         return (by_pose.sum(_tdot(A, A)), by_pose.sum(np.einsum("kda,kd->ka", A, r)),
                 None if B is None else by_pose.sum(_tdot(A, B)))
@@ -278,7 +322,8 @@ def _scaled(J: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 def linearise(problem: Problem, state: State) -> Normals:
     """Normal equations at `state` (robust losses as iteratively reweighted least squares), assembled block
-    by block from per-item Jacobian products (each item touches at most one pose and one point)."""
+    by block from per-item Jacobian products (each item touches at most one pose and one point); a chunkable
+    block larger than `problem.chunk_items` is evaluated and summed part by part (`Problem.parts`)."""
     N, M, G = problem.n_poses, problem.n_points, problem.n_globals
     U_pp = np.zeros((N, 6, 6))
     U_pg = np.zeros((N, 6, G))
@@ -290,57 +335,71 @@ def linearise(problem: Problem, state: State) -> Normals:
     evals, weights, offsets = [], [], []
     cost, row, n_valid = 0.0, 0, 0
     for b in problem.blocks:
-        ev, c, w = _weighted(problem, b.evaluate(state, True), b)
         cache = b.__dict__.setdefault("_groupers", {})
-        cost += c
-        r = ev.r
-        A, B, C = ev.J_pose, ev.J_glob, ev.J_point
-        fused = A is not None and C is not None and M > 0
-        if fused:
-            # items with a pose and a point (image observations): one compiled pass for the pose and point
-            # blocks, the gradients and the couplings
-            blk = np.empty((len(r), 6, 3))
-            accumulate_items(np.ascontiguousarray(r), np.ascontiguousarray(A), ev.pose.astype(np.int64),
-                             np.ascontiguousarray(C), ev.point.astype(np.int64), U_pp, g_p, V, g_x, blk)
-        if A is not None and not fused:
-            # items without a point unknown (image observations of known points, priors, POS): NumPy
-            AA, Ar, AB = _pose_products(cache, A, B, r, ev.pose, N)
-            U_pp += AA
-            g_p += Ar
-            if B is not None:
-                U_pg[:, :, ev.glob] += AB
-        elif A is not None and B is not None:
-            U_pg_b = np.zeros((N, 6, B.shape[2]))
-            accumulate_pose_globals(np.ascontiguousarray(A), ev.pose.astype(np.int64), np.ascontiguousarray(B), U_pg_b)
-            U_pg[:, :, ev.glob] += U_pg_b
-        if B is not None:
-            g = ev.glob
-            Bf = B.reshape(-1, len(g))
-            U_gg[np.ix_(g, g)] += Bf.T @ Bf
-            g_g[g] += Bf.T @ r.ravel()
-        if C is not None and M:
-            if not fused:
-                by_point = _grouper(cache, "point", ev.point, M)
-                V += by_point.sum(_tdot(C, C))
-                g_x += by_point.sum(np.einsum("kda,kd->ka", C, r))
-            if A is not None:
-                wp_blk.append(blk)                                      # (k,6,3) pose-point coupling
-                wp_pose.append(ev.pose)
-                wp_point.append(ev.point)
-                pat = cache.get("coupling")
-                if pat is None or pat.pose is not ev.pose or pat.point is not ev.point or (pat.N, pat.M) != (N, M):
-                    pat = cache["coupling"] = CouplingPattern(ev.pose, ev.point, N, M)
-                patterns.append(pat)
-            if B is not None:
-                Wg_b = np.zeros((len(ev.glob), M, 3))
-                accumulate_global_points(np.ascontiguousarray(B), np.ascontiguousarray(C), ev.point.astype(np.int64),
-                                         Wg_b)
-                Wg[ev.glob] += Wg_b
-        evals.append(ev)
-        weights.append(w)
+        parts = problem.parts(b)
+        whole = parts == [None]
+        k_block = len(b)
+        blk_all = None       # (k,6,3) pose-point coupling of every item (items with a pose and a point)
         offsets.append(row)
-        row += r.size
-        n_valid += int(ev.valid.sum()) * r.shape[1]
+        for rows in parts:
+            ev, c, w = _weighted(problem, _evaluate(b, state, True, rows), b)
+            part_cache = cache if whole else cache.setdefault(("part", rows.start, rows.stop), {})
+            cost += c
+            r = ev.r
+            A, B, C = ev.J_pose, ev.J_glob, ev.J_point
+            fused = A is not None and C is not None and M > 0
+            if fused:
+                # items with a pose and a point (image observations): one compiled pass for the pose and point
+                # blocks, the gradients and the couplings
+                if blk_all is None:
+                    blk_all = np.empty((k_block if not whole else len(r), 6, 3))
+                blk = blk_all if whole else blk_all[rows]
+                accumulate_items(np.ascontiguousarray(r), np.ascontiguousarray(A), ev.pose.astype(np.int64),
+                                 np.ascontiguousarray(C), ev.point.astype(np.int64), U_pp, g_p, V, g_x, blk)
+            if A is not None and not fused:
+                # items without a point unknown (image observations of known points, priors, POS): NumPy
+                AA, Ar, AB = _pose_products(part_cache, A, B, r, ev.pose, N, k_block)
+                U_pp += AA
+                g_p += Ar
+                if B is not None:
+                    U_pg[:, :, ev.glob] += AB
+            elif A is not None and B is not None:
+                U_pg_b = np.zeros((N, 6, B.shape[2]))
+                accumulate_pose_globals(np.ascontiguousarray(A), ev.pose.astype(np.int64), np.ascontiguousarray(B),
+                                        U_pg_b)
+                U_pg[:, :, ev.glob] += U_pg_b
+            if B is not None:
+                g = ev.glob
+                Bf = B.reshape(-1, len(g))
+                U_gg[np.ix_(g, g)] += Bf.T @ Bf
+                g_g[g] += Bf.T @ r.ravel()
+            if C is not None and M:
+                if not fused:
+                    by_point = _grouper(part_cache, "point", ev.point, M)
+                    V += by_point.sum(_tdot(C, C))
+                    g_x += by_point.sum(np.einsum("kda,kd->ka", C, r))
+                if B is not None:
+                    Wg_b = np.zeros((len(ev.glob), M, 3))
+                    accumulate_global_points(np.ascontiguousarray(B), np.ascontiguousarray(C),
+                                             ev.point.astype(np.int64), Wg_b)
+                    Wg[ev.glob] += Wg_b
+            row += r.size
+            n_valid += int(ev.valid.sum()) * r.shape[1]
+            if whole:
+                evals.append(ev)
+                weights.append(w)
+        if not whole:        # evaluated again, whole, if ever asked for (Normals.evals)
+            evals.append(None)
+            weights.append(None)
+        if blk_all is not None:
+            pose_b, point_b = (ev.pose, ev.point) if whole else (b.pose, b.point)
+            wp_blk.append(blk_all)
+            wp_pose.append(pose_b)
+            wp_point.append(point_b)
+            pat = cache.get("coupling")
+            if pat is None or pat.pose is not pose_b or pat.point is not point_b or (pat.N, pat.M) != (N, M):
+                pat = cache["coupling"] = CouplingPattern(pose_b, point_b, N, M)
+            patterns.append(pat)
     g_c = np.concatenate([g_p.ravel(), g_g])
     blocks = pattern = None
     if M and wp_blk:
@@ -360,7 +419,8 @@ def linearise(problem: Problem, state: State) -> Normals:
     if blocks is None and Wg is not None and not Wg.any():
         Wg = None                     # no point is an unknown (all held or known): nothing to eliminate
     return Normals(U_pp, U_pg, U_gg, g_c, None if Wg is None else Wg.reshape(G, 3 * M), V, g_x.ravel(), cost,
-                   n_valid, observed_c, observed_x, evals, weights, offsets, blocks, pattern)
+                   n_valid, observed_c, observed_x, evals, weights, offsets, blocks, pattern, problem=problem,
+                   state=state)
 
 
 def _damp(A: np.ndarray, lam: float) -> np.ndarray:
@@ -379,20 +439,78 @@ def _vinv_dot(Vinv: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.matmul(Vinv, b.reshape(M, 3, -1)).reshape(b.shape)
 
 
+ARROW_MIN_POSES = 100   # poses from which a camera side without pose-point coupling is solved pose by pose
+
+
+@dataclass
+class Arrow:
+    """A camera side without pose-point coupling (a camera calibrated on known targets): its poses meet only
+    through the globals, S = [[D, B], [B^T, U_gg]] with D the 6x6 pose blocks and B = U_pg. Solved by eliminating
+    the poses, E = D^-1 B (N,6,G), S_g = U_gg - B^T E (G,G): O(N) in time and memory where the dense S is
+    (6N+G)^2 (10 000 images: 29 GB)."""
+
+    Dinv: np.ndarray          # (N,6,6)
+    E: np.ndarray             # (N,6,G)
+    S_g: np.ndarray           # (G,G)
+    factor: tuple | None      # Cholesky factor of S_g scaled to a unit diagonal (None: singular)
+    scale_g: np.ndarray       # (G,)
+
+    def solve_globals(self, b_g: np.ndarray) -> np.ndarray:
+        """S_g^-1 b_g (b_g (G,q))."""
+        if self.factor is not None:
+            return cho_solve(self.factor, b_g / self.scale_g[:, None], check_finite=False) / self.scale_g[:, None]
+        return np.linalg.lstsq(self.S_g, b_g, rcond=None)[0]
+
+    def solve(self, b_c: np.ndarray) -> np.ndarray:
+        """S^-1 b_c for b_c (6N+G,) or (6N+G,q)."""
+        N, G = self.E.shape[0], self.E.shape[2]
+        b2 = b_c.reshape(len(b_c), -1)
+        bp = b2[:6 * N].reshape(N, 6, -1)
+        x_g = self.solve_globals(b2[6 * N:] - np.einsum("nag,naq->gq", self.E, bp)) if G else np.zeros((0, b2.shape[1]))
+        x_p = np.matmul(self.Dinv, bp) - np.matmul(self.E, x_g)
+        return np.concatenate([x_p.reshape(6 * N, -1), x_g]).reshape(b_c.shape)
+
+
+def _arrow(nrm: "Normals", lam: float) -> Arrow | None:
+    """The poses eliminated from the damped camera side (None when a pose block is not positive definite: the
+    dense path then decides)."""
+    D = _damp(nrm.U_pp, lam)
+    try:
+        np.linalg.cholesky(D)
+    except np.linalg.LinAlgError:
+        return None
+    Dinv = np.linalg.inv(D)
+    Dinv = 0.5 * (Dinv + Dinv.transpose(0, 2, 1))
+    E = np.matmul(Dinv, nrm.U_pg)
+    S_g = _damp(nrm.U_gg, lam) - np.einsum("nag,nah->gh", nrm.U_pg, E)
+    S_g = 0.5 * (S_g + S_g.T)
+    s = np.sqrt(np.maximum(np.diag(S_g), 1e-300))
+    try:
+        factor = cho_factor(S_g / s[:, None] / s[None, :], check_finite=False) if len(S_g) else None
+    except (LinAlgError, ValueError):
+        factor = None
+    return Arrow(Dinv, E, S_g, factor, s)
+
+
 @dataclass
 class Reduced:
     """The reduced camera system S = U - W V^-1 W^T, its factor and V^-1 (at one damping). Dense: S itself with
     a Cholesky factor of the scaled S (`factor`); sparse (large blocks): S scaled to a unit diagonal in CSC,
-    S = diag(scale) S_csc diag(scale), with SuperLU's factor (`lu`). Both None when S is singular."""
+    S = diag(scale) S_csc diag(scale), with SuperLU's factor (`lu`). Both None when S is singular. Without
+    pose-point coupling and with many poses (`arrow`): S is not formed, the poses are eliminated by blocks
+    (`Arrow`); `scale` is sqrt(diag(S)) in every case."""
 
-    S: np.ndarray | sp.csc_matrix
+    S: np.ndarray | sp.csc_matrix | None
     Vinv: np.ndarray
     scale: np.ndarray
     factor: tuple | None
     lu: object | None = None
+    arrow: Arrow | None = None
 
     def dense(self) -> np.ndarray:
         """S as a dense array."""
+        if self.arrow is not None:
+            raise ValueError("the camera side is solved by blocks (Reduced.arrow): no dense S")
         return self.S.toarray() * np.outer(self.scale, self.scale) if sp.issparse(self.S) else self.S
 
 
@@ -408,6 +526,11 @@ def reduce(nrm: Normals, lam: float = 0.0, dense: bool = False) -> Reduced:
     if nrm.wp_blocks is None and nrm.Wg is not None:
         raise NotImplementedError("points coupled to globals only")   # every point block has a pose here
     if nrm.wp_blocks is None or not len(nrm.V):
+        if len(nrm.U_pp) >= ARROW_MIN_POSES:
+            arrow = _arrow(nrm, lam)
+            if arrow is not None:
+                d = np.concatenate([np.einsum("naa->na", _damp(nrm.U_pp, lam)).ravel(), np.diag(_damp(nrm.U_gg, lam))])
+                return Reduced(None, Vinv, np.sqrt(np.maximum(d, 1e-300)), None, arrow=arrow)
         return _dense_reduced(_damp(nrm.U, lam), Vinv)
     pat = nrm.coupling
     N, M = len(nrm.U_pp), len(nrm.V)
@@ -453,6 +576,8 @@ def _dense_reduced(S: np.ndarray, Vinv: np.ndarray) -> Reduced:
 
 def solve_reduced(red: Reduced, b_c: np.ndarray) -> np.ndarray:
     """S^-1 b_c (b_c (nc,) or (nc,q)), by the scaled factor or least squares when S is singular."""
+    if red.arrow is not None:
+        return red.arrow.solve(b_c)
     s = red.scale if b_c.ndim == 1 else red.scale[:, None]
     if red.lu is not None:
         return red.lu.solve(np.ascontiguousarray(b_c / s)) / s
