@@ -13,17 +13,29 @@ from dgcal.calib.selfcal.uncertainty import UncertaintyMap
 from dgcal.reports.html import HtmlReport, new_figure
 
 
+PLOTTED_POINTS = 200_000    # observations drawn as dots at most (an even subsample of more)
+
+
+def _plotted(mask: np.ndarray) -> np.ndarray:
+    """Rows where `mask` is true, every k-th of them when there are more than PLOTTED_POINTS."""
+    rows = np.flatnonzero(mask)
+    return rows[::-(-len(rows) // PLOTTED_POINTS)] if len(rows) > PLOTTED_POINTS else rows
+
+
 def residual_vector_figure(cal: CameraCalibration, cells=(16, 11)):
     """Mean residual vectors (px, exaggerated) in cells over the frame, over the observation coverage."""
     ba = cal.ba
     w, h = ba.camera.image_size
     u = ba.used
-    pat = residual_pattern(ba.obs_xy[u], ba.residuals[u], (w, h), ba.camera.pinhole_K()[:2, 2], cells=cells,
-                           min_count=3)
+    pat = residual_pattern(ba.obs_xy, ba.residuals, (w, h), ba.camera.pinhole_K()[:2, 2], cells=cells,
+                           min_count=3, used=u)
     fig, ax = new_figure(9, 9 * h / w + 0.8)
-    ax.plot(ba.obs_xy[u, 0], ba.obs_xy[u, 1], ",", color="0.7")
-    if (~u).any():
-        ax.plot(ba.obs_xy[~u, 0], ba.obs_xy[~u, 1], "x", color="tab:red", ms=3, label="rejected")
+    # at most PLOTTED_POINTS of each kind (an even subsample: 5 M dots would not show more, but cost GBs)
+    used_rows, rejected_rows = _plotted(u), _plotted(~u)
+    ax.plot(ba.obs_xy[used_rows, 0], ba.obs_xy[used_rows, 1], ",", color="0.7")
+    if len(rejected_rows):
+        ax.plot(ba.obs_xy[rejected_rows, 0], ba.obs_xy[rejected_rows, 1], "x", color="tab:red", ms=3,
+                label="rejected")
         ax.legend(loc="upper right", fontsize=8)
     ok = np.isfinite(pat.mean[:, 0])
     mag = np.linalg.norm(pat.mean[ok], axis=1)
@@ -128,7 +140,7 @@ def stations_figure(cal: CameraCalibration):
     ba = cal.ba
     C, _ = ba.camera_centres()
     ok = np.isfinite(C[:, 0])
-    X = ba.points_xyz[np.unique(ba.obs_point[ba.used])]
+    X = ba.points_xyz[np.bincount(ba.obs_point[ba.used], minlength=len(ba.points_xyz)) > 0]
     fig, axes = new_figure(9, 4.2, ncols=2)
     for ax, (a, b), lab in zip(axes, ((0, 1), (0, 2)), ("plan view (x, y)", "side view (x, z)")):
         ax.plot(X[:, a], X[:, b], ".", ms=1.5, color="0.5", label="targets")

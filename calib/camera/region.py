@@ -85,9 +85,52 @@ def _star_contains(poly: np.ndarray, centre: np.ndarray, uv: np.ndarray) -> np.n
     return np.hypot(q[:, 0], q[:, 1]) <= np.interp(np.arctan2(q[:, 1], q[:, 0]), ang, rad)
 
 
+def hull_candidates(uv: np.ndarray, mask: np.ndarray | None = None, chunk: int = 100_000) -> np.ndarray:
+    """The pixels of uv (N,2) (where `mask`, when given) that may be on their convex hull: all but those strictly
+    inside the octagon of the extreme pixels along x, y and the diagonals (Akl-Toussaint; strictly inside it a
+    pixel is strictly inside the hull, neither a vertex nor on an edge). Reads `chunk` rows at a time: no copy of
+    millions of observations. convex_hull(hull_candidates(uv, m)) == convex_hull(uv[m])."""
+    dirs = np.array([[1, 0], [1, 1], [0, 1], [-1, 1], [-1, 0], [-1, -1], [0, -1], [1, -1]], float)
+    parts = [slice(a, min(a + chunk, len(uv))) for a in range(0, len(uv), chunk)]
+
+    def rows(s):
+        q = np.asarray(uv[s], float)
+        return q if mask is None else q[mask[s]]
+    best = np.full(len(dirs), -np.inf)
+    ext = np.zeros((len(dirs), 2))
+    for s in parts:
+        q = rows(s)
+        if not len(q):
+            continue
+        proj = q @ dirs.T
+        k = np.argmax(proj, axis=0)
+        better = proj[k, np.arange(len(dirs))] > best
+        best[better] = proj[k, np.arange(len(dirs))][better]
+        ext[better] = q[k[better]]
+    if not np.isfinite(best).all():
+        return np.zeros((0, 2))
+    # the octagon, counter-clockwise (x right, y up) in the order of `dirs`, repeated vertices dropped
+    poly = ext[np.r_[True, np.any(ext[1:] != ext[:-1], axis=1)]]
+    if len(poly) > 1 and np.all(poly[0] == poly[-1]):
+        poly = poly[:-1]
+    out = []
+    for s in parts:
+        q = rows(s)
+        inside = np.full(len(q), len(poly) >= 3)
+        for k in range(len(poly) if len(poly) >= 3 else 0):
+            o, e = poly[k], poly[(k + 1) % len(poly)] - poly[k]
+            inside &= e[0] * (q[:, 1] - o[1]) - e[1] * (q[:, 0] - o[0]) > 0
+        out.append(q[~inside])
+    return np.concatenate(out) if out else np.zeros((0, 2))
+
+
 def convex_hull(uv: np.ndarray) -> np.ndarray:
-    """Counter-clockwise (in x right, y up terms) convex hull vertices (H,2) of pixels (Andrew's monotone chain)."""
-    p = np.unique(np.asarray(uv, float), axis=0)
+    """Counter-clockwise (in x right, y up terms) convex hull vertices (H,2) of pixels (Andrew's monotone chain;
+    of many pixels only their `hull_candidates`, which leaves the hull as it is)."""
+    uv = np.asarray(uv, float)
+    if len(uv) > 1000 and np.isfinite(uv).all():
+        uv = hull_candidates(uv)
+    p = np.unique(uv, axis=0)
     if len(p) < 3:
         return p
 

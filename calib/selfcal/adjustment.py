@@ -21,17 +21,22 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from dgcal.bundle.solver.blocks import ImageObservations, PointPriors, State
-from dgcal.bundle.solver.covariance import Covariance
+from dgcal.bundle.solver.covariance import CameraSideCofactors, Covariance
 from dgcal.bundle.solver.lm import LMOptions, minimise
 from dgcal.bundle.solver.normals import Problem, linearise
 from dgcal.calib.camera.conversions import convert_model
 from dgcal.calib.camera.models import CameraModel, model_class
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.labels import Labels
 from dgcal.fields.pose import Poses
 
 # median of the chi distribution with 2 degrees of freedom, in units of sigma
 _CHI2_MEDIAN = float(np.sqrt(2 * np.log(2)))
 MIN_POINTS_AFTER_REJECTION = 4   # an image keeps its pose with this many inliers (4 points of a plane fix it)
+RESIDUAL_ROWS = 100_000          # observations whose residuals are evaluated at once (the engine's CHUNK_ITEMS)
+# why an observation is not in the adjustment: codes of `_InitialPoses.reason` (1 byte an observation)
+REASONS = ("", "image dropped: too few targets", "image dropped: no pose", "image dropped: too few inliers",
+           "not in the subset")
 
 
 @dataclass
@@ -73,8 +78,9 @@ class IntrinsicBAResult:
     converged: bool                        # the final Levenberg-Marquardt run converged
     redundancy: int
     rejection_settled: bool = True         # the outlier set stopped changing within max_rounds
-    cov_camera_side: np.ndarray | None = None  # (6M+P, 6M+P) sigma0^2 N^-1 of the poses [C (m), dtheta (rad)] and
-    #                                            the camera parameters (points eliminated); NaN = held/unobserved
+    cov_camera_side: CameraSideCofactors | None = None  # sigma0^2 N^-1 of the poses [C (m), dtheta (rad)] and
+    #                  the camera parameters (points eliminated): `.dense()` (6M+P)^2 (NaN = held/unobserved),
+    #                  `.sandwich(L)`, by blocks for many images
 
     @property
     def n_observations(self) -> int:
@@ -86,12 +92,18 @@ class IntrinsicBAResult:
 
     def per_image_rms(self) -> dict[str, float]:
         """RMS residual norm (px) of each image's used observations."""
-        out = {}
-        n2 = np.sum(self.residuals**2, axis=1)
-        for i, name in enumerate(self.image_names):
-            m = self.used & (self.obs_image == i)
-            out[name] = float(np.sqrt(n2[m].mean())) if m.any() else float("nan")
-        return out
+        M = len(self.image_names)
+        n2 = np.zeros(M)
+        count = np.zeros(M, np.int64)
+        for s in _row_chunks(len(self.used)):
+            u = self.used[s]
+            img = self.obs_image[s][u]
+            r = self.residuals[s][u]
+            n2 += np.bincount(img, r[:, 0] ** 2 + r[:, 1] ** 2, M)
+            count += np.bincount(img, minlength=M)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rms = np.sqrt(n2 / count)
+        return {name: float(rms[i]) if count[i] else float("nan") for i, name in enumerate(self.image_names)}
 
     @property
     def R_field_to_cam(self) -> np.ndarray:
@@ -112,6 +124,11 @@ class IntrinsicBAResult:
     def camera_sigmas(self) -> dict[str, float]:
         """Sigma of every camera parameter by name (0 for fixed ones)."""
         return {k: float(s) for k, s in zip(self.camera.PARAMS, np.sqrt(np.maximum(np.diag(self.cov_camera), 0)))}
+
+
+def _row_chunks(n: int) -> list[slice]:
+    """Slices of at most RESIDUAL_ROWS rows covering n rows."""
+    return [slice(a, min(a + RESIDUAL_ROWS, n)) for a in range(0, n, RESIDUAL_ROWS)]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -302,14 +319,14 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     if planar:
         plane_xyz[:, 2] = 0.0
     rows = obs.rows_by_image()
-    groups = [(i, obs.obs_pt[rows[i]], obs.xy[rows[i]]) for i in range(M)]
-    groups_ok = [g for g in groups if len(g[1]) >= min_points_per_image]
+    groups_ok = _Groups(obs, rows, [i for i in range(M) if len(rows[i]) >= min_points_per_image])
     if len(groups_ok) < 3:
         raise InputError(f"only {len(groups_ok)} image(s) with at least {min_points_per_image} target "
                          f"measurements; need 3 or more")
     cam = _initial_camera(cls, model, initial, groups_ok, obs.field_xyz, plane_xyz, planar, (w, h))
-    init = _initial_poses(obs, cam, initial is not None, plane_xyz, planar, R_field_to_plane, c0,
+    init = _initial_poses(obs, rows, cam, initial is not None, plane_xyz, planar, R_field_to_plane, c0,
                           min_points_per_image, progress)
+    del rows, groups_ok           # every observation's index (40 MB at 5 M): not needed any more
     if M - len(init.dropped) < 3:
         raise InputError(f"only {M - len(init.dropped)} usable image(s) (no pose for {', '.join(init.dropped[:5])}); "
                          "need 3 or more")
@@ -325,18 +342,35 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     return _result(adj, state, active, usable, init, refine_targets, total_it + it, bool(lm_conv), settled, (w, h))
 
 
+class _Groups:
+    """The (image, target indices, pixels) of the images `which`, built when asked for (a list of them all would
+    copy every observation)."""
+
+    def __init__(self, obs: "_Observations", rows: list[np.ndarray], which: list[int]):
+        self.obs, self.rows, self.which = obs, rows, which
+
+    def __len__(self) -> int:
+        return len(self.which)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return _Groups(self.obs, self.rows, self.which[k])
+        i = self.which[k]
+        return i, self.obs.obs_pt[self.rows[i]], self.obs.xy[self.rows[i]]
+
+
 @dataclass
 class _Observations:
     """The measurements of `adjust`, indexed: image and target of every observation, pixel sigmas."""
 
     field_ids: np.ndarray
     field_xyz: np.ndarray
-    meas_image: np.ndarray
-    meas_id: np.ndarray
+    meas_image: Labels      # image label of every observation (codes into the distinct labels)
+    meas_id: Labels         # target id of every observation
     xy: np.ndarray          # (n,2) px
     sig: np.ndarray         # (n,2) px (relative weights)
-    obs_img: np.ndarray
-    obs_pt: np.ndarray
+    obs_img: np.ndarray     # (n,) int32 image index
+    obs_pt: np.ndarray      # (n,) int32 target index
     image_names: list[str]
 
     @property
@@ -349,7 +383,7 @@ class _Observations:
 
     @property
     def n(self) -> int:
-        return len(self.meas_id)
+        return len(self.obs_img)
 
     def index(self, names: list[str]) -> list[int]:
         """Indices of image names."""
@@ -363,30 +397,35 @@ class _Observations:
 
 
 def _observations(field_ids, field_xyz, meas_image, meas_id, meas_xy, meas_sigma) -> _Observations:
-    """Index the measurements by image and target; InputError for a target id not in the field."""
+    """Index the measurements by image and target; InputError for a target id not in the field. Image labels and
+    target ids may be arrays or `Labels` (a measurement file's codes: nothing is copied a row)."""
     field_ids = np.asarray(field_ids).astype(str)
-    meas_image = np.asarray(meas_image).astype(str)
-    meas_id = np.asarray(meas_id).astype(str)
-    sig = np.ones((len(meas_id), 2)) if meas_sigma is None else np.asarray(meas_sigma, float).copy()
-    sig[~np.isfinite(sig)] = 1.0
-    # target index of every measurement by sorted search (of a duplicated field id the last, as a dict keeps)
-    by_id = np.argsort(field_ids, kind="stable")
-    sorted_ids = field_ids[by_id]
-    at = np.searchsorted(sorted_ids, meas_id, side="right") - 1
-    found = at >= 0
-    found[found] = sorted_ids[at[found]] == meas_id[found]
-    if not found.all():
-        unknown = list(dict.fromkeys(meas_id[~found].tolist()))
+    img_lab = Labels.of(meas_image).as_str()
+    id_lab = Labels.of(meas_id).as_str()
+    n = len(id_lab)
+    if meas_sigma is None:
+        sig = np.ones((n, 2))
+    else:
+        sig = np.asarray(meas_sigma, float)
+        if not np.isfinite(sig).all():
+            sig = sig.copy()
+            sig[~np.isfinite(sig)] = 1.0
+    # target index of every distinct id (of a duplicated field id the last, as a dict keeps), then of every row
+    where = {k: i for i, k in enumerate(field_ids.tolist())}
+    pt_of = np.array([where.get(str(k), -1) for k in id_lab.names.tolist()], np.int64)
+    missing = pt_of < 0
+    if missing[id_lab.codes].any():
+        present = id_lab.present()
+        unknown = [str(id_lab.names[c]) for c in present if missing[c]]
         raise InputError(f"target id(s) not in the field: {', '.join(unknown[:5])}", field="id")
-    obs_pt = by_id[at].astype(int)
+    obs_pt = pt_of.astype(np.int32)[id_lab.codes]
     # images in the order of their first measurement
-    names, first, inverse = np.unique(meas_image, return_index=True, return_inverse=True)
-    by_first = np.argsort(first, kind="stable")
-    rank = np.empty(len(names), int)
-    rank[by_first] = np.arange(len(names))
-    image_names = names[by_first].tolist()
-    return _Observations(field_ids, np.asarray(field_xyz, float), meas_image, meas_id, np.asarray(meas_xy, float), sig,
-                         rank[inverse.ravel()], obs_pt, image_names)
+    present = img_lab.present()
+    rank = np.full(len(img_lab.names), -1, np.int32)
+    rank[present] = np.arange(len(present), dtype=np.int32)
+    image_names = [str(k) for k in img_lab.names[present].tolist()]
+    return _Observations(field_ids, np.asarray(field_xyz, float), img_lab, id_lab, np.asarray(meas_xy, float), sig,
+                         rank[img_lab.codes], obs_pt, image_names)
 
 
 def _initial_camera(cls, model: str, initial: CameraModel | None, groups_ok, field_xyz, plane_xyz, planar: bool,
@@ -411,25 +450,26 @@ class _InitialPoses:
     t: np.ndarray
     active: np.ndarray
     dropped: list[str]
-    reason: np.ndarray
+    reason: np.ndarray       # (n,) int8: index into REASONS (0: none, i.e. an outlier when left out)
 
 
-def _initial_poses(obs: _Observations, cam: CameraModel, with_camera: bool, plane_xyz, planar: bool,
-                   R_field_to_plane: np.ndarray, c0: np.ndarray, min_points: int, progress) -> _InitialPoses:
+def _initial_poses(obs: _Observations, rows: list[np.ndarray], cam: CameraModel, with_camera: bool, plane_xyz,
+                   planar: bool, R_field_to_plane: np.ndarray, c0: np.ndarray, min_points: int,
+                   progress) -> _InitialPoses:
     """Every image's start pose by PnP in the field's plane frame, RANSAC where outliers call for it (images with
-    too few targets or no pose are dropped; PnP outliers leave the adjustment)."""
+    too few targets or no pose are dropped; PnP outliers leave the adjustment). `rows`: each image's observation
+    rows (`_Observations.rows_by_image`)."""
     w, h = cam.image_size
     K0 = cam.pinhole_K()
     M = obs.M
     out = _InitialPoses(np.tile(np.eye(3), (M, 1, 1)), np.zeros((M, 3)), np.ones(obs.n, bool), [],
-                        np.array([""] * obs.n, dtype=object))
-    rows = obs.rows_by_image()
+                        np.zeros(obs.n, np.int8))
     for i in (range(M) if progress is None else progress(range(M))):
         m = rows[i]
         if len(m) < min_points:
             out.dropped.append(obs.image_names[i])
             out.active[m] = False
-            out.reason[m] = "image dropped: too few targets"
+            out.reason[m] = REASONS.index("image dropped: too few targets")
             continue
         obj, uv = plane_xyz[obs.obs_pt[m]], obs.xy[m]
         pose = _pnp(obj, uv, K0, planar, 0.02 * max(w, h))
@@ -438,7 +478,7 @@ def _initial_poses(obs: _Observations, cam: CameraModel, with_camera: bool, plan
         if pose is None:
             out.dropped.append(obs.image_names[i])
             out.active[m] = False
-            out.reason[m] = "image dropped: no pose"
+            out.reason[m] = REASONS.index("image dropped: no pose")
             continue
         Rp, tp, inl = pose
         out.R[i] = Rp @ R_field_to_plane
@@ -521,10 +561,16 @@ class _Adjustment:
         return _lm(self.problem(active), state)
 
     def whitened_residuals(self, state: State, rows: np.ndarray) -> np.ndarray:
-        """(k,2) residuals / sigma of observation rows at `state`."""
+        """(k,2) residuals / sigma of observation rows (a bool mask or indices) at `state`, evaluated
+        RESIDUAL_ROWS at a time."""
         o = self.obs
-        blk = ImageObservations(self.cam, o.obs_img[rows], o.obs_pt[rows], o.xy[rows], o.sig[rows], self.cam.PARAMS, 0)
-        return blk.evaluate(state, False).r
+        idx = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
+        out = np.empty((len(idx), 2))
+        for s in _row_chunks(len(idx)):
+            k = idx[s]
+            blk = ImageObservations(self.cam, o.obs_img[k], o.obs_pt[k], o.xy[k], o.sig[k], self.cam.PARAMS, 0)
+            out[s] = blk.evaluate(state, False).r
+        return out
 
 
 def _reject_outliers(adj: _Adjustment, state: State, init: _InitialPoses, reject_k: float, max_rounds: int,
@@ -540,7 +586,10 @@ def _reject_outliers(adj: _Adjustment, state: State, init: _InitialPoses, reject
     total_it = 0
     for _ in range(max_rounds):
         norm = np.full(n, np.inf)
-        norm[usable] = np.linalg.norm(adj.whitened_residuals(state, usable), axis=1)
+        idx = np.flatnonzero(usable)
+        for s in _row_chunks(len(idx)):
+            norm[idx[s]] = np.linalg.norm(adj.whitened_residuals(state, idx[s]), axis=1)
+        del idx
         s_rob = np.median(norm[usable]) / _CHI2_MEDIAN  # over all: a median of survivors would creep
         # an outlier is inconsistent with its own image too: a frame that fits worse as a whole (motion, rolling
         # shutter, a bent board) keeps its observations (OpenCV keeps them all) and is reported instead
@@ -554,7 +603,7 @@ def _reject_outliers(adj: _Adjustment, state: State, init: _InitialPoses, reject
             init.dropped.append(obs.image_names[i])
             usable &= obs.obs_img != i
             new_active &= obs.obs_img != i
-            init.reason[obs.obs_img == i] = "image dropped: too few inliers"
+            init.reason[obs.obs_img == i] = REASONS.index("image dropped: too few inliers")
         changed = int(np.sum(new_active != active))
         if changed <= 5e-3 * usable.sum():  # later rounds only trade a few borderline points
             settled = True
@@ -595,6 +644,7 @@ def _result(adj: _Adjustment, state: State, active: np.ndarray, usable: np.ndarr
     keep_img[obs.index(init.dropped)] = False
     redundancy = int(nrm.redundancy)
     sigma0 = float(np.sqrt(nrm.cost / max(redundancy, 1)))
+    cov_side = cov.camera_side.scaled(sigma0**2)
     Pn = len(cls.PARAMS)
     free_cam = adj.free_cam
     fi = np.flatnonzero(free_cam)
@@ -614,19 +664,24 @@ def _result(adj: _Adjustment, state: State, active: np.ndarray, usable: np.ndarr
         pts_sigma = np.nan_to_num(sigma0 * np.sqrt(var)) * pt_free
     camera = cls(size, state.globals)
     camera.sigmas = sd
+    del prob, nrm, cov            # the problem's copies of the observations go before the residuals come
     r_all = np.full((n, 2), np.nan)
-    if usable.any():
-        r_all[usable] = adj.whitened_residuals(state, usable) * obs.sig[usable]
+    idx = np.flatnonzero(usable)
+    for s in _row_chunks(len(idx)):
+        k = idx[s]
+        r_all[k] = adj.whitened_residuals(state, k) * obs.sig[k]
+    del idx
     rms = float(np.sqrt(np.mean(np.sum(r_all[active] ** 2, axis=1))))
     rejected = []
+    img_names, id_names = obs.meas_image.names, obs.meas_id.names
     for k in np.flatnonzero(~active):
-        rejected.append(RejectedObservation(obs.meas_image[k], obs.meas_id[k],
+        rejected.append(RejectedObservation(str(img_names[obs.meas_image.codes[k]]),
+                                            str(id_names[obs.meas_id.codes[k]]),
                                             float(np.linalg.norm(r_all[k])) if usable[k] else float("nan"),
-                                            init.reason[k] or "outlier"))
+                                            REASONS[init.reason[k]] or "outlier"))
     R_out, C_out = state.poses.R_world_to_cam.copy(), state.poses.C_world.copy()
     R_out[~keep_img] = np.nan
     C_out[~keep_img] = np.nan
-    cov_side = sigma0**2 * cov.Q_cc
     return IntrinsicBAResult(
         camera=camera, free=free_cam.copy(), cov_camera=cov_cam, correlation=corr, cov_camera_side=cov_side,
         image_names=obs.image_names, poses=Poses(R_out, C_out, pose_cov),
@@ -644,8 +699,8 @@ def refit(result: IntrinsicBAResult, images: np.ndarray) -> IntrinsicBAResult:
     names = np.array(result.image_names, dtype=object)
     sel = np.isin(names, list(images)) if np.asarray(images).dtype != bool else np.asarray(images, bool)
     ids = np.array(result.point_ids, dtype=object)
-    obs = _Observations(ids.astype(str), result.points_xyz.copy(), names[result.obs_image].astype(str),
-                        ids[result.obs_point].astype(str), result.obs_xy, result.obs_sigma, result.obs_image,
+    obs = _Observations(ids.astype(str), result.points_xyz.copy(), Labels(result.obs_image, names.astype(str)),
+                        Labels(result.obs_point, ids.astype(str)), result.obs_xy, result.obs_sigma, result.obs_image,
                         result.obs_point, list(result.image_names))
     cam = result.camera.copy()
     cam.sigmas = None
@@ -661,6 +716,7 @@ def refit(result: IntrinsicBAResult, images: np.ndarray) -> IntrinsicBAResult:
     C = np.where(keep[:, None], np.nan_to_num(result.poses.C_world), 0.0)
     state, it, conv = adj.solve(State(Poses(R, C), result.points_xyz.copy(), cam.params.copy()), active)
     dropped = [str(n) for n, k in zip(names, keep) if not k]
-    init = _InitialPoses(R, C, active.copy(), dropped, np.array(["not in the subset"] * len(active), dtype=object))
-    init.reason[active] = ""
+    init = _InitialPoses(R, C, active.copy(), dropped,
+                         np.full(len(active), REASONS.index("not in the subset"), np.int8))
+    init.reason[active] = 0
     return _result(adj, state, active, active.copy(), init, "none", it, bool(conv), True, cam.image_size)

@@ -23,7 +23,7 @@ from dgcal.calib.camera.conversions import from_opencv, to_colmap, to_metashape,
 from dgcal.calib.camera.files import (CONVERSION_WARN_PX, camera_json_dict, conversion_warning, load_camera,
                                       write_colmap_cameras_txt, write_metashape_xml, write_opencv_yaml)
 from dgcal.calib.camera.models import CameraModel, model_class
-from dgcal.calib.camera.region import ValidRegion
+from dgcal.calib.camera.region import ValidRegion, hull_candidates
 from dgcal.calib.selfcal.adjustment import IntrinsicBAResult, adjust
 from dgcal.calib.selfcal.board_detection import BoardDetector
 from dgcal.calib.selfcal.detection import CharucoFieldDetector, detect_folder, read_gray, resolve_field
@@ -77,7 +77,7 @@ class CameraCalibration:
         """Valid region, projection uncertainty, the exports' conversion errors and the warnings they call for."""
         ba, cam = self.ba, self.camera
         if self.region is None:
-            self.region = ValidRegion.of(cam, ba.obs_xy[ba.used])
+            self.region = ValidRegion.of(cam, hull_candidates(ba.obs_xy, ba.used))
         reg = self.region
         self.uncertainty = uncertainty_map(ba, uncertainty_range_m)
         ocv, err = to_opencv(cam, reg)
@@ -115,8 +115,13 @@ class CameraCalibration:
         """RMS residual (px) over every usable observation, rejected ones included (OpenCV calibrateCamera's
         figure when it is given the same observations)."""
         r = self.ba.residuals
-        ok = np.isfinite(r).all(axis=1)
-        return float(np.sqrt(np.mean(np.sum(r[ok] ** 2, axis=1)))) if ok.any() else float("nan")
+        total, count = 0.0, 0
+        for a in range(0, len(r), 100_000):      # 100 000 rows at a time: no copy of the residuals
+            n2 = np.sum(r[a:a + 100_000] ** 2, axis=1)
+            ok = np.isfinite(n2)
+            total += float(np.sum(n2[ok]))
+            count += int(ok.sum())
+        return float(np.sqrt(total / count)) if count else float("nan")
 
     def stats(self) -> dict:
         """Statistics and diagnostics for camera.json (everything beyond model, parameters and opencv)."""
@@ -180,15 +185,17 @@ class CameraCalibration:
 
 def _check_measurements(meas: Measurements, field: Points, image_size) -> None:
     known = set(field.ids.astype(str).tolist())
-    ids = meas.id.astype(str)
-    bad = ~np.isin(ids, list(known))
-    if bad.any():
+    ids = meas.id_labels.as_str()          # codes into the distinct ids: each id checked once
+    occurs = ids.counts() > 0
+    bad_id = np.array([str(k) not in known for k in ids.names.tolist()], bool) & occurs
+    if bad_id.any():
+        bad = bad_id[ids.codes]
         k = int(np.argmax(bad))
         line = None if meas.lines is None else int(meas.lines[k])
-        n_bad = len(set(ids[bad].tolist()))
-        raise InputError(f"target id {ids[k]!r} is not in the field file{f' {field.path}' if field.path else ''}"
-                         f" ({n_bad} unknown id(s))", meas.path, line, "id")
-    n_targets = len(set(ids.tolist()))
+        n_bad = int(bad_id.sum())
+        raise InputError(f"target id {str(ids.names[ids.codes[k]])!r} is not in the field file"
+                         f"{f' {field.path}' if field.path else ''} ({n_bad} unknown id(s))", meas.path, line, "id")
+    n_targets = int(occurs.sum())
     if n_targets < 4:
         raise InputError(f"only {n_targets} different target(s) measured: a calibration needs at least 4 (and many "
                          "more, over several photos)", meas.path, field="id")
@@ -357,19 +364,21 @@ def calibrate_camera(field: Points | str | Path | None = None, measurements: Mea
     progress_fn = None
     if progress:
         progress_fn = partial(tqdm, desc="initial poses", unit="img", file=sys.stderr, leave=False)
-    sigmas_given = bool(np.isfinite(meas.sigma).all())
-    kw = dict(meas_sigma=meas.sigma, field_sigma=field_sigma, refine_targets=refine_targets, reject_k=reject_k,
+    stated = meas.stated_sigma           # None when the file gives none (no NaN array is built for it)
+    sigmas_given = stated is not None and bool(np.isfinite(stated).all())
+    kw = dict(meas_sigma=stated, field_sigma=field_sigma, refine_targets=refine_targets, reject_k=reject_k,
               initial=initial, progress=progress_fn)
     comparison = None
     src_path = images if isinstance(images, (str, Path)) else (None if images is not None else meas.path)
     try:
         if model == "auto":
-            comparison = compare_models(pts.ids, pts.xyz, meas.image, meas.id, meas.xy, image_size,
+            comparison = compare_models(pts.ids, pts.xyz, meas.image_labels, meas.id_labels, meas.xy, image_size,
                                         fixed=tuple(fixed), sigmas_given=sigmas_given, **kw)
             fit = comparison.fits[comparison.chosen]
             ba, dg, region = fit.ba, fit.diagnostics, fit.region
         else:
-            ba = adjust(pts.ids, pts.xyz, meas.image, meas.id, meas.xy, image_size, model, fixed=tuple(fixed), **kw)
+            ba = adjust(pts.ids, pts.xyz, meas.image_labels, meas.id_labels, meas.xy, image_size, model,
+                        fixed=tuple(fixed), **kw)
             dg, region = diagnose(ba, sigmas_given=sigmas_given), None
     except InputError as exc:
         if exc.path is None and exc.field is None:

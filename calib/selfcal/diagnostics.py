@@ -92,17 +92,37 @@ def high_correlations(names, corr: np.ndarray, threshold: float = 0.9) -> list[t
 
 
 def residual_pattern(uv: np.ndarray, residuals: np.ndarray, image_size, principal_point,
-                     cells=(8, 6), radial_bins: int = 10, min_count: int = 8) -> ResidualPattern:
-    """Mean residual vectors (px) in a grid of cells over the frame and along the radius, with noise."""
+                     cells=(8, 6), radial_bins: int = 10, min_count: int = 8,
+                     used: np.ndarray | None = None, chunk: int = 100_000) -> ResidualPattern:
+    """Mean residual vectors (px) in a grid of cells over the frame and along the radius, with noise; of the rows
+    `used` (bool) only when given. Sums over `chunk` rows at a time (no copy of the observations)."""
     w, h = image_size
     cx_, cy_ = cells
-    ix = np.clip((uv[:, 0] / w * cx_).astype(int), 0, cx_ - 1)
-    iy = np.clip((uv[:, 1] / h * cy_).astype(int), 0, cy_ - 1)
-    cell = iy * cx_ + ix
     C = cx_ * cy_
-    count = np.bincount(cell, minlength=C)
-    s1 = np.stack([np.bincount(cell, residuals[:, k], C) for k in range(2)], axis=1)
-    s2 = np.stack([np.bincount(cell, residuals[:, k] ** 2, C) for k in range(2)], axis=1)
+    pp = np.asarray(principal_point, float)
+    parts = [slice(a, min(a + chunk, len(uv))) for a in range(0, len(uv), chunk)]
+
+    def rows(s):
+        if used is None:
+            return uv[s], residuals[s]
+        u = used[s]
+        return uv[s][u], residuals[s][u]
+    count = np.zeros(C, np.int64)
+    s1, s2 = np.zeros((C, 2)), np.zeros((C, 2))
+    rad_max, sum_r2, n = 0.0, 0.0, 0
+    for s in parts:
+        q, r = rows(s)
+        ix = np.clip((q[:, 0] / w * cx_).astype(int), 0, cx_ - 1)
+        iy = np.clip((q[:, 1] / h * cy_).astype(int), 0, cy_ - 1)
+        cell = iy * cx_ + ix
+        count += np.bincount(cell, minlength=C)
+        for k in range(2):
+            s1[:, k] += np.bincount(cell, r[:, k], C)
+            s2[:, k] += np.bincount(cell, r[:, k] ** 2, C)
+        if len(q):
+            rad_max = max(rad_max, float(np.linalg.norm(q - pp, axis=1).max()))
+        sum_r2 += float(np.sum(r ** 2))
+        n += len(q)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = s1 / count[:, None]
         var = (s2 - count[:, None] * mean**2) / np.maximum(count[:, None] - 1, 1)
@@ -115,16 +135,21 @@ def residual_pattern(uv: np.ndarray, residuals: np.ndarray, image_size, principa
     pattern_rms = float(np.sqrt(np.sum(sys2 * count[ok]) / max(count[ok].sum(), 1)))
     gx, gy = np.meshgrid((np.arange(cx_) + 0.5) * w / cx_, (np.arange(cy_) + 0.5) * h / cy_)
     centres = np.column_stack([gx.ravel(), gy.ravel()])
-    d = uv - np.asarray(principal_point, float)
-    rad = np.linalg.norm(d, axis=1)
-    u = d / np.maximum(rad, 1e-9)[:, None]
-    vr = np.sum(residuals * u, axis=1)
-    edges = np.linspace(0, max(rad.max(), 1.0) * (1 + 1e-9), radial_bins + 1)
-    b = np.clip(np.searchsorted(edges, rad, side="right") - 1, 0, radial_bins - 1)
-    rc = np.bincount(b, minlength=radial_bins)
+    edges = np.linspace(0, max(rad_max, 1.0) * (1 + 1e-9), radial_bins + 1)
+    rc = np.zeros(radial_bins, np.int64)
+    sv, sv2 = np.zeros(radial_bins), np.zeros(radial_bins)
+    for s in parts:
+        q, r = rows(s)
+        d = q - pp
+        rad = np.linalg.norm(d, axis=1)
+        vr = np.sum(r * (d / np.maximum(rad, 1e-9)[:, None]), axis=1)
+        b = np.clip(np.searchsorted(edges, rad, side="right") - 1, 0, radial_bins - 1)
+        rc += np.bincount(b, minlength=radial_bins)
+        sv += np.bincount(b, vr, radial_bins)
+        sv2 += np.bincount(b, vr**2, radial_bins)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rm = np.bincount(b, vr, radial_bins) / rc
-        rv = (np.bincount(b, vr**2, radial_bins) - rc * rm**2) / np.maximum(rc - 1, 1)
+        rm = sv / rc
+        rv = (sv2 - rc * rm**2) / np.maximum(rc - 1, 1)
         rse = np.sqrt(np.maximum(rv, 1e-12) / rc)
     rok = rc >= min_count
     r_chi2 = float(np.sum((rm[rok] / rse[rok]) ** 2)) / max(int(rok.sum()), 1)
@@ -132,7 +157,7 @@ def residual_pattern(uv: np.ndarray, residuals: np.ndarray, image_size, principa
     return ResidualPattern(centres=centres, mean=np.where(ok[:, None], mean, np.nan),
                            stderr=np.where(ok[:, None], se, np.nan), count=count,
                            chi2_per_dof=chi2 / max(dof, 1), pattern_rms_px=pattern_rms,
-                           residual_rms_px=float(np.sqrt(np.mean(np.sum(residuals**2, axis=1)))),
+                           residual_rms_px=float(np.sqrt(sum_r2 / n)) if n else float("nan"),
                            radial_centres=0.5 * (edges[1:] + edges[:-1]), radial_mean=rm, radial_stderr=rse,
                            radial_chi2_per_dof=r_chi2, radial_pattern_rms_px=r_sys)
 
@@ -145,9 +170,8 @@ def diagnose(result, corr_threshold: float = 0.9, reject_warn_fraction: float = 
     names = list(cam.PARAMS)
     sig = significance(cam, result.free)
     corr = high_correlations(names, result.correlation, corr_threshold)
-    used = result.used
-    pattern = residual_pattern(result.obs_xy[used], result.residuals[used], cam.image_size,
-                               cam.pinhole_K()[:2, 2])
+    pattern = residual_pattern(result.obs_xy, result.residuals, cam.image_size, cam.pinhole_K()[:2, 2],
+                               used=result.used)
     warnings = []
     weak = [k for k, t in sig.items() if abs(t) < 2.0]
     if weak:

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dgcal.calib.camera.models import model_class
-from dgcal.calib.camera.region import ValidRegion
+from dgcal.calib.camera.region import ValidRegion, hull_candidates
 from dgcal.calib.selfcal.adjustment import IntrinsicBAResult, adjust, refit
 from dgcal.calib.selfcal.diagnostics import Diagnostics, diagnose, projection_difference
 from dgcal.calib.selfcal.uncertainty import aligned_difference_expectation
@@ -99,7 +99,7 @@ def fit_model(name: str, args: tuple, fixed=(), sigmas_given: bool = False, **kw
     fx = tuple(k for k in fixed if k in cls.PARAMS)
     ba = adjust(*args, model=name, fixed=fx, **kw)
     dg = diagnose(ba, sigmas_given=sigmas_given)
-    region = ValidRegion.of(ba.camera, ba.obs_xy[ba.used])
+    region = ValidRegion.of(ba.camera, hull_candidates(ba.obs_xy, ba.used))
     return ModelFit(name, ba, dg, region, int(ba.free.sum()))
 
 

@@ -45,8 +45,7 @@ def mean_pose_covariance(ba: IntrinsicBAResult) -> np.ndarray:
         L[0:3, 6 * i:6 * i + 3] = -R[i] / n
         L[3:6, 6 * i + 3:6 * i + 6] = np.eye(3) / n
     L[6:, 6 * M:] = np.eye(P)
-    Q = np.nan_to_num(ba.cov_camera_side)
-    S = L @ Q @ L.T
+    S = ba.cov_camera_side.sandwich(L)
     return 0.5 * (S + S.T)
 
 
@@ -104,9 +103,15 @@ def worst_sigma(cov: np.ndarray) -> np.ndarray:
 def median_range(ba: IntrinsicBAResult) -> float:
     """Median camera-to-target distance (m) of the used observations."""
     R, C = ba.poses.R_world_to_cam, ba.poses.C_world
-    i, j = ba.obs_image[ba.used], ba.obs_point[ba.used]
-    X = np.einsum("kij,kj->ki", R[i], ba.points_xyz[j] - C[i])
-    return float(np.median(np.linalg.norm(X, axis=1)))
+    d = np.empty(int(ba.used.sum()))
+    k = 0
+    for a in range(0, len(ba.used), 100_000):            # 100 000 observations at a time
+        u = ba.used[a:a + 100_000]
+        i, j = ba.obs_image[a:a + 100_000][u], ba.obs_point[a:a + 100_000][u]
+        X = np.einsum("kij,kj->ki", R[i], ba.points_xyz[j] - C[i])
+        d[k:k + len(X)] = np.linalg.norm(X, axis=1)
+        k += len(X)
+    return float(np.median(d))
 
 
 @dataclass
