@@ -182,8 +182,35 @@ class ZeroDiff:
     extra: dict = field(default_factory=dict)
 
 
-def satellite_geometry(nav: BroadcastNav, sats: list[str], t_rx: float, pr_m: np.ndarray, p_rx: np.ndarray):
-    """Satellite position/velocity (ECEF at reception, Sagnac-rotated), clock (s) and validity for one epoch."""
+def first_code(P: np.ndarray) -> np.ndarray:
+    """The first finite code (m) of every satellite over the frequency slots (last axis), NaN where none."""
+    pr0 = np.full(P.shape[:-1], np.nan)
+    for f in range(P.shape[-1]):
+        pr0 = np.where(np.isfinite(pr0), pr0, P[..., f])
+    return pr0
+
+
+def transmission_states(nav: BroadcastNav, sats: list[str], t_rx: np.ndarray, pr_m: np.ndarray):
+    """Satellite states at transmission of every epoch at once (`states_at_transmission` of all (epoch,
+    satellite) pairs with a code, unrotated ECEF): position, velocity (E,m,3) m, m/s, clock (E,m) s and validity
+    (E,m); NaN / False where the epoch has no code of the satellite. Row by row as `satellite_geometry` needs."""
+    E, m = pr_m.shape
+    pos = np.full((E, m, 3), np.nan)
+    vel = np.full((E, m, 3), np.nan)
+    clk = np.full((E, m), np.nan)
+    good = np.zeros((E, m), bool)
+    e, i = np.nonzero(np.isfinite(pr_m))
+    if len(e):
+        p, v, c, _d, _u, ok = states_at_transmission(nav, [sats[j] for j in i], np.asarray(t_rx, float)[e],
+                                                     pr_m[e, i])
+        pos[e, i], vel[e, i], clk[e, i], good[e, i] = p, v, c, ok
+    return pos, vel, clk, good
+
+
+def satellite_geometry(nav: BroadcastNav, sats: list[str], t_rx: float, pr_m: np.ndarray, p_rx: np.ndarray,
+                       states: tuple | None = None):
+    """Satellite position/velocity (ECEF at reception, Sagnac-rotated), clock (s) and validity for one epoch;
+    `states`: this epoch's row of `transmission_states` (position, velocity, clock, validity), computed already."""
     m = len(sats)
     ok = np.isfinite(pr_m)
     pos = np.full((m, 3), np.nan)
@@ -192,7 +219,10 @@ def satellite_geometry(nav: BroadcastNav, sats: list[str], t_rx: float, pr_m: np
     idx = np.nonzero(ok)[0]
     if len(idx) == 0:
         return pos, vel, clk, ok
-    p, v, c, _d, _u, good = states_at_transmission(nav, [sats[i] for i in idx], t_rx, pr_m[idx])
+    if states is not None:
+        p, v, c, good = (a[idx] for a in states)
+    else:
+        p, v, c, _d, _u, good = states_at_transmission(nav, [sats[i] for i in idx], t_rx, pr_m[idx])
     tau = np.linalg.norm(p - p_rx, axis=1) / C_LIGHT
     for _ in range(2):
         pr_, _ = sagnac_rotate(p, v, tau)
@@ -213,10 +243,7 @@ def zero_difference(nav: BroadcastNav, sats: list[str], t_rx: float, P: np.ndarr
     Sagnac rotation, which changes < 0.1 mm for 100 m).
     """
     m = len(sats)
-    pr0 = np.full(m, np.nan)
-    for f in range(P.shape[1]):
-        pr0 = np.where(np.isfinite(pr0), pr0, P[:, f])
-    pos, vel, clk, ok = geometry if geometry is not None else satellite_geometry(nav, sats, t_rx, pr0, p_rx)
+    pos, vel, clk, ok = geometry if geometry is not None else satellite_geometry(nav, sats, t_rx, first_code(P), p_rx)
     d = pos - p_rx
     rho = np.linalg.norm(d, axis=1)
     los = d / rho[:, None]

@@ -37,7 +37,8 @@ from scipy.special import chdtri
 
 from dgcal.fields.constants import C_LIGHT
 from dgcal.pos.gnss.ambiguity import fixed_solution, resolve
-from dgcal.pos.gnss.carrier import CarrierObs, ZeroDiff, satellite_geometry, slip_flags, zero_difference
+from dgcal.pos.gnss.carrier import (CarrierObs, ZeroDiff, first_code, satellite_geometry, slip_flags,
+                                   transmission_states, zero_difference)
 from dgcal.pos.gnss.rinex import BroadcastNav
 
 STATUS = ("none", "single", "float", "fixed")
@@ -185,9 +186,19 @@ class CarrierPair:
         out[self.jb < 0] = -1
         return out
 
+    def _states(self, base: bool) -> tuple:
+        """The satellites' states at transmission of every rover (or base) epoch, computed at once on first use
+        (`dgcal.pos.gnss.carrier.transmission_states`)."""
+        key = "_tx_base" if base else "_tx_rover"
+        if getattr(self, key, None) is None:
+            t, P = (self.tb, self.Pb) if base else (self.t, self.Pr)
+            setattr(self, key, transmission_states(self.nav, self.sats, t, first_code(P)))
+        return getattr(self, key)
+
     def base_zd(self, j: int) -> ZeroDiff:
         if j not in self._zb:
-            g = None
+            g = satellite_geometry(self.nav, self.sats, self.tb[j], first_code(self.Pb[j]), self.base_pos,
+                                   tuple(a[j] for a in self._states(True)))
             self._zb[j] = zero_difference(self.nav, self.sats, self.tb[j], self.Pb[j], self.Lb[j], self.freq,
                                           self.base_pos, g, self.opts.humidity)
         return self._zb[j]
@@ -200,10 +211,8 @@ class CarrierPair:
                 np.linalg.norm(last.extra["p_rx"] - x0) <= reuse_within_m:
             return last
         if k not in self._geo:
-            pr0 = np.full(len(self.sats), np.nan)
-            for f in range(self.F):
-                pr0 = np.where(np.isfinite(pr0), pr0, self.Pr[k, :, f])
-            self._geo[k] = satellite_geometry(self.nav, self.sats, self.t[k], pr0, x0)
+            self._geo[k] = satellite_geometry(self.nav, self.sats, self.t[k], first_code(self.Pr[k]), x0,
+                                              tuple(a[k] for a in self._states(False)))
         zr = zero_difference(self.nav, self.sats, self.t[k], self.Pr[k], self.Lr[k], self.freq, x0,
                              self._geo[k], self.opts.humidity)
         zr.extra["p_rx"] = np.array(x0, float)
