@@ -22,8 +22,8 @@ from dgcal.bundle.solver.sparse_schur import SPARSE_DENSITY_MAX, SPARSE_MIN_POSE
 V_REGULARISATION = 1e-10   # added to the point blocks' diagonal (whitened units: a prior of ~1e5 sigma)
 # items of a chunkable block (image observations) evaluated, weighted and summed into the normal equations at
 # once: the residuals and Jacobians of every item (~1 kB an item) are never held together (5 M observations:
-# ~50 MB for a part instead of 5 GB); each part's sums are added, in item order
-CHUNK_ITEMS = 50_000
+# ~100 MB for a part instead of 5 GB); each part's sums are added, in item order
+CHUNK_ITEMS = 100_000
 
 
 def _evaluate(b: Block, state: State, jacobians: bool, rows: slice | None) -> BlockEval:
