@@ -367,7 +367,7 @@ DD_RELINEARISE_RAD = 5e-4    # attitude move (rad, 0.03 deg)
 
 
 def _poses(values, K: int) -> tuple[np.ndarray, np.ndarray]:
-    """R (K,3,3) body->nav and p (K,3) nav m of the keyframe poses in `values`."""
+    """R (K,3,3) body->nav and p (K,3) nav m of the keyframe poses in `values` (its only Pose3 variables, X(k))."""
     poses = gtsam.utilities.extractPose3(values)
     return poses[:, :9].reshape(K, 3, 3), poses[:, 9:].copy()
 
@@ -458,9 +458,7 @@ def read_states(problem: Problem, values) -> NavSolution:
     """Keyframe states from gtsam Values (no covariances)."""
     K = len(problem.t_key)
     # the problem's only Pose3 and Point3 variables are X(k) and V(k), extracted in key (= keyframe) order
-    poses = gtsam.utilities.extractPose3(values)
-    R = poses[:, :9].reshape(K, 3, 3)
-    p = poses[:, 9:].copy()
+    R, p = _poses(values, K)
     v = gtsam.utilities.extractPoint3(values).reshape(K, 3)
     b = np.array([values.atConstantBias(B(k)).vector() for k in range(K)])
     clock = {s: np.array([values.atDouble(CLK(s, k)) for k in range(K)]) for s in problem.systems}

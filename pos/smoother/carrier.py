@@ -170,10 +170,10 @@ def linear_dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b
 
 
 def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavFrame, phase_corr: tuple,
-                        code_corr: tuple, X, values=None) -> dict:
+                        code_corr: tuple, X, values) -> dict:
     """keyframe -> (factor, DDFactorData) for every keyframe with double differences; rows tracked from the
     previous keyframe are whitened against it when it is the previous epoch (dt <= 2.5 median steps). The factors
-    are linearised at `values` (`linear_dd_factor`), or exact CustomFactors without them (`dd_factor`)."""
+    are linearised at `values` (`linear_dd_factor`)."""
     out = {}
     dt_nom = float(np.median(np.diff(t_key))) if len(t_key) > 1 else 1.0
     for k, cur in enumerate(dd_at_key):
@@ -187,17 +187,15 @@ def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavF
         if not keep.any():
             continue
         data = DDFactorData(k, cur.subset(keep), prev, idx, coef, cov)
-        xp = X(k - 1) if prev is not None else None
-        out[k] = (dd_factor(xp, X(k), data, lever_b, frame) if values is None else
-                  linear_dd_factor(xp, X(k), data, lever_b, frame, values), data)
+        out[k] = (linear_dd_factor(X(k - 1) if prev is not None else None, X(k), data, lever_b, frame, values), data)
     return out
 
 
 def dd_errors(data: DDFactorData, values, X, lever_b, frame: NavFrame) -> np.ndarray:
     """Unwhitened errors (m) of keyframe `data.k`'s double-difference factor at `values` (what the factor
     whitens with `data.cov`)."""
-    keys = [X(data.k - 1), X(data.k)] if data.prev is not None else [X(data.k)]
-    return _dd_model(keys[0] if len(keys) == 2 else None, keys[-1], data, lever_b, frame)[2](values, False)[0]
+    x_prev = X(data.k - 1) if data.prev is not None else None
+    return _dd_model(x_prev, X(data.k), data, lever_b, frame)[2](values, False)[0]
 
 
 def dd_residuals(data: DDFactorData, values, X, lever_b, frame: NavFrame) -> tuple[np.ndarray, np.ndarray]:
