@@ -24,19 +24,32 @@ LOOP_MAX = 100000
 
 def ldl(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``Q = L' diag(D) L`` with L unit lower triangular (the factorisation LAMBDA works on)."""
-    n = len(Q)
-    A = np.array(Q, dtype=float, copy=True)
+    L, D, ok = _ldl(np.array(Q, dtype=float, copy=True))
+    if not ok:
+        raise np.linalg.LinAlgError("ambiguity covariance is not positive definite")
+    return L, D
+
+
+@njit(cache=True)
+def _ldl(A):  # pragma: no cover - compiled
+    """The factorisation of `ldl` on A (overwritten), from the last row up; ok False at a non-positive pivot."""
+    n = A.shape[0]
     L = np.zeros((n, n))
     D = np.zeros(n)
     for i in range(n - 1, -1, -1):
         D[i] = A[i, i]
         if D[i] <= 0.0:
-            raise np.linalg.LinAlgError("ambiguity covariance is not positive definite")
-        a = np.sqrt(D[i])
-        L[i, :i + 1] = A[i, :i + 1] / a
-        A[:i, :i] -= np.outer(L[i, :i], L[i, :i])
-        L[i, :i + 1] /= L[i, i]
-    return L, D
+            return L, D, False
+        a = math.sqrt(D[i])
+        for q in range(i + 1):
+            L[i, q] = A[i, q] / a
+        for p in range(i):
+            for q in range(i):
+                A[p, q] -= L[i, p] * L[i, q]
+        d = L[i, i]
+        for q in range(i + 1):
+            L[i, q] /= d
+    return L, D, True
 
 
 def decorrelate(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -103,6 +116,15 @@ def _reduce(Lt, D, Zt):  # pragma: no cover - compiled
 
 def search(L: np.ndarray, D: np.ndarray, zs: np.ndarray, m: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """The ``m`` best integer vectors (columns, best first) and squared distances for decorrelated floats ``zs``."""
+    zn, s = _search(np.ascontiguousarray(L, dtype=float), np.ascontiguousarray(D, dtype=float),
+                    np.ascontiguousarray(zs, dtype=float), m, LOOP_MAX)
+    order = np.argsort(s)
+    return zn[:, order], s[order]
+
+
+@njit(cache=True)
+def _search(L, D, zs, m, loop_max):  # pragma: no cover - compiled
+    """MLAMBDA's shrinking depth-first search (see `search`); candidates in the order found."""
     n = len(D)
     S = np.zeros((n, n))
     dist = np.zeros(n)
@@ -115,18 +137,20 @@ def search(L: np.ndarray, D: np.ndarray, zs: np.ndarray, m: int = 2) -> tuple[np
     maxdist = np.inf
     k = n - 1
     zb[k] = zs[k]
-    z[k] = np.round(zb[k])
+    z[k] = np.rint(zb[k])
     y = zb[k] - z[k]
     step[k] = 1.0 if y > 0 else -1.0
-    for _ in range(LOOP_MAX):
+    for _ in range(loop_max):
         newdist = dist[k] + y * y / D[k]
         if newdist < maxdist:
             if k != 0:
                 k -= 1
                 dist[k] = newdist
-                S[k, :k + 1] = S[k + 1, :k + 1] + (z[k + 1] - zb[k + 1]) * L[k + 1, :k + 1]
+                dz = z[k + 1] - zb[k + 1]
+                for q in range(k + 1):
+                    S[k, q] = S[k + 1, q] + dz * L[k + 1, q]
                 zb[k] = zs[k] + S[k, k]
-                z[k] = np.round(zb[k])
+                z[k] = np.rint(zb[k])
                 y = zb[k] - z[k]
                 step[k] = 1.0 if y > 0 else -1.0
             else:
@@ -140,7 +164,7 @@ def search(L: np.ndarray, D: np.ndarray, zs: np.ndarray, m: int = 2) -> tuple[np
                     if newdist < s[imax]:
                         zn[:, imax] = z
                         s[imax] = newdist
-                        imax = int(np.argmax(s))
+                        imax = np.argmax(s)
                     maxdist = s[imax]
                 z[0] += step[0]
                 y = zb[0] - z[0]
@@ -152,8 +176,7 @@ def search(L: np.ndarray, D: np.ndarray, zs: np.ndarray, m: int = 2) -> tuple[np
             z[k] += step[k]
             y = zb[k] - z[k]
             step[k] = -step[k] - (1.0 if step[k] > 0 else -1.0)
-    order = np.argsort(s)
-    return zn[:, order], s[order]
+    return zn, s
 
 
 def lambda_ils(a: np.ndarray, Q: np.ndarray, m: int = 2) -> tuple[np.ndarray, np.ndarray]:

@@ -220,10 +220,21 @@ class CarrierPair:
         return zr
 
 
-def _slipped(C: np.ndarray, a: int, b: int) -> np.ndarray:
-    """Any slip flag in the epochs (min(a,b), max(a,b)] per (sat, slot)."""
-    lo, hi = min(a, b), max(a, b)
-    return C[hi] - C[lo] > 0
+def _slipped(C: np.ndarray, a: np.ndarray, b, i: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Any slip flag of (satellite i, slot f) in the epochs (min(a,b), max(a,b)], from the cumulative flags C."""
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    return C[hi, i, f] - C[lo, i, f] > 0
+
+
+@dataclass
+class _Rows:
+    """The double differences of one epoch, an entry per row: phase (else code), satellite, reference satellite
+    and frequency slot (indices into the pair's satellites and slots)."""
+
+    phase: np.ndarray
+    sat: np.ndarray
+    ref: np.ndarray
+    slot: np.ndarray
 
 
 class _Pass:
@@ -246,11 +257,18 @@ class _Pass:
         self.t_prev = None
         self.t_now = None
         self.have_pos = False
+        # variance (cycles^2) of the time-correlated SD phase errors of every state (validation of a fix only)
+        self.var_bias = np.zeros(self.n)
+        self.var_bias[3:] = np.nan_to_num((eng.opts.phase_bias_sigma_m / eng.lam.ravel()) ** 2)
+        # the systems present, in the order their groups of double differences are formed
+        self.sys_members = [(s, eng.system == s) for s in "GECJ" if np.any(eng.system == s)]
 
-    def idx(self, i: int, f: int) -> int:
+    def idx(self, i, f):
+        """State index of the SD ambiguity of satellite(s) i, slot(s) f."""
         return 3 + i * self.e.F + f
 
-    def reset(self, i: int, f: int) -> None:
+    def reset(self, i, f) -> None:
+        """Forget the ambiguities of satellites i, slots f (indices or index arrays)."""
         a = self.idx(i, f)
         self.P[a, :] = 0.0
         self.P[:, a] = 0.0
@@ -260,65 +278,59 @@ class _Pass:
         self.held[i, f] = False
 
     # ------------------------------------------------------------------ measurement model
-    def _design(self, zr: ZeroDiff, zb: ZeroDiff, valid: np.ndarray, x0: np.ndarray, drop_code: set):
-        e, o = self.e, self.e.opts
-        F = e.F
-        rows_y, rows_H, meta = [], [], []
-        sdp = zr.omc_phase - zb.omc_phase
-        sdc = zr.omc_code - zb.omc_code
-        vp_r = _zd_var(o.phase_sigma_m, zr.elev)
-        vp_b = _zd_var(o.phase_sigma_m, zb.elev)
-        vc_r = _zd_var(o.code_sigma_m, zr.elev)
-        vc_b = _zd_var(o.code_sigma_m, zb.elev)
-        blocks = []
+    def _groups(self, zr: ZeroDiff, valid: np.ndarray) -> list:
+        """(system, slot, reference, others) of every system and slot with two valid satellites or more; the
+        reference is the highest satellite, preferring one with an established ambiguity."""
         groups = []
-        for s in "GECJ":
-            for f in range(F):
-                mem = np.nonzero(valid[:, f] & (e.system == s))[0]
+        for s, in_sys in self.sys_members:
+            for f in range(self.e.F):
+                mem = np.flatnonzero(valid[:, f] & in_sys)
                 if len(mem) < 2:
                     continue
-                el = zr.elev[mem]
-                # reference: highest satellite, preferring one with an established ambiguity
-                score = el + np.where(self.lock[mem, f] > 0, 10.0, 0.0)
+                score = zr.elev[mem] + np.where(self.lock[mem, f] > 0, 10.0, 0.0)
                 ref = int(mem[np.argmax(score)])
-                oth = [int(i) for i in mem if i != ref]
-                groups.append((s, f, ref, oth))
-                for kind in ("phase", "code"):
-                    use = [i for i in oth if kind == "phase" or (i, f) not in drop_code]
-                    if not use:
-                        continue
-                    n = len(use)
-                    H = np.zeros((n, self.n))
-                    H[:, :3] = -(zr.los[use] - zr.los[ref])
-                    if kind == "phase":
-                        y = sdp[use, f] - sdp[ref, f]
-                        lam = e.lam[use, f]
-                        H[np.arange(n), [self.idx(i, f) for i in use]] = lam
-                        H[:, self.idx(ref, f)] = -e.lam[ref, f]
-                        vr = vp_r[ref] + vp_b[ref]
-                        vi = vp_r[use] + vp_b[use]
-                    else:
-                        y = sdc[use, f] - sdc[ref, f]
-                        vr = vc_r[ref] + vc_b[ref]
-                        vi = (vc_r[use] + vc_b[use]) * self._code_factor(use, f)
-                    # the state-independent part: y is at x0, the model is H (x - x0)
-                    rows_y.append(y + H[:, :3] @ x0)
-                    rows_H.append(H)
-                    blocks.append(np.full((n, n), vr) + np.diag(vi))
-                    meta += [(kind, s, f, i, ref) for i in use]
-        if not rows_y:
-            return None
-        y = np.concatenate(rows_y)
-        H = np.vstack(rows_H)
-        R = np.zeros((len(y), len(y)))
-        k = 0
-        for b in blocks:
-            nb = len(b)
-            R[k:k + nb, k:k + nb] = b
-            k += nb
-        return y, H, R, meta, groups
+                groups.append((s, f, ref, [i for i in mem.tolist() if i != ref]))
+        return groups
 
-    def _code_factor(self, use: list[int], f: int) -> np.ndarray:
+    def _design(self, zr: ZeroDiff, zb: ZeroDiff, valid: np.ndarray, x0: np.ndarray, drop_code: set):
+        """Double differences y (m, the state-independent part: the model is H x), design H, covariance R, rows
+        and groups: per group of `_groups` its phase rows, then its code rows less `drop_code`; None if no group."""
+        e, o = self.e, self.e.opts
+        groups = self._groups(zr, valid)
+        if not groups:
+            return None
+        sat, ref, slot, phase, block = [], [], [], [], []
+        for _s, f, r, oth in groups:
+            code = [i for i in oth if (i, f) not in drop_code] if drop_code else oth
+            for is_phase, use in ((True, oth), (False, code)):
+                if use:
+                    block += [block[-1] + 1 if block else 0] * len(use)
+                    sat += use
+                    ref += [r] * len(use)
+                    slot += [f] * len(use)
+                    phase += [is_phase] * len(use)
+        rows = _Rows(np.array(phase), np.array(sat), np.array(ref), np.array(slot))
+        ph, sat, ref, slot = rows.phase, rows.sat, rows.ref, rows.slot
+        G = zr.los[ref] - zr.los[sat]                           # -(e_i - e_r)
+        sdp = zr.omc_phase - zb.omc_phase
+        sdc = zr.omc_code - zb.omc_code
+        y = np.where(ph, sdp[sat, slot] - sdp[ref, slot], sdc[sat, slot] - sdc[ref, slot])
+        H = np.zeros((len(y), self.n))
+        H[:, :3] = G
+        p = np.flatnonzero(ph)
+        H[p, self.idx(sat[p], slot[p])] = e.lam[sat[p], slot[p]]
+        H[p, self.idx(ref[p], slot[p])] = -e.lam[ref[p], slot[p]]
+        # zero-difference variances summed over both receivers; the rows of a block share their reference's
+        v_ph = _zd_var(o.phase_sigma_m, zr.elev) + _zd_var(o.phase_sigma_m, zb.elev)
+        v_co = _zd_var(o.code_sigma_m, zr.elev) + _zd_var(o.code_sigma_m, zb.elev)
+        v_ref = np.where(ph, v_ph[ref], v_co[ref])
+        v_sat = np.where(ph, v_ph[sat], v_co[sat] * self._code_factor(sat, slot))
+        blk = np.array(block)
+        R = np.where(blk[:, None] == blk[None, :], v_ref[:, None], 0.0) + np.diag(v_sat)
+        # y is at x0, the model H (x - x0): the state-independent part adds G x0
+        return y + G @ x0, H, R, rows, groups
+
+    def _code_factor(self, sat: np.ndarray, slot: np.ndarray) -> np.ndarray:
         """Variance factor of a code DD: 1 for a new satellite, (1 + rho)/(1 - rho) once tracked.
 
         Code errors (multipath) are modelled as first-order Gauss-Markov with correlation time
@@ -326,30 +338,48 @@ class _Pass:
         first epoch's information about a constant (the ambiguity), ``rho = exp(-dt/tau)``.
         """
         o = self.e.opts
-        out = np.ones(len(use))
         if o.code_corr_s <= 0 or self.t_now is None:
-            return out
-        for q, i in enumerate(use):
-            a = self.last[i, f]
-            if a >= 0 and self.lock[i, f] > 0:
-                rho = np.exp(-abs(self.t_now - self.e.t[a]) / o.code_corr_s)
-                out[q] = (1.0 + rho) / max(1.0 - rho, 1e-6)
-        return out
+            return np.ones(len(sat))
+        a = self.last[sat, slot]
+        tracked = (a >= 0) & (self.lock[sat, slot] > 0)
+        rho = np.exp(-np.abs(self.t_now - self.e.t[a]) / o.code_corr_s)
+        return np.where(tracked, (1.0 + rho) / np.maximum(1.0 - rho, 1e-6), 1.0)
 
     def _update(self, x, P, y, H, R):
-        S = H @ P @ H.T + R
+        HP = H @ P
+        S = HP @ H.T + R
         try:
-            Sinv_HP = np.linalg.solve(S, H @ P)
+            K = np.linalg.solve(S, HP).T
         except np.linalg.LinAlgError:
             return None
-        K = Sinv_HP.T
-        v = y - H @ x
-        xn = x + K @ v
+        xn = x + K @ (y - H @ x)
         IKH = np.eye(len(x)) - K @ H
         Pn = IKH @ P @ IKH.T + K @ R @ K.T
         return xn, 0.5 * (Pn + Pn.T)
 
     # ------------------------------------------------------------------ one epoch
+    def _reset_slipped(self, k: int, j: int, valid: np.ndarray) -> None:
+        """Reset the ambiguities with a slip flag (rover or base) or a gap since their last update."""
+        e = self.e
+        i, f = np.nonzero(valid & self.active)
+        a, ab = self.last[i, f], self.last_b[i, f]
+        bad = ((np.abs(e.t[k] - e.t[a]) > e.opts.max_gap_s) | _slipped(e.Cr, a, k, i, f)
+               | ((ab != j) & _slipped(e.Cb, ab, j, i, f)))
+        self.reset(i[bad], f[bad])
+
+    def _start_new(self, zr: ZeroDiff, zb: ZeroDiff, valid: np.ndarray) -> None:
+        """New ambiguities (cycles) at SD phase minus SD code, with the prior sigma ``amb_sigma_cycles``."""
+        i, f = np.nonzero(valid & ~self.active)
+        a = self.idx(i, f)
+        sd_phase = zr.omc_phase[i, f] - zb.omc_phase[i, f]
+        sd_code = zr.omc_code[i, f] - zb.omc_code[i, f]
+        self.x[a] = (sd_phase - sd_code) / self.e.lam[i, f]
+        self.P[a, :] = 0.0
+        self.P[:, a] = 0.0
+        self.P[a, a] = self.e.opts.amb_sigma_cycles ** 2
+        self.active[i, f] = True
+        self.lock[i, f] = 0
+
     def step(self, k: int, out: dict) -> None:
         e, o = self.e, self.e.opts
         t = e.t[k]
@@ -373,34 +403,20 @@ class _Pass:
                  & (zr.elev >= np.radians(o.elev_mask_deg))[:, None])
         if valid.sum() < 2:
             return
-        # slips and gaps since the last update of every ambiguity
-        for i, f in zip(*np.nonzero(valid & self.active)):
-            a, ab = self.last[i, f], self.last_b[i, f]
-            if (abs(t - e.t[a]) > o.max_gap_s or _slipped(e.Cr[:, i, f][:, None], a, k)[0]
-                    or (ab != j and _slipped(e.Cb[:, i, f][:, None], ab, j)[0])):
-                self.reset(i, f)
-        for i, f in zip(*np.nonzero(valid & ~self.active)):
-            a = self.idx(i, f)
-            sd_phase = zr.omc_phase[i, f] - zb.omc_phase[i, f]
-            sd_code = zr.omc_code[i, f] - zb.omc_code[i, f]
-            self.x[a] = (sd_phase - sd_code) / e.lam[i, f]
-            self.P[a, :] = 0.0
-            self.P[:, a] = 0.0
-            self.P[a, a] = o.amb_sigma_cycles ** 2
-            self.active[i, f] = True
-            self.lock[i, f] = 0
+        self._reset_slipped(k, j, valid)
+        self._start_new(zr, zb, valid)
         drop_code: set = set()
         x_prior, P_prior = self.x.copy(), self.P.copy()
         sol = None
         for _snoop in range(6):
-            x, P = x_prior.copy(), P_prior.copy()
+            x, P = x_prior, P_prior
             lin = x0.copy()
             zr_it = zr
             for _it in range(3):
                 des = self._design(zr_it, zb, valid, lin, drop_code)
                 if des is None:
                     return
-                y, H, R, meta, groups = des
+                y, H, R, rows, groups = des
                 up = self._update(x_prior, P_prior, y, H, R)
                 if up is None:
                     return
@@ -411,102 +427,105 @@ class _Pass:
                 lin = x[:3].copy()
                 zr_it = e.rover_zd(k, lin)
             zr = zr_it
-            # post-fit data snooping
+            # post-fit data snooping: w-test of every row against its residual variance diag(R - H P H')
             v = y - H @ x
-            Qv = R - H @ P @ H.T
-            w = np.abs(v) / np.sqrt(np.maximum(np.diag(Qv), 1e-12))
+            q_v = np.diag(R) - np.einsum("ij,ij->i", H @ P, H)
+            w = np.abs(v) / np.sqrt(np.maximum(q_v, 1e-12))
             worst = int(np.argmax(w))
             if w[worst] <= o.outlier_w:
-                sol = (x, P, y, H, R, meta, groups, lin)
+                sol = (x, P, y, H, R, rows, groups, lin)
                 break
-            kind, s, f, i, ref = meta[worst]
-            if kind == "code":
+            i, f, ref = int(rows.sat[worst]), int(rows.slot[worst]), int(rows.ref[worst])
+            if not rows.phase[worst]:
                 drop_code.add((i, f))
-            else:
-                # many failing rows in the group: the reference slipped
-                grp = [q for q, mm in enumerate(meta) if mm[0] == "phase" and mm[2] == f and mm[1] == s]
-                bad = sum(w[q] > o.outlier_w for q in grp)
-                victim = ref if len(grp) >= 3 and bad >= 0.5 * len(grp) else i
-                a = self.idx(victim, f)
-                x_prior[a] = (zr.omc_phase[victim, f] - zb.omc_phase[victim, f]
-                              - zr.omc_code[victim, f] + zb.omc_code[victim, f]) / e.lam[victim, f]
-                P_prior[a, :] = 0.0
-                P_prior[:, a] = 0.0
-                P_prior[a, a] = o.amb_sigma_cycles ** 2
-                self.lock[victim, f] = 0
-                self.held[victim, f] = False
-                out["resets"] = out.get("resets", 0) + 1
+                continue
+            # many failing rows in the group: the reference slipped
+            grp = rows.phase & (rows.slot == f) & (e.system[rows.sat] == e.system[i])
+            bad = int(np.sum(w[grp] > o.outlier_w))
+            victim = ref if grp.sum() >= 3 and bad >= 0.5 * grp.sum() else i
+            a = self.idx(victim, f)
+            x_prior[a] = (zr.omc_phase[victim, f] - zb.omc_phase[victim, f]
+                          - zr.omc_code[victim, f] + zb.omc_code[victim, f]) / e.lam[victim, f]
+            P_prior[a, :] = 0.0
+            P_prior[:, a] = 0.0
+            P_prior[a, a] = o.amb_sigma_cycles ** 2
+            self.lock[victim, f] = 0
+            self.held[victim, f] = False
+            out["resets"] = out.get("resets", 0) + 1
         if sol is None:
-            sol = (x, P, y, H, R, meta, groups, lin)
-        x, P, y, H, R, meta, groups, lin = sol
+            sol = (x, P, y, H, R, rows, groups, lin)
+        x, P, y, H, R, rows, groups, lin = sol
         self.x, self.P = x, P
         self.have_pos = True
         self.t_prev = t
-        used = valid.copy()
-        for i, f in zip(*np.nonzero(used)):
-            self.last[i, f] = k
-            self.last_b[i, f] = j
-            self.lock[i, f] += 1
-        sats_used = {i for _, _, _, i, _ in meta} | {g[2] for g in groups}
+        self.last[valid] = k
+        self.last_b[valid] = j
+        self.lock[valid] += 1
+        n_sat = len(set(rows.sat.tolist()) | {g[2] for g in groups})
         out.update(status=2, p_float=x[:3].copy(), P_float=P[:3, :3].copy(), p=x[:3].copy(), P=P[:3, :3].copy(),
-                   n_sat=len(sats_used), n_amb=int(sum(1 for mm in meta if mm[0] == "phase")))
-        self._resolve(x, P, y, H, R, meta, groups, zr, out)
+                   n_sat=n_sat, n_amb=int(rows.phase.sum()))
+        self._resolve(x, P, y, H, R, rows, groups, zr, out)
         if out.get("status") == 3:
-            budget = self._atmosphere_budget(H, R, meta, zr, out["p"])
+            budget = self._atmosphere_budget(H, R, rows, zr, out["p"])
             if budget is not None:
                 out["P"] = out["P"] + budget
 
-    def _atmosphere_budget(self, H, R, meta, zr: ZeroDiff, p: np.ndarray) -> np.ndarray | None:
+    def _atmosphere_budget(self, H, R, rows: _Rows, zr: ZeroDiff, p: np.ndarray) -> np.ndarray | None:
         """Covariance (3,3) m^2, ECEF, that the differential atmosphere leaves in a fixed position: the weighted
         least-squares map of the phase double differences onto the position, A = (G'WG)^-1 G'W, applied to their
         atmosphere covariance (a slant ionosphere error per satellite of `iono_ppm` mm per km from the base times
         1/sin el, scaled (f_L1/f)^2, and one rover zenith troposphere error, 1/sin el). Nearly constant over an hour,
         no smoothing averages it out, as `dgcal.pos.smoother.carrier.atmosphere_position_covariance` for TC."""
         e, o = self.e, self.e.opts
-        ph = [q for q, mm in enumerate(meta) if mm[0] == "phase"]
+        ph = np.flatnonzero(rows.phase)
         if len(ph) < 4 or (o.iono_ppm <= 0 and o.tropo_zenith_m <= 0):
             return None
-        G = H[ph][:, :3]
+        G = H[ph, :3]
         W = np.linalg.inv(R[np.ix_(ph, ph)])
         N = G.T @ W @ G
         if np.linalg.cond(N) > 1e8:
             return None
         A = np.linalg.solve(N, G.T @ W)
-        sats = sorted({meta[q][3] for q in ph} | {meta[q][4] for q in ph})
-        col = {i: j for j, i in enumerate(sats)}
+        sat, ref, f = rows.sat[ph], rows.ref[ph], rows.slot[ph]
+        sats = np.unique(np.r_[sat, ref])
         mapping = 1.0 / np.sin(np.maximum(zr.elev, np.radians(2.0)))
+        kappa = (1575.42e6 / e.freq[sat, f]) ** 2
+        r = np.arange(len(ph))
         B = np.zeros((len(ph), len(sats) + 1))
-        for r, q in enumerate(ph):
-            _, _, f, i, ref = meta[q]
-            kappa = (1575.42e6 / e.freq[i, f]) ** 2
-            B[r, col[i]] -= kappa            # the phase advances by the ionosphere: -I on phase
-            B[r, col[ref]] += kappa
-            B[r, -1] = mapping[i] - mapping[ref]
+        B[r, np.searchsorted(sats, sat)] -= kappa          # the phase advances by the ionosphere: -I on phase
+        B[r, np.searchsorted(sats, ref)] += kappa
+        B[:, -1] = mapping[sat] - mapping[ref]
         dist = float(np.linalg.norm(p - e.base_pos))
         var = np.r_[(o.iono_ppm * 1e-6 * dist * mapping[sats]) ** 2, o.tropo_zenith_m ** 2]
         return A @ ((B * var) @ B.T) @ A.T
 
-    def _resolve(self, x, P, y, H, R, meta, groups, zr, out) -> None:
-        e, o = self.e, self.e.opts
-        rows = []
-        amb_keys = []
+    def _ambiguity_rows(self, groups: list, zr: ZeroDiff) -> tuple[list, np.ndarray]:
+        """The DD ambiguities above the AR mask: keys (sat, slot) and the rows (k, n) mapping the state onto them."""
+        mask = np.radians(self.e.opts.ar_elev_mask_deg)
+        keys, refs = [], []
         for _s, f, ref, oth in groups:
-            if zr.elev[ref] < np.radians(o.ar_elev_mask_deg):
+            if zr.elev[ref] < mask:
                 continue
-            for i in oth:
-                if zr.elev[i] < np.radians(o.ar_elev_mask_deg):
-                    continue
-                r = np.zeros(self.n)
-                r[self.idx(i, f)] = 1.0
-                r[self.idx(ref, f)] = -1.0
-                rows.append(r)
-                amb_keys.append((i, f))
+            use = [i for i in oth if zr.elev[i] >= mask]
+            keys += [(i, f) for i in use]
+            refs += [ref] * len(use)
+        D = np.zeros((len(keys), self.n))
+        if keys:
+            i, f = np.array(keys).T
+            r = np.arange(len(keys))
+            D[r, self.idx(i, f)] = 1.0
+            D[r, self.idx(np.array(refs), f)] = -1.0
+        return keys, D
+
+    def _resolve(self, x, P, y, H, R, rows: _Rows, groups, zr, out) -> None:
+        e, o = self.e, self.e.opts
+        amb_keys, D = self._ambiguity_rows(groups, zr)
         out["reason"] = "no ambiguities"
-        if len(rows) < o.min_fix_amb:
+        if len(amb_keys) < o.min_fix_amb:
             self.n_fix_run = 0
             return
         T = _multifrequency_combinations(amb_keys)
-        Da = T @ np.array(rows)
+        Da = T @ D
         a = Da @ x
         Qa = Da @ P @ Da.T
         fix = resolve(a, Qa, o.ratio_threshold, o.p0, o.min_fix_amb, o.partial)
@@ -518,12 +537,9 @@ class _Pass:
         xf, Pf, chi2_amb = fixed_solution(x, P, Da, fix)
         if o.phase_bias_sigma_m > 0:
             # the float filter takes phase noise as white: add the time-correlated part for the test
-            lam_sd = np.array([e.lam[i, f] for i in range(len(e.sats)) for f in range(e.F)])
-            var_b = np.zeros(self.n)
-            var_b[3:] = np.nan_to_num((o.phase_bias_sigma_m / lam_sd) ** 2)
             A = fix.C @ Da
             r = fix.c - A @ x
-            S = A @ P @ A.T + (A * var_b) @ A.T
+            S = A @ P @ A.T + (A * self.var_bias) @ A.T
             chi2_amb = float(r @ np.linalg.solve(S, r))
         lim_amb = float(chdtri(fix.n_fixed, o.alpha))
         d = xf[:3] - x[:3]
@@ -532,7 +548,7 @@ class _Pass:
         except np.linalg.LinAlgError:
             chi2_pos = np.inf
         lim_pos = float(chdtri(3, o.alpha))
-        ph = np.array([mm[0] == "phase" for mm in meta])
+        ph = rows.phase
         v = (y - H @ xf)[ph]
         Rp = R[np.ix_(ph, ph)]
         chi2_res = float(v @ np.linalg.solve(Rp, v))
@@ -546,7 +562,8 @@ class _Pass:
             self.n_fix_run = 0
             return
         out.update(status=3, p=xf[:3].copy(), P=Pf[:3, :3].copy(), n_fixed_amb=fix.n_fixed, reason="")
-        out["resid"] = {(e.sats[mm[3]], mm[2]): float(r) for mm, r in zip([m for m in meta if m[0] == "phase"], v)}
+        keys = zip([e.sats[i] for i in rows.sat[ph].tolist()], rows.slot[ph].tolist())
+        out["resid"] = dict(zip(keys, v.tolist()))
         self.n_fix_run += 1
         if o.hold and self.n_fix_run >= o.hold_after and fix.mode == "full":
             a_comb = np.linalg.solve(fix.C, fix.c)              # integer values of the rows of Da
