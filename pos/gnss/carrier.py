@@ -181,6 +181,14 @@ class ZeroDiff:
     omc_phase: np.ndarray
     extra: dict = field(default_factory=dict)
 
+    def epoch(self, q: int) -> "ZeroDiff":
+        """Epoch q of a model of many epochs (views of its rows)."""
+        return ZeroDiff(*(getattr(self, name)[q] for name in _ZD_ARRAYS))
+
+
+_ZD_ARRAYS = ("ok", "sat_pos", "sat_vel", "sat_clk_s", "rho", "los", "elev", "azim", "tropo", "iono", "omc_code",
+              "omc_phase")
+
 
 def first_code(P: np.ndarray) -> np.ndarray:
     """The first finite code (m) of every satellite over the frequency slots (last axis), NaN where none."""
@@ -207,22 +215,23 @@ def transmission_states(nav: BroadcastNav, sats: list[str], t_rx: np.ndarray, pr
     return pos, vel, clk, good
 
 
-def satellite_geometry(nav: BroadcastNav, sats: list[str], t_rx: float, pr_m: np.ndarray, p_rx: np.ndarray,
+def satellite_geometry(nav: BroadcastNav, sats: list[str], t_rx, pr_m: np.ndarray, p_rx: np.ndarray,
                        states: tuple | None = None):
-    """Satellite position/velocity (ECEF at reception, Sagnac-rotated), clock (s) and validity for one epoch;
-    `states`: this epoch's row of `transmission_states` (position, velocity, clock, validity), computed already."""
-    m = len(sats)
+    """Satellite position/velocity (ECEF at reception, Sagnac-rotated), clock (s) and validity for one epoch
+    (`t_rx` s, `pr_m` (m,)), or for many epochs of a receiver at one place at once (`t_rx` (E,), `pr_m` (E,m));
+    `states`: these epochs' rows of `transmission_states` (position, velocity, clock, validity), computed already."""
     ok = np.isfinite(pr_m)
-    pos = np.full((m, 3), np.nan)
-    vel = np.full((m, 3), np.nan)
-    clk = np.full(m, np.nan)
-    idx = np.nonzero(ok)[0]
-    if len(idx) == 0:
+    pos = np.full(pr_m.shape + (3,), np.nan)
+    vel = np.full(pr_m.shape + (3,), np.nan)
+    clk = np.full(pr_m.shape, np.nan)
+    idx = np.nonzero(ok)
+    if len(idx[0]) == 0:
         return pos, vel, clk, ok
     if states is not None:
         p, v, c, good = (a[idx] for a in states)
     else:
-        p, v, c, _d, _u, good = states_at_transmission(nav, [sats[i] for i in idx], t_rx, pr_m[idx])
+        t = np.asarray(t_rx, float)[idx[0]] if pr_m.ndim == 2 else t_rx
+        p, v, c, _d, _u, good = states_at_transmission(nav, [sats[i] for i in idx[-1]], t, pr_m[idx])
     tau = np.linalg.norm(p - p_rx, axis=1) / C_LIGHT
     for _ in range(2):
         pr_, _ = sagnac_rotate(p, v, tau)
@@ -231,34 +240,35 @@ def satellite_geometry(nav: BroadcastNav, sats: list[str], t_rx: float, pr_m: np
     p_rot, v_rot = sagnac_rotate(p, v, tau, np.sum(los * v, axis=1) / C_LIGHT)
     pos[idx], vel[idx], clk[idx] = p_rot, v_rot, c
     ok[idx] = good
-    return pos, vel, clk, ok & np.all(np.isfinite(pos), axis=1)
+    return pos, vel, clk, ok & np.all(np.isfinite(pos), axis=-1)
 
 
-def zero_difference(nav: BroadcastNav, sats: list[str], t_rx: float, P: np.ndarray, L: np.ndarray,
+def zero_difference(nav: BroadcastNav, sats: list[str], t_rx, P: np.ndarray, L: np.ndarray,
                     freq_hz: np.ndarray, p_rx: np.ndarray, geometry=None, humidity: float = 0.7) -> ZeroDiff:
     """Model one epoch of one receiver at ``p_rx`` (ECEF m): ranges, atmosphere, observed-minus-computed (m).
 
     ``P`` (m, F) code in metres, ``L`` (m, F) phase in cycles, ``freq_hz`` (m, F). ``geometry``: the
     ``satellite_geometry`` result to reuse (satellite states do not depend on ``p_rx`` beyond the
-    Sagnac rotation, which changes < 0.1 mm for 100 m).
+    Sagnac rotation, which changes < 0.1 mm for 100 m). Many epochs of a receiver at one place at once: `t_rx`
+    (E,), ``P``, ``L`` (E, m, F) and the geometry of these epochs give arrays with a leading epoch axis.
     """
-    m = len(sats)
     pos, vel, clk, ok = geometry if geometry is not None else satellite_geometry(nav, sats, t_rx, first_code(P), p_rx)
     d = pos - p_rx
-    rho = np.linalg.norm(d, axis=1)
-    los = d / rho[:, None]
+    rho = np.linalg.norm(d, axis=-1)
+    los = d / rho[..., None]
     lat, lon, h = ecef_to_geodetic(p_rx)
-    elev = np.full(m, np.nan)
-    azim = np.full(m, np.nan)
+    elev = np.full(ok.shape, np.nan)
+    azim = np.full(ok.shape, np.nan)
     if ok.any():
         elev[ok], azim[ok] = elevation_azimuth(p_rx, pos[ok], (lat, lon))
     tropo = np.where(ok, saastamoinen_delay_m(lat, h, np.nan_to_num(elev), humidity), np.nan)
-    iono1 = np.where(ok, klobuchar_delay_m(t_rx, lat, lon, np.nan_to_num(elev), np.nan_to_num(azim), nav.ion_gps),
+    t = np.asarray(t_rx, float)[..., None]                      # per epoch, for all its satellites
+    iono1 = np.where(ok, klobuchar_delay_m(t, lat, lon, np.nan_to_num(elev), np.nan_to_num(azim), nav.ion_gps),
                      np.nan)
-    iono = iono1[:, None] * (1575.42e6 / freq_hz) ** 2
+    iono = iono1[..., None] * (1575.42e6 / freq_hz) ** 2
     geo = rho - C_LIGHT * clk + tropo
-    omc_code = P - (geo[:, None] + iono)
-    omc_phase = C_LIGHT / freq_hz * L - (geo[:, None] - iono)
+    omc_code = P - (geo[..., None] + iono)
+    omc_phase = C_LIGHT / freq_hz * L - (geo[..., None] - iono)
     omc_code[~ok] = np.nan
     omc_phase[~ok] = np.nan
     return ZeroDiff(ok, pos, vel, clk, rho, los, elev, azim, tropo, iono, omc_code, omc_phase)

@@ -176,6 +176,7 @@ class CarrierPair:
         self._geo: dict[int, tuple] = {}
         self._zb: dict[int, ZeroDiff] = {}
         self._zr: dict[int, ZeroDiff] = {}     # the last model of every rover epoch (reused by the TC front end)
+        self._tx_rover: tuple | None = None
 
     def arcs(self) -> np.ndarray:
         """Phase arc number per (rover epoch, satellite, slot): it changes at every slip flag of the rover or of
@@ -186,21 +187,31 @@ class CarrierPair:
         out[self.jb < 0] = -1
         return out
 
-    def _states(self, base: bool) -> tuple:
-        """The satellites' states at transmission of every rover (or base) epoch, computed at once on first use
+    def _rover_states(self) -> tuple:
+        """The satellites' states at transmission of every rover epoch, computed at once on first use
         (`dgcal.pos.gnss.carrier.transmission_states`)."""
-        key = "_tx_base" if base else "_tx_rover"
-        if getattr(self, key, None) is None:
-            t, P = (self.tb, self.Pb) if base else (self.t, self.Pr)
-            setattr(self, key, transmission_states(self.nav, self.sats, t, first_code(P)))
-        return getattr(self, key)
+        if self._tx_rover is None:
+            self._tx_rover = transmission_states(self.nav, self.sats, self.t, first_code(self.Pr))
+        return self._tx_rover
+
+    def _base_models(self, epochs: np.ndarray) -> ZeroDiff:
+        """The zero-difference models of some base epochs at once (leading axis: `epochs`): nothing in them
+        depends on the filter, the base stands at its known position."""
+        t, P, L = self.tb[epochs], self.Pb[epochs], self.Lb[epochs]
+        pr = first_code(P)
+        states = transmission_states(self.nav, self.sats, t, pr)
+        g = satellite_geometry(self.nav, self.sats, t, pr, self.base_pos, states)
+        return zero_difference(self.nav, self.sats, t, P, L, self.freq, self.base_pos, g, self.opts.humidity)
 
     def base_zd(self, j: int) -> ZeroDiff:
+        """Base epoch j modelled at the base position; on first use every base epoch a rover epoch is matched to."""
         if j not in self._zb:
-            g = satellite_geometry(self.nav, self.sats, self.tb[j], first_code(self.Pb[j]), self.base_pos,
-                                   tuple(a[j] for a in self._states(True)))
-            self._zb[j] = zero_difference(self.nav, self.sats, self.tb[j], self.Pb[j], self.Lb[j], self.freq,
-                                          self.base_pos, g, self.opts.humidity)
+            if not self._zb:
+                used = np.unique(self.jb[self.jb >= 0])
+                models = self._base_models(used)
+                self._zb.update({int(b): models.epoch(q) for q, b in enumerate(used)})
+            if j not in self._zb:
+                self._zb[j] = self._base_models(np.array([j])).epoch(0)
         return self._zb[j]
 
     def rover_zd(self, k: int, x0: np.ndarray, reuse_within_m: float | None = None) -> ZeroDiff:
@@ -212,7 +223,7 @@ class CarrierPair:
             return last
         if k not in self._geo:
             self._geo[k] = satellite_geometry(self.nav, self.sats, self.t[k], first_code(self.Pr[k]), x0,
-                                              tuple(a[k] for a in self._states(False)))
+                                              tuple(a[k] for a in self._rover_states()))
         zr = zero_difference(self.nav, self.sats, self.t[k], self.Pr[k], self.Lr[k], self.freq, x0,
                              self._geo[k], self.opts.humidity)
         zr.extra["p_rx"] = np.array(x0, float)
