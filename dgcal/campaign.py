@@ -40,6 +40,7 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
 from dgcal.fields.io.atomic import MANIFEST, atomic_write, clean_stale, file_sha256, manifest_problems, staged_dir
 from dgcal.fields.io.text_files import read_text
+from dgcal.step_pool import Outcome, StepPool
 from dgcal.steps import Campaign, Step, file_digest
 
 __all__ = ["CHAIN", "STATE", "Campaign", "DemoOptions", "Step", "load_campaign", "load_state", "plan", "run_campaign",
@@ -185,14 +186,17 @@ def report_files(c: Campaign) -> dict:
 
 
 def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[list[str]], int] | None = None,
-                 log=sys.stderr, report: bool = True, rerun: Sequence[str] = ()) -> dict:
+                 log=sys.stderr, report: bool = True, rerun: Sequence[str] = (), jobs: int = 1) -> dict:
     """Run (or resume) a campaign into `out`; returns {"steps": {name: "ran"|"skipped"}, "timings_s": {...},
     "report": path or None}. First what an interrupted run left is cleaned up (`clean_stale` on every output
     folder of the plan and on `out`). A step is skipped when its record in DIR/.dgcal-state.json (written
     after it finished) still holds: same argv and input contents, its output folder complete per its manifest
     and the very one it wrote, no step it follows ran, and it is not named in `rerun` (step names such as
-    `mount_iso`, or verbs: `mount` is every mounting step); `force` reruns everything. A failing step raises
-    InputError (earlier results are kept)."""
+    `mount_iso`, or verbs: `mount` is every mounting step); `force` reruns everything. `jobs` > 1 runs up to
+    that many steps at once, each in a child process, as soon as the steps it follows are done (POS beside
+    the camera and triangulation, the mounting methods side by side); 1 runs them in order in this process.
+    A failing step raises InputError once the steps running beside it have ended (their results are kept,
+    as are earlier ones)."""
     from dgcal.cli import main as dgcal_main
 
     runner = runner or dgcal_main
@@ -215,44 +219,101 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     cache = {k: v for r in records.values() for k, v in r.get("inputs", {}).items()}
     done: dict[str, str] = {}
     timings: dict[str, float] = {}
-    for step in steps:
-        fp = step.fingerprint(cache)
-        why = ("--force" if force else "--rerun" if step.name in forced
-               else _why_rerun(step, records.get(step.name), fp, [n for n in step.after if done.get(n) == "ran"]))
-        if why is None:
-            done[step.name] = "skipped"
-            print(f"[{step.name}] up to date, skipped", file=log)
-            continue
-        print(f"[{step.name}] ({why}) dgcal {' '.join(step.argv)}", file=log, flush=True)
-        records.pop(step.name, None)
-        _save_state(state_path, records)
-        t0 = time.perf_counter()
-        try:
-            rc = runner(step.argv)
-        except InputError:
-            raise
-        except Exception as exc:  # a crash inside a verb: one line naming the step; earlier steps stay done
-            raise InputError(f"step {step.name} crashed ({type(exc).__name__}: {exc}); rerun it alone with "
-                             f"`dgcal --debug {' '.join(step.argv[:1])} ...` to see where", cfg["_path"]) from exc
-        timings[step.name] = time.perf_counter() - t0
-        if rc != 0:
-            raise InputError(f"step {step.name} failed (exit {rc}); fix it and run again to resume", cfg["_path"])
-        missing = [str(p) for p in step.outputs if not p.exists()]
-        if missing:
-            raise InputError(f"step {step.name} did not write {', '.join(missing)}", cfg["_path"])
-        records[step.name] = _record(step, fp, cache)   # the record last: only a finished step is done
+    fingerprints: dict[str, str] = {}
+    by_name = {s.name: s for s in steps}
+    pending = list(steps)
+    pool = StepPool(runner) if jobs > 1 else None
+    failure: InputError | None = None
+
+    def finish(o: Outcome) -> None:
+        """Record a step that ended (the record last: only a finished step is done), or keep its failure."""
+        nonlocal failure
+        step = by_name[o.name]
+        err = _step_failure(step, o, cfg["_path"])
+        if err is not None:
+            failure = failure or err
+            done[step.name] = "failed"
+            return
+        timings[step.name] = o.seconds
+        records[step.name] = _record(step, fingerprints[step.name], cache)
         _save_state(state_path, records)
         done[step.name] = "ran"
-        print(f"[{step.name}] done in {timings[step.name]:.1f} s", file=log, flush=True)
-    result = {"steps": done, "timings_s": timings, "report": None}
+        print(f"[{step.name}] done in {o.seconds:.1f} s", file=log, flush=True)
+
+    try:
+        while pending or (pool and len(pool)):
+            for step in list(pending):
+                if failure is not None or (pool is not None and len(pool) >= jobs):
+                    break
+                if any(done.get(n) in (None, "failed") for n in step.after if n in by_name):
+                    continue                  # waits for a step it follows
+                pending.remove(step)
+                fp = fingerprints[step.name] = step.fingerprint(cache)
+                why = ("--force" if force else "--rerun" if step.name in forced
+                       else _why_rerun(step, records.get(step.name), fp,
+                                       [n for n in step.after if done.get(n) == "ran"]))
+                if why is None:
+                    done[step.name] = "skipped"
+                    print(f"[{step.name}] up to date, skipped", file=log)
+                    continue
+                print(f"[{step.name}] ({why}) dgcal {' '.join(step.argv)}", file=log, flush=True)
+                records.pop(step.name, None)
+                _save_state(state_path, records)
+                if pool is None:
+                    finish(_run_here(step, runner))
+                else:
+                    pool.start(step.name, step.argv)
+            if failure is not None and not (pool and len(pool)):
+                raise failure
+            if pool is not None and len(pool):
+                finish(pool.wait())
+            elif pending and all(any(done.get(n) in (None, "failed") for n in s.after if n in by_name)
+                                 for s in pending):
+                break                         # nothing can start (cannot happen with a well-formed plan)
+    except BaseException:
+        if pool is not None:
+            pool.stop()
+        raise
+    if failure is not None:
+        raise failure
+    result = {"steps": {s.name: done[s.name] for s in steps if s.name in done},
+              "timings_s": {s.name: timings[s.name] for s in steps if s.name in timings}, "report": None}
+    timings = result["timings_s"]
     if report:
         from dgcal.reports.campaign import write_campaign_report
         t0 = time.perf_counter()
         with staged_dir(out, merge=True) as tmp:   # report.json and report.html together, the manifest last
-            write_campaign_report(cfg, out, report_files(planned), steps=done, timings=timings, into=tmp)
+            write_campaign_report(cfg, out, report_files(planned), steps=result["steps"], timings=timings, into=tmp)
         timings["report"] = time.perf_counter() - t0
         result["report"] = str((out / "report.html").resolve())
     return result
+
+
+def _run_here(step: Step, runner: Callable[[list[str]], int]) -> Outcome:
+    """Run a step in this process: its outcome (exit status or exception) and wall time."""
+    t0 = time.perf_counter()
+    try:
+        rc = runner(step.argv)
+    except Exception as exc:
+        return Outcome(step.name, error=exc, seconds=time.perf_counter() - t0)
+    return Outcome(step.name, rc=int(rc or 0), seconds=time.perf_counter() - t0)
+
+
+def _step_failure(step: Step, o: Outcome, campaign: Path) -> InputError | None:
+    """The InputError a step's outcome makes (crash, non-zero exit, missing output), None when it is done."""
+    if isinstance(o.error, InputError):
+        return o.error
+    if o.error is not None:   # a crash inside a verb: one line naming the step; earlier steps stay done
+        err = InputError(f"step {step.name} crashed ({type(o.error).__name__}: {o.error}); rerun it alone with "
+                         f"`dgcal --debug {' '.join(step.argv[:1])} ...` to see where", campaign)
+        err.__cause__ = o.error
+        return err
+    if o.rc != 0:
+        return InputError(f"step {step.name} failed (exit {o.rc}); fix it and run again to resume", campaign)
+    missing = [str(p) for p in step.outputs if not p.exists()]
+    if missing:
+        return InputError(f"step {step.name} did not write {', '.join(missing)}", campaign)
+    return None
 
 
 def _rerun_steps(steps: list[Step], names: Sequence[str], campaign: Path) -> set[str]:
@@ -322,11 +383,12 @@ def _save_state(path: Path, records: dict) -> None:
 
 @dataclass
 class DemoOptions:
-    """`dgcal demo`: the output folder (data/ and results/), the simulation's seed, rerun everything."""
+    """`dgcal demo`: the output folder (data/ and results/), the simulation's seed, rerun everything, steps at once."""
 
     out: Path
     seed: int = 3
     force: bool = False
+    jobs: int = 1
 
 
 def run_demo(opts: DemoOptions, log=None) -> dict:
@@ -342,6 +404,6 @@ def run_demo(opts: DemoOptions, log=None) -> dict:
         simulate_campaign(data, opts.seed)
     else:
         print(f"[simulate] {data} already there, kept", file=log)
-    res = run_campaign(data / "campaign.toml", results, force=opts.force, log=log)
+    res = run_campaign(data / "campaign.toml", results, force=opts.force, log=log, jobs=opts.jobs)
     res["elapsed_s"] = time.perf_counter() - t0
     return res

@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from dgcal.commands.run import add_jobs_argument
+
 NAME = "demo"
 HELP = "simulate a calibration campaign and run the whole chain on it (prints the report path)"
 
@@ -14,11 +16,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (data/ and results/)")
     p.add_argument("--seed", type=int, default=3, help="random seed of the simulation")
     p.add_argument("--force", action="store_true", help="simulate and run everything again")
+    add_jobs_argument(p)
 
 
 def run(args: argparse.Namespace) -> int:
     from dgcal.campaign import DemoOptions, run_demo
-    res = run_demo(DemoOptions(args.out, args.seed, args.force))
+    res = run_demo(DemoOptions(args.out, args.seed, args.force, max(1, args.jobs)))
     print(f"demo finished in {res['elapsed_s']:.0f} s; calibration report:")
     print(res["report"])
     return 0
