@@ -415,8 +415,8 @@ def _image_measurements(rng, camera, C_ecef, R_cam_to_ecef, names, gp: _Ground, 
     """The ground and tie points through the true camera at the true poses, with pixel noise `noise_px`."""
     gi, gid, guv = _observe(camera, C_ecef, R_cam_to_ecef, names, gp.gp_ids, gp.gp_ecef)
     ti, tid, tuv = _observe(camera, C_ecef, R_cam_to_ecef, names, gp.tie_ids, gp.tie_ecef)
-    uniq, cnt = np.unique(tid, return_counts=True)
-    keep = np.isin(tid, uniq[cnt >= 2])
+    _, inverse, cnt = np.unique(tid, return_inverse=True, return_counts=True)
+    keep = cnt[inverse] >= 2      # tie points seen at least twice
     ti, tid, tuv = ti[keep], tid[keep], tuv[keep]
     g_noisy = guv + rng.normal(0, noise_px, guv.shape)
     t_noisy = tuv + rng.normal(0, noise_px, tuv.shape)

@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_coeffs, savgol_filter
 
 from dgcal.fields.constants import G0
 from dgcal.fields.frames import R_body_to_ned_from_rph
@@ -59,6 +58,7 @@ def time_derivative(t: np.ndarray, y: np.ndarray, window_s: float = 0.0) -> np.n
         n = n + 1 if n % 2 == 0 else n
         n = min(n, len(t) - (1 - len(t) % 2))
         if n >= 3:
+            from scipy.signal import savgol_filter   # here: scipy.signal costs 0.6-0.8 s to import, most runs need none
             return savgol_filter(y, n, 2, deriv=1, delta=step, axis=0, mode="interp")
     return np.gradient(y, t, axis=0)
 
@@ -80,6 +80,7 @@ def derivative_gain(t: np.ndarray, window_s: float) -> float:
         n = n + 1 if n % 2 == 0 else n
         n = min(n, len(t) - (1 - len(t) % 2))
     if n >= 3:
+        from scipy.signal import savgol_coeffs       # here: scipy.signal costs 0.6-0.8 s to import
         return float(np.linalg.norm(savgol_coeffs(n, 2, deriv=1, delta=step)))
     return float(np.sqrt(0.5) / step)  # central differences
 
