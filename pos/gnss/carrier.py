@@ -22,6 +22,7 @@ wide-lane (against the running mean of the arc).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,7 +31,7 @@ from dgcal.fields.constants import C_LIGHT
 from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
-from dgcal.pos.gnss.corrections import elevation_azimuth, klobuchar_delay_m, sagnac_rotate, saastamoinen_delay_m
+from dgcal.pos.gnss.carrier_model import at_reception, receiver_terms
 from dgcal.pos.gnss.ephemeris import states_at_transmission
 from dgcal.pos.gnss.observations import GnssEpoch, GnssObservations
 from dgcal.pos.gnss.rinex import BroadcastNav, calendar_from_gps_seconds
@@ -232,12 +233,7 @@ def satellite_geometry(nav: BroadcastNav, sats: list[str], t_rx, pr_m: np.ndarra
     else:
         t = np.asarray(t_rx, float)[idx[0]] if pr_m.ndim == 2 else t_rx
         p, v, c, _d, _u, good = states_at_transmission(nav, [sats[i] for i in idx[-1]], t, pr_m[idx])
-    tau = np.linalg.norm(p - p_rx, axis=1) / C_LIGHT
-    for _ in range(2):
-        pr_, _ = sagnac_rotate(p, v, tau)
-        tau = np.linalg.norm(pr_ - p_rx, axis=1) / C_LIGHT
-    los = (p - p_rx) / np.linalg.norm(p - p_rx, axis=1, keepdims=True)
-    p_rot, v_rot = sagnac_rotate(p, v, tau, np.sum(los * v, axis=1) / C_LIGHT)
+    p_rot, v_rot = at_reception(np.ascontiguousarray(p), np.ascontiguousarray(v), np.asarray(p_rx, float))
     pos[idx], vel[idx], clk[idx] = p_rot, v_rot, c
     ok[idx] = good
     return pos, vel, clk, ok & np.all(np.isfinite(pos), axis=-1)
@@ -253,18 +249,14 @@ def zero_difference(nav: BroadcastNav, sats: list[str], t_rx, P: np.ndarray, L: 
     (E,), ``P``, ``L`` (E, m, F) and the geometry of these epochs give arrays with a leading epoch axis.
     """
     pos, vel, clk, ok = geometry if geometry is not None else satellite_geometry(nav, sats, t_rx, first_code(P), p_rx)
-    d = pos - p_rx
-    rho = np.linalg.norm(d, axis=-1)
-    los = d / rho[..., None]
     lat, lon, h = ecef_to_geodetic(p_rx)
-    elev = np.full(ok.shape, np.nan)
-    azim = np.full(ok.shape, np.nan)
-    if ok.any():
-        elev[ok], azim[ok] = elevation_azimuth(p_rx, pos[ok], (lat, lon))
-    tropo = np.where(ok, saastamoinen_delay_m(lat, h, np.nan_to_num(elev), humidity), np.nan)
-    t = np.asarray(t_rx, float)[..., None]                      # per epoch, for all its satellites
-    iono1 = np.where(ok, klobuchar_delay_m(t, lat, lon, np.nan_to_num(elev), np.nan_to_num(azim), nav.ion_gps),
-                     np.nan)
+    ion = nav.ion_gps
+    has_ion = ion is not None and bool(np.any(ion))
+    t = np.broadcast_to(np.asarray(t_rx, float)[..., None], ok.shape)     # every satellite at its epoch's time
+    terms = receiver_terms(pos.reshape(-1, 3), ok.ravel(), np.asarray(p_rx, float), float(lat), float(lon),
+                           float(h), t.ravel(), np.asarray(ion, float) if has_ion else np.zeros((2, 4)), has_ion,
+                           float(humidity))
+    rho, los, elev, azim, tropo, iono1 = (a.reshape(ok.shape + a.shape[1:]) for a in terms)
     iono = iono1[..., None] * (1575.42e6 / freq_hz) ** 2
     geo = rho - C_LIGHT * clk + tropo
     omc_code = P - (geo[..., None] + iono)
@@ -400,21 +392,22 @@ def write_rinex_carrier(path, obs: CarrierObs, marker: str = "DGCAL", comment: s
     order = sorted(obs.sats, key=lambda sid: ("GECJ".index(sid[0]), sid))
 
     def val(v: float, lli: int = 0) -> str:
-        if not np.isfinite(v):
+        if not math.isfinite(v):
             return " " * 16
         return f"{v:14.3f}{lli if lli else ' '} "
 
+    # Python floats and ints per epoch: formatting numpy scalars one by one costs twice as much
+    sat_slots = [(sid, col[sid], slots[sid[0]]) for sid in order]
     with atomic_write(path) as fh:
         fh.writelines(lines)
         for k in range(len(t)):
+            P, L, D, S = (a[k].tolist() for a in (obs.P, obs.L, obs.D, obs.snr))
+            lli = obs.lli[k].astype(int).tolist()
             rows = []
-            for sid in order:
-                i = col[sid]
-                fs = slots[sid[0]]
-                if not any(np.isfinite(obs.P[k, i, f]) or np.isfinite(obs.L[k, i, f]) for f in fs):
+            for sid, i, fs in sat_slots:
+                if not any(math.isfinite(P[i][f]) or math.isfinite(L[i][f]) for f in fs):
                     continue
-                rec = "".join(val(obs.P[k, i, f]) + val(obs.L[k, i, f], int(obs.lli[k, i, f]))
-                              + val(obs.D[k, i, f]) + val(obs.snr[k, i, f]) for f in fs)
+                rec = "".join(val(P[i][f]) + val(L[i][f], lli[i][f]) + val(D[i][f]) + val(S[i][f]) for f in fs)
                 rows.append(sid + rec.rstrip() + "\n")
             y, mo, d, h, mi, sec = calendar_from_gps_seconds(t[k])
             flag = 1 if obs.power_failure is not None and obs.power_failure[k] else 0

@@ -36,9 +36,10 @@ import numpy as np
 from scipy.special import chdtri
 
 from dgcal.fields.constants import C_LIGHT
-from dgcal.pos.gnss.ambiguity import fixed_solution, resolve
+from dgcal.pos.gnss.ambiguity import AmbiguityFix, fixed_solution, resolve
 from dgcal.pos.gnss.carrier import (CarrierObs, ZeroDiff, first_code, satellite_geometry, slip_flags,
                                    transmission_states, zero_difference)
+from dgcal.pos.gnss.ppk_design import dd_rows, dd_system
 from dgcal.pos.gnss.rinex import BroadcastNav
 
 STATUS = ("none", "single", "float", "fixed")
@@ -126,11 +127,6 @@ class PpkResult:
         return np.array([STATUS[s] for s in self.status])
 
 
-def _zd_var(sigma0: float, elev: np.ndarray) -> np.ndarray:
-    s = np.sin(np.maximum(elev, np.radians(2.0)))
-    return sigma0 ** 2 * (0.5 + 0.5 / s ** 2)
-
-
 class CarrierPair:
     """A rover and a base receiver prepared for double differencing (shared by both PPK passes and the TC
     smoother's carrier-phase factors): common satellites and frequency slots, the base epoch of every rover
@@ -173,6 +169,10 @@ class CarrierPair:
             self.jb = np.full(len(self.t), -1)
             self.age = np.full(len(self.t), np.nan)
         self.system = np.array([s[0] for s in sats])
+        # the systems present in the order their groups of double differences are formed, and each satellite's
+        present = [s for s in "GECJ" if s in set(self.system.tolist())]
+        self.n_sys = len(present)
+        self.sys_id = np.array([present.index(s) for s in self.system], dtype=np.int64)
         self._geo: dict[int, tuple] = {}
         self._zb: dict[int, ZeroDiff] = {}
         self._zr: dict[int, ZeroDiff] = {}     # the last model of every rover epoch (reused by the TC front end)
@@ -271,8 +271,6 @@ class _Pass:
         # variance (cycles^2) of the time-correlated SD phase errors of every state (validation of a fix only)
         self.var_bias = np.zeros(self.n)
         self.var_bias[3:] = np.nan_to_num((eng.opts.phase_bias_sigma_m / eng.lam.ravel()) ** 2)
-        # the systems present, in the order their groups of double differences are formed
-        self.sys_members = [(s, eng.system == s) for s in "GECJ" if np.any(eng.system == s)]
 
     def idx(self, i, f):
         """State index of the SD ambiguity of satellite(s) i, slot(s) f."""
@@ -289,60 +287,24 @@ class _Pass:
         self.held[i, f] = False
 
     # ------------------------------------------------------------------ measurement model
-    def _groups(self, zr: ZeroDiff, valid: np.ndarray) -> list:
-        """(system, slot, reference, others) of every system and slot with two valid satellites or more; the
-        reference is the highest satellite, preferring one with an established ambiguity."""
-        groups = []
-        for s, in_sys in self.sys_members:
-            for f in range(self.e.F):
-                mem = np.flatnonzero(valid[:, f] & in_sys)
-                if len(mem) < 2:
-                    continue
-                score = zr.elev[mem] + np.where(self.lock[mem, f] > 0, 10.0, 0.0)
-                ref = int(mem[np.argmax(score)])
-                groups.append((s, f, ref, [i for i in mem.tolist() if i != ref]))
-        return groups
+    def _design(self, zr: ZeroDiff, zb: ZeroDiff, valid: np.ndarray, x0: np.ndarray, drop_code: np.ndarray):
+        """Double differences y (m, the state-independent part: the model is H x), design H, covariance R, the
+        rows and the groups' reference satellites; None without a group (`dgcal.pos.gnss.ppk_design`).
 
-    def _design(self, zr: ZeroDiff, zb: ZeroDiff, valid: np.ndarray, x0: np.ndarray, drop_code: set):
-        """Double differences y (m, the state-independent part: the model is H x), design H, covariance R, rows
-        and groups: per group of `_groups` its phase rows, then its code rows less `drop_code`; None if no group."""
+        Groups: per system and slot the valid satellites, when two or more, against the highest one, preferring
+        one with an established ambiguity; rows: per group its phase, then its code less `drop_code` (m,F)."""
         e, o = self.e, self.e.opts
-        groups = self._groups(zr, valid)
-        if not groups:
+        score = zr.elev[:, None] + np.where(self.lock > 0, 10.0, 0.0)
+        ph, sat, ref, slot, block, _g_sys, _g_slot, g_ref = dd_rows(valid, e.sys_id, e.n_sys, score, drop_code)
+        if len(g_ref) == 0:
             return None
-        sat, ref, slot, phase, block = [], [], [], [], []
-        for _s, f, r, oth in groups:
-            code = [i for i in oth if (i, f) not in drop_code] if drop_code else oth
-            for is_phase, use in ((True, oth), (False, code)):
-                if use:
-                    block += [block[-1] + 1 if block else 0] * len(use)
-                    sat += use
-                    ref += [r] * len(use)
-                    slot += [f] * len(use)
-                    phase += [is_phase] * len(use)
-        rows = _Rows(np.array(phase), np.array(sat), np.array(ref), np.array(slot))
-        ph, sat, ref, slot = rows.phase, rows.sat, rows.ref, rows.slot
-        G = zr.los[ref] - zr.los[sat]                           # -(e_i - e_r)
-        sdp = zr.omc_phase - zb.omc_phase
-        sdc = zr.omc_code - zb.omc_code
-        y = np.where(ph, sdp[sat, slot] - sdp[ref, slot], sdc[sat, slot] - sdc[ref, slot])
-        H = np.zeros((len(y), self.n))
-        H[:, :3] = G
-        p = np.flatnonzero(ph)
-        H[p, self.idx(sat[p], slot[p])] = e.lam[sat[p], slot[p]]
-        H[p, self.idx(ref[p], slot[p])] = -e.lam[ref[p], slot[p]]
-        # zero-difference variances summed over both receivers; the rows of a block share their reference's
-        v_ph = _zd_var(o.phase_sigma_m, zr.elev) + _zd_var(o.phase_sigma_m, zb.elev)
-        v_co = _zd_var(o.code_sigma_m, zr.elev) + _zd_var(o.code_sigma_m, zb.elev)
-        v_ref = np.where(ph, v_ph[ref], v_co[ref])
-        v_sat = np.where(ph, v_ph[sat], v_co[sat] * self._code_factor(sat, slot))
-        blk = np.array(block)
-        R = np.where(blk[:, None] == blk[None, :], v_ref[:, None], 0.0) + np.diag(v_sat)
-        # y is at x0, the model H (x - x0): the state-independent part adds G x0
-        return y + G @ x0, H, R, rows, groups
+        y, H, R = dd_system(ph, sat, ref, slot, block, zr.los, zr.omc_phase - zb.omc_phase,
+                            zr.omc_code - zb.omc_code, e.lam, zr.elev, zb.elev, o.phase_sigma_m, o.code_sigma_m,
+                            self._code_factor(), x0, self.n)
+        return y, H, R, _Rows(ph, sat, ref, slot), g_ref
 
-    def _code_factor(self, sat: np.ndarray, slot: np.ndarray) -> np.ndarray:
-        """Variance factor of a code DD: 1 for a new satellite, (1 + rho)/(1 - rho) once tracked.
+    def _code_factor(self) -> np.ndarray:
+        """Variance factor (m,F) of code DDs: 1 for a new satellite, (1 + rho)/(1 - rho) once tracked.
 
         Code errors (multipath) are modelled as first-order Gauss-Markov with correlation time
         ``code_corr_s``: each further epoch of an AR(1) sequence adds ``(1 - rho)/(1 + rho)`` of the
@@ -350,10 +312,9 @@ class _Pass:
         """
         o = self.e.opts
         if o.code_corr_s <= 0 or self.t_now is None:
-            return np.ones(len(sat))
-        a = self.last[sat, slot]
-        tracked = (a >= 0) & (self.lock[sat, slot] > 0)
-        rho = np.exp(-np.abs(self.t_now - self.e.t[a]) / o.code_corr_s)
+            return np.ones(self.last.shape)
+        tracked = (self.last >= 0) & (self.lock > 0)
+        rho = np.exp(-np.abs(self.t_now - self.e.t[self.last]) / o.code_corr_s)
         return np.where(tracked, (1.0 + rho) / np.maximum(1.0 - rho, 1e-6), 1.0)
 
     def _update(self, x, P, y, H, R):
@@ -416,7 +377,7 @@ class _Pass:
             return
         self._reset_slipped(k, j, valid)
         self._start_new(zr, zb, valid)
-        drop_code: set = set()
+        drop_code = np.zeros(valid.shape, bool)
         x_prior, P_prior = self.x.copy(), self.P.copy()
         sol = None
         for _snoop in range(6):
@@ -427,7 +388,7 @@ class _Pass:
                 des = self._design(zr_it, zb, valid, lin, drop_code)
                 if des is None:
                     return
-                y, H, R, rows, groups = des
+                y, H, R, rows, refs = des
                 up = self._update(x_prior, P_prior, y, H, R)
                 if up is None:
                     return
@@ -444,11 +405,11 @@ class _Pass:
             w = np.abs(v) / np.sqrt(np.maximum(q_v, 1e-12))
             worst = int(np.argmax(w))
             if w[worst] <= o.outlier_w:
-                sol = (x, P, y, H, R, rows, groups, lin)
+                sol = (x, P, y, H, R, rows, refs, lin)
                 break
             i, f, ref = int(rows.sat[worst]), int(rows.slot[worst]), int(rows.ref[worst])
             if not rows.phase[worst]:
-                drop_code.add((i, f))
+                drop_code[i, f] = True
                 continue
             # many failing rows in the group: the reference slipped
             grp = rows.phase & (rows.slot == f) & (e.system[rows.sat] == e.system[i])
@@ -464,18 +425,18 @@ class _Pass:
             self.held[victim, f] = False
             out["resets"] = out.get("resets", 0) + 1
         if sol is None:
-            sol = (x, P, y, H, R, rows, groups, lin)
-        x, P, y, H, R, rows, groups, lin = sol
+            sol = (x, P, y, H, R, rows, refs, lin)
+        x, P, y, H, R, rows, refs, lin = sol
         self.x, self.P = x, P
         self.have_pos = True
         self.t_prev = t
         self.last[valid] = k
         self.last_b[valid] = j
         self.lock[valid] += 1
-        n_sat = len(set(rows.sat.tolist()) | {g[2] for g in groups})
+        n_sat = len(np.union1d(rows.sat, refs))
         out.update(status=2, p_float=x[:3].copy(), P_float=P[:3, :3].copy(), p=x[:3].copy(), P=P[:3, :3].copy(),
                    n_sat=n_sat, n_amb=int(rows.phase.sum()))
-        self._resolve(x, P, y, H, R, rows, groups, zr, out)
+        self._resolve(x, P, y, H, R, rows, zr, out)
         if out.get("status") == 3:
             budget = self._atmosphere_budget(H, R, rows, zr, out["p"])
             if budget is not None:
@@ -510,32 +471,25 @@ class _Pass:
         var = np.r_[(o.iono_ppm * 1e-6 * dist * mapping[sats]) ** 2, o.tropo_zenith_m ** 2]
         return A @ ((B * var) @ B.T) @ A.T
 
-    def _ambiguity_rows(self, groups: list, zr: ZeroDiff) -> tuple[list, np.ndarray]:
-        """The DD ambiguities above the AR mask: keys (sat, slot) and the rows (k, n) mapping the state onto them."""
+    def _ambiguity_rows(self, rows: _Rows, zr: ZeroDiff) -> tuple[np.ndarray, np.ndarray]:
+        """The DD ambiguities of the phase rows above the AR mask: their rows' indices and the matrix (k, n)
+        mapping the state onto them."""
         mask = np.radians(self.e.opts.ar_elev_mask_deg)
-        keys, refs = [], []
-        for _s, f, ref, oth in groups:
-            if zr.elev[ref] < mask:
-                continue
-            use = [i for i in oth if zr.elev[i] >= mask]
-            keys += [(i, f) for i in use]
-            refs += [ref] * len(use)
-        D = np.zeros((len(keys), self.n))
-        if keys:
-            i, f = np.array(keys).T
-            r = np.arange(len(keys))
-            D[r, self.idx(i, f)] = 1.0
-            D[r, self.idx(np.array(refs), f)] = -1.0
-        return keys, D
+        p = np.flatnonzero(rows.phase & (zr.elev[rows.ref] >= mask) & (zr.elev[rows.sat] >= mask))
+        D = np.zeros((len(p), self.n))
+        r = np.arange(len(p))
+        D[r, self.idx(rows.sat[p], rows.slot[p])] = 1.0
+        D[r, self.idx(rows.ref[p], rows.slot[p])] = -1.0
+        return p, D
 
-    def _resolve(self, x, P, y, H, R, rows: _Rows, groups, zr, out) -> None:
+    def _resolve(self, x, P, y, H, R, rows: _Rows, zr, out) -> None:
         e, o = self.e, self.e.opts
-        amb_keys, D = self._ambiguity_rows(groups, zr)
+        amb, D = self._ambiguity_rows(rows, zr)
         out["reason"] = "no ambiguities"
-        if len(amb_keys) < o.min_fix_amb:
+        if len(amb) < o.min_fix_amb:
             self.n_fix_run = 0
             return
-        T = _multifrequency_combinations(amb_keys)
+        T = _multifrequency_combinations(list(zip(rows.sat[amb].tolist(), rows.slot[amb].tolist())))
         Da = T @ D
         a = Da @ x
         Qa = Da @ P @ Da.T
@@ -577,26 +531,28 @@ class _Pass:
         out["resid"] = dict(zip(keys, v.tolist()))
         self.n_fix_run += 1
         if o.hold and self.n_fix_run >= o.hold_after and fix.mode == "full":
-            a_comb = np.linalg.solve(fix.C, fix.c)              # integer values of the rows of Da
-            self._hold(np.round(np.linalg.solve(T, a_comb)), amb_keys, groups)
+            self._hold(fix, T, rows.sat[amb], rows.slot[amb], rows.ref[amb])
 
-    def _hold(self, a_fix: np.ndarray, amb_keys: list, groups: list) -> None:
+    def _hold(self, fix: AmbiguityFix, T: np.ndarray, sat: np.ndarray, slot: np.ndarray, ref: np.ndarray) -> None:
         """Fix and hold: constrain every newly fixed SD ambiguity once to a held one of its group.
 
-        The constraint ``N_i - N_anchor = integer`` (sigma ``hold_sigma_cycles``) is applied once per
-        ambiguity arc (``held`` is cleared by a reset), so repeated holds do not shrink the float
-        covariance below what the data support (the validation tests stay meaningful).
+        ``sat``, ``slot``, ``ref``: the fixed DD ambiguities (group by group, as `_ambiguity_rows`); their integers
+        are those of ``fix`` recombined by ``T`` (`_multifrequency_combinations`). The constraint
+        ``N_i - N_anchor = integer`` (sigma ``hold_sigma_cycles``) is applied once per ambiguity arc (``held`` is
+        cleared by a reset), so repeated holds do not shrink the float covariance below what the data support
+        (the validation tests stay meaningful).
         """
-        o = self.e.opts
-        val = {key: v for key, v in zip(amb_keys, a_fix)}
+        if self.held[sat, slot].all() and self.held[ref, slot].all():
+            return                                              # all held already: the usual epoch
+        a_fix = np.round(np.linalg.solve(T, np.linalg.solve(fix.C, fix.c)))   # integer DD ambiguity of every row
         rows, y = [], []
-        for _s, f, ref, oth in groups:
-            mem = [ref] + [i for i in oth if (i, f) in val]
-            if len(mem) < 2:
-                continue
-            dd = {ref: 0.0, **{i: val[(i, f)] for i in oth if (i, f) in val}}
+        cut = np.flatnonzero((np.diff(ref) != 0) | (np.diff(slot) != 0)) + 1
+        for q in np.split(np.arange(len(sat)), cut):            # one group (reference and slot) at a time
+            r0, f = int(ref[q[0]]), int(slot[q[0]])
+            mem = [r0] + sat[q].tolist()
+            dd = {r0: 0.0, **dict(zip(sat[q].tolist(), a_fix[q]))}
             held = [i for i in mem if self.held[i, f]]
-            anchor = held[0] if held else ref
+            anchor = held[0] if held else r0
             for i in mem:
                 if i == anchor or self.held[i, f]:
                     continue
@@ -605,12 +561,11 @@ class _Pass:
                 r[self.idx(anchor, f)] = -1.0
                 rows.append(r)
                 y.append(dd[i] - dd[anchor])
-            for i in mem:
-                self.held[i, f] = True
+            self.held[mem, f] = True
         if not rows:
             return
         A = np.array(rows)
-        up = self._update(self.x, self.P, np.array(y), A, np.eye(len(y)) * o.hold_sigma_cycles ** 2)
+        up = self._update(self.x, self.P, np.array(y), A, np.eye(len(y)) * self.e.opts.hold_sigma_cycles ** 2)
         if up is not None:
             self.x, self.P = up
 

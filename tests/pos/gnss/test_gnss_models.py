@@ -133,3 +133,44 @@ def test_beidou_geo_state_uses_cssrlib_geo_frame():
     p1, *_ = _geo_state(eph, t + 86164.09)
     assert np.linalg.norm(p1 - p[0]) < 2e3
     assert clk[0] == pytest.approx(1e-4 + 1e-12 * 100.0, abs=3e-9)   # + relativistic term
+
+
+def test_compiled_receiver_model_equals_the_numpy_models(nav):
+    """The compiled zero-difference terms of PPK (`carrier_model`) against `corrections`' NumPy functions and the
+    light-time loop they replace: same values to rounding, NaN where a satellite is not usable."""
+    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.pos.gnss.carrier_model import at_reception, receiver_terms
+    assert nav.ion_gps is not None and np.any(nav.ion_gps)
+    sats = sorted(nav.by_sat)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        p_rx = REF + rng.normal(size=3) * 5e3
+        t = T0 + rng.uniform(0, 3600.0)
+        p0, *_ = satellite_states(nav, sats, t)
+        pr = np.linalg.norm(p0 - p_rx, axis=1) + 3e4
+        p, v, clk, _d, _u, ok = states_at_transmission(nav, sats, t, pr)
+        # the NumPy light-time loop of carrier.satellite_geometry before it was compiled
+        tau = np.linalg.norm(p - p_rx, axis=1) / C_LIGHT
+        for _ in range(2):
+            tau = np.linalg.norm(sagnac_rotate(p, v, tau)[0] - p_rx, axis=1) / C_LIGHT
+        los0 = (p - p_rx) / np.linalg.norm(p - p_rx, axis=1, keepdims=True)
+        p_ref, v_ref = sagnac_rotate(p, v, tau, np.sum(los0 * v, axis=1) / C_LIGHT)
+        pos, vel = at_reception(p, v, p_rx)
+        np.testing.assert_allclose(pos[ok], p_ref[ok], rtol=0, atol=1e-7)
+        np.testing.assert_allclose(vel[ok], v_ref[ok], rtol=0, atol=1e-10)
+        assert np.all(np.isnan(pos[~ok]))
+        lat, lon, h = ecef_to_geodetic(p_rx)
+        ok[0] = False                                       # a satellite without a model
+        rho, los, el, az, tropo, iono = receiver_terms(pos, ok, p_rx, lat, lon, h, np.full(len(sats), t),
+                                                       np.asarray(nav.ion_gps, float), True, 0.7)
+        el_ref, az_ref = elevation_azimuth(p_rx, pos[ok], (lat, lon))
+        np.testing.assert_allclose(rho[ok], np.linalg.norm(pos[ok] - p_rx, axis=1), rtol=1e-15)
+        np.testing.assert_allclose(los[ok], (pos[ok] - p_rx) / rho[ok, None], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(el[ok], el_ref, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(az[ok], az_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(tropo[ok], saastamoinen_delay_m(lat, h, el_ref, 0.7), rtol=1e-13)
+        np.testing.assert_allclose(iono[ok], klobuchar_delay_m(t, lat, lon, el_ref, az_ref, nav.ion_gps), rtol=1e-12)
+        assert np.all(np.isnan(np.r_[el[~ok], az[~ok], tropo[~ok], iono[~ok]]))
+        assert (el[ok] < 0).any() and (tropo[ok][el[ok] < 0] == 0).all()      # below the horizon: no delay
+        no_ion = receiver_terms(pos, ok, p_rx, lat, lon, h, np.full(len(sats), t), np.zeros((2, 4)), False, 0.7)
+        assert np.all(no_ion[5][ok] == 0.0)
