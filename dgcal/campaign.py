@@ -49,6 +49,10 @@ __all__ = ["CHAIN", "STATE", "Campaign", "DemoOptions", "Step", "load_campaign",
 STATE = ".dgcal-state.json"
 STATE_VERSION = 2   # {"version", "steps": {name: record}} (dgcal.campaign._record)
 CHAIN = (camera, triangulate, pos, mount, check)  # the verbs of a campaign, in order (dgcal.steps)
+# imported by the runner before it forks the steps (--jobs > 1): modules most verbs load (0.5-1 s each time),
+# none that starts threads on import (gtsam's TBB pool, numba's) or holds state a fork would break
+PRELOAD = ("numpy", "scipy.linalg", "scipy.sparse", "scipy.optimize", "scipy.spatial.transform", "pyproj",
+           "dgcal.reports.html", "dgcal.fields.io.formats", "dgcal.fields.crs")
 
 
 def load_campaign(path: Path) -> dict:
@@ -222,7 +226,7 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     fingerprints: dict[str, str] = {}
     by_name = {s.name: s for s in steps}
     pending = list(steps)
-    pool = StepPool(runner) if jobs > 1 else None
+    pool = StepPool(runner, PRELOAD) if jobs > 1 else None
     failure: InputError | None = None
 
     def finish(o: Outcome) -> None:

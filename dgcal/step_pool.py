@@ -6,7 +6,7 @@ as it would stop the one step of a sequential run; the output folders are then a
 (dgcal.fields.io.atomic), and the next run cleans up and resumes."""
 from __future__ import annotations
 
-import ctypes
+import importlib
 import multiprocessing
 import multiprocessing.connection
 import os
@@ -16,10 +16,9 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
+from dgcal.fields.processes import die_with_parent
+
 __all__ = ["Outcome", "StepPool", "default_jobs"]
-
-_PR_SET_PDEATHSIG = 1   # linux/prctl.h
-
 
 def default_jobs() -> int:
     """Steps a campaign runs at once by default: one per CPU, at most 4 (the chain rarely offers more)."""
@@ -47,10 +46,12 @@ class StepPool:
     """Start steps (`start(name, argv)`) in forked children running `runner(argv)`; `wait()` returns the
     outcome of the next one to finish."""
 
-    def __init__(self, runner: Callable[[list[str]], int]):
+    def __init__(self, runner: Callable[[list[str]], int], preload: tuple[str, ...] = ()):
         self.runner = runner
         self.running: dict[str, _Running] = {}
         self._ctx = multiprocessing.get_context("fork")
+        for module in preload:   # imported once here, inherited by every child instead of imported in each
+            importlib.import_module(module)
 
     def __len__(self) -> int:
         return len(self.running)
@@ -103,7 +104,7 @@ class StepPool:
 
 def _child(runner: Callable[[list[str]], int], argv: list[str], conn, parent_pid: int) -> None:
     """The step in the child: its exit status or its exception goes back through `conn`."""
-    _die_with_parent(parent_pid)
+    die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         message = ("rc", int(runner(argv) or 0))
@@ -116,13 +117,3 @@ def _child(runner: Callable[[list[str]], int], argv: list[str], conn, parent_pid
     finally:
         sys.stdout.flush()
         sys.stderr.flush()
-
-
-def _die_with_parent(parent_pid: int) -> None:
-    """Ask Linux to SIGKILL this process when its parent dies; exit now if it already has."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except (OSError, AttributeError):   # not Linux: the child may outlive a killed parent
-        pass
-    if os.getppid() != parent_pid:
-        os._exit(137)

@@ -1,10 +1,12 @@
 """A tiny builder for one-file HTML reports: headings, text, key/value and row tables, PNG figures
-embedded as base64 (matplotlib, Agg backend), written atomically."""
+embedded as base64 (matplotlib, Agg backend; drawn side by side when the page is rendered), written atomically."""
 from __future__ import annotations
 
 import base64
+import functools
 import html
 import io
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -14,6 +16,7 @@ matplotlib.use("Agg")  # reports render PNGs without a display: the one place dg
 import matplotlib.pyplot as plt  # noqa: E402  (after the backend choice)
 
 from dgcal.fields.io.csv_tables import atomic_write  # noqa: E402
+from dgcal.fields.processes import fork_map  # noqa: E402
 
 _STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;
@@ -51,12 +54,26 @@ def _fmt(v) -> str:
     return str(v)
 
 
+@dataclass
+class _Figure:
+    """A figure of a page, drawn when the page is rendered."""
+
+    fig: object
+    caption: str
+
+
+def _figure_html(png: bytes, caption: str) -> str:
+    b64 = base64.b64encode(png).decode("ascii")
+    cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
+    return f'<figure><img src="data:image/png;base64,{b64}" alt="{html.escape(caption)}">{cap}</figure>'
+
+
 class HtmlReport:
     """Collects sections of an HTML page; `write(path)` stores it as one self-contained file."""
 
     def __init__(self, title: str):
         self.title = title
-        self.parts: list[str] = []
+        self.parts: list[str | _Figure] = []
 
     def heading(self, text: str, level: int = 2) -> "HtmlReport":
         self.parts.append(f"<h{level}>{html.escape(text)}</h{level}>")
@@ -87,11 +104,13 @@ class HtmlReport:
         return self
 
     def figure(self, fig_or_png, caption: str = "") -> "HtmlReport":
-        """Embed a matplotlib figure (or PNG bytes) as a base64 image."""
-        png = fig_or_png if isinstance(fig_or_png, (bytes, bytearray)) else figure_png(fig_or_png)
-        b64 = base64.b64encode(png).decode("ascii")
-        cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
-        self.parts.append(f'<figure><img src="data:image/png;base64,{b64}" alt="{html.escape(caption)}">{cap}</figure>')
+        """Embed a matplotlib figure (or PNG bytes) as a base64 image; a figure is drawn when the page is
+        rendered, side by side with the page's other figures (`render`)."""
+        if isinstance(fig_or_png, (bytes, bytearray)):
+            self.parts.append(_figure_html(fig_or_png, caption))
+        else:
+            plt.close(fig_or_png)   # out of pyplot's registry now; the figure itself stays drawable
+            self.parts.append(_Figure(fig_or_png, caption))
         return self
 
     def raw(self, html_text: str) -> "HtmlReport":
@@ -99,6 +118,11 @@ class HtmlReport:
         return self
 
     def render(self) -> str:
+        """The page; its figures drawn first, in forked processes side by side (fields.processes.fork_map)."""
+        pending = [(i, p) for i, p in enumerate(self.parts) if isinstance(p, _Figure)]
+        pngs = fork_map([functools.partial(figure_png, p.fig) for _, p in pending])
+        for (i, p), png in zip(pending, pngs):
+            self.parts[i] = _figure_html(png, p.caption)
         return (f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{html.escape(self.title)}</title>"
                 f"<style>{_STYLE}</style></head><body><h1>{html.escape(self.title)}</h1>"
                 + "\n".join(self.parts) + "</body></html>\n")

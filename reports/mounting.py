@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import base64
+import functools
 import html
 import json
 from collections.abc import Mapping
@@ -12,11 +13,18 @@ import numpy as np
 from dgcal.calib.dg.accuracy import DgCheck
 from dgcal.calib.mounting.methods import MountingRun
 from dgcal.fields.io.csv_tables import atomic_write, write_table
+from dgcal.fields.processes import fork_map
 from dgcal.reports.html import figure_png, new_figure
 
 
 def _png(fig) -> str:
-    return f'<img alt="plot" src="data:image/png;base64,{base64.b64encode(figure_png(fig, dpi=90)).decode()}">'
+    return _imgs([fig])[0]
+
+
+def _imgs(figs: list) -> list[str]:
+    """<img> elements of figures drawn side by side in forked processes (fields.processes.fork_map)."""
+    pngs = fork_map([functools.partial(figure_png, f, dpi=90) for f in figs])
+    return [f'<img alt="plot" src="data:image/png;base64,{base64.b64encode(p).decode()}">' for p in pngs]
 
 
 def _table(header, rows) -> str:
@@ -36,7 +44,7 @@ def _page(title: str, parts: list[str]) -> str:
 
 
 def _per_epoch_plots(results: dict) -> list[str]:
-    out = []
+    figs = []
     fig, axes = new_figure(10, 7, nrows=3, ncols=1, sharex=True)
     for name, res in results.items():
         pe = res.get("per_epoch") or {}
@@ -50,7 +58,7 @@ def _per_epoch_plots(results: dict) -> list[str]:
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("epoch")
     fig.suptitle("Lever arm per epoch (seed 003 Fig. 22): an uncalibrated delay shows as a speed-dependent bias")
-    out.append(_png(fig))
+    figs.append(fig)
     fig, axes = new_figure(10, 6, nrows=3, ncols=1, sharex=True)
     for name, res in results.items():
         pe = res.get("per_epoch") or {}
@@ -63,7 +71,7 @@ def _per_epoch_plots(results: dict) -> list[str]:
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("epoch")
     fig.suptitle("Boresight per epoch, relative to the estimate")
-    out.append(_png(fig))
+    figs.append(fig)
     for name, res in results.items():
         pe = res.get("per_epoch") or {}
         if "residual_position_m" in pe:
@@ -81,8 +89,8 @@ def _per_epoch_plots(results: dict) -> list[str]:
             axes[1].legend(fontsize=8, ncol=3)
             axes[1].set_xlabel("epoch")
             fig.suptitle(f"{name}: residuals per epoch")
-            out.append(_png(fig))
-    return out
+            figs.append(fig)
+    return _imgs(figs)
 
 
 def mount_report_html(main: dict, others: dict | None = None) -> str:
