@@ -8,7 +8,8 @@ Unknowns: the free camera parameters, every image's pose in the field frame (`dg
 the world) and, optionally, the target coordinates — either as a free network with a minimal datum (7
 coordinates of three well-spread targets held, fixing position, orientation and scale, which image
 observations cannot determine) or as weighted unknowns with their CSV sigmas as priors. Solved by the
-engine of `dgcal.bundle.solver` (Levenberg-Marquardt, targets eliminated by Schur complement). Outliers are
+engine of `dgcal.bundle.solver` (Levenberg-Marquardt, targets eliminated by Schur complement), from the start
+values first on every k-th observation of an image with many (targets held), then on all. Outliers are
 rejected iteratively on the robustly scaled residual norm. Covariances are sigma0^2 N^-1 with sigma0 from
 the final residuals.
 """
@@ -34,6 +35,16 @@ from dgcal.fields.pose import Poses
 _CHI2_MEDIAN = float(np.sqrt(2 * np.log(2)))
 MIN_POINTS_AFTER_REJECTION = 4   # an image keeps its pose with this many inliers (4 points of a plane fix it)
 RESIDUAL_ROWS = 100_000          # observations whose residuals are evaluated at once (the engine's CHUNK_ITEMS)
+# the first solve, from distortion-free start values, sees every k-th observation of an image with k x this many
+# (k >= 2): its far iterations need not see every point, and its minimum lies within ~sqrt(k - 1) sigma of the
+# whole data's, which the solves after the rejection then reach in a few iterations
+COARSE_POINTS = 200
+COARSE_TOL_CHI2 = 1.0            # that first solve's stopping gain in chi^2 (a closer minimum would not help)
+# initial damping of a solve that starts at a solution of nearly the same problem (after a rejection, the first
+# solve, a subset): the engine's 1e-4 halves the steps along the weakest directions of the scaled reduced system
+# (eigenvalues ~1e-4 on 60 images: the principal point against the poses' rotations), which then take 2-3 more
+# iterations to converge
+WARM_LAMBDA0 = 1e-8
 # why an observation is not in the adjustment: codes of `_InitialPoses.reason` (1 byte an observation)
 REASONS = ("", "image dropped: too few targets", "image dropped: no pose", "image dropped: too few inliers",
            "not in the subset")
@@ -253,13 +264,14 @@ def _problem(cam: CameraModel, free_cam: np.ndarray, active: np.ndarray, obs_img
     return Problem(blocks, M, len(X0), len(cam.PARAMS), point_free=pt_free, global_free=free_cam)
 
 
-def _lm(prob: Problem, state: State, max_iter: int = 100, tol_chi2: float = 0.01) -> tuple[State, int, bool]:
+def _lm(prob: Problem, state: State, max_iter: int = 100, tol_chi2: float = 0.01,
+        lambda0: float = LMOptions.lambda0) -> tuple[State, int, bool]:
     """Levenberg-Marquardt to convergence; returns (state, iterations, converged).
 
     Converged when a step lowers chi^2 (cost / sigma0^2) by less than `tol_chi2`: the parameters are then
     within a small fraction of their sigmas of the minimum (ill-conditioned models such as the rational one
-    otherwise crawl along a flat valley with negligible gains)."""
-    sol = minimise(prob, state, LMOptions(max_iterations=max_iter, tol_chi2=tol_chi2, tol_rel=0.0))
+    otherwise crawl along a flat valley with negligible gains). `lambda0`: the initial damping."""
+    sol = minimise(prob, state, LMOptions(max_iterations=max_iter, tol_chi2=tol_chi2, tol_rel=0.0, lambda0=lambda0))
     return sol.state, sol.iterations, sol.converged
 
 
@@ -333,7 +345,8 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     X0, pt_free, pt_prior_w = _target_unknowns(refine_targets, obs, init.active, field_sigma)
     # all requested parameters at once (staging focal length/K1 first converged slower in tests)
     adj = _Adjustment(cam, np.array([k not in fixed for k in cls.PARAMS]), obs, X0, pt_free, pt_prior_w)
-    state, total_it, _ = adj.solve(State(Poses.from_R_t(init.R, init.t), X0.copy(), cam.params.copy()), init.active)
+    state, total_it = adj.solve_from_start(State(Poses.from_R_t(init.R, init.t), X0.copy(), cam.params.copy()),
+                                           init.active)
     state, active, usable, settled, it = _reject_outliers(adj, state, init, reject_k, max_rounds, min_points_per_image)
     total_it += it
     if M - len(init.dropped) < 3:
@@ -557,8 +570,20 @@ class _Adjustment:
                         self.pt_prior_w, o.M)
 
     def solve(self, state: State, active: np.ndarray) -> tuple[State, int, bool]:
-        """Levenberg-Marquardt on the active observations from `state`."""
-        return _lm(self.problem(active), state)
+        """Levenberg-Marquardt on the active observations from `state`, a solution of (nearly) the same problem:
+        damped little at first (WARM_LAMBDA0)."""
+        return _lm(self.problem(active), state, lambda0=WARM_LAMBDA0)
+
+    def solve_from_start(self, state: State, active: np.ndarray) -> tuple[State, int]:
+        """Levenberg-Marquardt from the start values on a thinned set of the active observations (`_thinned`), to
+        COARSE_TOL_CHI2, when the targets are held (free targets keep every ray: a thinned one may be seen once);
+        on all of them, converged, otherwise. Returns (state, iterations)."""
+        thin = None if self.pt_free.any() else _thinned(self.obs.obs_img, active, self.obs.M, COARSE_POINTS)
+        if thin is None:
+            state, it, _ = _lm(self.problem(active), state)
+        else:
+            state, it, _ = _lm(self.problem(thin), state, tol_chi2=COARSE_TOL_CHI2)
+        return state, it
 
     def whitened_residuals(self, state: State, rows: np.ndarray) -> np.ndarray:
         """(k,2) residuals / sigma of observation rows (a bool mask or indices) at `state`, evaluated
@@ -571,6 +596,23 @@ class _Adjustment:
             blk = ImageObservations(self.cam, o.obs_img[k], o.obs_pt[k], o.xy[k], o.sig[k], self.cam.PARAMS, 0)
             out[s] = blk.evaluate(state, False).r
         return out
+
+
+def _thinned(obs_img: np.ndarray, active: np.ndarray, M: int, per_image: int) -> np.ndarray | None:
+    """(n,) bool: every k-th active observation of each image, k = its active count // per_image (at least 1),
+    in row order (spread over the frame as the rows are); None when no image has 2 x per_image."""
+    idx = np.flatnonzero(active)
+    img = obs_img[idx]
+    counts = np.bincount(img, minlength=M)
+    stride = np.maximum(counts // per_image, 1)
+    if stride.max() < 2:
+        return None
+    order = np.argsort(img, kind="stable")
+    rank = np.empty(len(idx), np.int64)         # position of an observation among its image's active ones
+    rank[order] = np.arange(len(idx)) - np.repeat(np.cumsum(counts) - counts, counts)
+    out = np.zeros(len(active), bool)
+    out[idx[rank % stride[img] == 0]] = True
+    return out
 
 
 def _reject_outliers(adj: _Adjustment, state: State, init: _InitialPoses, reject_k: float, max_rounds: int,

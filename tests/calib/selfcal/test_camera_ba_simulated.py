@@ -181,3 +181,31 @@ def test_initial_camera_gives_the_same_solution():
     # another model as the start: converted, then adjusted
     c = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "opencv8", initial=truth)
     assert abs(c.rms_px - a.rms_px) < 0.01
+
+
+def test_thinned_start_keeps_every_kth_row_of_each_image():
+    from dgcal.calib.selfcal.adjustment import _thinned
+    img = np.array([0, 1, 0, 1, 0, 1, 0, 1, 0, 2, 2, 0, 0, 0, 0])  # interleaved rows; image 0: 9, 1: 4, 2: 2
+    active = np.ones(len(img), bool)
+    active[4] = False                                                # image 0: 8 active rows
+    keep = _thinned(img, active, 3, 2)
+    assert np.array_equal(np.flatnonzero(keep), [0, 1, 5, 9, 10, 11])  # 0: every 4th active, 1: every 2nd, 2: all
+    assert _thinned(img, active, 3, 5) is None                       # no image has 2 x 5: nothing to thin
+
+
+def test_thinned_start_reaches_the_minimum_of_all_observations(monkeypatch):
+    # without rejection the observations are the same: the thinned first solve only changes the path there
+    from dgcal.calib.selfcal import adjustment
+    truth, pts, img, ids, xy = scene(3, n_images=18)
+    thinned = []
+    spy = adjustment._thinned
+    monkeypatch.setattr(adjustment, "_thinned", lambda *a: thinned.append(spy(*a)) or thinned[-1])
+    a = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7", reject_k=0)
+    assert thinned[-1] is not None and thinned[-1].sum() < 0.6 * len(xy)
+    monkeypatch.setattr(adjustment, "COARSE_POINTS", 10 ** 9)
+    b = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7", reject_k=0)
+    assert thinned[-1] is None
+    assert np.all(np.abs(a.camera.params - b.camera.params) < 0.01 * b.camera.sigmas)
+    np.testing.assert_allclose(a.camera.sigmas, b.camera.sigmas, rtol=1e-4)
+    np.testing.assert_allclose(a.poses.cov, b.poses.cov, rtol=1e-3, atol=1e-20)
+    assert a.sigma0 == pytest.approx(b.sigma0, rel=1e-6)
