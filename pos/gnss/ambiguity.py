@@ -17,9 +17,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from scipy.linalg.lapack import dgesv
 from scipy.special import erf
 
 LOOP_MAX = 100000
+
+
+def gesv(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(A, B)`` by LAPACK's dgesv called directly: the same LU factorisation and results,
+    without NumPy's per-call overhead (which is most of the time of the filter's small systems)."""
+    _lu, _piv, X, info = dgesv(A, B)
+    if info > 0:
+        raise np.linalg.LinAlgError("singular matrix")
+    return X
 
 
 def ldl(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -217,12 +227,11 @@ def resolve(a: np.ndarray, Q: np.ndarray, ratio_threshold: float = 3.0, p0: floa
         return none
     # most precise ambiguities last (where the factorisation starts): fewer permutations
     order = np.argsort(-np.diag(Q), kind="stable")
-    Pm = np.eye(n)[order]                      # a_sorted = Pm a
     try:
         L, D, Z = decorrelate(0.5 * (Q + Q.T)[np.ix_(order, order)])
     except np.linalg.LinAlgError:
         return none
-    Z = Pm.T @ Z                               # z = Z' a with the permutation folded in
+    Z = Z[np.argsort(order)]                   # z = Z' a with the permutation (a_sorted = a[order]) folded in
     zs = Z.T @ a
     zn, s = search(L, D, zs, 2)
     ratio = s[1] / max(s[0], 1e-12)
@@ -249,18 +258,22 @@ def resolve(a: np.ndarray, Q: np.ndarray, ratio_threshold: float = 3.0, p0: floa
     return best
 
 
-def fixed_solution(x: np.ndarray, P: np.ndarray, D_amb: np.ndarray, fix: AmbiguityFix
-                   ) -> tuple[np.ndarray, np.ndarray, float]:
+def fixed_solution(x: np.ndarray, P: np.ndarray, D_amb: np.ndarray, fix: AmbiguityFix,
+                   var_extra: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
     """Condition a float state (x, P) on the fix ``C (D_amb x) = c``; returns (x_fixed, P_fixed, chi2 of the fix).
 
     ``D_amb`` (n_amb x n_state) maps the state to the ambiguities given to ``resolve``. The chi-square is
-    ``(C a - c)' (C Q_a C')^-1 (C a - c)`` (the squared norm of the float-to-fixed correction).
+    ``(C a - c)' (C Q_a C')^-1 (C a - c)`` (the squared norm of the float-to-fixed correction); ``var_extra``
+    (n_state,): variances of state errors the float covariance leaves out, added to ``Q_a`` of the chi-square only.
     """
     A = fix.C @ D_amb                          # constraint rows on the state
     r = fix.c - A @ x
-    S = A @ P @ A.T
-    K = np.linalg.solve(S, A @ P).T            # P A' S^-1
+    AP = A @ P
+    S = AP @ A.T
+    K = gesv(S, AP).T                          # P A' S^-1
     xf = x + K @ r
     Pf = P - K @ A @ P
-    chi2 = float(r @ np.linalg.solve(S, r))
+    if var_extra is not None:
+        S = S + (A * var_extra) @ A.T
+    chi2 = float(r @ gesv(S, r))
     return xf, 0.5 * (Pf + Pf.T), chi2

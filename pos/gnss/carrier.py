@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dgcal.fields.constants import C_LIGHT
-from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.gnss.carrier_model import at_reception, receiver_terms
@@ -249,13 +248,11 @@ def zero_difference(nav: BroadcastNav, sats: list[str], t_rx, P: np.ndarray, L: 
     (E,), ``P``, ``L`` (E, m, F) and the geometry of these epochs give arrays with a leading epoch axis.
     """
     pos, vel, clk, ok = geometry if geometry is not None else satellite_geometry(nav, sats, t_rx, first_code(P), p_rx)
-    lat, lon, h = ecef_to_geodetic(p_rx)
     ion = nav.ion_gps
     has_ion = ion is not None and bool(np.any(ion))
-    t = np.broadcast_to(np.asarray(t_rx, float)[..., None], ok.shape)     # every satellite at its epoch's time
-    terms = receiver_terms(pos.reshape(-1, 3), ok.ravel(), np.asarray(p_rx, float), float(lat), float(lon),
-                           float(h), t.ravel(), np.asarray(ion, float) if has_ion else np.zeros((2, 4)), has_ion,
-                           float(humidity))
+    t = np.repeat(np.asarray(t_rx, float).reshape(-1), ok.shape[-1])      # every satellite at its epoch's time
+    terms = receiver_terms(pos.reshape(-1, 3), ok.reshape(-1), np.asarray(p_rx, float), t,
+                           np.asarray(ion, float) if has_ion else np.zeros((2, 4)), has_ion, float(humidity))
     rho, los, elev, azim, tropo, iono1 = (a.reshape(ok.shape + a.shape[1:]) for a in terms)
     iono = iono1[..., None] * (1575.42e6 / freq_hz) ** 2
     geo = rho - C_LIGHT * clk + tropo

@@ -17,6 +17,9 @@ from numba import njit
 
 from dgcal.fields.constants import C_LIGHT, OMEGA_EARTH, SECONDS_PER_DAY, SECONDS_PER_WEEK
 
+WGS84_A = 6378137.0                     # m, semi-major axis
+WGS84_F = 1.0 / 298.257223563           # flattening
+
 
 @njit(cache=True)
 def _rotate(x, y, z, vx, vy, vz, tau, tau_dot):  # pragma: no cover - compiled
@@ -100,12 +103,34 @@ def _klobuchar_l1(t_gps, lat_deg, lon_deg, elev, azim, alpha, beta):  # pragma: 
 
 
 @njit(cache=True)
-def receiver_terms(pos: np.ndarray, ok: np.ndarray, p_rx: np.ndarray, lat_deg: float, lon_deg: float, h_m: float,
-                   t_gps: np.ndarray, ion: np.ndarray, has_ion: bool, humidity: float):
-    """Per satellite (n rows) seen from p_rx at geodetic (lat_deg, lon_deg, h_m): range (m), unit line of sight
-    (n,3), elevation and azimuth (rad), Saastamoinen troposphere (m) and Klobuchar L1 ionosphere (m; `ion` the
-    2x4 alpha/beta, zero without `has_ion`) at times `t_gps` (n,); NaN where not `ok`, as `zero_difference`."""
+def geodetic(p: np.ndarray) -> tuple[float, float, float]:
+    """Latitude, longitude (deg) and ellipsoidal height (m) of ECEF p (m), WGS84 (`fields.crs.ecef_to_geodetic`
+    without pyproj's per-call cost): the fixed-point iteration on z + N e^2 sin(lat), to 1e-10 m."""
+    e2 = WGS84_F * (2.0 - WGS84_F)
+    r2 = p[0] * p[0] + p[1] * p[1]
+    z, zk, v = p[2], 0.0, WGS84_A
+    for _ in range(50):
+        if abs(z - zk) < 1e-10:
+            break
+        zk = z
+        sinp = z / math.sqrt(r2 + z * z)
+        v = WGS84_A / math.sqrt(1.0 - e2 * sinp * sinp)
+        z = p[2] + v * e2 * sinp
+    if r2 > 1e-12:
+        lat = math.atan(z / math.sqrt(r2))
+    else:
+        lat = math.pi / 2 if p[2] > 0.0 else -math.pi / 2
+    return math.degrees(lat), math.degrees(math.atan2(p[1], p[0])), math.sqrt(r2 + z * z) - v
+
+
+@njit(cache=True)
+def receiver_terms(pos: np.ndarray, ok: np.ndarray, p_rx: np.ndarray, t_gps: np.ndarray, ion: np.ndarray,
+                   has_ion: bool, humidity: float):
+    """Per satellite (n rows) seen from p_rx: range (m), unit line of sight (n,3), elevation and azimuth (rad),
+    Saastamoinen troposphere (m) and Klobuchar L1 ionosphere (m; `ion` the 2x4 alpha/beta, zero without
+    `has_ion`) at times `t_gps` (n,); NaN where not `ok`, as `carrier.zero_difference`."""
     n = pos.shape[0]
+    lat_deg, lon_deg, h_m = geodetic(p_rx)
     rho = np.empty(n)
     los = np.empty((n, 3))
     elev = np.full(n, np.nan)

@@ -31,12 +31,13 @@ hold). The backward pass is the same run in reverse time; ``combine`` merges the
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.special import chdtri
 
 from dgcal.fields.constants import C_LIGHT
-from dgcal.pos.gnss.ambiguity import AmbiguityFix, fixed_solution, resolve
+from dgcal.pos.gnss.ambiguity import AmbiguityFix, fixed_solution, gesv, resolve
 from dgcal.pos.gnss.carrier import (CarrierObs, ZeroDiff, first_code, satellite_geometry, slip_flags,
                                    transmission_states, zero_difference)
 from dgcal.pos.gnss.ppk_design import dd_rows, dd_system
@@ -259,6 +260,7 @@ class _Pass:
         self.x[:3] = p_init
         self.P = np.zeros((self.n, self.n))
         self.P[:3, :3] = np.eye(3) * eng.opts.pos_sigma_m ** 2
+        self.eye = np.eye(self.n)
         self.active = np.zeros((m, F), dtype=bool)
         self.last = np.full((m, F), -1)
         self.last_b = np.full((m, F), -1)
@@ -321,11 +323,11 @@ class _Pass:
         HP = H @ P
         S = HP @ H.T + R
         try:
-            K = np.linalg.solve(S, HP).T
+            K = gesv(S, HP).T
         except np.linalg.LinAlgError:
             return None
         xn = x + K @ (y - H @ x)
-        IKH = np.eye(len(x)) - K @ H
+        IKH = self.eye - K @ H
         Pn = IKH @ P @ IKH.T + K @ R @ K.T
         return xn, 0.5 * (Pn + Pn.T)
 
@@ -457,7 +459,7 @@ class _Pass:
         N = G.T @ W @ G
         if np.linalg.cond(N) > 1e8:
             return None
-        A = np.linalg.solve(N, G.T @ W)
+        A = gesv(N, G.T @ W)
         sat, ref, f = rows.sat[ph], rows.ref[ph], rows.slot[ph]
         sats = np.unique(np.r_[sat, ref])
         mapping = 1.0 / np.sin(np.maximum(zr.elev, np.radians(2.0)))
@@ -489,7 +491,7 @@ class _Pass:
         if len(amb) < o.min_fix_amb:
             self.n_fix_run = 0
             return
-        T = _multifrequency_combinations(list(zip(rows.sat[amb].tolist(), rows.slot[amb].tolist())))
+        T = _multifrequency_combinations(rows.sat[amb], rows.slot[amb])
         Da = T @ D
         a = Da @ x
         Qa = Da @ P @ Da.T
@@ -499,25 +501,20 @@ class _Pass:
             out["reason"] = "ratio"
             self.n_fix_run = 0
             return
-        xf, Pf, chi2_amb = fixed_solution(x, P, Da, fix)
-        if o.phase_bias_sigma_m > 0:
-            # the float filter takes phase noise as white: add the time-correlated part for the test
-            A = fix.C @ Da
-            r = fix.c - A @ x
-            S = A @ P @ A.T + (A * self.var_bias) @ A.T
-            chi2_amb = float(r @ np.linalg.solve(S, r))
-        lim_amb = float(chdtri(fix.n_fixed, o.alpha))
+        # the float filter takes phase noise as white: the time-correlated part is added for the test
+        xf, Pf, chi2_amb = fixed_solution(x, P, Da, fix, self.var_bias if o.phase_bias_sigma_m > 0 else None)
+        lim_amb = _chi2_limit(fix.n_fixed, o.alpha)
         d = xf[:3] - x[:3]
         try:
-            chi2_pos = float(d @ np.linalg.solve(P[:3, :3], d))
+            chi2_pos = float(d @ gesv(P[:3, :3], d))
         except np.linalg.LinAlgError:
             chi2_pos = np.inf
-        lim_pos = float(chdtri(3, o.alpha))
+        lim_pos = _chi2_limit(3, o.alpha)
         ph = rows.phase
         v = (y - H @ xf)[ph]
         Rp = R[np.ix_(ph, ph)]
-        chi2_res = float(v @ np.linalg.solve(Rp, v))
-        lim_res = float(chdtri(max(int(ph.sum()), 1), o.alpha))
+        chi2_res = float(v @ gesv(Rp, v))
+        lim_res = _chi2_limit(max(int(ph.sum()), 1), o.alpha)
         w_max = float(np.max(np.abs(v) / np.sqrt(np.diag(Rp)))) if len(v) else 0.0
         out["chi2"] = (chi2_amb / lim_amb, chi2_pos / lim_pos, chi2_res / lim_res)
         ok = chi2_amb <= lim_amb and chi2_pos <= lim_pos and chi2_res <= lim_res and w_max <= 5.0
@@ -544,7 +541,7 @@ class _Pass:
         """
         if self.held[sat, slot].all() and self.held[ref, slot].all():
             return                                              # all held already: the usual epoch
-        a_fix = np.round(np.linalg.solve(T, np.linalg.solve(fix.C, fix.c)))   # integer DD ambiguity of every row
+        a_fix = np.round(gesv(T, gesv(fix.C, fix.c)))   # integer DD ambiguity of every row
         rows, y = [], []
         cut = np.flatnonzero((np.diff(ref) != 0) | (np.diff(slot) != 0)) + 1
         for q in np.split(np.arange(len(sat)), cut):            # one group (reference and slot) at a time
@@ -603,26 +600,30 @@ class _Pass:
         return PassResult(status, p, Pc, pf, Pfl, ratio, n_sat, n_amb, n_fix, chi2, reason, resid)
 
 
-def _multifrequency_combinations(keys: list[tuple[int, int]]) -> np.ndarray:
+def _multifrequency_combinations(sat: np.ndarray, slot: np.ndarray) -> np.ndarray:
     """Unimodular integer recombination T of DD ambiguities per satellite: (N_f0 - N_f1, N_f1 - N_f2, ..., N_f0).
 
-    The (extra-)wide-lane differences are far more precise than the single-frequency ambiguities, which
+    ``sat``, ``slot``: the ambiguities' satellites and slots; rows satellite by satellite in the order they first
+    appear. The (extra-)wide-lane differences are far more precise than the single-frequency ambiguities, which
     gives LAMBDA's decorrelation a head start (same integer lattice, far fewer permutations).
     """
-    n = len(keys)
-    by_sat: dict[int, list[int]] = {}
-    for q, (i, _f) in enumerate(keys):
-        by_sat.setdefault(i, []).append(q)
+    n = len(sat)
+    _, first, inv = np.unique(sat, return_index=True, return_inverse=True)
+    order = np.lexsort((slot, first[inv]))            # by satellite (first appearance), then slot
+    s = sat[order]
     T = np.zeros((n, n))
-    r = 0
-    for qs in by_sat.values():
-        qs = sorted(qs, key=lambda q: keys[q][1])
-        for a, b in zip(qs[:-1], qs[1:]):
-            T[r, a], T[r, b] = 1.0, -1.0
-            r += 1
-        T[r, qs[0]] = 1.0
-        r += 1
+    pair = np.flatnonzero(s[:-1] == s[1:])            # row p: slot difference of sorted p, p + 1
+    T[pair, order[pair]] = 1.0
+    T[pair, order[pair + 1]] = -1.0
+    last = np.flatnonzero(np.r_[s[:-1] != s[1:], True])   # a satellite's last row: its first slot
+    T[last, order[np.r_[0, last[:-1] + 1]]] = 1.0
     return T
+
+
+@lru_cache(maxsize=256)
+def _chi2_limit(dof: int, alpha: float) -> float:
+    """The chi-square quantile 1 - alpha of `dof` degrees of freedom."""
+    return float(chdtri(dof, alpha))
 
 
 def _chi2_3(d: np.ndarray, S: np.ndarray) -> float:
@@ -638,7 +639,7 @@ def combine(fw: PassResult, bw: PassResult, alpha: float = 1e-3):
     the epoch's measurements); two floats are combined by their covariances, the covariance doubled (but
     not above the better pass's) for the same reason. Returns (status, p, P, ratio, n_sat, n_fixed_amb)."""
     N = len(fw.status)
-    lim = float(chdtri(3, alpha))
+    lim = _chi2_limit(3, alpha)
     status = np.zeros(N, dtype=int)
     p = np.full((N, 3), np.nan)
     P = np.full((N, 3, 3), np.nan)

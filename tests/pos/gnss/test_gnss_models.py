@@ -136,10 +136,11 @@ def test_beidou_geo_state_uses_cssrlib_geo_frame():
 
 
 def test_compiled_receiver_model_equals_the_numpy_models(nav):
-    """The compiled zero-difference terms of PPK (`carrier_model`) against `corrections`' NumPy functions and the
-    light-time loop they replace: same values to rounding, NaN where a satellite is not usable."""
+    """The compiled zero-difference terms of PPK (`carrier_model`) against `corrections`' NumPy functions, pyproj's
+    geodetic coordinates and the light-time loop they replace: same values to rounding, NaN where a satellite is
+    not usable."""
     from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.pos.gnss.carrier_model import at_reception, receiver_terms
+    from dgcal.pos.gnss.carrier_model import at_reception, geodetic, receiver_terms
     assert nav.ion_gps is not None and np.any(nav.ion_gps)
     sats = sorted(nav.by_sat)
     rng = np.random.default_rng(3)
@@ -160,17 +161,20 @@ def test_compiled_receiver_model_equals_the_numpy_models(nav):
         np.testing.assert_allclose(vel[ok], v_ref[ok], rtol=0, atol=1e-10)
         assert np.all(np.isnan(pos[~ok]))
         lat, lon, h = ecef_to_geodetic(p_rx)
+        g = geodetic(p_rx)
+        np.testing.assert_allclose(g[:2], (lat, lon), rtol=0, atol=1e-10)           # deg
+        assert g[2] == pytest.approx(h, abs=1e-5)                                   # m
         ok[0] = False                                       # a satellite without a model
-        rho, los, el, az, tropo, iono = receiver_terms(pos, ok, p_rx, lat, lon, h, np.full(len(sats), t),
+        rho, los, el, az, tropo, iono = receiver_terms(pos, ok, p_rx, np.full(len(sats), t),
                                                        np.asarray(nav.ion_gps, float), True, 0.7)
         el_ref, az_ref = elevation_azimuth(p_rx, pos[ok], (lat, lon))
         np.testing.assert_allclose(rho[ok], np.linalg.norm(pos[ok] - p_rx, axis=1), rtol=1e-15)
         np.testing.assert_allclose(los[ok], (pos[ok] - p_rx) / rho[ok, None], rtol=0, atol=1e-15)
-        np.testing.assert_allclose(el[ok], el_ref, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(el[ok], el_ref, rtol=0, atol=1e-12)         # 1e-11 deg of geodetic latitude
         np.testing.assert_allclose(az[ok], az_ref, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(tropo[ok], saastamoinen_delay_m(lat, h, el_ref, 0.7), rtol=1e-13)
-        np.testing.assert_allclose(iono[ok], klobuchar_delay_m(t, lat, lon, el_ref, az_ref, nav.ion_gps), rtol=1e-12)
+        np.testing.assert_allclose(tropo[ok], saastamoinen_delay_m(lat, h, el_ref, 0.7), rtol=1e-11)
+        np.testing.assert_allclose(iono[ok], klobuchar_delay_m(t, lat, lon, el_ref, az_ref, nav.ion_gps), rtol=1e-11)
         assert np.all(np.isnan(np.r_[el[~ok], az[~ok], tropo[~ok], iono[~ok]]))
         assert (el[ok] < 0).any() and (tropo[ok][el[ok] < 0] == 0).all()      # below the horizon: no delay
-        no_ion = receiver_terms(pos, ok, p_rx, lat, lon, h, np.full(len(sats), t), np.zeros((2, 4)), False, 0.7)
+        no_ion = receiver_terms(pos, ok, p_rx, np.full(len(sats), t), np.zeros((2, 4)), False, 0.7)
         assert np.all(no_ion[5][ok] == 0.0)
