@@ -155,9 +155,9 @@ def _plane_frame(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
 
 def _pnp(obj: np.ndarray, img: np.ndarray, K: np.ndarray, planar: bool, thresh_px: float):
     """Pose (R_obj_to_cam, t) and inlier mask of one image with a distortion-free K: plain PnP on every point
-    (IPPE on a plane, SQPnP otherwise); only when a residual beyond `thresh_px` calls for it, RANSAC PnP and an
-    iterative refinement on its inliers (the adjustment refines every pose anyway: a start pose from all points
-    needs no refinement of its own, the iteration counts and results are the same)."""
+    (IPPE on a plane, SQPnP otherwise); only when a residual beyond `thresh_px` calls for it, RANSAC PnP and
+    plain PnP again on its inliers (the adjustment refines every pose anyway: a start pose needs no iterative
+    refinement of its own, the iteration counts and results are the same)."""
     obj64 = np.ascontiguousarray(obj, np.float64)
     img64 = np.ascontiguousarray(img, np.float64)
     if len(obj64) < 6:
@@ -166,14 +166,11 @@ def _pnp(obj: np.ndarray, img: np.ndarray, K: np.ndarray, planar: bool, thresh_p
     if pose is not None and np.all(_pinhole_errors(obj64, img64, K, *pose) <= thresh_px):
         rvec, tvec = pose
         mask = np.ones(len(obj64), bool)
-    else:                     # outliers (or no plain solution): RANSAC, refined on its inliers
+    else:                     # outliers (or no plain solution): RANSAC, then all of its inliers
         pose, mask = _pnp_ransac(obj64, img64, K, planar, thresh_px)
         if pose is None:
             return None
-        ok, rvec, tvec = cv2.solvePnP(obj64[mask], img64[mask], K, None, pose[0], pose[1], True,
-                                      cv2.SOLVEPNP_ITERATIVE)
-        if not ok:
-            return None
+        rvec, tvec = _pnp_all(obj64[mask], img64[mask], K, planar) or pose
     R = cv2.Rodrigues(rvec)[0]
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(tvec))):
         return None
@@ -222,8 +219,10 @@ def _focal_guess(groups, xyz, image_size, planar, plane_xyz) -> float:
     w, h = image_size
     if planar:
         try:
-            objs = [plane_xyz[j].astype(np.float32) for _, j, _ in groups[:40]]
-            imgs = [uv.astype(np.float32) for _, _, uv in groups[:40]]
+            # every k-th point of an image with many: a homography of ~COARSE_POINTS spread points is as good
+            step = [max(1, len(j) // COARSE_POINTS) for _, j, _ in groups[:40]]
+            objs = [plane_xyz[j[::k]].astype(np.float32) for (_, j, _), k in zip(groups[:40], step)]
+            imgs = [uv[::k].astype(np.float32) for (_, _, uv), k in zip(groups[:40], step)]
             K = cv2.initCameraMatrix2D(objs, imgs, (w, h))
             f = float(np.sqrt(K[0, 0] * K[1, 1]))
             if np.isfinite(f) and 0.05 * w < f < 50 * w:

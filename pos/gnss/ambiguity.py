@@ -222,15 +222,15 @@ def resolve(a: np.ndarray, Q: np.ndarray, ratio_threshold: float = 3.0, p0: floa
             min_fix: int = 4, partial: bool = True) -> AmbiguityFix:
     """Fix float ambiguities ``a`` (cycles, covariance ``Q``): full set, else the partial set (see module doc)."""
     n = len(a)
-    none = AmbiguityFix(False, np.zeros((0, n)), np.zeros(0), 0.0, np.nan, 0.0, 0, "none")
     if n < min_fix:
-        return none
+        return AmbiguityFix(False, np.zeros((0, n)), np.zeros(0), 0.0, np.nan, 0.0, 0, "none")
     # most precise ambiguities last (where the factorisation starts): fewer permutations
     order = np.argsort(-np.diag(Q), kind="stable")
+    Qs = Q[order][:, order]
     try:
-        L, D, Z = decorrelate(0.5 * (Q + Q.T)[np.ix_(order, order)])
+        L, D, Z = decorrelate(0.5 * (Qs + Qs.T))
     except np.linalg.LinAlgError:
-        return none
+        return AmbiguityFix(False, np.zeros((0, n)), np.zeros(0), 0.0, np.nan, 0.0, 0, "none")
     Z = Z[np.argsort(order)]                   # z = Z' a with the permutation (a_sorted = a[order]) folded in
     zs = Z.T @ a
     zn, s = search(L, D, zs, 2)

@@ -219,23 +219,16 @@ def satellite_geometry(nav: BroadcastNav, sats: list[str], t_rx, pr_m: np.ndarra
                        states: tuple | None = None):
     """Satellite position/velocity (ECEF at reception, Sagnac-rotated), clock (s) and validity for one epoch
     (`t_rx` s, `pr_m` (m,)), or for many epochs of a receiver at one place at once (`t_rx` (E,), `pr_m` (E,m));
-    `states`: these epochs' rows of `transmission_states` (position, velocity, clock, validity), computed already."""
-    ok = np.isfinite(pr_m)
-    pos = np.full(pr_m.shape + (3,), np.nan)
-    vel = np.full(pr_m.shape + (3,), np.nan)
-    clk = np.full(pr_m.shape, np.nan)
-    idx = np.nonzero(ok)
-    if len(idx[0]) == 0:
-        return pos, vel, clk, ok
-    if states is not None:
-        p, v, c, good = (a[idx] for a in states)
-    else:
-        t = np.asarray(t_rx, float)[idx[0]] if pr_m.ndim == 2 else t_rx
-        p, v, c, _d, _u, good = states_at_transmission(nav, [sats[i] for i in idx[-1]], t, pr_m[idx])
-    p_rot, v_rot = at_reception(np.ascontiguousarray(p), np.ascontiguousarray(v), np.asarray(p_rx, float))
-    pos[idx], vel[idx], clk[idx] = p_rot, v_rot, c
-    ok[idx] = good
-    return pos, vel, clk, ok & np.all(np.isfinite(pos), axis=-1)
+    `states`: these epochs' rows of `transmission_states` (position, velocity, clock, validity), computed already.
+    NaN / False where the epoch has no code of the satellite or no ephemeris."""
+    if states is None:
+        states = transmission_states(nav, sats, np.atleast_1d(np.asarray(t_rx, float)), np.atleast_2d(pr_m))
+        states = tuple(a.reshape(np.shape(pr_m) + a.shape[2:]) for a in states)
+    p, v, clk, good = states
+    pos, vel = at_reception(np.ascontiguousarray(p).reshape(-1, 3), np.ascontiguousarray(v).reshape(-1, 3),
+                            np.asarray(p_rx, float))
+    pos, vel = pos.reshape(p.shape), vel.reshape(v.shape)
+    return pos, vel, np.array(clk, float), good & np.all(np.isfinite(pos), axis=-1)
 
 
 def zero_difference(nav: BroadcastNav, sats: list[str], t_rx, P: np.ndarray, L: np.ndarray,

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
+from scipy.linalg.lapack import dgesdd
 from scipy.special import chdtri
 
 from dgcal.fields.constants import C_LIGHT
@@ -174,6 +175,10 @@ class CarrierPair:
         present = [s for s in "GECJ" if s in set(self.system.tolist())]
         self.n_sys = len(present)
         self.sys_id = np.array([present.index(s) for s in self.system], dtype=np.int64)
+        self.obs_keys = np.empty((len(sats), F), dtype=object)   # (satellite id, slot) of every observation
+        for i, sid in enumerate(sats):
+            for f in range(F):
+                self.obs_keys[i, f] = (sid, f)
         self._geo: dict[int, tuple] = {}
         self._zb: dict[int, ZeroDiff] = {}
         self._zr: dict[int, ZeroDiff] = {}     # the last model of every rover epoch (reused by the TC front end)
@@ -261,6 +266,7 @@ class _Pass:
         self.P = np.zeros((self.n, self.n))
         self.P[:3, :3] = np.eye(3) * eng.opts.pos_sigma_m ** 2
         self.eye = np.eye(self.n)
+        self._amb_maps: dict = {}
         self.active = np.zeros((m, F), dtype=bool)
         self.last = np.full((m, F), -1)
         self.last_b = np.full((m, F), -1)
@@ -319,17 +325,25 @@ class _Pass:
         rho = np.exp(-np.abs(self.t_now - self.e.t[self.last]) / o.code_corr_s)
         return np.where(tracked, (1.0 + rho) / np.maximum(1.0 - rho, 1e-6), 1.0)
 
-    def _update(self, x, P, y, H, R):
+    def _gain(self, P, H, R) -> np.ndarray | None:
+        """Kalman gain K = P H' (H P H' + R)^-1; None if singular."""
         HP = H @ P
-        S = HP @ H.T + R
         try:
-            K = gesv(S, HP).T
+            return gesv(HP @ H.T + R, HP).T
         except np.linalg.LinAlgError:
             return None
-        xn = x + K @ (y - H @ x)
+
+    def _posterior(self, P, K, H, R) -> np.ndarray:
+        """Covariance after the update with gain K (Joseph form, symmetrised)."""
         IKH = self.eye - K @ H
         Pn = IKH @ P @ IKH.T + K @ R @ K.T
-        return xn, 0.5 * (Pn + Pn.T)
+        return 0.5 * (Pn + Pn.T)
+
+    def _update(self, x, P, y, H, R):
+        K = self._gain(P, H, R)
+        if K is None:
+            return None
+        return x + K @ (y - H @ x), self._posterior(P, K, H, R)
 
     # ------------------------------------------------------------------ one epoch
     def _reset_slipped(self, k: int, j: int, valid: np.ndarray) -> None:
@@ -391,12 +405,12 @@ class _Pass:
                 if des is None:
                     return
                 y, H, R, rows, refs = des
-                up = self._update(x_prior, P_prior, y, H, R)
-                if up is None:
+                K = self._gain(P_prior, H, R)
+                if K is None:
                     return
-                x, P = up
-                moved = np.linalg.norm(x[:3] - lin)
-                if moved < 0.5:
+                x = x_prior + K @ (y - H @ x_prior)
+                if np.linalg.norm(x[:3] - lin) < 0.5 or _it == 2:
+                    P = self._posterior(P_prior, K, H, R)     # only the last iteration's covariance is kept
                     break
                 lin = x[:3].copy()
                 zr_it = e.rover_zd(k, lin)
@@ -435,7 +449,10 @@ class _Pass:
         self.last[valid] = k
         self.last_b[valid] = j
         self.lock[valid] += 1
-        n_sat = len(np.union1d(rows.sat, refs))
+        seen = np.zeros(len(e.sats), bool)
+        seen[rows.sat] = True
+        seen[refs] = True
+        n_sat = int(seen.sum())
         out.update(status=2, p_float=x[:3].copy(), P_float=P[:3, :3].copy(), p=x[:3].copy(), P=P[:3, :3].copy(),
                    n_sat=n_sat, n_amb=int(rows.phase.sum()))
         self._resolve(x, P, y, H, R, rows, zr, out)
@@ -455,44 +472,58 @@ class _Pass:
         if len(ph) < 4 or (o.iono_ppm <= 0 and o.tropo_zenith_m <= 0):
             return None
         G = H[ph, :3]
-        W = np.linalg.inv(R[np.ix_(ph, ph)])
+        W = gesv(R[ph[:, None], ph], np.eye(len(ph)))          # the inverse, as np.linalg.inv computes it
         N = G.T @ W @ G
-        if np.linalg.cond(N) > 1e8:
+        sv = dgesdd(N, compute_uv=0)[1]                        # np.linalg.cond's singular values
+        if sv[0] / sv[-1] > 1e8:
             return None
         A = gesv(N, G.T @ W)
         sat, ref, f = rows.sat[ph], rows.ref[ph], rows.slot[ph]
-        sats = np.unique(np.r_[sat, ref])
+        used = np.zeros(len(e.sats), bool)
+        used[sat] = True
+        used[ref] = True
+        sats, col = np.flatnonzero(used), np.cumsum(used) - 1  # the satellites of the rows, ascending; columns
         mapping = 1.0 / np.sin(np.maximum(zr.elev, np.radians(2.0)))
         kappa = (1575.42e6 / e.freq[sat, f]) ** 2
         r = np.arange(len(ph))
         B = np.zeros((len(ph), len(sats) + 1))
-        B[r, np.searchsorted(sats, sat)] -= kappa          # the phase advances by the ionosphere: -I on phase
-        B[r, np.searchsorted(sats, ref)] += kappa
+        B[r, col[sat]] -= kappa                                # the phase advances by the ionosphere: -I on phase
+        B[r, col[ref]] += kappa
         B[:, -1] = mapping[sat] - mapping[ref]
         dist = float(np.linalg.norm(p - e.base_pos))
-        var = np.r_[(o.iono_ppm * 1e-6 * dist * mapping[sats]) ** 2, o.tropo_zenith_m ** 2]
+        var = np.append((o.iono_ppm * 1e-6 * dist * mapping[sats]) ** 2, o.tropo_zenith_m ** 2)
         return A @ ((B * var) @ B.T) @ A.T
 
-    def _ambiguity_rows(self, rows: _Rows, zr: ZeroDiff) -> tuple[np.ndarray, np.ndarray]:
-        """The DD ambiguities of the phase rows above the AR mask: their rows' indices and the matrix (k, n)
-        mapping the state onto them."""
+    def _ambiguity_rows(self, rows: _Rows, zr: ZeroDiff) -> np.ndarray:
+        """The phase rows whose DD ambiguity is resolved: both satellites above the AR mask."""
         mask = np.radians(self.e.opts.ar_elev_mask_deg)
-        p = np.flatnonzero(rows.phase & (zr.elev[rows.ref] >= mask) & (zr.elev[rows.sat] >= mask))
-        D = np.zeros((len(p), self.n))
-        r = np.arange(len(p))
-        D[r, self.idx(rows.sat[p], rows.slot[p])] = 1.0
-        D[r, self.idx(rows.ref[p], rows.slot[p])] = -1.0
-        return p, D
+        return np.flatnonzero(rows.phase & (zr.elev[rows.ref] >= mask) & (zr.elev[rows.sat] >= mask))
+
+    def _ambiguity_map(self, sat: np.ndarray, ref: np.ndarray, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(T, Da) for the DD ambiguities (sat - ref, slot): their multi-frequency recombination T
+        (`_multifrequency_combinations`) and the map Da (k, n) of the state onto the recombined ambiguities. The
+        same set recurs epoch after epoch: kept for the last sets seen."""
+        key = (sat.tobytes(), ref.tobytes(), slot.tobytes())
+        hit = self._amb_maps.get(key)
+        if hit is None:
+            D = np.zeros((len(sat), self.n))
+            r = np.arange(len(sat))
+            D[r, self.idx(sat, slot)] = 1.0
+            D[r, self.idx(ref, slot)] = -1.0
+            T = _multifrequency_combinations(sat, slot)
+            if len(self._amb_maps) >= 64:
+                self._amb_maps.clear()
+            hit = self._amb_maps[key] = (T, T @ D)
+        return hit
 
     def _resolve(self, x, P, y, H, R, rows: _Rows, zr, out) -> None:
         e, o = self.e, self.e.opts
-        amb, D = self._ambiguity_rows(rows, zr)
+        amb = self._ambiguity_rows(rows, zr)
         out["reason"] = "no ambiguities"
         if len(amb) < o.min_fix_amb:
             self.n_fix_run = 0
             return
-        T = _multifrequency_combinations(rows.sat[amb], rows.slot[amb])
-        Da = T @ D
+        T, Da = self._ambiguity_map(rows.sat[amb], rows.ref[amb], rows.slot[amb])
         a = Da @ x
         Qa = Da @ P @ Da.T
         fix = resolve(a, Qa, o.ratio_threshold, o.p0, o.min_fix_amb, o.partial)
@@ -510,11 +541,11 @@ class _Pass:
         except np.linalg.LinAlgError:
             chi2_pos = np.inf
         lim_pos = _chi2_limit(3, o.alpha)
-        ph = rows.phase
+        ph = np.flatnonzero(rows.phase)
         v = (y - H @ xf)[ph]
-        Rp = R[np.ix_(ph, ph)]
+        Rp = R[ph[:, None], ph]
         chi2_res = float(v @ gesv(Rp, v))
-        lim_res = _chi2_limit(max(int(ph.sum()), 1), o.alpha)
+        lim_res = _chi2_limit(max(len(ph), 1), o.alpha)
         w_max = float(np.max(np.abs(v) / np.sqrt(np.diag(Rp)))) if len(v) else 0.0
         out["chi2"] = (chi2_amb / lim_amb, chi2_pos / lim_pos, chi2_res / lim_res)
         ok = chi2_amb <= lim_amb and chi2_pos <= lim_pos and chi2_res <= lim_res and w_max <= 5.0
@@ -524,8 +555,7 @@ class _Pass:
             self.n_fix_run = 0
             return
         out.update(status=3, p=xf[:3].copy(), P=Pf[:3, :3].copy(), n_fixed_amb=fix.n_fixed, reason="")
-        keys = zip([e.sats[i] for i in rows.sat[ph].tolist()], rows.slot[ph].tolist())
-        out["resid"] = dict(zip(keys, v.tolist()))
+        out["resid"] = dict(zip(e.obs_keys[rows.sat[ph], rows.slot[ph]].tolist(), v.tolist()))
         self.n_fix_run += 1
         if o.hold and self.n_fix_run >= o.hold_after and fix.mode == "full":
             self._hold(fix, T, rows.sat[amb], rows.slot[amb], rows.ref[amb])
@@ -608,8 +638,10 @@ def _multifrequency_combinations(sat: np.ndarray, slot: np.ndarray) -> np.ndarra
     gives LAMBDA's decorrelation a head start (same integer lattice, far fewer permutations).
     """
     n = len(sat)
-    _, first, inv = np.unique(sat, return_index=True, return_inverse=True)
-    order = np.lexsort((slot, first[inv]))            # by satellite (first appearance), then slot
+    first: dict = {}
+    for i in sat.tolist():
+        first.setdefault(i, len(first))
+    order = np.lexsort((slot, [first[i] for i in sat.tolist()]))   # by satellite (first appearance), then slot
     s = sat[order]
     T = np.zeros((n, n))
     pair = np.flatnonzero(s[:-1] == s[1:])            # row p: slot difference of sorted p, p + 1
