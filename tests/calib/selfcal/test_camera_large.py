@@ -43,10 +43,11 @@ def _assert_same(a, b, rtol=1e-9):
 def test_adjustment_in_parts_and_by_poses_equals_the_whole_dense_one(data, monkeypatch):
     pts, img, ids, xy = data
     monkeypatch.setattr(normals, "ARROW_MIN_POSES", 10 ** 9)      # dense camera side, every block whole
+    monkeypatch.setattr(adjustment, "SOLVER_CHUNK_ITEMS", None)
     ref = adjust(pts.ids, pts.xyz, img, ids, xy, SIZE, "fraser7")
     assert ref.n_rejected > 0 and ref.cov_camera_side.Q is not None
     monkeypatch.setattr(normals, "ARROW_MIN_POSES", 1)             # poses eliminated by blocks
-    monkeypatch.setattr(normals, "CHUNK_ITEMS", 1000)              # the image observations in parts
+    monkeypatch.setattr(adjustment, "SOLVER_CHUNK_ITEMS", 1000)    # the image observations in parts
     monkeypatch.setattr(adjustment, "RESIDUAL_ROWS", 777)
     res = adjust(pts.ids, pts.xyz, Labels.of(img), Labels.of(ids), xy, SIZE, "fraser7")
     assert res.cov_camera_side.Q is None
