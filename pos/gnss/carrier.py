@@ -26,11 +26,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from dgcal.fields.constants import C_LIGHT
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
-from dgcal.pos.gnss.carrier_model import at_reception, receiver_terms
+from dgcal.pos.gnss.carrier_model import at_reception, zero_difference_rows
 from dgcal.pos.gnss.ephemeris import states_at_transmission
 from dgcal.pos.gnss.observations import GnssEpoch, GnssObservations
 from dgcal.pos.gnss.rinex import BroadcastNav, calendar_from_gps_seconds
@@ -242,17 +243,14 @@ def zero_difference(nav: BroadcastNav, sats: list[str], t_rx, P: np.ndarray, L: 
     """
     pos, vel, clk, ok = geometry if geometry is not None else satellite_geometry(nav, sats, t_rx, first_code(P), p_rx)
     ion = nav.ion_gps
-    has_ion = ion is not None and bool(np.any(ion))
-    t = np.repeat(np.asarray(t_rx, float).reshape(-1), ok.shape[-1])      # every satellite at its epoch's time
-    terms = receiver_terms(pos.reshape(-1, 3), ok.reshape(-1), np.asarray(p_rx, float), t,
-                           np.asarray(ion, float) if has_ion else np.zeros((2, 4)), has_ion, float(humidity))
-    rho, los, elev, azim, tropo, iono1 = (a.reshape(ok.shape + a.shape[1:]) for a in terms)
-    iono = iono1[..., None] * (1575.42e6 / freq_hz) ** 2
-    geo = rho - C_LIGHT * clk + tropo
-    omc_code = P - (geo[..., None] + iono)
-    omc_phase = C_LIGHT / freq_hz * L - (geo[..., None] - iono)
-    omc_code[~ok] = np.nan
-    omc_phase[~ok] = np.nan
+    has_ion = ion is not None and bool(np.asarray(ion).any())
+    shape = ok.shape
+    F = freq_hz.shape[-1]
+    rows = zero_difference_rows(pos.reshape(-1, 3), clk.reshape(-1), ok.reshape(-1), P.reshape(-1, F),
+                                L.reshape(-1, F), np.ascontiguousarray(freq_hz, float), np.asarray(p_rx, float),
+                                np.asarray(t_rx, float).reshape(-1),
+                                np.asarray(ion, float) if has_ion else np.zeros((2, 4)), has_ion, float(humidity))
+    rho, los, elev, azim, tropo, iono, omc_code, omc_phase = (a.reshape(shape + a.shape[1:]) for a in rows)
     return ZeroDiff(ok, pos, vel, clk, rho, los, elev, azim, tropo, iono, omc_code, omc_phase)
 
 
@@ -295,27 +293,37 @@ def slip_flags(obs: CarrierObs, gf_threshold_m: float = 0.05, mw_threshold_cycle
             p_ok = np.isfinite(obs.P[k, i, 0]) & np.isfinite(obs.P[k, i, f])
             mw = ((obs.L[k, i, 0] - obs.L[k, i, f])
                   - (f0 * obs.P[k, i, 0] + f1 * obs.P[k, i, f]) / (f0 + f1) / lam_wl)
-            jump_mw = np.zeros(len(k) - 1, dtype=bool)
-            mean, m2, cnt = 0.0, 0.0, 0
-            for j in range(len(k)):
-                restart = j == 0 or slip[k[j], i, 0] or slip[k[j], i, f] or (j > 0 and jump[j - 1])
-                if restart:
-                    mean, m2, cnt = 0.0, 0.0, 0
-                if not p_ok[j]:
-                    continue
-                if cnt >= 5:
-                    sd = np.sqrt(m2 / (cnt - 1)) if cnt > 1 else 0.0
-                    if abs(mw[j] - mean) > max(mw_threshold_cycles * sd, 1.0 + 4.0 * 0.15):
-                        jump_mw[j - 1] = True
-                        mean, m2, cnt = 0.0, 0.0, 0
-                cnt += 1
-                dlt = mw[j] - mean
-                mean += dlt / cnt
-                m2 += dlt * (mw[j] - mean)
-            bad = np.nonzero(jump | jump_mw)[0] + 1
+            restart = slip[k, i, 0] | slip[k, i, f]
+            restart[0] = True
+            restart[1:] |= jump
+            bad = np.nonzero(jump | _mw_jumps(mw, p_ok, restart, mw_threshold_cycles))[0] + 1
             slip[k[bad], i, 0] = True
             slip[k[bad], i, f] = True
     return slip
+
+
+@njit(cache=True)
+def _mw_jumps(mw: np.ndarray, p_ok: np.ndarray, restart: np.ndarray, threshold: float):  # pragma: no cover
+    """Melbourne-Wuebbena jumps between consecutive observations j-1, j of an arc (cycles): |mw_j - running mean|
+    beyond `threshold` times the running scatter (at least 1 cycle + 4 sigma of the epoch noise) once 5 values
+    are averaged; the mean restarts at `restart` and after a jump; epochs without both codes (`p_ok`) skipped."""
+    jump = np.zeros(len(mw) - 1, np.bool_)
+    mean, m2, cnt = 0.0, 0.0, 0
+    for j in range(len(mw)):
+        if restart[j]:
+            mean, m2, cnt = 0.0, 0.0, 0
+        if not p_ok[j]:
+            continue
+        if cnt >= 5:
+            sd = math.sqrt(m2 / (cnt - 1)) if cnt > 1 else 0.0
+            if abs(mw[j] - mean) > max(threshold * sd, 1.0 + 4.0 * 0.15):
+                jump[j - 1] = True
+                mean, m2, cnt = 0.0, 0.0, 0
+        cnt += 1
+        dlt = mw[j] - mean
+        mean += dlt / cnt
+        m2 += dlt * (mw[j] - mean)
+    return jump
 
 
 def code_observations(obs: CarrierObs, slot: int = 0) -> GnssObservations:

@@ -156,3 +156,34 @@ def receiver_terms(pos: np.ndarray, ok: np.ndarray, p_rx: np.ndarray, t_gps: np.
         tropo[i] = _saastamoinen(lat_deg, h_m, el, humidity)
         iono[i] = _klobuchar_l1(t_gps[i], lat_deg, lon_deg, el, az, ion[0], ion[1]) if has_ion else 0.0
     return rho, los, elev, azim, tropo, iono
+
+
+@njit(cache=True)
+def zero_difference_rows(pos: np.ndarray, clk: np.ndarray, ok: np.ndarray, P: np.ndarray, L: np.ndarray,
+                         freq: np.ndarray, p_rx: np.ndarray, t_epoch: np.ndarray, ion: np.ndarray, has_ion: bool,
+                         humidity: float):
+    """`carrier.zero_difference` of E epochs of m satellites (n = E*m rows, epoch by epoch; `t_epoch` (E,) s) at
+    one receiver position: `receiver_terms`, and per slot (P, L (n,F) code m, phase cycles; freq (m,F) Hz) the L1
+    ionosphere scaled by (f_L1/f)^2, ``omc_code = P - (rho - c dt + T + I)``, ``omc_phase = lam L - (rho - c dt
+    + T - I)`` (m); NaN where not `ok`."""
+    n, F = P.shape
+    m = freq.shape[0]
+    t = np.empty(n)
+    for i in range(n):
+        t[i] = t_epoch[i // m]
+    rho, los, elev, azim, tropo, iono1 = receiver_terms(pos, ok, p_rx, t, ion, has_ion, humidity)
+    iono = np.full((n, F), np.nan)
+    omc_code = np.full((n, F), np.nan)
+    omc_phase = np.full((n, F), np.nan)
+    for i in range(n):
+        if not ok[i]:
+            continue
+        geo = rho[i] - C_LIGHT * clk[i] + tropo[i]
+        for f in range(F):
+            fr = freq[i % m, f]
+            r = 1575.42e6 / fr
+            io = iono1[i] * (r * r)
+            iono[i, f] = io
+            omc_code[i, f] = P[i, f] - (geo + io)
+            omc_phase[i, f] = C_LIGHT / fr * L[i, f] - (geo - io)
+    return rho, los, elev, azim, tropo, iono, omc_code, omc_phase

@@ -183,6 +183,7 @@ class CarrierPair:
         self._zb: dict[int, ZeroDiff] = {}
         self._zr: dict[int, ZeroDiff] = {}     # the last model of every rover epoch (reused by the TC front end)
         self._tx_rover: tuple | None = None
+        self._pr_rover: np.ndarray | None = None     # the first code of every rover epoch and satellite (m)
 
     def arcs(self) -> np.ndarray:
         """Phase arc number per (rover epoch, satellite, slot): it changes at every slip flag of the rover or of
@@ -197,7 +198,8 @@ class CarrierPair:
         """The satellites' states at transmission of every rover epoch, computed at once on first use
         (`dgcal.pos.gnss.carrier.transmission_states`)."""
         if self._tx_rover is None:
-            self._tx_rover = transmission_states(self.nav, self.sats, self.t, first_code(self.Pr))
+            self._pr_rover = first_code(self.Pr)
+            self._tx_rover = transmission_states(self.nav, self.sats, self.t, self._pr_rover)
         return self._tx_rover
 
     def _base_models(self, epochs: np.ndarray) -> ZeroDiff:
@@ -228,8 +230,8 @@ class CarrierPair:
                 np.linalg.norm(last.extra["p_rx"] - x0) <= reuse_within_m:
             return last
         if k not in self._geo:
-            self._geo[k] = satellite_geometry(self.nav, self.sats, self.t[k], first_code(self.Pr[k]), x0,
-                                              tuple(a[k] for a in self._rover_states()))
+            states = tuple(a[k] for a in self._rover_states())
+            self._geo[k] = satellite_geometry(self.nav, self.sats, self.t[k], self._pr_rover[k], x0, states)
         zr = zero_difference(self.nav, self.sats, self.t[k], self.Pr[k], self.Lr[k], self.freq, x0,
                              self._geo[k], self.opts.humidity)
         zr.extra["p_rx"] = np.array(x0, float)
