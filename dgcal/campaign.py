@@ -406,8 +406,13 @@ def run_demo(opts: DemoOptions, log=None) -> dict:
     if opts.force or not stamp.is_file() or json.loads(stamp.read_text()).get("seed") != opts.seed:
         print(f"[simulate] campaign (seed {opts.seed}) -> {data}", file=log, flush=True)
         simulate_campaign(data, opts.seed)
+        simulated = time.perf_counter() - t0
+        print(f"[simulate] done in {simulated:.1f} s", file=log, flush=True)
     else:
+        simulated = None
         print(f"[simulate] {data} already there, kept", file=log)
     res = run_campaign(data / "campaign.toml", results, force=opts.force, log=log, jobs=opts.jobs)
+    if simulated is not None:
+        res["timings_s"] = {"simulate": simulated, **res["timings_s"]}
     res["elapsed_s"] = time.perf_counter() - t0
     return res

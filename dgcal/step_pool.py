@@ -62,7 +62,7 @@ class StepPool:
             stream.flush()
         parent_end, child_end = self._ctx.Pipe(duplex=False)
         proc = self._ctx.Process(target=_child, args=(self.runner, list(argv), child_end, os.getpid()),
-                                 name=f"dgcal-{name}", daemon=True)
+                                 name=f"dgcal-{name}", daemon=False)
         proc.start()
         child_end.close()
         self.running[name] = _Running(proc, parent_end)

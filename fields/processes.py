@@ -48,7 +48,7 @@ def fork_map(tasks: Sequence[Callable[[], T]], jobs: int | None = None) -> list[
     children = []
     for group in groups[1:]:
         recv_end, send_end = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_child, args=(tasks, group, send_end, os.getpid()), daemon=True)
+        proc = ctx.Process(target=_child, args=(tasks, group, send_end, os.getpid()))
         proc.start()
         send_end.close()
         children.append((proc, recv_end))

@@ -22,6 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from dgcal.campaign import DemoOptions, run_demo
     res = run_demo(DemoOptions(args.out, args.seed, args.force, max(1, args.jobs)))
-    print(f"demo finished in {res['elapsed_s']:.0f} s; calibration report:")
+    print(f"demo finished in {res['elapsed_s']:.1f} s ({max(1, args.jobs)} step(s) at once); step times: "
+          + ", ".join(f"{k} {v:.1f} s" for k, v in res["timings_s"].items()))
+    print("calibration report:")
     print(res["report"])
     return 0

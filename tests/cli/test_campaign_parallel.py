@@ -17,6 +17,7 @@ import pytest
 from dgcal.campaign import STATE, load_state, run_campaign
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.atomic import staged_dir
+from dgcal.fields.processes import fork_map
 
 from test_campaign_runner import _campaign
 
@@ -39,6 +40,7 @@ def _verb(trace: Path, seconds: dict[str, float], fail: dict[str, object] | None
             os.kill(os.getpid(), signal.SIGKILL)
         if what is not None:
             return int(what)
+        assert fork_map([lambda: 1, lambda: 2], jobs=2) == [1, 2]   # a step may fork in turn (its figures)
         with staged_dir(out) as d:   # as the verbs write: a folder with its manifest
             for f in ("camera.json", "eop.csv", "trajectory.csv", "events.csv", "mounting.json", "check.json",
                       "pos_summary.json", "summary.json"):
