@@ -167,12 +167,14 @@ def _search(L, D, zs, m, loop_max):  # pragma: no cover - compiled
                 if nn < m:
                     if nn == 0 or newdist > s[imax]:
                         imax = nn
-                    zn[:, nn] = z
+                    for q in range(n):               # element by element: a slice assignment
+                        zn[q, nn] = z[q]             # costs numba seconds of compilation
                     s[nn] = newdist
                     nn += 1
                 else:
                     if newdist < s[imax]:
-                        zn[:, imax] = z
+                        for q in range(n):
+                            zn[q, imax] = z[q]
                         s[imax] = newdist
                         imax = np.argmax(s)
                     maxdist = s[imax]
