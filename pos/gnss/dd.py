@@ -192,12 +192,16 @@ def _component_offsets(pair: CarrierPair, arcs, kept, root: dict, offset: dict, 
                 if r is not None:
                     q.setdefault(r, []).append((sd[i, f] - offset[a]) * pair.lam[i, f])
             comps = sorted(q, key=lambda r: -len(q[r]))
+            med: dict = {}                                                # each component's median, once
             for a_ in range(len(comps)):
                 for b_ in range(a_ + 1, len(comps)):
                     ra, rb = comps[a_], comps[b_]
                     if pair.system[ra[0]] == pair.system[rb[0]]:
                         continue                                          # same system: integers or nothing
-                    votes.setdefault((ra, rb), []).append(np.median(q[ra]) - np.median(q[rb]))
+                    for r in (ra, rb):
+                        if r not in med:
+                            med[r] = np.median(q[r])
+                    votes.setdefault((ra, rb), []).append(med[ra] - med[rb])
     uf = _UnionFind()
     tol = o.max_frac_cycles * 0.19
     links = 0
@@ -261,19 +265,24 @@ class DDEpoch:
         """Covariance (n,n) m^2 of the rows' differential-atmosphere errors: a slant ionosphere error per satellite
         of `iono_ppm` mm per km of distance from the base (times 1/sin el, scaled (f_L1/f)^2, opposite on
         phase and code) and one rover zenith troposphere error `tropo_zenith_m` (times 1/sin el)."""
-        sats = np.unique(np.r_[self.sat, self.ref])
-        col = {int(q): j for j, q in enumerate(sats)}
-        B = np.zeros((self.n, len(sats) + 1))
+        if self.n == 0:
+            return np.zeros((0, 0))
+        used = np.zeros(max(int(self.sat.max()), int(self.ref.max())) + 1, bool)
+        used[self.sat] = True
+        used[self.ref] = True
+        col = np.cumsum(used) - 1                        # the satellites of the rows, ascending: their columns
+        n_sat = int(col[-1]) + 1
+        col_sat, col_ref = col[self.sat], col[self.ref]
+        B = np.zeros((self.n, n_sat + 1))
         sgn = np.where(self.kind == 0, -1.0, 1.0)
         rows = np.arange(self.n)
-        B[rows, [col[int(q)] for q in self.sat]] += sgn * self.kappa
-        B[rows, [col[int(q)] for q in self.ref]] -= sgn * self.kappa_ref
+        B[rows, col_sat] += sgn * self.kappa
+        B[rows, col_ref] -= sgn * self.kappa_ref
         B[:, -1] = self.map_sat - self.map_ref
-        m = np.zeros(len(sats))
-        for q, j in col.items():
-            hit = np.nonzero(self.sat == q)[0]
-            m[j] = self.map_sat[hit[0]] if len(hit) else self.map_ref[np.nonzero(self.ref == q)[0][0]]
-        var = np.r_[(iono_ppm * 1e-6 * self.base_dist_m * m) ** 2, tropo_zenith_m ** 2]
+        m = np.empty(n_sat)                              # each satellite's 1/sin(el), the same in all its rows
+        m[col_ref] = self.map_ref
+        m[col_sat] = self.map_sat
+        var = np.append((iono_ppm * 1e-6 * self.base_dist_m * m) ** 2, tropo_zenith_m ** 2)
         return (B * var) @ B.T
 
     def subset(self, keep: np.ndarray) -> "DDEpoch":
@@ -365,7 +374,8 @@ def dd_epochs(pair: CarrierPair, amb: ArcIntegers | None, p_lin: np.ndarray, opt
                             continue
                         z = sd[i, f] - amb.metres(keys[int(i)], pair.lam[i, f]) - q_ref + rho[i] - rho[ref]
                         rows.append((0, 0, int(i), ref, f, f, z, (0, int(i), ref, f, keys[int(i)][2], keys[ref][2])))
-                    floats = [int(i) for i in mem if int(i) not in set(fixed.tolist())]
+                    in_fixed = set(fixed.tolist())
+                    floats = [int(i) for i in mem if int(i) not in in_fixed]
                 else:
                     floats = [int(i) for i in mem]
                     ref = _persistent_ref(prev_ref, (2, f), np.array(floats), zr.elev)
@@ -379,10 +389,10 @@ def dd_epochs(pair: CarrierPair, amb: ArcIntegers | None, p_lin: np.ndarray, opt
             out.append(None)
             continue
         kind, mode, sat, ref, slot, ref_slot, z, track = (list(c) for c in zip(*rows))
-        sat, ref, slot, ref_slot = np.array(sat), np.array(ref), np.array(slot), np.array(ref_slot)
-        kind = np.array(kind)
         gkey = {}
         group = np.array([gkey.setdefault((kd, r, rf), len(gkey)) for kd, r, rf in zip(kind, ref, ref_slot)])
+        sat, ref, slot, ref_slot = np.array(sat), np.array(ref), np.array(slot), np.array(ref_slot)
+        kind = np.array(kind)
         s0 = np.where(kind == 0, o.phase_sigma_m, o.code_sigma_m)
         var_sat = _zd_var(s0, zr.elev[sat]) + _zd_var(s0, zb.elev[sat])
         var_ref = _zd_var(s0, zr.elev[ref]) + _zd_var(s0, zb.elev[ref])
