@@ -15,6 +15,8 @@ Observed-minus-computed values (m)::
     omc_code  = P       - (rho - c*dt_sat + T + I_f)
     omc_phase = lam*L   - (rho - c*dt_sat + T - I_f)
 
+(compiled per satellite in ``dgcal.pos.gnss.carrier_model``; a receiver at one place, the base, is modelled for
+all its epochs in one call).
 ``slip_flags`` marks, per receiver, the observations whose carrier phase may have slipped since the
 previous observation of the same satellite and slot: loss-of-lock indicator (bit 0), an epoch flag
 1 (power failure), a data gap, a jump of the geometry-free combination or of the Melbourne-Wuebbena

@@ -94,3 +94,46 @@ def test_lambda_matches_cssrlib_and_decorrelates():
     np.testing.assert_allclose(np.linalg.solve(fx.C, fx.c), np.arange(n))
     L, D, Z = decorrelate(Q)
     assert bootstrap_success_rate(D) > 0.999
+
+
+def test_gesv_and_fixed_solution_are_the_numpy_algebra():
+    """`gesv` is np.linalg.solve without its overhead (same LAPACK call, same bits, LinAlgError when singular);
+    `fixed_solution` conditions the float state on the fix, its chi-square optionally with extra state variances."""
+    from dgcal.pos.gnss.ambiguity import AmbiguityFix, fixed_solution, gesv
+    rng = np.random.default_rng(1)
+    for n, k in ((3, 1), (30, 39), (60, 1)):
+        A = rng.normal(size=(n, n))
+        B = rng.normal(size=(n, k)) if k > 1 else rng.normal(size=n)
+        assert np.array_equal(gesv(A @ A.T + np.eye(n), B), np.linalg.solve(A @ A.T + np.eye(n), B))
+    with pytest.raises(np.linalg.LinAlgError):
+        gesv(np.zeros((3, 3)), np.ones(3))
+    n = 6
+    M = rng.normal(size=(n, n))
+    P = M @ M.T + np.eye(n)
+    x = rng.normal(size=n)
+    Da = np.eye(n)[2:]                                   # the last four states are ambiguities
+    fix = AmbiguityFix(True, np.eye(4), np.round(x[2:]) + 1.0, 5.0, 1.0, 1.0, 4, "full")
+    var = np.r_[0.0, 0.0, np.full(4, 0.3)]
+    xf, Pf, chi2 = fixed_solution(x, P, Da, fix, var)
+    np.testing.assert_allclose(xf[2:], fix.c, atol=1e-12)          # the fixed ambiguities hold exactly
+    np.testing.assert_allclose(Pf[2:, 2:], 0.0, atol=1e-12)
+    r = fix.c - x[2:]
+    assert chi2 == pytest.approx(r @ np.linalg.solve(P[2:, 2:] + np.diag(var[2:]), r), rel=1e-12)
+    assert fixed_solution(x, P, Da, fix)[2] == pytest.approx(r @ np.linalg.solve(P[2:, 2:], r), rel=1e-12)
+
+
+def test_multifrequency_recombination_is_unimodular_per_satellite():
+    """Rows satellite by satellite in order of first appearance: slot differences, then the lowest slot."""
+    from dgcal.pos.gnss.ppk import _multifrequency_combinations
+    sat = np.array([4, 2, 7, 2, 4, 4])                   # keys (satellite, slot) as groups list them
+    slot = np.array([0, 0, 0, 1, 1, 2])
+    T = _multifrequency_combinations(sat, slot)
+    expect = np.zeros((6, 6))
+    expect[0, [0, 4]] = 1, -1                            # satellite 4: N0 - N1, N1 - N2, N0
+    expect[1, [4, 5]] = 1, -1
+    expect[2, 0] = 1
+    expect[3, [1, 3]] = 1, -1                            # satellite 2: N0 - N1, N0
+    expect[4, 1] = 1
+    expect[5, 2] = 1                                     # satellite 7: N0
+    np.testing.assert_array_equal(T, expect)
+    assert abs(np.linalg.det(T)) == pytest.approx(1.0)
