@@ -40,6 +40,7 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
 from dgcal.fields.io.atomic import MANIFEST, atomic_write, clean_stale, file_sha256, manifest_problems, staged_dir
 from dgcal.fields.io.text_files import read_text
+from dgcal.fields.processes import cpus
 from dgcal.step_pool import Outcome, StepPool
 from dgcal.steps import Campaign, Step, file_digest
 
@@ -226,7 +227,7 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     fingerprints: dict[str, str] = {}
     by_name = {s.name: s for s in steps}
     pending = list(steps)
-    pool = StepPool(runner, PRELOAD) if jobs > 1 else None
+    pool = StepPool(runner, PRELOAD, blas_threads=max(1, cpus() // jobs)) if jobs > 1 else None
     failure: InputError | None = None
 
     def finish(o: Outcome) -> None:

@@ -16,6 +16,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
+from threadpoolctl import threadpool_limits
+
 from dgcal.fields.processes import die_with_parent
 
 __all__ = ["Outcome", "StepPool", "default_jobs"]
@@ -46,8 +48,9 @@ class StepPool:
     """Start steps (`start(name, argv)`) in forked children running `runner(argv)`; `wait()` returns the
     outcome of the next one to finish."""
 
-    def __init__(self, runner: Callable[[list[str]], int], preload: tuple[str, ...] = ()):
+    def __init__(self, runner: Callable[[list[str]], int], preload: tuple[str, ...] = (), blas_threads: int = 1):
         self.runner = runner
+        self.blas_threads = blas_threads
         self.running: dict[str, _Running] = {}
         self._ctx = multiprocessing.get_context("fork")
         for module in preload:   # imported once here, inherited by every child instead of imported in each
@@ -61,8 +64,8 @@ class StepPool:
         for stream in (sys.stdout, sys.stderr):   # nothing buffered is printed twice by the child
             stream.flush()
         parent_end, child_end = self._ctx.Pipe(duplex=False)
-        proc = self._ctx.Process(target=_child, args=(self.runner, list(argv), child_end, os.getpid()),
-                                 name=f"dgcal-{name}", daemon=False)
+        proc = self._ctx.Process(target=_child, name=f"dgcal-{name}", daemon=False,
+                                 args=(self.runner, list(argv), child_end, os.getpid(), self.blas_threads))
         proc.start()
         child_end.close()
         self.running[name] = _Running(proc, parent_end)
@@ -102,9 +105,11 @@ class StepPool:
         self.running.clear()
 
 
-def _child(runner: Callable[[list[str]], int], argv: list[str], conn, parent_pid: int) -> None:
+def _child(runner: Callable[[list[str]], int], argv: list[str], conn, parent_pid: int, blas_threads: int) -> None:
     """The step in the child: its exit status or its exception goes back through `conn`."""
     die_with_parent(parent_pid)
+    # the steps side by side share the CPUs: OpenBLAS threads that spin-wait for a busy core slow a step 2-3x
+    threadpool_limits(limits=blas_threads, user_api="blas")
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         message = ("rc", int(runner(argv) or 0))
