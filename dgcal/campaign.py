@@ -399,10 +399,10 @@ class DemoOptions:
 def run_demo(opts: DemoOptions, log=None) -> dict:
     """Simulate the seed-003-like campaign into out/data (unless it is there for this seed) and run it into
     out/results; returns `run_campaign`'s record plus the time taken (s)."""
+    t0 = time.perf_counter()
     from dgcal.sim.campaign import simulate_campaign
     log = log or sys.stderr
     data, results = Path(opts.out) / "data", Path(opts.out) / "results"
-    t0 = time.perf_counter()
     stamp = data / "truth.json"
     if opts.force or not stamp.is_file() or json.loads(stamp.read_text()).get("seed") != opts.seed:
         print(f"[simulate] campaign (seed {opts.seed}) -> {data}", file=log, flush=True)

@@ -34,6 +34,7 @@ import json
 import math
 import shutil
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +47,7 @@ from dgcal.fields.crs import LocalENU, MapGrid, ecef_to_geodetic
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, R_ecef_to_enu, R_enu_to_grid, opk_from_R_cam_to_map
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir, write_table
+from dgcal.fields.processes import fork_map
 from dgcal.fields.io.formats import (EOP, Measurements, Points, week_sow, write_eop, write_events, write_measurements,
                                      write_points, write_trajectory)
 from dgcal.fields.targets.plate import TargetField, write_field
@@ -260,29 +262,31 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     with staged_dir(Path(out)) as tmp:
         fl = tmp / "flight"
         fl.mkdir()
+        tr = tmp / "truth"
+        tr.mkdir()
+        # the draws from `rng` in their order; the big files, which draw nothing, written side by side after them
         field_info = _camera_field(tmp / "field", camera, rng, field_images, field_noise_px)
         write_points(fl / "gcp.csv", Points(gp.gp_ids, gp_map_obs, sig, gp.role), with_role=True)
-        ims.write(fl, noise_px)
         write_events(fl / "events.csv", events)
-        write_kf_gins(fl / "imu.txt", imu)
         _write_gnss_lc(fl / "gnss.csv", rng, grid, t_gnss, p_ant, v_ant, gnss_sigma_enu, gnss_sigma_v)
+        writes = [partial(ims.write, fl, noise_px), partial(write_kf_gins, fl / "imu.txt", imu)]
         base_ecef = None
         if gnss_mode == "tc":
             obs = simulate_gnss(t_gnss, p_ant, v_ant, None, seed=seed + 2, sigma_pr=sigma_pr, systems=("G", "E"),
                                 prepare=False)
-            write_rinex_obs(fl / "rover.obs", obs)
+            writes.append(partial(write_rinex_obs, fl / "rover.obs", obs))
             shutil.copyfile(DEFAULT_NAV, fl / "nav.rnx")
         elif gnss_mode == "carrier":
             base_ecef = enu.to_ecef(np.asarray(BASE_OFFSET_ENU_M, float)[None])[0]
             cs = simulate_rover_base(t_gnss, p_ant, v_ant, base_ecef, None, seed=seed + 2, systems=("G", "E"),
                                      n_freq=2, n_random_slips=4)
-            write_rinex_carrier(fl / "rover.rnx", cs.rover, marker="ROVER")
-            write_rinex_carrier(fl / "base.rnx", cs.base, marker="BASE")
+            writes += [partial(write_rinex_carrier, fl / "rover.rnx", cs.rover, marker="ROVER"),
+                       partial(write_rinex_carrier, fl / "base.rnx", cs.base, marker="BASE")]
             shutil.copyfile(DEFAULT_NAV, fl / "nav.rnx")
-        tr = tmp / "truth"
-        tr.mkdir()
+        writes.append(partial(write_trajectory, tr / "trajectory.csv",
+                              traj.as_trajectory(max(1, int(round(imu_rate_hz / 10))))))
+        fork_map(writes)
         write_eop(tr / "eop.csv", EOP(names, C_map, opk))
-        write_trajectory(tr / "trajectory.csv", traj.as_trajectory(max(1, int(round(imu_rate_hz / 10)))))
         write_points(tr / "gcp.csv", Points(gp.gp_ids, gp_map, sig, gp.role), with_role=True)
         with atomic_write(tr / "camera.json") as fh:
             json.dump(camera_json_dict(camera), fh, indent=1)

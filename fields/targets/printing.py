@@ -7,7 +7,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
@@ -197,6 +196,7 @@ def write_pdf_tiles(path: str | Path, tf: TargetField, page: str = "A3", margin_
     row/column, the tile outline and overlap lines for assembling; returns the number of pages."""
     rects = black_rectangles(tf)
     tiles = tile_grid(tf, page, margin_m, overlap_m)
+    from matplotlib.backends.backend_pdf import PdfPages   # here: 0.4 s to import, only PDF tiles need it
     with atomic_write(path, "wb") as fh, PdfPages(fh) as pdf:
         for tile in tiles:
             fig = tile_figure(tf, tile, page, margin_m, overlap_m, rects)

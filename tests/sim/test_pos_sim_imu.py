@@ -108,3 +108,17 @@ def test_simulate_imu_dataset_files_read_back(tmp_path):
     ev = read_events(d / "events.csv")
     assert len(ev.t) > 0 and (ev.t - 0.05 >= tr.t[0]).all()
     assert not list(d.glob(".staging*"))
+
+
+def test_first_order_recursion_is_the_iir_filter():
+    """The blocked Gauss-Markov recursion equals scipy.signal.lfilter([1], [1, -phi]) to rounding, across block
+    edges, for short and long series and for fast and slow processes."""
+    from scipy.signal import lfilter
+
+    from dgcal.sim.imu import first_order_recursion
+    rng = np.random.default_rng(3)
+    for n, phi in [(1, 0.9), (255, 0.99), (256, 0.5), (257, 0.999), (20_001, 0.9999), (3000, 0.01)]:
+        w = rng.standard_normal((n, 3))
+        ref = lfilter([1.0], [1.0, -phi], w, axis=0)
+        np.testing.assert_allclose(first_order_recursion(w, phi), ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+    assert first_order_recursion(np.zeros((0, 3)), 0.5).shape == (0, 3)
