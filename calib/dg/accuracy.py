@@ -6,6 +6,7 @@ Errors are map-grid differences (E, N, Up) of DG-intersected check points minus 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import skew
 from dgcal.fields.io.formats import Events, Measurements, Points, Trajectory, read_points
+from dgcal.fields.processes import fork_map
 from dgcal.pos.events import read_any_events
 from dgcal.pos.ins.sbet import read_any_trajectory
 from dgcal.fields.io.gcp_files import read_any_measurements
@@ -307,14 +309,17 @@ def check_dg_files(opts: CheckOptions) -> DgCheck:
     pts = read_points(opts.gcp)
     camera = load_camera(opts.camera)
     roles = ("check", "control") if opts.all_points else ("check",)
-    checks: dict[str, CheckResult] = {}
+    labels: list[str] = []
+    tasks = []
     for path in opts.mounting:
         m = read_mounting_json(path)
         label = m.method
-        if label in checks:
+        if label in labels:
             label = f"{m.method} ({Path(path).parent.name or Path(path).name})"
-        checks[label] = check_points_dg(grid, traj, events, m, camera, meas, pts, roles,
-                                        pos_correlation_time_s="auto" if tau is None else tau)
+        labels.append(label)
+        tasks.append(partial(check_points_dg, grid, traj, events, m, camera, meas, pts, roles,
+                             pos_correlation_time_s="auto" if tau is None else tau))
+    checks: dict[str, CheckResult] = dict(zip(labels, fork_map(tasks)))   # the mountings side by side
     names = list(checks)
     imp = improvement_table({k: v.stats for k, v in checks.items()}, names[0]) if len(names) > 1 else None
     return DgCheck(checks, names[0], imp)

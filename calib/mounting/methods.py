@@ -14,6 +14,7 @@ name or alias. A result's `method` is the name the caller asked for, `method_can
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Callable
 
@@ -25,6 +26,7 @@ from dgcal.calib.mounting.two_step import calibrate_traditional
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import EOP, Events, Trajectory, read_eop
+from dgcal.fields.processes import fork_map
 from dgcal.pos.events import read_any_events
 from dgcal.pos.ins.sbet import read_any_trajectory
 from dgcal.fields.world import World
@@ -151,11 +153,11 @@ def calibrate_mounting_files(opts: MountOptions) -> MountingRun:
     grid = MapGrid(opts.crs)
     eop, events = read_eop(opts.eop), read_any_events(opts.events)
     traj = read_any_trajectory(opts.trajectory, near_t=float(events.t[0]) if len(events) else None)
-    res = _SOLVERS[m.name](eop, grid, traj, events, opts)
-    _name(res, opts.method, m)
-    refs = {}
+    tasks = [partial(_SOLVERS[m.name], eop, grid, traj, events, opts)]
     for name in m.references:
         ref_opts = MountOptions(opts.eop, opts.crs, opts.trajectory, opts.events, name,
                                 pos_common_fraction=opts.pos_common_fraction)
-        refs[name] = _SOLVERS[name](eop, grid, traj, events, ref_opts)
-    return MountingRun(res, refs)
+        tasks.append(partial(_SOLVERS[name], eop, grid, traj, events, ref_opts))
+    res, *ref_results = fork_map(tasks)    # the reference methods beside the one asked for (independent)
+    _name(res, opts.method, m)
+    return MountingRun(res, dict(zip(m.references, ref_results)))
