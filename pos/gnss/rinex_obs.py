@@ -521,10 +521,13 @@ def _system_arrays(recs: list[_Record], types: dict, keep_sys: set, h: dict, pat
     fline: dict[str, list] = {s: [] for s in types}
     where: dict[str, list[tuple[int, str]]] = {s: [] for s in types}
     sats_list = []
+    known: dict[str, str] = {}       # raw satellite field -> id, checked once
     for k_ep, r in enumerate(recs):
         ep_sats: list[str] = []
         for raw_id, (lno, rec) in zip(r.ids, r.body):
-            sid = _sat_id(raw_id, h["file_system"], path, (lno + 1) if v3 else r.i + 1)
+            sid = known.get(raw_id)
+            if sid is None:
+                sid = known[raw_id] = _sat_id(raw_id, h["file_system"], path, (lno + 1) if v3 else r.i + 1)
             s = sid[0]
             if s not in types:
                 if v3:
@@ -540,7 +543,7 @@ def _system_arrays(recs: list[_Record], types: dict, keep_sys: set, h: dict, pat
             ep_sats.append(sid)
             rows[s].append(rec)
             where[s].append((k_ep, sid))
-            fline[s].append(np.full(len(types[s]), lno + 1) if v3 else lno + 1 + np.arange(len(types[s])) // 5)
+            fline[s].append(lno + 1)
         sats_list.append(ep_sats)
     n_ep = len(recs)
     out_sys: dict[str, SystemObs] = {}
@@ -549,7 +552,10 @@ def _system_arrays(recs: list[_Record], types: dict, keep_sys: set, h: dict, pat
             continue
         codes = types[s]
         kc = len(codes)
-        val, lli, ssi = _decode_fields(rows[s], np.array(fline[s]), kc, codes, path)
+        # each field's line: the record's in RINEX 3, in RINEX 2 five fields to a line
+        first = np.array(fline[s], dtype=int)[:, None]
+        lines = first + (np.zeros(kc, int) if v3 else np.arange(kc) // 5)[None, :]
+        val, lli, ssi = _decode_fields(rows[s], lines, kc, codes, path)
         sats = sorted({sid for _, sid in where[s]})
         col = {sid: j for j, sid in enumerate(sats)}
         ep = np.array([k for k, _ in where[s]], dtype=int)
