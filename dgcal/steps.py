@@ -24,7 +24,8 @@ class Step:
     """One verb of the chain: its argv, the files it reads, the files it must leave behind, the steps it follows.
 
     `files` holds every output the verb declares (role -> path), `label` what tells steps of one verb apart
-    (the mounting method as the campaign names it), `out_dir` the folder the verb writes (its --out).
+    (the mounting method as the campaign names it), `out_dir` the folder the verb writes (its --out), `weight`
+    its rough run time relative to other steps (steps run side by side start the heaviest ready one first).
     """
 
     name: str
@@ -35,6 +36,7 @@ class Step:
     label: str = ""
     files: dict[str, Path] = field(default_factory=dict)
     out_dir: Path | None = None
+    weight: float = 1.0
 
     @property
     def verb(self) -> str:
@@ -152,12 +154,12 @@ class Campaign:
         return [s for s in self.steps if s.verb == verb]
 
     def add(self, name: str, argv: list[str], inputs: Sequence[Path], out_dir: Path, outputs: Mapping[str, str],
-            required: Sequence[str], after: Sequence[str] = (), label: str = "") -> Step:
+            required: Sequence[str], after: Sequence[str] = (), label: str = "", weight: float = 1.0) -> Step:
         """Append a step whose verb writes `outputs` (role -> file name) into `out_dir`; `required` roles must
         exist after it ran (and for it to count as up to date)."""
         files = {role: Path(out_dir) / fname for role, fname in outputs.items()}
         step = Step(name, list(argv), list(inputs), [files[r] for r in required], list(after), label, files,
-                    Path(out_dir))
+                    Path(out_dir), weight)
         self.steps.append(step)
         return step
 

@@ -95,4 +95,5 @@ def campaign_steps(c: Campaign) -> None:
         if info.uses_pos_common_fraction and "pos_common_fraction" in mnt:
             a += ["--pos-common-fraction", str(float(mnt["pos_common_fraction"]))]
         a += c.extra_args(SECTION)
-        c.add(f"mount_{m}", a, ins, out, OUTPUTS, required=("mounting",), after=dep, label=m)
+        c.add(f"mount_{m}", a, ins, out, OUTPUTS, required=("mounting",), after=dep, label=m,
+              weight=3.0 if info.needs_image_measurements else 1.0)   # iso: a bundle adjustment

@@ -280,6 +280,6 @@ def campaign_steps(c: Campaign) -> None:
     for kv in pos.get("set", []):
         a += ["--set", str(kv)]
     a += c.extra_args(SECTION)
-    step = c.add(NAME, a, ins, out, INS_OUTPUTS, required=("trajectory", "events"))
+    step = c.add(NAME, a, ins, out, INS_OUTPUTS, required=("trajectory", "events"), weight=4.0)
     c.provide("trajectory", step.files["trajectory"])
     c.provide("events", events)

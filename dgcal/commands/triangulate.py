@@ -138,6 +138,6 @@ def campaign_steps(c: Campaign) -> None:
     if "images" not in tri and meas is None:
         raise c.error("[triangulation] needs 'measurements' or 'images'", "triangulation.measurements")
     a += c.extra_args(SECTION)
-    step = c.add(NAME, a, ins, out, OUTPUTS, required=("eop",), after=c.step_names())
+    step = c.add(NAME, a, ins, out, OUTPUTS, required=("eop",), after=c.step_names(), weight=2.0)
     c.provide("eop", step.files["eop"])
     c.provide("gcp", gcp)

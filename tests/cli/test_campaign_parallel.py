@@ -69,6 +69,7 @@ def test_steps_run_side_by_side_after_the_steps_they_follow(tmp_path):
     for m in ("mount_proposed", "mount_traditional", "mount_iso"):
         assert s[m][0] >= max(s["triangulate"][1], s["pos"][1], s["camera"][1])
     assert s["check"][0] >= max(s[m][1] for m in ("mount_proposed", "mount_traditional", "mount_iso"))
+    assert s["mount_iso"][0] < s["mount_traditional"][0]      # the heaviest ready step first (two slots)
     assert sorted(load_state(out / STATE)) == sorted(res["steps"])
     again = run_campaign(c, out, runner=_verb(trace, {}), log=NULL, report=False, jobs=2)
     assert set(again["steps"].values()) == {"skipped"}
