@@ -52,6 +52,7 @@ STATE_VERSION = 2   # {"version", "steps": {name: record}} (dgcal.campaign._reco
 CHAIN = (camera, triangulate, pos, mount, check)  # the verbs of a campaign, in order (dgcal.steps)
 # imported by the runner before it forks the steps (--jobs > 1): modules most verbs load (0.5-1 s each time),
 # none that starts threads on import (gtsam's TBB pool, numba's) or holds state a fork would break
+LIGHTER_STEP_NICE = 5   # niceness of a step started while a heavier one runs or waits (`--jobs` > 1)
 PRELOAD = ("numpy", "scipy.linalg", "scipy.sparse", "scipy.optimize", "scipy.spatial.transform", "pyproj",
            "dgcal.reports.html", "dgcal.fields.io.formats", "dgcal.fields.crs")
 
@@ -268,7 +269,9 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
                 if pool is None:
                     finish(_run_here(step, runner))
                 else:
-                    pool.start(step.name, step.argv)
+                    # a step lighter than one running or waiting yields the CPU to it (the longer chain)
+                    heavier = any(s.weight > step.weight for s in [*pending, *(by_name[n] for n in pool.running)])
+                    pool.start(step.name, step.argv, nice=LIGHTER_STEP_NICE if heavier else 0)
             if failure is not None and not (pool and len(pool)):
                 raise failure
             if pool is not None and len(pool):

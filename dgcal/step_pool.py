@@ -59,13 +59,13 @@ class StepPool:
     def __len__(self) -> int:
         return len(self.running)
 
-    def start(self, name: str, argv: list[str]) -> None:
-        """Fork a child that runs the step; returns at once."""
+    def start(self, name: str, argv: list[str], nice: int = 0) -> None:
+        """Fork a child that runs the step (at niceness `nice` above this process's); returns at once."""
         for stream in (sys.stdout, sys.stderr):   # nothing buffered is printed twice by the child
             stream.flush()
         parent_end, child_end = self._ctx.Pipe(duplex=False)
         proc = self._ctx.Process(target=_child, name=f"dgcal-{name}", daemon=False,
-                                 args=(self.runner, list(argv), child_end, os.getpid(), self.blas_threads))
+                                 args=(self.runner, list(argv), child_end, os.getpid(), self.blas_threads, nice))
         proc.start()
         child_end.close()
         self.running[name] = _Running(proc, parent_end)
@@ -105,11 +105,14 @@ class StepPool:
         self.running.clear()
 
 
-def _child(runner: Callable[[list[str]], int], argv: list[str], conn, parent_pid: int, blas_threads: int) -> None:
+def _child(runner: Callable[[list[str]], int], argv: list[str], conn, parent_pid: int, blas_threads: int,
+           nice: int = 0) -> None:
     """The step in the child: its exit status or its exception goes back through `conn`."""
     die_with_parent(parent_pid)
     # the steps side by side share the CPUs: OpenBLAS threads that spin-wait for a busy core slow a step 2-3x
     threadpool_limits(limits=blas_threads, user_api="blas")
+    if nice:
+        os.nice(nice)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         message = ("rc", int(runner(argv) or 0))

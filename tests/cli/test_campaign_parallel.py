@@ -46,7 +46,7 @@ def _verb(trace: Path, seconds: dict[str, float], fail: dict[str, object] | None
                       "pos_summary.json", "summary.json"):
                 (d / f).write_text("x")
         with open(trace, "a") as fh:
-            fh.write(f"{name} {t0} {time.time()}\n")
+            fh.write(f"{name} {t0} {time.time()} {os.nice(0)}\n")
         return 0
     return runner
 
@@ -54,6 +54,10 @@ def _verb(trace: Path, seconds: dict[str, float], fail: dict[str, object] | None
 def _spans(trace: Path) -> dict[str, tuple[float, float]]:
     rows = [ln.split() for ln in trace.read_text().splitlines()]
     return {r[0]: (float(r[1]), float(r[2])) for r in rows}
+
+
+def _niceness(trace: Path) -> dict[str, int]:
+    return {r[0]: int(r[3]) for r in (ln.split() for ln in trace.read_text().splitlines())}
 
 
 def test_steps_run_side_by_side_after_the_steps_they_follow(tmp_path):
@@ -70,6 +74,10 @@ def test_steps_run_side_by_side_after_the_steps_they_follow(tmp_path):
         assert s[m][0] >= max(s["triangulate"][1], s["pos"][1], s["camera"][1])
     assert s["check"][0] >= max(s[m][1] for m in ("mount_proposed", "mount_traditional", "mount_iso"))
     assert s["mount_iso"][0] < s["mount_traditional"][0]      # the heaviest ready step first (two slots)
+    nice = _niceness(trace)
+    assert nice["pos"] == nice["mount_iso"] == os.nice(0)     # the heaviest run at the runner's priority,
+    assert nice["camera"] > nice["pos"] and nice["mount_proposed"] > nice["mount_iso"]   # lighter ones beside yield
+    assert nice["check"] == os.nice(0)                        # nothing heavier left
     assert sorted(load_state(out / STATE)) == sorted(res["steps"])
     again = run_campaign(c, out, runner=_verb(trace, {}), log=NULL, report=False, jobs=2)
     assert set(again["steps"].values()) == {"skipped"}
