@@ -65,8 +65,8 @@ def _ldl(A):  # pragma: no cover - compiled
 def decorrelate(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """LAMBDA reduction: (L, D, Z) with ``Z' Q Z = L' diag(D) L`` decorrelated, Z integer unimodular.
 
-    Chang, Yang & Zhou's MREDUCTION strategy: during the permutation sweep only the element needed for
-    the swap test is reduced ("lazy" size reduction) and the sweep steps back one position after a swap
+    Chang, Yang & Zhou's MREDUCTION strategy: a column is size-reduced whole before its swap test unless it
+    was since the last permutation ("lazy" transformations), and the sweep steps back one position after a swap
     instead of restarting; a final pass size-reduces all of L.
     """
     L, Dv = ldl(Q)
@@ -82,13 +82,19 @@ def _reduce(Lt, D, Zt):  # pragma: no cover - compiled
     """The permutation sweep with lazy size reduction and the final size reduction, in place (see decorrelate)."""
     n = len(D)
     k = n - 2
+    k1 = n - 2                                   # the last permuted column: the ones below it are reduced
     while k >= 0:
-        mu = math.floor(Lt[k, k + 1] + 0.5)
-        if mu != 0:
+        if k <= k1:
+            # size-reduce all of column k before the swap test (RTKLIB's gauss for every i > k): reducing only
+            # L[k+1, k] lets the other entries grow through the swaps (to 1e9 and beyond with 56 ambiguities), and
+            # Z'QZ then no longer equals L'DL
             for i in range(k + 1, n):
-                Lt[k, i] -= mu * Lt[k + 1, i]
-            for i in range(n):
-                Zt[k, i] -= mu * Zt[k + 1, i]
+                mu = math.floor(Lt[k, i] + 0.5)
+                if mu != 0:
+                    for q in range(i, n):
+                        Lt[k, q] -= mu * Lt[i, q]
+                    for q in range(n):
+                        Zt[k, q] -= mu * Zt[i, q]
         l1 = Lt[k, k + 1]
         delta = D[k] + l1 * l1 * D[k + 1]
         if delta + 1e-6 < D[k + 1]:
@@ -110,6 +116,7 @@ def _reduce(Lt, D, Zt):  # pragma: no cover - compiled
                 tmp = Zt[k, i]
                 Zt[k, i] = Zt[k + 1, i]
                 Zt[k + 1, i] = tmp
+            k1 = k
             if k < n - 2:
                 k += 1
         else:
