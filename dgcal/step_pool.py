@@ -18,13 +18,15 @@ from typing import Callable
 
 from threadpoolctl import threadpool_limits
 
-from dgcal.fields.processes import die_with_parent
+from dgcal.fields.processes import cpus, die_with_parent
 
 __all__ = ["Outcome", "StepPool", "default_jobs"]
 
+
 def default_jobs() -> int:
-    """Steps a campaign runs at once by default: one per CPU, at most 4 (the chain rarely offers more)."""
-    return max(1, min(4, os.cpu_count() or 1))
+    """Steps a campaign runs at once by default: one per CPU this process may use, at most 4 (the chain rarely
+    offers more)."""
+    return max(1, min(4, cpus()))
 
 
 @dataclass
