@@ -39,6 +39,14 @@ def figure_png(fig, dpi: int = 110) -> bytes:
     return buf.getvalue()
 
 
+def figures_png(figs: Sequence, dpi: int = 110) -> list[bytes]:
+    """PNG bytes of figures, drawn side by side in forked processes (fields.processes.fork_map); every figure is
+    closed here too, where a child drew it."""
+    for fig in figs:
+        plt.close(fig)   # out of pyplot's registry; the figure itself stays drawable
+    return fork_map([functools.partial(figure_png, fig, dpi) for fig in figs])
+
+
 def new_figure(w_in: float = 8.0, h_in: float = 5.0, **kw):
     """A matplotlib (figure, axes) on the Agg backend, for embedding."""
     return plt.subplots(figsize=(w_in, h_in), **kw)
@@ -109,7 +117,7 @@ class HtmlReport:
         if isinstance(fig_or_png, (bytes, bytearray)):
             self.parts.append(_figure_html(fig_or_png, caption))
         else:
-            plt.close(fig_or_png)   # out of pyplot's registry now; the figure itself stays drawable
+            plt.close(fig_or_png)   # out of pyplot's registry now (a page may hold many); still drawable
             self.parts.append(_Figure(fig_or_png, caption))
         return self
 
@@ -118,9 +126,9 @@ class HtmlReport:
         return self
 
     def render(self) -> str:
-        """The page; its figures drawn first, in forked processes side by side (fields.processes.fork_map)."""
+        """The page; its figures drawn first, side by side (`figures_png`)."""
         pending = [(i, p) for i, p in enumerate(self.parts) if isinstance(p, _Figure)]
-        pngs = fork_map([functools.partial(figure_png, p.fig) for _, p in pending])
+        pngs = figures_png([p.fig for _, p in pending])
         for (i, p), png in zip(pending, pngs):
             self.parts[i] = _figure_html(png, p.caption)
         return (f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{html.escape(self.title)}</title>"

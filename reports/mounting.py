@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import base64
-import functools
 import html
 import json
 from collections.abc import Mapping
@@ -13,8 +12,7 @@ import numpy as np
 from dgcal.calib.dg.accuracy import DgCheck
 from dgcal.calib.mounting.methods import MountingRun
 from dgcal.fields.io.csv_tables import atomic_write, write_table
-from dgcal.fields.processes import fork_map
-from dgcal.reports.html import figure_png, new_figure
+from dgcal.reports.html import figures_png, new_figure
 
 
 def _png(fig) -> str:
@@ -22,8 +20,8 @@ def _png(fig) -> str:
 
 
 def _imgs(figs: list) -> list[str]:
-    """<img> elements of figures drawn side by side in forked processes (fields.processes.fork_map)."""
-    pngs = fork_map([functools.partial(figure_png, f, dpi=90) for f in figs])
+    """<img> elements of figures drawn side by side (`figures_png`)."""
+    pngs = figures_png(figs, dpi=90)
     return [f'<img alt="plot" src="data:image/png;base64,{base64.b64encode(p).decode()}">' for p in pngs]
 
 

@@ -28,3 +28,16 @@ def test_figures_drawn_side_by_side_give_the_same_page(monkeypatch):
     assert _page().render() == page
     assert page.count("<img src=\"data:image/png;base64,") == 5
     assert page.index("figure 0") < page.index("after figure 0") < page.index("figure 1")
+
+
+def test_figures_png_leaves_no_figure_open_where_children_drew_them():
+    before = set(html.plt.get_fignums())
+    figs = []
+    for k in range(3):
+        fig, ax = new_figure(3, 2)
+        ax.plot([0, 1], [k, 1 - k])
+        figs.append(fig)
+    pngs = html.figures_png(figs, dpi=60)
+    assert set(html.plt.get_fignums()) <= before
+    assert [p[:8] for p in pngs] == [b"\x89PNG\r\n\x1a\n"] * 3
+    assert pngs == [html.figure_png(f, 60) for f in figs]       # the same bytes drawn here
