@@ -50,9 +50,9 @@ __all__ = ["CHAIN", "STATE", "Campaign", "DemoOptions", "Step", "load_campaign",
 STATE = ".dgcal-state.json"
 STATE_VERSION = 2   # {"version", "steps": {name: record}} (dgcal.campaign._record)
 CHAIN = (camera, triangulate, pos, mount, check)  # the verbs of a campaign, in order (dgcal.steps)
+LIGHTER_STEP_NICE = 5   # niceness of a step started while a heavier one runs or waits (`--jobs` > 1)
 # imported by the runner before it forks the steps (--jobs > 1): modules most verbs load (0.5-1 s each time),
 # none that starts threads on import (gtsam's TBB pool, numba's) or holds state a fork would break
-LIGHTER_STEP_NICE = 5   # niceness of a step started while a heavier one runs or waits (`--jobs` > 1)
 PRELOAD = ("numpy", "scipy.linalg", "scipy.sparse", "scipy.optimize", "scipy.spatial.transform", "pyproj",
            "dgcal.reports.html", "dgcal.fields.io.formats", "dgcal.fields.crs")
 
@@ -231,6 +231,10 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     pool = StepPool(runner, PRELOAD, blas_threads=max(1, cpus() // jobs)) if jobs > 1 else None
     failure: InputError | None = None
 
+    def waiting(step: Step) -> bool:
+        """A step it follows has not ended well (yet)."""
+        return any(done.get(n) in (None, "failed") for n in step.after if n in by_name)
+
     def finish(o: Outcome) -> None:
         """Record a step that ended (the record last: only a finished step is done), or keep its failure."""
         nonlocal failure
@@ -252,8 +256,8 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
             for step in (sorted(pending, key=lambda s: -s.weight) if pool is not None else list(pending)):
                 if failure is not None or (pool is not None and len(pool) >= jobs):
                     break
-                if any(done.get(n) in (None, "failed") for n in step.after if n in by_name):
-                    continue                  # waits for a step it follows
+                if waiting(step):
+                    continue
                 pending.remove(step)
                 fp = fingerprints[step.name] = step.fingerprint(cache)
                 why = ("--force" if force else "--rerun" if step.name in forced
@@ -276,8 +280,7 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
                 raise failure
             if pool is not None and len(pool):
                 finish(pool.wait())
-            elif pending and all(any(done.get(n) in (None, "failed") for n in s.after if n in by_name)
-                                 for s in pending):
+            elif pending and all(waiting(s) for s in pending):
                 break                         # nothing can start (cannot happen with a well-formed plan)
     except BaseException:
         if pool is not None:
