@@ -79,22 +79,17 @@ def decorrelate(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @njit(cache=True)
 def _reduce(Lt, D, Zt):  # pragma: no cover - compiled
-    """The permutation sweep with lazy size reduction and the final size reduction, in place (see decorrelate)."""
+    """The permutation sweep (a column size-reduced unless it was since the last permutation) and the final size
+    reduction, in place (see decorrelate)."""
     n = len(D)
     k = n - 2
     k1 = n - 2                                   # the last permuted column: the ones below it are reduced
     while k >= 0:
         if k <= k1:
-            # size-reduce all of column k before the swap test (RTKLIB's gauss for every i > k): reducing only
-            # L[k+1, k] lets the other entries grow through the swaps (to 1e9 and beyond with 56 ambiguities), and
-            # Z'QZ then no longer equals L'DL
-            for i in range(k + 1, n):
-                mu = math.floor(Lt[k, i] + 0.5)
-                if mu != 0:
-                    for q in range(i, n):
-                        Lt[k, q] -= mu * Lt[i, q]
-                    for q in range(n):
-                        Zt[k, q] -= mu * Zt[i, q]
+            # all of column k before the swap test (RTKLIB's gauss for every i > k): reducing only L[k+1, k] lets
+            # the other entries grow through the swaps (to 1e9 and beyond with 56 ambiguities), and Z'QZ then no
+            # longer equals L'DL
+            _size_reduce_column(Lt, Zt, k)
         l1 = Lt[k, k + 1]
         delta = D[k] + l1 * l1 * D[k + 1]
         if delta + 1e-6 < D[k + 1]:
@@ -122,13 +117,20 @@ def _reduce(Lt, D, Zt):  # pragma: no cover - compiled
         else:
             k -= 1
     for j in range(n - 2, -1, -1):
-        for i in range(j + 1, n):
-            mu = math.floor(Lt[j, i] + 0.5)
-            if mu != 0:
-                for q in range(i, n):
-                    Lt[j, q] -= mu * Lt[i, q]
-                for q in range(n):
-                    Zt[j, q] -= mu * Zt[i, q]
+        _size_reduce_column(Lt, Zt, j)
+
+
+@njit(cache=True)
+def _size_reduce_column(Lt, Zt, k):  # pragma: no cover - compiled
+    """Integer Gauss transformations making |L[i, k]| <= 1/2 for every i > k (Lt = L', Zt = Z'), in place."""
+    n = Lt.shape[0]
+    for i in range(k + 1, n):
+        mu = math.floor(Lt[k, i] + 0.5)
+        if mu != 0:
+            for q in range(i, n):
+                Lt[k, q] -= mu * Lt[i, q]
+            for q in range(n):
+                Zt[k, q] -= mu * Zt[i, q]
 
 
 def search(L: np.ndarray, D: np.ndarray, zs: np.ndarray, m: int = 2) -> tuple[np.ndarray, np.ndarray]:
