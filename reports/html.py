@@ -14,6 +14,9 @@ import matplotlib
 
 matplotlib.use("Agg")  # reports render PNGs without a display: the one place dgcal picks matplotlib's backend
 import matplotlib.pyplot as plt  # noqa: E402  (after the backend choice)
+import numpy as np  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from PIL import Image  # noqa: E402
 
 from dgcal.fields.io.csv_tables import atomic_write  # noqa: E402
 from dgcal.fields.processes import fork_map  # noqa: E402
@@ -32,11 +35,37 @@ figure{margin:1em 0}figcaption{font-size:.9em;color:#555}img{max-width:100%}
 
 
 def figure_png(fig, dpi: int = 110) -> bytes:
-    """PNG bytes of a matplotlib figure (the figure is closed)."""
+    """PNG bytes of a matplotlib figure cropped to its content plus savefig's pad (as `bbox_inches="tight"`);
+    the figure is closed.
+
+    The tight crop is cut from one drawing when the content lies inside the figure: savefig's own tight
+    bounding box costs a second full drawing (text layout is most of a report figure's time). Content that
+    spills over the figure's edge (tick labels below a short figure) needs the canvas moved, which only
+    savefig does."""
+    canvas = FigureCanvasAgg(fig)
+    fig.set_dpi(dpi)
+    canvas.draw()
+    content = fig.get_tightbbox(canvas.get_renderer())          # inches, figure origin bottom left
+    w_in, h_in = fig.get_size_inches()
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    if content.x0 < 0 or content.y0 < 0 or content.x1 > w_in or content.y1 > h_in:
+        fig.savefig(buf, format="png", dpi=dpi, bbox_inches=content.padded(matplotlib.rcParams["savefig.pad_inches"]))
+    else:
+        _crop_png(np.asarray(canvas.buffer_rgba()), content, h_in, dpi, buf)
     plt.close(fig)
     return buf.getvalue()
+
+
+def _crop_png(rgba: np.ndarray, content, h_in: float, dpi: float, out) -> None:
+    """Write the pixels of `content` (inches) plus savefig's pad, white beyond the drawing, as PNG to `out`."""
+    pad = matplotlib.rcParams["savefig.pad_inches"] * dpi
+    c0, c1 = int(round(content.x0 * dpi - pad)), int(round(content.x1 * dpi + pad))
+    r0, r1 = int(round((h_in - content.y1) * dpi - pad)), int(round((h_in - content.y0) * dpi + pad))
+    page = np.full((r1 - r0, c1 - c0, 4), 255, np.uint8)
+    rs0, cs0 = max(r0, 0), max(c0, 0)
+    rs1, cs1 = min(r1, rgba.shape[0]), min(c1, rgba.shape[1])
+    page[rs0 - r0:rs1 - r0, cs0 - c0:cs1 - c0] = rgba[rs0:rs1, cs0:cs1]
+    Image.fromarray(page).save(out, format="png", dpi=(dpi, dpi))
 
 
 def figures_png(figs: Sequence, dpi: int = 110) -> list[bytes]:

@@ -2,7 +2,10 @@
 one drawn figure by figure in this process, and the figures leave pyplot's registry when added."""
 from __future__ import annotations
 
+import io
+
 import numpy as np
+from PIL import Image
 
 import dgcal.reports.html as html
 from dgcal.reports.html import HtmlReport, new_figure
@@ -41,3 +44,29 @@ def test_figures_png_leaves_no_figure_open_where_children_drew_them():
     assert set(html.plt.get_fignums()) <= before
     assert [p[:8] for p in pngs] == [b"\x89PNG\r\n\x1a\n"] * 3
     assert pngs == [html.figure_png(f, 60) for f in figs]       # the same bytes drawn here
+
+
+def _tight_png(fig, dpi: int) -> np.ndarray:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    return np.asarray(Image.open(buf).convert("L"), float)
+
+
+def test_figure_png_is_savefigs_tight_crop_from_one_drawing():
+    """Content inside the figure is cut from one drawing, content spilling over its edge goes through savefig:
+    either way the picture is savefig's tight crop (same size to a pixel, the same ink)."""
+    for spill in (False, True):
+        fig, ax = new_figure(4, 3)
+        ax.plot(np.arange(30), np.cos(np.arange(30) / 4), label="curve")
+        ax.legend()
+        ax.set_title("a title")
+        if spill:   # a long tick label and an axis label hanging below the figure
+            fig.subplots_adjust(bottom=0.02)
+            ax.set_xlabel("an axis label\nover two lines")
+        tight = _tight_png(fig, 80)
+        got = np.asarray(Image.open(io.BytesIO(html.figure_png(fig, 80))).convert("L"), float)
+        assert abs(got.shape[0] - tight.shape[0]) <= 1 and abs(got.shape[1] - tight.shape[1]) <= 1
+        h, w = min(got.shape[0], tight.shape[0]), min(got.shape[1], tight.shape[1])
+        ink_got, ink_tight = (255 - got).sum(), (255 - tight).sum()
+        assert abs(ink_got - ink_tight) < 0.02 * ink_tight                          # nothing cut off or added
+        assert np.abs(got[:h, :w] - tight[:h, :w]).mean() < 12                      # at most a sub-pixel shift
