@@ -41,6 +41,7 @@ from dgcal.fields.io import validate
 from dgcal.fields.io.atomic import MANIFEST, atomic_write, clean_stale, file_sha256, manifest_problems, staged_dir
 from dgcal.fields.io.text_files import read_text
 from dgcal.fields.processes import cpus
+from dgcal.precompile import load_cached_kernels
 from dgcal.step_pool import Outcome, StepPool
 from dgcal.steps import Campaign, Step, file_digest
 
@@ -55,6 +56,10 @@ LIGHTER_STEP_NICE = 5   # niceness of a step started while a heavier one runs or
 # none that starts threads on import (gtsam's TBB pool, numba's) or holds state a fork would break
 PRELOAD = ("numpy", "scipy.linalg", "scipy.sparse", "scipy.optimize", "scipy.spatial.transform", "pyproj",
            "dgcal.reports.html", "dgcal.fields.io.formats", "dgcal.fields.crs")
+# modules whose cached numba kernels the runner loads before it forks (dgcal.precompile.load_cached_kernels); none
+# of them imports OpenCV or gtsam
+PRELOAD_KERNELS = ("dgcal.bundle.solver.kernels", "dgcal.pos.smoother.recursions", "dgcal.pos.gnss.ambiguity",
+                   "dgcal.pos.gnss.carrier", "dgcal.pos.gnss.carrier_model", "dgcal.pos.gnss.ppk_design")
 
 
 def load_campaign(path: Path) -> dict:
@@ -229,6 +234,8 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     by_name = {s.name: s for s in steps}
     pending = list(steps)
     pool = StepPool(runner, PRELOAD, blas_threads=max(1, cpus() // jobs)) if jobs > 1 else None
+    if pool is not None:
+        load_cached_kernels(PRELOAD_KERNELS)
     failure: InputError | None = None
 
     def waiting(step: Step) -> bool:
