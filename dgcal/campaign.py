@@ -26,12 +26,14 @@ Every section may add `args = [...]`: extra arguments of its verb.
 """
 from __future__ import annotations
 
+import importlib
 import json
 import re
 import sys
 import time
 import tomllib
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -40,7 +42,7 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
 from dgcal.fields.io.atomic import MANIFEST, atomic_write, clean_stale, file_sha256, manifest_problems, staged_dir
 from dgcal.fields.io.text_files import read_text
-from dgcal.fields.processes import cpus
+from dgcal.fields.processes import cpus, fork_map
 from dgcal.precompile import load_cached_kernels
 from dgcal.step_pool import Outcome, StepPool
 from dgcal.steps import Campaign, Step, file_digest
@@ -60,6 +62,13 @@ PRELOAD = ("numpy", "scipy.linalg", "scipy.sparse", "scipy.optimize", "scipy.spa
 # of them imports OpenCV or gtsam
 PRELOAD_KERNELS = ("dgcal.bundle.solver.kernels", "dgcal.pos.smoother.recursions", "dgcal.pos.gnss.ambiguity",
                    "dgcal.pos.gnss.carrier", "dgcal.pos.gnss.carrier_model", "dgcal.pos.gnss.ppk_design")
+
+
+def preload_for_steps() -> None:
+    """Import `PRELOAD` and load the cached kernels of `PRELOAD_KERNELS`: what the runner's forked steps share."""
+    for module in PRELOAD:
+        importlib.import_module(module)
+    load_cached_kernels(PRELOAD_KERNELS)
 
 
 def load_campaign(path: Path) -> dict:
@@ -233,9 +242,9 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     fingerprints: dict[str, str] = {}
     by_name = {s.name: s for s in steps}
     pending = list(steps)
-    pool = StepPool(runner, PRELOAD, blas_threads=max(1, cpus() // jobs)) if jobs > 1 else None
-    if pool is not None:
-        load_cached_kernels(PRELOAD_KERNELS)
+    if jobs > 1:
+        preload_for_steps()
+    pool = StepPool(runner, blas_threads=max(1, cpus() // jobs)) if jobs > 1 else None
     failure: InputError | None = None
 
     def waiting(step: Step) -> bool:
@@ -420,7 +429,10 @@ def run_demo(opts: DemoOptions, log=None) -> dict:
     stamp = data / "truth.json"
     if opts.force or not stamp.is_file() or json.loads(stamp.read_text()).get("seed") != opts.seed:
         print(f"[simulate] campaign (seed {opts.seed}) -> {data}", file=log, flush=True)
-        simulate_campaign(data, opts.seed)
+        if opts.jobs > 1:   # the simulation in a child while this process loads what the steps it forks share
+            fork_map([preload_for_steps, partial(simulate_campaign, data, opts.seed)])
+        else:
+            simulate_campaign(data, opts.seed)
         simulated = time.perf_counter() - t0
         print(f"[simulate] done in {simulated:.1f} s", file=log, flush=True)
     else:

@@ -6,7 +6,6 @@ as it would stop the one step of a sequential run; the output folders are then a
 (dgcal.fields.io.atomic), and the next run cleans up and resumes."""
 from __future__ import annotations
 
-import importlib
 import multiprocessing
 import multiprocessing.connection
 import os
@@ -50,13 +49,11 @@ class StepPool:
     """Start steps (`start(name, argv)`) in forked children running `runner(argv)`; `wait()` returns the
     outcome of the next one to finish."""
 
-    def __init__(self, runner: Callable[[list[str]], int], preload: tuple[str, ...] = (), blas_threads: int = 1):
+    def __init__(self, runner: Callable[[list[str]], int], blas_threads: int = 1):
         self.runner = runner
         self.blas_threads = blas_threads
         self.running: dict[str, _Running] = {}
         self._ctx = multiprocessing.get_context("fork")
-        for module in preload:   # imported once here, inherited by every child instead of imported in each
-            importlib.import_module(module)
 
     def __len__(self) -> int:
         return len(self.running)
