@@ -19,6 +19,7 @@ from dgcal.fields.constants import G0, SECONDS_PER_WEEK
 from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
 from dgcal.fields.errors import InputError, ResultError
 from dgcal.fields.frames import R_ecef_to_ned
+from dgcal.fields.processes import fork_map
 from dgcal.pos.gnss.carrier import carrier_observations
 from dgcal.pos.gnss.dd import DDOptions, carrier_front_end
 from dgcal.pos.gnss.observations import GnssObservations
@@ -192,17 +193,21 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     sol = smooth(imu, fixes, grade, opts, mode=mode, gnss=gnss, lc_fixes=lc_fixes,
                  carrier=fe.input if fe is not None else None)
     timing["smoother_s"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    fw = None
-    if forward == "filter":
-        fw = forward_solution(sol.problem, sol.values)
-    elif forward:
-        fw = linear_forward_solution(sol.problem, sol.values, sol.rows)
-    timing["forward_s"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    dense = densify(sol, sol.problem, imu, rate_hz)
-    ev = trajectory_at_events(dense, events) if events is not None and len(events) else None
-    timing["outputs_s"] = time.perf_counter() - t0
+
+    def forward_pass():
+        t0 = time.perf_counter()
+        fw = forward_solution(sol.problem, sol.values) if forward == "filter" else \
+            linear_forward_solution(sol.problem, sol.values, sol.rows) if forward else None
+        return fw, time.perf_counter() - t0
+
+    def outputs():
+        t0 = time.perf_counter()
+        dense = densify(sol, sol.problem, imu, rate_hz)
+        ev = trajectory_at_events(dense, events) if events is not None and len(events) else None
+        return dense, ev, time.perf_counter() - t0
+
+    # independent: the dense trajectory (plain arrays) from a child while this process runs the forward pass
+    (fw, timing["forward_s"]), (dense, ev, timing["outputs_s"]) = fork_map([forward_pass, outputs])
     sol.info.setdefault("timing", {}).update({k: round(v, 2) for k, v in timing.items()})
     res = PosResult(mode, sol, fw, dense, solution_trajectory(sol), solution_trajectory(fw) if fw else None, ev,
                     spp_sol, fixes, carrier=fe)
