@@ -54,12 +54,14 @@ STATE = ".dgcal-state.json"
 STATE_VERSION = 2   # {"version", "steps": {name: record}} (dgcal.campaign._record)
 CHAIN = (camera, triangulate, pos, mount, check)  # the verbs of a campaign, in order (dgcal.steps)
 LIGHTER_STEP_NICE = 5   # niceness of a step started while a heavier one runs or waits (`--jobs` > 1)
-# imported by the runner before it forks the steps (--jobs > 1): modules most verbs load (0.5-1 s each time),
-# none that starts threads on import (gtsam's TBB pool, numba's) or holds state a fork would break
+# imported by the runner before it forks the steps (--jobs > 1): modules most verbs load (0.5-1 s each time) and
+# the POS verb's (gtsam starts its TBB pool on first use, not on import); none that starts threads on import
+# (OpenCV does: no module that imports cv2) or holds state a fork would break
 PRELOAD = ("numpy", "scipy.linalg", "scipy.sparse", "scipy.optimize", "scipy.spatial.transform", "pyproj",
-           "dgcal.reports.html", "dgcal.fields.io.formats", "dgcal.fields.crs")
+           "dgcal.reports.html", "dgcal.fields.io.formats", "dgcal.fields.crs", "dgcal.pos.pipeline",
+           "dgcal.reports.pos")
 # modules whose cached numba kernels the runner loads before it forks (dgcal.precompile.load_cached_kernels); none
-# of them imports OpenCV or gtsam
+# of them imports OpenCV
 PRELOAD_KERNELS = ("dgcal.bundle.solver.kernels", "dgcal.pos.smoother.recursions", "dgcal.pos.gnss.ambiguity",
                    "dgcal.pos.gnss.carrier", "dgcal.pos.gnss.carrier_model", "dgcal.pos.gnss.ppk_design")
 

@@ -153,3 +153,16 @@ def test_children_die_with_a_killed_parent(tmp_path):
     assert not any(_alive(p) for p in children)
     state = tmp_path / "out" / STATE
     assert not state.exists() or json.loads(state.read_text())["steps"] == {}
+
+
+def test_the_runners_preload_starts_no_thread_and_imports_no_opencv():
+    """What the runner loads before it forks must be fork-safe: no thread of its own (a forked child has none of
+    its parent's threads, and a pool expecting them hangs) and no OpenCV, which starts one on import."""
+    script = ("import os, sys\n"
+              "import numpy, scipy.linalg\n"     # BLAS's own pool, which handles fork, before the count
+              "n = len(os.listdir('/proc/self/task'))\n"
+              "from dgcal.campaign import preload_for_steps\n"
+              "preload_for_steps()\n"
+              "print(len(os.listdir('/proc/self/task')) - n, 'cv2' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["0", "False"]
