@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from dgcal.fields.frames import skew
+
 
 def so3_exp(v: np.ndarray) -> np.ndarray:
     """Rotation matrices (...,3,3) of rotation vectors (...,3) (rad)."""
@@ -32,14 +34,23 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
 
 
+def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
+    """(...,3,3) right Jacobian of SO(3) at rotation vectors phi (...,3): Exp(phi + d) ~ Exp(phi) Exp(Jr d)."""
+    phi = np.asarray(phi, float)
+    th = np.linalg.norm(phi, axis=-1)[..., None, None]
+    K = skew(phi)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = np.where(th > 1e-6, (1 - np.cos(th)) / th**2, 0.5)
+        b = np.where(th > 1e-6, (th - np.sin(th)) / th**3, 1.0 / 6.0)
+    return np.eye(3) - a * K + b * (K @ K)
+
+
 def so3_right_jacobian_inv(phi: np.ndarray) -> np.ndarray:
     """(...,3,3) inverse right Jacobian of SO(3) at rotation vectors phi (...,3):
     Log(Exp(phi) Exp(d)) ~ phi + Jr^-1 d."""
     phi = np.asarray(phi, float)
     th = np.linalg.norm(phi, axis=-1)[..., None, None]
-    K = np.zeros(phi.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -phi[..., 2], phi[..., 1], -phi[..., 0]
-    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = phi[..., 2], -phi[..., 1], phi[..., 0]
+    K = skew(phi)
     with np.errstate(invalid="ignore", divide="ignore"):
         c = np.where(th > 1e-6, 1.0 / th**2 - (1 + np.cos(th)) / (2 * th * np.sin(th)), 1.0 / 12.0)
     return np.eye(3) + 0.5 * K + c * (K @ K)

@@ -30,7 +30,7 @@ from dgcal.calib.mounting.common import Epochs, MountingResult
 from dgcal.calib.mounting.two_step import calibrate_traditional
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import skew
-from dgcal.fields.pose import Poses, so3_exp, so3_log
+from dgcal.fields.pose import Poses, so3_exp, so3_log, so3_right_jacobian, so3_right_jacobian_inv
 from dgcal.fields.pose import transpose as T
 
 DEFAULT_EOP_SIGMA = (0.05, np.radians(0.01))        # m, rad when the EOP file has no sigmas
@@ -59,6 +59,24 @@ def residuals(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
     """(N,6) residuals: position (m, world) and rotation Log(R_pred^T R_obs) (rad, camera frame)."""
     p, Rc, _ = predict(ep, x, R_hat)
     return np.column_stack([ep.eop.C_world - p, so3_log(T(Rc) @ ep.eop.R_cam_to_world)])
+
+
+def residual_jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
+    """(N,6,7) d(residuals)/dx, x = [dt (s), l_b (m), theta_b (rad)]: position rows -dp/dx (world, m), rotation rows
+    d Log(R_pred^T R_obs)/dx (camera frame, rad); R_b(dt) = R_b Exp(omega_b dt) about a fixed axis, so
+    dR_b/dt = R_b [omega_b]x, and a change of theta_b moves R_cam_to_body by Exp(R_hat^T Jr(theta_b) d) on the right."""
+    dt, lever, theta = x[0], x[1:4], x[4:7]
+    w = ep.pos.omega_b
+    R_b = ep.pos.R_body_to_world @ so3_exp(w * (dt - ep.dt_ref))
+    R_cb = so3_exp(theta) @ R_hat
+    e = so3_log(T(R_b @ R_cb) @ ep.eop.R_cam_to_world)
+    Jl_inv = so3_right_jacobian_inv(-e)            # Log(Exp(a) Exp(e)) ~ e + Jl^-1(e) a
+    J = np.zeros((len(ep), 6, 7))
+    J[:, :3, 0] = -(ep.pos.v_world + np.einsum("nij,nj->ni", R_b, np.cross(w, lever)))
+    J[:, :3, 1:4] = -R_b
+    J[:, 3:, 0] = -np.einsum("nij,nj->ni", Jl_inv, np.einsum("ji,nj->ni", R_cb, w))
+    J[:, 3:, 4:7] = -Jl_inv @ (R_hat.T @ so3_right_jacobian(theta))
+    return J
 
 
 def residual_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
@@ -90,21 +108,14 @@ def _pos_cov(ep: Epochs) -> np.ndarray:
 
 def _epoch_block(ep: Epochs, R_hat: np.ndarray, W: np.ndarray) -> FunctionBlock:
     """The engine block of the per-epoch residuals, whitened by W (N,6,6) and linear in nothing but the 7
-    mounting globals x = [dt, l_b, theta_b] (d/dx by central differences)."""
+    mounting globals x = [dt, l_b, theta_b] (`residual_jacobian`)."""
 
     def fun(state: State, jacobians: bool) -> BlockEval:
         x = state.globals
         r = np.einsum("nij,nj->ni", W, residuals(ep, x, R_hat))
         ev = BlockEval(r, np.ones(len(ep), bool))
         if jacobians:
-            J = np.empty((len(ep), 6, 7))
-            for j in range(7):
-                h = 1e-6 if j > 0 else 1e-5
-                dx = np.zeros(7)
-                dx[j] = h
-                J[:, :, j] = (np.einsum("nij,nj->ni", W, residuals(ep, x + dx, R_hat))
-                              - np.einsum("nij,nj->ni", W, residuals(ep, x - dx, R_hat))) / (2 * h)
-            ev.glob, ev.J_glob = np.arange(7), J
+            ev.glob, ev.J_glob = np.arange(7), W @ residual_jacobian(ep, x, R_hat)
         return ev
 
     return FunctionBlock(fun, len(ep), 6, name="epochs")

@@ -2,7 +2,7 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dgcal.fields.pose import Poses, so3_exp, so3_log, so3_right_jacobian_inv
+from dgcal.fields.pose import Poses, so3_exp, so3_log, so3_right_jacobian, so3_right_jacobian_inv
 
 
 def _random_poses(n=5, seed=0):
@@ -48,3 +48,15 @@ def test_inverse_right_jacobian_linearises_the_log():
         d = rng.normal(0, 1e-6, 3)
         lhs = so3_log(so3_exp(phi) @ so3_exp(d)) - phi
         np.testing.assert_allclose(lhs, so3_right_jacobian_inv(phi) @ d, atol=1e-11)
+
+
+def test_right_jacobian_linearises_the_exponential_and_inverts_its_inverse():
+    rng = np.random.default_rng(5)
+    for phi in (rng.normal(0, 0.5, 3), np.array([1e-8, 0, 0]), np.array([0.0, 2.5, 0.3]), np.zeros(3)):
+        d = rng.normal(0, 1e-6, 3)
+        lhs = so3_log(so3_exp(phi).T @ so3_exp(phi + d))
+        np.testing.assert_allclose(lhs, so3_right_jacobian(phi) @ d, atol=1e-11)
+        if np.linalg.norm(phi) > 0:
+            np.testing.assert_allclose(so3_right_jacobian(phi) @ so3_right_jacobian_inv(phi), np.eye(3), atol=1e-9)
+    stack = rng.normal(0, 0.4, (4, 2, 3))
+    assert so3_right_jacobian(stack).shape == (4, 2, 3, 3)

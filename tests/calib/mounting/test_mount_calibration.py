@@ -191,3 +191,21 @@ def test_dg_covariance_counts_the_common_mode_once_on_the_calibration_flight():
     assert np.all(np.diag(cov_own) < np.diag(back.cov))  # the random part only
     np.testing.assert_allclose(cov_own, np.array(res.extra["covariance_random"]))
     np.testing.assert_allclose(back.covariance_for_flight(["another_flight.jpg"]), back.cov)
+
+
+def test_joint_residual_jacobian_equals_central_differences(sim):
+    """The joint method's analytic Jacobian (delay through the POS rate and velocity, lever arm, boresight through
+    the SO(3) Jacobians) against central differences of its residuals, away from the solution."""
+    from dgcal.calib.mounting.joint import residual_jacobian, residuals
+    c = sim.calibration
+    _, ep = prepare_epochs(c.eop, MapGrid(sim.crs), c.traj, c.events)
+    R_hat = Rotation.from_euler("xyz", [1.5, -2.0, 91.0], degrees=True).as_matrix()
+    x = np.array([-0.09, 0.3, -0.2, 0.15, 0.02, -0.03, 0.05])
+    J = residual_jacobian(ep, x, R_hat)
+    num = np.empty_like(J)
+    for j in range(7):
+        h = np.zeros(7)
+        h[j] = 1e-6
+        num[:, :, j] = (residuals(ep, x + h, R_hat) - residuals(ep, x - h, R_hat)) / 2e-6
+    assert np.abs(J).max() > 1.0                     # not all zeros: the test compares something
+    np.testing.assert_allclose(J, num, atol=2e-7 * np.abs(J).max())
