@@ -19,7 +19,7 @@ Jacobians: Pose3 local coordinates [rotation, translation] (body axes): ``dp/dth
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -61,6 +61,10 @@ class DDFactorData:
     prev_index: np.ndarray
     rho: np.ndarray
     cov: np.ndarray
+    # made once, on the first linearisation, for the re-linearisations: W with W'W = cov^-1, and the tracked rows
+    # of `prev` (rows, their order in `cur`'s tracked rows, their coefficients)
+    whitener: np.ndarray | None = field(default=None, repr=False, compare=False)
+    tracked_prev: tuple | None = field(default=None, repr=False, compare=False)
 
     def raw_residuals(self, pose, lever_b, frame) -> np.ndarray:
         """Unwhitened residuals h - z (m) of the rows at keyframe k (float rows: including their ambiguity)."""
@@ -106,10 +110,11 @@ def _dd_model(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.nd
     tracked = (data.prev_index >= 0) & (data.rho != 0)
     use_prev = X_prev is not None and prev is not None and tracked.any()
     if use_prev:
-        pj = data.prev_index[tracked]
-        prev_rows = prev.subset(np.isin(np.arange(prev.n), pj))
-        order = np.searchsorted(np.nonzero(np.isin(np.arange(prev.n), pj))[0], pj)
-        rho_t = data.rho[tracked]
+        if data.tracked_prev is None:
+            pj = data.prev_index[tracked]
+            data.tracked_prev = (prev.subset(np.isin(np.arange(prev.n), pj)),
+                                 np.searchsorted(np.nonzero(np.isin(np.arange(prev.n), pj))[0], pj), data.rho[tracked])
+        prev_rows, order, rho_t = data.tracked_prev
     keys = [X_prev, X_cur] if use_prev else [X_cur]
 
     def error(values, jacobians: bool):
@@ -157,8 +162,9 @@ def linear_dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b
     keys, cov, model = _dd_model(X_prev, X_cur, data, lever_b, frame)
     e, H = model(values, True)
     # whiten as gtsam's Gaussian model does: R'R = C^-1 with R upper triangular
-    L = np.linalg.cholesky(cov)
-    W = np.linalg.inv(L)                          # W' W = C^-1
+    if data.whitener is None:
+        data.whitener = np.linalg.inv(np.linalg.cholesky(cov))      # W' W = C^-1
+    W = data.whitener
     args = []
     for key, Hi in zip(keys, H):
         args += [key, W @ Hi]
