@@ -478,7 +478,7 @@ def gnss_residuals(problem: Problem, values, rows: KeyframeRows) -> dict:
     sigma was recorded (pseudorange, Doppler) take their errors from it, the few others are evaluated."""
     tab = factor_table(problem)
     z = whitened_errors(rows, tab)
-    out: dict = {}
+    out: dict = {}      # kind -> [(keyframe, residuals, sigmas) per factor]
     for i, (kd, sig) in enumerate(zip(tab.kinds, tab.sigma)):
         if kd is None or np.isfinite(sig):
             continue
@@ -486,16 +486,18 @@ def gnss_residuals(problem: Problem, values, rows: KeyframeRows) -> dict:
         if kind == "dd":
             data = problem.dd[k]
             e, s = dd_residuals(data, values, X, problem.lever_arm_b, problem.frame)
-            names = np.where(data.cur.kind == 1, "ddc", np.where(data.cur.mode == 1, "ddp_float", "ddp"))
-            for j in range(len(e)):
-                out.setdefault(str(names[j]), []).append((k, e[j], s[j]))
+            for name, m in (("ddp", (data.cur.kind != 1) & (data.cur.mode != 1)),
+                            ("ddp_float", (data.cur.kind != 1) & (data.cur.mode == 1)), ("ddc", data.cur.kind == 1)):
+                if m.any():
+                    out.setdefault(name, []).append((np.full(m.sum(), k), e[m], s[m]))
             continue
         f = problem.graph.at(i)
         e = np.atleast_1d(f.unwhitenedError(values))
         w = np.atleast_1d(f.whitenedError(values))
-        for j in range(len(e)):
-            out.setdefault(kind, []).append((k, e[j], e[j] / w[j] if w[j] != 0 else np.nan))
-    res = {kind: tuple(np.array(c) for c in zip(*r)) for kind, r in out.items()}
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(w != 0, e / np.where(w != 0, w, 1.0), np.nan)
+        out.setdefault(kind, []).append((np.full(len(e), k), e, s))
+    res = {kind: tuple(np.concatenate(c) for c in zip(*r)) for kind, r in out.items()}
     # the recorded kinds (one row per factor): whitened error times sigma
     rec = np.flatnonzero(np.isfinite(tab.sigma))
     names = np.array([tab.kinds[i][0] for i in rec])
