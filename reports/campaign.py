@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime
 import json
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -380,9 +381,8 @@ def _triangulation_section(rep: HtmlReport, d: dict, out: Path, cfg: dict, files
         for key, label in (("check_rmse_m", "check-point RMSE (m)"), ("control_rmse_m", "control-point RMSE (m)")):
             if isinstance(tri.get(key), dict):
                 rep.kv_table([(f"{label} {a}", v if a == "n" else _m(v)) for a, v in tri[key].items()])
-        fig = _fig_block(files["triangulation"].get("eop"), cfg)
-        if fig is not None:
-            rep.figure(fig, "Projection centres (colour: height) and ground points of the calibration flight.")
+        rep.figure(partial(_fig_block, files["triangulation"].get("eop"), cfg),
+                   "Projection centres (colour: height) and ground points of the calibration flight.")
         _link(rep, out, files["triangulation"].get("report"), "residuals, EOP sigmas, footprints")
     else:
         rep.text("No triangulation step in this campaign.")
@@ -396,9 +396,8 @@ def _pos_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
         rep.kv_table([(k, _short(v)) for k, v in pos.items() if not isinstance(v, dict)])
         for k, v in (pos.get("residuals") or {}).items():
             rep.kv_table([(f"{k} residuals {a}", b) for a, b in v.items()])
-        fig = _fig_pos_sigma(files["pos"].get("trajectory"))
-        if fig is not None:
-            rep.figure(fig, "Smoothed trajectory: 1-sigma of position and attitude over the flight.")
+        rep.figure(partial(_fig_pos_sigma, files["pos"].get("trajectory")),
+                   "Smoothed trajectory: 1-sigma of position and attitude over the flight.")
         _link(rep, out, files["pos"].get("report"), "smoother details")
     else:
         rep.text("No POS step in this campaign (an external trajectory was used).")
@@ -416,11 +415,11 @@ def _mounting_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
                  "Boresight: R_cam_to_body = Rz(yaw) Ry(pitch) Rx(roll); its sigmas are small rotations about the "
                  "body axes. Delay: t_exposure − t_event.", cls="small")
         m = mounts[chosen]
-        rep.figure(_fig_correlation(m), f"Correlations of the '{chosen}' estimate (delay, lever arm, boresight).")
-        fig = _fig_per_epoch(files["mounts"])
-        if fig is not None:
-            rep.figure(fig, "Per-epoch lever arms of the two-step (traditional) method (seed 003 Fig. 22): a "
-                            "non-zero delay shows as a shift that depends on the speed and heading.")
+        rep.figure(partial(_fig_correlation, m),
+                   f"Correlations of the '{chosen}' estimate (delay, lever arm, boresight).")
+        rep.figure(partial(_fig_per_epoch, files["mounts"]),
+                   "Per-epoch lever arms of the two-step (traditional) method (seed 003 Fig. 22): a non-zero delay "
+                   "shows as a shift that depends on the speed and heading.")
         for k in mounts:
             _link(rep, out, files["mounts"].get(k, {}).get("report"), f"{k}: per-epoch plots, residuals")
     else:
@@ -450,9 +449,7 @@ def _dg_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
         for k, v in imp.items():
             rep.heading(f"Improvement rates over {k[len('improvement_over_'):]} (seed Tables 4–5, %)", 3)
             rep.table(["method", "2D (%)", "3D (%)"], [[m_, _m(r["2D"], 1), _m(r["3D"], 1)] for m_, r in v.items()])
-        fig = _fig_check(d["check"])
-        if fig is not None:
-            rep.figure(fig, "Check-point errors of direct georeferencing per method.")
+        rep.figure(partial(_fig_check, d["check"]), "Check-point errors of direct georeferencing per method.")
         _link(rep, out, files["check"].get("report"), "per-point table")
     else:
         rep.text("No DG check in this campaign.")

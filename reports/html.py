@@ -16,6 +16,7 @@ matplotlib.use("Agg")  # reports render PNGs without a display: the one place dg
 import matplotlib.pyplot as plt  # noqa: E402  (after the backend choice)
 import numpy as np  # noqa: E402
 from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from dgcal.fields.io.csv_tables import atomic_write  # noqa: E402
@@ -68,12 +69,23 @@ def _crop_png(rgba: np.ndarray, content, h_in: float, dpi: float, out) -> None:
     Image.fromarray(page).save(out, format="png", dpi=(dpi, dpi))
 
 
-def figures_png(figs: Sequence, dpi: int = 110) -> list[bytes]:
+def figures_png(figs: Sequence, dpi: int = 110) -> list[bytes | None]:
     """PNG bytes of figures, drawn side by side in forked processes (fields.processes.fork_map); every figure is
-    closed here too, where a child drew it."""
+    closed here too, where a child drew it. An entry may instead be a function that makes the figure (made where
+    it is drawn, so the making runs side by side too); one that returns None gives None."""
     for fig in figs:
-        plt.close(fig)   # out of pyplot's registry; the figure itself stays drawable
-    return fork_map([functools.partial(figure_png, fig, dpi) for fig in figs])
+        if not _is_maker(fig):
+            plt.close(fig)   # out of pyplot's registry; the figure itself stays drawable
+    return fork_map([functools.partial(_made_png, fig, dpi) for fig in figs])
+
+
+def _is_maker(fig) -> bool:
+    return callable(fig) and not isinstance(fig, Figure)
+
+
+def _made_png(fig_or_maker, dpi: int) -> bytes | None:
+    fig = fig_or_maker() if _is_maker(fig_or_maker) else fig_or_maker
+    return None if fig is None else figure_png(fig, dpi)
 
 
 def new_figure(w_in: float = 8.0, h_in: float = 5.0, **kw):
@@ -142,11 +154,13 @@ class HtmlReport:
 
     def figure(self, fig_or_png, caption: str = "") -> "HtmlReport":
         """Embed a matplotlib figure (or PNG bytes) as a base64 image; a figure is drawn when the page is
-        rendered, side by side with the page's other figures (`render`)."""
+        rendered, side by side with the page's other figures (`render`). A function that makes the figure (or
+        returns None: no figure, no caption) is called then too, side by side with the others."""
         if isinstance(fig_or_png, (bytes, bytearray)):
             self.parts.append(_figure_html(fig_or_png, caption))
         else:
-            plt.close(fig_or_png)   # out of pyplot's registry now (a page may hold many); still drawable
+            if not _is_maker(fig_or_png):
+                plt.close(fig_or_png)   # out of pyplot's registry now (a page may hold many); still drawable
             self.parts.append(_Figure(fig_or_png, caption))
         return self
 
@@ -159,10 +173,10 @@ class HtmlReport:
         pending = [(i, p) for i, p in enumerate(self.parts) if isinstance(p, _Figure)]
         pngs = figures_png([p.fig for _, p in pending])
         for (i, p), png in zip(pending, pngs):
-            self.parts[i] = _figure_html(png, p.caption)
+            self.parts[i] = "" if png is None else _figure_html(png, p.caption)
         return (f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{html.escape(self.title)}</title>"
                 f"<style>{_STYLE}</style></head><body><h1>{html.escape(self.title)}</h1>"
-                + "\n".join(self.parts) + "</body></html>\n")
+                + "\n".join(p for p in self.parts if p) + "</body></html>\n")
 
     def write(self, path: str | Path) -> Path:
         """Write the page atomically; returns the path."""

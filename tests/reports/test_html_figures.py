@@ -70,3 +70,18 @@ def test_figure_png_is_savefigs_tight_crop_from_one_drawing():
         ink_got, ink_tight = (255 - got).sum(), (255 - tight).sum()
         assert abs(ink_got - ink_tight) < 0.02 * ink_tight                          # nothing cut off or added
         assert np.abs(got[:h, :w] - tight[:h, :w]).mean() < 12                      # at most a sub-pixel shift
+
+
+def test_a_figure_maker_is_called_when_the_page_is_drawn_and_none_leaves_no_figure():
+    def curve():
+        fig, ax = new_figure(3, 2)
+        ax.plot([0, 1, 2], [1, 0, 1])
+        return fig
+
+    eager, lazy = HtmlReport("p"), HtmlReport("p")
+    eager.figure(curve(), "a curve")
+    lazy.figure(curve, "a curve")
+    lazy.figure(lambda: None, "nothing to show")
+    lazy_page = lazy.render()
+    assert lazy_page == eager.render()
+    assert "nothing to show" not in lazy_page and lazy_page.count("<img") == 1
