@@ -779,7 +779,8 @@ def read_base(opts: PosOptions, rover_rx, nav, sopts, systems: str, max_age_s: f
         raise InputError(f"no base epoch within {max_age_s:g} s of any rover epoch", opts.rinex_base,
                          int(base_all.epoch_line[0]), "EPOCH")
     keep = (tb >= t0 - max_age_s) & (tb <= t1 + max_age_s)
-    base_rx = read_obs_file(opts.rinex_base, t_start=float(tb[keep][0]), t_end=float(tb[keep][-1]), systems=systems)
+    base_rx = base_all if keep.all() else \
+        read_obs_file(opts.rinex_base, t_start=float(tb[keep][0]), t_end=float(tb[keep][-1]), systems=systems)
     if opts.base_position_ecef is not None:
         base = np.asarray(opts.base_position_ecef, float)
         src, fld = "--base-position", "--base-position"
