@@ -1,5 +1,3 @@
-import sys
+from dgcal.cli import entry
 
-from dgcal.cli import main
-
-sys.exit(main())
+entry()
