@@ -101,13 +101,16 @@ def entry() -> None:
     """The `dgcal` console script and `python -m dgcal`: `main`, then the process ends without the interpreter's
     teardown (0.6 s after a campaign: unloading gtsam, numba's LLVM, pycolmap, matplotlib). Every output is
     written and closed by then (atomic writes), child processes have been joined, and the streams are flushed
-    here; `main` itself returns normally, for callers in Python."""
+    here; under a profiler or coverage the teardown runs (they write their results then). `main` itself returns
+    normally, for callers in Python."""
     try:
         rc = main()
     except SystemExit as exc:                # argparse: --help, usage errors
         rc = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1   # as Python's own exit
         if exc.code is not None and not isinstance(exc.code, int):
             print(exc.code, file=sys.stderr)
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        sys.exit(rc)                         # a profiler or coverage writes its results at the teardown
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

@@ -21,3 +21,10 @@ def test_exit_status_of_bad_usage_and_bad_input():
     assert _entry(["no-such-verb"]).returncode == 2                       # argparse's SystemExit(2)
     bad = _entry(["camera", "--field", "/no/such/field.csv", "--measurements", "/no/such/m.csv", "--out", "/tmp/x"])
     assert bad.returncode == 2 and "dgcal camera: error:" in bad.stderr
+
+
+def test_a_profiler_still_gets_its_results(tmp_path):
+    prof = tmp_path / "help.prof"
+    out = subprocess.run([sys.executable, "-m", "cProfile", "-o", str(prof), "-m", "dgcal", "--help"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and prof.is_file() and prof.stat().st_size > 0
