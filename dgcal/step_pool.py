@@ -17,7 +17,7 @@ from typing import Callable
 
 from threadpoolctl import threadpool_limits
 
-from dgcal.fields.processes import cpus, die_with_parent
+from dgcal.fields.processes import cpus, die_with_parent, frozen_heap
 
 __all__ = ["Outcome", "StepPool", "default_jobs"]
 
@@ -65,7 +65,8 @@ class StepPool:
         parent_end, child_end = self._ctx.Pipe(duplex=False)
         proc = self._ctx.Process(target=_child, name=f"dgcal-{name}", daemon=False,
                                  args=(self.runner, list(argv), child_end, os.getpid(), self.blas_threads, nice))
-        proc.start()
+        with frozen_heap():
+            proc.start()
         child_end.close()
         self.running[name] = _Running(proc, parent_end)
 

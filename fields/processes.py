@@ -4,13 +4,15 @@ results)."""
 from __future__ import annotations
 
 import ctypes
+import gc
 import multiprocessing
 import os
 import signal
 import sys
+from contextlib import contextmanager
 from typing import Callable, Sequence, TypeVar
 
-__all__ = ["cpus", "die_with_parent", "fork_map"]
+__all__ = ["cpus", "die_with_parent", "fork_map", "frozen_heap"]
 
 T = TypeVar("T")
 _PR_SET_PDEATHSIG = 1   # linux/prctl.h
@@ -34,6 +36,18 @@ def die_with_parent(parent_pid: int) -> None:
         os._exit(137)
 
 
+@contextmanager
+def frozen_heap():
+    """Around a fork: this process's objects moved out of the garbage collector's reach (gc.freeze) while children
+    are forked, and back after. A child's collections then never walk the inherited objects, which would write to
+    every page holding one (copy-on-write: the child would copy much of the parent's memory)."""
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
 def fork_map(tasks: Sequence[Callable[[], T]], jobs: int | None = None) -> list[T]:
     """The results of `tasks` in order, computed by this process and up to `jobs` - 1 forked children (default:
     one per CPU); a task whose child failed or died is run again here, so its exception, if any, is raised
@@ -46,12 +60,13 @@ def fork_map(tasks: Sequence[Callable[[], T]], jobs: int | None = None) -> list[
     for stream in (sys.stdout, sys.stderr):
         stream.flush()
     children = []
-    for group in groups[1:]:
-        recv_end, send_end = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_child, args=(tasks, group, send_end, os.getpid()))
-        proc.start()
-        send_end.close()
-        children.append((proc, recv_end))
+    with frozen_heap():
+        for group in groups[1:]:
+            recv_end, send_end = ctx.Pipe(duplex=False)
+            proc = ctx.Process(target=_child, args=(tasks, group, send_end, os.getpid()))
+            proc.start()
+            send_end.close()
+            children.append((proc, recv_end))
     results: dict[int, T] = {i: tasks[i]() for i in groups[0]}
     for proc, conn in children:
         try:
