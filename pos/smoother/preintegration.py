@@ -156,14 +156,16 @@ def preintegrate(params, seg: ImuSegments, biases, per_interval: list | None = N
     the linearisation bias, `per_interval[k]` (optional) replaces `params` for interval k. The specific force is
     rotation compensated (`rotation_compensated_accel`)."""
     out = []
-    gyro, dt = seg.gyro, seg.dt
+    gyro, dt = seg.gyro, seg.dt.tolist()          # Python floats: pybind takes them faster than numpy scalars
     accel = rotation_compensated_accel(seg.gyro, seg.accel, seg.dt)
-    for k in (range(len(seg.start) - 1) if which is None else which):
+    start = seg.start.tolist()
+    for k in (range(len(start) - 1) if which is None else which):
         pk = per_interval[k] if per_interval is not None and per_interval[k] is not None else params
         pim = gtsam.PreintegratedCombinedMeasurements(pk, biases[k])
         f = pim.integrateMeasurement
-        for j in range(seg.start[k], seg.start[k + 1]):
-            f(accel[j], gyro[j], dt[j])
+        a, b = start[k], start[k + 1]
+        for acc_j, gyro_j, dt_j in zip(accel[a:b], gyro[a:b], dt[a:b]):
+            f(acc_j, gyro_j, dt_j)
         out.append(pim)
     return out
 
