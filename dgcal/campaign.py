@@ -421,20 +421,25 @@ class DemoOptions:
     jobs: int = 1
 
 
+def _simulate(data: Path, seed: int) -> dict:
+    """`dgcal.sim.campaign.simulate_campaign`, imported here: in the demo's child process, not the runner."""
+    from dgcal.sim.campaign import simulate_campaign
+    return simulate_campaign(data, seed)
+
+
 def run_demo(opts: DemoOptions, log=None) -> dict:
     """Simulate the seed-003-like campaign into out/data (unless it is there for this seed) and run it into
     out/results; returns `run_campaign`'s record plus the time taken (s)."""
     t0 = time.perf_counter()
-    from dgcal.sim.campaign import simulate_campaign
     log = log or sys.stderr
     data, results = Path(opts.out) / "data", Path(opts.out) / "results"
     stamp = data / "truth.json"
     if opts.force or not stamp.is_file() or json.loads(stamp.read_text()).get("seed") != opts.seed:
         print(f"[simulate] campaign (seed {opts.seed}) -> {data}", file=log, flush=True)
-        if opts.jobs > 1:   # the simulation in a child while this process loads what the steps it forks share
-            fork_map([preload_for_steps, partial(simulate_campaign, data, opts.seed)])
+        if opts.jobs > 1:   # the simulation (its imports too) in a child while this process loads what the steps share
+            fork_map([preload_for_steps, partial(_simulate, data, opts.seed)])
         else:
-            simulate_campaign(data, opts.seed)
+            _simulate(data, opts.seed)
         simulated = time.perf_counter() - t0
         print(f"[simulate] done in {simulated:.1f} s", file=log, flush=True)
     else:

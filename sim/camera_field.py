@@ -28,7 +28,7 @@ from dgcal.calib.camera.models import CameraModel, Fraser7
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir, write_table
 from dgcal.fields.targets.boards import Board, board_texture, write_board_field
 from dgcal.fields.targets.plate import TargetField, nonplanar_field, write_field
-from dgcal.fields.targets.printing import field_texture
+from dgcal.fields.targets.texture import field_texture
 from dgcal.sim.render import Facet, RayGrid, facet_depth_at, render
 
 

@@ -4,7 +4,7 @@ For each output pixel the camera model's inverse (`undistort_normalized`, the id
 each facet's plane and the facet texture is sampled with cv2.remap; a z-buffer keeps the nearest facet.
 Anti-aliasing: each pixel averages k x k sub-samples at offsets (m + 0.5)/k - 0.5 px, whose rays are
 interpolated bilinearly from the rays of the pixel grid (rays vary smoothly, the error is far below 1e-3 px).
-Textures should themselves be area-filtered (see dgcal.fields.targets.printing.field_texture).
+Textures should themselves be area-filtered (see dgcal.fields.targets.texture.field_texture).
 
 Generic: a facet is any textured parallelogram in a world frame (a plate, a block face, a ground tile).
 """

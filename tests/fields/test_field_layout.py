@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from dgcal.fields.errors import InputError
-from dgcal.fields.targets.printing import field_texture, print_raster
+from dgcal.fields.targets.printing import print_raster
+from dgcal.fields.targets.texture import field_texture
 from dgcal.fields.io.formats import read_points
 from dgcal.fields.targets.plate import TargetField, load_layout, nonplanar_field, write_field
 
