@@ -172,7 +172,7 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     if mode == "tc" and carrier is not None:
         t0 = time.perf_counter()
         rover_co, base_co, base_ecef = carrier
-        po = ppk_opts or PpkOptions(humidity=0.7, solution="forward")
+        po = ppk_opts or PpkOptions(humidity=0.7, solution="forward", iono_ppm=0.0, tropo_zenith_m=0.0)
         with threadpool_limits(1):        # small matrices: BLAS threads only cost
             fe = carrier_front_end(rover_co, base_co, nav, base_ecef, (fixes.t, fixes.p_ecef), po, dd_opts,
                                    p_init=fixes.p_ecef[0])
@@ -529,9 +529,11 @@ def tc_carrier_inputs(opts: PosOptions, nav, spp_opts, extra: dict):
                             "use_phase" if k == "dd_phase" else k): v for k, v in dd_kw.items()},
                         elev_mask_deg=opts.elev_mask_deg)
     systems = "".join(spp_opts.systems)
+    # iono/tropo 0: no atmosphere budget on PPK's fixed-position covariances, which the TC front end never reads
+    # (it takes PPK's positions and integers; the smoother budgets the atmosphere itself, from dd_opts)
     popts = PpkOptions(systems=systems, n_freq=int(opts.n_freq), elev_mask_deg=opts.elev_mask_deg,
                        ar_elev_mask_deg=opts.elev_mask_deg, dynamics="kinematic", solution="forward",
-                       ratio_threshold=opts.ar_ratio, humidity=0.7)
+                       ratio_threshold=opts.ar_ratio, humidity=0.7, iono_ppm=0.0, tropo_zenith_m=0.0)
     rover_rx = read_obs_file(opts.rinex_obs, t_start=opts.t_start, t_end=opts.t_end, systems=systems)
     bs = read_base(opts, rover_rx, nav, spp_opts, systems, popts.max_age_s)
     raw = read_rinex_obs(opts.rinex_obs, systems=spp_opts.systems, rinex=rover_rx)
