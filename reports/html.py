@@ -88,9 +88,17 @@ def _made_png(fig_or_maker, dpi: int) -> bytes | None:
     return None if fig is None else figure_png(fig, dpi)
 
 
+MIN_BOTTOM_IN = 0.55   # room for tick labels and an x-axis label below the lowest axes
+
+
 def new_figure(w_in: float = 8.0, h_in: float = 5.0, **kw):
-    """A matplotlib (figure, axes) on the Agg backend, for embedding."""
-    return plt.subplots(figsize=(w_in, h_in), **kw)
+    """A matplotlib (figure, axes) on the Agg backend, for embedding. A short figure keeps MIN_BOTTOM_IN below its
+    axes (matplotlib's 11 % of the height is less): the x-axis label then lies inside the canvas, and the figure is
+    cut from one drawing (`figure_png`)."""
+    fig, axes = plt.subplots(figsize=(w_in, h_in), **kw)
+    if "layout" not in kw and fig.subplotpars.bottom * h_in < MIN_BOTTOM_IN:
+        fig.subplots_adjust(bottom=MIN_BOTTOM_IN / h_in)
+    return fig, axes
 
 
 def _fmt(v) -> str:
