@@ -19,7 +19,8 @@ Jacobians: Pose3 local coordinates [rotation, translation] (body axes): ``dp/dth
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 
 import gtsam
 import numpy as np
@@ -61,10 +62,24 @@ class DDFactorData:
     prev_index: np.ndarray
     rho: np.ndarray
     cov: np.ndarray
-    # made once, on the first linearisation, for the re-linearisations: W with W'W = cov^-1, and the tracked rows
-    # of `prev` (rows, their order in `cur`'s tracked rows, their coefficients)
-    whitener: np.ndarray | None = field(default=None, repr=False, compare=False)
-    tracked_prev: tuple | None = field(default=None, repr=False, compare=False)
+
+    @cached_property
+    def whitener(self) -> np.ndarray:
+        """W with W'W = cov^-1, W lower triangular (made once; every re-linearisation uses it)."""
+        return np.linalg.inv(np.linalg.cholesky(self.cov))
+
+    @cached_property
+    def tracked(self) -> np.ndarray:
+        """(n,) bool: the rows tracked from `prev` with a non-zero coefficient."""
+        return (self.prev_index >= 0) & (self.rho != 0)
+
+    @cached_property
+    def tracked_prev(self) -> tuple[DDEpoch, np.ndarray, np.ndarray]:
+        """The rows of `prev` that `tracked` rows continue, the order taking them to those rows, their coefficients
+        (made once; every re-linearisation uses them)."""
+        pj = self.prev_index[self.tracked]
+        taken = np.isin(np.arange(self.prev.n), pj)
+        return self.prev.subset(taken), np.searchsorted(np.nonzero(taken)[0], pj), self.rho[self.tracked]
 
     def raw_residuals(self, pose, lever_b, frame) -> np.ndarray:
         """Unwhitened residuals h - z (m) of the rows at keyframe k (float rows: including their ambiguity)."""
@@ -107,13 +122,9 @@ def _dd_model(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.nd
     one keyframe's double differences (keys X_prev (may be None) and X_cur)."""
     lever = np.asarray(lever_b, float)
     cur, prev = data.cur, data.prev
-    tracked = (data.prev_index >= 0) & (data.rho != 0)
+    tracked = data.tracked
     use_prev = X_prev is not None and prev is not None and tracked.any()
     if use_prev:
-        if data.tracked_prev is None:
-            pj = data.prev_index[tracked]
-            data.tracked_prev = (prev.subset(np.isin(np.arange(prev.n), pj)),
-                                 np.searchsorted(np.nonzero(np.isin(np.arange(prev.n), pj))[0], pj), data.rho[tracked])
         prev_rows, order, rho_t = data.tracked_prev
     keys = [X_prev, X_cur] if use_prev else [X_cur]
 
@@ -162,9 +173,7 @@ def linear_dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b
     keys, cov, model = _dd_model(X_prev, X_cur, data, lever_b, frame)
     e, H = model(values, True)
     # whiten as gtsam's Gaussian model does: R'R = C^-1 with R upper triangular
-    if data.whitener is None:
-        data.whitener = np.linalg.inv(np.linalg.cholesky(cov))      # W' W = C^-1
-    W = data.whitener
+    W = data.whitener                              # W' W = C^-1
     args = []
     for key, Hi in zip(keys, H):
         args += [key, W @ Hi]
