@@ -244,9 +244,10 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     fingerprints: dict[str, str] = {}
     by_name = {s.name: s for s in steps}
     pending = list(steps)
+    pool = None
     if jobs > 1:
         preload_for_steps()
-    pool = StepPool(runner, blas_threads=max(1, cpus() // jobs)) if jobs > 1 else None
+        pool = StepPool(runner, blas_threads=max(1, cpus() // jobs))
     failure: InputError | None = None
 
     def waiting(step: Step) -> bool:

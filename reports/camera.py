@@ -114,9 +114,11 @@ def per_image_figure(cal: CameraCalibration):
     ax.bar(range(len(names)), np.nan_to_num(vals), color="tab:blue")
     ax.axhline(cal.ba.rms_px, color="tab:red", lw=1, label=f"overall {cal.ba.rms_px:.3f} px")
     if len(names) <= 60:
-        ax.set_xticks(range(len(names)), names, rotation=90, fontsize=6)
-        # room below for the upright names (~0.62 em a character at 6 pt), so the figure fits its canvas
-        fig.subplots_adjust(bottom=min(0.6, (0.2 + max(map(len, names)) * 6 * 0.62 / 72) / 3.6))
+        size_pt = 6
+        ax.set_xticks(range(len(names)), names, rotation=90, fontsize=size_pt)
+        # room below for the upright names (~0.62 em a character), so the figure fits its canvas
+        below_in = 0.2 + max(map(len, names)) * size_pt * 0.62 / 72
+        fig.subplots_adjust(bottom=min(0.6, below_in / fig.get_figheight()))
     ax.set_ylabel("RMS (px)")
     ax.set_title("per-image RMS residual")
     ax.legend(fontsize=8)
