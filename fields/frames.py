@@ -10,7 +10,6 @@ Names say what a matrix does: `R_a_to_b @ v_a = v_b`.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 R_CV_TO_PHOTO = np.diag([1.0, -1.0, -1.0])
 R_ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -20,15 +19,22 @@ R_NED_TO_ENU = R_ENU_TO_NED.T  # the swap is its own inverse, .T keeps the inten
 R_CAM_TO_BODY_NADIR = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 
+def _rotation():
+    """scipy's Rotation class, imported at first use: scipy.spatial takes 0.15-0.35 s to import, and the ECEF/ENU
+    rotations (all a single-point GNSS run needs here) use none of it."""
+    from scipy.spatial.transform import Rotation   # why: see the docstring
+    return Rotation
+
+
 def R_body_to_ned_from_rph(roll_deg, pitch_deg, heading_deg) -> np.ndarray:
     """Body(FRD)-to-NED rotation(s) from roll, pitch, heading in degrees; shape (3,3) or (N,3,3)."""
     ang = np.stack(np.broadcast_arrays(heading_deg, pitch_deg, roll_deg), axis=-1)
-    return Rotation.from_euler("ZYX", ang, degrees=True).as_matrix()
+    return _rotation().from_euler("ZYX", ang, degrees=True).as_matrix()
 
 
 def rph_from_R_body_to_ned(R_body_to_ned: np.ndarray) -> np.ndarray:
     """Roll, pitch, heading (degrees, heading in [0, 360)) from body-to-NED rotation(s); shape (...,3)."""
-    hpr = Rotation.from_matrix(R_body_to_ned).as_euler("ZYX", degrees=True)
+    hpr = _rotation().from_matrix(R_body_to_ned).as_euler("ZYX", degrees=True)
     rph = hpr[..., ::-1].copy()
     rph[..., 2] = np.mod(rph[..., 2], 360.0)
     return rph
@@ -37,12 +43,12 @@ def rph_from_R_body_to_ned(R_body_to_ned: np.ndarray) -> np.ndarray:
 def R_photo_to_map_from_opk(omega_deg, phi_deg, kappa_deg) -> np.ndarray:
     """PATB matrix M = Rx(omega) Ry(phi) Rz(kappa) (photo axes to map E,N,Up); degrees in."""
     ang = np.stack(np.broadcast_arrays(omega_deg, phi_deg, kappa_deg), axis=-1)
-    return Rotation.from_euler("XYZ", ang, degrees=True).as_matrix()
+    return _rotation().from_euler("XYZ", ang, degrees=True).as_matrix()
 
 
 def opk_from_R_photo_to_map(R_photo_to_map: np.ndarray) -> np.ndarray:
     """Omega, phi, kappa in degrees (PATB) from photo-to-map rotation(s); shape (...,3)."""
-    return Rotation.from_matrix(R_photo_to_map).as_euler("XYZ", degrees=True)
+    return _rotation().from_matrix(R_photo_to_map).as_euler("XYZ", degrees=True)
 
 
 def R_cam_to_map_from_opk(omega_deg, phi_deg, kappa_deg) -> np.ndarray:
@@ -76,7 +82,7 @@ def R_enu_to_grid(convergence_deg) -> np.ndarray:
     `dgcal.fields.crs.MapGrid.convergence_deg`; a vector of true azimuth a has grid azimuth a - convergence.
     """
     c = np.asarray(convergence_deg, float)
-    return Rotation.from_euler("z", c.reshape(-1, 1), degrees=True).as_matrix().reshape(c.shape + (3, 3))
+    return _rotation().from_euler("z", c.reshape(-1, 1), degrees=True).as_matrix().reshape(c.shape + (3, 3))
 
 
 def skew(v: np.ndarray) -> np.ndarray:

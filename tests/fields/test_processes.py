@@ -1,32 +1,47 @@
-"""fields.processes.fork_map: the results of the tasks in order, the same as run here; a task that fails or
-whose child dies is run again in the parent (its exception raised there)."""
+"""fields.processes.fork_map: the results of the tasks in order, the same as run here, each task taken by the
+first process free; a task that fails or whose child dies is run again in the parent (its exception raised there).
+forked_call: one call in a child beside the parent's own work, with the same fallbacks."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import gc
 import os
 import resource
 import signal
+import time
 
 import numpy as np
 import pytest
 
 import dgcal.fields.processes as processes
-from dgcal.fields.processes import fork_map
+from dgcal.fields.processes import fork_map, forked_call
 
 PARENT = os.getpid()
 
 
-def _square(k: int):
-    return lambda: (k * k, os.getpid())
+def _square(k: int, seconds: float = 0.0):
+    def task():
+        time.sleep(seconds)
+        return k * k, os.getpid()
+    return task
 
 
 def test_results_in_order_and_computed_in_children():
-    out = fork_map([_square(k) for k in range(7)], jobs=3)
+    out = fork_map([_square(k, 0.2) for k in range(7)], jobs=3)
     assert [v for v, _ in out] == [k * k for k in range(7)]
     pids = {pid for _, pid in out}
     assert PARENT in pids and len(pids) == 3          # the parent's share and two children's
     assert fork_map([_square(k) for k in range(7)], jobs=1) == [(k * k, PARENT) for k in range(7)]
+
+
+def test_tasks_of_unequal_cost_share_out_evenly():
+    """Each process takes the next task when it is free: the one that took the long task runs nothing else (a
+    fixed round robin would give it two of the short ones as well)."""
+    out = fork_map([_square(0, 1.0)] + [_square(k, 0.1) for k in range(1, 5)], jobs=2)
+    assert [v for v, _ in out] == [0, 1, 4, 9, 16]
+    long_pid, short_pids = out[0][1], {pid for _, pid in out[1:]}
+    assert short_pids == {next(iter(short_pids))} and long_pid not in short_pids
 
 
 def test_large_results_come_back_whole():
@@ -50,7 +65,8 @@ def test_a_dead_child_costs_only_time():
 
 
 def _collect_in_child():
-    """Minor page faults and seconds of a full garbage collection in a forked child."""
+    """Minor page faults of a full garbage collection in a forked child."""
+    assert os.getpid() != PARENT
     f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     gc.collect()
     return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
@@ -61,8 +77,37 @@ def test_a_forked_childs_collection_leaves_the_inherited_heap_shared(monkeypatch
     """fork_map forks with the parent's objects frozen: a full collection in the child touches none of their pages
     (without the freeze it writes to every page holding an object and copies it)."""
     heap = [[i, str(i)] for i in range(500_000)]        # ~60 MB of small objects
-    frozen = fork_map([lambda: 0, _collect_in_child])[1]
+    busy_parent = functools.partial(time.sleep, 0.5)    # the parent takes the first task, the child the second
+    frozen = fork_map([busy_parent, _collect_in_child])[1]
     monkeypatch.setattr(processes, "frozen_heap", contextlib.nullcontext)
-    walked = fork_map([lambda: 0, _collect_in_child])[1]
+    walked = fork_map([busy_parent, _collect_in_child])[1]
     assert len(heap) and walked > 5000 and frozen < walked / 10
     assert gc.get_freeze_count() == 0                   # the parent's objects are collectable again
+
+
+def test_forked_call_computes_in_a_child_while_the_parent_works():
+    with forked_call(_square(6, 0.3)) as result:
+        here = sum(range(10_000))                        # the parent's own work, meanwhile
+        value, pid = result()
+    assert here == 49_995_000 and value == 36 and pid != PARENT
+    assert result() == (36, pid)                         # the result is kept
+
+
+def test_forked_call_raises_a_failure_in_the_parent_and_survives_a_dead_child():
+    def bad():
+        raise ValueError("no good")
+    with forked_call(bad) as result, pytest.raises(ValueError, match="no good"):
+        result()
+
+    def dies_in_a_child():
+        if os.getpid() != PARENT:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return "here", os.getpid()
+    with forked_call(dies_in_a_child) as result:
+        assert result() == ("here", PARENT)
+
+
+def test_leaving_forked_call_kills_a_child_still_running():
+    with forked_call(time.sleep, 60):
+        pass
+    assert not [p for p in processes.multiprocessing.active_children()]

@@ -140,6 +140,30 @@ def test_cli_no_report_writes_the_csv_and_summary_without_html(shared_data, tmp_
     assert out == ["0", "False", "False"]
 
 
+def test_cli_report_is_the_librarys_and_positions_beside_matplotlibs_import(shared_data, tmp_path):
+    """With the report, the command positions the epochs in a forked child while it imports matplotlib itself: its
+    files are byte for byte those of the library's write_spp_outputs in one process, and the command's own process
+    never imports the GNSS modules."""
+    import subprocess
+    import sys
+    from dgcal.commands.pos import SPP_OUTPUTS
+    from dgcal.pos.gnss.spp import SppOptions, spp_files
+    from dgcal.reports.gnss import write_spp_outputs
+    obs, nav = str(shared_data / OBS), str(shared_data / NAV)
+    code = ("import sys; from dgcal.cli import main; rc = main(sys.argv[1:]); "
+            "print(rc, 'matplotlib' in sys.modules, 'dgcal.pos.gnss.spp' in sys.modules)")
+    cli = tmp_path / "cli"
+    out = subprocess.run([sys.executable, "-c", code, "pos", "--mode", "spp", "--rinex-obs", obs, "--rinex-nav", nav,
+                          "--no-progress", "--out", str(cli)], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["0", "True", "False"]
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    written = write_spp_outputs(lib, spp_files(obs, [nav], SppOptions()), SPP_OUTPUTS)
+    assert sorted(written) == ["gnss", "gnss_report", "gnss_summary"]
+    for path in written.values():
+        assert (cli / path.name).read_bytes() == path.read_bytes(), path.name
+
+
 def test_dual_frequency_ionosphere_free_code(real, shared_data):
     """`iono=iono-free`: the second code of every GPS/QZSS/Galileo satellite (SEPT: C2W, C2L, C5Q) removes the
     ionosphere; the combination's noise is three times L1's, and the broadcast clock gets its group delay back.
