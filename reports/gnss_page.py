@@ -42,7 +42,8 @@ def draw_spp_report(path: str | Path, series: dict, summary: dict) -> Path:
     rep.figure(partial(_geometry_figure, series), "Satellites used and PDOP per epoch.")
     res = series["residuals_m"]
     if res:
-        rep.figure(partial(_residual_figure, res), "Post-fit pseudorange residuals per satellite.")
+        rep.figure(partial(_residual_figure, res), "Post-fit pseudorange residuals by constellation (satellites in "
+                   "brackets); satellites with over twice the median RMS are named at their largest residual.")
         rep.table(["satellite", "epochs", "mean residual (m)", "RMS (m)"],
                   [[s, len(r), float(np.mean(r)), float(np.sqrt(np.mean(r ** 2)))]
                    for s, (_, r) in sorted(res.items())])
@@ -86,15 +87,28 @@ def _geometry_figure(s: dict):
     return fig
 
 
+SYSTEMS = {"G": "GPS", "E": "Galileo", "C": "BeiDou", "J": "QZSS", "R": "GLONASS"}
+
+
 def _residual_figure(res: dict):
+    """Residuals coloured by constellation (per-satellite colours repeat after ten and tell nothing apart); the
+    satellites whose RMS is over twice the median satellite's are named at their largest residual."""
     fig, ax = new_figure(9, 4.5)
-    for sat in sorted(res):
-        t, r = res[sat]
-        ax.plot(t, r, ".", ms=2, label=sat)
+    for sys_ in sorted({sat[0] for sat in res}):
+        sats = [sat for sat in sorted(res) if sat[0] == sys_]
+        ax.plot(np.concatenate([res[s][0] for s in sats]), np.concatenate([res[s][1] for s in sats]), ".", ms=2,
+                label=f"{SYSTEMS.get(sys_, sys_)} ({len(sats)})")
+    rms = {sat: float(np.sqrt(np.mean(r ** 2))) for sat, (_, r) in res.items()}
+    limit = 2.0 * float(np.median(list(rms.values())))
+    for sat in sorted(rms, key=rms.get, reverse=True)[:5]:
+        if rms[sat] > limit:
+            t, r = res[sat]
+            k = int(np.argmax(np.abs(r)))
+            ax.annotate(sat, (t[k], r[k]), xytext=(4, 0), textcoords="offset points", fontsize=7, va="center")
     ax.set_xlabel("time since first fix (s)")
     ax.set_ylabel("code residual (m)")
     ax.grid(alpha=0.3)
-    ax.legend(ncol=8, fontsize=6, loc="upper right")
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=5, fontsize=8, markerscale=3, frameon=False)
     return fig
 
 

@@ -42,30 +42,47 @@ def figure_png(fig, dpi: int = 110) -> bytes:
     """PNG bytes of a matplotlib figure cropped to its content plus savefig's pad (as `bbox_inches="tight"`);
     the figure is closed.
 
-    The tight crop is cut from one drawing when the content lies inside the figure: savefig's own tight
-    bounding box costs a second full drawing (text layout is most of a report figure's time). Content that
-    spills over the figure's edge (tick labels below a short figure) needs the canvas moved, which only
-    savefig does."""
+    The crop is cut from one drawing, around the drawn pixels (the ink) when they keep clear of the canvas's edge:
+    savefig's tight box costs a second full drawing, and matplotlib's own box of the content, which lays out every
+    tick label again, a quarter of one (text layout is most of a report figure's time). Ink at the edge may be
+    content spilling over it (tick labels below a short figure), which needs the canvas moved: only savefig does
+    that."""
     canvas = FigureCanvasAgg(fig)
     fig.set_dpi(dpi)
     canvas.draw()
-    content = fig.get_tightbbox(canvas.get_renderer())          # inches, figure origin bottom left
-    w_in, h_in = fig.get_size_inches()
+    rgba = np.asarray(canvas.buffer_rgba())
+    face = rgba[0, 0].copy()   # the face as drawn (a clear face is Agg's transparent white); ink here: box None
+    box = _ink_box(rgba, face)
+    pad = matplotlib.rcParams["savefig.pad_inches"]
     buf = io.BytesIO()
-    if content.x0 < 0 or content.y0 < 0 or content.x1 > w_in or content.y1 > h_in:
-        fig.savefig(buf, format="png", dpi=dpi, bbox_inches=content.padded(matplotlib.rcParams["savefig.pad_inches"]))
+    if box is None:
+        content = fig.get_tightbbox(canvas.get_renderer())
+        fig.savefig(buf, format="png", dpi=dpi, bbox_inches=content.padded(pad))
     else:
-        _crop_png(np.asarray(canvas.buffer_rgba()), content, h_in, dpi, buf)
+        _crop_png(rgba, box, int(round(pad * dpi)), face, dpi, buf)
     plt.close(fig)
     return buf.getvalue()
 
 
-def _crop_png(rgba: np.ndarray, content, h_in: float, dpi: float, out) -> None:
-    """Write the pixels of `content` (inches) plus savefig's pad, white beyond the drawing, as PNG to `out`."""
-    pad = matplotlib.rcParams["savefig.pad_inches"] * dpi
-    c0, c1 = int(round(content.x0 * dpi - pad)), int(round(content.x1 * dpi + pad))
-    r0, r1 = int(round((h_in - content.y1) * dpi - pad)), int(round((h_in - content.y0) * dpi + pad))
-    page = np.full((r1 - r0, c1 - c0, 4), 255, np.uint8)
+def _ink_box(rgba: np.ndarray, face: np.ndarray) -> tuple[int, int, int, int] | None:
+    """Rows r0:r1 and columns c0:c1 of the pixels that differ from the figure's face `face` (RGBA uint8, as drawn);
+    the whole canvas when there are none, None when they reach its edge."""
+    ink = rgba.view(np.uint32)[..., 0] != face.view(np.uint32)[0]
+    rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
+    if not len(rows):
+        return 0, rgba.shape[0], 0, rgba.shape[1]
+    if rows[0] == 0 or cols[0] == 0 or rows[-1] == rgba.shape[0] - 1 or cols[-1] == rgba.shape[1] - 1:
+        return None
+    return rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+
+
+def _crop_png(rgba: np.ndarray, box: tuple[int, int, int, int], pad: int, face: np.ndarray, dpi: float,
+              out) -> None:
+    """Write the pixels of `box` (rows r0:r1, columns c0:c1) plus `pad` pixels around, the face colour beyond the
+    drawing, as PNG to `out`."""
+    r0, r1, c0, c1 = box[0] - pad, box[1] + pad, box[2] - pad, box[3] + pad
+    page = np.empty((r1 - r0, c1 - c0, 4), np.uint8)
+    page[:] = face
     rs0, cs0 = max(r0, 0), max(c0, 0)
     rs1, cs1 = min(r1, rgba.shape[0]), min(c1, rgba.shape[1])
     page[rs0 - r0:rs1 - r0, cs0 - c0:cs1 - c0] = rgba[rs0:rs1, cs0:cs1]

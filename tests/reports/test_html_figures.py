@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 
 import numpy as np
+from matplotlib.colors import to_rgba
 from PIL import Image
 
 import dgcal.reports.html as html
@@ -70,6 +71,29 @@ def test_figure_png_is_savefigs_tight_crop_from_one_drawing():
         ink_got, ink_tight = (255 - got).sum(), (255 - tight).sum()
         assert abs(ink_got - ink_tight) < 0.02 * ink_tight                          # nothing cut off or added
         assert np.abs(got[:h, :w] - tight[:h, :w]).mean() < 12                      # at most a sub-pixel shift
+
+
+def test_a_figure_inside_its_canvas_is_drawn_once_and_keeps_its_face_colour(monkeypatch):
+    """The crop of content inside the canvas comes from the one drawing (no savefig, no second layout), around the
+    drawn pixels plus savefig's pad, in the figure's own face colour (opaque: RGB; transparent: RGBA)."""
+    draws = []
+    real_draw = html.Figure.draw
+    monkeypatch.setattr(html.Figure, "draw", lambda self, renderer: draws.append(face) or real_draw(self, renderer))
+    for face, mode in (("#ddeeff", "RGB"), ("none", "RGBA")):
+        fig, ax = new_figure(4, 3)
+        fig.set_facecolor(face)
+        fig.set_edgecolor(face)
+        ax.plot([0, 1, 2], [0, 2, 1])
+        draws.clear()
+        img = Image.open(io.BytesIO(html.figure_png(fig, 80)))
+        assert draws == [face] and img.mode == mode
+        px = np.asarray(img)
+        border = np.concatenate([px[:8].reshape(-1, px.shape[2]), px[-8:].reshape(-1, px.shape[2]),
+                                 px[:, :8].reshape(-1, px.shape[2]), px[:, -8:].reshape(-1, px.shape[2])])
+        want = np.round(np.array(to_rgba(face)) * 255)[:px.shape[2]] if face != "none" else [255, 255, 255, 0]
+        assert np.all(border == want)                                               # the pad: face colour only
+        inner = px[9:-9, 9:-9].reshape(-1, px.shape[2])
+        assert [np.any(inner[:, c] != want[c]) for c in range(px.shape[2])].count(True) >= 1   # the drawing is there
 
 
 def test_a_figure_maker_is_called_when_the_page_is_drawn_and_none_leaves_no_figure():
