@@ -515,7 +515,12 @@ class Reduced:
 
 
 SCHUR_THREADS = max(1, min(2, os.cpu_count() or 1))   # threads of the compiled Schur sum
-DENSE_SCHUR_MAX = 4_000_000   # entries of a (6N x 3M) coupling below which the Schur product is a dense GEMM
+DENSE_SCHUR_MAX = 4_000_000   # entries of a (6N x 3M) coupling below which S may be dense
+# The pose-pose Schur product as a dense GEMM costs ~N^2 M flops, the compiled sum over the tracks ~sum of squared
+# track lengths, each flop of which runs about this much slower (bench/schur.py, one BLAS thread, 2026-12-03: every
+# point in every image, the GEMM 1-5x faster; tracks a third of the block, the sum 2x faster; 122 aerial images with
+# 18-image tracks, the sum 8x faster)
+GEMM_SPEEDUP = 4.0
 
 
 def reduce(nrm: Normals, lam: float = 0.0, dense: bool = False) -> Reduced:
@@ -552,7 +557,7 @@ def reduce(nrm: Normals, lam: float = 0.0, dense: bool = False) -> Reduced:
         S, s = pairs.matrix(B, nrm.U_pg.reshape(n6, G) - S_pg, _damp(nrm.U_gg, lam) - S_gg)
         return Reduced(S, Vinv, s, None, sparse_factor(S))
     S = _damp(nrm.U, lam).copy()
-    if not large:
+    if not large and not track_sum_pays(np.diff(pat.point_starts), N):
         S[:n6, :n6] -= pat.matrix(Y).toarray() @ nrm.Wp.T.toarray()
     else:     # the points couple only the images that see them: a compiled sum over their tracks
         S[:n6, :n6] -= pose_pose_schur(Y, nrm.wp_blocks, pat.pose64, pat.by_point_order, pat.point_starts, N,
@@ -562,6 +567,13 @@ def reduce(nrm: Normals, lam: float = 0.0, dense: bool = False) -> Reduced:
         S[n6:, :n6] -= S_pg.T
         S[n6:, n6:] -= S_gg
     return _dense_reduced(S, Vinv)
+
+
+def track_sum_pays(track_lengths: np.ndarray, n_poses: int) -> bool:
+    """Whether the compiled sum over the points' tracks (items per point `track_lengths`) forms the pose-pose Schur
+    product faster than a dense GEMM over `n_poses` poses (GEMM_SPEEDUP)."""
+    k = np.asarray(track_lengths, float)
+    return GEMM_SPEEDUP * float(k @ k) < float(n_poses) ** 2 * len(k)
 
 
 def _dense_reduced(S: np.ndarray, Vinv: np.ndarray) -> Reduced:
