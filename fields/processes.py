@@ -91,9 +91,16 @@ def _take(taken, n: int) -> Iterator[int]:
         yield i
 
 
+def _quiet_child(parent_pid: int) -> None:
+    """A task child's start: it dies with its parent and leaves Ctrl-C to it (the parent's KeyboardInterrupt ends
+    the run, and the child with it, instead of a traceback from every child)."""
+    die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _child(tasks, taken, conn, parent_pid: int) -> None:
     """Run tasks as they come free, send {index: result} of those that succeeded."""
-    die_with_parent(parent_pid)
+    _quiet_child(parent_pid)
     out = {}
     for i in _take(taken, len(tasks)):
         try:
@@ -144,7 +151,7 @@ def forked_call(fn: Callable[..., T], *args) -> Iterator[Callable[[], T]]:
 
 def _call_child(fn, args, conn, parent_pid: int) -> None:
     """Send (fn(*args),), or None when it raised or its result does not pickle (the parent runs it again)."""
-    die_with_parent(parent_pid)
+    _quiet_child(parent_pid)
     try:
         out = (fn(*args),)
     except Exception:       # noqa: BLE001  (run again by the parent, which raises it)

@@ -111,3 +111,20 @@ def test_leaving_forked_call_kills_a_child_still_running():
     with forked_call(time.sleep, 60):
         pass
     assert not [p for p in processes.multiprocessing.active_children()]
+
+
+def test_children_leave_ctrl_c_to_the_parent():
+    """A task child ignores SIGINT: the parent's KeyboardInterrupt ends the run (its children die with it), no
+    child prints a traceback of its own."""
+    def handler():
+        return signal.getsignal(signal.SIGINT), os.getpid()
+    here = signal.getsignal(signal.SIGINT)
+    with forked_call(handler) as result:
+        assert result()[0] == signal.SIG_IGN and result()[1] != PARENT
+    def slow_handler():
+        time.sleep(0.3)
+        return handler()
+    got = fork_map([slow_handler, slow_handler], jobs=2)
+    assert {pid != PARENT for _, pid in got} == {True, False}
+    assert [h for h, pid in got if pid != PARENT] == [signal.SIG_IGN]
+    assert signal.getsignal(signal.SIGINT) is here                 # the parent keeps its own
