@@ -35,12 +35,12 @@ from functools import lru_cache
 
 import numpy as np
 from scipy.linalg.lapack import dgesdd
-from scipy.special import chdtri
 
 from dgcal.fields.constants import C_LIGHT
 from dgcal.pos.gnss.ambiguity import AmbiguityFix, fixed_solution, gesv, resolve
 from dgcal.pos.gnss.carrier import (CarrierObs, ZeroDiff, first_code, satellite_geometry, slip_flags,
                                    transmission_states, zero_difference)
+from dgcal.pos.gnss.chi2_points import chi2_limit
 from dgcal.pos.gnss.ppk_design import dd_rows, dd_system
 from dgcal.pos.gnss.rinex import BroadcastNav
 
@@ -657,7 +657,7 @@ def _multifrequency_combinations(sat: np.ndarray, slot: np.ndarray) -> np.ndarra
 @lru_cache(maxsize=256)
 def _chi2_limit(dof: int, alpha: float) -> float:
     """The chi-square quantile 1 - alpha of `dof` degrees of freedom."""
-    return float(chdtri(dof, alpha))
+    return float(chi2_limit(dof, alpha))
 
 
 def _chi2_3(d: np.ndarray, S: np.ndarray) -> float:

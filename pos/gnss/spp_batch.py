@@ -14,11 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtri
 
 from dgcal.fields.constants import C_LIGHT
 from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
+from dgcal.pos.gnss.chi2_points import chi2_limit
 from dgcal.pos.gnss.corrections import (code_sigma_m, klobuchar_delay_m, model_sigma_m, sagnac_rotate,
                                         saastamoinen_delay_m)
 from dgcal.pos.gnss.ephemeris import group_delay_s, states_at_transmission
@@ -323,12 +323,6 @@ def fit_positions(m: Modelled, grp: np.ndarray, y: np.ndarray, x0: np.ndarray, a
 def groups(tab: ObsTable, m: Modelled) -> np.ndarray:
     """Clock group index (0 G/J, 1 E, 2 C) of each modelled satellite."""
     return tab.group[m.idx]
-
-
-def chi2_limit(dof: np.ndarray, alpha: float) -> np.ndarray:
-    """Chi-square points of false-alarm probability alpha (NaN where dof < 1)."""
-    dof = np.asarray(dof, float)
-    return np.where(dof >= 1, chdtri(np.maximum(dof, 1), alpha), np.nan)
 
 
 def dops(H: np.ndarray, b: np.ndarray, absent: np.ndarray, p_ecef: np.ndarray) -> dict:
