@@ -56,18 +56,8 @@ def fork_map(tasks: Sequence[Callable[[], T]], jobs: int | None = None) -> list[
     jobs = min(cpus() if jobs is None else jobs, len(tasks))
     if jobs <= 1 or not hasattr(os, "fork"):
         return [t() for t in tasks]
-    ctx = multiprocessing.get_context("fork")
-    taken = ctx.Value("i", 0)   # the next task nobody has taken
-    for stream in (sys.stdout, sys.stderr):
-        stream.flush()
-    children = []
-    with frozen_heap():
-        for _ in range(jobs - 1):
-            recv_end, send_end = ctx.Pipe(duplex=False)
-            proc = ctx.Process(target=_child, args=(tasks, taken, send_end, os.getpid()))
-            proc.start()
-            send_end.close()
-            children.append((proc, recv_end))
+    taken = multiprocessing.get_context("fork").Value("i", 0)   # the next task nobody has taken
+    children = [_start_child(_child, tasks, taken) for _ in range(jobs - 1)]
     results: dict[int, T] = {i: tasks[i]() for i in _take(taken, len(tasks))}
     for proc, conn in children:
         try:
@@ -78,6 +68,20 @@ def fork_map(tasks: Sequence[Callable[[], T]], jobs: int | None = None) -> list[
         conn.close()
         results.update(got)
     return [results[i] if i in results else tasks[i]() for i in range(len(tasks))]
+
+
+def _start_child(target, *args):
+    """A forked child running `target(*args, send_end, parent_pid)` (the streams flushed, the heap frozen), and the
+    receiving end of its pipe."""
+    ctx = multiprocessing.get_context("fork")
+    recv_end, send_end = ctx.Pipe(duplex=False)
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    with frozen_heap():
+        proc = ctx.Process(target=target, args=(*args, send_end, os.getpid()))
+        proc.start()
+    send_end.close()
+    return proc, recv_end
 
 
 def _take(taken, n: int) -> Iterator[int]:
@@ -112,6 +116,7 @@ def _child(tasks, taken, conn, parent_pid: int) -> None:
     except Exception:       # a result that does not pickle: the parent computes them all
         conn.send({})
 
+
 @contextmanager
 def forked_call(fn: Callable[..., T], *args) -> Iterator[Callable[[], T]]:
     """Start `fn(*args)` in a forked child now and yield a function that waits for its result, so this process
@@ -121,14 +126,7 @@ def forked_call(fn: Callable[..., T], *args) -> Iterator[Callable[[], T]]:
     if not hasattr(os, "fork"):
         yield lambda: fn(*args)
         return
-    ctx = multiprocessing.get_context("fork")
-    recv_end, send_end = ctx.Pipe(duplex=False)
-    for stream in (sys.stdout, sys.stderr):
-        stream.flush()
-    with frozen_heap():
-        proc = ctx.Process(target=_call_child, args=(fn, args, send_end, os.getpid()))
-        proc.start()
-    send_end.close()
+    proc, recv_end = _start_child(_call_child, fn, args)
     got: list = []
 
     def wait() -> T:
