@@ -4,7 +4,6 @@ forked_call: one call in a child beside the parent's own work, with the same fal
 from __future__ import annotations
 
 import contextlib
-import functools
 import gc
 import os
 import resource
@@ -27,8 +26,22 @@ def _square(k: int, seconds: float = 0.0):
     return task
 
 
+def _together(n: int):
+    """A barrier of `n` processes: a task that passes it was taken while every process held one (so the test does
+    not depend on how fast the host starts a child)."""
+    return processes.multiprocessing.get_context("fork").Barrier(n, timeout=60)
+
+
+def _after(barrier, task):
+    def wait_then_run():
+        barrier.wait()
+        return task()
+    return wait_then_run
+
+
 def test_results_in_order_and_computed_in_children():
-    out = fork_map([_square(k, 0.2) for k in range(7)], jobs=3)
+    met = _together(3)
+    out = fork_map([_after(met, _square(k)) for k in range(3)] + [_square(k) for k in range(3, 7)], jobs=3)
     assert [v for v, _ in out] == [k * k for k in range(7)]
     pids = {pid for _, pid in out}
     assert PARENT in pids and len(pids) == 3          # the parent's share and two children's
@@ -37,8 +50,21 @@ def test_results_in_order_and_computed_in_children():
 
 def test_tasks_of_unequal_cost_share_out_evenly():
     """Each process takes the next task when it is free: the one that took the long task runs nothing else (a
-    fixed round robin would give it two of the short ones as well)."""
-    out = fork_map([_square(0, 1.0)] + [_square(k, 0.1) for k in range(1, 5)], jobs=2)
+    fixed round robin would give it two of the short ones as well). The long task lasts until the four short ones
+    are done, so the test does not depend on how fast the host starts a child."""
+    done = processes.multiprocessing.get_context("fork").Semaphore(0)
+
+    def short(k):
+        def task():
+            done.release()
+            return k * k, os.getpid()
+        return task
+
+    def long():
+        for _ in range(4):
+            assert done.acquire(timeout=60), "the short tasks were not run beside the long one"
+        return 0, os.getpid()
+    out = fork_map([long] + [short(k) for k in range(1, 5)], jobs=2)
     assert [v for v, _ in out] == [0, 1, 4, 9, 16]
     long_pid, short_pids = out[0][1], {pid for _, pid in out[1:]}
     assert short_pids == {next(iter(short_pids))} and long_pid not in short_pids
@@ -77,10 +103,16 @@ def test_a_forked_childs_collection_leaves_the_inherited_heap_shared(monkeypatch
     """fork_map forks with the parent's objects frozen: a full collection in the child touches none of their pages
     (without the freeze it writes to every page holding an object and copies it)."""
     heap = [[i, str(i)] for i in range(500_000)]        # ~60 MB of small objects
-    busy_parent = functools.partial(time.sleep, 0.5)    # the parent takes the first task, the child the second
-    frozen = fork_map([busy_parent, _collect_in_child])[1]
+    def collected():
+        met = _together(2)                              # one task each: the child's collects
+
+        def task():
+            met.wait()
+            return None if os.getpid() == PARENT else _collect_in_child()
+        return next(v for v in fork_map([task, task]) if v is not None)
+    frozen = collected()
     monkeypatch.setattr(processes, "frozen_heap", contextlib.nullcontext)
-    walked = fork_map([busy_parent, _collect_in_child])[1]
+    walked = collected()
     assert len(heap) and walked > 5000 and frozen < walked / 10
     assert gc.get_freeze_count() == 0                   # the parent's objects are collectable again
 
@@ -121,10 +153,8 @@ def test_children_leave_ctrl_c_to_the_parent():
     here = signal.getsignal(signal.SIGINT)
     with forked_call(handler) as result:
         assert result()[0] == signal.SIG_IGN and result()[1] != PARENT
-    def slow_handler():
-        time.sleep(0.3)
-        return handler()
-    got = fork_map([slow_handler, slow_handler], jobs=2)
+    met = _together(2)
+    got = fork_map([_after(met, handler), _after(met, handler)], jobs=2)
     assert {pid != PARENT for _, pid in got} == {True, False}
     assert [h for h, pid in got if pid != PARENT] == [signal.SIG_IGN]
     assert signal.getsignal(signal.SIGINT) is here                 # the parent keeps its own
