@@ -212,12 +212,24 @@ def read_table(path: str | Path, required: Sequence[str], optional: Sequence[str
 
 def write_table(path: str | Path, header: Sequence[str], rows: Iterable[Sequence], fmt: str = "%.10g") -> None:
     """Write a CSV atomically; floats are formatted with `fmt`, everything else with str()."""
-    def cell(v):
-        if isinstance(v, (float, np.floating)):
-            return fmt % v
-        return str(v)
+    floats = (float, np.floating)
     with atomic_write(path, newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(header)
-        for r in rows:
-            w.writerow([cell(v) for v in r])
+        w.writerows([fmt % v if isinstance(v, floats) else str(v) for v in r] for r in rows)
+
+
+def formatted(values, fmt: str) -> list[str]:
+    """The cells of a numeric column: each value of `values` (array-like) formatted with `fmt` (e.g. "%.4f")."""
+    return [fmt % v for v in np.asarray(values).tolist()]
+
+
+def write_columns(path: str | Path, header: Sequence[str], columns: Sequence[Sequence]) -> None:
+    """Write a CSV atomically from columns of cells (strings, e.g. `formatted`, or values written with str()),
+    one per header name: the rows are assembled in C (csv's writerows), not cell by cell in Python."""
+    if len(columns) != len(header):
+        raise ValueError(f"{len(columns)} columns for {len(header)} header names")
+    with atomic_write(path, newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        w.writerows(zip(*columns))

@@ -14,7 +14,7 @@ import numpy as np
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
-from dgcal.fields.io.csv_tables import Table, read_table, write_table
+from dgcal.fields.io.csv_tables import Table, formatted, read_table, write_columns, write_table
 from dgcal.fields.io.labels import Labels
 
 TRAJECTORY_COLUMNS = ("gps_week", "gps_sow", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "heading")
@@ -277,10 +277,10 @@ def write_measurements(path: str | Path, m: Measurements) -> None:
     """Write image measurements; sigma columns when any sigma is given."""
     has_sigma = np.isfinite(m.sigma).any()
     header = ["image", "id", "x", "y"] + (["sx", "sy"] if has_sigma else [])
-    # Python lists first: indexing numpy arrays row by row costs more than formatting the values
-    sig = m.sigma.tolist() if has_sigma else [[]] * len(m)
-    rows = ([im, pid, *xy] + s for im, pid, xy, s in zip(m.image.tolist(), m.id.tolist(), m.xy.tolist(), sig))
-    write_table(path, header, rows, fmt="%.4f")
+    cols = [m.image.tolist(), m.id.tolist(), formatted(m.xy[:, 0], "%.4f"), formatted(m.xy[:, 1], "%.4f")]
+    if has_sigma:
+        cols += [formatted(m.sigma[:, 0], "%.4f"), formatted(m.sigma[:, 1], "%.4f")]
+    write_columns(path, header, cols)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -342,15 +342,13 @@ def write_trajectory(path: str | Path, tr: Trajectory) -> None:
     header = (["image"] if tr.image is not None else []) + list(TRAJECTORY_COLUMNS)
     if tr.sigma is not None:
         header += list(TRAJECTORY_SIGMA_COLUMNS)
-    rows = []
-    for i in range(len(tr.t)):
-        r = ([tr.image[i]] if tr.image is not None else []) + [int(week[i]), "%.6f" % sow[i], "%.10f" % tr.lat[i],
-                                                               "%.10f" % tr.lon[i], "%.4f" % tr.h[i]]
-        r += ["%.4f" % v for v in tr.v_ned[i]] + ["%.6f" % v for v in tr.rph[i]]
-        if tr.sigma is not None:
-            r += ["%.4f" % v for v in tr.sigma[i, :3]] + ["%.6f" % v for v in tr.sigma[i, 3:]]
-        rows.append(r)
-    write_table(path, header, rows)
+    cols = [list(tr.image)] if tr.image is not None else []
+    cols += [np.asarray(week, np.int64).tolist(), formatted(sow, "%.6f"), formatted(tr.lat, "%.10f"),
+             formatted(tr.lon, "%.10f"), formatted(tr.h, "%.4f")]
+    cols += [formatted(tr.v_ned[:, j], "%.4f") for j in range(3)] + [formatted(tr.rph[:, j], "%.6f") for j in range(3)]
+    if tr.sigma is not None:
+        cols += [formatted(tr.sigma[:, j], "%.4f" if j < 3 else "%.6f") for j in range(6)]
+    write_columns(path, header, cols)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -89,3 +89,19 @@ def test_eop_round_trip(tmp_path):
     np.testing.assert_allclose(b.sigma, e.sigma, atol=1e-5)
     assert (tmp_path / "eop.csv").read_text().split("\n")[0] == ("image,X,Y,Z,omega,phi,kappa,"
                                                                 "sX,sY,sZ,somega,sphi,skappa")
+
+
+def test_columns_written_as_table_rows_with_quoting(tmp_path):
+    """write_columns gives what write_table gives for the same cells (names with commas and quotes quoted), and
+    refuses a column count that does not match the header."""
+    from dgcal.fields.io.csv_tables import formatted, read_table, write_columns, write_table
+    names = ['IMG_1.JPG', 'a,b', 'say "x"']
+    x = np.array([1.0, -2.5, 1e-7])
+    write_columns(tmp_path / "c.csv", ["image", "x"], [names, formatted(x, "%.10g")])
+    write_table(tmp_path / "t.csv", ["image", "x"], zip(names, x.tolist()))
+    assert (tmp_path / "c.csv").read_bytes() == (tmp_path / "t.csv").read_bytes()
+    back = read_table(tmp_path / "c.csv", ("image", "x"))
+    assert list(back["image"]) == names and np.array_equal(back["x"], x)
+    with pytest.raises(ValueError, match="2 columns for 3 header names"):
+        write_columns(tmp_path / "bad.csv", ["image", "x", "y"], [names, formatted(x, "%g")])
+    assert not (tmp_path / "bad.csv").exists()
