@@ -238,38 +238,9 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
             keep_t &= t <= t_end + 1e-6
     if decimate_s:
         keep_t &= np.abs(t / decimate_s - np.round(t / decimate_s)) <= 1e-6
-    cols = {}
-    for s, code in signals.items():
-        so = rx.systems.get(s)
-        if so is None:
-            continue
-        ba = code[1:]
-
-        def col(c, so=so):
-            return so.codes.index(c) if c in so.codes else None
-        cols[s] = (so, {so.sats[j]: j for j in range(len(so.sats))}, col(code), col("L" + ba), col("D" + ba),
-                   col("S" + ba), col(signals2[s]) if s in signals2 else None)
     epochs = []
-    for k in np.nonzero(keep_t)[0]:
-        sat, pr, pr2, ph, dop, cn0, lli = [], [], [], [], [], [], []
-        for sid in rx.epoch_sats[k]:
-            c = cols.get(sid[0])
-            if c is None:
-                continue
-            so, index, jc, jl, jd, js, j2 = c
-            j = index[sid]
-            v = so.val[k, j]
-            p = v[jc]
-            if not (np.isfinite(p) and p > 1e6):
-                continue
-            sat.append(sid)
-            pr.append(p)
-            q = v[j2] if j2 is not None else np.nan
-            pr2.append(q if np.isfinite(q) and q > 1e6 else np.nan)
-            ph.append(v[jl] if jl is not None else np.nan)
-            dop.append(v[jd] if jd is not None else np.nan)
-            cn0.append(v[js] if js is not None else np.nan)
-            lli.append(int(so.lli[k, j, jl]) if jl is not None and np.isfinite(v[jl]) else 0)
+    for k, sat, vals in _chosen_rows(rx, np.nonzero(keep_t)[0], signals, signals2):
+        pr, pr2, ph, dop, cn0, lli = vals.T
         if not sat:
             continue
         n = len(sat)
@@ -297,6 +268,56 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
     return GnssObservations(epochs=epochs, receiver=rx.receiver, p_approx_ecef=rx.p_approx_ecef.copy(),
                             signals=signals, source=str(path), signals2=signals2)
 
+
+_FIELD_CHUNK = 2048   # epochs gathered at a time (memory: chunk x satellites x 6 floats)
+
+
+def _signal_fields(rx: RinexObsFile, signals: dict, signals2: dict):
+    """The column of every satellite of the chosen systems, and a function giving epochs k0:k1 of all of them as
+    one (k, satellites, 6) array of: code m, second code m (NaN unless > 1e6 m), phase cycles, Doppler Hz, C/N0
+    dB-Hz, phase LLI (0 without a phase); built with NumPy instead of value by value."""
+    parts = []
+    column: dict = {}
+    for s, code in signals.items():
+        so = rx.systems.get(s)
+        if so is None:
+            continue
+        ba = code[1:]
+        j = [so.codes.index(c) if c is not None and c in so.codes else None
+             for c in (code, signals2.get(s), "L" + ba, "D" + ba, "S" + ba)]
+        column.update({sid: len(column) + i for i, sid in enumerate(so.sats)})
+        parts.append((so, j))
+
+    def blocks(k0: int, k1: int) -> np.ndarray:
+        out = []
+        for so, j in parts:
+            v = so.val[k0:k1]
+            f = np.full(v.shape[:2] + (6,), np.nan)
+            for i, c in enumerate(j):
+                if c is not None:
+                    f[:, :, i] = v[:, :, c]
+            q = f[:, :, 1]
+            q[~(np.isfinite(q) & (q > 1e6))] = np.nan
+            f[:, :, 5] = 0.0 if j[2] is None else np.where(np.isfinite(f[:, :, 2]), so.lli[k0:k1, :, j[2]], 0)
+            out.append(f)
+        return np.concatenate(out, axis=1) if out else np.full((max(k1 - k0, 0), 0, 6), np.nan)
+    return column, blocks
+
+
+def _chosen_rows(rx: RinexObsFile, kept: np.ndarray, signals: dict, signals2: dict):
+    """(epoch index, satellites in file order, (n, 6) fields of `_signal_fields`) of each epoch in `kept`: the
+    satellites of the chosen systems whose code is a range (finite, > 1e6 m)."""
+    column, blocks = _signal_fields(rx, signals, signals2)
+    for k0 in range(0, len(rx.t_gps), _FIELD_CHUNK):
+        ks = kept[(kept >= k0) & (kept < k0 + _FIELD_CHUNK)]
+        if not len(ks):
+            continue
+        block = blocks(k0, k0 + _FIELD_CHUNK)
+        for k in ks:
+            sids = [sid for sid in rx.epoch_sats[k] if sid in column]
+            vals = block[k - k0, [column[sid] for sid in sids]].reshape(-1, 6)
+            use = np.isfinite(vals[:, 0]) & (vals[:, 0] > 1e6)
+            yield int(k), [sids[i] for i in np.flatnonzero(use)], vals[use]
 
 def _doppler_from_phase(epochs: list[GnssEpoch]) -> None:
     """Fill missing Doppler by central differences of carrier phase (cycles) between epochs."""
