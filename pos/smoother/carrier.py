@@ -238,21 +238,12 @@ def atmosphere_position_covariance(dd: dict, sol, lever_b, iono_ppm: float, trop
     keyframes without enough fixed rows take the nearest keyframe's. None if no keyframe has them."""
     K = len(sol.t)
     P = np.full((K, 3, 3), np.nan)
-    lever = np.asarray(lever_b, float)
-    frame = sol.frame
-    for k, data in dd.items():
-        fx = (data.cur.kind == 0) & (data.cur.mode == 0)
-        if fx.sum() < 4:
-            continue
-        rows = data.cur.subset(fx)
-        pose = gtsam.Pose3(gtsam.Rot3(sol.R_body_to_nav[k]), sol.p_nav[k])
-        G = range_differences(rows, pose, lever, frame)[1][:, 3:] @ sol.R_body_to_nav[k].T   # d h / d p_nav
-        W = np.linalg.inv(rows.covariance())
-        N = G.T @ W @ G
-        if np.linalg.cond(N) > 1e8:
-            continue
-        A = np.linalg.solve(N, G.T @ W)
-        P[k] = A @ rows.atmosphere_covariance(iono_ppm, tropo_zenith_m) @ A.T
+    picked = [(k, data.cur, np.flatnonzero((data.cur.kind == 0) & (data.cur.mode == 0))) for k, data in dd.items()]
+    picked = [p for p in picked if len(p[2]) >= 4]
+    for c in range(0, len(picked), _BUDGET_CHUNK):   # keyframes at a time: memory chunk x rows^2
+        part = picked[c:c + _BUDGET_CHUNK]
+        ks = np.array([k for k, _, _ in part])
+        P[ks] = _fixed_rows_budget(part, sol, np.asarray(lever_b, float), iono_ppm, tropo_zenith_m)
     have = np.nonzero(np.isfinite(P[:, 0, 0]))[0]
     if len(have) == 0:
         return None
@@ -260,3 +251,57 @@ def atmosphere_position_covariance(dd: dict, sol, lever_b, iono_ppm: float, trop
     prev = have[np.clip(np.searchsorted(have, np.arange(K)) - 1, 0, len(have) - 1)]
     pick = np.where(np.abs(prev - np.arange(K)) < np.abs(near - np.arange(K)), prev, near)
     return P[pick]
+
+
+_BUDGET_CHUNK = 1024
+
+
+def _fixed_rows_budget(part: list, sol, lever: np.ndarray, iono_ppm: float, tropo_zenith_m: float) -> np.ndarray:
+    """(k, 3, 3) position covariance (m^2, nav axes) for keyframes `part` = [(k, DDEpoch, fixed phase rows)], NaN
+    where the rows do not fix the position (cond > 1e8): the loop of `atmosphere_position_covariance` as one batch,
+    the rows padded to the longest keyframe (padding: no geometry, unit weight, no atmosphere)."""
+    n = np.array([len(i) for _, _, i in part])
+    m, nk = int(n.max()), len(part)
+    kb = np.repeat(np.arange(nk), n)
+    pos = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    valid = np.zeros((nk, m), bool)
+    valid[kb, pos] = True
+
+    def padded(attr: str, fill=0.0) -> np.ndarray:
+        v = np.concatenate([getattr(cur, attr)[i] for _, cur, i in part])
+        out = np.full((nk, m) + v.shape[1:], fill, v.dtype)
+        out[kb, pos] = v
+        return out
+    ks = np.array([k for k, _, _ in part])
+    frame = sol.frame
+    Rne = frame.R_nav_to_ecef
+    p = (sol.p_nav[ks] + np.einsum("kij,j->ki", sol.R_body_to_nav[ks], lever)) @ Rne.T + frame.origin_ecef
+    di, dr = padded("sat_pos") - p[:, None], padded("ref_pos") - p[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = dr / np.linalg.norm(dr, axis=2, keepdims=True) - di / np.linalg.norm(di, axis=2, keepdims=True)
+    G = np.where(valid[..., None], u @ Rne, 0.0)                          # d h / d p_nav (nk, m, 3)
+    group = np.where(valid, padded("group", -1), -1 - np.arange(m))
+    same = (group[:, :, None] == group[:, None, :]) & valid[:, :, None] & valid[:, None, :]
+    C = np.where(same, padded("var_ref")[:, :, None], 0.0)
+    C[:, np.arange(m), np.arange(m)] += np.where(valid, padded("var_sat"), 1.0)
+    GtW = np.swapaxes(G, 1, 2) @ np.linalg.inv(C)
+    N = GtW @ G
+    out = np.full((nk, 3, 3), np.nan)
+    ok = np.linalg.cond(N) <= 1e8
+    if not ok.any():
+        return out
+    A = np.linalg.solve(N[ok], GtW[ok])
+    sgn = np.where(padded("kind") == 0, -1.0, 1.0)
+    a, b = sgn * padded("kappa"), -sgn * padded("kappa_ref")             # the row's weight on its satellite, reference
+    scale = (iono_ppm * 1e-6 * np.array([cur.base_dist_m for _, cur, _ in part]))[:, None]
+    vs, vr = (scale * padded("map_sat")) ** 2, (scale * padded("map_ref")) ** 2
+    sat, ref = padded("sat", -1), padded("ref", -1)
+    t = padded("map_sat") - padded("map_ref")
+
+    def eq(x, y):
+        return x[:, :, None] == y[:, None, :]
+    Ca = (eq(sat, sat) * (a * vs)[:, :, None] * a[:, None, :] + eq(sat, ref) * (a * vs)[:, :, None] * b[:, None, :]
+          + eq(ref, sat) * (b * vr)[:, :, None] * a[:, None, :] + eq(ref, ref) * (b * vr)[:, :, None] * b[:, None, :]
+          + tropo_zenith_m ** 2 * t[:, :, None] * t[:, None, :])
+    out[ok] = A @ Ca[ok] @ np.swapaxes(A, 1, 2)
+    return out
