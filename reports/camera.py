@@ -3,6 +3,8 @@ comparison (`--model auto`), the projection-uncertainty map with the valid regio
 frame, distortion curves, the correlation matrix, per-image RMS and the frames chosen from videos."""
 from __future__ import annotations
 
+from functools import partial
+
 from pathlib import Path
 
 import numpy as np
@@ -230,12 +232,12 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
     if cal.uncertainty is not None:
         rep.heading("Projection uncertainty and valid region")
         rep.text(f"{cal.uncertainty.summary(cal.region)}. " + (cal.region.describe() if cal.region else ""))
-        rep.figure(uncertainty_figure(cal), "Worst-direction standard deviation of the projection of a point seen at "
-                   "each pixel (the intrinsics' and the poses' covariance propagated, as mrcal does). Black: the "
-                   "region the observations cover; dashed red: where the model folds. Outside the black outline the "
-                   "model is an extrapolation.")
+        rep.figure(partial(uncertainty_figure, cal), "Worst-direction standard deviation of the projection of a point "
+                   "seen at each pixel (the intrinsics' and the poses' covariance propagated, as mrcal does). Black: "
+                   "the region the observations cover; dashed red: where the model folds. Outside the black outline "
+                   "the model is an extrapolation.")
         if cal.opencv_uncertainty is not None:
-            rep.figure(uncertainty_figure(cal, cal.opencv_uncertainty, "OpenCV block"),
+            rep.figure(partial(uncertainty_figure, cal, cal.opencv_uncertainty, "OpenCV block"),
                        f"The same for the OpenCV block (a conversion fitted inside the valid region, max error "
                        f"{cal.conversion_errors.get('opencv', 0):.3g} px there).")
     rep.heading("Parameters")
@@ -247,18 +249,18 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
     rep.text("Sigmas come from the adjustment covariance scaled by sigma0^2. Pixels: OpenCV convention.",
              "small")
     rep.heading("Residuals over the frame")
-    rep.figure(residual_vector_figure(cal), "Cell means of the residual vectors, exaggerated; a systematic "
+    rep.figure(partial(residual_vector_figure, cal), "Cell means of the residual vectors, exaggerated; a systematic "
                "swirl or radial pattern means the model or the target coordinates do not fit.")
-    rep.figure(radial_profile_figure(cal))
+    rep.figure(partial(radial_profile_figure, cal))
     rep.heading("Distortion")
-    rep.figure(distortion_figure(cal), "Distortion (distorted - ideal pinhole position of the same ray, same "
+    rep.figure(partial(distortion_figure, cal), "Distortion (distorted - ideal pinhole position of the same ray, same "
                "focal length) along three lines from the principal point.")
     rep.heading("Correlations")
-    rep.figure(correlation_figure(cal))
+    rep.figure(partial(correlation_figure, cal))
     rep.heading("Per-image RMS")
-    rep.figure(per_image_figure(cal))
+    rep.figure(partial(per_image_figure, cal))
     rep.heading("Camera stations")
-    rep.figure(stations_figure(cal), "Projection centres of the used images (poses.csv) in the field frame.")
+    rep.figure(partial(stations_figure, cal), "Projection centres of the used images (poses.csv) in the field frame.")
     if cal.frames is not None:
         rep.heading("Frames")
         rep.text(f"frames looked at: {cal.frames.summary()}; video frames are chosen by sharpness and coverage "

@@ -2,6 +2,8 @@
 001's Table 2 when a truth is given, and plots of attitude, FOE offsets and height above ground."""
 from __future__ import annotations
 
+from functools import partial
+
 import json
 from collections.abc import Mapping
 from pathlib import Path
@@ -113,9 +115,10 @@ def write_flow_report(path: Path, run: FlowRun) -> Path:
             txt += (f" Height above ground: error {a['mean_error_m']:.2f} +- {a['std_error_m']:.2f} m "
                     f"(median {100 * a['median_rel_error']:.1f} %).")
         rep.text(txt)
-        rep.figure(_errors(run), "Errors against the truth with the claimed 1-sigma band")
-    rep.heading("Attitude").figure(_attitude(run), "Flow attitude (with 1 sigma) and the GNSS pseudo attitude")
-    rep.heading("FOE offsets and height above ground").figure(_offsets(run), "Angle of attack, drift angle, AGL")
+        rep.figure(partial(_errors, run), "Errors against the truth with the claimed 1-sigma band")
+    rep.heading("Attitude").figure(partial(_attitude, run), "Flow attitude (with 1 sigma) and the GNSS pseudo attitude")
+    rep.heading("FOE offsets and height above ground").figure(partial(_offsets, run),
+                                                              "Angle of attack, drift angle, AGL")
     return rep.write(path)
 
 

@@ -4,6 +4,8 @@ post-fit residuals (DD phase and code), sigma envelopes, smoother vs forward, in
 innovations. One self-contained file."""
 from __future__ import annotations
 
+from functools import partial
+
 import json
 from collections.abc import Mapping
 from pathlib import Path
@@ -238,18 +240,19 @@ def write_pos_report(path: str | Path, res) -> Path:
                       ("slip flags rover / base", f"{c['slips_flagged_rover']} / {c['slips_flagged_base']}"),
                       ("TC minus PPK at fixed epochs, 3D RMS (m)", c.get("tc_minus_ppk_fixed_rms_m")),
                       ("differential-atmosphere budget N/E/D (m)", res.smoothed.info.get("atmosphere_budget_m"))])
-        rep.figure(_carrier_status(res), "PPK status and fix rate, satellites and fixed phase rows per keyframe, "
-                   "slip flags")
-        rep.figure(_ppk_vs_tc(res), "TC (antenna) minus PPK at PPK's fixed epochs, and the TC sigma")
-    rep.heading("Trajectory").figure(_map(res), "Smoothed IMU track in the nav frame (NED at the flight centre)")
-    rep.figure(_satellites(res), "Satellites used per epoch (TC) or GNSS fixes (LC)")
-    rep.heading("Sigma envelopes").figure(_sigmas(res), "1-sigma of the smoothed solution (from the "
+        rep.figure(partial(_carrier_status, res), "PPK status and fix rate, satellites and fixed phase rows per "
+                   "keyframe, slip flags")
+        rep.figure(partial(_ppk_vs_tc, res), "TC (antenna) minus PPK at PPK's fixed epochs, and the TC sigma")
+    rep.heading("Trajectory").figure(partial(_map, res),
+                                     "Smoothed IMU track in the nav frame (NED at the flight centre)")
+    rep.figure(partial(_satellites, res), "Satellites used per epoch (TC) or GNSS fixes (LC)")
+    rep.heading("Sigma envelopes").figure(partial(_sigmas, res), "1-sigma of the smoothed solution (from the "
                                           "adjustment covariance)")
     rep.heading("Residuals")
     rep.table(["factor", "n", "RMS", "RMS / sigma", "max |e|", "share > 3 sigma"],
               [[k, v["n"], round(v["rms"], 4), round(v["rms_normalised"], 3), round(v["max_abs"], 3),
                 round(v["share_beyond_3sigma"], 4)] for k, v in s.get("residuals", {}).items()])
-    rep.figure(_residuals(res, "post-fit"), "Post-fit residuals of the GNSS factors")
+    rep.figure(partial(_residuals, res, "post-fit"), "Post-fit residuals of the GNSS factors")
     if res.forward is not None:
         rep.heading("Forward-only solution and innovations")
         rep.text("The forward solution uses each epoch's data and everything before it (a Kalman filter on "
@@ -265,8 +268,8 @@ def write_pos_report(path: str | Path, res) -> Path:
             rep.table(["factor", "n", "NIS per dimension", "RMS normalised", "share > chi2 99 %"],
                       [[k, v["n"], round(v["nis_per_dim"], 3), round(v["rms_normalised"], 3),
                         round(v["share_beyond_99pc"], 4)] for k, v in nis.items()])
-        rep.figure(_smooth_vs_forward(res), "Forward minus smoothed position, and the two sigma envelopes")
-        rep.figure(_residuals(res, "innovations"), "Innovations")
+        rep.figure(partial(_smooth_vs_forward, res), "Forward minus smoothed position, and the two sigma envelopes")
+        rep.figure(partial(_residuals, res, "innovations"), "Innovations")
     return rep.write(path)
 
 

@@ -2,6 +2,8 @@
 the accuracy table beside the LC smoother (against the truth when given), sigma envelopes and innovations."""
 from __future__ import annotations
 
+from functools import partial
+
 import json
 from collections.abc import Mapping
 from pathlib import Path
@@ -109,10 +111,11 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
              + f", over the epochs after the first {s['skip_s']:g} s that both share. Seed 000 (real flight, "
              f"vs a vertical gyro): roll std {SEED000['roll']} deg, pitch std {SEED000['pitch']} deg.")
     rep.table(list(ACCURACY_COLUMNS), [[r.get(c) for c in ACCURACY_COLUMNS] for r in rows])
-    rep.heading("Sigma envelopes").figure(_sigmas(res), "1-sigma of the UKF (and the smoother, dashed)")
+    rep.heading("Sigma envelopes").figure(partial(_sigmas, res), "1-sigma of the UKF (and the smoother, dashed)")
     if res.truth is not None:
-        rep.heading("Errors against the truth").figure(_errors(res), "Attitude errors with the UKF's 1-sigma band")
-    rep.heading("Innovations").figure(_innovations(res), "Normalised innovation squared per degree of freedom")
+        rep.heading("Errors against the truth").figure(partial(_errors, res),
+                                                       "Attitude errors with the UKF's 1-sigma band")
+    rep.heading("Innovations").figure(partial(_innovations, res), "Normalised innovation squared per degree of freedom")
     return rep.write(path)
 
 
