@@ -121,13 +121,22 @@ def propagate_pose_covariance(res: IntersectionResult, pose_cov: np.ndarray | No
     K = res.xyz.shape[0]
     out = np.zeros((K, 3, 3))
     if pose_cov is not None and pose_corr is None:
-        out += np.einsum("kmij,mjl,kmnl->kin", res.dX_dpose, pose_cov, res.dX_dpose)
+        out += _sum_over_images(np.einsum("kmij,mjl->kmil", res.dX_dpose, pose_cov), res.dX_dpose)
     elif pose_cov is not None:
         tiny = 1e-12 * np.trace(pose_cov, axis1=1, axis2=2).max() * np.eye(6)
         S = np.linalg.cholesky(pose_cov + tiny)
         A = np.einsum("kmij,mja->kmia", res.dX_dpose, S)
-        out += np.einsum("kmia,mn,knja->kij", A, pose_corr, A)
+        B = np.matmul(pose_corr, A.reshape(K, A.shape[1], -1)).reshape(A.shape)   # sum_n rho_mn A[k, n]
+        out += _sum_over_images(A, B)
     if common_G is not None and common_cov is not None:
         A = np.einsum("kmij,mjq->kiq", res.dX_dpose, common_G)
         out += A @ common_cov @ np.swapaxes(A, -1, -2)
     return out
+
+
+def _sum_over_images(L: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(K, i, j): the sum over images m and axis a of L[k, m, i, a] R[k, m, j, a], as one batched matrix product (a
+    three-operand einsum loops over every index instead, 3 ms a call for 12 points in 128 images)."""
+    K, M, n_i, A = L.shape
+    return np.matmul(L.transpose(0, 2, 1, 3).reshape(K, n_i, M * A),
+                     R.transpose(0, 1, 3, 2).reshape(K, M * A, R.shape[2]))
