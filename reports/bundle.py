@@ -3,9 +3,11 @@ sigmas, tables) and a JSON summary, from a `dgcal.bundle.triangulation.Triangula
 from __future__ import annotations
 
 import json
+from functools import partial
 from pathlib import Path
 
 import numpy as np
+from matplotlib.collections import PolyCollection
 
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.reports.html import HtmlReport, new_figure
@@ -84,46 +86,10 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
                              f"refined: {', '.join(s['camera']['refined']) or 'none (fixed)'}")])
     rep.heading("Warnings")
     rep.warnings(s["warnings"])
-    # --- map figure -------------------------------------------------------------------------
-    fig, ax = new_figure(8, 7)
-    for fp in _footprints(res):
-        if np.isfinite(fp).all():
-            ax.fill(fp[:, 0], fp[:, 1], fc="none", ec="0.75", lw=0.6)
-    ax.plot(res.eop.xyz[:, 0], res.eop.xyz[:, 1], ".", color="tab:blue", ms=4, label="projection centres")
-    scale = _arrow_scale(res)
-    if res.gcp:
-        g = np.array([c["xyz"] for c in res.gcp])
-        dg = np.array([c["dENU_m"] for c in res.gcp])
-        ax.plot(g[:, 0], g[:, 1], "^", color="tab:green", label="control")
-        ax.quiver(g[:, 0], g[:, 1], dg[:, 0], dg[:, 1], color="tab:green", angles="xy", scale_units="xy",
-                  scale=1 / scale, width=0.004)
-    ev = [c for c in res.check if c.get("evaluated")]
-    if ev:
-        c = np.array([x["xyz"] for x in ev])
-        dc = np.array([x["dENU_m"] for x in ev])
-        ax.plot(c[:, 0], c[:, 1], "s", color="tab:red", label="check")
-        ax.quiver(c[:, 0], c[:, 1], dc[:, 0], dc[:, 1], color="tab:red", angles="xy", scale_units="xy",
-                  scale=1 / scale, width=0.004)
-    ax.set_aspect("equal")
-    ax.set_xlabel("E (m)")
-    ax.set_ylabel("N (m)")
-    ax.legend(loc="best", fontsize=8)
-    ax.set_title(f"image footprints and horizontal residual vectors (x{scale:.0f})")
-    rep.figure(fig, "Footprints at the mean control height (grey), control (green) and check (red) points "
-                    f"with their horizontal errors magnified {scale:.0f} times.")
-    # --- per-image sigmas -------------------------------------------------------------------
-    fig, axes = new_figure(9, 5, nrows=2, sharex=True)
-    k = np.arange(len(res.images))
-    for j, lab in enumerate(("sX", "sY", "sZ")):
-        axes[0].plot(k, res.eop.sigma[:, j] * 100, ".-", lw=0.7, label=lab)
-    for j, lab in enumerate(("s_omega", "s_phi", "s_kappa")):
-        axes[1].plot(k, res.eop.sigma[:, 3 + j] * 3600, ".-", lw=0.7, label=lab)
-    axes[0].set_ylabel("cm")
-    axes[1].set_ylabel("arcsec")
-    axes[1].set_xlabel("image index")
-    axes[0].legend(fontsize=8)
-    axes[1].legend(fontsize=8)
-    rep.figure(fig, "Standard deviations of each image's projection centre and angles (map CRS).")
+    rep.figure(partial(_map_figure, res), "Footprints at the mean control height (grey), control (green) and check "
+               f"(red) points with their horizontal errors magnified {_arrow_scale(res):.0f} times.")
+    rep.figure(partial(_sigma_figure, res), "Standard deviations of each image's projection centre and angles (map "
+               "CRS).")
     # --- tables -----------------------------------------------------------------------------
     rep.heading("Control points")
     rep.table(["id", "images", "dE (m)", "dN (m)", "dU (m)", "RMS (px)", "max |w|"],
@@ -164,3 +130,49 @@ def _arrow_scale(res) -> float:
     if typical <= 0:
         return 1.0
     return float(10 ** np.round(np.log10(0.05 * max(span, 1e-3) / typical)))
+
+
+def _map_figure(res):
+    """Image footprints (one collection: a patch per image costs ~2 ms to make and draw), projection centres,
+    control and check points with their horizontal errors magnified."""
+    fig, ax = new_figure(8, 7)
+    fps = [fp for fp in _footprints(res) if np.isfinite(fp).all()]
+    if fps:
+        ax.add_collection(PolyCollection(fps, facecolors="none", edgecolors="0.75", linewidths=0.6))
+    ax.plot(res.eop.xyz[:, 0], res.eop.xyz[:, 1], ".", color="tab:blue", ms=4, label="projection centres")
+    scale = _arrow_scale(res)
+    if res.gcp:
+        g = np.array([c["xyz"] for c in res.gcp])
+        dg = np.array([c["dENU_m"] for c in res.gcp])
+        ax.plot(g[:, 0], g[:, 1], "^", color="tab:green", label="control")
+        ax.quiver(g[:, 0], g[:, 1], dg[:, 0], dg[:, 1], color="tab:green", angles="xy", scale_units="xy",
+                  scale=1 / scale, width=0.004)
+    ev = [c for c in res.check if c.get("evaluated")]
+    if ev:
+        c = np.array([x["xyz"] for x in ev])
+        dc = np.array([x["dENU_m"] for x in ev])
+        ax.plot(c[:, 0], c[:, 1], "s", color="tab:red", label="check")
+        ax.quiver(c[:, 0], c[:, 1], dc[:, 0], dc[:, 1], color="tab:red", angles="xy", scale_units="xy",
+                  scale=1 / scale, width=0.004)
+    ax.set_aspect("equal")
+    ax.set_xlabel("E (m)")
+    ax.set_ylabel("N (m)")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"image footprints and horizontal residual vectors (x{scale:.0f})")
+    return fig
+
+
+def _sigma_figure(res):
+    """Each image's projection-centre (cm) and angle (arcsec) standard deviations."""
+    fig, axes = new_figure(9, 5, nrows=2, sharex=True)
+    k = np.arange(len(res.images))
+    for j, lab in enumerate(("sX", "sY", "sZ")):
+        axes[0].plot(k, res.eop.sigma[:, j] * 100, ".-", lw=0.7, label=lab)
+    for j, lab in enumerate(("s_omega", "s_phi", "s_kappa")):
+        axes[1].plot(k, res.eop.sigma[:, 3 + j] * 3600, ".-", lw=0.7, label=lab)
+    axes[0].set_ylabel("cm")
+    axes[1].set_ylabel("arcsec")
+    axes[1].set_xlabel("image index")
+    axes[0].legend(fontsize=8)
+    axes[1].legend(fontsize=8)
+    return fig
