@@ -19,7 +19,7 @@ from dgcal.pos.ins.error_model import ImuErrorModel, imu_grade
 from dgcal.pos.ins.nav_frame import NavFrame
 from dgcal.pos.gnss.dd import CarrierInput
 from dgcal.pos.smoother.carrier import (atmosphere_position_covariance, dd_residuals, keyframe_dd_factors,
-                                       linear_dd_factor)
+                                       keyframe_poses, linear_dd_factors)
 from dgcal.pos.smoother.code_bias import CB, CodeBiasArcs, bias_estimates, bias_process_factors, code_bias_arcs, \
     insert_initial
 from dgcal.pos.smoother.covariance import smoothed_covariances
@@ -279,7 +279,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
                       n_sat, gnss_update, omega_b, params, huber_k=opts.huber_k, seg=seg, interval_params=per_interval,
                       bias_hat=np.zeros((K - 1, 6)), dd={k: v[1] for k, v in dd.items()}, lever_arm_b=lever,
                       carrier=carrier, code_bias=arcs if arcs is not None and len(arcs) else None,
-                      bias_factor_groups=bias_groups, dd_lin=_poses(values, K) if dd else None)
+                      bias_factor_groups=bias_groups, dd_lin=keyframe_poses(values, K) if dd else None)
     problem.graph = assemble_graph(problem)
     return problem
 
@@ -357,19 +357,13 @@ def screen_dd(problem: Problem, values, threshold: float) -> int:
             fl.insert(0, ("dd", new[k][0], None))
         problem.epoch_factors[k] = fl
     problem.dd = {k: v[1] for k, v in new.items()}
-    problem.dd_lin = _poses(values, len(problem.t_key))
+    problem.dd_lin = keyframe_poses(values, len(problem.t_key))
     problem.graph = assemble_graph(problem)
     return dropped
 
 
 DD_RELINEARISE_M = 1.0       # position move (m) beyond which the double differences are re-linearised
 DD_RELINEARISE_RAD = 5e-4    # attitude move (rad, 0.03 deg)
-
-
-def _poses(values, K: int) -> tuple[np.ndarray, np.ndarray]:
-    """R (K,3,3) body->nav and p (K,3) nav m of the keyframe poses in `values` (its only Pose3 variables, X(k))."""
-    poses = gtsam.utilities.extractPose3(values)
-    return poses[:, :9].reshape(K, 3, 3), poses[:, 9:].copy()
 
 
 def relinearise_dd(problem: Problem, values) -> bool:
@@ -379,14 +373,13 @@ def relinearise_dd(problem: Problem, values) -> bool:
     if not problem.dd:
         return False
     K = len(problem.t_key)
-    R, p = _poses(values, K)
+    R, p = keyframe_poses(values, K)
     if problem.dd_lin is not None:
         R0, p0 = problem.dd_lin
         cos = np.clip((np.einsum("kij,kij->k", R, R0) - 1.0) / 2.0, -1.0, 1.0)
         if np.max(np.linalg.norm(p - p0, axis=1)) <= DD_RELINEARISE_M and np.max(np.arccos(cos)) <= DD_RELINEARISE_RAD:
             return False
-    new = {k: linear_dd_factor(X(k - 1) if data.prev is not None else None, X(k), data, problem.lever_arm_b,
-                               problem.frame, values) for k, data in problem.dd.items()}
+    new = linear_dd_factors(problem.dd, problem.lever_arm_b, problem.frame, values, X, R, p)
     for k, f in new.items():
         problem.epoch_factors[k] = [("dd", f, None) if e[0] == "dd" else e for e in problem.epoch_factors[k]]
     problem.dd_lin = (R, p)
@@ -458,7 +451,7 @@ def read_states(problem: Problem, values) -> NavSolution:
     """Keyframe states from gtsam Values (no covariances)."""
     K = len(problem.t_key)
     # the problem's only Pose3 and Point3 variables are X(k) and V(k), extracted in key (= keyframe) order
-    R, p = _poses(values, K)
+    R, p = keyframe_poses(values, K)
     v = gtsam.utilities.extractPoint3(values).reshape(K, 3)
     b = np.array([values.atConstantBias(B(k)).vector() for k in range(K)])
     clock = {s: np.array([values.atDouble(CLK(s, k)) for k in range(K)]) for s in problem.systems}

@@ -164,14 +164,18 @@ def dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.nd
 
 
 def linear_dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.ndarray, frame: NavFrame,
-                     values):
+                     values, model: tuple | None = None):
     """One keyframe's double differences linearised at `values` (a gtsam LinearContainerFactor: whitened Jacobian
     and residual, evaluated at other values through the poses' local coordinates). What the linearisation leaves
     out is second order: |dp|^2 / (2 range) in position (2.5e-8 m for 1 m) and |lever| |dtheta|^2 / 2 in attitude
     (1e-7 m for 0.03 deg at a 1 m lever arm), so the smoother re-linearises where the poses moved beyond those
-    (`dgcal.pos.smoother.batch.relinearise_dd`)."""
-    keys, cov, model = _dd_model(X_prev, X_cur, data, lever_b, frame)
-    e, H = model(values, True)
+    (`dgcal.pos.smoother.batch.relinearise_dd`). `model`: (keys, e, H) already evaluated at `values`
+    (`linear_dd_factors` evaluates every keyframe's in one pass)."""
+    if model is None:
+        keys, _, error = _dd_model(X_prev, X_cur, data, lever_b, frame)
+        e, H = error(values, True)
+    else:
+        keys, e, H = model
     # whiten as gtsam's Gaussian model does: R'R = C^-1 with R upper triangular
     W = data.whitener                              # W' W = C^-1
     args = []
@@ -184,12 +188,65 @@ def linear_dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b
     return gtsam.LinearContainerFactor(jf, lin)
 
 
+def linear_dd_factors(dd: dict, lever_b: np.ndarray, frame: NavFrame, values, X, R: np.ndarray,
+                      p: np.ndarray) -> dict:
+    """keyframe -> `linear_dd_factor` of every keyframe's DDFactorData in `dd`, linearised at `values` (whose
+    keyframe poses are R (K,3,3) body->nav and p (K,3) nav m): the range differences of all keyframes' rows, and
+    of the previous keyframes' rows they are whitened against, in one pass instead of two calls per keyframe."""
+    sets = []
+    for k, data in dd.items():
+        sets.append((data.cur, k, None))
+        if data.prev is not None and data.tracked.any():
+            sets.append((data.prev, k - 1, data.prev_index[data.tracked]))
+    hj = iter(_range_differences_of_sets(sets, R, p, np.asarray(lever_b, float), frame))
+    out = {}
+    for k, data in dd.items():
+        h, J = next(hj)
+        e = h - data.cur.z
+        if data.prev is not None and data.tracked.any():
+            hp, Jp = next(hj)
+            tr, rho = data.tracked, data.rho[data.tracked]
+            e[tr] -= rho * (hp - data.prev.z[data.prev_index[tr]])
+            Jprev = np.zeros((data.cur.n, 6))
+            Jprev[tr] = -rho[:, None] * Jp
+            model = ([X(k - 1), X(k)], e, [Jprev, J])
+        else:
+            model = ([X(k)], e, [J])
+        out[k] = linear_dd_factor(None, X(k), data, lever_b, frame, values, model)
+    return out
+
+
+def _range_differences_of_sets(sets: list, R: np.ndarray, p: np.ndarray, lever: np.ndarray, frame: NavFrame) -> list:
+    """`range_differences` of many row sets, each (DDEpoch, keyframe, rows or None for all) at its keyframe's pose
+    (R (K,3,3) body->nav, p (K,3) nav m), computed in one pass: [(h (n,), J (n,6))] in the order of `sets`."""
+    if not sets:
+        return []
+    idx = [np.arange(e.n) if r is None else r for e, _, r in sets]
+    sat = np.concatenate([e.sat_pos[i] for (e, _, _), i in zip(sets, idx)])
+    ref = np.concatenate([e.ref_pos[i] for (e, _, _), i in zip(sets, idx)])
+    kk = np.repeat([k for _, k, _ in sets], [len(i) for i in idx])
+    Rne = frame.R_nav_to_ecef
+    p_ant = (p + np.einsum("kij,j->ki", R, lever)) @ Rne.T + frame.origin_ecef
+    di, dr = sat - p_ant[kk], ref - p_ant[kk]
+    ri = np.sqrt(np.einsum("ij,ij->i", di, di))
+    rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
+    RneR = Rne @ R
+    G = np.einsum("ni,nij->nj", dr / rr[:, None] - di / ri[:, None], RneR[kk])   # dh / d(body-axes translation)
+    J = np.empty((len(ri), 6))
+    J[:, 3:] = G
+    J[:, :3] = G @ _skew(lever).T
+    h = ri - rr
+    cut = np.cumsum([len(i) for i in idx])[:-1]
+    return list(zip(np.split(h, cut), np.split(J, cut)))
+
+
 def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavFrame, phase_corr: tuple,
-                        code_corr: tuple, X, values) -> dict:
+                        code_corr: tuple, X, values, poses: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """keyframe -> (factor, DDFactorData) for every keyframe with double differences; rows tracked from the
     previous keyframe are whitened against it when it is the previous epoch (dt <= 2.5 median steps). The factors
-    are linearised at `values` (`linear_dd_factor`)."""
-    out = {}
+    are linearised at `values` (`linear_dd_factors`), whose keyframe poses are `poses` (R (K,3,3), p (K,3); read
+    from `values` when not given)."""
+    data_at = {}
     dt_nom = float(np.median(np.diff(t_key))) if len(t_key) > 1 else 1.0
     for k, cur in enumerate(dd_at_key):
         if cur is None or cur.n == 0:
@@ -201,9 +258,17 @@ def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavF
         keep, idx, coef, cov = whitening(cur, prev, dt, phase_corr, code_corr)
         if not keep.any():
             continue
-        data = DDFactorData(k, cur.subset(keep), prev, idx, coef, cov)
-        out[k] = (linear_dd_factor(X(k - 1) if prev is not None else None, X(k), data, lever_b, frame, values), data)
-    return out
+        data_at[k] = DDFactorData(k, cur.subset(keep), prev, idx, coef, cov)
+    if poses is None:
+        poses = keyframe_poses(values, len(t_key))
+    factors = linear_dd_factors(data_at, lever_b, frame, values, X, *poses)
+    return {k: (factors[k], data) for k, data in data_at.items()}
+
+
+def keyframe_poses(values, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """R (K,3,3) body->nav and p (K,3) nav m of the keyframe poses in `values` (its only Pose3 variables, X(k))."""
+    poses = gtsam.utilities.extractPose3(values)
+    return poses[:, :9].reshape(K, 3, 3), poses[:, 9:].copy()
 
 
 def dd_errors(data: DDFactorData, values, X, lever_b, frame: NavFrame) -> np.ndarray:

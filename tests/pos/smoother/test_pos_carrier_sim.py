@@ -93,17 +93,27 @@ def _jacobian(factor):
 
 def test_linearised_dd_factors_equal_the_exact_ones(flight):
     """The smoother's double differences are linearised factors (`linear_dd_factor`): at their linearisation point
-    the same error and Jacobian as the exact CustomFactor, 0.5 m and 0.02 deg away a cost within 1e-6 of its."""
+    the same error and Jacobian as the exact CustomFactor, 0.5 m and 0.02 deg away a cost within 1e-6 of its; the
+    smoother's batch of them (`linear_dd_factors`, every keyframe's rows in one pass) is the same factors."""
     import gtsam
-    from dgcal.pos.smoother.carrier import dd_factor, linear_dd_factor
+    from dgcal.pos.smoother.carrier import dd_factor, keyframe_poses, linear_dd_factor, linear_dd_factors
     from dgcal.pos.smoother.factors import X
     sol = flight["tc"].smoothed
     problem, values = sol.problem, sol.values
+    batch = linear_dd_factors(problem.dd, problem.lever_arm_b, problem.frame, values, X,
+                              *keyframe_poses(values, len(problem.t_key)))
+    assert set(batch) == set(problem.dd)
     checked = 0
     for k, data in list(problem.dd.items())[::40]:
         xp = X(k - 1) if data.prev is not None else None
         exact = dd_factor(xp, X(k), data, problem.lever_arm_b, problem.frame)
         lin = linear_dd_factor(xp, X(k), data, problem.lever_arm_b, problem.frame, values)
+        assert list(batch[k].keys()) == list(lin.keys())
+        assert batch[k].error(values) == pytest.approx(lin.error(values), rel=1e-12, abs=1e-15)
+        A0, b0 = _jacobian(batch[k].linearize(values))
+        A3, b3 = _jacobian(lin.linearize(values))
+        np.testing.assert_allclose(A0, A3, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(b0, b3, rtol=1e-10, atol=1e-9)
         assert lin.error(values) == pytest.approx(exact.error(values), rel=1e-9, abs=1e-12)
         A1, b1 = _jacobian(exact.linearize(values))
         A2, b2 = _jacobian(lin.linearize(values))
