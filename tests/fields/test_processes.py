@@ -83,11 +83,19 @@ def test_a_failing_task_raises_in_the_parent():
 
 
 def test_a_dead_child_costs_only_time():
-    def dies_in_a_child():
-        if os.getpid() != PARENT:
-            os.kill(os.getpid(), signal.SIGKILL)
-        return "here"
-    assert fork_map([_square(2), dies_in_a_child], jobs=2) == [(4, PARENT), "here"]
+    """The child dies in whichever task it takes; the parent runs that task again. The parent's own task waits until
+    the child has taken one (a child that starts late must not find both tasks done)."""
+    took = processes.multiprocessing.get_context("fork").Event()
+
+    def dies_in_a_child(k: int):
+        def task():
+            if os.getpid() != PARENT:
+                took.set()
+                os.kill(os.getpid(), signal.SIGKILL)
+            assert took.wait(timeout=60), "no child took a task"
+            return k * k, os.getpid()
+        return task
+    assert fork_map([dies_in_a_child(2), dies_in_a_child(3)], jobs=2) == [(4, PARENT), (9, PARENT)]
 
 
 def _collect_in_child():
