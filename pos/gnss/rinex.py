@@ -319,6 +319,7 @@ def _chosen_rows(rx: RinexObsFile, kept: np.ndarray, signals: dict, signals2: di
             use = np.isfinite(vals[:, 0]) & (vals[:, 0] > 1e6)
             yield int(k), [sids[i] for i in np.flatnonzero(use)], vals[use]
 
+
 def _doppler_from_phase(epochs: list[GnssEpoch]) -> None:
     """Fill missing Doppler by central differences of carrier phase (cycles) between epochs."""
     if len(epochs) < 2:
