@@ -212,7 +212,8 @@ def linear_dd_factors(dd: dict, lever_b: np.ndarray, frame: NavFrame, values, X,
             model = ([X(k - 1), X(k)], e, [Jprev, J])
         else:
             model = ([X(k)], e, [J])
-        out[k] = linear_dd_factor(None, X(k), data, lever_b, frame, values, model)
+        out[k] = linear_dd_factor(X(k - 1) if data.prev is not None else None, X(k), data, lever_b, frame, values,
+                                  model)
     return out
 
 
