@@ -36,16 +36,27 @@ def _skew(v: np.ndarray) -> np.ndarray:
 def range_differences(dd: DDEpoch, pose, lever_b: np.ndarray, frame: NavFrame) -> tuple[np.ndarray, np.ndarray]:
     """h (n,) m: |s_i - p| - |s_ref - p| at the antenna of `pose` (gtsam Pose3 in nav), and dh/dpose (n,6)."""
     M = pose.matrix()
-    R = M[:3, :3]
-    Rne = frame.R_nav_to_ecef
-    p = Rne @ (M[:3, 3] + R @ lever_b) + frame.origin_ecef
-    di, dr = dd.sat_pos - p, dd.ref_pos - p
+    lever = np.asarray(lever_b, float)
+    return _rows_at_antenna(dd.sat_pos, dd.ref_pos, _antenna_ecef(M[:3, :3], M[:3, 3], lever, frame),
+                            frame.R_nav_to_ecef @ M[:3, :3], lever)
+
+
+def _antenna_ecef(R: np.ndarray, p: np.ndarray, lever: np.ndarray, frame: NavFrame) -> np.ndarray:
+    """ECEF position (m) of the antenna at the lever arm of poses R (...,3,3) body->nav and p (...,3) nav m."""
+    return (p + np.einsum("...ij,j->...i", R, lever)) @ frame.R_nav_to_ecef.T + frame.origin_ecef
+
+
+def _rows_at_antenna(sat_pos: np.ndarray, ref_pos: np.ndarray, p_ant: np.ndarray, RneR: np.ndarray,
+                     lever: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """h (n,) and dh/dpose (n,6) of rows with satellite and reference positions (n,3) ECEF m seen from the antenna
+    at `p_ant` ((3,) or per row (n,3)), the body axes turned to ECEF by `RneR` ((3,3) or per row (n,3,3))."""
+    di, dr = sat_pos - p_ant, ref_pos - p_ant
     ri = np.sqrt(np.einsum("ij,ij->i", di, di))
     rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
-    G = (dr / rr[:, None] - di / ri[:, None]) @ (Rne @ R)                  # dh / d(body-axes translation) (n,3)
+    G = ((dr / rr[:, None] - di / ri[:, None])[:, None, :] @ RneR)[:, 0]   # dh / d(body-axes translation) (n,3)
     J = np.empty((len(ri), 6))
     J[:, 3:] = G
-    J[:, :3] = G @ _skew(lever_b).T                                          # rows lever x g (np.cross is slow)
+    J[:, :3] = G @ _skew(lever).T                                          # rows lever x g (np.cross is slow)
     return ri - rr, J
 
 
@@ -72,6 +83,11 @@ class DDFactorData:
     def tracked(self) -> np.ndarray:
         """(n,) bool: the rows tracked from `prev` with a non-zero coefficient."""
         return (self.prev_index >= 0) & (self.rho != 0)
+
+    @cached_property
+    def spans_prev(self) -> bool:
+        """The factor spans the previous keyframe too: some rows are whitened against its rows."""
+        return self.prev is not None and bool(self.tracked.any())
 
     @cached_property
     def tracked_prev(self) -> tuple[DDEpoch, np.ndarray, np.ndarray]:
@@ -121,9 +137,9 @@ def _dd_model(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b: np.nd
     """Keys, noise model and error function `error(values, jacobians: bool) -> (e (n,) m, [H (n,6) per key])` of
     one keyframe's double differences (keys X_prev (may be None) and X_cur)."""
     lever = np.asarray(lever_b, float)
-    cur, prev = data.cur, data.prev
+    cur = data.cur
     tracked = data.tracked
-    use_prev = X_prev is not None and prev is not None and tracked.any()
+    use_prev = X_prev is not None and data.spans_prev
     if use_prev:
         prev_rows, order, rho_t = data.tracked_prev
     keys = [X_prev, X_cur] if use_prev else [X_cur]
@@ -196,14 +212,14 @@ def linear_dd_factors(dd: dict, lever_b: np.ndarray, frame: NavFrame, values, X,
     sets = []
     for k, data in dd.items():
         sets.append((data.cur, k, None))
-        if data.prev is not None and data.tracked.any():
+        if data.spans_prev:
             sets.append((data.prev, k - 1, data.prev_index[data.tracked]))
     hj = iter(_range_differences_of_sets(sets, R, p, np.asarray(lever_b, float), frame))
     out = {}
     for k, data in dd.items():
         h, J = next(hj)
         e = h - data.cur.z
-        if data.prev is not None and data.tracked.any():
+        if data.spans_prev:
             hp, Jp = next(hj)
             tr, rho = data.tracked, data.rho[data.tracked]
             e[tr] -= rho * (hp - data.prev.z[data.prev_index[tr]])
@@ -226,27 +242,16 @@ def _range_differences_of_sets(sets: list, R: np.ndarray, p: np.ndarray, lever: 
     sat = np.concatenate([e.sat_pos[i] for (e, _, _), i in zip(sets, idx)])
     ref = np.concatenate([e.ref_pos[i] for (e, _, _), i in zip(sets, idx)])
     kk = np.repeat([k for _, k, _ in sets], [len(i) for i in idx])
-    Rne = frame.R_nav_to_ecef
-    p_ant = (p + np.einsum("kij,j->ki", R, lever)) @ Rne.T + frame.origin_ecef
-    di, dr = sat - p_ant[kk], ref - p_ant[kk]
-    ri = np.sqrt(np.einsum("ij,ij->i", di, di))
-    rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
-    RneR = Rne @ R
-    G = np.einsum("ni,nij->nj", dr / rr[:, None] - di / ri[:, None], RneR[kk])   # dh / d(body-axes translation)
-    J = np.empty((len(ri), 6))
-    J[:, 3:] = G
-    J[:, :3] = G @ _skew(lever).T
-    h = ri - rr
+    h, J = _rows_at_antenna(sat, ref, _antenna_ecef(R, p, lever, frame)[kk], (frame.R_nav_to_ecef @ R)[kk], lever)
     cut = np.cumsum([len(i) for i in idx])[:-1]
     return list(zip(np.split(h, cut), np.split(J, cut)))
 
 
 def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavFrame, phase_corr: tuple,
-                        code_corr: tuple, X, values, poses: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+                        code_corr: tuple, X, values) -> dict:
     """keyframe -> (factor, DDFactorData) for every keyframe with double differences; rows tracked from the
     previous keyframe are whitened against it when it is the previous epoch (dt <= 2.5 median steps). The factors
-    are linearised at `values` (`linear_dd_factors`), whose keyframe poses are `poses` (R (K,3,3), p (K,3); read
-    from `values` when not given)."""
+    are linearised at `values` (`linear_dd_factors`)."""
     data_at = {}
     dt_nom = float(np.median(np.diff(t_key))) if len(t_key) > 1 else 1.0
     for k, cur in enumerate(dd_at_key):
@@ -260,9 +265,7 @@ def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavF
         if not keep.any():
             continue
         data_at[k] = DDFactorData(k, cur.subset(keep), prev, idx, coef, cov)
-    if poses is None:
-        poses = keyframe_poses(values, len(t_key))
-    factors = linear_dd_factors(data_at, lever_b, frame, values, X, *poses)
+    factors = linear_dd_factors(data_at, lever_b, frame, values, X, *keyframe_poses(values, len(t_key)))
     return {k: (factors[k], data) for k, data in data_at.items()}
 
 
@@ -340,12 +343,13 @@ def _fixed_rows_budget(part: list, sol, lever: np.ndarray, iono_ppm: float, trop
         return out
     ks = np.array([k for k, _, _ in part])
     frame = sol.frame
-    Rne = frame.R_nav_to_ecef
-    p = (sol.p_nav[ks] + np.einsum("kij,j->ki", sol.R_body_to_nav[ks], lever)) @ Rne.T + frame.origin_ecef
-    di, dr = padded("sat_pos") - p[:, None], padded("ref_pos") - p[:, None]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = dr / np.linalg.norm(dr, axis=2, keepdims=True) - di / np.linalg.norm(di, axis=2, keepdims=True)
-    G = np.where(valid[..., None], u @ Rne, 0.0)                          # d h / d p_nav (nk, m, 3)
+    # d h / d p_nav of the rows (the body axes taken as the nav axes: the translation Jacobian is then in nav)
+    _, J = _rows_at_antenna(np.concatenate([cur.sat_pos[i] for _, cur, i in part]),
+                            np.concatenate([cur.ref_pos[i] for _, cur, i in part]),
+                            _antenna_ecef(sol.R_body_to_nav[ks], sol.p_nav[ks], lever, frame)[kb], frame.R_nav_to_ecef,
+                            lever)
+    G = np.zeros((nk, m, 3))
+    G[kb, pos] = J[:, 3:]
     group = np.where(valid, padded("group", -1), -1 - np.arange(m))
     same = (group[:, :, None] == group[:, None, :]) & valid[:, :, None] & valid[:, None, :]
     C = np.where(same, padded("var_ref")[:, :, None], 0.0)
@@ -360,9 +364,10 @@ def _fixed_rows_budget(part: list, sol, lever: np.ndarray, iono_ppm: float, trop
     sgn = np.where(padded("kind") == 0, -1.0, 1.0)
     a, b = sgn * padded("kappa"), -sgn * padded("kappa_ref")             # the row's weight on its satellite, reference
     scale = (iono_ppm * 1e-6 * np.array([cur.base_dist_m for _, cur, _ in part]))[:, None]
-    vs, vr = (scale * padded("map_sat")) ** 2, (scale * padded("map_ref")) ** 2
+    map_sat, map_ref = padded("map_sat"), padded("map_ref")
+    vs, vr = (scale * map_sat) ** 2, (scale * map_ref) ** 2
     sat, ref = padded("sat", -1), padded("ref", -1)
-    t = padded("map_sat") - padded("map_ref")
+    t = map_sat - map_ref
 
     def eq(x, y):
         return x[:, :, None] == y[:, None, :]
