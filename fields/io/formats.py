@@ -376,8 +376,8 @@ def read_events(path: str | Path) -> Events:
 def write_events(path: str | Path, ev: Events) -> None:
     """Write an events CSV."""
     week, sow = week_sow(ev.t)
-    write_table(path, ["image", "gps_week", "gps_sow"],
-                ([ev.image[i], int(week[i]), "%.6f" % sow[i]] for i in range(len(ev.t))))
+    write_columns(path, ["image", "gps_week", "gps_sow"],
+                  [list(ev.image), np.asarray(week, np.int64).tolist(), formatted(sow, "%.6f")])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -424,10 +424,8 @@ def read_eop(path: str | Path) -> EOP:
 def write_eop(path: str | Path, eop: EOP) -> None:
     """Write an EOP CSV (sigma columns when given)."""
     header = list(EOP_COLUMNS) + (list(EOP_SIGMA_COLUMNS) if eop.sigma is not None else [])
-    rows = []
-    for i in range(len(eop.image)):
-        r = [eop.image[i]] + ["%.6f" % v for v in eop.xyz[i]] + ["%.9f" % v for v in eop.opk[i]]
-        if eop.sigma is not None:
-            r += ["%.5f" % v for v in eop.sigma[i, :3]] + ["%.7f" % v for v in eop.sigma[i, 3:]]
-        rows.append(r)
-    write_table(path, header, rows)
+    cols = [list(eop.image)] + [formatted(eop.xyz[:, j], "%.6f") for j in range(3)]
+    cols += [formatted(eop.opk[:, j], "%.9f") for j in range(3)]
+    if eop.sigma is not None:
+        cols += [formatted(eop.sigma[:, j], "%.5f" if j < 3 else "%.7f") for j in range(6)]
+    write_columns(path, header, cols)
