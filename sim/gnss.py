@@ -394,8 +394,9 @@ def simulate_carrier_pair(t_gps: np.ndarray, p_rover_ecef: np.ndarray, p_base_ec
 
         P = rho + c*(dt_rx - dt_sat) + T + I_f + n_P,    L = (rho + c*(dt_rx - dt_sat) + T - I_f)/lam + N + n_L/lam
 
-    with the exact light-time range of ``_range_at``, the Saastamoinen (hydrostatic) and Klobuchar models at
-    each receiver (so that the PPK front end removes them; no differential atmosphere error), a constant
+    with the exact light-time range of ``_range_at``, the Saastamoinen (standard atmosphere, 70 % humidity) and
+    Klobuchar models at each receiver (so that the PPK front end removes them; no differential atmosphere error), a
+    constant
     receiver clock offset, random integer ambiguities and white noise ``sigma * sqrt(1/2 + 1/(2 sin^2 el))``
     (zenith sigmas ``sigma_code`` m, ``sigma_phase`` m). ``slips``: (t_gps, sat, slot, cycles, flagged)
     add ``cycles`` to that phase from ``t_gps`` on, with LLI=1 at that epoch if ``flagged``. ``rover.truth``
@@ -431,7 +432,7 @@ def simulate_carrier_pair(t_gps: np.ndarray, p_rover_ecef: np.ndarray, p_base_ec
         az = np.mod(np.arctan2(e[:, 0], e[:, 1]), 2 * np.pi)
         vis = ok & (el >= np.radians(elev_mask_deg - 2.0))
         dts = clk_s + clk_d * ((t_true - tau) - t_s0)
-        tropo = saastamoinen_delay_m(llh[:, 0], llh[:, 2], el, humidity=0.0)
+        tropo = saastamoinen_delay_m(llh[:, 0], llh[:, 2], el, humidity=0.7)
         geo = rho + clk_m - C_LIGHT * dts + tropo
         Pm = np.full((n_ep * m, n_freq), np.nan)
         Lm = np.full((n_ep * m, n_freq), np.nan)
@@ -570,7 +571,9 @@ def simulate_rover_base(t_gps: np.ndarray, p_rover_ecef: np.ndarray, v_rover_ece
                         systems=("G", "E"), n_freq: int = 2, elev_mask_deg: float = 10.0,
                         outages: list[tuple[float, float, int]] = (),
                         slips: list[tuple[float, str, int, int, bool]] = (), n_random_slips: int = 0,
-                        rover_clock: RxClock | None = None, base_clock: RxClock | None = None) -> CarrierSimulation:
+                        rover_clock: RxClock | None = None, base_clock: RxClock | None = None,
+                        rover_mask=None, doppler: bool = True, half_cycle_share: float = 0.0,
+                        half_cycle_s: float = 6.0) -> CarrierSimulation:
     """Code, carrier phase, Doppler and C/N0 of a moving rover antenna and a static base (GPS s, ECEF m, m/s).
 
     Per receiver r, satellite and frequency slot f (GPS L1 L2 L5, Galileo E1 E5a E5b, QZSS L1 L2 L5)::
@@ -586,6 +589,10 @@ def simulate_rover_base(t_gps: np.ndarray, p_rover_ecef: np.ndarray, v_rover_ece
     satellites that were highest at t0 (0 = nothing); a satellite it loses starts a new arc with the
     loss-of-lock indicator when it comes back. `slips` (t_gps, sat, slot, cycles, flagged) add cycles to the
     rover phase from t_gps on (LLI 1 at that epoch if flagged); `n_random_slips` more are drawn (half flagged).
+    `rover_mask(el, az)` (rad, (n_ep, m) arrays of the rover) returns what the rover's antenna can see beside the
+    elevation mask (an airframe in a bank, buildings); `doppler` False: a receiver that outputs no Doppler;
+    `half_cycle_share`: that share of the rover's arcs after the first epoch start with the half-cycle ambiguity
+    unresolved for `half_cycle_s` (phase 0.5 cycle off, LLI bit 1), then corrected (bit 1 cleared).
     """
     err = errors or CarrierErrorModel()
     rng = np.random.default_rng(seed)
@@ -637,15 +644,18 @@ def simulate_rover_base(t_gps: np.ndarray, p_rover_ecef: np.ndarray, v_rover_ece
         snr = np.repeat((30.0 + 20.0 * np.sin(el))[:, :, None], F, axis=2)
         out[name] = dict(P=P, L=Lm / lam[None], D=D, snr=np.round(snr, 3), vis=vis, el=el)
         if name == "rover":
-            vis_r = vis.copy()
+            vis_r = vis.copy() if rover_mask is None else vis & rover_mask(el, az)
+            if not doppler:
+                out[name]["D"] = np.full_like(D, np.nan)
     out["rover"]["vis"] = _rover_outages(vis_r, out["rover"]["el"], t, outages)
     restarts = _phase_arcs(out, t, sats, sysv, F, rng)
+    half = _half_cycles(out["rover"], t, half_cycle_share, half_cycle_s, rng)
     truth_slips = _cycle_slips(out["rover"], t, sats, F, slips, n_random_slips, rng)
     signals = {(s, f): CARRIER_SIGNALS[s][f] for s in systems if s in CARRIER_SIGNALS for f in range(F)}
     res = {name: _carrier_obs(name, out[name], t, sats, freq, signals, pos0, P_r if name == "rover" else p_b, rng)
            for name, pos0 in (("rover", P_r[0]), ("base", p_b))}
     truth = {"t_gps": t, "p_ecef": P_r, "v_ecef": V_r, "base_ecef": p_b, "clock": truth_clk,
-             "slips": truth_slips, "restarts": restarts, "errors": err.as_dict(),
+             "slips": truth_slips, "restarts": restarts, "half_cycles": half, "errors": err.as_dict(),
              "tropo_zenith_residual_m": float(tropo_res), "outages": [list(o) for o in outages]}
     return CarrierSimulation(res["rover"], res["base"], nav, p_b, truth)
 
@@ -689,6 +699,25 @@ def _phase_arcs(out: dict, t: np.ndarray, sats: list, sysv: np.ndarray, F: int, 
             restarts = [(float(t[k]), sats[i]) for k, i in zip(*np.nonzero(restart))]
         o.update(L=L, lli=lli)
     return restarts
+
+
+def _half_cycles(rover: dict, t: np.ndarray, share: float, duration_s: float, rng) -> int:
+    """Half-cycle ambiguities: `share` of the arcs that start after the first epoch get +0.5 cycle and LLI bit 1 for
+    their first `duration_s` (every slot), as a receiver's phase before it resolves the navigation-bit sign; the
+    number of such arcs."""
+    if share <= 0:
+        return 0
+    vis = rover["vis"]
+    start = vis & ~np.vstack([np.ones((1, vis.shape[1]), bool), vis[:-1]])
+    n = 0
+    for k, i in zip(*np.nonzero(start)):
+        if rng.uniform() >= share:
+            continue
+        kk = k + np.nonzero(vis[k:, i].cumprod() & (t[k:] < t[k] + duration_s))[0]
+        rover["L"][kk, i, :] += 0.5
+        rover["lli"][kk, i, :] |= 2
+        n += 1
+    return n
 
 
 def _cycle_slips(rover: dict, t: np.ndarray, sats: list, F: int, slips, n_random: int, rng) -> list:

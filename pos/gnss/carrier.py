@@ -260,7 +260,8 @@ def slip_flags(obs: CarrierObs, gf_threshold_m: float = 0.05, mw_threshold_cycle
                max_gap_s: float = 30.0) -> np.ndarray:
     """Possible cycle slips ``[epoch, sat, slot]``: the phase may have jumped since the previous observation.
 
-    Flags: LLI bit 0; epoch flag 1 (power failure: all phases); a gap > ``max_gap_s`` since the previous
+    Flags: LLI bit 0; a change of LLI bit 1 (half cycle resolved, or lost); epoch flag 1 (power failure: all phases);
+    a gap > ``max_gap_s`` since the previous
     phase of the same satellite and slot; a geometry-free (``lam1 L1 - lamk Lk``, m) change > the
     threshold (scaled up for gaps over 1 s, to allow for the ionosphere's rate); a Melbourne-Wuebbena
     wide-lane jump > ``mw_threshold_cycles`` times its scatter along the arc (at least 1 cycle + 4 sigma
@@ -270,6 +271,11 @@ def slip_flags(obs: CarrierObs, gf_threshold_m: float = 0.05, mw_threshold_cycle
     t = obs.t_gps
     have = np.isfinite(obs.L)
     slip = (obs.lli & 1).astype(bool) & have
+    # LLI bit 1 (half-cycle ambiguity not resolved) set or cleared since the previous observation: a receiver that
+    # resolves the half cycle corrects its phase by half a cycle, which neither GF nor MW sees on every frequency
+    half = (obs.lli & 2).astype(bool)
+    for f in range(F):
+        slip[:, :, f] |= _half_cycle_changes(have[:, :, f], half[:, :, f])
     if obs.power_failure is not None and obs.power_failure.any():
         slip |= obs.power_failure[:, None, None] & have
     lam = C_LIGHT / obs.freq_hz                                  # (m, F)
@@ -302,6 +308,14 @@ def slip_flags(obs: CarrierObs, gf_threshold_m: float = 0.05, mw_threshold_cycle
             slip[k[bad], i, 0] = True
             slip[k[bad], i, f] = True
     return slip
+
+
+def _half_cycle_changes(have: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """(epoch, sat): the half-cycle flag differs from the one of the previous observation of the satellite."""
+    idx = np.where(have, np.arange(len(have))[:, None], -1)
+    prev = np.maximum.accumulate(np.vstack([np.full((1, have.shape[1]), -1), idx[:-1]]), axis=0)
+    before = np.take_along_axis(half, np.maximum(prev, 0), axis=0)
+    return have & (prev >= 0) & (before != half)
 
 
 @njit(cache=True)

@@ -41,7 +41,7 @@ from dgcal.pos.gnss.ambiguity import AmbiguityFix, fixed_solution, gesv, resolve
 from dgcal.pos.gnss.carrier import (CarrierObs, ZeroDiff, first_code, satellite_geometry, slip_flags,
                                    transmission_states, zero_difference)
 from dgcal.pos.gnss.chi2_points import chi2_limit
-from dgcal.pos.gnss.ppk_design import dd_rows, dd_system
+from dgcal.pos.gnss.ppk_design import NK, dd_rows, dd_system
 from dgcal.pos.gnss.rinex import BroadcastNav
 
 STATUS = ("none", "single", "float", "fixed")
@@ -55,7 +55,7 @@ class PpkOptions:
     n_freq: int = 3
     elev_mask_deg: float = 10.0
     ar_elev_mask_deg: float = 10.0
-    dynamics: str = "kinematic"           # kinematic | static
+    dynamics: str = "kinematic"           # kinematic (constant velocity, white acceleration) | static
     solution: str = "combined"            # combined | forward | backward
     code_sigma_m: float = 0.3
     phase_sigma_m: float = 0.003
@@ -63,23 +63,29 @@ class PpkOptions:
     partial: bool = True
     p0: float = 0.999                     # success rate of a partial set
     min_fix_amb: int = 4
-    hold: bool = True
+    hold: bool = False                    # feed fixes back into the float filter (makes the float overconfident)
     hold_after: int = 3
     hold_sigma_cycles: float = 0.03
     alpha: float = 1e-3                   # false-alarm probability of the validation tests
-    pos_sigma_m: float = 30.0             # kinematic: prior sigma of the position every epoch
+    pos_sigma_m: float = 30.0             # prior sigma of the first position (and after a gap)
+    vel_sigma_mps: float = 30.0           # kinematic: prior sigma of the first velocity (and after a gap)
+    accel_h_mps2: float = 3.0             # kinematic: white horizontal acceleration, m/s^2 per sqrt(Hz) (cars, UAVs)
+    accel_v_mps2: float = 1.5             # kinematic: the same, vertical
     amb_sigma_cycles: float = 30.0        # prior sigma of a new ambiguity
-    amb_q_cycles2_s: float = 1e-8         # ambiguity random walk
+    amb_q_cycles2_s: float = 1e-8         # ambiguity random walk beside the one of the phase biases below
     slip_gf_m: float = 0.05
     slip_mw_sigma: float = 4.0
     max_gap_s: float = 30.0               # ambiguity reset after a longer gap
     max_age_s: float = 30.0               # base epochs older/newer than this are not used
     outlier_w: float = 5.0                # post-fit w-test threshold (standardised residual)
     code_corr_s: float = 60.0             # correlation time of code errors (multipath); 0: white
-    phase_bias_sigma_m: float = 0.01      # time-correlated SD phase errors (multipath, PCV), validation only
+    phase_bias_sigma_m: float = 0.01      # time-correlated SD phase errors (multipath, PCV, differential atmosphere)
+    noise_window_s: float = 30.0          # residual-based variance factors of phase and code over ~this time; 0: off
+    phase_bias_tau_s: float = 60.0        # their correlation time: the ambiguities' random walk 2 sigma^2 / tau
     iono_ppm: float = 0.5                 # differential ionosphere budget of a fixed position (mm per km, slant)
     tropo_zenith_m: float = 0.0015        # rover zenith troposphere error left by the model (fixed-position budget)
-    humidity: float = 0.0                 # Saastamoinen hydrostatic only at both receivers (as RTKLIB relative)
+    humidity: float = 0.7                 # Saastamoinen at both receivers with 70 % humidity (RTKLIB's REL_HUMI): the
+    #                                       wet delay's height gradient matters for a UAV 100 m above its base
 
 
 @dataclass
@@ -158,6 +164,9 @@ class CarrierPair:
         self.slips_base = int(sb[1:].sum())
         self.Cr = np.cumsum(sr, axis=0)
         self.Cb = np.cumsum(sb, axis=0)
+        # half-cycle ambiguity not yet resolved (LLI bit 1): the phase is used, its ambiguity not fixed
+        self.half_r = (rover.lli[:, ir, :F] & 2) > 0
+        self.half_b = (base.lli[:, ib, :F] & 2) > 0
         # base epoch for every rover epoch: nearest within max_age
         if len(self.tb):
             j = np.clip(np.searchsorted(self.tb, self.t), 1, max(len(self.tb) - 1, 1))
@@ -262,7 +271,7 @@ class _Pass:
     def __init__(self, eng: CarrierPair, order: np.ndarray, p_init: np.ndarray):
         self.e, self.order = eng, order
         m, F = len(eng.sats), eng.F
-        self.n = 3 + m * F
+        self.n = NK + m * F
         self.x = np.zeros(self.n)
         self.x[:3] = p_init
         self.P = np.zeros((self.n, self.n))
@@ -280,11 +289,22 @@ class _Pass:
         self.have_pos = False
         # variance (cycles^2) of the time-correlated SD phase errors of every state (validation of a fix only)
         self.var_bias = np.zeros(self.n)
-        self.var_bias[3:] = np.nan_to_num((eng.opts.phase_bias_sigma_m / eng.lam.ravel()) ** 2)
+        self.var_bias[NK:] = np.nan_to_num((eng.opts.phase_bias_sigma_m / eng.lam.ravel()) ** 2)
+        # a Gauss-Markov phase error of variance s^2 and correlation time tau seen through a constant (the
+        # ambiguity) is followed by a random walk of 2 s^2 / tau: the float ambiguities stay as uncertain as the
+        # slow errors make them (taken as white, they converge to a few millicycles and LAMBDA's ratio collapses
+        # on the slow error's 0.05-0.1 cycle offsets)
+        tau = eng.opts.phase_bias_tau_s
+        self.q_amb = (2.0 * self.var_bias / tau if tau > 0 else 0.0 * self.var_bias) + eng.opts.amb_q_cycles2_s
+        # variance factors (phase, code) of the zenith sigmas from the post-fit residuals: a car's or a UAV's
+        # antenna sees more multipath than the options' static figures, and the filter must say so (never below 1)
+        self.vf = np.ones(2)
+        self.s0_fix = 1.0          # variance factor of the fixed solutions' phase residuals (recent epochs)
+        self.t_fix = None
 
     def idx(self, i, f):
         """State index of the SD ambiguity of satellite(s) i, slot(s) f."""
-        return 3 + i * self.e.F + f
+        return NK + i * self.e.F + f
 
     def reset(self, i, f) -> None:
         """Forget the ambiguities of satellites i, slots f (indices or index arrays)."""
@@ -309,8 +329,8 @@ class _Pass:
         if len(g_ref) == 0:
             return None
         y, H, R = dd_system(ph, sat, ref, slot, block, zr.los, zr.omc_phase - zb.omc_phase,
-                            zr.omc_code - zb.omc_code, e.lam, zr.elev, zb.elev, o.phase_sigma_m, o.code_sigma_m,
-                            self._code_factor(), x0, self.n)
+                            zr.omc_code - zb.omc_code, e.lam, zr.elev, zb.elev, o.phase_sigma_m * np.sqrt(self.vf[0]),
+                            o.code_sigma_m * np.sqrt(self.vf[1]), self._code_factor(), x0, self.n)
         return y, H, R, _Rows(ph, sat, ref, slot), g_ref
 
     def _code_factor(self) -> np.ndarray:
@@ -370,6 +390,35 @@ class _Pass:
         self.active[i, f] = True
         self.lock[i, f] = 0
 
+    def _predict(self, t: float, dt: float) -> None:
+        """Position and velocity to epoch t: constant velocity with white acceleration (kinematic; time runs either
+        way, the backward pass predicts into the past), a constant position (static); a fresh start with the prior
+        sigmas at the first epoch and after a gap longer than ``max_gap_s``."""
+        o = self.e.opts
+        if not self.have_pos or dt > o.max_gap_s:
+            self.P[:NK, :] = 0.0
+            self.P[:, :NK] = 0.0
+            self.P[:3, :3] = np.eye(3) * o.pos_sigma_m ** 2
+            self.x[3:NK] = 0.0
+            if o.dynamics == "kinematic":
+                self.P[3:NK, 3:NK] = np.eye(3) * o.vel_sigma_mps ** 2
+            return
+        if o.dynamics != "kinematic" or dt == 0.0:
+            return
+        tau = t - self.t_prev                                    # signed: negative in the backward pass
+        self.x[:3] += self.x[3:NK] * tau
+        Pk = self.P[:NK, :]
+        Pk[:3] += tau * Pk[3:NK]                                 # rows: F P
+        Pc = self.P[:, :NK]
+        Pc[:, :3] += tau * Pc[:, 3:NK]                           # columns: (F P) F'
+        # white acceleration of spectral density q in local level axes (horizontal, vertical), into ECEF
+        up = self.x[:3] / max(np.linalg.norm(self.x[:3]), 1.0)
+        qa = o.accel_h_mps2 ** 2 * (np.eye(3) - np.outer(up, up)) + o.accel_v_mps2 ** 2 * np.outer(up, up)
+        self.P[:3, :3] += qa * dt ** 3 / 3.0
+        self.P[:3, 3:NK] += qa * dt ** 2 / 2.0
+        self.P[3:NK, :3] += qa * dt ** 2 / 2.0
+        self.P[3:NK, 3:NK] += qa * dt
+
     def step(self, k: int, out: dict) -> None:
         e, o = self.e, self.e.opts
         t = e.t[k]
@@ -377,14 +426,10 @@ class _Pass:
         if j < 0:
             return
         dt = 0.0 if self.t_prev is None else abs(t - self.t_prev)
-        self.t_now = t
-        # prediction
-        if o.dynamics == "kinematic" or not self.have_pos:
-            self.P[:3, :] = 0.0
-            self.P[:, :3] = 0.0
-            self.P[:3, :3] = np.eye(3) * o.pos_sigma_m ** 2
-        act = np.nonzero(self.active.ravel())[0] + 3
-        self.P[act, act] += o.amb_q_cycles2_s * dt
+        self.t_now, self.k_now, self.j_now = t, k, j
+        self._predict(t, dt)
+        act = np.nonzero(self.active.ravel())[0] + NK
+        self.P[act, act] += self.q_amb[act] * dt
         x0 = self.x[:3].copy()
         zb = e.base_zd(j)
         zr = e.rover_zd(k, x0)
@@ -398,10 +443,11 @@ class _Pass:
         drop_code = np.zeros(valid.shape, bool)
         x_prior, P_prior = self.x.copy(), self.P.copy()
         sol = None
+        # the linearisation point and the rover model made there travel together across the snooping rounds (a
+        # moving rover's model at the converged point paired with the prior point shifted the solution back)
+        lin, zr_it = x0.copy(), zr
         for _snoop in range(6):
             x, P = x_prior, P_prior
-            lin = x0.copy()
-            zr_it = zr
             for _it in range(3):
                 des = self._design(zr_it, zb, valid, lin, drop_code)
                 if des is None:
@@ -445,6 +491,12 @@ class _Pass:
         if sol is None:
             sol = (x, P, y, H, R, rows, refs, lin)
         x, P, y, H, R, rows, refs, lin = sol
+        # code rows against their variance before the correlation factor of `_code_factor` (which only stands for
+        # the information a correlated error adds to a constant, not for its size)
+        q_v = np.diag(R) - np.einsum("ij,ij->i", H @ P, H)
+        code = ~rows.phase
+        q_v[code] = np.diag(R)[code] / self._code_factor()[rows.sat[code], rows.slot[code]]
+        self._adapt_noise(y - H @ x, q_v, rows.phase, dt)
         self.x, self.P = x, P
         self.have_pos = True
         self.t_prev = t
@@ -459,19 +511,34 @@ class _Pass:
                    n_sat=n_sat, n_amb=int(rows.phase.sum()))
         self._resolve(x, P, y, H, R, rows, zr, out)
         if out.get("status") == 3:
-            budget = self._atmosphere_budget(H, R, rows, zr, out["p"])
-            if budget is not None:
-                out["P"] = out["P"] + budget
+            cov = self._fixed_covariance(H, R, rows, zr, out["p"])
+            if cov is not None:
+                out["P"] = cov
 
-    def _atmosphere_budget(self, H, R, rows: _Rows, zr: ZeroDiff, p: np.ndarray) -> np.ndarray | None:
-        """Covariance (3,3) m^2, ECEF, that the differential atmosphere leaves in a fixed position: the weighted
-        least-squares map of the phase double differences onto the position, A = (G'WG)^-1 G'W, applied to their
-        atmosphere covariance (a slant ionosphere error per satellite of `iono_ppm` mm per km from the base times
-        1/sin el, scaled (f_L1/f)^2, and one rover zenith troposphere error, 1/sin el). Nearly constant over an hour,
-        no smoothing averages it out, as `dgcal.pos.smoother.carrier.atmosphere_position_covariance` for TC."""
+    def _adapt_noise(self, v: np.ndarray, q_v: np.ndarray, phase: np.ndarray, dt: float) -> None:
+        """Update the variance factors of phase and code (``vf``) from this epoch's post-fit residuals v (m) and their
+        variances q_v (m^2): an exponential average over ``noise_window_s`` of factor * mean(v^2 / q_v), at least 1."""
+        win = self.e.opts.noise_window_s
+        if win <= 0:
+            return
+        a = min(1.0, max(dt, 1e-3) / win)
+        w2 = v * v / np.maximum(q_v, 1e-12)
+        for q, rows in enumerate((phase, ~phase)):
+            if rows.sum() >= 3:
+                self.vf[q] = max(1.0, (1.0 - a) * self.vf[q] + a * self.vf[q] * float(np.mean(w2[rows])))
+
+    def _fixed_covariance(self, H, R, rows: _Rows, zr: ZeroDiff, p: np.ndarray) -> np.ndarray | None:
+        """Covariance (3,3) m^2, ECEF, of a fixed position: the single-epoch weighted least-squares covariance of the
+        phase double differences, ``s0^2 (G'WG)^-1`` with the variance factor ``s0^2 >= 1`` of the recent fixed
+        residuals (multipath and the slow errors a moving antenna sees are not averaged away by the filter's
+        dynamics), plus what the differential atmosphere leaves: ``A C A'`` with ``A = (G'WG)^-1 G'W`` and C the
+        atmosphere covariance of the rows (a slant ionosphere error per satellite of `iono_ppm` mm per km from the
+        base times 1/sin el, scaled (f_L1/f)^2, and one rover zenith troposphere error, 1/sin el), nearly constant
+        over an hour, as `dgcal.pos.smoother.carrier.atmosphere_position_covariance` for TC. None if the rows do not
+        fix the position."""
         e, o = self.e, self.e.opts
         ph = np.flatnonzero(rows.phase)
-        if len(ph) < 4 or (o.iono_ppm <= 0 and o.tropo_zenith_m <= 0):
+        if len(ph) < 4:
             return None
         G = H[ph, :3]
         W = gesv(R[ph[:, None], ph], np.eye(len(ph)))          # the inverse, as np.linalg.inv computes it
@@ -479,7 +546,11 @@ class _Pass:
         sv = dgesdd(N, compute_uv=0)[1]                        # np.linalg.cond's singular values
         if sv[0] / sv[-1] > 1e8:
             return None
-        A = gesv(N, G.T @ W)
+        Ninv = gesv(N, np.eye(3))
+        cov = max(1.0, self.s0_fix) * Ninv
+        if o.iono_ppm <= 0 and o.tropo_zenith_m <= 0:
+            return cov
+        A = Ninv @ G.T @ W
         sat, ref, f = rows.sat[ph], rows.ref[ph], rows.slot[ph]
         used = np.zeros(len(e.sats), bool)
         used[sat] = True
@@ -494,12 +565,16 @@ class _Pass:
         B[:, -1] = mapping[sat] - mapping[ref]
         dist = float(np.linalg.norm(p - e.base_pos))
         var = np.append((o.iono_ppm * 1e-6 * dist * mapping[sats]) ** 2, o.tropo_zenith_m ** 2)
-        return A @ ((B * var) @ B.T) @ A.T
+        return cov + A @ ((B * var) @ B.T) @ A.T
 
     def _ambiguity_rows(self, rows: _Rows, zr: ZeroDiff) -> np.ndarray:
-        """The phase rows whose DD ambiguity is resolved: both satellites above the AR mask."""
-        mask = np.radians(self.e.opts.ar_elev_mask_deg)
-        return np.flatnonzero(rows.phase & (zr.elev[rows.ref] >= mask) & (zr.elev[rows.sat] >= mask))
+        """The phase rows whose DD ambiguity is resolved: both satellites above the AR mask, neither with an
+        unresolved half cycle at either receiver."""
+        e = self.e
+        mask = np.radians(e.opts.ar_elev_mask_deg)
+        half = e.half_r[self.k_now] | e.half_b[self.j_now]
+        return np.flatnonzero(rows.phase & (zr.elev[rows.ref] >= mask) & (zr.elev[rows.sat] >= mask)
+                              & ~half[rows.sat, rows.slot] & ~half[rows.ref, rows.slot])
 
     def _ambiguity_map(self, sat: np.ndarray, ref: np.ndarray, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T, Da) for the DD ambiguities (sat - ref, slot): their multi-frequency recombination T
@@ -537,15 +612,22 @@ class _Pass:
         # the float filter takes phase noise as white: the time-correlated part is added for the test
         xf, Pf, chi2_amb = fixed_solution(x, P, Da, fix, self.var_bias if o.phase_bias_sigma_m > 0 else None)
         lim_amb = _chi2_limit(fix.n_fixed, o.alpha)
+        # the position shift of the fix against its covariance under a correct fix: K_p (S + S_bias) K_p', with
+        # K_p = P_pa A' S^-1 the map of the ambiguity correction onto the position (S = A P A' of the constraints)
         d = xf[:3] - x[:3]
+        A = fix.C @ Da
+        AP = A @ P
+        S = AP @ A.T
         try:
-            chi2_pos = float(d @ gesv(P[:3, :3], d))
+            Kp = gesv(S, AP[:, :3]).T
+            Sd = Kp @ (S + (A * self.var_bias) @ A.T) @ Kp.T if o.phase_bias_sigma_m > 0 else AP[:, :3].T @ Kp.T
+            chi2_pos = float(d @ gesv(Sd + 1e-12 * np.eye(3), d))
         except np.linalg.LinAlgError:
             chi2_pos = np.inf
         lim_pos = _chi2_limit(3, o.alpha)
         ph = np.flatnonzero(rows.phase)
         v = (y - H @ xf)[ph]
-        Rp = R[ph[:, None], ph]
+        Rp = R[ph[:, None], ph] + self._bias_covariance(rows.sat[ph], rows.ref[ph], rows.slot[ph])
         chi2_res = float(v @ gesv(Rp, v))
         lim_res = _chi2_limit(max(len(ph), 1), o.alpha)
         w_max = float(np.max(np.abs(v) / np.sqrt(np.diag(Rp)))) if len(v) else 0.0
@@ -557,10 +639,23 @@ class _Pass:
             self.n_fix_run = 0
             return
         out.update(status=3, p=xf[:3].copy(), P=Pf[:3, :3].copy(), n_fixed_amb=fix.n_fixed, reason="")
+        if o.noise_window_s > 0 and len(ph) > 3:
+            a = min(1.0, max(abs(self.t_now - self.t_fix), 1e-3) / o.noise_window_s) if self.t_fix is not None else 1.0
+            s0 = float(v @ gesv(R[ph[:, None], ph], v)) / (len(ph) - 3)
+            self.s0_fix = (1.0 - a) * self.s0_fix + a * s0 if self.t_fix is not None else max(1.0, s0)
+            self.t_fix = self.t_now
         out["resid"] = dict(zip(e.obs_keys[rows.sat[ph], rows.slot[ph]].tolist(), v.tolist()))
         self.n_fix_run += 1
         if o.hold and self.n_fix_run >= o.hold_after and fix.mode == "full":
             self._hold(fix, T, rows.sat[amb], rows.slot[amb], rows.ref[amb])
+
+    def _bias_covariance(self, sat: np.ndarray, ref: np.ndarray, slot: np.ndarray) -> np.ndarray:
+        """Covariance (m^2) of the slow SD phase errors (``phase_bias_sigma_m`` per satellite and slot) in the phase
+        double differences sat - ref of one slot each: what a correct fix leaves in its residuals beside the noise."""
+        s2 = self.e.opts.phase_bias_sigma_m ** 2
+        same = (slot[:, None] == slot[None, :])
+        return s2 * same * ((sat[:, None] == sat[None, :]).astype(float) + (ref[:, None] == ref[None, :])
+                            - (sat[:, None] == ref[None, :]) - (ref[:, None] == sat[None, :]))
 
     def _hold(self, fix: AmbiguityFix, T: np.ndarray, sat: np.ndarray, slot: np.ndarray, ref: np.ndarray) -> None:
         """Fix and hold: constrain every newly fixed SD ambiguity once to a held one of its group.
@@ -626,9 +721,6 @@ class _Pass:
             chi2[k] = out.get("chi2", (np.nan,) * 3)
             reason[k] = out.get("reason", "")
             resid[k] = out.get("resid", {})
-            # kinematic: the next epoch's prior position (30 m sigma) is this epoch's best solution
-            if out["status"] == 3 and self.e.opts.dynamics == "kinematic":
-                self.x[:3] = out["p"]
         return PassResult(status, p, Pc, pf, Pfl, ratio, n_sat, n_amb, n_fix, chi2, reason, resid)
 
 

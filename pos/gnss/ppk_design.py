@@ -4,7 +4,7 @@
 slot against a reference satellite; built row by row from Python (or from ~50 small NumPy calls) that was a
 large share of an epoch's time. `dd_rows` picks the groups and rows, `dd_system` fills y, H, R; their order and
 arithmetic are those of the filter's docstring (`dgcal.pos.gnss.ppk`): per group of two satellites or more its
-phase rows, then its code rows. Satellites, slots and states are indices as in `ppk._Pass` (state ``3 + i*F + f``
+phase rows, then its code rows. Satellites, slots and states are indices as in `ppk._Pass` (state ``NK + i*F + f``
 is the SD ambiguity of satellite i, slot f, cycles); metres, seconds, radians.
 """
 from __future__ import annotations
@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+NK = 6          # the kinematic states before the ambiguities: position, velocity (ECEF m, m/s)
 
 
 @njit(cache=True)
@@ -84,8 +86,8 @@ def dd_system(phase, sat, ref, slot, block, los, sd_phase, sd_code, lam, elev_ro
         H[q, 0], H[q, 1], H[q, 2] = g0, g1, g2
         if phase[q]:
             d = sd_phase[i, f] - sd_phase[r, f]
-            H[q, 3 + i * F + f] = lam[i, f]
-            H[q, 3 + r * F + f] = -lam[r, f]
+            H[q, NK + i * F + f] = lam[i, f]
+            H[q, NK + r * F + f] = -lam[r, f]
             v_ref[q] = zd_var(sigma_phase, elev_rover[r]) + zd_var(sigma_phase, elev_base[r])
             v_sat[q] = zd_var(sigma_phase, elev_rover[i]) + zd_var(sigma_phase, elev_base[i])
         else:
