@@ -63,9 +63,9 @@ class PpkOptions:
     partial: bool = True
     p0: float = 0.999                     # success rate of a partial set
     min_fix_amb: int = 4
-    hold: bool = False                    # feed fixes back into the float filter (makes the float overconfident)
-    hold_after: int = 3
-    hold_sigma_cycles: float = 0.03
+    min_lock: int = 0                     # epochs an arc must have been tracked before its ambiguity is fixed
+    hold: bool = True                     # hold the integers of validated fixes (not fed back into the float)
+    hold_after: int = 3                   # fixes in a row that must give an arc's integer before it is held
     alpha: float = 1e-3                   # false-alarm probability of the validation tests
     pos_sigma_m: float = 30.0             # prior sigma of the first position (and after a gap)
     vel_sigma_mps: float = 30.0           # kinematic: prior sigma of the first velocity (and after a gap)
@@ -282,8 +282,13 @@ class _Pass:
         self.last = np.full((m, F), -1)
         self.last_b = np.full((m, F), -1)
         self.lock = np.zeros((m, F), dtype=int)
-        self.held = np.zeros((m, F), dtype=bool)
-        self.n_fix_run = 0
+        # held integers (fix and hold, not fed back into the float state): per satellite and slot, whether its SD
+        # ambiguity minus that of its group's other held satellites is a known integer, K the integer against the
+        # group's common origin; candidates confirmed by `hold_after` fixes in a row
+        self.known = np.zeros((m, F), dtype=bool)
+        self.K = np.zeros((m, F), dtype=np.int64)
+        self.K_cand = np.zeros((m, F), dtype=np.int64)
+        self.n_conf = np.zeros((m, F), dtype=np.int64)
         self.t_prev = None
         self.t_now = None
         self.have_pos = False
@@ -300,6 +305,7 @@ class _Pass:
         # antenna sees more multipath than the options' static figures, and the filter must say so (never below 1)
         self.vf = np.ones(2)
         self.s0_fix = 1.0          # variance factor of the fixed solutions' phase residuals (recent epochs)
+        self.s0_epoch = 1.0        # the same of this epoch alone (a burst of multipath shows here first)
         self.t_fix = None
 
     def idx(self, i, f):
@@ -314,7 +320,8 @@ class _Pass:
         self.x[a] = 0.0
         self.active[i, f] = False
         self.lock[i, f] = 0
-        self.held[i, f] = False
+        self.known[i, f] = False
+        self.n_conf[i, f] = 0
 
     # ------------------------------------------------------------------ measurement model
     def _design(self, zr: ZeroDiff, zb: ZeroDiff, valid: np.ndarray, x0: np.ndarray, drop_code: np.ndarray):
@@ -486,7 +493,8 @@ class _Pass:
             P_prior[:, a] = 0.0
             P_prior[a, a] = o.amb_sigma_cycles ** 2
             self.lock[victim, f] = 0
-            self.held[victim, f] = False
+            self.known[victim, f] = False
+            self.n_conf[victim, f] = 0
             out["resets"] = out.get("resets", 0) + 1
         if sol is None:
             sol = (x, P, y, H, R, rows, refs, lin)
@@ -511,7 +519,7 @@ class _Pass:
                    n_sat=n_sat, n_amb=int(rows.phase.sum()))
         self._resolve(x, P, y, H, R, rows, zr, out)
         if out.get("status") == 3:
-            cov = self._fixed_covariance(H, R, rows, zr, out["p"])
+            cov = self._fixed_covariance(H, R, rows, zr, out["p"], out["P"])
             if cov is not None:
                 out["P"] = cov
 
@@ -527,15 +535,17 @@ class _Pass:
             if rows.sum() >= 3:
                 self.vf[q] = max(1.0, (1.0 - a) * self.vf[q] + a * self.vf[q] * float(np.mean(w2[rows])))
 
-    def _fixed_covariance(self, H, R, rows: _Rows, zr: ZeroDiff, p: np.ndarray) -> np.ndarray | None:
-        """Covariance (3,3) m^2, ECEF, of a fixed position: the single-epoch weighted least-squares covariance of the
-        phase double differences, ``s0^2 (G'WG)^-1`` with the variance factor ``s0^2 >= 1`` of the recent fixed
-        residuals (multipath and the slow errors a moving antenna sees are not averaged away by the filter's
-        dynamics), plus what the differential atmosphere leaves: ``A C A'`` with ``A = (G'WG)^-1 G'W`` and C the
-        atmosphere covariance of the rows (a slant ionosphere error per satellite of `iono_ppm` mm per km from the
-        base times 1/sin el, scaled (f_L1/f)^2, and one rover zenith troposphere error, 1/sin el), nearly constant
-        over an hour, as `dgcal.pos.smoother.carrier.atmosphere_position_covariance` for TC. None if the rows do not
-        fix the position."""
+    def _fixed_covariance(self, H, R, rows: _Rows, zr: ZeroDiff, p: np.ndarray,
+                          P_fixed: np.ndarray) -> np.ndarray | None:
+        """Covariance (3,3) m^2, ECEF, of a fixed position: the filter's covariance of the fixed solution `P_fixed`
+        (the float state conditioned on the fixed integers: ambiguities a partial fix leaves open keep theirs), not
+        below the single-epoch weighted least squares of the phase double differences ``(G'WG)^-1``, times the
+        variance factor ``s0^2 >= 1`` of the recent and the present fixed residuals (multipath and the slow errors a
+        moving antenna sees are not averaged away by the filter's dynamics), plus what the differential atmosphere
+        leaves: ``A C A'`` with ``A = (G'WG)^-1 G'W`` and C the atmosphere covariance of the rows (a slant ionosphere
+        error per satellite of `iono_ppm` mm per km from the base times 1/sin el, scaled (f_L1/f)^2, and one rover
+        zenith troposphere error, 1/sin el), nearly constant over an hour, as
+        `dgcal.pos.smoother.carrier.atmosphere_position_covariance` for TC. None if the rows do not fix the position."""
         e, o = self.e, self.e.opts
         ph = np.flatnonzero(rows.phase)
         if len(ph) < 4:
@@ -547,7 +557,12 @@ class _Pass:
         if sv[0] / sv[-1] > 1e8:
             return None
         Ninv = gesv(N, np.eye(3))
-        cov = max(1.0, self.s0_fix) * Ninv
+        # the larger of the two in every direction (generalised eigenvectors of the pair, L L' = (G'WG)^-1)
+        Lc = np.linalg.cholesky(Ninv)
+        M = np.linalg.solve(Lc, np.linalg.solve(Lc, P_fixed).T)
+        lam, V = np.linalg.eigh(0.5 * (M + M.T))
+        B = Lc @ V
+        cov = max(1.0, self.s0_fix, self.s0_epoch) * (B * np.maximum(lam, 1.0)) @ B.T
         if o.iono_ppm <= 0 and o.tropo_zenith_m <= 0:
             return cov
         A = Ninv @ G.T @ W
@@ -573,8 +588,10 @@ class _Pass:
         e = self.e
         mask = np.radians(e.opts.ar_elev_mask_deg)
         half = e.half_r[self.k_now] | e.half_b[self.j_now]
+        young = self.lock < e.opts.min_lock
         return np.flatnonzero(rows.phase & (zr.elev[rows.ref] >= mask) & (zr.elev[rows.sat] >= mask)
-                              & ~half[rows.sat, rows.slot] & ~half[rows.ref, rows.slot])
+                              & ~half[rows.sat, rows.slot] & ~half[rows.ref, rows.slot]
+                              & ~young[rows.sat, rows.slot] & ~young[rows.ref, rows.slot])
 
     def _ambiguity_map(self, sat: np.ndarray, ref: np.ndarray, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T, Da) for the DD ambiguities (sat - ref, slot): their multi-frequency recombination T
@@ -594,20 +611,28 @@ class _Pass:
         return hit
 
     def _resolve(self, x, P, y, H, R, rows: _Rows, zr, out) -> None:
-        e, o = self.e, self.e.opts
+        """The epoch's fixed solution: the integers held from earlier fixes plus LAMBDA on the rest (validated by the
+        fixed residuals), else LAMBDA on every ambiguity (validated by ratio, consistency and residuals)."""
+        o = self.e.opts
         amb = self._ambiguity_rows(rows, zr)
         out["reason"] = "no ambiguities"
         if len(amb) < o.min_fix_amb:
-            self.n_fix_run = 0
             return
-        T, Da = self._ambiguity_map(rows.sat[amb], rows.ref[amb], rows.slot[amb])
+        sat, ref, slot = rows.sat[amb], rows.ref[amb], rows.slot[amb]
+        if o.hold and self.known.any():
+            held = self._fix_with_held(x, P, y, H, R, rows, sat, ref, slot, out)
+            if held == "fixed":
+                return
+            if held == "failed":                   # the held integers no longer fit: resolve everything anew
+                self.known[:] = False
+                self.n_conf[:] = 0
+        T, Da = self._ambiguity_map(sat, ref, slot)
         a = Da @ x
         Qa = Da @ P @ Da.T
         fix = resolve(a, Qa, o.ratio_threshold, o.p0, o.min_fix_amb, o.partial)
         out["ratio"] = fix.ratio
         if not fix.fixed:
             out["reason"] = "ratio"
-            self.n_fix_run = 0
             return
         # the float filter takes phase noise as white: the time-correlated part is added for the test
         xf, Pf, chi2_amb = fixed_solution(x, P, Da, fix, self.var_bias if o.phase_bias_sigma_m > 0 else None)
@@ -625,29 +650,136 @@ class _Pass:
         except np.linalg.LinAlgError:
             chi2_pos = np.inf
         lim_pos = _chi2_limit(3, o.alpha)
+        chi2_res, lim_res, w_max, v, ph = self._fixed_residual_test(xf, y, H, R, rows)
+        out["chi2"] = (chi2_amb / lim_amb, chi2_pos / lim_pos, chi2_res / lim_res)
+        if not (chi2_amb <= lim_amb and chi2_pos <= lim_pos and chi2_res <= lim_res and w_max <= o.outlier_w):
+            out["reason"] = ("ambiguity consistency" if chi2_amb > lim_amb else "position consistency"
+                             if chi2_pos > lim_pos else "fixed residuals")
+            return
+        self._accept(xf, Pf, R, rows, v, ph, fix.n_fixed, sat, ref, slot, out)
+
+    def _fixed_residual_test(self, xf, y, H, R, rows: _Rows):
+        """Chi-square (and its limit) and the largest standardised residual of the fixed solution's phase double
+        differences against their noise plus the slow phase errors (`_bias_covariance`); the residuals, rows."""
+        o = self.e.opts
         ph = np.flatnonzero(rows.phase)
         v = (y - H @ xf)[ph]
         Rp = R[ph[:, None], ph] + self._bias_covariance(rows.sat[ph], rows.ref[ph], rows.slot[ph])
         chi2_res = float(v @ gesv(Rp, v))
-        lim_res = _chi2_limit(max(len(ph), 1), o.alpha)
         w_max = float(np.max(np.abs(v) / np.sqrt(np.diag(Rp)))) if len(v) else 0.0
-        out["chi2"] = (chi2_amb / lim_amb, chi2_pos / lim_pos, chi2_res / lim_res)
-        ok = chi2_amb <= lim_amb and chi2_pos <= lim_pos and chi2_res <= lim_res and w_max <= 5.0
-        if not ok:
-            out["reason"] = ("ambiguity consistency" if chi2_amb > lim_amb else "position consistency"
-                             if chi2_pos > lim_pos else "fixed residuals")
-            self.n_fix_run = 0
-            return
-        out.update(status=3, p=xf[:3].copy(), P=Pf[:3, :3].copy(), n_fixed_amb=fix.n_fixed, reason="")
+        return chi2_res, _chi2_limit(max(len(ph), 1), o.alpha), w_max, v, ph
+
+    def _fix_with_held(self, x, P, y, H, R, rows: _Rows, sat, ref, slot, out) -> str:
+        """Fix and hold without feeding back: the float state conditioned on the integers held from earlier fixes
+        (`known`), LAMBDA (ratio and consistency tested) on the ambiguities they leave open; "fixed" when the fixed
+        residuals pass, "failed" when they do not, "none" when the held integers cannot fix this epoch."""
+        o = self.e.opts
+        Ck, ck, det = self._held_constraints(sat, ref, slot)
+        if len(ck) == 0:
+            return "none"
+        try:
+            xk, Pk, _ = fixed_solution(x, P, Ck, AmbiguityFix(True, np.eye(len(ck)), ck, np.inf, 0.0, 1.0, len(ck),
+                                                              "held"))
+        except np.linalg.LinAlgError:
+            return "none"
+        n_fixed = int(det.sum())
+        xf, Pf = xk, Pk
+        rest = np.flatnonzero(~det)
+        if len(rest) == 0:                         # the epoch's own ratio, for the record (held fixes need none)
+            _T, Da = self._ambiguity_map(sat, ref, slot)
+            out["ratio"] = resolve(Da @ x, Da @ P @ Da.T, o.ratio_threshold, o.p0, o.min_fix_amb, False).ratio
+        if len(rest):
+            _T, Da = self._ambiguity_map(sat[rest], ref[rest], slot[rest])
+            fix = resolve(Da @ xk, Da @ Pk @ Da.T, o.ratio_threshold, o.p0, 1, o.partial)
+            out["ratio"] = fix.ratio
+            if fix.fixed:
+                xn, Pn, chi2_amb = fixed_solution(xk, Pk, Da, fix, self.var_bias if o.phase_bias_sigma_m > 0 else None)
+                if chi2_amb <= _chi2_limit(fix.n_fixed, o.alpha):
+                    xf, Pf, n_fixed = xn, Pn, n_fixed + fix.n_fixed
+        if n_fixed < o.min_fix_amb:
+            return "none"
+        chi2_res, lim_res, w_max, v, ph = self._fixed_residual_test(xf, y, H, R, rows)
+        out["chi2"] = (np.nan, np.nan, chi2_res / lim_res)
+        if chi2_res > lim_res or w_max > o.outlier_w:
+            out["reason"] = "held integers"
+            return "failed"
+        self._accept(xf, Pf, R, rows, v, ph, n_fixed, sat, ref, slot, out)
+        return "fixed"
+
+    def _held_constraints(self, sat, ref, slot):
+        """Constraints ``C x = c`` (rows over the state, integers in cycles) that the held integers put on this
+        epoch's ambiguities: per system and slot, every held satellite against one held satellite of the epoch;
+        and which ambiguity rows (sat - ref) they determine."""
+        e = self.e
+        rows_c, vals = [], []
+        held = self.known
+        det = held[sat, slot] & held[ref, slot]
+        members = np.unique(np.concatenate([np.stack([sat, slot], 1), np.stack([ref, slot], 1)]), axis=0)
+        keep = held[members[:, 0], members[:, 1]]
+        members = members[keep]
+        for g in np.unique(np.stack([e.sys_id[members[:, 0]], members[:, 1]], 1), axis=0):
+            m = members[(e.sys_id[members[:, 0]] == g[0]) & (members[:, 1] == g[1])]
+            pivot = m[0]
+            for i, f in m[1:]:
+                r = np.zeros(self.n)
+                r[self.idx(i, f)] = 1.0
+                r[self.idx(pivot[0], f)] = -1.0
+                rows_c.append(r)
+                vals.append(float(self.K[i, f] - self.K[pivot[0], f]))
+        if not rows_c:
+            return np.zeros((0, self.n)), np.zeros(0), det
+        return np.array(rows_c), np.array(vals), det
+
+    def _accept(self, xf, Pf, R, rows: _Rows, v, ph, n_fixed: int, sat, ref, slot, out) -> None:
+        """Write a validated fix into `out`, update the fixed residuals' variance factor and the held integers."""
+        o, e = self.e.opts, self.e
+        out.update(status=3, p=xf[:3].copy(), P=Pf[:3, :3].copy(), n_fixed_amb=n_fixed, reason="")
         if o.noise_window_s > 0 and len(ph) > 3:
             a = min(1.0, max(abs(self.t_now - self.t_fix), 1e-3) / o.noise_window_s) if self.t_fix is not None else 1.0
             s0 = float(v @ gesv(R[ph[:, None], ph], v)) / (len(ph) - 3)
+            self.s0_epoch = s0
             self.s0_fix = (1.0 - a) * self.s0_fix + a * s0 if self.t_fix is not None else max(1.0, s0)
             self.t_fix = self.t_now
         out["resid"] = dict(zip(e.obs_keys[rows.sat[ph], rows.slot[ph]].tolist(), v.tolist()))
-        self.n_fix_run += 1
-        if o.hold and self.n_fix_run >= o.hold_after and fix.mode == "full":
-            self._hold(fix, T, rows.sat[amb], rows.slot[amb], rows.ref[amb])
+        if o.hold:
+            self._keep_integers(xf, Pf, sat, ref, slot)
+
+    def _keep_integers(self, xf, Pf, sat, ref, slot) -> None:
+        """Hold the integers a validated fix determined: per system and slot, every satellite whose SD ambiguity
+        against a pivot (a held satellite of the group, else the reference) is within 0.15 cycle of an integer with
+        a sigma under 0.05 cycle; an integer is held once ``hold_after`` fixes in a row gave it."""
+        e, o = self.e, self.e.opts
+        for g_sys, f in {(int(e.sys_id[r]), int(s)) for r, s in zip(ref, slot)}:
+            in_g = (e.sys_id[ref] == g_sys) & (slot == f)
+            mem = np.unique(np.concatenate([sat[in_g], ref[in_g]]))
+            held = mem[self.known[mem, f]]
+            group_held = self.known[:, f] & (e.sys_id == g_sys)
+            if len(held):
+                pivot = int(held[0])
+            else:
+                self.known[group_held, f] = False              # none of the group's held satellites is here
+                pivot = int(ref[in_g][0])
+                self.K[pivot, f] = 0
+                self.known[pivot, f] = True
+                self.n_conf[pivot, f] = o.hold_after
+            ip = self.idx(pivot, f)
+            for i in mem:
+                if i == pivot:
+                    continue
+                a = self.idx(i, f)
+                d = xf[a] - xf[ip]
+                var = Pf[a, a] + Pf[ip, ip] - 2.0 * Pf[a, ip]
+                n = int(np.round(d))
+                if var > 0.05 ** 2 or abs(d - n) > 0.15:
+                    continue
+                val = int(self.K[pivot, f]) + n
+                if self.known[i, f]:
+                    continue
+                self.n_conf[i, f] = self.n_conf[i, f] + 1 if self.K_cand[i, f] == val else 1
+                self.K_cand[i, f] = val
+                if self.n_conf[i, f] >= o.hold_after:
+                    self.known[i, f] = True
+                    self.K[i, f] = val
 
     def _bias_covariance(self, sat: np.ndarray, ref: np.ndarray, slot: np.ndarray) -> np.ndarray:
         """Covariance (m^2) of the slow SD phase errors (``phase_bias_sigma_m`` per satellite and slot) in the phase
@@ -656,42 +788,6 @@ class _Pass:
         same = (slot[:, None] == slot[None, :])
         return s2 * same * ((sat[:, None] == sat[None, :]).astype(float) + (ref[:, None] == ref[None, :])
                             - (sat[:, None] == ref[None, :]) - (ref[:, None] == sat[None, :]))
-
-    def _hold(self, fix: AmbiguityFix, T: np.ndarray, sat: np.ndarray, slot: np.ndarray, ref: np.ndarray) -> None:
-        """Fix and hold: constrain every newly fixed SD ambiguity once to a held one of its group.
-
-        ``sat``, ``slot``, ``ref``: the fixed DD ambiguities (group by group, as `_ambiguity_rows`); their integers
-        are those of ``fix`` recombined by ``T`` (`_multifrequency_combinations`). The constraint
-        ``N_i - N_anchor = integer`` (sigma ``hold_sigma_cycles``) is applied once per ambiguity arc (``held`` is
-        cleared by a reset), so repeated holds do not shrink the float covariance below what the data support
-        (the validation tests stay meaningful).
-        """
-        if self.held[sat, slot].all() and self.held[ref, slot].all():
-            return                                              # all held already: the usual epoch
-        a_fix = np.round(gesv(T, gesv(fix.C, fix.c)))   # integer DD ambiguity of every row
-        rows, y = [], []
-        cut = np.flatnonzero((np.diff(ref) != 0) | (np.diff(slot) != 0)) + 1
-        for q in np.split(np.arange(len(sat)), cut):            # one group (reference and slot) at a time
-            r0, f = int(ref[q[0]]), int(slot[q[0]])
-            mem = [r0] + sat[q].tolist()
-            dd = {r0: 0.0, **dict(zip(sat[q].tolist(), a_fix[q]))}
-            held = [i for i in mem if self.held[i, f]]
-            anchor = held[0] if held else r0
-            for i in mem:
-                if i == anchor or self.held[i, f]:
-                    continue
-                r = np.zeros(self.n)
-                r[self.idx(i, f)] = 1.0
-                r[self.idx(anchor, f)] = -1.0
-                rows.append(r)
-                y.append(dd[i] - dd[anchor])
-            self.held[mem, f] = True
-        if not rows:
-            return
-        A = np.array(rows)
-        up = self._update(self.x, self.P, np.array(y), A, np.eye(len(y)) * self.e.opts.hold_sigma_cycles ** 2)
-        if up is not None:
-            self.x, self.P = up
 
     def run(self) -> PassResult:
         e = self.e
@@ -759,13 +855,45 @@ def _chi2_3(d: np.ndarray, S: np.ndarray) -> float:
         return np.inf
 
 
+def float_variance_factors(fw: PassResult, bw: PassResult, alpha: float = 1e-3) -> tuple[float, float]:
+    """How much each pass's float covariance understates its float error (>= 1): the mean of
+    ``e' P_float^-1 e / 3`` over the epochs where both passes hold agreeing fixes (e: the float against the fixed
+    position, which is ten times better); without such epochs the two floats' disagreement against their summed
+    covariance, for both. A float filter that takes slow code and phase errors as white is overconfident, and the
+    fixed epochs of the same data show by how much."""
+    both = (fw.status == 3) & (bw.status == 3)
+    lim = _chi2_limit(3, alpha)
+    agree = np.array([both[k] and _chi2_3(fw.p[k] - bw.p[k], 0.25 * (fw.P[k] + bw.P[k])) <= lim
+                      for k in range(len(both))], dtype=bool)
+    out = []
+    for r in (fw, bw):
+        k = np.flatnonzero(agree & np.all(np.isfinite(r.p_float), axis=1))
+        if len(k) >= 5:
+            ref = 0.5 * (fw.p[k] + bw.p[k])
+            z = [_chi2_3(r.p_float[q] - ref[j], r.P_float[q]) / 3.0 for j, q in enumerate(k)]
+            out.append(float(np.clip(np.mean(z), 1.0, 1e6)))
+        else:
+            out.append(np.nan)
+    if np.isnan(out).any():
+        k = np.flatnonzero((fw.status >= 2) & (bw.status >= 2))
+        z = [_chi2_3(fw.p_float[q] - bw.p_float[q], fw.P_float[q] + bw.P_float[q]) / 3.0 for q in k]
+        common = float(np.clip(np.mean(z), 1.0, 1e6)) if len(z) else 1.0
+        out = [common if np.isnan(v) else v for v in out]
+    return out[0], out[1]
+
+
 def combine(fw: PassResult, bw: PassResult, alpha: float = 1e-3):
-    """Forward + backward per epoch: fixed if a pass's validated fix agrees with the other pass (chi-square,
-    3 dof), float otherwise. Two agreeing fixes are averaged without shrinking the covariance (they share
-    the epoch's measurements); two floats are combined by their covariances, the covariance doubled (but
-    not above the better pass's) for the same reason. Returns (status, p, P, ratio, n_sat, n_fixed_amb)."""
+    """Forward + backward per epoch, by fix status and covariance. Float covariances are first scaled by
+    `float_variance_factors`. Two agreeing fixes (chi-square, 3 dof, against a quarter of their summed covariance:
+    with the same integers they differ by millimetres) are averaged without shrinking the covariance (they share the
+    epoch's measurements); a fix beside the other pass's float is kept if the float agrees with it;
+    two disagreeing fixes, or a fix the other float contradicts, give float. Floats are combined by their
+    covariances, the covariance doubled (but not above the better pass's) for the same reason. Returns (status, p,
+    P, ratio, n_sat, n_fixed_amb, (forward factor, backward factor))."""
     N = len(fw.status)
     lim = _chi2_limit(3, alpha)
+    factors = float_variance_factors(fw, bw, alpha)
+    Pfw, Pbw = fw.P_float * factors[0], bw.P_float * factors[1]
     status = np.zeros(N, dtype=int)
     p = np.full((N, 3), np.nan)
     P = np.full((N, 3, 3), np.nan)
@@ -777,12 +905,15 @@ def combine(fw: PassResult, bw: PassResult, alpha: float = 1e-3):
         if a < 2 and b < 2:
             continue
         if a < 2 or b < 2:
-            r = fw if a >= 2 else bw
-            status[k], p[k], P[k], ratio[k], n_fix[k] = r.status[k], r.p[k], r.P[k], r.ratio[k], r.n_fixed_amb[k]
+            r, Pr = (fw, Pfw) if a >= 2 else (bw, Pbw)
+            status[k], p[k], ratio[k], n_fix[k] = r.status[k], r.p[k], r.ratio[k], r.n_fixed_amb[k]
+            P[k] = r.P[k] if r.status[k] == 3 else Pr[k]
             continue
         if a == 3 and b == 3:
+            # the two fixes share the epoch's measurements and errors: with the same integers they differ by
+            # millimetres, whatever their (common) covariance; half its sigma tells different integers apart
             d = fw.p[k] - bw.p[k]
-            if _chi2_3(d, fw.P[k] + bw.P[k]) <= lim:
+            if _chi2_3(d, 0.25 * (fw.P[k] + bw.P[k])) <= lim:
                 status[k] = 3
                 Wf, Wb = np.linalg.inv(fw.P[k]), np.linalg.inv(bw.P[k])
                 p[k] = np.linalg.solve(Wf + Wb, Wf @ fw.p[k] + Wb @ bw.p[k])
@@ -791,20 +922,25 @@ def combine(fw: PassResult, bw: PassResult, alpha: float = 1e-3):
                 n_fix[k] = max(fw.n_fixed_amb[k], bw.n_fixed_amb[k])
                 continue
         elif a == 3 or b == 3:
-            fx, fl = (fw, bw) if a == 3 else (bw, fw)
+            fx, fl, Pfl = (fw, bw, Pbw) if a == 3 else (bw, fw, Pfw)
             d = fx.p[k] - fl.p_float[k]
-            if _chi2_3(d, fx.P[k] + fl.P_float[k]) <= lim:
+            if _chi2_3(d, fx.P[k] + Pfl[k]) <= lim:
                 status[k], p[k], P[k], ratio[k], n_fix[k] = 3, fx.p[k], fx.P[k], fx.ratio[k], fx.n_fixed_amb[k]
                 continue
         # float combination
-        Wf, Wb = np.linalg.inv(fw.P_float[k]), np.linalg.inv(bw.P_float[k])
+        Wf, Wb = np.linalg.inv(Pfw[k]), np.linalg.inv(Pbw[k])
         Pc = np.linalg.inv(Wf + Wb)
         status[k] = 2
         p[k] = Pc @ (Wf @ fw.p_float[k] + Wb @ bw.p_float[k])
-        best = fw.P_float[k] if np.trace(fw.P_float[k]) < np.trace(bw.P_float[k]) else bw.P_float[k]
+        best = Pfw[k] if np.trace(Pfw[k]) < np.trace(Pbw[k]) else Pbw[k]
         P[k] = 2.0 * Pc if np.trace(2.0 * Pc) < np.trace(best) else best
+        # two floats that disagree beyond their covariances: the covariance grows to hold the disagreement
+        d = fw.p_float[k] - bw.p_float[k]
+        c = _chi2_3(d, Pfw[k] + Pbw[k])
+        if c > lim:
+            P[k] = P[k] * (c / 3.0)
         ratio[k] = np.nanmax([fw.ratio[k], bw.ratio[k], 0.0])
-    return status, p, P, ratio, n_sat, n_fix
+    return status, p, P, ratio, n_sat, n_fix, factors
 
 
 def ppk(rover: CarrierObs, base: CarrierObs, nav: BroadcastNav, base_pos_ecef, opts: PpkOptions | None = None,
@@ -828,15 +964,17 @@ def ppk(rover: CarrierObs, base: CarrierObs, nav: BroadcastNav, base_pos_ecef, o
         if fw is not None and np.any(fw.status >= 2):
             pe = fw.p[np.nonzero(fw.status >= 2)[0][-1]]
         bw = _Pass(eng, np.arange(N)[::-1], pe).run()
+    info = {}
     if fw is not None and bw is not None:
-        status, p, P, ratio, n_sat, n_fix = combine(fw, bw, opts.alpha)
+        status, p, P, ratio, n_sat, n_fix, factors = combine(fw, bw, opts.alpha)
+        info["float_variance_factors"] = {"forward": factors[0], "backward": factors[1]}
     else:
         r = fw or bw
         status, p, P, ratio, n_sat, n_fix = r.status, r.p, r.P, r.ratio, r.n_sat, r.n_fixed_amb
     return PpkResult(t_gps=eng.t.copy(), status=status, p=p, P=P, ratio=ratio, n_sat=n_sat, n_fixed_amb=n_fix,
                      age_s=np.where(eng.jb >= 0, eng.age, np.nan), forward=fw, backward=bw, sats=eng.sats,
                      signals_rover=dict(rover.signals), signals_base=dict(base.signals),
-                     slips_rover=eng.slips_rover, slips_base=eng.slips_base, options=opts, pair=eng)
+                     slips_rover=eng.slips_rover, slips_base=eng.slips_base, options=opts, info=info, pair=eng)
 
 
 PPK_CSV_COLUMNS = ["gps_week", "gps_sow", "x", "y", "z", "fix", "n_sat", "ratio", "sx", "sy", "sz", "sxy", "sxz",
