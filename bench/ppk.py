@@ -1,14 +1,22 @@
-"""PPK on the real static baseline (rover rinex-sept, base rinex-3034, 5.3 km): dgcal beside RTKLIB (pyrtklib).
+"""PPK beside RTKLIB demo5 (pyrtklib5) on the same files: static real baseline, a real moving rover, simulated rovers.
 
-Run: .venv/bin/python bench/ppk.py [ROVER NAV BASE X Y Z]
-Prints per engine: fix rate, fixed-epoch 3D RMS and mean/std E/N/U error against the known rover position,
-and the processing time per epoch (dgcal: forward + backward passes and their combination; RTKLIB: postpos
-combined, the same configuration: kinematic, L1+L2+L5, GPS+Galileo+QZSS, ratio 3, fix and hold).
+Run:
+    .venv/bin/python bench/ppk.py                       # the static 5.3 km baseline (rinex-sept / rinex-3034)
+    .venv/bin/python bench/ppk.py ROVER NAV BASE X Y Z  # any rover + base (ECEF m of the base), e.g. a moving one:
+                                                        # two and three frequencies
+    .venv/bin/python bench/ppk.py sim uav|car [SEEDS]   # simulated rovers (dgcal.sim.rover_motion), truth known
+
+Prints per engine: epochs, fix rate (combined, forward, backward), time per epoch; against the truth (static
+point or simulation): fixed-epoch 3D RMS, wrong fixes (> 10 cm while fixed) and dgcal's error/sigma RMS and maximum;
+on a moving rover without truth: the agreement of dgcal's and demo5's fixed epochs (3D RMS, largest, share within
+2 cm) and dgcal's error/sigma against demo5's fixed positions. Same settings on both sides: kinematic, broadcast
+orbits, Saastamoinen, broadcast ionosphere, 10 deg mask, ratio 3, fix and hold, GPS + Galileo + QZSS.
 """
 from __future__ import annotations
 
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -19,50 +27,146 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 DATA = ROOT.parent / "shared" / "data"
-REF_ECEF = np.array([-3962108.673, 3381309.574, 3668678.638])
-BASE_ECEF = [-3959400.631, 3385704.533, 3667523.111]
+STATIC = (DATA / "rinex-sept" / "SEPT078M1.21O", DATA / "rinex-sept" / "SEPT078M.21P",
+          DATA / "rinex-3034" / "3034078M1.21O", [-3959400.631, 3385704.533, 3667523.111])
+STATIC_REF = np.array([-3962108.673, 3381309.574, 3668678.638])
 
 
-def line(name: str, p: np.ndarray, fixed: np.ndarray, dt_s: float) -> str:
+def _enu_axes(p: np.ndarray) -> np.ndarray:
     from dgcal.fields.crs import ecef_to_geodetic
     from dgcal.fields.frames import R_ecef_to_enu
-    lat, lon, _ = ecef_to_geodetic(REF_ECEF)
-    e = (p[fixed] - REF_ECEF) @ R_ecef_to_enu(lat, lon).T
-    rms = np.sqrt(np.mean(np.sum(e ** 2, axis=1))) if len(e) else np.nan
-    return (f"{name:7s} {len(p):4d} epochs  fixed {100 * fixed.mean():5.1f} %  fixed 3D RMS {1e3 * rms:5.1f} mm  "
-            f"mean E/N/U {' '.join(f'{1e3 * v:+5.1f}' for v in e.mean(0))} mm  "
-            f"std {' '.join(f'{1e3 * v:4.1f}' for v in e.std(0))} mm  {1e3 * dt_s / len(p):6.1f} ms/epoch")
+    lat, lon, _ = ecef_to_geodetic(p)
+    return R_ecef_to_enu(lat, lon)
 
 
-def main() -> None:
-    a = sys.argv[1:]
-    rover = a[0] if len(a) >= 3 else str(DATA / "rinex-sept" / "SEPT078M1.21O")
-    nav = a[1] if len(a) >= 3 else str(DATA / "rinex-sept" / "SEPT078M.21P")
-    base = a[2] if len(a) >= 3 else str(DATA / "rinex-3034" / "3034078M1.21O")
-    base_pos = [float(v) for v in a[3:6]] if len(a) >= 6 else BASE_ECEF
+def run_dgcal(rover, nav, base, base_pos, n_freq: int = 3):
+    """dgcal's PPK with its defaults; (result, seconds)."""
     from dgcal.pos.gnss.carrier import carrier_observations
     from dgcal.pos.gnss.ppk import PpkOptions, ppk
     from dgcal.pos.gnss.rinex import read_rinex_nav
     from dgcal.pos.gnss.rinex_obs import read_obs_file
-
-    t0 = time.perf_counter()
     nv = read_rinex_nav(nav)
-    r = carrier_observations(read_obs_file(rover))
-    b = carrier_observations(read_obs_file(base))
-    t1 = time.perf_counter()
-    res = ppk(r, b, nv, base_pos, PpkOptions(), p_init=r.p_approx_ecef)
-    t2 = time.perf_counter()
-    print(f"read RINEX + navigation {t1 - t0:.2f} s")
-    print(line("dgcal", res.p, res.status == 3, t2 - t1))
-    for name, ps in (("  fwd", res.forward), ("  bwd", res.backward)):
-        print(line(name, ps.p, ps.status == 3, np.nan))
+    r = carrier_observations(read_obs_file(rover), n_freq=n_freq)
+    b = carrier_observations(read_obs_file(base), n_freq=n_freq)
+    t0 = time.perf_counter()
+    res = ppk(r, b, nv, base_pos, PpkOptions(n_freq=n_freq), p_init=r.p_approx_ecef)
+    return res, time.perf_counter() - t0
+
+
+def run_demo5(rover, nav, base, base_pos, n_freq: int = 3) -> dict | None:
+    """demo5's combined, forward and backward solutions (None without pyrtklib5)."""
+    from dgcal.pos.gnss.rtklib import rtklib_ppk
     try:
-        from dgcal.pos.gnss.rtklib import rtklib_ppk
+        return {s: rtklib_ppk(rover, nav, base, base_pos, systems="GEJ", n_freq=n_freq, solution=s, engine="demo5")
+                for s in ("combined", "forward", "backward")}
     except ImportError:
-        print("RTKLIB: pyrtklib not installed")
+        return None
+
+
+def _on(t_ref: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Index into t of every t_ref (-1 where none within 1 ms)."""
+    j = np.clip(np.searchsorted(t, t_ref), 0, len(t) - 1)
+    return np.where(np.abs(t[j] - t_ref) < 1e-3, j, -1)
+
+
+def truth_lines(res, seconds: float, p_true: np.ndarray, demo5: dict | None) -> list[str]:
+    """Both engines against a known position per epoch (N,3) or a point (3,)."""
+    t = res.t_gps
+    P = np.broadcast_to(p_true, (len(t), 3)) if np.ndim(p_true) == 1 else p_true
+    R = _enu_axes(P[0])
+    f = res.status == 3
+    e = (res.p - P) @ R.T
+    s = np.sqrt(np.einsum("ij,njk,ik->ni", R, res.P, R))
+    ok = res.status >= 2
+    z = e[ok] / s[ok]
+    n3 = np.linalg.norm(e, axis=1)
+    out = [f"dgcal   {len(t):5d} epochs  fixed {100 * f.mean():5.1f} % (fw {100 * np.mean(res.forward.status == 3):5.1f}"
+           f", bw {100 * np.mean(res.backward.status == 3):5.1f})  fixed 3D RMS {1e3 * np.sqrt(np.mean(n3[f] ** 2)):5.1f}"
+           f" mm  wrong {int(np.sum(n3[f] > 0.1))}  error/sigma RMS E/N/U {np.round(np.sqrt(np.mean(z ** 2, 0)), 2)}"
+           f" max {np.max(np.abs(z)):.1f}  {1e3 * seconds / len(t):5.1f} ms/epoch"]
+    if demo5 is None:
+        return out + ["demo5   pyrtklib5 not installed"]
+    c = demo5["combined"]
+    j = _on(c["t_gps"], t)
+    pk = P[j[j >= 0]]
+    fk = c["q"][j >= 0] == 1
+    ek = np.linalg.norm(c["p_ecef"][j >= 0] - pk, axis=1)
+    rate = {k: 100 * np.mean(v["q"] == 1) * len(v["q"]) / len(t) for k, v in demo5.items()}
+    out.append(f"demo5   {len(c['q']):5d} epochs  fixed {rate['combined']:5.1f} % (fw {rate['forward']:5.1f}, bw "
+               f"{rate['backward']:5.1f})  fixed 3D RMS {1e3 * np.sqrt(np.mean(ek[fk] ** 2)):5.1f} mm  wrong "
+               f"{int(np.sum(ek[fk] > 0.1))}  {1e3 * c['run_s'] / len(c['q']):5.1f} ms/epoch (combined run)")
+    return out
+
+
+def agreement_lines(res, seconds: float, demo5: dict | None) -> list[str]:
+    """A moving rover without truth: dgcal's fixed epochs against demo5's, epoch by epoch."""
+    t = res.t_gps
+    f = res.status == 3
+    out = [f"dgcal   {len(t):5d} epochs  fixed {100 * f.mean():5.1f} % (fw {100 * np.mean(res.forward.status == 3):5.1f}"
+           f", bw {100 * np.mean(res.backward.status == 3):5.1f})  {1e3 * seconds / len(t):5.1f} ms/epoch"]
+    if demo5 is None:
+        return out + ["demo5   pyrtklib5 not installed"]
+    for name, c in demo5.items():
+        j = _on(c["t_gps"], t)
+        keep = j >= 0
+        both = keep.copy()
+        both[keep] = (c["q"][keep] == 1) & (res.status[j[keep]] == 3)
+        fk = np.flatnonzero(both)
+        R = _enu_axes(res.p[fk[0]] if len(fk) else res.p[0])
+        d = (res.p[j[fk]] - c["p_ecef"][fk]) @ R.T
+        s = np.sqrt(np.einsum("ij,njk,ik->ni", R, res.P[j[fk]], R))
+        z = d / s
+        n3 = np.linalg.norm(d, axis=1)
+        rate = 100 * np.mean(c["q"] == 1) * len(c["q"]) / len(t)
+        out.append(f"demo5 {name:9s} fixed {rate:5.1f} %  both fixed {len(fk):4d}: dgcal - demo5 3D RMS "
+                   f"{1e3 * np.sqrt(np.mean(n3 ** 2)):5.1f} mm, mean E/N/U {np.round(1e3 * d.mean(0), 1)} mm, "
+                   f"largest {1e3 * n3.max():5.1f} mm, within 2 cm {100 * np.mean(n3 <= 0.02):5.1f} %; dgcal "
+                   f"error/sigma RMS E/N/U {np.round(np.sqrt(np.mean(z ** 2, 0)), 2)} max {np.abs(z).max():.1f}")
+    fw, bw = demo5["forward"], demo5["backward"]
+    jb = _on(fw["t_gps"], bw["t_gps"])
+    m = (jb >= 0) & (fw["q"] == 1)
+    m[m] &= bw["q"][jb[m]] == 1
+    dd = np.linalg.norm(fw["p_ecef"][m] - bw["p_ecef"][jb[m]], axis=1)
+    both = (res.forward.status == 3) & (res.backward.status == 3)
+    dg = np.linalg.norm(res.forward.p[both] - res.backward.p[both], axis=1)
+    out.append(f"forward vs backward (both fixed): dgcal 3D RMS {1e3 * np.sqrt(np.mean(dg ** 2)):5.1f} mm "
+               f"(largest {1e3 * dg.max():5.1f}), demo5 {1e3 * np.sqrt(np.mean(dd ** 2)):5.1f} mm "
+               f"(largest {1e3 * dd.max():5.1f})")
+    return out
+
+
+def simulated(kind: str, seeds) -> None:
+    """Simulated rovers written as RINEX, both engines on the same files, against the truth."""
+    from dgcal.sim.rover_motion import simulate_kinematic_rover, write_rover_dataset
+    for seed in seeds:
+        sim = simulate_kinematic_rover(kind, seed=seed, duration_s=600.0, doppler=seed % 2 == 0)
+        with tempfile.TemporaryDirectory() as d:
+            out = Path(d) / "rover"
+            write_rover_dataset(out, sim)
+            files = (str(out / "rover.rnx"), str(out / "nav.rnx"), str(out / "base.rnx"), sim.carrier.base_ecef)
+            res, sec = run_dgcal(*files, n_freq=2)
+            demo5 = run_demo5(*files, n_freq=2)
+        print(f"-- {kind} seed {seed} ({sim.settings['speed_mps']['mean']:.1f} m/s mean, Doppler {seed % 2 == 0}, "
+              f"{len(sim.carrier.truth['slips'])} slips)")
+        print("\n".join(truth_lines(res, sec, sim.carrier.truth["p_ecef"], demo5)))
+
+
+def main() -> None:
+    a = sys.argv[1:]
+    if a and a[0] == "sim":
+        simulated(a[1] if len(a) > 1 else "uav", [int(v) for v in a[2:]] or range(3))
         return
-    rk = rtklib_ppk(rover, nav, base, base_pos, systems="GEJ")
-    print(line("RTKLIB", rk["p_ecef"], rk["q"] == 1, rk["run_s"]))
+    if len(a) >= 6:
+        rover, nav, base, base_pos = a[0], a[1], a[2], [float(v) for v in a[3:6]]
+        for nf in (2, 3):
+            res, sec = run_dgcal(rover, nav, base, base_pos, n_freq=nf)
+            print(f"moving rover {rover} against {base}, {nf} frequencies")
+            print("\n".join(agreement_lines(res, sec, run_demo5(rover, nav, base, base_pos, n_freq=nf))))
+        return
+    rover, nav, base, base_pos = (str(v) if not isinstance(v, list) else v for v in STATIC)
+    res, sec = run_dgcal(rover, nav, base, base_pos)
+    print("static 5.3 km baseline (rinex-sept / rinex-3034) against the known rover position")
+    print("\n".join(truth_lines(res, sec, STATIC_REF, run_demo5(rover, nav, base, base_pos))))
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""RTKLIB's single-point positioning (pyrtklib, optional) for side-by-side comparison with dgcal's SPP."""
+"""RTKLIB as the reference peer (optional): single-point positioning and PPK by RTKLIB 2.4.3 (pyrtklib) or by
+rtklibexplorer's demo5 fork (pyrtklib5, ``engine="demo5"``), for side-by-side comparison with dgcal."""
 from __future__ import annotations
 
 import numpy as np
@@ -48,16 +49,29 @@ def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
 _POSTPOS_FIELDS = ("mode", "soltype", "nf", "navsys", "elmin", "modear", "ionoopt", "tropopt", "refpos", "sateph")
 
 
+def _module(engine: str):
+    """The RTKLIB binding of `engine`: "rtklib" (pyrtklib, RTKLIB 2.4.3) or "demo5" (pyrtklib5)."""
+    if engine == "demo5":
+        import pyrtklib5 as rk  # why: optional dependency (the `test` extra), needed only for this comparison
+    elif engine == "rtklib":
+        import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
+    else:
+        raise ValueError(f"RTKLIB engine {engine!r}: rtklib or demo5")
+    return rk
+
+
 def rtklib_ppk(rover_obs: str, nav_path: str, base_obs: str, base_ecef, elev_mask_deg: float = 10.0,
                systems: str = "GEJ", n_freq: int = 3, static: bool = False, solution: str = "combined",
-               fix_and_hold: bool = True) -> dict:
+               fix_and_hold: bool = True, engine: str = "rtklib") -> dict:
     """RTKLIB's PPK (postpos, as rnx2rtkp) on RINEX files: per epoch t_gps, p_ecef (m), q (1 fix, 2 float, 5 single),
-    ns, ratio and the run time (s). Broadcast orbits, Saastamoinen, broadcast ionosphere, LAMBDA ratio 3."""
-    import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
+    ns, ratio, sdx/sdy/sdz (m) and the run time (s), epochs in time order. Broadcast orbits, Saastamoinen,
+    broadcast ionosphere, LAMBDA ratio 3; `engine` "demo5" runs rtklibexplorer's fork (pyrtklib5) instead."""
+    rk = _module(engine)
     settings = {"mode": rk.PMODE_STATIC if static else rk.PMODE_KINEMA,
                 "soltype": {"forward": 0, "backward": 1, "combined": 2}[solution], "nf": int(n_freq),
                 "modear": 3 if fix_and_hold else 1}
-    return _postpos([str(rover_obs), str(nav_path), str(base_obs)], settings, elev_mask_deg, systems, base_ecef)
+    return _postpos([str(rover_obs), str(nav_path), str(base_obs)], settings, elev_mask_deg, systems, base_ecef,
+                    engine)
 
 
 def rtklib_spp(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0, systems: str = "GEJ") -> dict:
@@ -69,7 +83,8 @@ def rtklib_spp(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0, system
                     elev_mask_deg, systems, None)
 
 
-def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: str, base_ecef) -> dict:
+def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: str, base_ecef,
+             engine: str = "rtklib") -> dict:
     """RTKLIB's postpos on `files` (rnx2rtkp's engine) with the prcopt fields `settings` and dgcal's shared
     settings (broadcast orbits and ionosphere, Saastamoinen, ratio 3, `base_ecef` when given); prcopt_default is
     restored afterwards. Returns the solution file's epochs as arrays and the run time."""
@@ -77,8 +92,7 @@ def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: st
     import tempfile
     import time
 
-    import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
-
+    rk = _module(engine)
     popt, sopt, fopt = rk.prcopt_default, rk.solopt_default, rk.filopt_t()
     saved = {k: getattr(popt, k) for k in _POSTPOS_FIELDS}
     saved_rb = [popt.rb[i] for i in range(3)]
@@ -100,10 +114,13 @@ def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: st
         sopt.posf = rk.SOLF_XYZ
         with tempfile.TemporaryDirectory() as d:
             out_path = os.path.join(d, "rtklib.pos")
-            buf = rk.Arr1Dchar(len(out_path) + 1)
-            for i, c in enumerate(out_path):
-                buf[i] = c
-            buf[len(out_path)] = "\0"
+            if engine == "demo5":                      # pyrtklib5 takes the output path as a string
+                buf = out_path
+            else:
+                buf = rk.Arr1Dchar(len(out_path) + 1)
+                for i, c in enumerate(out_path):
+                    buf[i] = c
+                buf[len(out_path)] = "\0"
             t0 = time.perf_counter()
             rk.postpos(rk.gtime_t(), rk.gtime_t(), 0.0, 0.0, popt, sopt, fopt, files, len(files), buf, "", "")
             run_s = time.perf_counter() - t0
@@ -117,7 +134,8 @@ def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: st
                     from dgcal.pos.gnss.rinex import gps_seconds_from_calendar
                     t = gps_seconds_from_calendar(int(ymd[0]), int(ymd[1]), int(ymd[2]), int(hms[0]), int(hms[1]),
                                                   float(hms[2]))
-                    rows.append([t, float(v[2]), float(v[3]), float(v[4]), int(v[5]), int(v[6]), float(v[14])])
+                    rows.append([t, float(v[2]), float(v[3]), float(v[4]), int(v[5]), int(v[6]), float(v[14]),
+                                 float(v[7]), float(v[8]), float(v[9])])
     finally:
         for k, val in saved.items():
             setattr(popt, k, val)
@@ -125,6 +143,7 @@ def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: st
             popt.rb[i] = saved_rb[i]
         popt.thresar[0] = saved_thres
         sopt.posf = saved_posf
-    a = np.array(rows) if rows else np.zeros((0, 7))
+    a = np.array(rows) if rows else np.zeros((0, 10))
+    a = a[np.argsort(a[:, 0], kind="stable")]          # a backward solution file runs back in time
     return {"t_gps": a[:, 0], "p_ecef": a[:, 1:4], "q": a[:, 4].astype(int), "ns": a[:, 5].astype(int),
-            "ratio": a[:, 6], "run_s": run_s}
+            "ratio": a[:, 6], "sd_ecef": a[:, 7:10], "run_s": run_s}
