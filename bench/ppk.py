@@ -83,7 +83,8 @@ def truth_lines(res, seconds: float, p_true: np.ndarray, demo5: dict | None) -> 
     fw, bw = 100 * np.mean(res.forward.status == 3), 100 * np.mean(res.backward.status == 3)
     out = [f"dgcal   {len(t):5d} epochs  fixed {100 * f.mean():5.1f} % (fw {fw:5.1f}, bw {bw:5.1f})  fixed 3D RMS "
            f"{1e3 * np.sqrt(np.mean(n3[f] ** 2)):5.1f} mm  wrong {int(np.sum(n3[f] > 0.1))}  error/sigma RMS "
-           f"E/N/U {np.round(np.sqrt(np.mean(z ** 2, 0)), 2)} max {np.max(np.abs(z)):.1f}  {1e3 * seconds / len(t):5.1f} ms/epoch"]
+           f"E/N/U {np.round(np.sqrt(np.mean(z ** 2, 0)), 2)} max {np.max(np.abs(z)):.1f}  "
+           f"{1e3 * seconds / len(t):5.1f} ms/epoch"]
     if demo5 is None:
         return out + ["demo5   pyrtklib5 not installed"]
     c = demo5["combined"]
