@@ -32,6 +32,7 @@ from dgcal.pos.ins.imu_data import write_imu_csv
 from dgcal.sim.gnss import (DEFAULT_T0_GPS, CarrierErrorModel, CodeErrorModel, load_nav, simulate_gnss,
                            simulate_rover_base)
 from dgcal.sim.imu import simulate_imu
+from dgcal.sim.rover_motion import RoverPath, airframe_mask, turn_slips
 from dgcal.sim.trajectory import camera_events, simulate_true_trajectory
 
 
@@ -65,7 +66,9 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
                  misalignment: bool = True, carrier: bool = True, base_offset_enu_m=(1200.0, -700.0, 0.0),
                  total_outage_s: float = 10.0, n_slips: int = 6,
                  carrier_errors: CarrierErrorModel | None = None,
-                 code_errors: CodeErrorModel | None = None) -> PosSimulation:
+                 code_errors: CodeErrorModel | None = None, airframe_mask_deg: float | None = None,
+                 turn_slip_rate: float = 0.0, half_cycle_share: float = 0.0,
+                 carrier_doppler: bool = True) -> PosSimulation:
     """Simulate a flight (seconds, metres, degrees; GPS time from the navigation file's day).
 
     The outage (`outage_sats` highest satellites kept) starts at `outage_start_s` after take-off (default:
@@ -75,6 +78,10 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     outage of `total_outage_s` at 30 % of the flight (0: none) and `n_slips` random cycle slips. `code_errors`: the
     satellites' slow pseudorange errors of real broadcast models (`dgcal.sim.gnss.CodeErrorModel`; default none:
     the rover's code then fits the front end's models exactly, so process it with model_errors=False).
+    The carrier phase as a real airframe sees it (`dgcal.sim.rover_motion`): `airframe_mask_deg` hides satellites
+    below that angle above the body's horizontal plane (a bank takes the low wing's side away), `turn_slip_rate`
+    slips per satellite and epoch while banked, `half_cycle_share` of new arcs start with a half cycle,
+    `carrier_doppler` False: a rover receiver without Doppler.
     """
     nav = load_nav(nav)
     week = int(DEFAULT_T0_GPS // SECONDS_PER_WEEK)
@@ -108,8 +115,21 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
             ta = float(t_gnss[0] + 0.3 * (t_gnss[-1] - t_gnss[0]))
             outages.append((ta, ta + float(total_outage_s), 0))
         base = LocalENU(lat0, lon0, h_ground).to_ecef(np.asarray(base_offset_enu_m, float)[None])[0]
-        csim = simulate_rover_base(t_gnss, p_ant, v_ant, base, nav=nav, seed=seed + 3, errors=carrier_errors,
-                                   systems=tuple(systems), n_freq=2, outages=outages, n_random_slips=n_slips)
+        path = RoverPath(t_gnss, p_ant, v_ant, np.radians(st.rph[:, 2]), np.radians(st.rph[:, 0]),
+                         np.radians(st.rph[:, 1]), np.abs(st.rph[:, 0]) > 10.0, kind)
+        mask = airframe_mask(path, airframe_mask_deg) if airframe_mask_deg is not None else None
+        kw = dict(nav=nav, seed=seed + 3, errors=carrier_errors, systems=tuple(systems), n_freq=2, outages=outages,
+                  n_random_slips=n_slips, rover_mask=mask, doppler=carrier_doppler)
+        slips = []
+        if turn_slip_rate > 0:                # the slips are drawn on what the rover sees: a first run finds it
+            seen: dict = {}
+            probe_mask = (lambda el, az: seen.update(el=el, vis=mask(el, az)) or seen["vis"]) if mask is not None \
+                else (lambda el, az: seen.update(el=el, vis=np.ones(el.shape, bool)) or seen["vis"])
+            probe = simulate_rover_base(t_gnss, p_ant, v_ant, base, **{**kw, "rover_mask": probe_mask})
+            vis = seen["vis"] & (seen["el"] >= np.radians(10.0))
+            slips = turn_slips(path, seen["el"], vis, probe.rover.sats, 2, turn_slip_rate,
+                               np.random.default_rng(seed + 4))
+        csim = simulate_rover_base(t_gnss, p_ant, v_ant, base, slips=slips, half_cycle_share=half_cycle_share, **kw)
     return PosSimulation(traj, imu, err, obs, nav, events, lever, outage, grade, sigma_pr, sigma_doppler,
                          {"seed": seed, "flight": kind, "duration_s": duration_s, "rate_hz": rate_hz}, csim, outages,
                          code_errors)
