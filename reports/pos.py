@@ -273,10 +273,11 @@ def write_pos_report(path: str | Path, res) -> Path:
     return rep.write(path)
 
 
-def write_pos_outputs(out_dir: str | Path, res: PosResult, names: Mapping[str, str]) -> dict[str, Path]:
+def write_pos_outputs(out_dir: str | Path, res: PosResult, names: Mapping[str, str], report: bool = True
+                      ) -> dict[str, Path]:
     """`dgcal pos --mode tc|lc`'s files in `out_dir`, named by role in `names`: trajectory (output rate),
     events (one row per event), trajectory_forward (keyframes of the forward solution), summary (JSON)
-    and report (HTML); returns the paths written by role."""
+    and report (HTML, unless `report` is False); returns the paths written by role."""
     out = Path(out_dir)
     paths = {"trajectory": out / names["trajectory"]}
     write_trajectory(paths["trajectory"], res.trajectory)
@@ -289,5 +290,6 @@ def write_pos_outputs(out_dir: str | Path, res: PosResult, names: Mapping[str, s
     paths["summary"] = out / names["summary"]
     with atomic_write(paths["summary"]) as fh:
         json.dump(res.summary, fh, indent=2)
-    paths["report"] = write_pos_report(out / names["report"], res)
+    if report:
+        paths["report"] = write_pos_report(out / names["report"], res)
     return paths

@@ -63,13 +63,16 @@ def write_ppk_report(path: str | Path, run: PpkRun) -> Path:
     return rep.write(path)
 
 
-def write_ppk_outputs(out_dir: str | Path, run: PpkRun, names: Mapping[str, str]) -> dict[str, Path]:
+def write_ppk_outputs(out_dir: str | Path, run: PpkRun, names: Mapping[str, str], report: bool = True
+                      ) -> dict[str, Path]:
     """`dgcal pos --mode ppk`'s files in `out_dir`, by role in `names`: gnss (gnss.csv), gnss_summary (JSON),
-    gnss_report (HTML); returns the paths by role."""
+    gnss_report (HTML, unless `report` is False); returns the paths by role."""
     out = Path(out_dir)
-    paths = {role: out / names[role] for role in ("gnss", "gnss_summary", "gnss_report")}
+    paths = {role: out / names[role] for role in ("gnss", "gnss_summary")}
     write_ppk_csv(paths["gnss"], run.result)
     with atomic_write(paths["gnss_summary"]) as fh:
         json.dump(run.summary, fh, indent=2, default=float)
-    write_ppk_report(paths["gnss_report"], run)
+    if report:
+        paths["gnss_report"] = out / names["gnss_report"]
+        write_ppk_report(paths["gnss_report"], run)
     return paths

@@ -119,9 +119,11 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
     return rep.write(path)
 
 
-def write_ukf_outputs(out_dir: str | Path, res: UkfPosResult, names: Mapping[str, str]) -> dict[str, Path]:
+def write_ukf_outputs(out_dir: str | Path, res: UkfPosResult, names: Mapping[str, str], report: bool = True
+                      ) -> dict[str, Path]:
     """`dgcal pos --mode ukf`'s files in `out_dir`, by role in `names`: trajectory (output rate), events (one row per
-    event), trajectory_fixes (every fix epoch), accuracy (CSV), summary (JSON), report (HTML); returns the paths."""
+    event), trajectory_fixes (every fix epoch), accuracy (CSV), summary (JSON), report (HTML, unless `report` is
+    False); returns the paths."""
     out = Path(out_dir)
     paths = {"trajectory": out / names["trajectory"]}
     write_trajectory(paths["trajectory"], res.trajectory)
@@ -135,5 +137,6 @@ def write_ukf_outputs(out_dir: str | Path, res: UkfPosResult, names: Mapping[str
     paths["summary"] = out / names["summary"]
     with atomic_write(paths["summary"]) as fh:
         json.dump(res.summary, fh, indent=2)
-    paths["report"] = write_ukf_report(out / names["report"], res)
+    if report:
+        paths["report"] = write_ukf_report(out / names["report"], res)
     return paths

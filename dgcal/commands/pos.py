@@ -121,7 +121,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "own estimates (slower) instead of the forward pass of the smoother's linearised problem")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--no-report", action="store_true",
-                   help="spp: skip the HTML report (gnss.csv and gnss_summary.json are still written)")
+                   help="skip the HTML report of any mode (the CSV and JSON files are still written)")
 
 
 def pos_options(args: argparse.Namespace) -> PosOptions:
@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
         from dgcal.reports.ppk import write_ppk_outputs
         run_ = run_ppk(opts)
         with staged_dir(args.out) as tmp:
-            write_ppk_outputs(tmp, run_, SPP_OUTPUTS)
+            write_ppk_outputs(tmp, run_, SPP_OUTPUTS, report=not args.no_report)
         s = run_.summary
         for w in run_.warnings:
             print(f"warning: {w}", file=sys.stderr)
@@ -215,14 +215,14 @@ def run(args: argparse.Namespace) -> int:
     if opts.mode == "ukf":
         from dgcal.reports.ukf import write_ukf_outputs
         with staged_dir(args.out) as tmp:
-            write_ukf_outputs(tmp, res, UKF_OUTPUTS)
+            write_ukf_outputs(tmp, res, UKF_OUTPUTS, report=not args.no_report)
         s = res.summary
         print(f"{Path(args.out) / UKF_OUTPUTS['trajectory']}: UKF {s['keyframes']} epochs, {s['events']} events, "
-              f"median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg; report "
-              f"{Path(args.out) / UKF_OUTPUTS['report']}", file=sys.stderr)
+              f"median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg"
+              + ("" if args.no_report else f"; report {Path(args.out) / UKF_OUTPUTS['report']}"), file=sys.stderr)
         return 0
     with staged_dir(args.out) as tmp:
-        write_pos_outputs(tmp, res, INS_OUTPUTS)
+        write_pos_outputs(tmp, res, INS_OUTPUTS, report=not args.no_report)
         if getattr(args, "sbet_out", None):
             from dgcal.pos.ins.sbet import write_sbet_files
             sbet = Path(args.sbet_out)

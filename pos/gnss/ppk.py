@@ -501,10 +501,17 @@ class _Pass:
         x, P, y, H, R, rows, refs, lin = sol
         # code rows against their variance before the correlation factor of `_code_factor` (which only stands for
         # the information a correlated error adds to a constant, not for its size)
-        q_v = np.diag(R) - np.einsum("ij,ij->i", H @ P, H)
+        v = y - H @ x
+        q_fit = np.diag(R) - np.einsum("ij,ij->i", H @ P, H)
+        q_v = q_fit.copy()
         code = ~rows.phase
         q_v[code] = np.diag(R)[code] / self._code_factor()[rows.sat[code], rows.slot[code]]
-        self._adapt_noise(y - H @ x, q_v, rows.phase, dt)
+        self._adapt_noise(v, q_v, rows.phase, dt)
+        # the epoch's own test: post-fit residuals beyond their chi-square quantile inflate its float covariance
+        # to what they say (never a float sigma the epoch's residuals contradict)
+        chi2_fit = float(np.sum(v * v / np.maximum(q_fit, 1e-12)))
+        dof = max(len(v) - 3, 1)
+        inflate = chi2_fit / dof if chi2_fit > _chi2_limit(dof, o.alpha) else 1.0
         self.x, self.P = x, P
         self.have_pos = True
         self.t_prev = t
@@ -515,8 +522,8 @@ class _Pass:
         seen[rows.sat] = True
         seen[refs] = True
         n_sat = int(seen.sum())
-        out.update(status=2, p_float=x[:3].copy(), P_float=P[:3, :3].copy(), p=x[:3].copy(), P=P[:3, :3].copy(),
-                   n_sat=n_sat, n_amb=int(rows.phase.sum()))
+        out.update(status=2, p_float=x[:3].copy(), P_float=inflate * P[:3, :3], p=x[:3].copy(),
+                   P=inflate * P[:3, :3], n_sat=n_sat, n_amb=int(rows.phase.sum()))
         self._resolve(x, P, y, H, R, rows, zr, out)
         if out.get("status") == 3:
             cov = self._fixed_covariance(H, R, rows, zr, out["p"], out["P"])

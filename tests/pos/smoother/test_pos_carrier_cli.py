@@ -94,3 +94,23 @@ def test_bad_base_inputs(dataset, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--base-position" in err and "SPP" in err
     assert not (tmp_path / "o2").exists() or not any((tmp_path / "o2").iterdir())
+
+
+def test_no_report_in_every_mode(dataset, tmp_path):
+    """`--no-report` leaves the HTML report out of ppk, tc and lc (and spp) and writes every other file."""
+    t = json.loads((dataset / "truth.json").read_text())
+    ppk = [str(dataset / a) if (dataset / a).is_file() else a for a in shlex.split(t["command_ppk"])[1:]]
+    ppk[ppk.index("--out") + 1] = str(tmp_path / "ppk")
+    assert main(ppk + ["--no-progress", "--no-report"]) == 0
+    assert sorted(p.name for p in (tmp_path / "ppk").iterdir() if not p.name.startswith(".")) == ["gnss.csv",
+                                                                                        "gnss_summary.json"]
+    out = tmp_path / "tc"
+    assert main(_carrier_args(dataset, out, "--no-report")) == 0
+    names = {p.name for p in out.iterdir()}
+    assert {"trajectory.csv", "events.csv", "pos_summary.json"} <= names and "report.html" not in names
+    lc = tmp_path / "lc"
+    assert main(["pos", "--mode", "lc", "--imu", str(dataset / "imu.csv"), "--gnss", str(tmp_path / "ppk" / "gnss.csv"),
+                 "--events", str(dataset / "events.csv"), "--imu-grade", t["imu_grade"], "--lever-arm",
+                 *map(str, t["lever_arm_gnss_m"]), "--out", str(lc), "--no-progress", "--no-report"]) == 0
+    names = {p.name for p in lc.iterdir()}
+    assert "trajectory.csv" in names and "report.html" not in names
