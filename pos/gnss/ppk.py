@@ -82,7 +82,10 @@ class PpkOptions:
     phase_bias_sigma_m: float = 0.01      # time-correlated SD phase errors (multipath, PCV, differential atmosphere)
     noise_window_s: float = 30.0          # residual-based variance factors of phase and code over ~this time; 0: off
     phase_bias_tau_s: float = 60.0        # their correlation time: the ambiguities' random walk 2 sigma^2 / tau
-    iono_ppm: float = 0.5                 # differential ionosphere budget of a fixed position (mm per km, slant)
+    iono_ppm: float = 0.5                 # differential ionosphere: slant, mm per km of baseline (1/sin el)
+    iono_est_km: float = 10.0             # estimate it beyond this baseline (a slant single difference per satellite,
+    #                                       prior iono_ppm): shorter ones fix better without (0: always, inf: never)
+    iono_tau_s: float = 600.0             # its correlation time (first-order Gauss-Markov)
     tropo_zenith_m: float = 0.0015        # rover zenith troposphere error left by the model (fixed-position budget)
     humidity: float = 0.7                 # Saastamoinen at both receivers with 70 % humidity (RTKLIB's REL_HUMI): the
     #                                       wet delay's height gradient matters for a UAV 100 m above its base
@@ -180,6 +183,7 @@ class CarrierPair:
             self.jb = np.full(len(self.t), -1)
             self.age = np.full(len(self.t), np.nan)
         self.system = np.array([s[0] for s in sats])
+        self.kappa = np.nan_to_num((1575.42e6 / self.freq) ** 2)      # ionosphere of each slot against L1
         # the systems present in the order their groups of double differences are formed, and each satellite's
         present = [s for s in "GECJ" if s in set(self.system.tolist())]
         self.n_sys = len(present)
@@ -271,7 +275,13 @@ class _Pass:
     def __init__(self, eng: CarrierPair, order: np.ndarray, p_init: np.ndarray):
         self.e, self.order = eng, order
         m, F = len(eng.sats), eng.F
-        self.n = NK + m * F
+        # states: position, velocity (NK), the slant single-difference ionosphere at L1 per satellite (m, when
+        # estimated) from `iono0`, the SD ambiguities (cycles) from `amb0`
+        self.iono_est = bool(np.linalg.norm(np.asarray(p_init, float) - eng.base_pos) > 1e3 * eng.opts.iono_est_km)
+        self.iono0 = NK if self.iono_est else -1
+        self.amb0 = NK + (m if self.iono_est else 0)
+        self.iono_on = np.zeros(m, dtype=bool)
+        self.n = self.amb0 + m * F
         self.x = np.zeros(self.n)
         self.x[:3] = p_init
         self.P = np.zeros((self.n, self.n))
@@ -294,7 +304,7 @@ class _Pass:
         self.have_pos = False
         # variance (cycles^2) of the time-correlated SD phase errors of every state (validation of a fix only)
         self.var_bias = np.zeros(self.n)
-        self.var_bias[NK:] = np.nan_to_num((eng.opts.phase_bias_sigma_m / eng.lam.ravel()) ** 2)
+        self.var_bias[self.amb0:] = np.nan_to_num((eng.opts.phase_bias_sigma_m / eng.lam.ravel()) ** 2)
         # a Gauss-Markov phase error of variance s^2 and correlation time tau seen through a constant (the
         # ambiguity) is followed by a random walk of 2 s^2 / tau: the float ambiguities stay as uncertain as the
         # slow errors make them (taken as white, they converge to a few millicycles and LAMBDA's ratio collapses
@@ -310,7 +320,7 @@ class _Pass:
 
     def idx(self, i, f):
         """State index of the SD ambiguity of satellite(s) i, slot(s) f."""
-        return NK + i * self.e.F + f
+        return self.amb0 + i * self.e.F + f
 
     def reset(self, i, f) -> None:
         """Forget the ambiguities of satellites i, slots f (indices or index arrays)."""
@@ -337,7 +347,8 @@ class _Pass:
             return None
         y, H, R = dd_system(ph, sat, ref, slot, block, zr.los, zr.omc_phase - zb.omc_phase,
                             zr.omc_code - zb.omc_code, e.lam, zr.elev, zb.elev, o.phase_sigma_m * np.sqrt(self.vf[0]),
-                            o.code_sigma_m * np.sqrt(self.vf[1]), self._code_factor(), x0, self.n)
+                            o.code_sigma_m * np.sqrt(self.vf[1]), self._code_factor(), x0, self.n, self.amb0,
+                            self.iono0, e.kappa)
         return y, H, R, _Rows(ph, sat, ref, slot), g_ref
 
     def _code_factor(self) -> np.ndarray:
@@ -426,6 +437,33 @@ class _Pass:
         self.P[3:NK, :3] += qa * dt ** 2 / 2.0
         self.P[3:NK, 3:NK] += qa * dt
 
+    def _predict_iono(self, seen: np.ndarray, elev: np.ndarray, x0: np.ndarray, dt: float) -> None:
+        """The ionosphere states to this epoch: first-order Gauss-Markov (``iono_tau_s``) of the steady sigma
+        ``iono_ppm`` x baseline / sin el; a satellite seen anew, or again after ``max_gap_s``, starts at zero with it.
+        States of satellites not seen are left as they are."""
+        o = self.e.opts
+        dist = float(np.linalg.norm(x0 - self.e.base_pos))
+        sig = o.iono_ppm * 1e-6 * dist / np.sin(np.maximum(elev, np.radians(5.0))) + 1e-4
+        a = self.iono0 + np.arange(len(seen))
+        gap = (self.t_prev is not None) & (np.abs(self.t_now - self.e.t[np.maximum(self.last.max(axis=1), 0)])
+                                           > o.max_gap_s)
+        new = seen & (~self.iono_on | gap)
+        if new.any():
+            i = a[new]
+            self.P[i, :] = 0.0
+            self.P[:, i] = 0.0
+            self.x[i] = 0.0
+            self.P[i, i] = sig[new] ** 2
+            self.iono_on[new] = True
+        old = seen & ~new & self.iono_on
+        if old.any() and dt > 0:
+            i = a[old]
+            phi = np.exp(-dt / o.iono_tau_s)
+            self.x[i] *= phi
+            self.P[i, :] *= phi
+            self.P[:, i] *= phi
+            self.P[i, i] += sig[old] ** 2 * (1.0 - phi * phi)
+
     def step(self, k: int, out: dict) -> None:
         e, o = self.e, self.e.opts
         t = e.t[k]
@@ -435,7 +473,7 @@ class _Pass:
         dt = 0.0 if self.t_prev is None else abs(t - self.t_prev)
         self.t_now, self.k_now, self.j_now = t, k, j
         self._predict(t, dt)
-        act = np.nonzero(self.active.ravel())[0] + NK
+        act = np.nonzero(self.active.ravel())[0] + self.amb0
         self.P[act, act] += self.q_amb[act] * dt
         x0 = self.x[:3].copy()
         zb = e.base_zd(j)
@@ -445,6 +483,8 @@ class _Pass:
                  & (zr.elev >= np.radians(o.elev_mask_deg))[:, None])
         if valid.sum() < 2:
             return
+        if self.iono0 >= 0:
+            self._predict_iono(valid.any(axis=1), zr.elev, x0, dt)
         self._reset_slipped(k, j, valid)
         self._start_new(zr, zb, valid)
         drop_code = np.zeros(valid.shape, bool)
@@ -586,6 +626,8 @@ class _Pass:
         B[r, col[ref]] += kappa
         B[:, -1] = mapping[sat] - mapping[ref]
         dist = float(np.linalg.norm(p - e.base_pos))
+        # also where the ionosphere is estimated: a fix off by an ionosphere-like integer combination (N1 and N2 by
+        # one each) moves the position by centimetres that its filter covariance does not show
         var = np.append((o.iono_ppm * 1e-6 * dist * mapping[sats]) ** 2, o.tropo_zenith_m ** 2)
         return cov + A @ ((B * var) @ B.T) @ A.T
 

@@ -4,7 +4,7 @@
 slot against a reference satellite; built row by row from Python (or from ~50 small NumPy calls) that was a
 large share of an epoch's time. `dd_rows` picks the groups and rows, `dd_system` fills y, H, R; their order and
 arithmetic are those of the filter's docstring (`dgcal.pos.gnss.ppk`): per group of two satellites or more its
-phase rows, then its code rows. Satellites, slots and states are indices as in `ppk._Pass` (state ``NK + i*F + f``
+phase rows, then its code rows. Satellites, slots and states are indices as in `ppk._Pass` (state ``amb0 + i*F + f``
 is the SD ambiguity of satellite i, slot f, cycles); metres, seconds, radians.
 """
 from __future__ import annotations
@@ -69,11 +69,14 @@ def zd_var(sigma0: float, elev: float) -> float:
 
 @njit(cache=True)
 def dd_system(phase, sat, ref, slot, block, los, sd_phase, sd_code, lam, elev_rover, elev_base, sigma_phase,
-              sigma_code, code_factor, x0, n_state):
+              sigma_code, code_factor, x0, n_state, amb0, iono0, kappa):
     """y (m), H and R of the rows of `dd_rows`: ``y = DD(omc) + (e_r - e_i).x0`` (the state-independent part, the
-    model is H x), H rows ``[e_r - e_i, lam (N_i - N_r) if phase]`` and R the covariance of the differencing of
-    zero-difference errors at both receivers (`zd_var` of the zenith sigmas, rover and base elevations), shared
-    by the rows of a block; the code variance of satellite i, slot f times ``code_factor[i, f]``."""
+    model is H x), H rows ``[e_r - e_i, lam (N_i - N_r) if phase, -+kappa (I_i - I_r)]`` (ambiguities from state
+    `amb0`, ``amb0 + i*F + f``; the slant single-difference ionosphere at L1 of satellite i at state ``iono0 + i``,
+    scaled by ``kappa[i, f] = (f_L1/f)^2``, - on phase, + on code; iono0 < 0: none) and R the covariance of the
+    differencing of zero-difference errors at both receivers (`zd_var` of the zenith sigmas, rover and base
+    elevations), shared by the rows of a block; the code variance of satellite i, slot f times
+    ``code_factor[i, f]``."""
     nr = len(sat)
     F = lam.shape[1]
     y = np.empty(nr)
@@ -84,10 +87,14 @@ def dd_system(phase, sat, ref, slot, block, los, sd_phase, sd_code, lam, elev_ro
         i, r, f = sat[q], ref[q], slot[q]
         g0, g1, g2 = los[r, 0] - los[i, 0], los[r, 1] - los[i, 1], los[r, 2] - los[i, 2]
         H[q, 0], H[q, 1], H[q, 2] = g0, g1, g2
+        sign = -1.0 if phase[q] else 1.0
+        if iono0 >= 0:
+            H[q, iono0 + i] = sign * kappa[i, f]
+            H[q, iono0 + r] = -sign * kappa[r, f]
         if phase[q]:
             d = sd_phase[i, f] - sd_phase[r, f]
-            H[q, NK + i * F + f] = lam[i, f]
-            H[q, NK + r * F + f] = -lam[r, f]
+            H[q, amb0 + i * F + f] = lam[i, f]
+            H[q, amb0 + r * F + f] = -lam[r, f]
             v_ref[q] = zd_var(sigma_phase, elev_rover[r]) + zd_var(sigma_phase, elev_base[r])
             v_sat[q] = zd_var(sigma_phase, elev_rover[i]) + zd_var(sigma_phase, elev_base[i])
         else:
