@@ -1,32 +1,36 @@
-"""Carrier-phase PPK: double-differenced code and phase, EKF with float ambiguities, LAMBDA with validation,
-fix-and-hold, cycle-slip handling, forward + backward passes combined.
+"""Carrier-phase PPK of a moving or static rover: double-differenced code and phase, an EKF with the rover's
+position and velocity and float ambiguities, LAMBDA with validation, integers held per arc, cycle-slip handling,
+forward + backward passes combined (docs/gnss.md, "PPK").
 
-State: rover antenna position (ECEF m) and one between-receiver single-difference ambiguity per
-satellite and frequency slot (cycles, ``3 + sat*F + slot``); the double differences are formed per
-system and slot against the highest satellite, so a change of reference satellite needs nothing.
-Measurements (m), per system and slot, satellite i and reference r::
+State: rover antenna position and velocity (ECEF m, m/s; `NK` states), beyond `iono_est_km` of baseline the slant
+single-difference ionosphere at L1 of every satellite (m), and one between-receiver single-difference ambiguity per
+satellite and frequency slot (cycles, from ``amb0``); the double differences are formed per system and slot against
+the highest satellite, so a change of reference satellite needs nothing. Measurements (m), per system and slot,
+satellite i and reference r::
 
-    DD phase = DD(omc_phase) = -(e_i - e_r).(x - x0) + lam (N_i - N_r) + noise
-    DD code  = DD(omc_code)  = -(e_i - e_r).(x - x0) + noise
+    DD phase = DD(omc_phase) = -(e_i - e_r).(x - x0) + lam (N_i - N_r) - kappa (I_i - I_r) + noise
+    DD code  = DD(omc_code)  = -(e_i - e_r).(x - x0) + kappa (I_i - I_r) + noise
 
 with ``omc`` the zero-difference observed-minus-computed values of ``dgcal.pos.gnss.carrier`` (rover at the
 linearisation point ``x0``, base at its known position and its own epoch: any base rate, the age of
-differential is reported). Zero-difference noise ``sigma0 * sqrt(1/2 + 1/(2 sin^2 el))`` at each
-receiver (phase and code zenith sigmas are options); the DD covariance is the exact one of the
-differencing. Kinematic (default): the position is re-initialised every epoch at the previous solution
-with a 30 m sigma (no dynamic model: any UAV motion); static: constant position.
+differential is reported). Zero-difference noise ``sigma0 * sqrt(1/2 + 1/(2 sin^2 el))`` at each receiver, scaled
+by variance factors that the post-fit residuals estimate; the DD covariance is the exact one of the differencing.
+Kinematic (default): constant velocity driven by white acceleration (cars, UAVs; the velocity comes from the phase,
+Doppler is not needed); static: constant position. Slow phase errors (multipath, antenna, atmosphere) are a random
+walk of the ambiguities.
 
-Every epoch: slips (LLI, power failure, gap, geometry-free, Melbourne-Wuebbena of either receiver)
-reset the ambiguity; new ambiguities start at phase minus code; the update is iterated at the new
-position; post-fit DD residuals are data-snooped (the worst phase outlier resets its ambiguity, a code
-outlier is dropped). Then LAMBDA (``dgcal.pos.gnss.ambiguity``) on the DD ambiguities of the satellites above
-the AR mask: full set, else a partial set; **a fix is accepted only if** (1) the ratio test passes, (2)
-the ambiguity float-to-fixed distance ``(a - a_fix)' Q_a^-1 (a - a_fix)`` and (3) the position shift
-``(x_fix - x_float)' P_float^-1 (x_fix - x_float)`` are within their chi-square quantiles (1 - alpha),
-and (4) the DD phase residuals of the fixed solution pass a chi-square test against their covariance
-with no residual beyond 5 sigma; otherwise the epoch is reported as float. After ``hold_after``
-consecutive accepted fixes the fixed ambiguities are fed back as tight pseudo-observations (fix and
-hold). The backward pass is the same run in reverse time; ``combine`` merges the two per epoch.
+Every epoch: slips (LLI bit 0, a change of bit 1, power failure, gap, geometry-free, Melbourne-Wuebbena of either
+receiver) reset the ambiguity of that arc; new ambiguities start at phase minus code; the update is iterated at the
+new position; post-fit DD residuals are data-snooped (the worst phase outlier resets its ambiguity, a code outlier
+is dropped), and an epoch whose residuals fail their chi-square gets its float covariance inflated. Then the fixed
+solution: the float state conditioned on the integers held from earlier fixes (not fed back) plus LAMBDA
+(``dgcal.pos.gnss.ambiguity``) on the rest, accepted when the fixed residuals pass; else LAMBDA on the ambiguities
+above the AR mask (no half cycle, `min_lock`): full set, else a partial set; **a fix is accepted only if** (1) the
+ratio test passes, (2) the ambiguity float-to-fixed distance and (3) the position shift are within their
+chi-square quantiles (1 - alpha) with the slow phase errors added, and (4) the DD phase residuals of the fixed
+solution pass a chi-square test with no residual beyond ``outlier_w`` sigma; otherwise the epoch is float. An
+arc's integer is held once ``hold_after`` fixes in a row gave it. The backward pass is the same run in reverse time;
+``combine`` merges the two per epoch, float covariances calibrated on the epochs both passes fix.
 """
 from __future__ import annotations
 
