@@ -389,11 +389,12 @@ def sniff_imu_file(path) -> str:
     return "kf-gins"
 
 
-_SETTINGS = {"rate": float, "forward": bool, "model_errors": bool, "use_doppler": bool, "earth_rotation": bool,
+_SMOOTHER_SETTINGS = {"rate": float, "forward": bool, "model_errors": bool, "use_doppler": bool, "earth_rotation": bool,
              "huber_k": float, "clock_bias_rw_m": float, "clock_drift_rw_mps": float, "prior_pos_sigma_m": float,
              "prior_vel_sigma_mps": float, "lc_velocity": bool, "max_iterations": int, "dd_outlier_sigma": float,
              "zupt": bool, "static_noise": bool, "gnss_outlier_sigma": float, "imu_max_gap_s": float,
              "code_bias": bool, "code_bias_tau_s": float, "forward_filter": bool}
+_SETTINGS = dict(_SMOOTHER_SETTINGS)     # every key parse_settings knows (the modes' own sets: `mode_settings`)
 _IMU_SETTINGS = {"imu_max_gap_s": "max_gap_s"}   # --set keys of the IMU checks (dgcal.pos.ins.integrity)
 
 
@@ -417,6 +418,8 @@ def parse_settings(items) -> dict:
                 out[key] = None
             else:
                 out[key] = typ(v)
+                if typ is float and not np.isfinite(out[key]):
+                    raise ValueError(v)
         except ValueError:
             raise InputError(f"bad value for {key}: {val!r}", field="--set") from None
     return out
@@ -492,6 +495,7 @@ def run_spp(opts: PosOptions) -> SppRun:
     for name, val in (("rinex-obs", opts.rinex_obs), ("rinex-nav", opts.rinex_nav)):
         if not val:
             raise InputError("required for --mode spp", field="--" + name)
+    check_settings_mode(opts)
     sopts = _spp_options(opts)
     nav = read_rinex_nav(opts.rinex_nav[0], list(opts.rinex_nav[1:]))
     rx = read_obs_file(opts.rinex_obs, t_start=opts.t_start, t_end=opts.t_end)
@@ -546,12 +550,37 @@ def tc_carrier_inputs(opts: PosOptions, nav, spp_opts, extra: dict):
     return (rover, base, bs.ecef), raw, popts, dd_opts, info
 
 
+def mode_settings(mode: str, with_base: bool = False) -> set[str]:
+    """The `--set` keys a mode uses: the smoother's (tc, lc; ukf too), the double differences' (tc with a base), the
+    UKF's, PPK's (the fields of PpkOptions); spp takes none."""
+    return {"tc": set(_SMOOTHER_SETTINGS) | (set(_DD_SETTINGS) if with_base else set()),
+            "lc": set(_SMOOTHER_SETTINGS), "ukf": set(_SMOOTHER_SETTINGS) | set(UKF_SETTINGS),
+            "ppk": set(_PPK_SETTINGS), "spp": set()}.get(mode, set())
+
+
+def check_settings_mode(opts: PosOptions) -> None:
+    """Refuse a `--set` key that the chosen mode would not use (InputError naming the key and the modes it belongs
+    to): a setting of another mode must not pass unnoticed."""
+    own = mode_settings(opts.mode, bool(opts.rinex_base))
+    for item in opts.settings:
+        key = str(item).partition("=")[0].strip().replace("-", "_")
+        if key in own:
+            continue
+        owners = [m for m in ("tc", "lc", "ukf", "ppk") if key in mode_settings(m, with_base=True)]
+        if not owners:
+            continue                          # an unknown key: the mode's own parser names every key it knows
+        need = " with --rinex-base" if opts.mode == "tc" and key in _DD_SETTINGS else ""
+        raise InputError(f"{key} is a setting of --mode {'/'.join(owners)}{need}: --mode {opts.mode} "
+                         + ("takes no --set" if not own else "does not use it"), field="--set")
+
+
 def run_pos(opts: PosOptions) -> PosResult:
     """`dgcal pos --mode tc|lc`: read the IMU, GNSS (RINEX or gnss.csv) and events of `opts` and smooth them
     (see `process`); the result holds the trajectory, the events' poses and the summary."""
     mode = opts.mode
     if mode not in ("tc", "lc", "ukf"):
         raise InputError(f"mode must be tc, lc or ukf, not {mode!r}", field="--mode")
+    check_settings_mode(opts)
     extra = parse_settings(opts.settings)
     if not opts.imu:
         raise InputError(f"required for --mode {mode}", field="--imu")
@@ -708,10 +737,13 @@ def ppk_settings(items) -> dict:
                 out[key] = int(v)
             elif typ in (float, "float"):
                 out[key] = float(v)
+                if not np.isfinite(out[key]):
+                    raise ValueError(v)
             else:
                 out[key] = v
         except ValueError:
-            raise InputError(f"bad value for {key}: {val!r}", field="--set") from None
+            raise InputError(f"bad value for {key}: {val!r} (a finite number)" if typ in (float, "float") else
+                             f"bad value for {key}: {val!r}", field="--set") from None
     return out
 
 
@@ -826,6 +858,7 @@ def run_ppk(opts: PosOptions) -> PpkRun:
     if not 1 <= int(opts.n_freq) <= 3:
         raise InputError(f"must be 1, 2 or 3, not {opts.n_freq}", field="--frequencies")
     sopts = _spp_options(opts)
+    check_settings_mode(opts)
     extra = ppk_settings(opts.settings)
     popts = PpkOptions(**{**dict(systems="".join(sopts.systems), n_freq=int(opts.n_freq),
                                   elev_mask_deg=opts.elev_mask_deg, ar_elev_mask_deg=opts.elev_mask_deg,

@@ -36,6 +36,14 @@ UKF_OUTPUTS = {"trajectory": "trajectory.csv", "events": "events.csv", "trajecto
 OUTPUTS = {**SPP_OUTPUTS, **INS_OUTPUTS, **{k: v for k, v in UKF_OUTPUTS.items() if k not in INS_OUTPUTS}}
 
 
+def _ratio(text: str) -> float:
+    """--ar-ratio: a finite ratio of at least 1 (the second-best candidate's norm over the best's)."""
+    v = float(text)
+    if not (v >= 1.0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a number >= 1, not {text}")
+    return v
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rinex-obs", metavar="OBS", help="RINEX 2.10/2.11/3.x observation file of the rover")
     p.add_argument("--rinex-nav", metavar="NAV", nargs="+",
@@ -58,7 +66,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="ppk rover model: kinematic (any motion, default) or static")
     p.add_argument("--ppk-solution", choices=("combined", "forward", "backward"), default="combined",
                    help="ppk: forward + backward combined (default), or one pass")
-    p.add_argument("--ar-ratio", type=float, default=3.0, help="ppk: ratio-test threshold of ambiguity fixing")
+    p.add_argument("--ar-ratio", type=_ratio, default=3.0, help="ppk: ratio-test threshold of ambiguity fixing")
     p.add_argument("--frequencies", type=int, default=3, choices=(1, 2, 3),
                    help="ppk: frequencies per system (L1/L2/L5, E1/E5a/E5b, ...)")
     p.add_argument("--imu", metavar="IMU", help="IMU file (tc/lc): dgcal CSV, KF-GINS text, a PX4 .ulg, a ROS 1/2 bag "
@@ -179,6 +187,9 @@ def run(args: argparse.Namespace) -> int:
     from dgcal.fields.io.atomic import staged_dir   # why not csv_tables: SPP forks before anything imports numpy
     from dgcal.fields.processes import forked_call
     if args.mode == "spp":
+        if args.extra:
+            from dgcal.fields.errors import InputError
+            raise InputError(f"--mode spp takes no --set ({', '.join(args.extra)})", field="--set")
         with staged_dir(args.out) as tmp:
             if args.no_report:
                 s = spp_files_in(tmp, args)[0]
