@@ -18,7 +18,7 @@ from threadpoolctl import threadpool_limits
 from dgcal.fields.constants import G0, SECONDS_PER_WEEK
 from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
 from dgcal.fields.errors import InputError, ResultError
-from dgcal.fields.frames import R_ecef_to_ned
+from dgcal.fields.frames import R_ecef_to_enu, R_ecef_to_ned
 from dgcal.fields.processes import fork_map
 from dgcal.pos.gnss.carrier import carrier_observations
 from dgcal.pos.gnss.dd import DDOptions, carrier_front_end
@@ -840,7 +840,31 @@ def read_base(opts: PosOptions, rover_rx, nav, sopts, systems: str, max_age_s: f
     if base_spp is not None and d_spp > 100.0:
         raise InputError(f"base position ({src}) is {d_spp:.0f} m from the base's own SPP position "
                          f"{np.round(base_spp, 1).tolist()}: wrong coordinates or wrong file?", field=fld)
+    if base_spp is not None and not src.startswith("header"):
+        z = base_spp_disagreement(base, base_spp)
+        if z > 5.0:
+            raise InputError(f"base position ({src}) is {d_spp:.1f} m from the base's own SPP position "
+                             f"{np.round(base_spp, 1).tolist()} ({z:.1f} sigma of a static SPP's "
+                             f"{BASE_SPP_SIGMA_M[0]:g} m horizontal / {BASE_SPP_SIGMA_M[1]:g} m vertical): every rover "
+                             "position would be off by as much with a millimetre sigma; wrong coordinates, another "
+                             "datum or epoch, or a height above the marker?", field=fld)
+        if z > 3.0:
+            warnings.append(f"base position ({src}) is {d_spp:.1f} m from the base's own SPP ({z:.1f} sigma): check "
+                            "its coordinates; an error there goes into every rover position")
     return BaseInput(base_rx, base, src, base_spp, d_spp, warnings)
+
+
+# a static receiver's SPP averaged over its file: broadcast orbit, clock and ionosphere errors do not average out
+BASE_SPP_SIGMA_M = (1.5, 3.0)              # horizontal, vertical (m, 1 sigma)
+
+
+def base_spp_disagreement(base_ecef: np.ndarray, spp_ecef: np.ndarray) -> float:
+    """How many sigmas of a static SPP (`BASE_SPP_SIGMA_M`, local level) a given base position is from the base's
+    own SPP: the norm of the local east/north/up difference scaled per axis."""
+    lat, lon, _ = ecef_to_geodetic(spp_ecef)
+    d = R_ecef_to_enu(lat, lon) @ (np.asarray(base_ecef, float) - np.asarray(spp_ecef, float))
+    sh, sv = BASE_SPP_SIGMA_M
+    return float(np.sqrt((d[0] / sh) ** 2 + (d[1] / sh) ** 2 + (d[2] / sv) ** 2))
 
 
 def run_ppk(opts: PosOptions) -> PpkRun:

@@ -60,3 +60,26 @@ def test_header_position_warns_and_geodetic_position_matches(shared_data, tmp_pa
     s2 = json.loads((out2 / "gnss_summary.json").read_text())
     np.testing.assert_allclose(s2["base_ecef_m"], BASE_ECEF, atol=1e-3)
     assert s2["warnings"] == [] and s2["fix_rate"] >= 0.8 and s2["error_fixed"]["rms_3d_m"] < 0.02
+
+
+def test_a_base_position_metres_off_is_refused_or_warned(shared_data, tmp_path, capsys):
+    """A base 10 m east of its coordinates would put every rover position 10 m off with millimetre sigmas: refused
+    (one line naming --base-position and the sigma of the base's own SPP); 6 m is a warning; the real 3034 base's
+    published coordinates (2 m from its SPP) pass silently."""
+    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.fields.frames import R_ecef_to_enu
+    lat, lon, _ = ecef_to_geodetic(np.array(BASE_ECEF))
+    east = R_ecef_to_enu(lat, lon)[0]
+    out = tmp_path / "ten"
+    assert main(_args(shared_data, out, None, "--base-position", *map(str, np.array(BASE_ECEF) + 10.0 * east),
+                      "--no-report")) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--base-position" in err and "sigma" in err and "SPP" in err
+    assert not out.exists()
+    out = tmp_path / "six"
+    assert main(_args(shared_data, out, None, "--base-position", *map(str, np.array(BASE_ECEF) + 6.0 * east),
+                      "--no-report")) == 0
+    assert "warning" in capsys.readouterr().err
+    assert json.loads((out / "gnss_summary.json").read_text())["warnings"]
+    assert main(_args(shared_data, tmp_path / "ok", None, "--base-position", *map(str, BASE_ECEF), "--no-report")) == 0
+    assert "warning" not in capsys.readouterr().err
