@@ -538,6 +538,29 @@ def add_atmosphere_budget(sol: NavSolution, problem: Problem) -> None:
     sol.info["atmosphere_budget_m"] = np.sqrt(np.median(np.einsum("kii->ki", P), axis=0)).round(4).tolist()
 
 
+# share of the accelerometer triad's misalignment variance left in roll and pitch: the tilt it causes (gravity seen
+# leaning) looks much like an accelerometer bias, which the smoother estimates, so most of it is taken up there. The
+# share is calibrated on simulated flights with carrier phase, where roll and pitch are otherwise known to a
+# hundredth of a degree (a misaligned ADIS16488-class IMU, 20 flights: roll/pitch error/sigma RMS 1.38/1.34 without,
+# 1.01/0.92 with it; the whole variance would make them 0.65/0.68). Code-only TC and LC, whose roll/pitch sigmas are
+# larger, are left as they were (their attitude sigmas are conservative already)
+TILT_SHARE = 1.0 / 3.0
+
+
+def add_tilt_budget(sol: NavSolution, noise: ImuErrorModel) -> None:
+    """Add the tilt an accelerometer triad's misalignment leaves in roll and pitch (its z axis leaning towards x or
+    y by `accel_misalign_sigma`, rad: no GNSS sees it), `TILT_SHARE` of its variance, to the keyframes' rotation
+    variances about body x and y (TC with carrier phase)."""
+    s2 = TILT_SHARE * float(noise.accel_misalign_sigma) ** 2
+    if s2 <= 0:
+        return
+    for C in (sol.cov_pose, sol.cov_block):
+        if C is not None:
+            C[:, 0, 0] += s2
+            C[:, 1, 1] += s2
+    sol.info["tilt_budget_deg"] = round(float(np.degrees(np.sqrt(s2))), 4)
+
+
 def solution_values(sol: NavSolution, problem: Problem):
     """gtsam Values holding the states of a NavSolution (keys as in the problem)."""
     vals = gtsam.Values()
@@ -782,6 +805,7 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         add_marginals(sol, problem, values, rows, P)
         if problem.dd and problem.carrier is not None:
             add_atmosphere_budget(sol, problem)
+            add_tilt_budget(sol, noise)
     sol.info["timing"] = {k: round(v, 2) for k, v in timing.items()}
     sol.problem, sol.values, sol.rows = problem, values, rows
     return sol
