@@ -29,10 +29,9 @@ from dgcal.pos.gnss.carrier import write_rinex_carrier
 from dgcal.pos.gnss.rinex import write_rinex_obs
 from dgcal.pos.ins.error_model import imu_grade as grade_of
 from dgcal.pos.ins.imu_data import write_imu_csv
-from dgcal.sim.gnss import (DEFAULT_T0_GPS, CarrierErrorModel, CodeErrorModel, load_nav, simulate_gnss,
-                           simulate_rover_base)
+from dgcal.sim.gnss import (DEFAULT_T0_GPS, CarrierErrorModel, CodeErrorModel, load_nav, simulate_gnss)
 from dgcal.sim.imu import simulate_imu
-from dgcal.sim.rover_motion import RoverPath, airframe_mask, turn_slips
+from dgcal.sim.rover_motion import RoverPath, airframe_mask, rover_base_with_turn_slips
 from dgcal.sim.trajectory import camera_events, simulate_true_trajectory
 
 
@@ -118,20 +117,15 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
         path = RoverPath(t_gnss, p_ant, v_ant, np.radians(st.rph[:, 2]), np.radians(st.rph[:, 0]),
                          np.radians(st.rph[:, 1]), np.abs(st.rph[:, 0]) > 10.0, kind)
         mask = airframe_mask(path, airframe_mask_deg) if airframe_mask_deg is not None else None
-        kw = dict(nav=nav, seed=seed + 3, errors=carrier_errors, systems=tuple(systems), n_freq=2, outages=outages,
-                  n_random_slips=n_slips, rover_mask=mask, doppler=carrier_doppler)
-        slips = []
-        if turn_slip_rate > 0:                # the slips are drawn on what the rover sees: a first run finds it
-            seen: dict = {}
-            probe_mask = (lambda el, az: seen.update(el=el, vis=mask(el, az)) or seen["vis"]) if mask is not None \
-                else (lambda el, az: seen.update(el=el, vis=np.ones(el.shape, bool)) or seen["vis"])
-            probe = simulate_rover_base(t_gnss, p_ant, v_ant, base, **{**kw, "rover_mask": probe_mask})
-            vis = seen["vis"] & (seen["el"] >= np.radians(10.0))
-            slips = turn_slips(path, seen["el"], vis, probe.rover.sats, 2, turn_slip_rate,
-                               np.random.default_rng(seed + 4))
-        csim = simulate_rover_base(t_gnss, p_ant, v_ant, base, slips=slips, half_cycle_share=half_cycle_share, **kw)
+        csim = rover_base_with_turn_slips(path, base, mask, turn_slip_rate, np.random.default_rng(seed + 4),
+                                          half_cycle_share=half_cycle_share, nav=nav, seed=seed + 3,
+                                          errors=carrier_errors, systems=tuple(systems), n_freq=2, outages=outages,
+                                          n_random_slips=n_slips, doppler=carrier_doppler)
     return PosSimulation(traj, imu, err, obs, nav, events, lever, outage, grade, sigma_pr, sigma_doppler,
-                         {"seed": seed, "flight": kind, "duration_s": duration_s, "rate_hz": rate_hz}, csim, outages,
+                         {"seed": seed, "flight": kind, "duration_s": duration_s, "rate_hz": rate_hz,
+                          "carrier_airframe_mask_deg": airframe_mask_deg, "carrier_turn_slip_rate": turn_slip_rate,
+                          "carrier_half_cycle_share": half_cycle_share, "carrier_doppler": carrier_doppler},
+                         csim, outages,
                          code_errors)
 
 

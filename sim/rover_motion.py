@@ -185,6 +185,26 @@ def turn_slips(path: RoverPath, el: np.ndarray, visible: np.ndarray, sats: list,
     return out
 
 
+def rover_base_with_turn_slips(path: RoverPath, base_ecef: np.ndarray, mask, slip_rate: float, rng,
+                               half_cycle_share: float = 0.0, **kw) -> CarrierSimulation:
+    """`dgcal.sim.gnss.simulate_rover_base` of the rover moving along `path` against a base at `base_ecef` (ECEF m),
+    its antenna's view limited by `mask` (None: open sky), with `turn_slips` at `slip_rate` drawn on what it sees:
+    a first run finds the visible satellites, the second adds the slips (the same seed gives the same draws). `kw`:
+    the other arguments of simulate_rover_base."""
+    slips = []
+    if slip_rate > 0:
+        seen: dict = {}
+
+        def probe_mask(el, az):
+            vis = mask(el, az) if mask is not None else np.ones(el.shape, bool)
+            seen["el"], seen["vis"] = el, vis & (el >= np.radians(kw.get("elev_mask_deg", 10.0)))
+            return vis
+        probe = simulate_rover_base(path.t, path.p_ecef, path.v_ecef, base_ecef, rover_mask=probe_mask, **kw)
+        slips = turn_slips(path, seen["el"], seen["vis"], probe.rover.sats, kw.get("n_freq", 2), slip_rate, rng)
+    return simulate_rover_base(path.t, path.p_ecef, path.v_ecef, base_ecef, rover_mask=mask, slips=slips,
+                               half_cycle_share=half_cycle_share, **kw)
+
+
 @dataclass
 class KinematicRoverSimulation:
     """A simulated kinematic rover and its base (`carrier`) with the motion (`path`) and the scenario's settings."""
@@ -222,20 +242,9 @@ def simulate_kinematic_rover(kind: str = "uav", seed: int = 0, duration_s: float
     base = LocalENU(lat0, lon0, 40.0).to_ecef(np.array([[base_distance_m * np.sin(az_b),
                                                           base_distance_m * np.cos(az_b), 0.0]]))[0]
 
-    drawn: dict = {}
-
-    def masked(el, az):
-        vis = mask(el, az)
-        drawn["el"], drawn["vis"] = el, vis & (el >= np.radians(10.0))
-        return vis
-
-    # a first run finds what the rover sees (the slips are drawn on it), the second adds them: same seed, same draws
-    probe = simulate_rover_base(t, path.p_ecef, path.v_ecef, base, nav=nav, seed=seed + 1, errors=err,
-                                systems=tuple(systems), n_freq=n_freq, rover_mask=masked, doppler=doppler)
-    slips = turn_slips(path, drawn["el"], drawn["vis"], probe.rover.sats, n_freq, slip_rate, rng)
-    sim = simulate_rover_base(t, path.p_ecef, path.v_ecef, base, nav=nav, seed=seed + 1, errors=err,
-                              systems=tuple(systems), n_freq=n_freq, rover_mask=mask, doppler=doppler, slips=slips,
-                              half_cycle_share=half_cycle_share)
+    sim = rover_base_with_turn_slips(path, base, mask, slip_rate, rng, half_cycle_share=half_cycle_share, nav=nav,
+                                     seed=seed + 1, errors=err, systems=tuple(systems), n_freq=n_freq,
+                                     doppler=doppler)
     settings = {"kind": kind, "seed": seed, "duration_s": duration_s, "rate_hz": rate_hz, "doppler": doppler,
                 "slip_rate": slip_rate, "half_cycle_share": half_cycle_share, "base_distance_m": base_distance_m,
                 "systems": list(systems), "n_freq": n_freq, "uav_kind": uav_kind if kind == "uav" else None,

@@ -26,17 +26,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: ../shared/data/rinex-sept)")
     p.add_argument("--outage-sats", type=int, default=3, help="satellites kept during the 60 s outage")
     p.add_argument("--no-carrier", action="store_true", help="no rover.rnx / base.rnx (carrier phase)")
+    p.add_argument("--airframe-mask", type=float, default=None, metavar="DEG",
+                   help="carrier: hide satellites less than DEG above the body's horizontal plane (banks mask the low "
+                   "wing's side; dgcal.sim.rover_motion)")
+    p.add_argument("--turn-slip-rate", type=float, default=0.0, metavar="P",
+                   help="carrier: slip probability per satellite and epoch while banked (one or all frequencies, half "
+                   "without LLI)")
+    p.add_argument("--half-cycles", type=float, default=0.0, metavar="SHARE",
+                   help="carrier: share of new arcs starting with an unresolved half cycle (LLI bit 1)")
+    p.add_argument("--no-doppler", action="store_true", help="carrier: a rover receiver without Doppler")
     p.add_argument("--code-errors", type=float, default=None, metavar="SCALE",
                    help="give every satellite of obs.rnx the slow error real broadcast models leave: SCALE x the "
                    "front end's budget (1: as budgeted; dgcal.sim.gnss.CodeErrorModel). Default: none (exact models)")
 
 
 def run(args: argparse.Namespace) -> int:
+    mask = args.airframe_mask if args.airframe_mask is not None else 0.0
+    for name, v, lo, hi in (("--turn-slip-rate", args.turn_slip_rate, 0.0, 1.0),
+                            ("--half-cycles", args.half_cycles, 0.0, 1.0), ("--airframe-mask", mask, -90.0, 90.0)):
+        if not lo <= v <= hi:
+            raise InputError(f"must be within {lo:g}..{hi:g}, not {v}", field=name)
     try:
         sim = simulate_pos(seed=args.seed, duration_s=args.duration, kind=args.kind, imu_grade=args.imu_grade,
                            rate_hz=args.rate, lever_arm_b=args.lever_arm, nav=args.nav,
                            outage_sats=args.outage_sats, carrier=not args.no_carrier,
-                           code_errors=None if args.code_errors is None else CodeErrorModel(scale=args.code_errors))
+                           code_errors=None if args.code_errors is None else CodeErrorModel(scale=args.code_errors),
+                           airframe_mask_deg=args.airframe_mask, turn_slip_rate=args.turn_slip_rate,
+                           half_cycle_share=args.half_cycles, carrier_doppler=not args.no_doppler)
     except ValueError as exc:  # an unknown IMU grade
         raise InputError(str(exc), field="--imu-grade") from None
     write_pos_dataset(args.out, sim)

@@ -114,3 +114,18 @@ def test_no_report_in_every_mode(dataset, tmp_path):
                  *map(str, t["lever_arm_gnss_m"]), "--out", str(lc), "--no-progress", "--no-report"]) == 0
     names = {p.name for p in lc.iterdir()}
     assert "trajectory.csv" in names and "report.html" not in names
+
+
+def test_simulate_pos_as_an_airframe_sees_the_sky(tmp_path, capsys):
+    """`dgcal simulate pos` options of issue 26: airframe mask, slips while banked, half cycles, no Doppler; refused
+    out of range."""
+    d = tmp_path / "air"
+    assert main(["simulate", "pos", "--out", str(d), "--seed", "1", "--duration", "150", "--rate", "50",
+                 "--airframe-mask", "10", "--turn-slip-rate", "0.02", "--half-cycles", "0.5", "--no-doppler"]) == 0
+    t = json.loads((d / "truth.json").read_text())
+    assert t["carrier_airframe_mask_deg"] == 10.0 and t["carrier_doppler"] is False
+    ro = carrier_observations(read_obs_file(d / "rover.rnx"), "GE", 2)
+    assert not np.isfinite(ro.D).any() and ((ro.lli & 2) > 0).any()
+    assert len(t["carrier"]["slips"]) > t.get("n_slips", 6)          # the random ones and those drawn in banks
+    assert main(["simulate", "pos", "--out", str(tmp_path / "bad"), "--half-cycles", "2"]) == 2
+    assert "--half-cycles" in capsys.readouterr().err and not (tmp_path / "bad").exists()
