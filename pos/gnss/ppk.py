@@ -29,8 +29,8 @@ above the AR mask (no half cycle, `min_lock`): full set, else a partial set; **a
 ratio test passes, (2) the ambiguity float-to-fixed distance and (3) the position shift are within their
 chi-square quantiles (1 - alpha) with the slow phase errors added, and (4) the DD phase residuals of the fixed
 solution pass a chi-square test with no residual beyond ``outlier_w`` sigma; otherwise the epoch is float. An
-arc's integer is held once ``hold_after`` fixes in a row gave it. The backward pass is the same run in reverse time;
-``combine`` merges the two per epoch, float covariances calibrated on the epochs both passes fix.
+arc's integer is held once ``hold_after`` validated fixes gave it alike. The backward pass is the same run in
+reverse time; ``combine`` merges the two per epoch, float covariances calibrated on the epochs both passes fix.
 """
 from __future__ import annotations
 
@@ -70,7 +70,7 @@ class PpkOptions:
     min_fix_amb: int = 4
     min_lock: int = 0                     # epochs an arc must have been tracked before its ambiguity is fixed
     hold: bool = True                     # hold the integers of validated fixes (not fed back into the float)
-    hold_after: int = 3                   # fixes in a row that must give an arc's integer before it is held
+    hold_after: int = 3                   # validated fixes that must give an arc's integer alike before it is held
     alpha: float = 1e-3                   # false-alarm probability of the validation tests
     pos_sigma_m: float = 30.0             # prior sigma of the first position (and after a gap)
     vel_sigma_mps: float = 30.0           # kinematic: prior sigma of the first velocity (and after a gap)
@@ -795,7 +795,8 @@ class _Pass:
     def _keep_integers(self, xf, Pf, sat, ref, slot) -> None:
         """Hold the integers a validated fix determined: per system and slot, every satellite whose SD ambiguity
         against a pivot (a held satellite of the group, else the reference) is within 0.15 cycle of an integer with
-        a sigma under 0.05 cycle; an integer is held once ``hold_after`` fixes in a row gave it."""
+        a sigma under 0.05 cycle; an integer is held once ``hold_after`` validated fixes gave it alike (a fix giving
+        another value starts the count again)."""
         e, o = self.e, self.e.opts
         for g_sys, f in {(int(e.sys_id[r]), int(s)) for r, s in zip(ref, slot)}:
             in_g = (e.sys_id[ref] == g_sys) & (slot == f)
@@ -812,7 +813,7 @@ class _Pass:
                 self.n_conf[pivot, f] = o.hold_after
             ip = self.idx(pivot, f)
             for i in mem:
-                if i == pivot:
+                if i == pivot or self.known[i, f]:
                     continue
                 a = self.idx(i, f)
                 d = xf[a] - xf[ip]
@@ -821,8 +822,6 @@ class _Pass:
                 if var > 0.05 ** 2 or abs(d - n) > 0.15:
                     continue
                 val = int(self.K[pivot, f]) + n
-                if self.known[i, f]:
-                    continue
                 self.n_conf[i, f] = self.n_conf[i, f] + 1 if self.K_cand[i, f] == val else 1
                 self.K_cand[i, f] = val
                 if self.n_conf[i, f] >= o.hold_after:
