@@ -916,7 +916,8 @@ def ppk(rover: CarrierObs, base: CarrierObs, nav: BroadcastNav, base_pos_ecef, o
         if fw is not None and np.any(fw.status >= 2):
             pe = fw.p[np.nonzero(fw.status >= 2)[0][-1]]
         bw = _Pass(eng, np.arange(N)[::-1], pe).run()
-    info = {}
+    info = {"ionosphere_estimated": bool(np.linalg.norm(p0 - eng.base_pos) > 1e3 * opts.iono_est_km),
+            "baseline_m": float(np.linalg.norm(p0 - eng.base_pos))}
     if fw is not None and bw is not None:
         status, p, P, ratio, n_sat, n_fix, factors = combine(fw, bw, opts.alpha)
         info["float_variance_factors"] = {"forward": factors[0], "backward": factors[1]}
@@ -988,6 +989,8 @@ def ppk_summary(res: PpkResult, reference_ecef: np.ndarray | None = None) -> dic
     for name, p in (("forward", res.forward), ("backward", res.backward)):
         if p is not None:
             out[f"{name}_fixed"] = int(np.sum(p.status == 3))
+            # fixes made by the held integers alone report no ambiguity test (NaN): LAMBDA was not needed
+            out[f"{name}_fixed_by_held_integers"] = int(np.sum((p.status == 3) & np.isnan(p.chi2[:, 0])))
             reasons: dict[str, int] = {}
             for k in np.nonzero(p.status == 2)[0]:
                 reasons[p.reason[k] or "float"] = reasons.get(p.reason[k] or "float", 0) + 1
@@ -1010,4 +1013,5 @@ def ppk_summary(res: PpkResult, reference_ecef: np.ndarray | None = None) -> dic
                                     "rms_enu_m": np.sqrt(np.mean(e ** 2, axis=0)).tolist()}
     o = res.options
     out["options"] = {k: getattr(o, k) for k in o.__dataclass_fields__}
+    out["engine"] = dict(res.info)          # baseline, ionosphere estimated or not, float variance factors
     return out
