@@ -21,7 +21,7 @@ from dgcal.fields.errors import InputError, ResultError
 from dgcal.fields.frames import R_ecef_to_enu, R_ecef_to_ned
 from dgcal.fields.processes import fork_map
 from dgcal.pos.gnss.carrier import carrier_observations
-from dgcal.pos.gnss.dd import DDOptions, carrier_front_end
+from dgcal.pos.gnss.dd import DDOptions, carrier_front_end, imu_aided_front_end
 from dgcal.pos.gnss.observations import GnssObservations
 from dgcal.pos.gnss.ppk import PpkOptions, PpkResult, ppk, ppk_summary
 from dgcal.pos.gnss.rinex import calendar_from_gps_seconds, read_rinex_nav, read_rinex_obs
@@ -122,6 +122,15 @@ def tc_epochs(raw, nav, spp_sol, opts):
                             signals=raw.signals, source=raw.source)
 
 
+def antenna_track(sol, lever_arm_b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The GNSS antenna of a smoothed solution at its keyframes: (t GPS s, ECEF m (K,3), 3D position sigma m (K,))
+    (the IMU position's covariance; the lever arm's attitude part is millimetres)."""
+    R = sol.R_body_to_nav
+    p_nav = sol.p_nav + np.einsum("kij,j->ki", R, np.asarray(lever_arm_b, float))
+    sig = np.sqrt(np.einsum("kii->k", sol.cov_p_nav)) if sol.cov_pose is not None else np.full(len(sol.t), np.inf)
+    return sol.t, sol.frame.to_ecef(p_nav), sig
+
+
 def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_opts=None,
             lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool | str = True,
             smoother_opts=None, progress: bool = False, carrier: tuple | None = None,
@@ -193,6 +202,15 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     sol = smooth(imu, fixes, grade, opts, mode=mode, gnss=gnss, lc_fixes=lc_fixes,
                  carrier=fe.input if fe is not None else None)
     timing["smoother_s"] = time.perf_counter() - t0
+    if fe is not None and opts.covariances:
+        # IMU-aided integers: where PPK stayed float, the smoother's antenna positions vote for the arcs' integers;
+        # arcs that gain one make the smoother run again with them
+        t0 = time.perf_counter()
+        aided = imu_aided_front_end(fe, *antenna_track(sol, lever_arm_b), dd_opts)
+        if aided is not None:
+            fe = aided
+            sol = smooth(imu, fixes, grade, opts, mode=mode, gnss=gnss, lc_fixes=lc_fixes, carrier=fe.input)
+        timing["imu_aided_integers_s"] = time.perf_counter() - t0
 
     def forward_pass():
         t0 = time.perf_counter()

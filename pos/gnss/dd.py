@@ -22,7 +22,7 @@ that of the differencing of zero-difference errors ``sigma0^2 (1/2 + 1/(2 sin^2 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -439,6 +439,38 @@ class CarrierFrontEnd:
     integers: ArcIntegers
     input: CarrierInput
     info: dict = field(default_factory=dict)
+
+
+def imu_aided_front_end(fe: CarrierFrontEnd, t_gps: np.ndarray, p_ecef: np.ndarray, sigma_3d_m: np.ndarray,
+                        dd_opts: DDOptions | None = None, max_sigma_m: float = 0.015) -> CarrierFrontEnd | None:
+    """IMU-aided integers: the arcs' integers voted again with the smoother's antenna positions (`t_gps` s, ECEF m,
+    3D sigma m) as fixed positions wherever PPK stayed float and the smoother knows the antenna within
+    `max_sigma_m` (a tenth of a wavelength: the IMU carries the position through what PPK alone could not fix).
+    Returns the front end with the new integers and double differences (modelled at those positions), or None
+    when no arc gained an integer."""
+    o = dd_opts or DDOptions()
+    if fe.integers is None or not o.use_phase:
+        return None
+    res, pair = fe.ppk, fe.ppk.pair
+    j = np.clip(np.searchsorted(t_gps, pair.t - 1e-3), 0, max(len(t_gps) - 1, 0))
+    near = (np.abs(t_gps[j] - pair.t) < 1e-3) if len(t_gps) else np.zeros(len(pair.t), bool)
+    add = near & (res.status < 3) & (sigma_3d_m[j] < max_sigma_m) & np.all(np.isfinite(p_ecef[j]), axis=1)
+    if not add.any():
+        return None
+    status, p = res.status.copy(), res.p.copy()
+    status[add], p[add] = 3, p_ecef[j[add]]
+    amb = arc_integers(pair, replace(res, status=status, p=p), o)
+    if len(amb.root) <= len(fe.integers.root) or amb.info["conflicts"] > fe.integers.info["conflicts"]:
+        return None
+    # modelled at the smoother's antenna (PPK's position elsewhere: epochs the smoother does not use)
+    p_lin = np.where(near[:, None], p_ecef[j], res.p)
+    epochs = dd_epochs(pair, amb, p_lin, o)
+    info = {**fe.info, "imu_aided": {"epochs": int(add.sum()), "arcs_before": len(fe.integers.root),
+                                     "arcs_after": len(amb.root)}, "integers": amb.info,
+            "epochs_with_fixed_phase": int(sum(e is not None and bool(np.any((e.kind == 0) & (e.mode == 0)))
+                                               for e in epochs))}
+    ci = CarrierInput(pair.t.copy(), epochs, fe.input.phase_corr, fe.input.code_corr, fe.input.atmosphere)
+    return CarrierFrontEnd(res, amb, ci, info)
 
 
 def carrier_front_end(rover: CarrierObs, base: CarrierObs, nav, base_ecef, p_approx: tuple[np.ndarray, np.ndarray],
