@@ -122,15 +122,6 @@ def tc_epochs(raw, nav, spp_sol, opts):
                             signals=raw.signals, source=raw.source)
 
 
-def antenna_track(sol, lever_arm_b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The GNSS antenna of a smoothed solution at its keyframes: (t GPS s, ECEF m (K,3), 3D position sigma m (K,))
-    (the IMU position's covariance; the lever arm's attitude part is millimetres)."""
-    R = sol.R_body_to_nav
-    p_nav = sol.p_nav + np.einsum("kij,j->ki", R, np.asarray(lever_arm_b, float))
-    sig = np.sqrt(np.einsum("kii->k", sol.cov_p_nav)) if sol.cov_pose is not None else np.full(len(sol.t), np.inf)
-    return sol.t, sol.frame.to_ecef(p_nav), sig
-
-
 def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_opts=None,
             lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool | str = True,
             smoother_opts=None, progress: bool = False, carrier: tuple | None = None,
@@ -283,6 +274,13 @@ def antenna_ecef(sol, lever_arm_b) -> np.ndarray:
     """Antenna positions (K,3) ECEF m of a smoother solution's keyframes (IMU pose + lever arm)."""
     p_nav = sol.p_nav + np.einsum("kij,j->ki", sol.R_body_to_nav, np.asarray(lever_arm_b, float))
     return sol.frame.to_ecef(p_nav)
+
+
+def antenna_track(sol, lever_arm_b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The GNSS antenna of a smoothed solution at its keyframes: (t GPS s, ECEF m (K,3) of `antenna_ecef`, 3D position
+    sigma m (K,): the IMU position's covariance; the lever arm's attitude part is millimetres)."""
+    sig = np.sqrt(np.einsum("kii->k", sol.cov_p_nav)) if sol.cov_pose is not None else np.full(len(sol.t), np.inf)
+    return sol.t, antenna_ecef(sol, lever_arm_b), sig
 
 
 def carrier_summary(res: PosResult) -> dict:
