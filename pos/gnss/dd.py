@@ -441,6 +441,11 @@ class CarrierFrontEnd:
     info: dict = field(default_factory=dict)
 
 
+def _fixed_phase_epochs(epochs: list) -> int:
+    """Rover epochs with at least one double-difference phase row of known integers."""
+    return int(sum(e is not None and bool(np.any((e.kind == 0) & (e.mode == 0))) for e in epochs))
+
+
 def imu_aided_front_end(fe: CarrierFrontEnd, t_gps: np.ndarray, p_ecef: np.ndarray, sigma_3d_m: np.ndarray,
                         dd_opts: DDOptions | None = None, max_sigma_m: float = 0.015) -> CarrierFrontEnd | None:
     """IMU-aided integers: the arcs' integers voted again with the smoother's antenna positions (`t_gps` s, ECEF m,
@@ -467,8 +472,7 @@ def imu_aided_front_end(fe: CarrierFrontEnd, t_gps: np.ndarray, p_ecef: np.ndarr
     epochs = dd_epochs(pair, amb, p_lin, o)
     info = {**fe.info, "imu_aided": {"epochs": int(add.sum()), "arcs_before": len(fe.integers.root),
                                      "arcs_after": len(amb.root)}, "integers": amb.info,
-            "epochs_with_fixed_phase": int(sum(e is not None and bool(np.any((e.kind == 0) & (e.mode == 0)))
-                                               for e in epochs))}
+            "epochs_with_fixed_phase": _fixed_phase_epochs(epochs)}
     ci = CarrierInput(pair.t.copy(), epochs, fe.input.phase_corr, fe.input.code_corr, fe.input.atmosphere)
     return CarrierFrontEnd(res, amb, ci, info)
 
@@ -500,8 +504,7 @@ def carrier_front_end(rover: CarrierObs, base: CarrierObs, nav, base_ecef, p_app
             "integers": amb.info if amb is not None else None,
             "epochs_with_dd": int(sum(e is not None for e in epochs)),
             "epochs_with_phase": int(sum(e is not None and bool(np.any(e.kind == 0)) for e in epochs)),
-            "epochs_with_fixed_phase": int(sum(e is not None and bool(np.any((e.kind == 0) & (e.mode == 0)))
-                                               for e in epochs))}
+            "epochs_with_fixed_phase": _fixed_phase_epochs(epochs)}
     ci = CarrierInput(pair.t.copy(), epochs, (o.phase_corr_s, o.phase_corr_share), (o.code_corr_s, o.code_corr_share),
                       (o.iono_ppm, o.tropo_zenith_m))
     return CarrierFrontEnd(res, amb, ci, info)
