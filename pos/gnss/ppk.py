@@ -274,6 +274,11 @@ class _Rows:
     slot: np.ndarray
 
 
+def estimates_ionosphere(p_rover, base_pos, opts: PpkOptions) -> bool:
+    """Whether a pass starting at `p_rover` (ECEF m) estimates the ionosphere: baseline beyond `iono_est_km`."""
+    return bool(np.linalg.norm(np.asarray(p_rover, float) - np.asarray(base_pos, float)) > 1e3 * opts.iono_est_km)
+
+
 class _Pass:
     """One EKF pass over the rover epochs in the given order."""
 
@@ -282,7 +287,7 @@ class _Pass:
         m, F = len(eng.sats), eng.F
         # states: position, velocity (NK), the slant single-difference ionosphere at L1 per satellite (m, when
         # estimated) from `iono0`, the SD ambiguities (cycles) from `amb0`
-        self.iono_est = bool(np.linalg.norm(np.asarray(p_init, float) - eng.base_pos) > 1e3 * eng.opts.iono_est_km)
+        self.iono_est = estimates_ionosphere(p_init, eng.base_pos, eng.opts)
         self.iono0 = NK if self.iono_est else -1
         self.amb0 = NK + (m if self.iono_est else 0)
         self.iono_on = np.zeros(m, dtype=bool)
@@ -299,7 +304,7 @@ class _Pass:
         self.lock = np.zeros((m, F), dtype=int)
         # held integers (fix and hold, not fed back into the float state): per satellite and slot, whether its SD
         # ambiguity minus that of its group's other held satellites is a known integer, K the integer against the
-        # group's common origin; candidates confirmed by `hold_after` fixes in a row
+        # group's common origin; a candidate is held once `hold_after` validated fixes gave it alike
         self.known = np.zeros((m, F), dtype=bool)
         self.K = np.zeros((m, F), dtype=np.int64)
         self.K_cand = np.zeros((m, F), dtype=np.int64)
@@ -315,7 +320,7 @@ class _Pass:
         # slow errors make them (taken as white, they converge to a few millicycles and LAMBDA's ratio collapses
         # on the slow error's 0.05-0.1 cycle offsets)
         tau = eng.opts.phase_bias_tau_s
-        self.q_amb = (2.0 * self.var_bias / tau if tau > 0 else 0.0 * self.var_bias) + eng.opts.amb_q_cycles2_s
+        self.q_amb = (2.0 * self.var_bias / tau if tau > 0 else np.zeros(self.n)) + eng.opts.amb_q_cycles2_s
         # variance factors (phase, code) of the zenith sigmas from the post-fit residuals: a car's or a UAV's
         # antenna sees more multipath than the options' static figures, and the filter must say so (never below 1)
         self.vf = np.ones(2)
@@ -916,7 +921,7 @@ def ppk(rover: CarrierObs, base: CarrierObs, nav: BroadcastNav, base_pos_ecef, o
         if fw is not None and np.any(fw.status >= 2):
             pe = fw.p[np.nonzero(fw.status >= 2)[0][-1]]
         bw = _Pass(eng, np.arange(N)[::-1], pe).run()
-    info = {"ionosphere_estimated": bool(np.linalg.norm(p0 - eng.base_pos) > 1e3 * opts.iono_est_km),
+    info = {"ionosphere_estimated": estimates_ionosphere(p0, eng.base_pos, opts),
             "baseline_m": float(np.linalg.norm(p0 - eng.base_pos))}
     if fw is not None and bw is not None:
         status, p, P, ratio, n_sat, n_fix, factors = combine(fw, bw, opts.alpha)
