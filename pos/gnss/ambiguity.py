@@ -24,8 +24,8 @@ LOOP_MAX = 100000
 
 
 def gesv(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``np.linalg.solve(A, B)`` by LAPACK's dgesv called directly: the same LU factorisation and results,
-    without NumPy's per-call overhead (which is most of the time of the filter's small systems)."""
+    """``np.linalg.solve(A, B)`` by LAPACK's dgesv called directly (the same LU factorisation; bits may differ
+    between numpy's and scipy's LAPACK builds), without NumPy's per-call overhead (most of the filter's time)."""
     _lu, _piv, X, info = dgesv(A, B)
     if info > 0:
         raise np.linalg.LinAlgError("singular matrix")

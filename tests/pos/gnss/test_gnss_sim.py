@@ -112,7 +112,6 @@ def test_cli_simulate_then_pos_end_to_end(tmp_path):
 
 def test_rtklib_reads_simulated_rinex_without_bias(nav, tmp_path):
     """An independent implementation (RTKLIB pntpos) positions our simulated RINEX near the truth."""
-    pytest.importorskip("pyrtklib")
     from dgcal.pos.gnss.rinex import write_rinex_obs
     from dgcal.sim.gnss import DEFAULT_NAV
     from dgcal.pos.gnss.rtklib import rtklib_pntpos

@@ -41,7 +41,6 @@ def test_real_spp_within_3m(real_sol):
 
 
 def test_real_spp_side_by_side_with_rtklib(real_sol, shared_data):
-    pytest.importorskip("pyrtklib")
     from dgcal.pos.gnss.rtklib import rtklib_pntpos
     t, p = rtklib_pntpos(str(shared_data / OBS), str(shared_data / NAV))
     assert len(t) == 60

@@ -70,7 +70,7 @@ def test_slips_flagged_and_unflagged_are_handled():
 
 
 def test_lambda_matches_cssrlib_and_decorrelates():
-    mlambda = pytest.importorskip("cssrlib.mlambda").mlambda
+    from cssrlib.mlambda import mlambda  # a required dependency
     rng = np.random.default_rng(7)
     for _ in range(60):
         n = int(rng.integers(2, 20))
@@ -97,14 +97,18 @@ def test_lambda_matches_cssrlib_and_decorrelates():
 
 
 def test_gesv_and_fixed_solution_are_the_numpy_algebra():
-    """`gesv` is np.linalg.solve without its overhead (same LAPACK call, same bits, LinAlgError when singular);
+    """`gesv` solves as np.linalg.solve does, without its overhead (LinAlgError when singular);
     `fixed_solution` conditions the float state on the fix, its chi-square optionally with extra state variances."""
     from dgcal.pos.gnss.ambiguity import AmbiguityFix, fixed_solution, gesv
     rng = np.random.default_rng(1)
     for n, k in ((3, 1), (30, 39), (60, 1)):
         A = rng.normal(size=(n, n))
         B = rng.normal(size=(n, k)) if k > 1 else rng.normal(size=n)
-        assert np.array_equal(gesv(A @ A.T + np.eye(n), B), np.linalg.solve(A @ A.T + np.eye(n), B))
+        S = A @ A.T + np.eye(n)
+        X = gesv(S, B)
+        assert X.shape == np.shape(B)
+        # results, not bits: numpy's and scipy's LAPACK builds may differ by a release
+        np.testing.assert_allclose(S @ X, B, rtol=0, atol=1e-9 * np.abs(B).max() * np.linalg.cond(S))
     with pytest.raises(np.linalg.LinAlgError):
         gesv(np.zeros((3, 3)), np.ones(3))
     n = 6

@@ -14,7 +14,6 @@ from dgcal.pos.gnss.carrier import carrier_observations
 from dgcal.pos.gnss.rinex_obs import read_obs_file
 from dgcal.pos.ins.interpolate import interpolate_trajectory
 
-pytest.importorskip("gtsam")
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,6 @@ from dgcal.pos.gnss.spp import SppOptions
 from dgcal.pos.pipeline import fixes_from_ppk, process
 from dgcal.sim.pos import navigation_errors, simulate_pos
 
-pytest.importorskip("gtsam")
 
 
 def rms(x, axis=0):

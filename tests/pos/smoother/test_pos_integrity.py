@@ -15,7 +15,6 @@ import json
 import numpy as np
 import pytest
 
-pytest.importorskip("gtsam")
 
 from dgcal.fields.crs import geodetic_to_ecef  # noqa: E402
 from dgcal.fields.errors import ResultError  # noqa: E402

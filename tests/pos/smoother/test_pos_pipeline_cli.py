@@ -6,7 +6,6 @@ import json
 import numpy as np
 import pytest
 
-pytest.importorskip("gtsam")
 
 from dgcal.fields.errors import InputError  # noqa: E402
 from dgcal.fields.io.formats import read_trajectory  # noqa: E402

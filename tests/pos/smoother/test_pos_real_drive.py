@@ -24,7 +24,6 @@ from dgcal.pos.ins.imu_formats import imu_format, read_imu
 from dgcal.pos.pipeline import antenna_ecef, fixes_from_solution, process
 from dgcal.pos.smoother.batch import SmootherOptions
 
-pytest.importorskip("gtsam")
 
 # TDK ICM-45686 as configured by the data's author (drive_config.py): noise PSDs 0.0038 deg/s/rtHz and
 # 70 ug/rtHz, bias random walks 3.8e-5 deg/s/rtHz and 7 ug/rtHz; turn-on 0.1 deg/s and 10 mg; consumer-class

@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("gtsam")
 
 
 def _lc_run(grade_name: str, seed: int):

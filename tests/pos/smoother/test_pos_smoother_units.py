@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-gtsam = pytest.importorskip("gtsam")
+import gtsam  # a required dependency: missing is an error, not a skip
 
 from dgcal.fields.constants import C_LIGHT  # noqa: E402
 from dgcal.pos.gnss.observations import GnssEpoch  # noqa: E402

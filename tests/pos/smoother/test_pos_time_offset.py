@@ -4,7 +4,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("gtsam")
 
 from dgcal.pos.smoother.time_offset import estimate_time_offset, parabola_vertex, shifted_imu  # noqa: E402
 
