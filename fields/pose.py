@@ -1,16 +1,20 @@
 """The one pose type of dgcal: camera (or body) orientations and positions in the world frame of a problem.
 
-Convention (docs/conventions.md, "Poses"):
-- `R_world_to_cam` (N,3,3) takes world vectors into camera axes (x right, y down, z forward):
-  `X_cam = R_world_to_cam @ (X_world - C_world)`.
-- `C_world` (N,3): projection centre (or body origin) in the world frame, m.
-- A pose error or update `d = [dC (3, m, world axes), dtheta (3, rad, camera axes)]` acts as
-  `C <- C + dC`, `R_cam_to_world <- R_cam_to_world @ Exp(dtheta)`
-  (equivalently `R_world_to_cam <- Exp(-dtheta) @ R_world_to_cam`): a right perturbation of the
-  camera-to-world rotation, the rule of gtsam's Rot3 and of the mounting residuals.
+Convention (docs/conventions.md, "Poses"): `Poses(R_world_to_cam, C_world, cov, frame)`, a rigid transform
+world -> `frame` (COLMAP's `cam_from_world`, with the frame's name):
+- `frame` is "cam" (the camera: x right, y down, z forward; the default) or "body" (the IMU body, FRD);
+- `R_world_to_cam` (N,3,3) takes world vectors into the frame's axes (the stored name is the camera's; for any
+  frame `R_world_to_frame`, for a body pose `R_world_to_body`): `X_cam = R_world_to_cam @ (X_world - C_world)`;
+- `C_world` (N,3): projection centre (camera) or IMU origin (body) in the world frame, m.
+- A pose error or update `d = [dC (3, m, world axes), dtheta (3, rad, the frame's axes)]` acts as
+  `C <- C + dC`, `R_cam_to_world <- R_cam_to_world @ Exp(dtheta)` (body: `R_body_to_world <- R_body_to_world
+  @ Exp(dtheta)`; equivalently `R_world_to_frame <- Exp(-dtheta) @ R_world_to_frame`): a right perturbation of
+  the frame-to-world rotation, the rule of gtsam's Rot3, of the POS covariances (`World.pos_covariance_to_world`)
+  and of the mounting residuals.
 - Covariances are (N,6,6) in the order [C_world (m), dtheta (rad)].
 The world is the one Cartesian frame of a problem: a local ENU frame at the block for aerial work
-(`dgcal.fields.world`), the target field's frame for camera calibration.
+(`dgcal.fields.world`), the target field's frame for camera calibration. A camera on a body is the body pose
+`mounted` with lever arm and boresight.
 """
 from __future__ import annotations
 
@@ -20,6 +24,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dgcal.fields.frames import skew
+
+FRAMES = ("cam", "body")   # what a pose orients: a camera (x right, y down, z forward) or the IMU body (FRD)
 
 
 def so3_exp(v: np.ndarray) -> np.ndarray:
@@ -75,13 +81,22 @@ def numeric_rot_jacobian(fun, x0: np.ndarray, R0: np.ndarray, step: float = 1e-6
 
 @dataclass
 class Poses:
-    """N poses in one world frame, with optional (N,6,6) covariances [C_world (m), dtheta (rad)]."""
+    """N poses of one frame (`frame`: "cam", a camera, or "body", the IMU body) in one world frame, with optional
+    (N,6,6) covariances [C_world (m), dtheta (rad, the frame's axes)].
+
+    `R_world_to_cam` is the stored rotation, world -> the pose's frame, whatever the frame (the name is the
+    camera's, kept for compatibility); `R_world_to_frame` / `R_frame_to_world` say it for any frame,
+    `R_world_to_body` / `R_body_to_world` for body poses, `R_cam_to_world` for camera poses (each refuses the
+    other frame)."""
 
     R_world_to_cam: np.ndarray
     C_world: np.ndarray
     cov: np.ndarray | None = None
+    frame: str = "cam"
 
     def __post_init__(self) -> None:
+        if self.frame not in FRAMES:
+            raise ValueError(f"a pose's frame is one of {FRAMES}, not {self.frame!r}")
         self.R_world_to_cam = np.asarray(self.R_world_to_cam, float).reshape(-1, 3, 3)
         self.C_world = np.asarray(self.C_world, float).reshape(-1, 3)
         if self.cov is not None:
@@ -91,45 +106,110 @@ class Poses:
         return len(self.C_world)
 
     def __getitem__(self, idx) -> "Poses":
-        return Poses(self.R_world_to_cam[idx], self.C_world[idx], None if self.cov is None else self.cov[idx])
+        return Poses(self.R_world_to_cam[idx], self.C_world[idx], None if self.cov is None else self.cov[idx],
+                     self.frame)
+
+    def _need(self, frame: str) -> None:
+        if self.frame != frame:
+            raise ValueError(f"these are {self.frame} poses, not {frame} poses")
+
+    # --- rotations ---------------------------------------------------------------------------
+    @property
+    def R_world_to_frame(self) -> np.ndarray:
+        """(N,3,3) world vectors into the pose's frame (camera or body axes)."""
+        return self.R_world_to_cam
 
     @property
-    def R_cam_to_world(self) -> np.ndarray:
-        """(N,3,3) camera axes into the world frame."""
+    def R_frame_to_world(self) -> np.ndarray:
+        """(N,3,3) the pose's frame (camera or body axes) into the world frame."""
         return transpose(self.R_world_to_cam)
 
     @property
+    def R_cam_to_world(self) -> np.ndarray:
+        """(N,3,3) camera axes into the world frame (camera poses only)."""
+        self._need("cam")
+        return transpose(self.R_world_to_cam)
+
+    @property
+    def R_body_to_world(self) -> np.ndarray:
+        """(N,3,3) body axes (FRD) into the world frame (body poses only)."""
+        self._need("body")
+        return transpose(self.R_world_to_cam)
+
+    @property
+    def R_world_to_body(self) -> np.ndarray:
+        """(N,3,3) world vectors into body axes (body poses only)."""
+        self._need("body")
+        return self.R_world_to_cam
+
+    @property
     def t_cam(self) -> np.ndarray:
-        """(N,3) translation of `X_cam = R_world_to_cam @ X_world + t_cam`, m."""
+        """(N,3) translation of `X_cam = R_world_to_cam @ X_world + t_cam`, m (camera poses only)."""
+        self._need("cam")
         return -np.einsum("nij,nj->ni", self.R_world_to_cam, self.C_world)
 
+    # --- construction ------------------------------------------------------------------------
     @classmethod
     def from_R_t(cls, R_world_to_cam: np.ndarray, t_cam: np.ndarray, cov: np.ndarray | None = None) -> "Poses":
-        """Poses from `X_cam = R @ X_world + t` (OpenCV's rvec/tvec form)."""
+        """Camera poses from `X_cam = R @ X_world + t` (OpenCV's rvec/tvec form)."""
         R = np.asarray(R_world_to_cam, float).reshape(-1, 3, 3)
         return cls(R, -np.einsum("nji,nj->ni", R, np.asarray(t_cam, float).reshape(-1, 3)), cov)
 
     @classmethod
     def from_cam_to_world(cls, R_cam_to_world: np.ndarray, C_world: np.ndarray,
                           cov: np.ndarray | None = None) -> "Poses":
-        """Poses from camera-to-world rotations (N,3,3) and centres (N,3)."""
+        """Camera poses from camera-to-world rotations (N,3,3) and centres (N,3)."""
         return cls(transpose(np.asarray(R_cam_to_world, float)), C_world, cov)
 
-    def to_cam(self, X_world: np.ndarray, index: np.ndarray | None = None) -> np.ndarray:
-        """Camera-frame coordinates (k,3) of world points (k,3) seen by poses `index` (k,) (all poses if None)."""
+    @classmethod
+    def from_body_to_world(cls, R_body_to_world: np.ndarray, r_imu_world: np.ndarray,
+                           cov: np.ndarray | None = None) -> "Poses":
+        """Body poses from body-to-world rotations (N,3,3), IMU positions (N,3) (m) and covariances (N,6,6)
+        [position (m), body-axes rotation error (rad)], as `World.pos_to_world` and `pos_covariance_to_world`
+        give them: the same right perturbation, so the covariance is taken as it is."""
+        return cls(transpose(np.asarray(R_body_to_world, float)), r_imu_world, cov, "body")
+
+    # --- use ---------------------------------------------------------------------------------
+    def to_frame(self, X_world: np.ndarray, index: np.ndarray | None = None) -> np.ndarray:
+        """Coordinates (k,3) in the pose's frame of world points (k,3), by poses `index` (k,) (all if None)."""
         R = self.R_world_to_cam if index is None else self.R_world_to_cam[index]
         C = self.C_world if index is None else self.C_world[index]
         return np.einsum("nij,nj->ni", R, np.asarray(X_world, float) - C)
 
+    def to_cam(self, X_world: np.ndarray, index: np.ndarray | None = None) -> np.ndarray:
+        """Camera-frame coordinates (k,3) of world points (k,3) seen by poses `index` (k,) (all poses if None)."""
+        self._need("cam")
+        return self.to_frame(X_world, index)
+
+    def mounted(self, lever_arm_m: np.ndarray, R_sensor_to_frame: np.ndarray, frame: str = "cam") -> "Poses":
+        """Poses of a sensor rigidly mounted in this pose's frame (a camera on the body: lever arm and boresight
+        `R_cam_to_body`): origin `C_world + R_frame_to_world @ lever_arm_m` (3,) (m, this frame's axes), axes
+        `R_frame_to_world @ R_sensor_to_frame` (3,3); the covariances carried through, the mounting taken as
+        exact: dC_sensor = dC - R_frame_to_world [lever]x dtheta, dtheta_sensor = R_sensor_to_frame^T dtheta."""
+        lever = np.asarray(lever_arm_m, float).reshape(3)
+        R_s2f = np.asarray(R_sensor_to_frame, float).reshape(3, 3)
+        R_f2w = self.R_frame_to_world
+        C = self.C_world + np.einsum("nij,j->ni", R_f2w, lever)
+        cov = None
+        if self.cov is not None:
+            G = np.zeros((len(self), 6, 6))
+            G[:, :3, :3] = np.eye(3)
+            G[:, :3, 3:] = -R_f2w @ skew(lever)
+            G[:, 3:, 3:] = R_s2f.T
+            cov = G @ self.cov @ transpose(G)
+        return Poses(transpose(R_f2w @ R_s2f), C, cov, frame)
+
     def retract(self, d: np.ndarray) -> "Poses":
         """Poses moved by errors/updates d (N,6) = [dC (m), dtheta (rad)] under the perturbation rule above."""
         d = np.asarray(d, float).reshape(-1, 6)
-        R_c2w = self.R_cam_to_world @ so3_exp(d[:, 3:])
-        return Poses(transpose(R_c2w), self.C_world + d[:, :3], self.cov)
+        R_f2w = self.R_frame_to_world @ so3_exp(d[:, 3:])
+        return Poses(transpose(R_f2w), self.C_world + d[:, :3], self.cov, self.frame)
 
     def difference(self, other: "Poses") -> np.ndarray:
-        """d (N,6) with `other.retract(d) == self`: [C - C_other, Log(R_other_cam_to_world^T R_cam_to_world)]."""
-        dtheta = so3_log(other.R_world_to_cam @ self.R_cam_to_world)
+        """d (N,6) with `other.retract(d) == self`: [C - C_other, Log(R_other_frame_to_world^T R_frame_to_world)]
+        (poses of the same frame)."""
+        other._need(self.frame)
+        dtheta = so3_log(other.R_world_to_cam @ self.R_frame_to_world)
         return np.column_stack([self.C_world - other.C_world, dtheta])
 
     def sigmas(self) -> np.ndarray:

@@ -17,15 +17,14 @@ import numpy as np
 
 from dgcal.calib.camera.files import load_camera
 from dgcal.calib.camera.models import CameraModel
-from dgcal.calib.mounting.common import MountingResult, PoseAt, pose_at_rows, pose_at_times, read_mounting_json
+from dgcal.calib.mounting.common import MountingResult, PosSamples, pos_at_rows, pos_at_times, read_mounting_json
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.errors import InputError
-from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, skew
+from dgcal.fields.frames import R_CAM_TO_BODY_NADIR
 from dgcal.fields.io.formats import EOP, Events, Trajectory, read_events, read_trajectory
 from dgcal.pos.events import read_any_events
 from dgcal.pos.ins.sbet import read_any_trajectory
 from dgcal.fields.pose import Poses
-from dgcal.fields.pose import transpose as T
 from dgcal.fields.world import World
 
 
@@ -39,7 +38,7 @@ class DGPoses:
     cam: Poses
     G_mount: np.ndarray
     cov_mount: np.ndarray
-    pos: PoseAt
+    pos: PosSamples
 
 
 def dg_poses(world: World, traj: Trajectory, events: Events, mount: MountingResult,
@@ -55,28 +54,18 @@ def dg_poses(world: World, traj: Trajectory, events: Events, mount: MountingResu
     if traj.image is not None:
         # events-at-trajectory file: propagate over the delay with the velocity (attitude held)
         tidx = {str(k): j for j, k in enumerate(traj.image)}
-        pos = pose_at_rows(world, traj, np.array([tidx[k] for k in names], int))
-        pos = replace(pos, t=t_x, r_imu_world=pos.r_imu_world + pos.v_world * (t_x - pos.t)[:, None],
-                      geo=None, rph=None)
+        pos = pos_at_rows(world, traj, np.array([tidx[k] for k in names], int)).moved_to(t_x)
     else:
-        pos = pose_at_times(world, traj, t_x, names)
-    l_b, R_cb = mount.lever_arm_m, mount.R_cam_to_body
-    R_b = pos.R_body_to_world
-    r_cam = pos.r_imu_world + np.einsum("nij,j->ni", R_b, l_b)
+        pos = pos_at_times(world, traj, t_x, names)
+    lever_b, R_cam_to_body = mount.lever_arm_m, mount.R_cam_to_body
+    R_body_to_world = pos.R_body_to_world
     n = len(rows)
     G = np.zeros((n, 6, 7))
-    G[:, :3, 0] = pos.v_world + np.einsum("nij,nj->ni", R_b, np.cross(pos.omega_b, l_b))
-    G[:, :3, 1:4] = R_b
-    G[:, 3:, 0] = pos.omega_b @ R_cb  # R_cb^T omega_b
-    G[:, 3:, 4:7] = R_cb.T
-    cov_pos = None
-    if pos.cov is not None:
-        Gp = np.zeros((n, 6, 6))
-        Gp[:, :3, :3] = np.eye(3)
-        Gp[:, :3, 3:] = -R_b @ skew(l_b)
-        Gp[:, 3:, 3:] = R_cb.T
-        cov_pos = Gp @ pos.cov @ T(Gp)
-    cam = Poses.from_cam_to_world(R_b @ R_cb, r_cam, cov_pos)
+    G[:, :3, 0] = pos.v_world + np.einsum("nij,nj->ni", R_body_to_world, np.cross(pos.omega_b, lever_b))
+    G[:, :3, 1:4] = R_body_to_world
+    G[:, 3:, 0] = pos.omega_b @ R_cam_to_body  # R_cam_to_body^T omega_b
+    G[:, 3:, 4:7] = R_cam_to_body.T
+    cam = pos.body.mounted(lever_b, R_cam_to_body)   # the POS covariance carried to the camera
     return DGPoses(np.array(names, dtype=object), t_x, cam, G, mount.cov, pos)
 
 

@@ -1,5 +1,5 @@
-"""Shared pieces of the mounting calibration: POS and EOPs in the world frame, epoch matching, the rotation
-mean and the result record.
+"""Shared pieces of the mounting calibration: POS samples (a body pose with its kinematics) and EOPs (camera poses)
+in the world frame, epoch matching, the rotation mean and the result record.
 
 Frames (docs/conventions.md, docs/mounting.md): every position and rotation of an epoch is in the one world
 frame of the block (`dgcal.fields.world.World`, a local ENU frame at the block centre), which handles meridian
@@ -44,64 +44,96 @@ def _eop_map_covariance(eop: EOP, rows: np.ndarray) -> np.ndarray | None:
 
 # --- POS at exposure/event times ----------------------------------------------------------------
 @dataclass
-class PoseAt:
-    """POS state at query times in the world: IMU position (m), velocity (m/s), R_body_to_world, body angular
-    rate (rad/s), covariance (N,6,6) of [position (m), body rotation error (rad)] or None."""
+class PosSamples:
+    """POS samples at query times in the world: the body pose (`body`, `Poses` of frame "body": IMU position (m),
+    R_body_to_world, covariance (N,6,6) [position (m), body-axes rotation error (rad)] or None, the pose rule of
+    `dgcal.fields.pose`) and the kinematics: times (s), velocity (m/s, world), body angular rate relative to the
+    earth (rad/s, body axes), geodetic lat, lon (deg), h (m) and roll/pitch/heading (deg) when known.
+    `r_imu_world`, `R_body_to_world` and `cov` read the body pose."""
 
     t: np.ndarray
-    r_imu_world: np.ndarray
+    body: Poses
     v_world: np.ndarray
-    R_body_to_world: np.ndarray
     omega_b: np.ndarray
-    cov: np.ndarray | None = None
     geo: np.ndarray | None = None  # lat, lon, h
     rph: np.ndarray | None = None
 
-    def subset(self, mask: np.ndarray) -> "PoseAt":
+    def __post_init__(self) -> None:
+        if self.body.frame != "body":
+            raise ValueError(f"POS samples hold body poses, not {self.body.frame} poses")
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def r_imu_world(self) -> np.ndarray:
+        """(N,3) IMU positions in the world, m."""
+        return self.body.C_world
+
+    @property
+    def R_body_to_world(self) -> np.ndarray:
+        """(N,3,3) body axes into the world."""
+        return self.body.R_body_to_world
+
+    @property
+    def cov(self) -> np.ndarray | None:
+        """(N,6,6) covariances [position (m), body-axes rotation error (rad)] or None."""
+        return self.body.cov
+
+    def subset(self, mask: np.ndarray) -> "PosSamples":
         """The samples where `mask` is true (or at indices `mask`)."""
-        return PoseAt(self.t[mask], self.r_imu_world[mask], self.v_world[mask], self.R_body_to_world[mask],
-                      self.omega_b[mask], None if self.cov is None else self.cov[mask],
-                      None if self.geo is None else self.geo[mask], None if self.rph is None else self.rph[mask])
+        return PosSamples(self.t[mask], self.body[mask], self.v_world[mask], self.omega_b[mask],
+                          None if self.geo is None else self.geo[mask], None if self.rph is None else self.rph[mask])
+
+    def moved_to(self, t: np.ndarray) -> "PosSamples":
+        """The samples carried to times `t` (N,) (s) with their velocity, attitude and covariance held (no geodetic
+        position or angles: they would be the old ones)."""
+        t = np.asarray(t, float)
+        body = Poses(self.body.R_world_to_body, self.r_imu_world + self.v_world * (t - self.t)[:, None],
+                     self.body.cov, "body")
+        return PosSamples(t, body, self.v_world, self.omega_b)
 
 
-def pose_at_times(world: World, traj: Trajectory, t_query: np.ndarray, names: np.ndarray | list | None = None,
-                  max_gap_s: float | None = None) -> PoseAt:
+def _pos_samples(world: World, t, lat, lon, h, v_ned, rph, sigma, omega_b) -> PosSamples:
+    r, v, R = world.pos_to_world(lat, lon, h, v_ned, rph)
+    cov = None if sigma is None else world.pos_covariance_to_world(lat, lon, rph, sigma)
+    return PosSamples(np.asarray(t, float), Poses.from_body_to_world(R, r, cov), v, np.asarray(omega_b, float),
+                      np.column_stack([lat, lon, h]), np.asarray(rph, float))
+
+
+def pos_at_times(world: World, traj: Trajectory, t_query: np.ndarray, names: np.ndarray | list | None = None,
+                 max_gap_s: float | None = None) -> PosSamples:
     """POS interpolated at GPS times (s) by `dgcal.pos.ins.interpolate` (cubic Hermite position, cubic attitude,
     angular rate, variance-linear sigmas), in the world."""
     st = interpolate_trajectory(traj, np.asarray(t_query, float), names, max_gap_s=max_gap_s)
-    r, v, R = world.pos_to_world(st.lat, st.lon, st.h, st.v_ned, st.rph)
-    cov = None if st.sigma is None else world.pos_covariance_to_world(st.lat, st.lon, st.rph, st.sigma)
     # omega_eb_b: body rate relative to the earth in body axes, the rate of R_body_to_world (the world is earth-fixed)
-    return PoseAt(st.t, r, v, R, np.asarray(st.omega_eb_b, float), cov, np.column_stack([st.lat, st.lon, st.h]),
-                  st.rph)
+    return _pos_samples(world, st.t, st.lat, st.lon, st.h, st.v_ned, st.rph, st.sigma, st.omega_eb_b)
 
 
-def pose_at_rows(world: World, traj: Trajectory, rows: np.ndarray) -> PoseAt:
+def pos_at_rows(world: World, traj: Trajectory, rows: np.ndarray) -> PosSamples:
     """POS of trajectory rows (e.g. of an events-at-trajectory file), in the world, without angular rate."""
-    lat, lon, h, rph = traj.lat[rows], traj.lon[rows], traj.h[rows], traj.rph[rows]
-    r, v, R = world.pos_to_world(lat, lon, h, traj.v_ned[rows], rph)
-    cov = None if traj.sigma is None else world.pos_covariance_to_world(lat, lon, rph, traj.sigma[rows])
-    return PoseAt(traj.t[rows], r, v, R, np.zeros((len(rows), 3)), cov, np.column_stack([lat, lon, h]), rph)
+    return _pos_samples(world, traj.t[rows], traj.lat[rows], traj.lon[rows], traj.h[rows], traj.v_ned[rows],
+                        traj.rph[rows], None if traj.sigma is None else traj.sigma[rows], np.zeros((len(rows), 3)))
 
 
-def pose_at_events(world: World, traj: Trajectory, images: np.ndarray, t_event: np.ndarray) -> PoseAt:
+def pos_at_events(world: World, traj: Trajectory, images: np.ndarray, t_event: np.ndarray) -> PosSamples:
     """POS at event times: interpolated from a trajectory, or read from an events-at-trajectory file by image."""
     if traj.image is None:
-        return pose_at_times(world, traj, t_event, images)
+        return pos_at_times(world, traj, t_event, images)
     idx = {str(k): j for j, k in enumerate(traj.image)}
-    return pose_at_rows(world, traj, np.array([idx[str(im)] for im in images], int))
+    return pos_at_rows(world, traj, np.array([idx[str(im)] for im in images], int))
 
 
 # --- epochs -------------------------------------------------------------------------------------
 @dataclass
 class Epochs:
     """Matched calibration epochs in the world: the camera pose from the bundle (`eop`, with the EOP covariance
-    [C_world (m), dtheta (rad)] or None) and the POS at the event time."""
+    [C_world (m), dtheta (rad)] or None) and the POS at the event time (`pos`: its body pose and kinematics)."""
 
     image: np.ndarray
     t_event: np.ndarray
     eop: Poses
-    pos: PoseAt
+    pos: PosSamples
     has_rate: bool
     warnings: list[str] = field(default_factory=list)
     skipped: dict[str, list[str]] = field(default_factory=dict)
@@ -119,7 +151,7 @@ class Epochs:
 
     def at_delay(self, dt: float) -> "Epochs":
         """The epochs with the POS re-interpolated at t_event + dt (s)."""
-        pos = pose_at_times(self.world, self.traj, self.t_event + dt, self.image)
+        pos = pos_at_times(self.world, self.traj, self.t_event + dt, self.image)
         return Epochs(self.image, self.t_event, self.eop, pos, self.has_rate, list(self.warnings),
                       dict(self.skipped), float(dt), self.world, self.traj)
 
@@ -163,7 +195,7 @@ def build_epochs(world: World, eop: EOP, events: Events, traj: Trajectory) -> Ep
     r_eop, r_ev, warnings, skipped = match_images(eop, events, traj)
     poses = world.eop_to_poses(eop.xyz[r_eop], eop.opk[r_eop], _eop_map_covariance(eop, r_eop))
     images = eop.image[r_eop]
-    pos = pose_at_events(world, traj, images, events.t[r_ev])
+    pos = pos_at_events(world, traj, images, events.t[r_ev])
     has_rate = traj.image is None
     if not has_rate:
         warnings.append("trajectory has one row per event: no angular rate, attitude is held fixed over the delay")
