@@ -32,13 +32,6 @@ STATIC = (DATA / "rinex-sept" / "SEPT078M1.21O", DATA / "rinex-sept" / "SEPT078M
 STATIC_REF = np.array([-3962108.673, 3381309.574, 3668678.638])
 
 
-def _enu_axes(p: np.ndarray) -> np.ndarray:
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.frames import R_ecef_to_enu
-    lat, lon, _ = ecef_to_geodetic(p)
-    return R_ecef_to_enu(lat, lon)
-
-
 def run_dgcal(rover, nav, base, base_pos, n_freq: int = 3):
     """dgcal's PPK with its defaults; (result, seconds)."""
     from dgcal.pos.gnss.carrier import carrier_observations
@@ -73,10 +66,11 @@ def truth_lines(res, seconds: float, p_true: np.ndarray, demo5: dict | None) -> 
     """Both engines against a known position per epoch (N,3) or a point (3,)."""
     t = res.t_gps
     P = np.broadcast_to(p_true, (len(t), 3)) if np.ndim(p_true) == 1 else p_true
-    R = _enu_axes(P[0])
+    from dgcal.fields.crs import R_ecef_to_enu_at
+    R_ecef_to_enu = R_ecef_to_enu_at(P[0])
     f = res.status == 3
-    e = (res.p - P) @ R.T
-    s = np.sqrt(np.einsum("ij,njk,ik->ni", R, res.P, R))
+    e = (res.p - P) @ R_ecef_to_enu.T
+    s = np.sqrt(np.einsum("ij,njk,ik->ni", R_ecef_to_enu, res.P, R_ecef_to_enu))
     ok = res.status >= 2
     z = e[ok] / s[ok]
     n3 = np.linalg.norm(e, axis=1)
@@ -101,6 +95,7 @@ def truth_lines(res, seconds: float, p_true: np.ndarray, demo5: dict | None) -> 
 
 def agreement_lines(res, seconds: float, demo5: dict | None) -> list[str]:
     """A moving rover without truth: dgcal's fixed epochs against demo5's, epoch by epoch."""
+    from dgcal.fields.crs import R_ecef_to_enu_at
     t = res.t_gps
     f = res.status == 3
     fw, bw = 100 * np.mean(res.forward.status == 3), 100 * np.mean(res.backward.status == 3)
@@ -114,9 +109,9 @@ def agreement_lines(res, seconds: float, demo5: dict | None) -> list[str]:
         both = keep.copy()
         both[keep] = (c["q"][keep] == 1) & (res.status[j[keep]] == 3)
         fk = np.flatnonzero(both)
-        R = _enu_axes(res.p[fk[0]] if len(fk) else res.p[0])
-        d = (res.p[j[fk]] - c["p_ecef"][fk]) @ R.T
-        s = np.sqrt(np.einsum("ij,njk,ik->ni", R, res.P[j[fk]], R))
+        R_ecef_to_enu = R_ecef_to_enu_at(res.p[fk[0]] if len(fk) else res.p[0])
+        d = (res.p[j[fk]] - c["p_ecef"][fk]) @ R_ecef_to_enu.T
+        s = np.sqrt(np.einsum("ij,njk,ik->ni", R_ecef_to_enu, res.P[j[fk]], R_ecef_to_enu))
         z = d / s
         n3 = np.linalg.norm(d, axis=1)
         rate = 100 * np.mean(c["q"] == 1) * len(c["q"]) / len(t)

@@ -38,10 +38,8 @@ print(json.dumps({"run_s": r["run_s"], "n": len(r["t_gps"]), "in_process_s": tim
 
 
 def enu_errors(p_ecef: np.ndarray) -> np.ndarray:
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.frames import R_ecef_to_enu
-    lat, lon, _ = ecef_to_geodetic(REF_ECEF)
-    return (p_ecef - REF_ECEF) @ R_ecef_to_enu(lat, lon).T
+    from dgcal.fields.crs import R_ecef_to_enu_at
+    return (p_ecef - REF_ECEF) @ R_ecef_to_enu_at(REF_ECEF).T
 
 
 def summary(name: str, p: np.ndarray) -> str:

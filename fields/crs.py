@@ -8,7 +8,7 @@ import numpy as np
 import pyproj
 
 from dgcal.fields.errors import InputError
-from dgcal.fields.frames import R_ecef_to_enu, R_enu_to_grid
+from dgcal.fields.frames import R_ecef_to_enu, R_ecef_to_ned, R_enu_to_grid
 
 ECEF = "EPSG:4978"
 GEODETIC = "EPSG:4979"  # lat, lon, ellipsoidal height
@@ -38,6 +38,21 @@ def ecef_to_geodetic(p_ecef) -> np.ndarray:
     p = np.asarray(p_ecef, float)
     lon, lat, h = _tf(ECEF, GEODETIC).transform(p[..., 0], p[..., 1], p[..., 2])
     return np.stack([lat, lon, h], axis=-1)
+
+
+def R_ecef_to_enu_at(p_ecef) -> np.ndarray:
+    """Rotation from ECEF to the local ENU frame at ECEF point(s) (m): (3,3) for one point (3,), (N,3,3) for (N,3).
+
+    ENU vectors of ECEF differences from a reference point: ``(p - ref) @ R_ecef_to_enu_at(ref).T``.
+    """
+    geo = ecef_to_geodetic(p_ecef)
+    return R_ecef_to_enu(geo[..., 0], geo[..., 1])
+
+
+def R_ecef_to_ned_at(p_ecef) -> np.ndarray:
+    """Rotation from ECEF to the local NED frame at ECEF point(s) (m): (3,3) for one point (3,), (N,3,3) for (N,3)."""
+    geo = ecef_to_geodetic(p_ecef)
+    return R_ecef_to_ned(geo[..., 0], geo[..., 1])
 
 
 _TF_CACHE: dict[tuple[str, str], pyproj.Transformer] = {}

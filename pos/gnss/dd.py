@@ -26,10 +26,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from dgcal.fields.crs import ecef_to_geodetic
-from dgcal.fields.frames import R_ecef_to_enu
+from dgcal.fields.crs import R_ecef_to_enu_at
 from dgcal.pos.gnss.carrier import CarrierObs
 from dgcal.pos.gnss.ppk import CarrierPair, PpkOptions, PpkResult, ppk
+from dgcal.pos.gnss.ppk_design import zd_var
 
 
 @dataclass
@@ -293,11 +293,6 @@ class DDEpoch:
         return DDEpoch(**kw)
 
 
-def _zd_var(sigma0: float, elev: np.ndarray) -> np.ndarray:
-    s = np.sin(np.maximum(elev, np.radians(2.0)))
-    return sigma0 ** 2 * (0.5 + 0.5 / s ** 2)
-
-
 def _persistent_ref(prev_ref: dict, key, members, elev) -> int:
     """The previous epoch's reference of `key` if still among `members`, else the highest member."""
     ref = prev_ref.get(key)
@@ -325,7 +320,7 @@ def dd_epochs(pair: CarrierPair, amb: ArcIntegers | None, p_lin: np.ndarray, opt
     out: list[DDEpoch | None] = []
     prev_ref: dict = {}
     systems = list(dict.fromkeys(pair.system))
-    base_enu = _enu_rotation(pair.base_pos)
+    R_ecef_to_enu_base = R_ecef_to_enu_at(pair.base_pos)
     for k in range(len(pair.t)):
         j = int(pair.jb[k])
         x0 = p_lin[k]
@@ -394,9 +389,9 @@ def dd_epochs(pair: CarrierPair, amb: ArcIntegers | None, p_lin: np.ndarray, opt
         sat, ref, slot, ref_slot = np.array(sat), np.array(ref), np.array(slot), np.array(ref_slot)
         kind = np.array(kind)
         s0 = np.where(kind == 0, o.phase_sigma_m, o.code_sigma_m)
-        var_sat = _zd_var(s0, zr.elev[sat]) + _zd_var(s0, zb.elev[sat])
-        var_ref = _zd_var(s0, zr.elev[ref]) + _zd_var(s0, zb.elev[ref])
-        d = base_enu @ (x0 - pair.base_pos)
+        var_sat = zd_var(s0, zr.elev[sat]) + zd_var(s0, zb.elev[sat])
+        var_ref = zd_var(s0, zr.elev[ref]) + zd_var(s0, zb.elev[ref])
+        d = R_ecef_to_enu_base @ (x0 - pair.base_pos)
         out.append(DDEpoch(k=k, t_gps=float(pair.t[k]), kind=kind, mode=np.array(mode), sat=sat, ref=ref, slot=slot,
                            ref_slot=ref_slot, z=np.array(z, float), sat_pos=zr.sat_pos[sat].copy(),
                            ref_pos=zr.sat_pos[ref].copy(), var_sat=var_sat, var_ref=var_ref, group=group,
@@ -404,11 +399,6 @@ def dd_epochs(pair: CarrierPair, amb: ArcIntegers | None, p_lin: np.ndarray, opt
                            kappa_ref=kappa_all[ref, ref_slot], map_sat=mapping[sat], map_ref=mapping[ref],
                            base_dist_m=float(np.hypot(d[0], d[1]))))
     return out
-
-
-def _enu_rotation(p_ecef: np.ndarray) -> np.ndarray:
-    lat, lon, _ = ecef_to_geodetic(np.asarray(p_ecef, float))
-    return R_ecef_to_enu(lat, lon)
 
 
 @dataclass

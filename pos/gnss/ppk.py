@@ -940,20 +940,13 @@ PPK_CSV_COLUMNS = ["gps_week", "gps_sow", "x", "y", "z", "fix", "n_sat", "ratio"
                    "fix_backward"]
 
 
-def _enu_axes(p_ecef: np.ndarray) -> np.ndarray:
-    from dgcal.fields.crs import ecef_to_geodetic
-    from dgcal.fields.frames import R_ecef_to_enu
-    lat, lon, _ = ecef_to_geodetic(p_ecef)
-    return R_ecef_to_enu(lat, lon)
-
-
 def write_ppk_csv(path, res: PpkResult) -> None:
     """Write gnss.csv of `--mode ppk` (columns ``PPK_CSV_COLUMNS``, ECEF m; see docs/gnss.md), epochs with a solution.
 
     ``sx,sy,sz`` are 1-sigma (m); ``sxy,sxz,syz`` the cross covariances as RTKLIB writes them,
     ``sign(c) sqrt(|c|)`` (m); ``s_e,s_n,s_u`` local-level sigmas (m).
     """
-    from dgcal.fields.crs import ecef_to_geodetic
+    from dgcal.fields.crs import R_ecef_to_enu_at, ecef_to_geodetic
     from dgcal.fields.io.csv_tables import write_table
     from dgcal.pos.gnss.observations import split_gps_time
     k = np.nonzero(res.status >= 1)[0]
@@ -966,8 +959,8 @@ def write_ppk_csv(path, res: PpkResult) -> None:
         C = res.P[i]
         s = np.sqrt(np.maximum(np.diag(C), 0.0))
         cross = [float(np.sign(c) * np.sqrt(abs(c))) for c in (C[0, 1], C[0, 2], C[1, 2])]
-        R = _enu_axes(res.p[i])
-        senu = np.sqrt(np.maximum(np.diag(R @ C @ R.T), 0.0))
+        R_ecef_to_enu = R_ecef_to_enu_at(res.p[i])
+        senu = np.sqrt(np.maximum(np.diag(R_ecef_to_enu @ C @ R_ecef_to_enu.T), 0.0))
         rows.append([int(week[j]), float(sow[j]), *res.p[i].tolist(), STATUS[res.status[i]], int(res.n_sat[i]),
                      float(res.ratio[i]) if np.isfinite(res.ratio[i]) else float("nan"), *s.tolist(), *cross,
                      *llh[j].tolist(), *senu.tolist(), float(res.age_s[i]), int(res.n_fixed_amb[i]),
@@ -978,6 +971,7 @@ def write_ppk_csv(path, res: PpkResult) -> None:
 def ppk_summary(res: PpkResult, reference_ecef: np.ndarray | None = None) -> dict:
     """Numbers for gnss_summary.json of `--mode ppk`: counts per status, fix rate, sigmas, ages, slips, options,
     and with a known position the fixed-epoch 3D RMS and mean/std/RMS error per local axis (m)."""
+    from dgcal.fields.crs import R_ecef_to_enu_at
     n = len(res.t_gps)
     st = res.status
     counts = {name: int(np.sum(st == i)) for i, name in enumerate(STATUS)}
@@ -1001,18 +995,19 @@ def ppk_summary(res: PpkResult, reference_ecef: np.ndarray | None = None) -> dic
                 reasons[p.reason[k] or "float"] = reasons.get(p.reason[k] or "float", 0) + 1
             out[f"{name}_float_reasons"] = reasons
     if fixed.any():
-        R = _enu_axes(res.p[fixed][0])
-        senu = np.sqrt(np.maximum(np.einsum("ij,njk,lk->nil", R, res.P[fixed], R).diagonal(axis1=1, axis2=2), 0))
+        R_ecef_to_enu = R_ecef_to_enu_at(res.p[fixed][0])
+        senu = np.sqrt(np.maximum(np.einsum("ij,njk,lk->nil", R_ecef_to_enu, res.P[fixed], R_ecef_to_enu)
+                                  .diagonal(axis1=1, axis2=2), 0))
         out["median_sigma_enu_fixed_m"] = np.median(senu, axis=0).tolist()
         out["median_ecef_fixed_m"] = np.median(res.p[fixed], axis=0).tolist()
     if reference_ecef is not None:
         ref = np.asarray(reference_ecef, float)
-        R = _enu_axes(ref)
+        R_ecef_to_enu = R_ecef_to_enu_at(ref)
         out["reference_ecef_m"] = ref.tolist()
         for name, m in (("fixed", fixed), ("all", st >= 1)):
             if not m.any():
                 continue
-            e = (res.p[m] - ref) @ R.T
+            e = (res.p[m] - ref) @ R_ecef_to_enu.T
             out[f"error_{name}"] = {"n": int(m.sum()), "rms_3d_m": float(np.sqrt(np.mean(np.sum(e ** 2, axis=1)))),
                                     "mean_enu_m": e.mean(axis=0).tolist(), "std_enu_m": e.std(axis=0).tolist(),
                                     "rms_enu_m": np.sqrt(np.mean(e ** 2, axis=0)).tolist()}

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dgcal.fields.constants import C_LIGHT
-from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.fields.crs import R_ecef_to_enu_at, ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.pos.gnss.chi2_points import chi2_limit
 from dgcal.pos.gnss.corrections import (code_sigma_m, klobuchar_delay_m, model_sigma_m, sagnac_rotate,
@@ -346,10 +346,9 @@ def dops(H: np.ndarray, b: np.ndarray, absent: np.ndarray, p_ecef: np.ndarray) -
                 good[e] = False
     if not good.any():
         return out
-    geo = ecef_to_geodetic(p_ecef[good]).reshape(-1, 3)
-    R = R_ecef_to_enu(geo[:, 0], geo[:, 1]).reshape(-1, 3, 3)
+    R_ecef_to_enu_ep = R_ecef_to_enu_at(p_ecef[good].reshape(-1, 3))
     Qg = Q[good]
-    Qenu = R @ Qg[:, :3, :3] @ np.swapaxes(R, 1, 2)
+    Qenu = R_ecef_to_enu_ep @ Qg[:, :3, :3] @ np.swapaxes(R_ecef_to_enu_ep, 1, 2)
     tr = np.trace(Qg, axis1=1, axis2=2) - pad[good].sum(axis=1)
     out["gdop"][good] = np.sqrt(tr)
     out["pdop"][good] = np.sqrt(np.trace(Qg[:, :3, :3], axis1=1, axis2=2))

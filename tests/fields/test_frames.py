@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from dgcal.fields import frames
-from dgcal.fields.crs import LocalENU, MapGrid, ecef_to_geodetic, geodetic_to_ecef
+from dgcal.fields.crs import (LocalENU, MapGrid, R_ecef_to_enu_at, R_ecef_to_ned_at, ecef_to_geodetic,
+                              geodetic_to_ecef)
 
 rng = np.random.default_rng(1)
 
@@ -50,6 +51,14 @@ def test_ecef_geodetic_enu_round_trip():
     R = frames.R_ecef_to_enu(lat, lon)
     assert R.shape == (20, 3, 3)
     np.testing.assert_allclose(R[3], frames.R_ecef_to_enu(lat[3], lon[3]))
+    # the same rotations from the ECEF points: one point (3,3), several (N,3,3); NED is ENU with N/E swapped, -U
+    np.testing.assert_allclose(R_ecef_to_enu_at(p), R, atol=1e-12)
+    np.testing.assert_allclose(R_ecef_to_enu_at(p[3]), R[3], atol=1e-12)
+    np.testing.assert_allclose(R_ecef_to_ned_at(p), frames.R_ecef_to_ned(lat, lon), atol=1e-12)
+    assert R_ecef_to_ned_at(p[:1]).shape == (1, 3, 3)
+    # one metre up at a point is -D there
+    up = geodetic_to_ecef(lat[3], lon[3], h[3] + 1.0) - p[3]
+    np.testing.assert_allclose(R_ecef_to_ned_at(p[3]) @ up, [0, 0, -1], atol=1e-6)
 
 
 def test_convergence_sign_and_grid_rotation():

@@ -5,8 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from dgcal.fields.crs import ecef_to_geodetic
-from dgcal.fields.frames import R_ecef_to_enu
+from dgcal.fields.crs import R_ecef_to_enu_at
 
 ROVER = "rinex-sept/SEPT078M1.21O"
 NAV = "rinex-sept/SEPT078M.21P"
@@ -16,8 +15,7 @@ REF = np.array([-3962108.673, 3381309.574, 3668678.638])
 
 
 def _enu(p):
-    lat, lon, _ = ecef_to_geodetic(REF)
-    return (np.atleast_2d(p) - REF) @ R_ecef_to_enu(lat, lon).T
+    return (np.atleast_2d(p) - REF) @ R_ecef_to_enu_at(REF).T
 
 
 @pytest.fixture(scope="module")
