@@ -9,8 +9,6 @@ is the SD ambiguity of satellite i, slot f, cycles); metres, seconds, radians.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
@@ -60,11 +58,15 @@ def dd_rows(valid: np.ndarray, sys_id: np.ndarray, n_sys: int, score: np.ndarray
     return phase[:nr], sat[:nr], ref[:nr], slot[:nr], block[:nr], g_sys[:ng], g_slot[:ng], g_ref[:ng]
 
 
-@njit(cache=True)
-def zd_var(sigma0: float, elev: float) -> float:
-    """Zero-difference variance (m^2) at elevation `elev` (rad) for the zenith sigma `sigma0` (m)."""
-    s = math.sin(max(elev, math.radians(2.0)))
+def zd_var(sigma0, elev):
+    """Zero-difference variance (m^2) at elevation `elev` (rad) for the zenith sigma `sigma0` (m),
+    ``sigma0^2 (1/2 + 1/(2 sin^2 el))`` with the elevation floored at 2 degrees: numbers or NumPy arrays (the
+    smoother's double differences, `dgcal.pos.gnss.dd`); the kernels below call its compiled form `_zd_var`."""
+    s = np.sin(np.maximum(elev, np.radians(2.0)))
     return sigma0 ** 2 * (0.5 + 0.5 / (s * s))
+
+
+_zd_var = njit(cache=True)(zd_var)
 
 
 @njit(cache=True)
@@ -95,12 +97,12 @@ def dd_system(phase, sat, ref, slot, block, los, sd_phase, sd_code, lam, elev_ro
             d = sd_phase[i, f] - sd_phase[r, f]
             H[q, amb0 + i * F + f] = lam[i, f]
             H[q, amb0 + r * F + f] = -lam[r, f]
-            v_ref[q] = zd_var(sigma_phase, elev_rover[r]) + zd_var(sigma_phase, elev_base[r])
-            v_sat[q] = zd_var(sigma_phase, elev_rover[i]) + zd_var(sigma_phase, elev_base[i])
+            v_ref[q] = _zd_var(sigma_phase, elev_rover[r]) + _zd_var(sigma_phase, elev_base[r])
+            v_sat[q] = _zd_var(sigma_phase, elev_rover[i]) + _zd_var(sigma_phase, elev_base[i])
         else:
             d = sd_code[i, f] - sd_code[r, f]
-            v_ref[q] = zd_var(sigma_code, elev_rover[r]) + zd_var(sigma_code, elev_base[r])
-            v_sat[q] = (zd_var(sigma_code, elev_rover[i]) + zd_var(sigma_code, elev_base[i])) * code_factor[i, f]
+            v_ref[q] = _zd_var(sigma_code, elev_rover[r]) + _zd_var(sigma_code, elev_base[r])
+            v_sat[q] = (_zd_var(sigma_code, elev_rover[i]) + _zd_var(sigma_code, elev_base[i])) * code_factor[i, f]
         y[q] = d + (g0 * x0[0] + g1 * x0[1] + g2 * x0[2])
     R = np.zeros((nr, nr))
     for a in range(nr):

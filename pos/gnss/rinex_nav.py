@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from dgcal.fields.errors import InputError
-from dgcal.pos.gnss.rinex_obs import read_lines
+from dgcal.pos.gnss.rinex_obs import read_lines, rinex_version_type
 
 # RTKLIB's default Klobuchar coefficients (alpha, beta; 2004/1/1), used when a file has none
 ION_DEFAULT = np.array([[0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06],
@@ -58,20 +58,7 @@ def _num(s: str, path, ln: int, name: str) -> float:
 
 def parse_nav_header(lines: list[str], path: Path) -> NavHeader:
     """Version, type, ionosphere coefficients and leap seconds of a RINEX 2/3 navigation header."""
-    if not lines:
-        raise InputError("empty file", path, 1)
-    first = lines[0]
-    if "CRINEX VERS" in first:
-        raise InputError("Hatanaka-compressed RINEX: decompress it first (crx2rnx)", path, 1)
-    if "RINEX VERSION / TYPE" not in first:
-        raise InputError("not a RINEX file (no 'RINEX VERSION / TYPE' header line)", path, 1)
-    try:
-        ver = float(first[:9])
-    except ValueError:
-        raise InputError("bad RINEX version", path, 1, "RINEX VERSION") from None
-    typ = first[20:21]
-    if not 2.0 <= ver < 4.0:                    # written so that a 'nan' version fails it too
-        raise InputError(f"RINEX version {ver} is not supported (need 2.10-3.05)", path, 1, "RINEX VERSION")
+    ver, typ = rinex_version_type(lines, path)
     if ver >= 3.0 and typ != "N":
         raise InputError(f"not a navigation file (type '{typ}')", path, 1, "RINEX VERSION / TYPE")
     if ver < 3.0 and typ not in ("N", "G", "H", "E", "J"):

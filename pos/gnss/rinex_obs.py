@@ -181,8 +181,10 @@ def _int(s: str, path, lineno, name, default: int | None = None) -> int:
         raise InputError(f"not an integer: {s!r}", path, lineno, name) from None
 
 
-def _parse_header(lines: list[str], path: Path) -> dict:
-    """Header items of a RINEX 2/3 observation file (version checked, obs types in RINEX 3 codes)."""
+def rinex_version_type(lines: list[str], path: Path) -> tuple[float, str]:
+    """Version and file type (column 21: ``O``, ``N``, ...) of a RINEX 2/3 file from its first line, checked: the
+    file is not empty, not Hatanaka-compressed, begins with a ``RINEX VERSION / TYPE`` line of a version 2.x or
+    3.x (`InputError` naming line 1 otherwise). The caller checks the type."""
     if not lines:
         raise InputError("empty file", path, 1)
     first = lines[0]
@@ -196,10 +198,15 @@ def _parse_header(lines: list[str], path: Path) -> dict:
         raise InputError("bad RINEX version", path, 1, "RINEX VERSION") from None
     if not 2.0 <= version < 4.0:                # written so that a 'nan' version fails it too
         raise InputError(f"RINEX version {version} is not supported (need 2.10-3.05)", path, 1, "RINEX VERSION")
-    typ = first[20:21]
+    return version, first[20:21]
+
+
+def _parse_header(lines: list[str], path: Path) -> dict:
+    """Header items of a RINEX 2/3 observation file (version checked, obs types in RINEX 3 codes)."""
+    version, typ = rinex_version_type(lines, path)
     if typ != "O":
         raise InputError(f"not an observation file (type '{typ}')", path, 1, "RINEX VERSION / TYPE")
-    file_sys = first[40:41].strip() or "G"
+    file_sys = lines[0][40:41].strip() or "G"
     h = {"version": version, "file_system": file_sys, "marker": "", "receiver": "", "antenna": "",
          "p_approx": np.full(3, np.nan), "delta_hen": np.zeros(3), "interval": float("nan"),
          "time_system": "", "obs_types": {}, "types2": [], "leap": None, "wavelength2": False}
