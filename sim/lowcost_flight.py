@@ -350,7 +350,7 @@ def _estimates(u, r: dict, camera, pinhole, lever: np.ndarray, P_w: np.ndarray, 
     C, R = C_imu + R_b2w @ lever, R_b2w @ R_CAM_TO_BODY_NADIR
     cov_rph = np.degrees(np.degrees(P_nav[6:9, 6:9]))
     cov_p = np.maximum(R_nw @ P_nav[0:3, 0:3] @ R_nw.T, gnss_cov)
-    pose_cov = pose_covariance_from_rph(rph, cov_rph, cov_p, R_CAM_TO_BODY_NADIR, R_enu_to_w=np.eye(3))
+    pose_cov = pose_covariance_from_rph(rph, cov_rph, cov_p, R_CAM_TO_BODY_NADIR, R_enu_to_world=np.eye(3))
     # raw data: level attitude, heading from the GNSS course, no distortion model
     v = u.v_nav[j]
     course = np.degrees(np.arctan2(v[1], v[0]))

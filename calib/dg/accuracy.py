@@ -226,9 +226,9 @@ def _screened_intersection(camera, poses, oi: np.ndarray, op: np.ndarray, xy: np
     round, until none. Returns the intersection of the kept rays and the kept mask."""
     keep = np.ones(len(oi), bool)
     sig = np.where(np.isfinite(sigma), sigma, 1.0)
-    C, R = poses.cam.C_world, poses.cam.R_cam_to_world
+    C_world, R_cam_to_world = poses.cam.C_world, poses.cam.R_cam_to_world
     while True:
-        res = intersect(camera, C, R, oi[keep], op[keep], xy[keep], sigma[keep], n_points, min_rays)
+        res = intersect(camera, C_world, R_cam_to_world, oi[keep], op[keep], xy[keep], sigma[keep], n_points, min_rays)
         L = np.bincount(op[keep], minlength=n_points)[op[keep]]
         e = np.linalg.norm(res.residuals_px / sig[keep], axis=1) / np.sqrt(np.clip(1 - 1.5 / np.maximum(L, 1),
                                                                                   0.1, 1))

@@ -6,14 +6,17 @@ any local Cartesian frame with z up (ENU). Over the few hundred metres of one im
 Cartesian (the scale-factor and curvature effects are millimetres at 100 m height).
 
 Camera: a calibrated `dgcal.calib.camera.models.CameraModel`; `ray(uv)` gives the collinearity ray in the CV camera
-frame, rotated into the world by `R_cam_to_world` from the centre `C_w`:  X = C_w + s R_cam_to_world d(u, v).
+frame, rotated into the world by `R_cam_to_world` from the centre `C_world`:
+X = C_world + s R_cam_to_world d(u, v).
 Height sources:
-- a known ground height h:  s = (h - C_z) / d_z  (seed eq. 25 for the image centre);
-- a DEM (`dgcal.calib.dg.dem.Dem`): Newton iteration on f(s) = C_z + s d_z - H(C_xy + s d_xy) with the DEM slope;
+- a known ground height h:  s = (h - C_world_z) / d_z  (seed eq. 25 for the image centre);
+- a DEM (`dgcal.calib.dg.dem.Dem`): Newton iteration on f(s) = C_world_z + s d_z - H(C_world_xy + s d_xy) with the
+  DEM slope;
 - a laser range rho to the image centre along `laser_dir_cam` (default the optical axis): the centre
-  ground point is C + rho R d_laser (seed eq. 26) and the ground is taken level through it.
+  ground point is C_world + rho R_cam_to_world d_laser (seed eq. 26) and the ground is taken level through it.
 Pose covariance: 6x6 [centre (m, world), rotation (rad, right perturbation in the camera frame,
-R = R0 Exp(dtheta))], as `dgcal.calib.dg.eop`. Propagation is by central differences over all inputs.
+R_cam_to_world <- R_cam_to_world Exp(dtheta))], the rule of `dgcal.fields.pose`. Propagation is by central
+differences over all inputs.
 """
 from __future__ import annotations
 
@@ -31,7 +34,7 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_NED_TO_ENU, R_body_to_ned_from_rph, R_cam_to_map_from_opk
 from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.io.formats import read_eop, read_events, read_measurements, read_trajectory
-from dgcal.fields.pose import so3_exp, so3_log
+from dgcal.fields.pose import Poses, so3_exp, so3_log
 
 
 @dataclass
@@ -49,61 +52,61 @@ class GroundEstimate:
         return np.sqrt(np.einsum("nii->ni", self.cov))
 
 
-def camera_pose_from_body(C_imu_w: np.ndarray, R_body_to_w: np.ndarray, lever_arm_b: np.ndarray,
+def camera_pose_from_body(r_imu_world: np.ndarray, R_body_to_world: np.ndarray, lever_arm_b: np.ndarray,
                           R_cam_to_body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera centre (m, world) and R_cam_to_world from the IMU position/attitude and the mounting."""
-    R_body_to_w = np.asarray(R_body_to_w, float)
-    C = np.asarray(C_imu_w, float) + R_body_to_w @ np.asarray(lever_arm_b, float)
-    return C, R_body_to_w @ np.asarray(R_cam_to_body, float)
+    """Camera centre (3,) (m, world) and R_cam_to_world (3,3) of the body pose (IMU position, attitude) and the
+    mounting (`dgcal.fields.pose.Poses.mounted`)."""
+    cam = Poses.from_body_to_world(R_body_to_world, r_imu_world).mounted(lever_arm_b, R_cam_to_body)
+    return cam.C_world[0], cam.R_cam_to_world[0]
 
 
-def R_body_to_world_from_rph(rph_deg, R_enu_to_w: np.ndarray | None = None) -> np.ndarray:
-    """R_body_to_w for NED->body roll/pitch/heading (deg) in a z-up world (ENU, or grid via R_enu_to_w)."""
-    R = R_NED_TO_ENU @ R_body_to_ned_from_rph(*np.asarray(rph_deg, float))
-    return R if R_enu_to_w is None else np.asarray(R_enu_to_w, float) @ R
+def R_body_to_world_from_rph(rph_deg, R_enu_to_world: np.ndarray | None = None) -> np.ndarray:
+    """R_body_to_world for NED->body roll/pitch/heading (deg) in a z-up world (ENU, or grid via R_enu_to_world)."""
+    R_body_to_enu = R_NED_TO_ENU @ R_body_to_ned_from_rph(*np.asarray(rph_deg, float))
+    return R_body_to_enu if R_enu_to_world is None else np.asarray(R_enu_to_world, float) @ R_body_to_enu
 
 
-def pose_covariance_from_rph(rph_deg, cov_rph_deg2, cov_pos_w, R_cam_to_body: np.ndarray,
-                             R_enu_to_w: np.ndarray | None = None) -> np.ndarray:
+def pose_covariance_from_rph(rph_deg, cov_rph_deg2, cov_pos_world, R_cam_to_body: np.ndarray,
+                             R_enu_to_world: np.ndarray | None = None) -> np.ndarray:
     """6x6 pose covariance [centre m, camera-frame rotation rad] from the covariance of roll/pitch/heading
     (3x3 deg^2, or (3,) sigmas in deg) and of the world position (3x3 m^2, or (3,) sigmas in m), by
     differentiating R_cam_to_world with respect to the angles."""
     rph = np.asarray(rph_deg, float)
     Ca = np.asarray(cov_rph_deg2, float)
     Ca = np.diag(Ca ** 2) if Ca.ndim == 1 else Ca
-    Cp = np.asarray(cov_pos_w, float)
+    Cp = np.asarray(cov_pos_world, float)
     Cp = np.diag(Cp ** 2) if Cp.ndim == 1 else Cp
-    R0 = R_body_to_world_from_rph(rph, R_enu_to_w) @ R_cam_to_body
+    R_cam_to_world = R_body_to_world_from_rph(rph, R_enu_to_world) @ R_cam_to_body
     J = np.empty((3, 3))
     eps = 1e-6
     for i in range(3):
         d = np.zeros(3)
         d[i] = eps
-        R1 = R_body_to_world_from_rph(rph + d, R_enu_to_w) @ R_cam_to_body
-        J[:, i] = so3_log(R0.T @ R1) / eps
+        R_cam_to_world_d = R_body_to_world_from_rph(rph + d, R_enu_to_world) @ R_cam_to_body
+        J[:, i] = so3_log(R_cam_to_world.T @ R_cam_to_world_d) / eps
     P = np.zeros((6, 6))
     P[:3, :3] = Cp
     P[3:, 3:] = J @ Ca @ J.T
     return P
 
 
-def _intersect_height(C: np.ndarray, d: np.ndarray, h) -> tuple[np.ndarray, np.ndarray]:
+def _intersect_height(C_world: np.ndarray, d: np.ndarray, h) -> tuple[np.ndarray, np.ndarray]:
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = (np.asarray(h, float) - C[2]) / d[:, 2]
-    return C + s[:, None] * d, s > 0
+        s = (np.asarray(h, float) - C_world[2]) / d[:, 2]
+    return C_world + s[:, None] * d, s > 0
 
 
-def intersect_dem(C: np.ndarray, d: np.ndarray, dem, dh: float, max_iter: int, tol: float):
-    """Ground points (N,3) of rays from C (3,) along d (N,3) on a DEM raised by dh (m), by Newton along each
+def intersect_dem(C_world: np.ndarray, d: np.ndarray, dem, dh: float, max_iter: int, tol: float):
+    """Ground points (N,3) of rays from C_world (3,) along d (N,3) on a DEM raised by dh (m), by Newton along each
     ray; and ok (N,)."""
     # start on the level surface through the DEM height below the camera (or the DEM mean)
-    h0 = dem.height(C[0], C[1])
+    h0 = dem.height(C_world[0], C_world[1])
     h0 = float(np.nanmean(dem.heights)) if not np.isfinite(h0) else float(h0)
-    X, ok = _intersect_height(C, d, h0 + dh)
-    s = (X[:, 2] - C[2]) / d[:, 2]
+    X, ok = _intersect_height(C_world, d, h0 + dh)
+    s = (X[:, 2] - C_world[2]) / d[:, 2]
     done = np.zeros(len(d), bool)
     for _ in range(max_iter):
-        X = C + s[:, None] * d
+        X = C_world + s[:, None] * d
         H = dem.height(X[:, 0], X[:, 1]) + dh
         g = dem.gradient(X[:, 0], X[:, 1])
         f = X[:, 2] - H
@@ -115,28 +118,28 @@ def intersect_dem(C: np.ndarray, d: np.ndarray, dem, dh: float, max_iter: int, t
         done = np.abs(step * np.linalg.norm(d, axis=1)) < tol
         if np.all(done | ~np.isfinite(H)):
             break
-    X = C + s[:, None] * d
+    X = C_world + s[:, None] * d
     H = dem.height(X[:, 0], X[:, 1]) + dh
     ok = ok & done & np.isfinite(H) & (s > 0)
     return X, ok
 
 
-def _solve(camera, uv: np.ndarray, C: np.ndarray, R: np.ndarray, source: str, value, laser_dir_cam,
-           max_iter: int = 30, tol: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
-    d = camera.ray(uv) @ R.T
+def _solve(camera, uv: np.ndarray, C_world: np.ndarray, R_cam_to_world: np.ndarray, source: str, value,
+           laser_dir_cam, max_iter: int = 30, tol: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+    d = camera.ray(uv) @ R_cam_to_world.T
     if source == "height":
-        return _intersect_height(C, d, value)
+        return _intersect_height(C_world, d, value)
     if source == "dem":
         dem, dh = value
-        return intersect_dem(C, d, dem, dh, max_iter, tol)
+        return intersect_dem(C_world, d, dem, dh, max_iter, tol)
     if source == "range":
-        dl = R @ (np.asarray(laser_dir_cam, float) / np.linalg.norm(laser_dir_cam))
-        h_c = C[2] + float(value) * dl[2]
-        return _intersect_height(C, d, h_c)
+        dl = R_cam_to_world @ (np.asarray(laser_dir_cam, float) / np.linalg.norm(laser_dir_cam))
+        h_c = C_world[2] + float(value) * dl[2]
+        return _intersect_height(C_world, d, h_c)
     raise ValueError(f"unknown height source {source!r}")
 
 
-def georeference(camera, uv, C_w, R_cam_to_world, *, height=None, dem=None, range_m=None,
+def georeference(camera, uv, C_world, R_cam_to_world, *, height=None, dem=None, range_m=None,
                  laser_dir_cam=(0.0, 0.0, 1.0), pose_cov: np.ndarray | None = None, sigma_px: float = 0.5,
                  sigma_height: float = 0.0, sigma_range: float = 0.0) -> GroundEstimate:
     """Ground points (world) of pixels `uv` (N,2) in one image, with covariance from the pose covariance
@@ -148,8 +151,8 @@ def georeference(camera, uv, C_w, R_cam_to_world, *, height=None, dem=None, rang
     if sum(given) != 1:
         raise ValueError("give exactly one of height, dem or range_m")
     uv = np.atleast_2d(np.asarray(uv, float))
-    C0 = np.asarray(C_w, float).ravel()
-    R0 = np.asarray(R_cam_to_world, float)
+    C_world = np.asarray(C_world, float).ravel()
+    R_cam_to_world = np.asarray(R_cam_to_world, float)
     if height is not None:
         source, val, s_val, method = "height", np.broadcast_to(np.asarray(height, float), (len(uv),)), \
             sigma_height, "known height"
@@ -157,7 +160,7 @@ def georeference(camera, uv, C_w, R_cam_to_world, *, height=None, dem=None, rang
         source, val, s_val, method = "dem", (dem, 0.0), sigma_height, "DEM"
     else:
         source, val, s_val, method = "range", float(range_m), sigma_range, "laser range"
-    X, ok = _solve(camera, uv, C0, R0, source, val, laser_dir_cam)
+    X, ok = _solve(camera, uv, C_world, R_cam_to_world, source, val, laser_dir_cam)
     # central differences over [centre (3), rotation (3), pixel (2), height/range (1)]
     P = np.zeros((9, 9))
     if pose_cov is not None:
@@ -172,14 +175,14 @@ def georeference(camera, uv, C_w, R_cam_to_world, *, height=None, dem=None, rang
         cols = []
         for sgn in (1.0, -1.0):
             e = sgn * steps[i]
-            C, R, u, v = C0, R0, uv, val
+            C_d, R_d, u, v = C_world, R_cam_to_world, uv, val   # the inputs moved by one step
             if i < 3:
-                C = C0.copy()
-                C[i] += e
+                C_d = C_world.copy()
+                C_d[i] += e
             elif i < 6:
                 w = np.zeros(3)
                 w[i - 3] = e
-                R = R0 @ so3_exp(w)
+                R_d = R_cam_to_world @ so3_exp(w)
             elif i < 8:
                 u = uv.copy()
                 u[:, i - 6] += e
@@ -187,7 +190,7 @@ def georeference(camera, uv, C_w, R_cam_to_world, *, height=None, dem=None, rang
                 v = (val[0], val[1] + e)
             else:
                 v = val + e
-            cols.append(_solve(camera, u, C, R, source, v, laser_dir_cam)[0])
+            cols.append(_solve(camera, u, C_d, R_d, source, v, laser_dir_cam)[0])
         J[:, :, i] = (cols[0] - cols[1]) / (2 * steps[i])
     cov = J @ P @ np.swapaxes(J, 1, 2)
     return GroundEstimate(X, cov, ok, method)
@@ -232,13 +235,13 @@ def pose_covariance_from_opk(opk_deg, cov_eop: np.ndarray) -> np.ndarray:
     C = np.asarray(cov_eop, float)
     C = np.diag(C ** 2) if C.ndim == 1 else C
     opk = np.asarray(opk_deg, float)
-    R0 = R_cam_to_map_from_opk(*opk)
+    R_cam_to_map = R_cam_to_map_from_opk(*opk)
     J = np.empty((3, 3))
     eps = 1e-6
     for i in range(3):
         d = np.zeros(3)
         d[i] = eps
-        J[:, i] = so3_log(R0.T @ R_cam_to_map_from_opk(*(opk + d))) / eps
+        J[:, i] = so3_log(R_cam_to_map.T @ R_cam_to_map_from_opk(*(opk + d))) / eps
     H = np.zeros((6, 6))
     H[:3, :3] = np.eye(3)
     H[3:, 3:] = J
@@ -271,8 +274,8 @@ def georeference_images(camera, meas, eop, *, height: float | None = None, dem=N
             continue
         j = idx[img]
         sel = np.flatnonzero(meas.image.astype(str) == img)
-        C = eop.xyz[j]
-        R = R_cam_to_map_from_opk(*eop.opk[j])
+        C_map = eop.xyz[j]   # the map grid is this georeferencing's world
+        R_cam_to_map = R_cam_to_map_from_opk(*eop.opk[j])
         if eop.cov is not None:
             P = pose_covariance_from_opk(eop.opk[j], eop.cov[j])
         elif eop.sigma is not None and np.all(np.isfinite(eop.sigma[j])):
@@ -292,7 +295,7 @@ def georeference_images(camera, meas, eop, *, height: float | None = None, dem=N
         for k in sel:
             s = meas.sigma[k]
             spx = float(np.nanmean(s)) if np.any(np.isfinite(s)) else sigma_px
-            e = georeference(camera, meas.xy[k][None], C, R, pose_cov=P, sigma_px=spx, **kw)
+            e = georeference(camera, meas.xy[k][None], C_map, R_cam_to_map, pose_cov=P, sigma_px=spx, **kw)
             rows_img.append(img)
             rows_id.append(str(meas.id[k]))
             X.append(e.xyz[0])

@@ -95,10 +95,11 @@ class PosSamples:
 
 
 def _pos_samples(world: World, t, lat, lon, h, v_ned, rph, sigma, omega_b) -> PosSamples:
-    r, v, R = world.pos_to_world(lat, lon, h, v_ned, rph)
+    r_imu_world, v_world, R_body_to_world = world.pos_to_world(lat, lon, h, v_ned, rph)
     cov = None if sigma is None else world.pos_covariance_to_world(lat, lon, rph, sigma)
-    return PosSamples(np.asarray(t, float), Poses.from_body_to_world(R, r, cov), v, np.asarray(omega_b, float),
-                      np.column_stack([lat, lon, h]), np.asarray(rph, float))
+    body = Poses.from_body_to_world(R_body_to_world, r_imu_world, cov)
+    return PosSamples(np.asarray(t, float), body, v_world, np.asarray(omega_b, float), np.column_stack([lat, lon, h]),
+                      np.asarray(rph, float))
 
 
 def pos_at_times(world: World, traj: Trajectory, t_query: np.ndarray, names: np.ndarray | list | None = None,
@@ -234,15 +235,15 @@ class MountingResult:
     def to_json(self) -> dict:
         """The `mounting.json` record of INTERFACES.md plus extras."""
         s = self.sigmas
-        R = self.R_cam_to_body
-        q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
-        rpy = Rotation.from_matrix(R).as_euler("ZYX", degrees=True)[::-1]
+        R_cam_to_body = self.R_cam_to_body
+        q = Rotation.from_matrix(R_cam_to_body).as_quat()  # x, y, z, w
+        rpy = Rotation.from_matrix(R_cam_to_body).as_euler("ZYX", degrees=True)[::-1]
         corr = self.correlation()
         return {
             "method": self.method,
             **({"method_canonical": self.method_canonical} if self.method_canonical else {}),
             "lever_arm_m": [float(v) for v in self.lever_arm_m],
-            "boresight_R_cam_to_body": [[float(v) for v in row] for row in R],
+            "boresight_R_cam_to_body": [[float(v) for v in row] for row in R_cam_to_body],
             "delay_s": float(self.delay_s),
             "lever_arm_sigma_m": [float(v) for v in s[1:4]],
             "boresight_sigma_deg": [float(np.degrees(v)) for v in s[4:7]],
@@ -253,8 +254,8 @@ class MountingResult:
             "boresight_quaternion_wxyz": [float(q[3]), float(q[0]), float(q[1]), float(q[2])],
             # seed Table 1 style: PATB-like angles of the photo frame in the body frame, R_photo_to_body =
             # R_cam_to_body diag(1,-1,-1) = Rx(omega) Ry(phi) Rz(kappa)
-            "boresight_opk_deg": [float(v) for v in
-                                  Rotation.from_matrix(R @ np.diag([1.0, -1.0, -1.0])).as_euler("XYZ", degrees=True)],
+            "boresight_opk_deg": [float(v) for v in Rotation.from_matrix(R_cam_to_body @ np.diag([1.0, -1.0, -1.0]))
+                                  .as_euler("XYZ", degrees=True)],
             "parameters": list(self.PARAM_NAMES),
             "covariance": [[float(v) for v in row] for row in self.cov],
             "covariance_units": "s, m, m, m, rad, rad, rad",
@@ -279,7 +280,7 @@ class MountingResult:
                 raise InputError("not a mounting record: missing", source, field=key)
             return d[key]
 
-        R = validate.matrix(req("boresight_R_cam_to_body"), (3, 3), source, None, "boresight_R_cam_to_body")
+        R_cam_to_body = validate.matrix(req("boresight_R_cam_to_body"), (3, 3), source, None, "boresight_R_cam_to_body")
         lever = validate.vector(req("lever_arm_m"), 3, source, None, "lever_arm_m", -validate.MAX_LEVER_ARM_M,
                                 validate.MAX_LEVER_ARM_M)
         delay = validate.in_range(d.get("delay_s", 0.0), -validate.MAX_DELAY_S, validate.MAX_DELAY_S, source, None,
@@ -294,10 +295,11 @@ class MountingResult:
                       np.radians(validate.vector(d.get("boresight_sigma_deg", [0, 0, 0]), 3, source, None,
                                                  "boresight_sigma_deg", 0.0, 360.0))]
             cov = np.diag(s ** 2)
-        if abs(np.linalg.det(R) - 1) > 1e-3 or np.max(np.abs(R.T @ R - np.eye(3))) > 1e-3:
+        if abs(np.linalg.det(R_cam_to_body) - 1) > 1e-3 \
+                or np.max(np.abs(R_cam_to_body.T @ R_cam_to_body - np.eye(3))) > 1e-3:
             raise InputError("boresight_R_cam_to_body is not a rotation matrix", source,
                              field="boresight_R_cam_to_body")
-        U, _, Vt = np.linalg.svd(R)
+        U, _, Vt = np.linalg.svd(R_cam_to_body)
         per_epoch = d.get("per_epoch") if isinstance(d.get("per_epoch"), dict) else {}
         if not isinstance(per_epoch.get("image", []), list):
             raise InputError("must be a list of image names", source, field="per_epoch.image")

@@ -1,7 +1,7 @@
 """One-step integrated sensor orientation (ISO): a bundle adjustment of the control-field flight with the POS as
 observations, estimating the lever arm, boresight and exposure delay in the same adjustment.
 
-Unknowns (world frame of the block): every image's pose (C_i, R_cam_to_world,i), the ground points (control
+Unknowns (world frame of the block): every image's pose (C_world,i, R_cam_to_world,i), the ground points (control
 points weighted by their sigmas, all others free tie points; points with role `check` are never control), and
 the mounting x = [dt, l_b, theta_b].
 Observations:
@@ -9,7 +9,8 @@ Observations:
   intrinsics (`refine_intrinsics`) may be estimated too;
 - control point coordinates (m);
 - POS at every event, propagated over the delay as in the `proposed` method:
-    C_i = r_imu,i + v_i dt + R_b,i Exp(omega_i dt) l_b,   R_cam_to_world,i = R_b,i Exp(omega_i dt) Exp(theta_b) R_hat,
+    C_world,i = r_imu_world,i + v_world,i dt + R_body_to_world,i Exp(omega_b,i dt) l_b,
+    R_cam_to_world,i = R_body_to_world,i Exp(omega_b,i dt) Exp(theta_b) R_hat   (R_hat: the initial R_cam_to_body),
   weighted by the POS covariance (position and attitude).
 Solved by the engine of `dgcal.bundle.solver` (image observations, control-point priors and a POS block per
 epoch; poses follow `dgcal.fields.pose`); the covariance of the mounting comes from the full normal matrix,
@@ -95,10 +96,10 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
         nrm = normals_at(prob, sol)
     sigma0_sq = float(nrm.cost / max(int(nrm.redundancy), 1))
     mt = sol.state.globals[:7]
-    R_final = so3_exp(mt[4:7]) @ R_hat
-    cov = _iso_covariance(prob, nrm, ep.pos, W_pos, C_pos, mt, R_final, free_m, len(i_intr), sigma0_sq,
+    R_cam_to_body = so3_exp(mt[4:7]) @ R_hat
+    cov = _iso_covariance(prob, nrm, ep.pos, W_pos, C_pos, mt, R_cam_to_body, free_m, len(i_intr), sigma0_sq,
                           pos_common_fraction)
-    res = _iso_result(ep, world, blk, prob, sol, nrm, cov, R_final, fix_delay, refine_intrinsics,
+    res = _iso_result(ep, world, blk, prob, sol, nrm, cov, R_cam_to_body, fix_delay, refine_intrinsics,
                       pos_common_fraction, init)
     res.extra["rejected_observations"] = rejected
     if rejected:
@@ -215,14 +216,14 @@ class _IsoCovariance:
 
 
 def _iso_covariance(prob: Problem, nrm, pos, W_pos: np.ndarray, C_pos: np.ndarray, mt: np.ndarray,
-                    R_final: np.ndarray, free_m: np.ndarray, n_intr: int, sigma0_sq: float,
+                    R_cam_to_body: np.ndarray, free_m: np.ndarray, n_intr: int, sigma0_sq: float,
                     pos_common_fraction: float) -> _IsoCovariance:
     """The normal matrix's covariance of the mounting (scaled by max(1, sigma0^2)) plus the response of the
     mounting to a POS error common to all epochs (position in world axes, attitude about body axes): the POS
     observation enters the residual as in `calibrate_proposed`."""
     M = len(pos.r_imu_world)
     cov_eng = Covariance.at(prob, nrm)
-    B = np.einsum("nij,njk->nik", W_pos, _pos_G(pos, mt[0], mt[1:4], R_final))
+    B = np.einsum("nij,njk->nik", W_pos, _pos_G(pos, mt[0], mt[1:4], R_cam_to_body))
     b_c, b_x = normal_rhs(prob, nrm, len(prob.blocks) - 1, B)
     resp_c, _ = cov_eng.response(b_c, b_x)
     glob_cols = 6 * M + np.r_[free_m, 7 + np.arange(n_intr)]
@@ -239,8 +240,8 @@ def _iso_covariance(prob: Problem, nrm, pos, W_pos: np.ndarray, C_pos: np.ndarra
 
 
 def _iso_result(ep, world: World, blk: _IsoBlock, prob: Problem, sol, nrm, cov: _IsoCovariance,
-                R_final: np.ndarray, fix_delay: bool, refine_intrinsics: tuple[str, ...], pos_common_fraction: float,
-                init: MountingResult) -> MountingResult:
+                R_cam_to_body: np.ndarray, fix_delay: bool, refine_intrinsics: tuple[str, ...],
+                pos_common_fraction: float, init: MountingResult) -> MountingResult:
     """The mounting result: parameters, POS residuals per epoch, warnings, fit statistics and the adjusted EOPs."""
     g = sol.state.globals
     mt = g[:7]
@@ -252,13 +253,14 @@ def _iso_result(ep, world: World, blk: _IsoBlock, prob: Problem, sol, nrm, cov: 
     rpx = prob.blocks[0].camera_at(g).project(Xc) - blk.meas.xy
     # POS residuals at the solution (as `proposed`); the image list also tells `covariance_for_flight` which
     # photos are this flight's, whose POS errors already carry the common part
-    R_bf = pos.R_body_to_world @ so3_exp(pos.omega_b * mt[0])
-    p_f = pos.r_imu_world + pos.v_world * mt[0] + np.einsum("nij,j->ni", R_bf, mt[1:4])
-    e_f = np.column_stack([poses.C_world - p_f, so3_log(T(R_bf @ R_final) @ poses.R_cam_to_world)])
+    R_body_to_world = pos.R_body_to_world @ so3_exp(pos.omega_b * mt[0])
+    p_f = pos.r_imu_world + pos.v_world * mt[0] + np.einsum("nij,j->ni", R_body_to_world, mt[1:4])
+    R_cam_to_world_f = R_body_to_world @ R_cam_to_body
+    e_f = np.column_stack([poses.C_world - p_f, so3_log(T(R_cam_to_world_f) @ poses.R_cam_to_world)])
     per_epoch = {"image": blk.img_names, "residual_position_m": e_f[:, :3].tolist(),
                  "residual_rotation_deg": np.degrees(e_f[:, 3:]).tolist()}
-    res = MountingResult("iso", mt[1:4].copy(), R_final, 0.0 if fix_delay else float(mt[0]), cov.total, M, [],
-                         list(ep.warnings) + observability_warnings(ep), per_epoch)
+    res = MountingResult("iso", mt[1:4].copy(), R_cam_to_body, 0.0 if fix_delay else float(mt[0]), cov.total, M,
+                         [], list(ep.warnings) + observability_warnings(ep), per_epoch)
     corr = res.correlation()
     for i in range(7):
         for j in range(i + 1, 7):
@@ -304,21 +306,21 @@ def _pos_G(pos, dt: float, lever: np.ndarray, R_cam_to_body: np.ndarray) -> np.n
 
 def _pos_prediction(pos, x: np.ndarray, R_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera centres (M,3) and R_cam_to_world (M,3,3) the POS predicts for mounting x = [dt, lever, theta]."""
-    R_b = pos.R_body_to_world @ so3_exp(pos.omega_b * x[0])
-    p = pos.r_imu_world + pos.v_world * x[0] + np.einsum("nij,j->ni", R_b, x[1:4])
-    return p, R_b @ (so3_exp(x[4:7]) @ R_hat)
+    R_body_to_world = pos.R_body_to_world @ so3_exp(pos.omega_b * x[0])
+    p = pos.r_imu_world + pos.v_world * x[0] + np.einsum("nij,j->ni", R_body_to_world, x[1:4])
+    return p, R_body_to_world @ (so3_exp(x[4:7]) @ R_hat)
 
 
 def _pos_residuals(state: State, pos, R_hat: np.ndarray, W_pos: np.ndarray, jacobians: bool) -> BlockEval:
-    """Whitened POS residuals per epoch: W [C - p(x), Log(Rc(x)^T R_cam_to_world)], with the Jacobians
-    d/d(pose) analytic (right Jacobian) and d/d(mounting) by central differences."""
+    """Whitened POS residuals per epoch: W [C_world - p(x), Log(R_cam_to_world_pred(x)^T R_cam_to_world)], with the
+    Jacobians d/d(pose) analytic (right Jacobian) and d/d(mounting) by central differences."""
     x = state.globals[:7]
     M = len(pos.r_imu_world)
-    C, R = state.poses.C_world, state.poses.R_cam_to_world
+    C_world, R_cam_to_world = state.poses.C_world, state.poses.R_cam_to_world
 
     def raw(xx):
-        p, Rc = _pos_prediction(pos, xx, R_hat)
-        return np.column_stack([C - p, so3_log(T(Rc) @ R)])
+        p, R_cam_to_world_pred = _pos_prediction(pos, xx, R_hat)
+        return np.column_stack([C_world - p, so3_log(T(R_cam_to_world_pred) @ R_cam_to_world)])
 
     e = raw(x)
     r = np.einsum("nij,nj->ni", W_pos, e)

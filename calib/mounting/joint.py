@@ -50,31 +50,33 @@ def predict(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> tuple[np.ndarray, n
     x = [dt, l_b(3), theta_b(3)] around boresight R_hat."""
     dt, lever, theta = x[0], x[1:4], x[4:7]
     ddt = dt - ep.dt_ref  # the POS of `ep` is already at t_event + dt_ref
-    R_b = ep.pos.R_body_to_world @ so3_exp(ep.pos.omega_b * ddt)
-    p = ep.pos.r_imu_world + ep.pos.v_world * ddt + np.einsum("nij,j->ni", R_b, lever)
-    return p, R_b @ (so3_exp(theta) @ R_hat), R_b
+    R_body_to_world = ep.pos.R_body_to_world @ so3_exp(ep.pos.omega_b * ddt)
+    p = ep.pos.r_imu_world + ep.pos.v_world * ddt + np.einsum("nij,j->ni", R_body_to_world, lever)
+    return p, R_body_to_world @ (so3_exp(theta) @ R_hat), R_body_to_world
 
 
 def residuals(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
-    """(N,6) residuals: position (m, world) and rotation Log(R_pred^T R_obs) (rad, camera frame)."""
-    p, Rc, _ = predict(ep, x, R_hat)
-    return np.column_stack([ep.eop.C_world - p, so3_log(T(Rc) @ ep.eop.R_cam_to_world)])
+    """(N,6) residuals: position (m, world) and rotation Log(R_cam_to_world_pred^T R_cam_to_world_eop) (rad, camera
+    frame)."""
+    p, R_cam_to_world_pred, _ = predict(ep, x, R_hat)
+    return np.column_stack([ep.eop.C_world - p, so3_log(T(R_cam_to_world_pred) @ ep.eop.R_cam_to_world)])
 
 
 def residual_jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
     """(N,6,7) d(residuals)/dx, x = [dt (s), l_b (m), theta_b (rad)]: position rows -dp/dx (world, m), rotation rows
-    d Log(R_pred^T R_obs)/dx (camera frame, rad); R_b(dt) = R_b Exp(omega_b dt) about a fixed axis, so
-    dR_b/dt = R_b [omega_b]x, and a change of theta_b moves R_cam_to_body by Exp(R_hat^T Jr(theta_b) d) on the right."""
+    d Log(R_cam_to_world_pred^T R_cam_to_world_eop)/dx (camera frame, rad); R_body_to_world(dt) =
+    R_body_to_world Exp(omega_b dt) about a fixed axis, so dR_body_to_world/dt = R_body_to_world [omega_b]x, and a
+    change of theta_b moves R_cam_to_body by Exp(R_hat^T Jr(theta_b) d) on the right."""
     dt, lever, theta = x[0], x[1:4], x[4:7]
     w = ep.pos.omega_b
-    R_b = ep.pos.R_body_to_world @ so3_exp(w * (dt - ep.dt_ref))
-    R_cb = so3_exp(theta) @ R_hat
-    e = so3_log(T(R_b @ R_cb) @ ep.eop.R_cam_to_world)
+    R_body_to_world = ep.pos.R_body_to_world @ so3_exp(w * (dt - ep.dt_ref))
+    R_cam_to_body = so3_exp(theta) @ R_hat
+    e = so3_log(T(R_body_to_world @ R_cam_to_body) @ ep.eop.R_cam_to_world)
     Jl_inv = so3_right_jacobian_inv(-e)            # Log(Exp(a) Exp(e)) ~ e + Jl^-1(e) a
     J = np.zeros((len(ep), 6, 7))
-    J[:, :3, 0] = -(ep.pos.v_world + np.einsum("nij,nj->ni", R_b, np.cross(w, lever)))
-    J[:, :3, 1:4] = -R_b
-    J[:, 3:, 0] = -np.einsum("nij,nj->ni", Jl_inv, np.einsum("ji,nj->ni", R_cb, w))
+    J[:, :3, 0] = -(ep.pos.v_world + np.einsum("nij,nj->ni", R_body_to_world, np.cross(w, lever)))
+    J[:, :3, 1:4] = -R_body_to_world
+    J[:, 3:, 0] = -np.einsum("nij,nj->ni", Jl_inv, np.einsum("ji,nj->ni", R_cam_to_body, w))
     J[:, 3:, 4:7] = -Jl_inv @ (R_hat.T @ so3_right_jacobian(theta))
     return J
 
@@ -91,12 +93,12 @@ def residual_covariance(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndar
 def pos_error_jacobian(ep: Epochs, x: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
     """(N,6,6) d(residual)/d(POS error): position error in the world (m), attitude error about body axes (rad)."""
     n = len(ep)
-    _, _, R_b = predict(ep, x, R_hat)
-    R_cb = so3_exp(x[4:7]) @ R_hat
+    _, _, R_body_to_world = predict(ep, x, R_hat)
+    R_cam_to_body = so3_exp(x[4:7]) @ R_hat
     G = np.zeros((n, 6, 6))
     G[:, :3, :3] = -np.eye(3)
-    G[:, :3, 3:] = R_b @ skew(x[1:4])  # -(-R_b [l]x)
-    G[:, 3:, 3:] = -R_cb.T
+    G[:, :3, 3:] = R_body_to_world @ skew(x[1:4])  # -(-R_body_to_world [l]x)
+    G[:, 3:, 3:] = -R_cam_to_body.T
     return G
 
 
@@ -245,9 +247,10 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
                   if pos_common_fraction > 0 else np.zeros((7, 7)))
     cov = cov_random + cov_common
     # per-epoch values with the delay applied (seed Fig. 22): what each epoch says about l_b and the boresight
-    p_pred, Rc_pred, R_b = predict(ep, x, R_hat_s)
-    lever_i = np.einsum("nji,nj->ni", R_b, ep.eop.C_world - ep.pos.r_imu_world - ep.pos.v_world * (x[0] - ep.dt_ref))
-    ang_i = so3_log((T(R_b) @ ep.eop.R_cam_to_world) @ R_hat_s.T)
+    _, _, R_body_to_world = predict(ep, x, R_hat_s)
+    r_imu_world = ep.pos.r_imu_world + ep.pos.v_world * (x[0] - ep.dt_ref)
+    lever_i = np.einsum("nji,nj->ni", R_body_to_world, ep.eop.C_world - r_imu_world)
+    ang_i = so3_log((T(R_body_to_world) @ ep.eop.R_cam_to_world) @ R_hat_s.T)
     e_full = residuals(ep, x, R_hat_s)
     per_epoch = {"image": [str(s) for s in ep.image], "t_event": ep.t_event.tolist(),
                  "lever_arm_m": lever_i.tolist(), "boresight_deg": np.degrees(ang_i).tolist(),

@@ -19,9 +19,9 @@ from dgcal.fields.pose import transpose as T
 
 def per_epoch_values(ep: Epochs) -> tuple[np.ndarray, np.ndarray]:
     """Per-epoch lever arms (N,3) m in body and boresights `R_cam_to_body` (N,3,3) at event time."""
-    R_bL = ep.pos.R_body_to_world
-    lever = np.einsum("nji,nj->ni", R_bL, ep.eop.C_world - ep.pos.r_imu_world)
-    return lever, T(R_bL) @ ep.eop.R_cam_to_world
+    R_body_to_world = ep.pos.R_body_to_world
+    lever = np.einsum("nji,nj->ni", R_body_to_world, ep.eop.C_world - ep.pos.r_imu_world)
+    return lever, T(R_body_to_world) @ ep.eop.R_cam_to_world
 
 
 def _clip_outliers(x: np.ndarray, k: float = 4.0, rounds: int = 5) -> np.ndarray:
@@ -42,14 +42,15 @@ def _clip_outliers(x: np.ndarray, k: float = 4.0, rounds: int = 5) -> np.ndarray
 
 def calibrate_traditional(ep: Epochs) -> MountingResult:
     """Lever arm and boresight as robust means of per-epoch values at event time (delay fixed to 0)."""
-    lever, R_cb = per_epoch_values(ep)
-    R0 = rotation_mean(R_cb)
-    ang0 = so3_log(R_cb @ R0.T)  # body-frame rotation of each epoch from the first mean
+    lever, R_cam_to_body = per_epoch_values(ep)
+    R_cam_to_body_0 = rotation_mean(R_cam_to_body)
+    ang0 = so3_log(R_cam_to_body @ R_cam_to_body_0.T)  # body-frame rotation of each epoch from the first mean
     bad = _clip_outliers(np.column_stack([lever, ang0])) if len(ep) >= 5 else np.zeros(len(ep), bool)
     keep = ~bad
     l_mean = lever[keep].mean(axis=0)
-    R_mean = rotation_mean(R_cb[keep])
-    ang = so3_log(R_cb @ R_mean.T)  # left residuals: R_i = Exp(a_i) R_mean, a_i about body axes
+    R_cam_to_body_mean = rotation_mean(R_cam_to_body[keep])
+    # left residuals: R_cam_to_body,i = Exp(a_i) R_cam_to_body_mean, a_i about body axes
+    ang = so3_log(R_cam_to_body @ R_cam_to_body_mean.T)
     n = int(keep.sum())
     ddof = 1 if n > 1 else 0
     cov = np.zeros((7, 7))
@@ -58,7 +59,7 @@ def calibrate_traditional(ep: Epochs) -> MountingResult:
     per_epoch = {"image": [str(s) for s in ep.image], "t_event": ep.t_event.tolist(),
                  "lever_arm_m": lever.tolist(), "boresight_deg": np.degrees(ang).tolist(),
                  "rejected": bad.tolist()}
-    res = MountingResult("traditional", l_mean, R_mean, 0.0, cov, n, [str(s) for s in ep.image[bad]],
+    res = MountingResult("traditional", l_mean, R_cam_to_body_mean, 0.0, cov, n, [str(s) for s in ep.image[bad]],
                          list(ep.warnings), per_epoch)
     res.extra["delay_fixed"] = True
     res.extra["lever_arm_spread_m"] = lever[keep].std(axis=0, ddof=ddof).tolist()

@@ -175,12 +175,12 @@ def _pnp(obj: np.ndarray, img: np.ndarray, K: np.ndarray, planar: bool, thresh_p
         if pose is None:
             return None
         rvec, tvec = _pnp_all(obj64[mask], img64[mask], K, planar) or pose
-    R = cv2.Rodrigues(rvec)[0]
-    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(tvec))):
+    R_obj_to_cam = cv2.Rodrigues(rvec)[0]
+    if not (np.all(np.isfinite(R_obj_to_cam)) and np.all(np.isfinite(tvec))):
         return None
-    if np.median((obj[mask] @ R.T + tvec.ravel())[:, 2]) <= 0:
+    if np.median((obj[mask] @ R_obj_to_cam.T + tvec.ravel())[:, 2]) <= 0:
         return None
-    return R, tvec.ravel(), mask
+    return R_obj_to_cam, tvec.ravel(), mask
 
 
 def _pnp_all(obj: np.ndarray, img: np.ndarray, K: np.ndarray, planar: bool):
@@ -243,8 +243,8 @@ def _focal_guess(groups, xyz, image_size, planar, plane_xyz) -> float:
             if pose is None:
                 errs.append(np.inf)
                 continue
-            R, t, _ = pose
-            Xc = xyz[j] @ R.T + t
+            R_obj_to_cam, t_cam, _ = pose
+            Xc = xyz[j] @ R_obj_to_cam.T + t_cam
             proj = Xc[:, :2] / Xc[:, 2:3] * f + K[:2, 2]
             errs.append(np.median(np.linalg.norm(proj - uv, axis=1)))
         score = np.median(errs)
@@ -349,8 +349,8 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     X0, pt_free, pt_prior_w = _target_unknowns(refine_targets, obs, init.active, field_sigma)
     # all requested parameters at once (staging focal length/K1 first converged slower in tests)
     adj = _Adjustment(cam, np.array([k not in fixed for k in cls.PARAMS]), obs, X0, pt_free, pt_prior_w)
-    state, total_it = adj.solve_from_start(State(Poses.from_R_t(init.R, init.t), X0.copy(), cam.params.copy()),
-                                           init.active)
+    start = State(Poses.from_R_t(init.R_field_to_cam, init.t_cam), X0.copy(), cam.params.copy())
+    state, total_it = adj.solve_from_start(start, init.active)
     state, active, usable, settled, it = _reject_outliers(adj, state, init, reject_k, max_rounds, min_points_per_image)
     total_it += it
     if M - len(init.dropped) < 3:
@@ -461,10 +461,11 @@ def _initial_camera(cls, model: str, initial: CameraModel | None, groups_ok, fie
 
 @dataclass
 class _InitialPoses:
-    """Start poses (R_field_to_cam (M,3,3), t (M,3)), the observations kept (PnP inliers), dropped images and why."""
+    """Start poses (R_field_to_cam (M,3,3), t_cam (M,3)), the observations kept (PnP inliers), dropped images and
+    why."""
 
-    R: np.ndarray
-    t: np.ndarray
+    R_field_to_cam: np.ndarray
+    t_cam: np.ndarray
     active: np.ndarray
     dropped: list[str]
     reason: np.ndarray       # (n,) int8: index into REASONS (0: none, i.e. an outlier when left out)
@@ -497,9 +498,9 @@ def _initial_poses(obs: _Observations, rows: list[np.ndarray], cam: CameraModel,
             out.active[m] = False
             out.reason[m] = REASONS.index("image dropped: no pose")
             continue
-        Rp, tp, inl = pose
-        out.R[i] = Rp @ R_field_to_plane
-        out.t[i] = tp - Rp @ R_field_to_plane @ c0
+        R_plane_to_cam, t_cam, inl = pose
+        out.R_field_to_cam[i] = R_plane_to_cam @ R_field_to_plane
+        out.t_cam[i] = t_cam - R_plane_to_cam @ R_field_to_plane @ c0
         out.active[m[~inl]] = False
     return out
 
@@ -519,12 +520,12 @@ def _pose_fitting_camera(cam: CameraModel, K0: np.ndarray, obj: np.ndarray, uv: 
             cands.append(alt)
     best = np.inf
     pose = None
-    for Rc, tc, _ in cands:
+    for R_plane_to_cam, t_cam, _ in cands:
         with np.errstate(all="ignore"):
-            e = np.linalg.norm(cam.project(obj @ Rc.T + tc) - uv, axis=1)
+            e = np.linalg.norm(cam.project(obj @ R_plane_to_cam.T + t_cam) - uv, axis=1)
         if np.nanmedian(e) < best:
             best = float(np.nanmedian(e))
-            pose = (Rc, tc, np.nan_to_num(e, nan=np.inf) < max(0.02 * max(w, h), 3 * best))
+            pose = (R_plane_to_cam, t_cam, np.nan_to_num(e, nan=np.inf) < max(0.02 * max(w, h), 3 * best))
     return pose
 
 
@@ -725,12 +726,12 @@ def _result(adj: _Adjustment, state: State, active: np.ndarray, usable: np.ndarr
                                             str(id_names[obs.meas_id.codes[k]]),
                                             float(np.linalg.norm(r_all[k])) if usable[k] else float("nan"),
                                             REASONS[init.reason[k]] or "outlier"))
-    R_out, C_out = state.poses.R_world_to_cam.copy(), state.poses.C_world.copy()
-    R_out[~keep_img] = np.nan
-    C_out[~keep_img] = np.nan
+    R_world_to_cam, C_world = state.poses.R_world_to_cam.copy(), state.poses.C_world.copy()
+    R_world_to_cam[~keep_img] = np.nan
+    C_world[~keep_img] = np.nan
     return IntrinsicBAResult(
         camera=camera, free=free_cam.copy(), cov_camera=cov_cam, correlation=corr, cov_camera_side=cov_side,
-        image_names=obs.image_names, poses=Poses(R_out, C_out, pose_cov),
+        image_names=obs.image_names, poses=Poses(R_world_to_cam, C_world, pose_cov),
         point_ids=list(obs.field_ids), points_xyz=state.points.copy(), points_sigma=pts_sigma,
         points_free=pt_free.copy(), obs_image=obs.obs_img, obs_point=obs.obs_pt, obs_xy=obs.xy, obs_sigma=obs.sig,
         residuals=r_all, used=active, sigma0=sigma0, rms_px=rms, rejected=rejected, dropped_images=list(init.dropped),
@@ -758,11 +759,12 @@ def refit(result: IntrinsicBAResult, images: np.ndarray) -> IntrinsicBAResult:
     active &= keep[result.obs_image]
     if keep.sum() < 3:
         raise InputError(f"only {int(keep.sum())} image(s) in the subset; need 3 or more")
-    R = np.where(keep[:, None, None], np.nan_to_num(result.poses.R_world_to_cam), np.eye(3))
-    C = np.where(keep[:, None], np.nan_to_num(result.poses.C_world), 0.0)
-    state, it, conv = adj.solve(State(Poses(R, C), result.points_xyz.copy(), cam.params.copy()), active)
+    R_world_to_cam = np.where(keep[:, None, None], np.nan_to_num(result.poses.R_world_to_cam), np.eye(3))
+    C_world = np.where(keep[:, None], np.nan_to_num(result.poses.C_world), 0.0)
+    start = Poses(R_world_to_cam, C_world)
+    state, it, conv = adj.solve(State(start, result.points_xyz.copy(), cam.params.copy()), active)
     dropped = [str(n) for n, k in zip(names, keep) if not k]
-    init = _InitialPoses(R, C, active.copy(), dropped,
+    init = _InitialPoses(R_world_to_cam, start.t_cam, active.copy(), dropped,
                          np.full(len(active), REASONS.index("not in the subset"), np.int8))
     init.reason[active] = 0
     return _result(adj, state, active, active.copy(), init, "none", it, bool(conv), True, cam.image_size)

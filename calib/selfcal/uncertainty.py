@@ -40,9 +40,9 @@ def mean_pose_covariance(ba: IntrinsicBAResult) -> np.ndarray:
     idx = np.flatnonzero(used)
     n = len(idx)
     L = np.zeros((6 + P, 6 * M + P))
-    R = ba.poses.R_world_to_cam
+    R_world_to_cam = ba.poses.R_world_to_cam
     for i in idx:
-        L[0:3, 6 * i:6 * i + 3] = -R[i] / n
+        L[0:3, 6 * i:6 * i + 3] = -R_world_to_cam[i] / n
         L[3:6, 6 * i + 3:6 * i + 6] = np.eye(3) / n
     L[6:, 6 * M:] = np.eye(P)
     S = ba.cov_camera_side.sandwich(L)
@@ -102,13 +102,13 @@ def worst_sigma(cov: np.ndarray) -> np.ndarray:
 
 def median_range(ba: IntrinsicBAResult) -> float:
     """Median camera-to-target distance (m) of the used observations."""
-    R, C = ba.poses.R_world_to_cam, ba.poses.C_world
+    R_world_to_cam, C_world = ba.poses.R_world_to_cam, ba.poses.C_world
     d = np.empty(int(ba.used.sum()))
     k = 0
     for a in range(0, len(ba.used), 100_000):            # 100 000 observations at a time
         u = ba.used[a:a + 100_000]
         i, j = ba.obs_image[a:a + 100_000][u], ba.obs_point[a:a + 100_000][u]
-        X = np.einsum("kij,kj->ki", R[i], ba.points_xyz[j] - C[i])
+        X = np.einsum("kij,kj->ki", R_world_to_cam[i], ba.points_xyz[j] - C_world[i])
         d[k:k + len(X)] = np.linalg.norm(X, axis=1)
         k += len(X)
     return float(np.median(d))
