@@ -80,8 +80,8 @@ def _from_mapper(camera, names, oi, op, uv, X_control, control_tol_m, notes, sec
     if not res.models:
         notes.append(f"the incremental mapper found no model ({res.n_verified_pairs} verified image pairs)")
         return None
-    R = np.tile(np.eye(3), (n, 1, 1))
-    C = np.zeros((n, 3))
+    R_world_to_cam = np.tile(np.eye(3), (n, 1, 1))
+    C_world = np.zeros((n, 3))
     oriented = np.zeros(n, bool)
     X = np.full((m, 3), np.nan)
     known = np.isfinite(X_control).all(1)
@@ -92,22 +92,22 @@ def _from_mapper(camera, names, oi, op, uv, X_control, control_tol_m, notes, sec
             notes.append(f"mapper model {k + 1} ({int(reg.sum())} images) has {int(pairs.sum())} control point(s) "
                          "usable for its datum: left out")
             continue
-        s, Rs, t, inl = sim
+        s, R_model_to_world, t, inl = sim
         if (~inl).any():
             bad = np.flatnonzero(pairs)[~inl]
             notes.append(f"{len(bad)} control point(s) off the similarity of mapper model {k + 1} by more than "
                          f"{control_tol_m:g} m: left out of its datum")
         take = reg & ~oriented
-        C[take] = s * poses.C_world[take] @ Rs.T + t
-        R[take] = poses.R_world_to_cam[take] @ Rs.T
+        C_world[take] = s * poses.C_world[take] @ R_model_to_world.T + t
+        R_world_to_cam[take] = poses.R_world_to_cam[take] @ R_model_to_world.T
         oriented |= take
-        Xw = s * Xm @ Rs.T + t
-        fill = np.isfinite(Xw).all(1) & ~np.isfinite(X).all(1)
-        X[fill] = Xw[fill]
+        X_model_in_world = s * Xm @ R_model_to_world.T + t
+        fill = np.isfinite(X_model_in_world).all(1) & ~np.isfinite(X).all(1)
+        X[fill] = X_model_in_world[fill]
     if not oriented.any():
         return None
     X[known] = X_control[known]
-    return InitialOrientation(R, C, oriented, X, np.isfinite(X).all(1), "mapper", notes, seconds)
+    return InitialOrientation(R_world_to_cam, C_world, oriented, X, np.isfinite(X).all(1), "mapper", notes, seconds)
 
 
 def initial_orientation(camera: CameraModel, image_names: list[str], obs_image: np.ndarray, obs_point: np.ndarray,

@@ -1,7 +1,7 @@
 """Multi-ray intersection of image measurements with known exterior orientations, with covariance.
 
-Frames: camera poses are given as projection centres `C_w` (M,3) and rotations `R_cam_to_world` (M,3,3) into any
-Cartesian world frame w (use a local level frame, not a map grid); pixels follow OpenCV. The point is found
+Frames: camera poses are given as projection centres `C_world` (M,3) and rotations `R_cam_to_world` (M,3,3) into any
+Cartesian world frame (use a local level frame, not a map grid); pixels follow OpenCV. The point is found
 by Gauss-Newton on the pixel reprojection errors (started from the linear least-squares ray intersection),
 its covariance from the pixel sigmas, and the sensitivities dX/d(pose) of every point to every pose
 (pose errors: [centre (3, m, world), rotation (3, rad, right perturbation in the camera frame)]) so callers
@@ -16,7 +16,7 @@ import numpy as np
 
 @dataclass
 class IntersectionResult:
-    """Intersected points (K,3) in w with pixel-noise covariance (K,3,3), ray count, RMS reprojection (px),
+    """Intersected points (K,3) in the world with pixel-noise covariance (K,3,3), ray count, RMS reprojection (px),
     `ok` (at least `min_rays` rays and a positive depth), and dX/dpose (K,M,3,6)."""
 
     xyz: np.ndarray
@@ -34,26 +34,26 @@ def _skew(v):
                      np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
 
 
-def intersect(camera, C_w: np.ndarray, R_cam_to_world: np.ndarray, obs_image: np.ndarray, obs_point: np.ndarray,
+def intersect(camera, C_world: np.ndarray, R_cam_to_world: np.ndarray, obs_image: np.ndarray, obs_point: np.ndarray,
               uv: np.ndarray, sigma_uv: np.ndarray | None = None, n_points: int | None = None,
               min_rays: int = 2, iterations: int = 10) -> IntersectionResult:
     """Intersect points from pixels `uv` (n,2) observed in images `obs_image` (n,) of points `obs_point` (n,)."""
-    C_w = np.asarray(C_w, float)
-    R = np.asarray(R_cam_to_world, float)
+    C_world = np.asarray(C_world, float)
+    R_cam_to_world = np.asarray(R_cam_to_world, float)
     obs_image = np.asarray(obs_image, int)
     obs_point = np.asarray(obs_point, int)
     uv = np.asarray(uv, float).reshape(-1, 2)
     K = int(obs_point.max()) + 1 if n_points is None else int(n_points)
-    M = len(C_w)
+    M = len(C_world)
     sig = np.ones_like(uv) if sigma_uv is None else np.where(np.isfinite(sigma_uv), sigma_uv, 1.0)
     w = 1.0 / sig**2
     # linear start: minimise squared distances to the rays
-    d_w = np.einsum("nij,nj->ni", R[obs_image], camera.ray(uv))
-    P = np.eye(3)[None] - d_w[:, :, None] * d_w[:, None, :]
+    d_world = np.einsum("nij,nj->ni", R_cam_to_world[obs_image], camera.ray(uv))
+    P = np.eye(3)[None] - d_world[:, :, None] * d_world[:, None, :]
     A = np.zeros((K, 3, 3))
     b = np.zeros((K, 3))
     np.add.at(A, obs_point, P)
-    np.add.at(b, obs_point, np.einsum("nij,nj->ni", P, C_w[obs_image]))
+    np.add.at(b, obs_point, np.einsum("nij,nj->ni", P, C_world[obs_image]))
     n_rays = np.bincount(obs_point, minlength=K)
     ok = n_rays >= min_rays
     X = np.full((K, 3), np.nan)
@@ -62,10 +62,10 @@ def intersect(camera, C_w: np.ndarray, R_cam_to_world: np.ndarray, obs_image: np
     use = ok[obs_point]
     Ninv = np.full((K, 3, 3), np.nan)
     for _ in range(iterations):
-        Xc = np.einsum("nji,nj->ni", R[obs_image], X[obs_point] - C_w[obs_image])
+        Xc = np.einsum("nji,nj->ni", R_cam_to_world[obs_image], X[obs_point] - C_world[obs_image])
         good = use & (Xc[:, 2] > 0)
         pred, _, J_cam = camera.project_with_jacobians(np.where(good[:, None], Xc, [0, 0, 1.0]))
-        J = J_cam @ np.swapaxes(R[obs_image], -1, -2)  # d uv / d X_w
+        J = J_cam @ np.swapaxes(R_cam_to_world[obs_image], -1, -2)  # d uv / d X_world
         r = uv - pred
         Nm = np.zeros((K, 3, 3))
         g = np.zeros((K, 3))
@@ -89,12 +89,12 @@ def intersect(camera, C_w: np.ndarray, R_cam_to_world: np.ndarray, obs_image: np
         if np.max(np.abs(step)) < 1e-9:
             break
     # final residuals and sensitivities at the solution
-    Xc = np.einsum("nji,nj->ni", R[obs_image], X[obs_point] - C_w[obs_image])
+    Xc = np.einsum("nji,nj->ni", R_cam_to_world[obs_image], X[obs_point] - C_world[obs_image])
     good = use & (Xc[:, 2] > 0)
     pred, _, J_cam = camera.project_with_jacobians(np.where(good[:, None], Xc, [0, 0, 1.0]))
     res = np.where(good[:, None], uv - pred, np.nan)
-    Rt = np.swapaxes(R[obs_image], -1, -2)
-    J_X = J_cam @ Rt
+    R_world_to_cam = np.swapaxes(R_cam_to_world[obs_image], -1, -2)
+    J_X = J_cam @ R_world_to_cam
     J_pose = np.concatenate([-J_X, J_cam @ _skew(Xc)], axis=2)  # d uv / d [centre, camera rotation]
     dX = np.zeros((K, M, 3, 6))
     contrib = -np.einsum("nij,njk->nik", np.swapaxes(J_X * w[:, :, None], -1, -2), J_pose)  # (n,3,6)

@@ -175,18 +175,18 @@ def orient_by_mapper(camera: CameraModel, image_names: list[str], obs_image: np.
         for r, (i, k) in enumerate(zip(oi, kp)):
             row_of[(i, k)] = r
         for rec in sorted(recs.values(), key=lambda r: -r.num_reg_images()):
-            R = np.full((n, 3, 3), np.nan)
-            C = np.full((n, 3), np.nan)
+            R_model_to_cam = np.full((n, 3, 3), np.nan)
+            C_model = np.full((n, 3), np.nan)
             reg = np.zeros(n, bool)
             for iid, im in rec.images.items():
                 if not im.has_pose:
                     continue
                 i = id_to_index[iid]
-                T = im.cam_from_world().matrix()
-                R[i] = T[:, :3]
-                C[i] = -T[:, :3].T @ T[:, 3]
+                T_model_to_cam = im.cam_from_world().matrix()
+                R_model_to_cam[i] = T_model_to_cam[:, :3]
+                C_model[i] = -T_model_to_cam[:, :3].T @ T_model_to_cam[:, 3]
                 reg[i] = True
-            X = np.full((n_points, 3), np.nan)
+            X_model = np.full((n_points, 3), np.nan)
             for p3 in rec.points3D.values():
                 el = p3.track.elements
                 if not len(el):
@@ -194,6 +194,6 @@ def orient_by_mapper(camera: CameraModel, image_names: list[str], obs_image: np.
                 e = el[0]
                 row = row_of.get((id_to_index[e.image_id], e.point2D_idx))
                 if row is not None:
-                    X[op[row]] = p3.xyz
-            result.models.append((Poses(R, C), X, reg))
+                    X_model[op[row]] = p3.xyz
+            result.models.append((Poses(R_model_to_cam, C_model), X_model, reg))
     return result

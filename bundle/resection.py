@@ -46,15 +46,15 @@ def pnp(camera: CameraModel, uv: np.ndarray, X_world: np.ndarray, threshold_px: 
         rvec, tvec = cv2.solvePnPRefineLM(Xc[inl], xy[inl], K, None, rvec, tvec)
     except cv2.error:
         return None
-    R = cv2.Rodrigues(rvec)[0]
-    C = -R.T @ tvec.ravel() + origin
-    Xcam = (X - C) @ R.T
+    R_world_to_cam = cv2.Rodrigues(rvec)[0]
+    C_world = -R_world_to_cam.T @ tvec.ravel() + origin
+    Xcam = (X - C_world) @ R_world_to_cam.T
     proj = Xcam[:, :2] / Xcam[:, 2:3]
     err = np.linalg.norm(proj - xy, axis=1) * f
     inl = inl & (Xcam[:, 2] > 0) & (err < max(threshold_px, 3 * np.median(err[inl]) if inl.any() else 0))
     if inl.sum() < 4:
         return None
-    return R, C, inl
+    return R_world_to_cam, C_world, inl
 
 
 def triangulate_midpoint(C_world: np.ndarray, d_world: np.ndarray) -> tuple[np.ndarray, float]:
@@ -109,8 +109,8 @@ def grow_orientation(camera: CameraModel, n_images: int, obs_image: np.ndarray, 
     m = len(X_known)
     X = np.array(X_known, float)
     known = np.isfinite(X).all(1)
-    R = np.tile(np.eye(3), (n_images, 1, 1)) if R0 is None else np.array(R0, float)
-    C = np.zeros((n_images, 3)) if C0 is None else np.array(C0, float)
+    R_world_to_cam = np.tile(np.eye(3), (n_images, 1, 1)) if R0 is None else np.array(R0, float)
+    C_world = np.zeros((n_images, 3)) if C0 is None else np.array(C0, float)
     oriented = np.zeros(n_images, bool)
     if R0 is not None and C0 is not None:
         oriented = np.isfinite(np.asarray(R0)).all((1, 2)) & np.isfinite(np.asarray(C0)).all(1)
@@ -128,7 +128,7 @@ def grow_orientation(camera: CameraModel, n_images: int, obs_image: np.ndarray, 
             ks = np.nonzero(sel)[0][order]
             pts, starts = np.unique(op[ks], return_index=True)
             used[pts] = np.diff(np.append(starts, len(ks)))
-            Xp, ang, depth_ok = triangulate_tracks(C[oi[ks]], R[oi[ks]], rays[ks], starts)
+            Xp, ang, depth_ok = triangulate_tracks(C_world[oi[ks]], R_world_to_cam[oi[ks]], rays[ks], starts)
             ok = (ang >= min_angle_deg) & depth_ok
             X_tie[pts[ok]] = Xp[ok]
         usable = known | np.isfinite(X_tie).all(1)
@@ -145,10 +145,10 @@ def grow_orientation(camera: CameraModel, n_images: int, obs_image: np.ndarray, 
         if res is None:
             failed_at[best] = best_n   # retry only once more points become usable
             continue
-        R[best], C[best], _ = res
+        R_world_to_cam[best], C_world[best], _ = res
         oriented[best] = True
     X_out = np.where(known[:, None], X, X_tie)
-    return R, C, oriented, X_out, np.isfinite(X_out).all(1)
+    return R_world_to_cam, C_world, oriented, X_out, np.isfinite(X_out).all(1)
 
 
 def similarity_umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -190,22 +190,22 @@ def relative_bootstrap(camera: CameraModel, n_images: int, obs_image: np.ndarray
             E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), cv2.RANSAC, 0.999, 2.0 / f)
             if E is None or E.shape != (3, 3):
                 continue
-            _, R, t, mask = cv2.recoverPose(E, x1, x2, np.eye(3), mask=mask)
+            _, R_model_to_cam_j, t_cam_j, mask = cv2.recoverPose(E, x1, x2, np.eye(3), mask=mask)
         except cv2.error:
             continue   # a degenerate pair: try the next one
-        R0 = np.full((n_images, 3, 3), np.nan)
-        C0 = np.full((n_images, 3), np.nan)
-        R0[i], C0[i] = np.eye(3), np.zeros(3)
-        R0[j], C0[j] = R, (-R.T @ t).ravel()
-        Rm, Cm, ok, Xm, okp = grow_orientation(camera, n_images, oi, op, obs_uv, np.full((m, 3), np.nan), R0, C0,
-                                               min_angle_deg=0.5)
+        R_model_to_cam_0 = np.full((n_images, 3, 3), np.nan)
+        C_model_0 = np.full((n_images, 3), np.nan)
+        R_model_to_cam_0[i], C_model_0[i] = np.eye(3), np.zeros(3)
+        R_model_to_cam_0[j], C_model_0[j] = R_model_to_cam_j, (-R_model_to_cam_j.T @ t_cam_j).ravel()
+        R_model_to_cam, C_model, ok, X_model, okp = grow_orientation(
+            camera, n_images, oi, op, obs_uv, np.full((m, 3), np.nan), R_model_to_cam_0, C_model_0, min_angle_deg=0.5)
         ctrl = known & okp
-        if ctrl.sum() < 3 or np.linalg.matrix_rank(Xm[ctrl] - Xm[ctrl].mean(0), tol=1e-9) < 2:
+        if ctrl.sum() < 3 or np.linalg.matrix_rank(X_model[ctrl] - X_model[ctrl].mean(0), tol=1e-9) < 2:
             continue
-        s, Rs, ts = similarity_umeyama(Xm[ctrl], X_known[ctrl])
-        C = s * Cm @ Rs.T + ts
-        R_w2c = Rm @ Rs.T
-        X = s * Xm @ Rs.T + ts
-        X[known] = X_known[known]
-        return R_w2c, C, ok, X, okp | known
+        s, R_model_to_world, ts = similarity_umeyama(X_model[ctrl], X_known[ctrl])
+        C_world = s * C_model @ R_model_to_world.T + ts
+        R_world_to_cam = R_model_to_cam @ R_model_to_world.T
+        X_world = s * X_model @ R_model_to_world.T + ts
+        X_world[known] = X_known[known]
+        return R_world_to_cam, C_world, ok, X_world, okp | known
     return None

@@ -205,14 +205,14 @@ def _approx_poses(approx: EOP | None, geo: World, images: list[str]) -> tuple[np
     if approx is None:
         return None, None
     n = len(images)
-    R0, C0 = np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan)
+    R_world_to_cam, C_world = np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan)
     a_idx = {str(k): i for i, k in enumerate(approx.image)}
     have = [i for i, name in enumerate(images) if name in a_idx]
     if have:
         rows = [a_idx[images[i]] for i in have]
         p = geo.eop_to_poses(approx.xyz[rows], approx.opk[rows])
-        R0[have], C0[have] = p.R_world_to_cam, p.C_world
-    return R0, C0
+        R_world_to_cam[have], C_world[have] = p.R_world_to_cam, p.C_world
+    return R_world_to_cam, C_world
 
 
 def _centre_priors(centre_priors: EOP | None, geo: World, images: list[str]):
@@ -232,9 +232,11 @@ def _centre_priors(centre_priors: EOP | None, geo: World, images: list[str]):
 class _Adjuster:
     """The block being adjusted: which images are oriented, which observations are active, the last result."""
 
-    def __init__(self, camera, blk: _Block, R, C, oriented, X, point_ok, cprior, csig, opt: TriangulationOptions):
+    def __init__(self, camera, blk: _Block, R_world_to_cam, C_world, oriented, X, point_ok, cprior, csig,
+                 opt: TriangulationOptions):
         self.camera, self.blk, self.opt = camera, blk, opt
-        self.R, self.C, self.oriented, self.X, self.point_ok = R.copy(), C.copy(), oriented.copy(), X.copy(), point_ok
+        self.R_world_to_cam, self.C_world = R_world_to_cam.copy(), C_world.copy()
+        self.oriented, self.X, self.point_ok = oriented.copy(), X.copy(), point_ok
         self.cprior, self.csig = cprior, csig
         self.active = np.ones(len(blk.oi), bool)
         self.is_prior = np.isfinite(blk.X_prior).all(1)     # control points whose coordinates are observations
@@ -267,9 +269,10 @@ class _Adjuster:
         if self.cprior is not None:
             cp, cs = self.cprior[img_keep], self.csig[img_keep]
         Xp = np.where(self.is_prior[:, None], b.X_prior, np.nan)
-        return BundleInput(self.camera, [b.images[i] for i in img_keep], self.R[img_keep], self.C[img_keep],
-                           [b.point_ids[j] for j in pt_keep], self.X[pt_keep], im_map[b.oi[k]], pt_map[b.op[k]],
-                           b.uv[k], b.sig[k], Xp[pt_keep], b.S_prior[pt_keep], cp, cs, tuple(self.opt.refine))
+        return BundleInput(self.camera, [b.images[i] for i in img_keep], self.R_world_to_cam[img_keep],
+                           self.C_world[img_keep], [b.point_ids[j] for j in pt_keep], self.X[pt_keep],
+                           im_map[b.oi[k]], pt_map[b.op[k]], b.uv[k], b.sig[k], Xp[pt_keep], b.S_prior[pt_keep], cp,
+                           cs, tuple(self.opt.refine))
 
     def run(self, loss: str | None = None) -> BundleResult:
         bopt = BundleOptions(loss=loss or self.opt.loss, loss_scale=self.opt.loss_scale,
@@ -278,7 +281,7 @@ class _Adjuster:
         res = adjust(self.bundle_input(), bopt)
         self.runs.append({"iterations": int(res.iterations), "converged": bool(res.converged),
                           "stop_reason": res.stop_reason, "seconds": round(time.perf_counter() - t0, 3)})
-        self.R[self.img_keep], self.C[self.img_keep] = res.R_world_to_cam, res.C_world
+        self.R_world_to_cam[self.img_keep], self.C_world[self.img_keep] = res.R_world_to_cam, res.C_world
         self.X[self.pt_keep] = res.X_world
         self.oriented[:] = False
         self.oriented[self.img_keep] = True
@@ -298,7 +301,7 @@ class _Adjuster:
             got = pnp(self.camera, b.uv[kk], self.X[b.op[kk]])
             if got is None:
                 continue
-            self.R[i], self.C[i], inl = got
+            self.R_world_to_cam[i], self.C_world[i], inl = got
             self.oriented[i] = True
             joined += 1
         if joined:
@@ -555,8 +558,8 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     blk = _block(points, P_world, meas, opt, check_as_tie, all_images, msgs)
     unknown_ids = sorted(set(meas.id.astype(str)) - set(points.ids.astype(str)))
     clock["prepared"] = time.perf_counter()
-    R0, C0 = _approx_poses(approx, geo, blk.images)
-    init = initial_orientation(camera, blk.images, blk.oi, blk.op, blk.uv, blk.X_prior, R0, C0,
+    R_world_to_cam_0, C_world_0 = _approx_poses(approx, geo, blk.images)
+    init = initial_orientation(camera, blk.images, blk.oi, blk.op, blk.uv, blk.X_prior, R_world_to_cam_0, C_world_0,
                                use_mapper=opt.use_mapper)
     for note in init.notes:
         _warn(msgs, note, opt.verbose)
@@ -647,15 +650,16 @@ def _outputs(camera, res: BundleResult, adj: _Adjuster, geo: World, points: Poin
         if s_.kind == "coordinates" and s_.point in k_of:
             # the rejected coordinates against the point as the final adjustment places it (grid E, N, Up)
             j = k_of[s_.point]
-            R_lg = geo.R_world_to_grid_at(res.X_world[j][None])[0]
-            s_.coordinate_error_m = tuple(float(v) for v in R_lg @ (res.X_world[j] - P_world[pidx[s_.point]]))
+            R_world_to_grid = geo.R_world_to_grid_at(res.X_world[j][None])[0]
+            d_grid = R_world_to_grid @ (res.X_world[j] - P_world[pidx[s_.point]])
+            s_.coordinate_error_m = tuple(float(v) for v in d_grid)
     gcp_rep = []
     for j, pid in enumerate(pids_k):
         if kind_k[j] != "control":
             continue
         r = pidx[pid]
         kk = np.flatnonzero(a_op == j)
-        R_lg = geo.R_world_to_grid_at(res.X_world[j][None])[0]
+        R_world_to_grid = geo.R_world_to_grid_at(res.X_world[j][None])[0]
         meas_rep = []
         if prior_k[j]:
             pos = np.searchsorted(ctrl_rows, kk)
@@ -665,7 +669,8 @@ def _outputs(camera, res: BundleResult, adj: _Adjuster, geo: World, points: Poin
         rejected_meas = [{"image": im, "residual_px": None, "w": None, "redundancy": None, "rejected": True}
                          for im, p in sorted(removed) if p == pid]
         gcp_rep.append({"id": pid, "n_images": int(len(kk)), "xyz": points.xyz[r].tolist(),
-                        "adjusted": X_map[j].tolist(), "dENU_m": (R_lg @ (res.X_world[j] - P_world[r])).tolist(),
+                        "adjusted": X_map[j].tolist(),
+                        "dENU_m": (R_world_to_grid @ (res.X_world[j] - P_world[r])).tolist(),
                         "coordinates_used": bool(prior_k[j]),
                         "rms_px": float(np.sqrt(np.mean(np.sum(res.residuals_px[kk] ** 2, 1)))) if len(kk) else None,
                         "measurements": meas_rep + rejected_meas})
@@ -725,9 +730,9 @@ def _check_points(camera, res: BundleResult, geo: World, points: Points, meas: M
             ir, cov, j = got
             X, cov_j, rms, how = ir.xyz[j], cov[j], float(ir.rms_px[j]), "intersected"
         given = geo.to_world(points.xyz[pidx[pid]][None])[0]
-        R_lg = geo.R_world_to_grid_at(X[None])[0]
-        d = R_lg @ (X - given)
-        s = np.sqrt(np.clip(np.diag(R_lg @ cov_j @ R_lg.T), 0, None))
+        R_world_to_grid = geo.R_world_to_grid_at(X[None])[0]
+        d = R_world_to_grid @ (X - given)
+        s = np.sqrt(np.clip(np.diag(R_world_to_grid @ cov_j @ R_world_to_grid.T), 0, None))
         out.append({"id": pid, "n_images": n_rays, "evaluated": True, "how": how,
                     "xyz": points.xyz[pidx[pid]].tolist(), "intersected": geo.to_map(X[None])[0].tolist(),
                     "dENU_m": d.tolist(), "sigma_ENU_m": s.tolist(), "rms_px": rms})

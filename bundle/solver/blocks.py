@@ -182,18 +182,18 @@ class ImageObservations(Block):
     def evaluate(self, state: State, jacobians: bool, rows: slice | None = None) -> BlockEval:
         """Whitened residuals (and Jacobians) of every item, or of the part `rows` (a slice of `chunks`)."""
         cam = self.camera_at(state.globals)
-        R_all, C_all = state.poses.R_world_to_cam, state.poses.C_world
+        R_world_to_cam, C_world = state.poses.R_world_to_cam, state.poses.C_world
         # per-pose products for known points (self-calibration: numba never loaded); compiled otherwise
-        pose, point, uv_m, sigma, runs = self._part(rows, len(C_all))
+        pose, point, uv_m, sigma, runs = self._part(rows, len(C_world))
         if runs is None:
-            R_all = np.ascontiguousarray(R_all)
-            Xc = to_camera(R_all, np.ascontiguousarray(C_all), np.ascontiguousarray(state.points),
+            R_world_to_cam = np.ascontiguousarray(R_world_to_cam)
+            Xc = to_camera(R_world_to_cam, np.ascontiguousarray(C_world), np.ascontiguousarray(state.points),
                            pose.astype(np.int64, copy=False), point.astype(np.int64, copy=False))
         else:                       # many items per pose, sorted: one small matrix product per pose
             Xc = state.points[point]
             for i, s in runs:
-                Xc[s] -= C_all[i]
-                Xc[s] = Xc[s] @ R_all[i].T
+                Xc[s] -= C_world[i]
+                Xc[s] = Xc[s] @ R_world_to_cam[i].T
         valid = Xc[:, 2] > 0
         if not jacobians:
             with np.errstate(all="ignore"):
@@ -205,13 +205,13 @@ class ImageObservations(Block):
         J_pose = np.empty((len(Xc), 2, 6))
         JR = np.empty((len(Xc), 2, 3))
         if runs is None:             # one compiled pass per item (aerial blocks: ~10 items per pose-point pair)
-            pose_point_jacobians(np.ascontiguousarray(JX), w, R_all, pose.astype(np.int64, copy=False), Xc, J_pose,
-                                 JR)
+            pose_point_jacobians(np.ascontiguousarray(JX), w, R_world_to_cam, pose.astype(np.int64, copy=False), Xc,
+                                 J_pose, JR)
         else:
             JXw = JX * w[:, :, None]
             JXw2, JR2 = JXw.reshape(-1, 3), JR.reshape(-1, 3)
             for i, s in runs:
-                np.matmul(JXw2[2 * s.start:2 * s.stop], R_all[i], out=JR2[2 * s.start:2 * s.stop])
+                np.matmul(JXw2[2 * s.start:2 * s.stop], R_world_to_cam[i], out=JR2[2 * s.start:2 * s.stop])
             # dX_cam/dC = -R;  dX_cam/dtheta = [X_cam]x (R_cam_to_world <- R_cam_to_world Exp(dtheta))
             np.negative(JR, out=J_pose[:, :, :3])
             _times_cross_matrices(JXw, Xc, J_pose[:, :, 3:])

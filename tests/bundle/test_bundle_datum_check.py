@@ -32,7 +32,7 @@ def test_known_similarity_is_undone():
     C_off = c + np.exp(ls) * (C - c) @ R_s.T + t
     R_off = np.einsum("ij,njk->nik", R_s, R)
     step = gcp_datum_step(cam, R_off, C_off, k, X, uv)
-    assert np.abs(step.C_w - C).max() < 1e-6
+    assert np.abs(step.C_world - C).max() < 1e-6
     for a, b in zip(step.R_cam_to_world, R):
         assert Rotation.from_matrix(a.T @ b).magnitude() < 1e-8
     assert step.rms_after_px < 1e-6 < step.rms_before_px

@@ -94,7 +94,7 @@ def test_micmac_orientation_gap_is_micmacs_datum(micmac):
     # MicMac's block is not at the least-squares datum of these GCP measurements: the best similarity of its
     # block (its own shape, so no tie point can matter) moves it by 0.30 deg and 2.3 cm and the GCP RMS from
     # 1.01 to 0.73 px; leaving out any one GCP still leaves a step >= 0.22 deg
-    obs = dict(obs_image=k, X_w=X, uv=gcp_meas.xy[known])
+    obs = dict(obs_image=k, X_world=X, uv=gcp_meas.xy[known])
     step = gcp_datum_step(cam, R_mm, C_mm, **obs)
     assert step.angle_deg > 0.25 and step.rms_after_px < 0.8 < step.rms_before_px
     for g in set(gcp_meas.id[known]):
@@ -102,7 +102,7 @@ def test_micmac_orientation_gap_is_micmacs_datum(micmac):
         assert gcp_datum_step(cam, R_mm, C_mm, k[keep], X[keep], gcp_meas.xy[known][keep]).angle_deg > 0.2
     # MicMac's block moved to that datum agrees with ours far inside the acceptance (0.08-0.11 deg, < 1 cm)
     for i, _name in enumerate(names):
-        assert np.linalg.norm(step.C_w[i] - res.eop.xyz[i]) < 0.015
+        assert np.linalg.norm(step.C_world[i] - res.eop.xyz[i]) < 0.015
         assert np.degrees(Rotation.from_matrix(step.R_cam_to_world[i].T @ res.R_world_to_cam[i].T).magnitude()) < 0.15
 
 
