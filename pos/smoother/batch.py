@@ -98,8 +98,8 @@ class NavSolution:
     @property
     def cov_p_nav(self) -> np.ndarray:
         """Position covariance (K,3,3) in nav axes, m^2."""
-        R = self.R_body_to_nav
-        return R @ self.cov_pose[:, 3:, 3:] @ np.swapaxes(R, 1, 2)
+        R_body_to_nav = self.R_body_to_nav
+        return R_body_to_nav @ self.cov_pose[:, 3:, 3:] @ np.swapaxes(R_body_to_nav, 1, 2)
 
 
 @dataclass
@@ -131,7 +131,7 @@ class Problem:
     carrier: CarrierInput | None = None
     code_bias: CodeBiasArcs | None = None   # TC: the satellites' code-bias arcs (dgcal.pos.smoother.code_bias)
     bias_factor_groups: list = field(default_factory=list)  # per keyframe: the code-bias process factors ending there
-    dd_lin: tuple | None = None      # the poses (R (K,3,3), p (K,3)) the double-difference factors are linearised at
+    dd_lin: tuple | None = None   # the poses (R_body_to_nav (K,3,3), p (K,3)) the DD factors are linearised at
     _blocks: KeyframeBlocks | None = field(default=None, repr=False)
 
     def ordering(self) -> gtsam.Ordering:
@@ -177,14 +177,14 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     set_gravity(per_interval, interval_gravity(frame, p_ant))
     pims = preintegrate(params, seg, biases, per_interval)
 
-    a, R_a = anchor_attitude(t_key, v_ant)
-    R = propagate_attitude(pims, a, R_a, p_ant, v_ant)
-    p_imu = p_ant - np.einsum("kij,j->ki", R, lever)
+    a, R_body_to_nav_anchor = anchor_attitude(t_key, v_ant)
+    R_body_to_nav = propagate_attitude(pims, a, R_body_to_nav_anchor, p_ant, v_ant)
+    p_imu = p_ant - np.einsum("kij,j->ki", R_body_to_nav, lever)
     omega_b = _imu_rate_at(imu, t_key)
 
     values = gtsam.Values()
     for k in range(K):
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R[k]), p_imu[k]))
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R_body_to_nav[k]), p_imu[k]))
         values.insert(V(k), v_ant[k].copy())
         values.insert(B(k), biases[min(k, K - 2)])
 
@@ -269,7 +269,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
             n_sat[k] = 1
             if opts.lc_velocity and lc.v_ecef is not None and np.all(np.isfinite(lc.v_ecef[j])):
                 v_nav = lc.v_ecef[j] @ frame.R_nav_to_ecef
-                v_lever = R[k] @ np.cross(omega_b[k], lever)
+                v_lever = R_body_to_nav[k] @ np.cross(omega_b[k], lever)
                 epoch_factors[k].append(("vel", velocity_factor(k, v_nav - v_lever, lc.sigma_v_ned[j]), None))
 
     if static is not None and static.any():
@@ -373,16 +373,16 @@ def relinearise_dd(problem: Problem, values) -> bool:
     if not problem.dd:
         return False
     K = len(problem.t_key)
-    R, p = keyframe_poses(values, K)
+    R_body_to_nav, p = keyframe_poses(values, K)
     if problem.dd_lin is not None:
-        R0, p0 = problem.dd_lin
-        cos = np.clip((np.einsum("kij,kij->k", R, R0) - 1.0) / 2.0, -1.0, 1.0)
+        R_body_to_nav_lin, p0 = problem.dd_lin
+        cos = np.clip((np.einsum("kij,kij->k", R_body_to_nav, R_body_to_nav_lin) - 1.0) / 2.0, -1.0, 1.0)
         if np.max(np.linalg.norm(p - p0, axis=1)) <= DD_RELINEARISE_M and np.max(np.arccos(cos)) <= DD_RELINEARISE_RAD:
             return False
-    new = linear_dd_factors(problem.dd, problem.lever_arm_b, problem.frame, values, X, R, p)
+    new = linear_dd_factors(problem.dd, problem.lever_arm_b, problem.frame, values, X, R_body_to_nav, p)
     for k, f in new.items():
         problem.epoch_factors[k] = [("dd", f, None) if e[0] == "dd" else e for e in problem.epoch_factors[k]]
-    problem.dd_lin = (R, p)
+    problem.dd_lin = (R_body_to_nav, p)
     problem.graph = assemble_graph(problem)
     return True
 
@@ -451,13 +451,13 @@ def read_states(problem: Problem, values) -> NavSolution:
     """Keyframe states from gtsam Values (no covariances)."""
     K = len(problem.t_key)
     # the problem's only Pose3 and Point3 variables are X(k) and V(k), extracted in key (= keyframe) order
-    R, p = keyframe_poses(values, K)
+    R_body_to_nav, p = keyframe_poses(values, K)
     v = gtsam.utilities.extractPoint3(values).reshape(K, 3)
     b = np.array([values.atConstantBias(B(k)).vector() for k in range(K)])
     clock = {s: np.array([values.atDouble(CLK(s, k)) for k in range(K)]) for s in problem.systems}
     drift = (np.array([values.atDouble(DRIFT(k)) for k in range(K)]) if problem.systems
              else np.zeros(K))
-    sol = NavSolution(problem.frame, problem.t_key.copy(), p, v, R, b, clock, drift,
+    sol = NavSolution(problem.frame, problem.t_key.copy(), p, v, R_body_to_nav, b, clock, drift,
                       n_sat=problem.n_sat.copy(), gnss_update=problem.gnss_update.copy())
     if problem.code_bias is not None:
         sol.code_bias = bias_estimates(problem.code_bias, values)

@@ -41,19 +41,21 @@ def range_differences(dd: DDEpoch, pose, lever_b: np.ndarray, frame: NavFrame) -
                             frame.R_nav_to_ecef @ M[:3, :3], lever)
 
 
-def _antenna_ecef(R: np.ndarray, p: np.ndarray, lever: np.ndarray, frame: NavFrame) -> np.ndarray:
-    """ECEF position (m) of the antenna at the lever arm of poses R (...,3,3) body->nav and p (...,3) nav m."""
-    return (p + np.einsum("...ij,j->...i", R, lever)) @ frame.R_nav_to_ecef.T + frame.origin_ecef
+def _antenna_ecef(R_body_to_nav: np.ndarray, p: np.ndarray, lever: np.ndarray, frame: NavFrame) -> np.ndarray:
+    """ECEF position (m) of the antenna at the lever arm of poses R_body_to_nav (...,3,3) and p (...,3) nav m."""
+    return (p + np.einsum("...ij,j->...i", R_body_to_nav, lever)) @ frame.R_nav_to_ecef.T + frame.origin_ecef
 
 
-def _rows_at_antenna(sat_pos: np.ndarray, ref_pos: np.ndarray, p_ant: np.ndarray, RneR: np.ndarray,
+def _rows_at_antenna(sat_pos: np.ndarray, ref_pos: np.ndarray, p_ant: np.ndarray, R_body_to_ecef: np.ndarray,
                      lever: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """h (n,) and dh/dpose (n,6) of rows with satellite and reference positions (n,3) ECEF m seen from the antenna
-    at `p_ant` ((3,) or per row (n,3)), the body axes turned to ECEF by `RneR` ((3,3) or per row (n,3,3))."""
+    at `p_ant` ((3,) or per row (n,3)), the body axes turned to ECEF by `R_body_to_ecef` ((3,3) or per row
+    (n,3,3))."""
     di, dr = sat_pos - p_ant, ref_pos - p_ant
     ri = np.sqrt(np.einsum("ij,ij->i", di, di))
     rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
-    G = ((dr / rr[:, None] - di / ri[:, None])[:, None, :] @ RneR)[:, 0]   # dh / d(body-axes translation) (n,3)
+    # dh / d(body-axes translation) (n,3)
+    G = ((dr / rr[:, None] - di / ri[:, None])[:, None, :] @ R_body_to_ecef)[:, 0]
     J = np.empty((len(ri), 6))
     J[:, 3:] = G
     J[:, :3] = G @ _skew(lever).T                                          # rows lever x g (np.cross is slow)
@@ -204,17 +206,17 @@ def linear_dd_factor(X_prev: int | None, X_cur: int, data: DDFactorData, lever_b
     return gtsam.LinearContainerFactor(jf, lin)
 
 
-def linear_dd_factors(dd: dict, lever_b: np.ndarray, frame: NavFrame, values, X, R: np.ndarray,
+def linear_dd_factors(dd: dict, lever_b: np.ndarray, frame: NavFrame, values, X, R_body_to_nav: np.ndarray,
                       p: np.ndarray) -> dict:
     """keyframe -> `linear_dd_factor` of every keyframe's DDFactorData in `dd`, linearised at `values` (whose
-    keyframe poses are R (K,3,3) body->nav and p (K,3) nav m): the range differences of all keyframes' rows, and
-    of the previous keyframes' rows they are whitened against, in one pass instead of two calls per keyframe."""
+    keyframe poses are R_body_to_nav (K,3,3) and p (K,3) nav m): the range differences of all keyframes' rows,
+    and of the previous keyframes' rows they are whitened against, in one pass instead of two calls per keyframe."""
     sets = []
     for k, data in dd.items():
         sets.append((data.cur, k, None))
         if data.spans_prev:
             sets.append((data.prev, k - 1, data.prev_index[data.tracked]))
-    hj = iter(_range_differences_of_sets(sets, R, p, np.asarray(lever_b, float), frame))
+    hj = iter(_range_differences_of_sets(sets, R_body_to_nav, p, np.asarray(lever_b, float), frame))
     out = {}
     for k, data in dd.items():
         h, J = next(hj)
@@ -233,16 +235,18 @@ def linear_dd_factors(dd: dict, lever_b: np.ndarray, frame: NavFrame, values, X,
     return out
 
 
-def _range_differences_of_sets(sets: list, R: np.ndarray, p: np.ndarray, lever: np.ndarray, frame: NavFrame) -> list:
+def _range_differences_of_sets(sets: list, R_body_to_nav: np.ndarray, p: np.ndarray, lever: np.ndarray,
+                               frame: NavFrame) -> list:
     """`range_differences` of many row sets, each (DDEpoch, keyframe, rows or None for all) at its keyframe's pose
-    (R (K,3,3) body->nav, p (K,3) nav m), computed in one pass: [(h (n,), J (n,6))] in the order of `sets`."""
+    (R_body_to_nav (K,3,3), p (K,3) nav m), computed in one pass: [(h (n,), J (n,6))] in the order of `sets`."""
     if not sets:
         return []
     idx = [np.arange(e.n) if r is None else r for e, _, r in sets]
     sat = np.concatenate([e.sat_pos[i] for (e, _, _), i in zip(sets, idx)])
     ref = np.concatenate([e.ref_pos[i] for (e, _, _), i in zip(sets, idx)])
     kk = np.repeat([k for _, k, _ in sets], [len(i) for i in idx])
-    h, J = _rows_at_antenna(sat, ref, _antenna_ecef(R, p, lever, frame)[kk], (frame.R_nav_to_ecef @ R)[kk], lever)
+    h, J = _rows_at_antenna(sat, ref, _antenna_ecef(R_body_to_nav, p, lever, frame)[kk],
+                            (frame.R_nav_to_ecef @ R_body_to_nav)[kk], lever)
     cut = np.cumsum([len(i) for i in idx])[:-1]
     return list(zip(np.split(h, cut), np.split(J, cut)))
 
@@ -270,7 +274,7 @@ def keyframe_dd_factors(t_key: np.ndarray, dd_at_key: list, lever_b, frame: NavF
 
 
 def keyframe_poses(values, K: int) -> tuple[np.ndarray, np.ndarray]:
-    """R (K,3,3) body->nav and p (K,3) nav m of the keyframe poses in `values` (its only Pose3 variables, X(k))."""
+    """R_body_to_nav (K,3,3) and p (K,3) nav m of the keyframe poses in `values` (its only Pose3 variables, X(k))."""
     poses = gtsam.utilities.extractPose3(values)
     return poses[:, :9].reshape(K, 3, 3), poses[:, 9:].copy()
 

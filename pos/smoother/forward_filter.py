@@ -161,12 +161,12 @@ def linear_forward_solution(problem: Problem, values, rows=None) -> NavSolution:
 def _retracted(sol: NavSolution, dx: np.ndarray, layout) -> NavSolution:
     """`sol` moved by block corrections dx (K,n): pose by gtsam's Pose3 chart (rotation R Exp(w), translation
     t + R v, to first order), velocity, IMU biases and clocks (s, s/s) additively; code biases are left out."""
-    R = sol.R_body_to_nav @ Rotation.from_rotvec(dx[:, :3]).as_matrix()
+    R_body_to_nav = sol.R_body_to_nav @ Rotation.from_rotvec(dx[:, :3]).as_matrix()
     p = sol.p_nav + np.einsum("kij,kj->ki", sol.R_body_to_nav, dx[:, 3:6])
     clock = {s: sol.clock[s] + dx[:, 15 + j] for j, s in enumerate(layout.systems)}
     drift = sol.drift + dx[:, 15 + len(layout.systems)] if layout.systems else sol.drift
-    return NavSolution(sol.frame, sol.t, p, sol.v_nav + dx[:, 6:9], R, sol.bias + dx[:, 9:15], clock, drift,
-                       n_sat=sol.n_sat, gnss_update=sol.gnss_update)
+    return NavSolution(sol.frame, sol.t, p, sol.v_nav + dx[:, 6:9], R_body_to_nav, sol.bias + dx[:, 9:15], clock,
+                       drift, n_sat=sol.n_sat, gnss_update=sol.gnss_update)
 
 
 def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavSolution:

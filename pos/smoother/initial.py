@@ -69,18 +69,18 @@ def anchor_attitude(t_key: np.ndarray, v_nav: np.ndarray, min_speed: float = 3.0
     return a, R_body_to_ned_from_rph(0.0, 0.0, heading)
 
 
-def propagate_attitude(pims: list, anchor: int, R_anchor: np.ndarray, p_nav, v_nav) -> np.ndarray:
+def propagate_attitude(pims: list, anchor: int, R_body_to_nav_anchor: np.ndarray, p_nav, v_nav) -> np.ndarray:
     """R_body_to_nav at all keyframes by chaining the preintegrated rotations from the anchor (both ways)."""
     K = len(pims) + 1
-    R = np.empty((K, 3, 3))
-    R[anchor] = R_anchor
+    R_body_to_nav = np.empty((K, 3, 3))
+    R_body_to_nav[anchor] = R_body_to_nav_anchor
     zero = gtsam.imuBias.ConstantBias()
     for k in range(anchor, K - 1):
-        ns = gtsam.NavState(gtsam.Rot3(R[k]), p_nav[k], v_nav[k])
-        R[k + 1] = pims[k].predict(ns, zero).attitude().matrix()
+        ns = gtsam.NavState(gtsam.Rot3(R_body_to_nav[k]), p_nav[k], v_nav[k])
+        R_body_to_nav[k + 1] = pims[k].predict(ns, zero).attitude().matrix()
     for k in range(anchor - 1, -1, -1):
-        R[k] = R[k + 1] @ pims[k].deltaRij().matrix().T
-    return R
+        R_body_to_nav[k] = R_body_to_nav[k + 1] @ pims[k].deltaRij().matrix().T
+    return R_body_to_nav
 
 
 def group_medians(group: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

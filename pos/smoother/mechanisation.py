@@ -133,11 +133,11 @@ def _exp_integrals(phi: np.ndarray):
         n2[..., None, None] * W2
 
 
-def predict(R0: np.ndarray, p0: np.ndarray, v0: np.ndarray, theta: np.ndarray, dp: np.ndarray, dv: np.ndarray,
-            T: np.ndarray, gravity: np.ndarray, omega: np.ndarray | None = None):
-    """Navigation states (R_body_to_nav (N,3,3), p (N,3) m, v (N,3) m/s) predicted from start states R0, p0, v0
-    over T (N,) s by preintegrated (theta, dp, dv) (N,3), with gravity (N,3) or (3,) m/s^2 constant in nav axes
-    and the nav frame's rotation rate `omega` (3,) rad/s (None: a non-rotating frame).
+def predict(R_body_to_nav_0: np.ndarray, p0: np.ndarray, v0: np.ndarray, theta: np.ndarray, dp: np.ndarray,
+            dv: np.ndarray, T: np.ndarray, gravity: np.ndarray, omega: np.ndarray | None = None):
+    """Navigation states (R_body_to_nav (N,3,3), p (N,3) m, v (N,3) m/s) predicted from start states
+    R_body_to_nav_0, p0, v0 over T (N,) s by preintegrated (theta, dp, dv) (N,3), with gravity (N,3) or (3,)
+    m/s^2 constant in nav axes and the nav frame's rotation rate `omega` (3,) rad/s (None: a non-rotating frame).
 
     gtsam 4.3 predicts in a rotating nav frame exactly (Coriolis, centrifugal and the turning of the frame under
     the body during the interval): in the inertial frame that coincides with nav at the start the state moves by
@@ -149,10 +149,10 @@ def predict(R0: np.ndarray, p0: np.ndarray, v0: np.ndarray, theta: np.ndarray, d
     phi = T[:, None] * w
     J, N = _exp_integrals(phi)
     wp = np.cross(w, p0)
-    vi = v0 + wp + np.einsum("nij,nj->ni", R0, dv) + T[:, None] * np.einsum("nij,nj->ni", J, g)
-    pi = p0 + (v0 + wp) * T[:, None] + np.einsum("nij,nj->ni", R0, dp) + \
+    vi = v0 + wp + np.einsum("nij,nj->ni", R_body_to_nav_0, dv) + T[:, None] * np.einsum("nij,nj->ni", J, g)
+    pi = p0 + (v0 + wp) * T[:, None] + np.einsum("nij,nj->ni", R_body_to_nav_0, dp) + \
         (T * T)[:, None] * np.einsum("nij,nj->ni", N, g)
-    C = so3_exp(-phi)
-    p = np.einsum("nij,nj->ni", C, pi)
-    v = np.einsum("nij,nj->ni", C, vi) - np.cross(w, p)
-    return C @ R0 @ so3_exp(theta), p, v
+    R_inertial_to_nav = so3_exp(-phi)   # the inertial frame of the start to nav at the end
+    p = np.einsum("nij,nj->ni", R_inertial_to_nav, pi)
+    v = np.einsum("nij,nj->ni", R_inertial_to_nav, vi) - np.cross(w, p)
+    return R_inertial_to_nav @ R_body_to_nav_0 @ so3_exp(theta), p, v

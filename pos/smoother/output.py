@@ -32,14 +32,14 @@ def to_trajectory(frame: NavFrame, t: np.ndarray, p_nav: np.ndarray, v_nav: np.n
 
     cov_p_nav (N,3,3) m^2 in nav axes; cov_rot_b (N,3,3) rad^2, right (body) rotation perturbation.
     """
-    R_nl = frame.R_nav_to_local_ned(p_nav)
+    R_nav_to_ned = frame.R_nav_to_local_ned(p_nav)
     geo = ecef_to_geodetic(frame.to_ecef(p_nav))
-    v_ned = np.einsum("nij,nj->ni", R_nl, v_nav)
-    R_bn = R_nl @ R_body_to_nav
-    rph = rph_from_R_body_to_ned(R_bn)
+    v_ned = np.einsum("nij,nj->ni", R_nav_to_ned, v_nav)
+    R_body_to_ned = R_nav_to_ned @ R_body_to_nav
+    rph = rph_from_R_body_to_ned(R_body_to_ned)
     sigma = None
     if cov_p_nav is not None and cov_rot_b is not None:
-        Cp = R_nl @ cov_p_nav @ np.swapaxes(R_nl, 1, 2)
+        Cp = R_nav_to_ned @ cov_p_nav @ np.swapaxes(R_nav_to_ned, 1, 2)
         J = euler_rate_matrix(rph)
         Ca = J @ cov_rot_b @ np.swapaxes(J, 1, 2)
         sigma = np.column_stack([np.sqrt(np.maximum(np.einsum("nii->ni", Cp), 0.0)),
@@ -94,22 +94,23 @@ def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
     k = lane[record]
     gravity = np.array([p.n_gravity for p in problem.interval_params])[k]
     omega = problem.params.getOmegaCoriolis() if problem.params.getOmegaCoriolis() is not None else None
-    Rp, Pp, Vp = predict(sol.R_body_to_nav[k], sol.p_nav[k], sol.v_nav[k], th, dp, dv, T, gravity, omega)
+    R_body_to_nav_pred, Pp, Vp = predict(sol.R_body_to_nav[k], sol.p_nav[k], sol.v_nav[k], th, dp, dv, T, gravity,
+                                         omega)
     P = np.empty((len(t_out), 3))
     Vv = np.empty((len(t_out), 3))
-    R = np.empty((len(t_out), 3, 3))
+    R_body_to_nav_out = np.empty((len(t_out), 3, 3))
     # closure: spread the mismatch with the next keyframe linearly in time
     end = key_of[1:]
     dpk = sol.p_nav[1:] - Pp[end - 1]
     dvk = sol.v_nav[1:] - Vp[end - 1]
-    drk = Rotation.from_matrix(np.swapaxes(Rp[end - 1], 1, 2) @ sol.R_body_to_nav[1:]).as_rotvec()
+    drk = Rotation.from_matrix(np.swapaxes(R_body_to_nav_pred[end - 1], 1, 2) @ sol.R_body_to_nav[1:]).as_rotvec()
     i = np.arange(1, len(t_out))
     kk = out_lane[:-1]
     w = (t_out[i] - t_key[kk]) / (t_key[kk + 1] - t_key[kk])
     P[i] = Pp + w[:, None] * dpk[kk]
     Vv[i] = Vp + w[:, None] * dvk[kk]
-    R[i] = Rp @ so3_exp(w[:, None] * drk[kk])
-    P[key_of], Vv[key_of], R[key_of] = sol.p_nav, sol.v_nav, sol.R_body_to_nav
+    R_body_to_nav_out[i] = R_body_to_nav_pred @ so3_exp(w[:, None] * drk[kk])
+    P[key_of], Vv[key_of], R_body_to_nav_out[key_of] = sol.p_nav, sol.v_nav, sol.R_body_to_nav
     cov_p = cov_r = None
     if sol.cov_pose is not None:
         cp, cr = sol.cov_p_nav, sol.cov_pose[:, :3, :3]
@@ -117,4 +118,4 @@ def densify(sol, problem, imu, rate_hz: float) -> Trajectory:
                           for i in range(3)], -2)
         cov_r = np.stack([np.stack([np.interp(t_out, t_key, cr[:, i, j]) for j in range(3)], -1)
                           for i in range(3)], -2)
-    return to_trajectory(sol.frame, t_out, P, Vv, R, cov_p, cov_r)
+    return to_trajectory(sol.frame, t_out, P, Vv, R_body_to_nav_out, cov_p, cov_r)
