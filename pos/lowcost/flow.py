@@ -17,9 +17,8 @@ import numpy as np
 from tqdm import tqdm
 
 from dgcal.calib.camera.files import read_camera
-from dgcal.fields.crs import ecef_to_geodetic
+from dgcal.fields.crs import R_ecef_to_ned_at
 from dgcal.fields.errors import InputError
-from dgcal.fields.frames import R_ecef_to_ned
 from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.io import validate
 from dgcal.fields.io.text_files import open_text
@@ -95,8 +94,7 @@ def read_gnss_velocity(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         sol = read_gnss_solution(path)
         if sol.v_ecef is None:
             raise InputError("the GNSS file has no velocities (vn,ve,vd or vx,vy,vz columns)", path)
-        geo = ecef_to_geodetic(sol.p_ecef)
-        v = np.einsum("nij,nj->ni", R_ecef_to_ned(geo[:, 0], geo[:, 1]), sol.v_ecef)
+        v = np.einsum("nij,nj->ni", R_ecef_to_ned_at(sol.p_ecef), sol.v_ecef)
         t, lines = sol.t, sol.lines if sol.lines is not None else np.arange(len(sol.t)) + 2
     bad = np.flatnonzero(~np.all(np.isfinite(v), axis=1))
     if len(bad):

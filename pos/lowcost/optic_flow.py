@@ -3,9 +3,10 @@ gives the focus of expansion (FOE) = the velocity direction in the body frame; w
 pseudo-roll that fixes pitch and yaw (angle of attack and drift angle); flow magnitudes give depth and
 height above ground (seed 001 eq. 9-12).
 
-Geometry (exact for two discrete frames, not only the instantaneous motion field): with R_c1, R_c2 the
-camera-to-NED rotations and T the camera displacement, a ground point's ray in frame 2 rotated into frame
-1 axes, d2' = dR d2 with dR = R_c1^T R_c2, satisfies d2' ~ P1 - t_c, t_c = R_c1^T T. So after de-rotation
+Geometry (exact for two discrete frames, not only the instantaneous motion field): with R_cam1_to_ned,
+R_cam2_to_ned the camera-to-NED rotations at the two frames and T the camera displacement, a ground point's ray
+in frame 2 rotated into frame 1 axes, d2' = R_cam2_to_cam1 d2 with R_cam2_to_cam1 = R_cam1_to_ned^T
+R_cam2_to_ned, satisfies d2' ~ P1 - t_c, t_c = R_cam1_to_ned^T T. So after de-rotation
 every flow line x1 -> x2' passes through the FOE e = t_c / t_c,z (normalised image coordinates), and by
 the law of sines the range to the point from camera 1 is |D1| = |T| sin(gamma2) / sin(Delta), gamma2 the
 angle between t_c and d2' and Delta the angle between d1 and d2' — seed eq. 11 (|D| = sin(gamma) |V| / Omega)
@@ -56,10 +57,10 @@ def _to_u8(img: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(x * 255.0 if x.max() <= 1.0 + 1e-6 else x), 0, 255).astype(np.uint8)
 
 
-def derotate(camera, uv1: np.ndarray, uv2: np.ndarray, dR_c2_to_c1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def derotate(camera, uv1: np.ndarray, uv2: np.ndarray, R_cam2_to_cam1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit rays d1 (frame 1) and d2' (frame 2 rays rotated into frame 1 axes) of tracked pixels; (M,3) each."""
     d1 = camera.ray(uv1)
-    d2 = camera.ray(uv2) @ np.asarray(dR_c2_to_c1, float).T
+    d2 = camera.ray(uv2) @ np.asarray(R_cam2_to_cam1, float).T
     return d1, d2 / np.linalg.norm(d2, axis=1, keepdims=True)
 
 
@@ -71,7 +72,8 @@ class Foe:
     cov: np.ndarray
     inliers: np.ndarray
     rms_rad: float
-    R_residual: np.ndarray = field(default_factory=lambda: np.eye(3))  # applied to frame-2 rays after dR
+    # the residual rotation: from the axes the pseudo-rates de-rotated frame 2's rays into to camera 1's
+    R_derotated_to_cam1: np.ndarray = field(default_factory=lambda: np.eye(3))
     sigma_rotation_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
     cov_formal: np.ndarray | None = None   # from the residual scatter, tracks taken as independent
     n_blocks: int = 0                      # image blocks of the delete-a-block jackknife (0: not used)
@@ -109,7 +111,7 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     axes = ["xyz".index(a) for a in estimate_rotation]
     D2 = d2[keep]
 
-    def rot(p):
+    def R_derotated_to_cam1_at(p):
         w = np.zeros(3)
         w[axes] = p[2:]
         return so3_exp(w)
@@ -117,7 +119,7 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     def res(p):
         e = p[:2]
         if axes:
-            d = D2 @ rot(p).T
+            d = D2 @ R_derotated_to_cam1_at(p).T
             xr = d[:, :2] / d[:, 2:3]
         else:
             xr = x2
@@ -144,7 +146,7 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     cov = np.linalg.inv(Jm.T @ Jm) * s2
     mask = np.zeros(len(keep), bool)
     mask[np.flatnonzero(keep)[inl]] = True
-    R_res = rot(sol.x) if axes else np.eye(3)
+    R_derotated_to_cam1 = R_derotated_to_cam1_at(sol.x) if axes else np.eye(3)
     cov_e = cov[:2, :2]
     nb = 0
     if blocks is not None:
@@ -161,8 +163,9 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
             dev = est - est.mean(axis=0)
             cov_j = (nb - 1) / nb * dev.T @ dev
             cov_e = cov_j[:2, :2]
-    return Foe(e=sol.x[:2], cov=cov_e, inliers=mask, rms_rad=float(np.sqrt(s2)), R_residual=R_res,
-               sigma_rotation_rad=np.sqrt(np.diag(cov)[2:]), cov_formal=cov[:2, :2], n_blocks=nb)
+    return Foe(e=sol.x[:2], cov=cov_e, inliers=mask, rms_rad=float(np.sqrt(s2)),
+               R_derotated_to_cam1=R_derotated_to_cam1, sigma_rotation_rad=np.sqrt(np.diag(cov)[2:]),
+               cov_formal=cov[:2, :2], n_blocks=nb)
 
 
 def _refit(x1: np.ndarray, D2: np.ndarray, p0: np.ndarray, axes: list[int], f_scale: float) -> np.ndarray:
@@ -237,11 +240,11 @@ def ground_mask(camera, R_cam_to_ned: np.ndarray, min_depression_deg: float = 12
     return m
 
 
-def ground_homography(K: np.ndarray, dR_c2_to_c1: np.ndarray, t_c1: np.ndarray, n_c1: np.ndarray,
+def ground_homography(K: np.ndarray, R_cam2_to_cam1: np.ndarray, t_c1: np.ndarray, n_c1: np.ndarray,
                        d_m: float) -> np.ndarray:
     """Pixel homography frame 1 -> frame 2 induced by the ground plane n.X = d (cam-1 frame, n unit towards
-    the ground): X2 = dR^T (I - t n^T / d) X1 with t the camera-2 centre in cam-1 axes (m)."""
-    M = np.asarray(dR_c2_to_c1, float).T @ (np.eye(3) - np.outer(t_c1, n_c1) / d_m)
+    the ground): X2 = R_cam2_to_cam1^T (I - t n^T / d) X1 with t the camera-2 centre in cam-1 axes (m)."""
+    M = np.asarray(R_cam2_to_cam1, float).T @ (np.eye(3) - np.outer(t_c1, n_c1) / d_m)
     return K @ M @ np.linalg.inv(K)
 
 
@@ -269,8 +272,8 @@ def _agl_of(d1: np.ndarray, d2: np.ndarray, e: np.ndarray, v_ned: np.ndarray, ro
     """Height above level ground (m) of each track for a FOE `e` (normalised) and baseline (m)."""
     t_c = np.array([e[0], e[1], 1.0]) / np.hypot(np.hypot(e[0], e[1]), 1.0)
     p, y = pitch_yaw_from_velocity(np.asarray(R_cam_to_body) @ t_c, v_ned, roll)
-    R = R_body_to_ned_from_rph(roll, p, y) @ R_cam_to_body
-    return height_above_ground(depth_from_flow(d1, d2, t_c, baseline), d1 @ R.T)
+    R_cam_to_ned = R_body_to_ned_from_rph(roll, p, y) @ R_cam_to_body
+    return height_above_ground(depth_from_flow(d1, d2, t_c, baseline), d1 @ R_cam_to_ned.T)
 
 
 def _agl_sigma(d1, d2, foe, v_ned, roll, R_cam_to_body, baseline, sigma_v, labels, med) -> float:
@@ -323,16 +326,16 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
     pseudo-roll's `sigma_roll_deg` and the GNSS velocity's `sigma_v_mps` (per axis) propagated through
     `pitch_yaw_from_velocity`, plus the change of pitch and yaw in the last pass (what the warp still moves)."""
     rph1 = np.asarray(pseudo_rph1_deg, float)
-    R_c1 = R_body_to_ned_from_rph(*rph1) @ R_cam_to_body
-    mask = ground_mask(camera, R_c1, min_depression_deg, step=4)
+    R_cam1_to_ned = R_body_to_ned_from_rph(*rph1) @ R_cam_to_body
+    mask = ground_mask(camera, R_cam1_to_ned, min_depression_deg, step=4)
     w_c = np.asarray(R_cam_to_body, float).T @ np.asarray(omega_b, float)
-    dR = so3_exp(w_c * dt)  # camera-2 axes -> camera-1 axes
+    R_cam2_to_cam1 = so3_exp(w_c * dt)
     speed = float(np.linalg.norm(v_ned_mid))
     K = camera.pinhole_K()
     H = None
     if agl_guess_m is not None:
-        n_c1 = R_c1.T @ np.array([0.0, 0.0, 1.0])
-        H = ground_homography(K, dR, (R_c1.T @ v_ned_mid) * dt, n_c1, agl_guess_m)
+        n_c1 = R_cam1_to_ned.T @ np.array([0.0, 0.0, 1.0])
+        H = ground_homography(K, R_cam2_to_cam1, (R_cam1_to_ned.T @ v_ned_mid) * dt, n_c1, agl_guess_m)
     prev = None
     pitch = yaw = None  # the previous pass's, for `prev`
     for k in range(refine + 1):
@@ -348,12 +351,12 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
             uv2 = _apply_h(H, uvw)
         if len(uv1) < 8:
             raise ValueError(f"only {len(uv1)} tracked ground features")
-        d1, d2 = derotate(camera, uv1, uv2, dR)
+        d1, d2 = derotate(camera, uv1, uv2, R_cam2_to_cam1)
         last = k == refine
         foe = focus_of_expansion(d1, d2, blocks=image_blocks(uv1, camera.image_size, blocks) if blocks and last
                                  else None)
-        d2 = d2 @ foe.R_residual.T
-        dR_used = foe.R_residual @ dR
+        d2 = d2 @ foe.R_derotated_to_cam1.T
+        R_cam2_to_cam1_fit = foe.R_derotated_to_cam1 @ R_cam2_to_cam1
         t_c = foe.t_hat_cam
         v_b = R_cam_to_body @ t_c
         if k:
@@ -361,14 +364,14 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
         pitch, yaw = pitch_yaw_from_velocity(v_b, v_ned_mid, rph1[0])
         inl = foe.inliers
         D = depth_from_flow(d1[inl], d2[inl], t_c, speed * dt)
-        R_c1_est = R_body_to_ned_from_rph(rph1[0], pitch, yaw) @ R_cam_to_body
-        agl = height_above_ground(D, d1[inl] @ R_c1_est.T)
+        R_cam1_to_ned_est = R_body_to_ned_from_rph(rph1[0], pitch, yaw) @ R_cam_to_body
+        agl = height_above_ground(D, d1[inl] @ R_cam1_to_ned_est.T)
         agl = agl[np.isfinite(agl) & (agl > 0)]
         if len(agl) == 0:
             raise ValueError("no ground ranges from the flow")
         med = float(np.median(agl))
-        n_c1 = R_c1_est.T @ np.array([0.0, 0.0, 1.0])
-        H = ground_homography(K, dR_used, t_c * speed * dt, n_c1, med)
+        n_c1 = R_cam1_to_ned_est.T @ np.array([0.0, 0.0, 1.0])
+        H = ground_homography(K, R_cam2_to_cam1_fit, t_c * speed * dt, n_c1, med)
     # sigma of pitch/yaw: FOE, pseudo-roll and GNSS velocity through pitch_yaw_from_velocity (numerical Jacobians)
     def py(e, v, r):
         p_, y_ = pitch_yaw_from_velocity(R_cam_to_body @ np.array([e[0], e[1], 1.0]), v, r)

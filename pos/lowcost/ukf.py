@@ -102,11 +102,11 @@ class UkfSolution:
     def to_trajectory(self):
         """The filtered states as a `dgcal.fields.io.formats.Trajectory` (geodetic, local-NED velocity and attitude,
         sigmas from the filter covariance) for the trajectory CSV and the DG / mounting tools."""
-        R_loc = self.frame.R_nav_to_local_ned(self.p_nav)  # nav axes -> local NED (earth curvature)
+        R_nav_to_ned = self.frame.R_nav_to_local_ned(self.p_nav)  # to the local NED axes (earth curvature)
         geo = ecef_to_geodetic(self.frame.to_ecef(self.p_nav))
-        v = np.einsum("kij,kj->ki", R_loc, self.v_nav)
-        rph = rph_from_R_body_to_ned(R_loc @ self.R_body_to_nav)
-        P_p = R_loc @ self.P[:, 0:3, 0:3] @ np.swapaxes(R_loc, 1, 2)
+        v = np.einsum("kij,kj->ki", R_nav_to_ned, self.v_nav)
+        rph = rph_from_R_body_to_ned(R_nav_to_ned @ self.R_body_to_nav)
+        P_p = R_nav_to_ned @ self.P[:, 0:3, 0:3] @ np.swapaxes(R_nav_to_ned, 1, 2)
         sig = np.column_stack([np.sqrt(np.einsum("kii->ki", P_p)), self.sigma_rph_deg])
         return Trajectory(t=self.t.copy(), lat=geo[:, 0], lon=geo[:, 1], h=geo[:, 2], v_ned=v, rph=rph, sigma=sig)
 
@@ -116,22 +116,22 @@ def wrap_pi(a: np.ndarray) -> np.ndarray:
     return np.pi - np.mod(np.pi - np.asarray(a, float), 2 * np.pi)
 
 
-def _dcm(e: np.ndarray) -> np.ndarray:
+def _R_body_to_nav_from_euler(e: np.ndarray) -> np.ndarray:
     """R_body_to_nav for Euler angles (S,3) rad: Rz(yaw) Ry(pitch) Rx(roll), seed eq. 2's DCM; (S,3,3)."""
     cr, sr = np.cos(e[:, 0]), np.sin(e[:, 0])
     cp, sp = np.cos(e[:, 1]), np.sin(e[:, 1])
     cy, sy = np.cos(e[:, 2]), np.sin(e[:, 2])
-    R = np.empty((len(e), 3, 3))
-    R[:, 0, 0] = cy * cp
-    R[:, 0, 1] = -sy * cr + cy * sp * sr
-    R[:, 0, 2] = sy * sr + cy * sp * cr
-    R[:, 1, 0] = sy * cp
-    R[:, 1, 1] = cy * cr + sy * sp * sr
-    R[:, 1, 2] = -cy * sr + sy * sp * cr
-    R[:, 2, 0] = -sp
-    R[:, 2, 1] = cp * sr
-    R[:, 2, 2] = cp * cr
-    return R
+    R_body_to_nav = np.empty((len(e), 3, 3))
+    R_body_to_nav[:, 0, 0] = cy * cp
+    R_body_to_nav[:, 0, 1] = -sy * cr + cy * sp * sr
+    R_body_to_nav[:, 0, 2] = sy * sr + cy * sp * cr
+    R_body_to_nav[:, 1, 0] = sy * cp
+    R_body_to_nav[:, 1, 1] = cy * cr + sy * sp * sr
+    R_body_to_nav[:, 1, 2] = -cy * sr + sy * sp * cr
+    R_body_to_nav[:, 2, 0] = -sp
+    R_body_to_nav[:, 2, 1] = cp * sr
+    R_body_to_nav[:, 2, 2] = cp * cr
+    return R_body_to_nav
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -264,7 +264,7 @@ class StrapdownUkf:
         ba, bg = chi[:, 9:12], chi[:, 12:15]
         na, ng = chi[:, nx:nx + 3], chi[:, nx + 3:nx + 6]
         # earth rate in body axes, frozen over the (short) block
-        w_ie_b = _dcm(e).transpose(0, 2, 1) @ self.w_ie
+        w_ie_b = _R_body_to_nav_from_euler(e).transpose(0, 2, 1) @ self.w_ie
         w_cor = 2.0 * self.w_ie
         for k in range(len(dt)):
             h = dt[k]
@@ -272,7 +272,7 @@ class StrapdownUkf:
             e_mid = e + (0.5 * h) * euler_rates(e, w_b)  # midpoint step: second order in h
             e_new = e + h * euler_rates(e_mid, w_b)
             f_b = dvel[k] / h - ba - na
-            a_nav = np.einsum("sij,sj->si", _dcm(e_mid), f_b) - _cross(w_cor, v)
+            a_nav = np.einsum("sij,sj->si", _R_body_to_nav_from_euler(e_mid), f_b) - _cross(w_cor, v)
             a_nav[:, 2] += self.g_nav[2]
             v_new = v + h * a_nav
             p = p + (0.5 * h) * (v + v_new)
@@ -289,9 +289,9 @@ class StrapdownUkf:
         the GNSS error states."""
         lever = np.asarray(self.opts.lever_arm_b, float)
         if lever.any():
-            R = _dcm(chi[:, _ANG])
-            y = chi[:, 0:3] + R @ lever
-            v = chi[:, 3:6] + R @ np.cross(w_b, lever)
+            R_body_to_nav = _R_body_to_nav_from_euler(chi[:, _ANG])
+            y = chi[:, 0:3] + R_body_to_nav @ lever
+            v = chi[:, 3:6] + R_body_to_nav @ np.cross(w_b, lever)
         else:  # seed eq. 5: H = [I6 0]
             y, v = chi[:, 0:3].copy(), chi[:, 3:6]
         if self.gm:

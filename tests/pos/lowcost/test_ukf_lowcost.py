@@ -3,14 +3,14 @@ import numpy as np
 import pytest
 
 from dgcal.fields.frames import R_body_to_ned_from_rph
-from dgcal.pos.lowcost.ukf import SigmaPoints, _dcm, _mean_cov, euler_rates, wrap_pi
+from dgcal.pos.lowcost.ukf import SigmaPoints, _R_body_to_nav_from_euler, _mean_cov, euler_rates, wrap_pi
 from dgcal.sim.lowcost_flight import compare_ukf_smoother, format_accuracy_table, simulate_lowcost_flight
 
 
 def test_dcm_matches_frames_convention():
     rng = np.random.default_rng(1)
     e = np.column_stack([rng.uniform(-1, 1, 20), rng.uniform(-1.2, 1.2, 20), rng.uniform(-3, 3, 20)])
-    R = _dcm(e)
+    R = _R_body_to_nav_from_euler(e)
     R_ref = R_body_to_ned_from_rph(*np.degrees(e).T)
     assert np.allclose(R, R_ref, atol=1e-12)
 
@@ -21,8 +21,9 @@ def test_euler_rates_match_rotation_derivative():
     w = rng.normal(0, 0.5, (10, 3))
     h = 1e-6
     # R(e + h e_dot) ~ R(e) (I + h [w]x): body rates are in body axes
-    R1 = _dcm(e + h * euler_rates(e, w))
-    Rw = _dcm(e) @ (np.eye(3) + h * np.array([[[0, -c, b], [c, 0, -a], [-b, a, 0]] for a, b, c in w]))
+    R1 = _R_body_to_nav_from_euler(e + h * euler_rates(e, w))
+    skew_w = np.array([[[0, -c, b], [c, 0, -a], [-b, a, 0]] for a, b, c in w])
+    Rw = _R_body_to_nav_from_euler(e) @ (np.eye(3) + h * skew_w)
     assert np.abs(R1 - Rw).max() < 1e-11
 
 
