@@ -17,7 +17,8 @@ axes, no geodetic link.
 Covariances: poses [C_world (m), dtheta (rad)] with dtheta a right perturbation of R_cam_to_world
 (`dgcal.fields.pose`); EOPs [position (m along grid E, grid N, Up at the centre; metres for a geographic CRS
 too), omega, phi, kappa (deg)]; POS [r_imu_world (m), dtheta (rad)] with dtheta a right perturbation of
-R_body_to_world (body axes). EOP and pose covariances are linked by one Jacobian (`World.eop_jacobian`), so
+R_body_to_world (body axes): the pose rule, so `Poses.from_body_to_world(R_body_to_world, r_imu_world, cov)` is the
+POS sample's body pose as it is. EOP and pose covariances are linked by one Jacobian (`World.eop_jacobian`), so
 the two directions are inverses.
 """
 from __future__ import annotations
@@ -190,8 +191,8 @@ class World:
         """Map centres (N,3) (m), PATB omega/phi/kappa (N,3) (deg) and, when `poses.cov` is set, (N,6,6) EOP
         covariances [position (m, grid-level axes), omega, phi, kappa (deg)] of world poses (inverse of
         `eop_to_poses`)."""
-        C, R = poses.C_world, poses.R_cam_to_world
-        xyz, opk = self.to_map(C), self._opk(C, R)
+        C_world, R_cam_to_world = poses.C_world, poses.R_cam_to_world
+        xyz, opk = self.to_map(C_world), self._opk(C_world, R_cam_to_world)
         cov = None
         if poses.cov is not None:
             J = self.eop_jacobian(poses)
@@ -205,25 +206,27 @@ class World:
         Position errors are metres along the grid-level axes at the centre, for a geographic CRS too (the map's
         scale factor, < 1e-3, is not applied): `R_world_to_grid_at(C)`. The angles' derivatives (convergence and
         curvature move with C) by central differences."""
-        C, R = poses.C_world, poses.R_cam_to_world
-        R_lg = self.R_world_to_grid_at(C)
-        J = np.zeros((len(C), 6, 6))
-        J[:, :3, :3] = R_lg
+        C_world, R_cam_to_world = poses.C_world, poses.R_cam_to_world
+        R_world_to_grid = self.R_world_to_grid_at(C_world)
+        J = np.zeros((len(C_world), 6, 6))
+        J[:, :3, :3] = R_world_to_grid
         for j in range(3):
             dC = np.zeros(3)
             dC[j] = _H_POS
-            J[:, 3:, j] = _wrap_deg(self._opk(C + dC, R) - self._opk(C - dC, R)) / (2 * _H_POS)
-            d = np.zeros((len(C), 6))
+            op, om = (self._opk(C_world + s * dC, R_cam_to_world) for s in (1.0, -1.0))
+            J[:, 3:, j] = _wrap_deg(op - om) / (2 * _H_POS)
+            d = np.zeros((len(C_world), 6))
             d[:, 3 + j] = _H_ROT
-            op, om = (self._opk(C, poses.retract(s * d).R_cam_to_world, R_lg) for s in (1.0, -1.0))
+            op, om = (self._opk(C_world, poses.retract(s * d).R_cam_to_world, R_world_to_grid) for s in (1.0, -1.0))
             J[:, 3:, 3 + j] = _wrap_deg(op - om) / (2 * _H_ROT)
         return J
 
     def _opk(self, C_world: np.ndarray, R_cam_to_world: np.ndarray,
              R_world_to_grid: np.ndarray | None = None) -> np.ndarray:
         """PATB omega/phi/kappa (N,3) (deg) of world orientations at world centres."""
-        R_lg = self.R_world_to_grid_at(C_world) if R_world_to_grid is None else R_world_to_grid
-        return np.atleast_2d(opk_from_R_cam_to_map(R_lg @ np.asarray(R_cam_to_world, float).reshape(-1, 3, 3)))
+        R_world_to_grid = self.R_world_to_grid_at(C_world) if R_world_to_grid is None else R_world_to_grid
+        R_cam_to_grid = R_world_to_grid @ np.asarray(R_cam_to_world, float).reshape(-1, 3, 3)
+        return np.atleast_2d(opk_from_R_cam_to_map(R_cam_to_grid))
 
     # --- geodetic POS samples <-> world -------------------------------------------------------
     def _geodetic(self) -> None:
@@ -270,11 +273,11 @@ class World:
         C_enu[:, 0, 0], C_enu[:, 1, 1], C_enu[:, 2, 2] = sigma[:, 1] ** 2, sigma[:, 0] ** 2, sigma[:, 2] ** 2
         C[:, :3, :3] = R_here_to_world @ C_enu @ transpose(R_here_to_world)
 
-        def R_of(a):
+        def R_body_to_ned_of(a):
             return R_body_to_ned_from_rph(a[:, 0], a[:, 1], a[:, 2]).reshape(-1, 3, 3)
 
         # a right perturbation of R_body_to_ned is the same body-axes perturbation of R_body_to_world
-        Jr = numeric_rot_jacobian(R_of, rph, R_of(rph), 1e-5)  # rad per degree
+        Jr = numeric_rot_jacobian(R_body_to_ned_of, rph, R_body_to_ned_of(rph), 1e-5)  # rad per degree
         C_rph = np.zeros((len(lat), 3, 3))
         C_rph[:, np.arange(3), np.arange(3)] = sigma[:, 3:] ** 2
         C[:, 3:, 3:] = Jr @ C_rph @ transpose(Jr)

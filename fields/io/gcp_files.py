@@ -275,9 +275,9 @@ def read_micmac_orientation(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     ext = root.find("Externe")
     if ext is None:
         raise InputError("no <Externe>", path, field="Externe")
-    C = _numbers(ext.find("Centre"), 3, path, None, "Centre")
+    C_world = _numbers(ext.find("Centre"), 3, path, None, "Centre")
     mat = ext.find("ParamRotation/CodageMatr")
     if mat is None:
         raise InputError("only <CodageMatr> rotations are supported", path, field="ParamRotation")
-    R = np.array([_numbers(mat.find(k), 3, path, None, k) for k in ("L1", "L2", "L3")])
-    return R, C
+    R_cam_to_world = np.array([_numbers(mat.find(k), 3, path, None, k) for k in ("L1", "L2", "L3")])
+    return R_cam_to_world, C_world
