@@ -75,8 +75,10 @@ class Bridge:
     q_gyro: np.ndarray
     q_accel: np.ndarray
 
-    def rotated(self, R: np.ndarray) -> "Bridge":
-        return Bridge(self.t0, self.t1, R @ self.q_gyro @ R.T, R @ self.q_accel @ R.T)
+    def rotated(self, R_sensor_to_body: np.ndarray) -> "Bridge":
+        """The same densities in body axes, from the IMU sensor's (`ImuData.rotated`)."""
+        return Bridge(self.t0, self.t1, R_sensor_to_body @ self.q_gyro @ R_sensor_to_body.T,
+                      R_sensor_to_body @ self.q_accel @ R_sensor_to_body.T)
 
 
 @dataclass

@@ -67,13 +67,13 @@ class TrajectoryInterpolator:
         self.traj = traj
         self.t = t
         self.p_ecef = geodetic_to_ecef(traj.lat, traj.lon, traj.h)
-        R_ne = np.swapaxes(R_ecef_to_ned(traj.lat, traj.lon), -1, -2)
-        self.v_ecef = np.einsum("nij,nj->ni", R_ne, np.asarray(traj.v_ned, float))
-        R_be = R_ne @ R_body_to_ned_from_rph(traj.rph[:, 0], traj.rph[:, 1], traj.rph[:, 2])
-        self.rot = Rotation.from_matrix(R_be)
-        self.slerp = Slerp(t, self.rot)
+        R_ned_to_ecef = np.swapaxes(R_ecef_to_ned(traj.lat, traj.lon), -1, -2)
+        self.v_ecef = np.einsum("nij,nj->ni", R_ned_to_ecef, np.asarray(traj.v_ned, float))
+        R_body_to_ecef = R_ned_to_ecef @ R_body_to_ned_from_rph(traj.rph[:, 0], traj.rph[:, 1], traj.rph[:, 2])
+        self.rot_body_to_ecef = Rotation.from_matrix(R_body_to_ecef)
+        self.slerp = Slerp(t, self.rot_body_to_ecef)
         # node angular rates (body, relative to ECEF) by central differences of the attitude samples
-        rel = (self.rot[:-1].inv() * self.rot[1:]).as_rotvec() / np.diff(t)[:, None]
+        rel = (self.rot_body_to_ecef[:-1].inv() * self.rot_body_to_ecef[1:]).as_rotvec() / np.diff(t)[:, None]
         w = np.empty((len(t), 3))
         w[0], w[-1] = rel[0], rel[-1]
         dt = np.diff(t)
@@ -111,36 +111,36 @@ class TrajectoryInterpolator:
         v = ((6 * u2 - 6 * u) * p0 / h1 + (3 * u2 - 4 * u + 1) * v0 + (-6 * u2 + 6 * u) * p1 / h1
              + (3 * u2 - 2 * u) * v1)
         if self.attitude == "slerp":
-            R_be = self.slerp(tq).as_matrix()
+            R_body_to_ecef = self.slerp(tq).as_matrix()
             w = (1 - u) * self.omega[k] + u * self.omega[k + 1]
         else:
-            R_be, w = self._cubic_attitude(k, u, h1)
+            R_body_to_ecef, w = self._cubic_attitude(k, u, h1)
         geo = ecef_to_geodetic(p)
-        R_en = R_ecef_to_ned(geo[:, 0], geo[:, 1])
-        R_bn = R_en @ R_be
+        R_ecef_to_local_ned = R_ecef_to_ned(geo[:, 0], geo[:, 1])
+        R_body_to_ned = R_ecef_to_local_ned @ R_body_to_ecef
         sigma = cov = None
         if self.var is not None:
             sigma = np.sqrt((1 - u) * self.var[k] + u * self.var[k + 1])
         if self.cov is not None:
             uu = u[:, :, None]
             cov = (1 - uu) * self.cov[k] + uu * self.cov[k + 1]
-        return TrajectoryStates(t=tq, p_ecef=p, v_ecef=v, R_body_to_ecef=R_be, lat=geo[:, 0], lon=geo[:, 1],
-                                h=geo[:, 2], v_ned=np.einsum("nij,nj->ni", R_en, v), R_body_to_ned=R_bn,
-                                rph=rph_from_R_body_to_ned(R_bn), omega_eb_b=w, sigma=sigma, cov=cov,
-                                image=labels)
+        return TrajectoryStates(t=tq, p_ecef=p, v_ecef=v, R_body_to_ecef=R_body_to_ecef, lat=geo[:, 0],
+                                lon=geo[:, 1], h=geo[:, 2], v_ned=np.einsum("nij,nj->ni", R_ecef_to_local_ned, v),
+                                R_body_to_ned=R_body_to_ned, rph=rph_from_R_body_to_ned(R_body_to_ned), omega_eb_b=w,
+                                sigma=sigma, cov=cov, image=labels)
 
 
     def _cubic_attitude(self, k: np.ndarray, u: np.ndarray, h1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cubic Hermite of the rotation vector relative to sample k, matching the node angular rates."""
-        phi1 = (self.rot[k].inv() * self.rot[k + 1]).as_rotvec()
+        phi1 = (self.rot_body_to_ecef[k].inv() * self.rot_body_to_ecef[k + 1]).as_rotvec()
         d0 = self.omega[k] * h1
         # end tangent: inverse right Jacobian of phi1 to first order
         d1 = self.omega[k + 1] * h1 + 0.5 * np.cross(phi1, self.omega[k + 1] * h1)
         u2, u3 = u * u, u * u * u
         phi = (u3 - 2 * u2 + u) * d0 + (-2 * u3 + 3 * u2) * phi1 + (u3 - u2) * d1
         dphi = (3 * u2 - 4 * u + 1) * d0 + (-6 * u2 + 6 * u) * phi1 + (3 * u2 - 2 * u) * d1
-        R = (self.rot[k] * Rotation.from_rotvec(phi)).as_matrix()
-        return R, dphi / h1
+        R_body_to_ecef = (self.rot_body_to_ecef[k] * Rotation.from_rotvec(phi)).as_matrix()
+        return R_body_to_ecef, dphi / h1
 
 
 def interpolate_trajectory(traj: Trajectory, t_query, names=None, cov: np.ndarray | None = None,
