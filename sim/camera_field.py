@@ -85,9 +85,9 @@ def plan_shots(n_images: int, camera: CameraModel, tf: TargetField, rng: np.rand
         look = np.append(rng.uniform(-0.05, 0.05, 2) * tf.diameter_m, 0.0)
         # nadir camera (x east, y south, z down) tilted about its x axis, then rolled about its z axis
         R_world_to_cam = _rz(math.radians(roll_j)) @ _rx(math.radians(tilt_j)) @ np.diag([1.0, -1.0, -1.0])
-        C_w = look - dist * R_world_to_cam[2]  # camera z axis in the world is row 2 of R_world_to_cam
+        C_world = look - dist * R_world_to_cam[2]  # camera z axis in the world is row 2 of R_world_to_cam
         R_field_to_cam = R_world_to_cam @ _rz(math.radians(rot))
-        t = -R_world_to_cam @ C_w
+        t = -R_world_to_cam @ C_world
         shots.append(Shot(f"IMG_{k + 1:04d}.jpg", R_field_to_cam, t, rot % 360.0, tilt_j, dist, roll_j))
     return shots
 
@@ -126,10 +126,10 @@ def truth_projections(camera: CameraModel, tf: TargetField, shot: Shot, facets: 
     """Ids, noise-free pixels and `complete` flags of the targets visible in one shot (in frame, facing the
     camera within `max_incidence_deg`, not hidden by a block)."""
     ids, _, xyz = tf.targets()
-    R, t = shot.R_field_to_cam, shot.t_field_to_cam
-    X = xyz @ R.T + t
+    R_field_to_cam, t = shot.R_field_to_cam, shot.t_field_to_cam
+    X = xyz @ R_field_to_cam.T + t
     w, h = camera.image_size
-    n_cam = R[:, 2]  # plate normal in the camera frame
+    n_cam = R_field_to_cam[:, 2]  # plate normal in the camera frame
     cos_inc = -(X @ n_cam) / np.linalg.norm(X, axis=1)
     ok = (X[:, 2] > 0) & (cos_inc > math.cos(math.radians(max_incidence_deg)))
     uv = np.full((len(ids), 2), np.nan)
@@ -137,14 +137,14 @@ def truth_projections(camera: CameraModel, tf: TargetField, shot: Shot, facets: 
     inside = ok & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
     if tf.blocks:
         depth = np.full(len(ids), np.inf)
-        depth[inside] = facet_depth_at(X[inside], facets, R, t)
+        depth[inside] = facet_depth_at(X[inside], facets, R_field_to_cam, t)
         inside &= depth >= X[:, 2] - 1e-6
     # complete: the 3x3 grid of square corners around the target is in the frame (margin 2 px)
     s = tf.square_m
     offs = np.array([[dx, dy, 0.0] for dx in (-s, 0, s) for dy in (-s, 0, s)])
     complete = inside.copy()
     for o in offs:
-        Y = (xyz + o) @ R.T + t
+        Y = (xyz + o) @ R_field_to_cam.T + t
         good = complete & (Y[:, 2] > 0)
         q = np.full((len(ids), 2), np.nan)
         q[good] = camera.project(Y[good])
@@ -259,27 +259,28 @@ def plan_board_shots(n_images: int, camera: CameraModel, board: Board, rng: np.r
         axis_ang = rng.uniform(0, 2 * math.pi)
         spin = rng.uniform(-math.pi, math.pi) if partial else rng.uniform(-0.6, 0.6)
         ax = np.array([math.cos(axis_ang), math.sin(axis_ang), 0.0])
-        R = _axis_angle(ax, tilt) @ _rz(spin)
+        R_board_to_cam = _axis_angle(ax, tilt) @ _rz(spin)
         for _ in range(40):
             uv_aim = np.array([aim[0] * (w - 1), aim[1] * (h - 1)])
             ray = camera.ray(uv_aim[None])[0]
             dist = f * bw / (frac * w)
-            t = ray / ray[2] * dist - R @ centre
+            t = ray / ray[2] * dist - R_board_to_cam @ centre
             if partial:
-                X = corners @ R.T + t
+                X = corners @ R_board_to_cam.T + t
                 uv = camera.project(X)
                 seen = (X[:, 2] > 0) & np.all((uv >= 4) & (uv <= [w - 5, h - 5]), axis=1)
                 if seen.mean() >= 0.4:
                     break
             else:
-                X = outline @ R.T + t
+                X = outline @ R_board_to_cam.T + t
                 if np.all(X[:, 2] > 0):
                     uv = camera.project(X)
                     if np.all((uv >= 2) & (uv <= [w - 3, h - 3])):
                         break
             frac *= 0.93
             aim = 0.5 + 0.93 * (aim - 0.5)
-        shots.append(Shot(f"IMG_{k + 1:04d}.png", R, t, math.degrees(spin), math.degrees(tilt), float(dist), 0.0))
+        shots.append(Shot(f"IMG_{k + 1:04d}.png", R_board_to_cam, t, math.degrees(spin), math.degrees(tilt),
+                          float(dist), 0.0))
     return shots
 
 

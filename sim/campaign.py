@@ -121,10 +121,10 @@ class _SpeedProfile:
                 saved = self.speed
                 try:
                     self.speed = V
-                    R, w = FlightProfile.attitude(self, c2)
+                    R_body_to_l, w = FlightProfile.attitude(self, c2)
                 finally:
                     self.speed = saved
-                return R, w
+                return R_body_to_l, w
 
         return Profile(base.lat0, base.lon0, base.h0, base.t0, base.p0_l, base.speed, base.heading0, base.turn,
                        base.climb, base.aoa_rad, base.crab_rad)
@@ -197,8 +197,9 @@ def _observe(camera, C_ecef, R_cam_to_ecef, names, ids, X_ecef, margin_px: float
 def _gnss_rows(t, p_ant, v_ant, sig_enu, sig_v):
     """Rows of gnss.csv (the columns of `dgcal pos --mode spp`) for antenna positions with ENU sigmas."""
     llh = ecef_to_geodetic(p_ant)
-    R = R_ecef_to_enu(llh[:, 0], llh[:, 1])                  # (N,3,3) ECEF -> ENU
-    cov = np.einsum("nji,j,njk->nik", R, np.asarray(sig_enu) ** 2, R)   # ENU diag -> ECEF
+    R_ecef_to_local_enu = R_ecef_to_enu(llh[:, 0], llh[:, 1])                  # (N,3,3)
+    # ENU diag -> ECEF
+    cov = np.einsum("nji,j,njk->nik", R_ecef_to_local_enu, np.asarray(sig_enu) ** 2, R_ecef_to_local_enu)
     s_ecef = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
     week, sow = week_sow(t)
     nan = float("nan")
@@ -228,7 +229,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     grid = MapGrid(crs)
     enu = LocalENU(lat0, lon0, h0)
     camera = campaign_camera()
-    R_cb = boresight_matrix(boresight_deg)
+    R_cam_to_body = boresight_matrix(boresight_deg)
     lever = np.asarray(lever_arm_m, float)
     lever_g = np.asarray(lever_arm_gnss_m, float)
     week0, sow0 = (int(v) for v in week_sow(DEFAULT_T0_GPS))  # inside the bundled navigation file (tc mode)
@@ -244,7 +245,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
     events = camera_events(traj, distance_m=event_distance_m, delay_s=delay_s)
     at = traj.at(events.t + delay_s)
     C_ecef = at.p_ecef + np.einsum("nij,j->ni", at.R_body_to_ecef, lever)
-    R_cam_to_ecef = at.R_body_to_ecef @ R_cb
+    R_cam_to_ecef = at.R_body_to_ecef @ R_cam_to_body
     names = np.asarray(events.image, dtype=object)
 
     # 2. ground points on the terrain and their image measurements; the true EOPs
@@ -293,7 +294,7 @@ def simulate_campaign(out: str | Path, seed: int = 0, *, crs: str = DEFAULT_CRS,
         truth = {
             "simulator": "campaign", "seed": int(seed), "crs": crs, "site": {"lat": lat0, "lon": lon0, "h_ground": h0},
             "convergence_deg": float(grid.convergence_deg(lat0, lon0)),
-            "lever_arm_m": lever.tolist(), "boresight_R_cam_to_body": R_cb.tolist(),
+            "lever_arm_m": lever.tolist(), "boresight_R_cam_to_body": R_cam_to_body.tolist(),
             "boresight_deg_about_nominal": list(boresight_deg), "delay_s": float(delay_s),
             "lever_arm_gnss_m": lever_g.tolist(),
             "camera": camera_json_dict(camera),
@@ -442,9 +443,9 @@ def _write_gnss_lc(path: Path, rng, grid: MapGrid, t_gnss, p_ant, v_ant, gnss_si
     """gnss.csv of PPK-like antenna positions and velocities, ENU noise `gnss_sigma_enu` (m), `gnss_sigma_v` (m/s)."""
     sg = np.asarray(gnss_sigma_enu, float)
     llh = grid.to_geodetic(grid.from_ecef(p_ant))
-    R_e2enu = R_ecef_to_enu(llh[:, 0], llh[:, 1])
+    R_ecef_to_local_enu = R_ecef_to_enu(llh[:, 0], llh[:, 1])
     noise_enu = rng.normal(0, 1, p_ant.shape) * sg
-    p_obs = p_ant + np.einsum("nji,nj->ni", R_e2enu, noise_enu)
+    p_obs = p_ant + np.einsum("nji,nj->ni", R_ecef_to_local_enu, noise_enu)
     v_obs = v_ant + rng.normal(0, gnss_sigma_v, v_ant.shape)
     write_table(path, GNSS_CSV_COLUMNS, _gnss_rows(t_gnss, p_obs, v_obs, sg, gnss_sigma_v), fmt="%.12g")
 

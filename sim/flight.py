@@ -77,16 +77,16 @@ def simulate_block_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS
     cam = block_flight_camera(*image_size)
     world = World(MapGrid(crs), LocalENU(CENTRE_LAT, CENTRE_LON, CENTRE_H))
     plan = _flight_plan(cam, heights, n_strips, n_images, rng)
-    names, C_loc, R_w2c = _true_poses(plan, rng)
+    names, C_world, R_world_to_cam = _true_poses(plan, rng)
     # ground points: control and check spread over the low-flight block, inset from its edge
-    gp_ids, role, gp_loc = _ground_points(rng, cam, C_loc, heights, n_control + n_check, targets)
+    gp_ids, role, gp_loc = _ground_points(rng, cam, C_world, heights, n_control + n_check, targets)
     # tie points spread over the whole block
-    lo2, hi2 = C_loc[:, :2].min(0) - 20, C_loc[:, :2].max(0) + 20
+    lo2, hi2 = C_world[:, :2].min(0) - 20, C_world[:, :2].max(0) + 20
     te = rng.uniform(lo2, hi2, (n_tie, 2))
     tie_loc = np.column_stack([te, terrain_height(te[:, 0], te[:, 1])])
     tie_ids = np.array([f"T{i:05d}" for i in range(n_tie)], dtype=object)
-    gi, gid, guv = _observe(cam, names, C_loc, R_w2c, gp_ids, gp_loc)
-    ti, tid, tuv = _observe(cam, names, C_loc, R_w2c, tie_ids, tie_loc)
+    gi, gid, guv = _observe(cam, names, C_world, R_world_to_cam, gp_ids, gp_loc)
+    ti, tid, tuv = _observe(cam, names, C_world, R_world_to_cam, tie_ids, tie_loc)
     # keep tie points seen at least twice
     uniq, cnt = np.unique(tid, return_counts=True)
     twice = set(uniq[cnt >= 2].tolist())
@@ -99,7 +99,7 @@ def simulate_block_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS
     gp_map = world.to_map(gp_loc)
     sig = np.tile(np.asarray(gcp_sigma, float), (len(gp_ids), 1))
     gp_map_obs = gp_map + rng.normal(0, 1.0, gp_map.shape) * sig
-    C_map, opk, _ = world.poses_to_eop(Poses(R_w2c, C_loc))
+    C_map, opk, _ = world.poses_to_eop(Poses(R_world_to_cam, C_world))
     gsd = {f"{H:g}": float((H - 0.0) / cam["f"]) for H in heights}
 
     with staged_dir(Path(out)) as tmp:
@@ -114,14 +114,14 @@ def simulate_block_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS
         write_camera_json(tmp / "camera.json", cam, stats={"rms_px": 0.0, "n_observations": 0, "n_rejected": 0})
         if render:
             # texels a little finer than the lowest flight's ground pixel: detail without aliasing
-            _render_all(tmp / "images", cam, names, R_w2c, C_loc, gp_loc, seed, texel_m=0.8 * min(heights) / cam["f"],
-                        targets=targets, target_size_m=target_size_m)
+            _render_all(tmp / "images", cam, names, R_world_to_cam, C_world, gp_loc, seed,
+                        texel_m=0.8 * min(heights) / cam["f"], targets=targets, target_size_m=target_size_m)
         truth = {
             "crs": crs, "local_frame": {"lat0": CENTRE_LAT, "lon0": CENTRE_LON, "h0": CENTRE_H},
             "camera": {"model": cam.NAME, "image_size": list(cam.image_size), "params": cam.as_dict()},
             "noise_px": noise_px, "gcp_sigma_m": list(gcp_sigma), "gsd_m": gsd,
             "images": [{"image": names[i], "X": C_map[i].tolist(), "opk_deg": opk[i].tolist(),
-                        "C_local": C_loc[i].tolist(), "R_world_to_cv_local": R_w2c[i].tolist(),
+                        "C_local": C_world[i].tolist(), "R_world_to_cv_local": R_world_to_cam[i].tolist(),
                         "height_m": plan[i]["height"], "strip": plan[i]["strip"]} for i in range(len(names))],
             "ground_points": [{"id": gp_ids[i], "role": role[i], "xyz": gp_map[i].tolist(),
                                "local": gp_loc[i].tolist()} for i in range(len(gp_ids))],
@@ -135,27 +135,27 @@ def simulate_block_flight(out: str | Path, seed: int = 0, crs: str = DEFAULT_CRS
 def _true_poses(plan: list[dict], rng) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Image names, true centres (M,3) (world, m) and R_world_to_cam (M,3,3) of the planned stations: nadir, image
     top to the heading, with position and attitude jitter."""
-    names, C_loc, R_w2c = [], [], []
+    names, C_world, R_world_to_cam = [], [], []
     for k, p in enumerate(plan):
-        C = np.array([p["e"], p["n"], p["height"]]) + rng.normal(0, [1.0, 1.0, 0.5])
+        C_world_i = np.array([p["e"], p["n"], p["height"]]) + rng.normal(0, [1.0, 1.0, 0.5])
         # camera: nadir, image top to the heading direction, plus a few degrees of jitter
         kappa = -p["heading"]
         R_cam_to_enu = (Rotation.from_euler("xyz", rng.normal(0, [1.5, 1.5, 2.0]), degrees=True).as_matrix()
                         @ Rotation.from_euler("z", kappa, degrees=True).as_matrix() @ R_CV_TO_PHOTO)
         names.append(f"IMG_{k:04d}.png")
-        C_loc.append(C)
-        R_w2c.append(R_cam_to_enu.T)
-    return names, np.array(C_loc), np.array(R_w2c)
+        C_world.append(C_world_i)
+        R_world_to_cam.append(R_cam_to_enu.T)
+    return names, np.array(C_world), np.array(R_world_to_cam)
 
 
-def _ground_points(rng, cam: Fraser7, C_loc: np.ndarray, heights, n_gp: int,
+def _ground_points(rng, cam: Fraser7, C_world: np.ndarray, heights, n_gp: int,
                    targets: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ids, roles (control/check alternately) and world coordinates (m, on the terrain) of ground points on a
     jittered grid over the low-flight block, inset from its edge."""
     half_fp = 0.3 * min(heights) * np.array(cam.image_size, float)[::-1] / cam["f"]   # N-S strips: x across
-    mid = 0.5 * (C_loc[:, :2].min(0) + C_loc[:, :2].max(0))
-    lo = np.minimum(C_loc[:, :2].min(0) + 10, mid - half_fp)
-    hi = np.maximum(C_loc[:, :2].max(0) - 10, mid + half_fp)
+    mid = 0.5 * (C_world[:, :2].min(0) + C_world[:, :2].max(0))
+    lo = np.minimum(C_world[:, :2].min(0) + 10, mid - half_fp)
+    hi = np.maximum(C_world[:, :2].max(0) - 10, mid + half_fp)
     gx = int(np.ceil(np.sqrt(n_gp * (hi[0] - lo[0]) / (hi[1] - lo[1]))))
     gy = int(np.ceil(n_gp / gx))
     ee, nn = np.meshgrid(np.linspace(lo[0], hi[0], gx), np.linspace(lo[1], hi[1], gy))
@@ -172,12 +172,12 @@ def _ground_points(rng, cam: Fraser7, C_loc: np.ndarray, heights, n_gp: int,
     return gp_ids, role, gp_loc
 
 
-def _observe(cam: Fraser7, names: list[str], C_loc: np.ndarray, R_w2c: np.ndarray, ids: np.ndarray,
+def _observe(cam: Fraser7, names: list[str], C_world: np.ndarray, R_world_to_cam: np.ndarray, ids: np.ndarray,
              X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Noise-free projections (px) of world points X (m) into every image: (image, id, uv) rows."""
     rows_img, rows_id, rows_uv = [], [], []
     for i in range(len(names)):
-        Xc = (X - C_loc[i]) @ R_w2c[i].T
+        Xc = (X - C_world[i]) @ R_world_to_cam[i].T
         ok = Xc[:, 2] > 1.0
         uv = np.full((len(X), 2), np.nan)
         uv[ok] = cam.project(Xc[ok])
@@ -205,7 +205,7 @@ def _texture(seed: int, size: int = 4096) -> np.ndarray:
     return np.clip(128 + 38 * tex, 10, 245).astype(np.uint8)
 
 
-def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: int,
+def _render_all(folder: Path, cam: Fraser7, names, R_world_to_cam, C_world, gp_loc, seed: int,
                 texel_m: float = 0.07, targets: str = "disc", target_size_m: float = 2.0) -> None:
     """Render each image: ray -> terrain intersection (fixed-point on height) -> texture, plus GCP targets
     (a white disc of 1 m radius with a black-and-white quartered centre of 0.5 m radius)."""
@@ -221,18 +221,18 @@ def _render_all(folder: Path, cam: Fraser7, names, R_w2c, C_loc, gp_loc, seed: i
         dic = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
         markers = [cv2.aruco.generateImageMarker(dic, j, 120, borderBits=1) for j in range(len(gp_loc))]
     for i, name in enumerate(names):
-        d = rays_cam @ R_w2c[i]          # world directions
-        C = C_loc[i]
-        z = np.full(len(d), terrain_height(np.array([C[0]]), np.array([C[1]]))[0])
+        d = rays_cam @ R_world_to_cam[i]          # world directions
+        C_world_i = C_world[i]
+        z = np.full(len(d), terrain_height(np.array([C_world_i[0]]), np.array([C_world_i[1]]))[0])
         for _ in range(5):
-            t = (z - C[2]) / d[:, 2]
-            P = C + t[:, None] * d
+            t = (z - C_world_i[2]) / d[:, 2]
+            P = C_world_i + t[:, None] * d
             z = terrain_height(P[:, 0], P[:, 1])
         ix = np.mod(P[:, 0] / texel_m, size).astype(np.float32).reshape(h, w)
         iy = np.mod(-P[:, 1] / texel_m, size).astype(np.float32).reshape(h, w)
         img = cv2.remap(tex, ix, iy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP).astype(np.float32)
         P3 = P.reshape(h, w, 3)
-        Xc = (gp_loc - C) @ R_w2c[i].T
+        Xc = (gp_loc - C_world_i) @ R_world_to_cam[i].T
         front = Xc[:, 2] > 1
         if front.any():
             uv = np.full((len(gp_loc), 2), np.nan)

@@ -67,16 +67,16 @@ class ForwardCameraSim:
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Camera centre (m, ENU) and R_cam_to_enu at GPS time t (camera at the IMU origin)."""
         s = self.truth.at(t)
-        C = self.enu.from_ecef(s.p_ecef[0])
-        R_b2enu = R_NED_TO_ENU @ s.R_body_to_ned[0]
-        return C, R_b2enu @ self.R_cam_to_body
+        C_enu = self.enu.from_ecef(s.p_ecef[0])
+        R_body_to_enu = R_NED_TO_ENU @ s.R_body_to_ned[0]
+        return C_enu, R_body_to_enu @ self.R_cam_to_body
 
     def frame(self, t: float, noise: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
         """Grey image (float32 0..1) at GPS time t, with optional additive Gaussian noise."""
-        C, R = self.pose(t)
-        R_w2c = R.T
-        img = render(self.camera, R_w2c, -R_w2c @ C, [self.ground], background=self.sky, supersample=2,
-                     rays=self.rays)
+        C_enu, R_cam_to_enu = self.pose(t)
+        R_enu_to_cam = R_cam_to_enu.T
+        img = render(self.camera, R_enu_to_cam, -R_enu_to_cam @ C_enu, [self.ground], background=self.sky,
+                     supersample=2, rays=self.rays)
         if noise > 0:
             img = img + (rng or np.random.default_rng()).standard_normal(img.shape).astype(np.float32) * noise
         return np.clip(img, 0.0, 1.0)
@@ -144,13 +144,13 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
         except ValueError:
             continue
         s = tr.at(t1)
-        C, _ = sim.pose(t1)
+        C_enu, _ = sim.pose(t1)
         rows.append({"t": float(t1), "roll": fa.roll, "pitch": fa.pitch, "yaw": fa.yaw,
                      "sigma_roll": fa.sigma_roll, "sigma_pitch": fa.sigma_pitch, "sigma_yaw": fa.sigma_yaw,
                      "pseudo_pitch": float(rph1[1]), "pseudo_yaw": float(rph1[2]),
                      "true_roll": float(s.rph[0, 0]), "true_pitch": float(s.rph[0, 1]),
                      "true_yaw": float(s.rph[0, 2]), "agl": fa.agl_m, "sigma_agl": fa.sigma_agl_m,
-                     "true_agl": float(C[2]), "n_tracks": fa.n_tracks, "n_inliers": fa.n_inliers})
+                     "true_agl": float(C_enu[2]), "n_tracks": fa.n_tracks, "n_inliers": fa.n_inliers})
     if not rows:
         raise RuntimeError("no usable frame pairs")
     R = {k: np.array([r[k] for r in rows]) for k in rows[0]}

@@ -232,12 +232,12 @@ def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_
     t_true = t - bias                        # receiver tags run ahead of true time by dt_rx
     p_rx = P - V * bias[:, None]
     llh = ecef_to_geodetic(p_rx).reshape(n_ep, 3)
-    R = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(n_ep, 3, 3)
+    R_ecef_to_local_enu = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(n_ep, 3, 3)
     sats = sorted(s for s in nav.by_sat if s[0] in systems)
 
     def elev_azim(k_idx, p_sat):
         d = p_sat - p_rx[k_idx]
-        e = np.einsum("nij,nj->ni", R[k_idx], d / np.linalg.norm(d, axis=1, keepdims=True))
+        e = np.einsum("nij,nj->ni", R_ecef_to_local_enu[k_idx], d / np.linalg.norm(d, axis=1, keepdims=True))
         return np.arcsin(np.clip(e[:, 2], -1, 1)), np.mod(np.arctan2(e[:, 0], e[:, 1]), 2 * np.pi)
 
     # candidate satellites per 30-s block (elevation above mask - 5 deg at the block start)
@@ -425,9 +425,9 @@ def simulate_carrier_pair(t_gps: np.ndarray, p_rover_ecef: np.ndarray, p_base_ec
         acc = _ecef_acceleration(ps, vs)
         rho, tau, prot = _range_at(ps, vs, acc, t_s0, pos[K], t_true)
         llh = ecef_to_geodetic(pos[K]).reshape(-1, 3)
-        R = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(-1, 3, 3)
+        R_ecef_to_local_enu = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(-1, 3, 3)
         d = prot - pos[K]
-        e = np.einsum("nij,nj->ni", R, d / np.linalg.norm(d, axis=1, keepdims=True))
+        e = np.einsum("nij,nj->ni", R_ecef_to_local_enu, d / np.linalg.norm(d, axis=1, keepdims=True))
         el = np.arcsin(np.clip(e[:, 2], -1, 1))
         az = np.mod(np.arctan2(e[:, 0], e[:, 1]), 2 * np.pi)
         vis = ok & (el >= np.radians(elev_mask_deg - 2.0))
@@ -554,9 +554,9 @@ def _receiver_geometry(nav, sats, t, pos, vel, bias, elev_mask_deg):
     rho_m, _, _ = _range_at(ps, vs, acc, t_s0, p_rx[K] - vel[K] * h_d, t_true[K] - h_d)
     rr = (rho_p - rho_m) / (2 * h_d)
     llh = ecef_to_geodetic(p_rx).reshape(n_ep, 3)
-    R = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(n_ep, 3, 3)
+    R_ecef_to_local_enu = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(n_ep, 3, 3)
     d = prot - p_rx[K]
-    e = np.einsum("nij,nj->ni", R[K], d / np.linalg.norm(d, axis=1, keepdims=True))
+    e = np.einsum("nij,nj->ni", R_ecef_to_local_enu[K], d / np.linalg.norm(d, axis=1, keepdims=True))
     el = np.arcsin(np.clip(e[:, 2], -1, 1))
     az = np.mod(np.arctan2(e[:, 0], e[:, 1]), 2 * np.pi)
     dts = clk_s + clk_d * ((t_true[K] - tau) - t_s0)

@@ -62,13 +62,13 @@ def gnss_fixes(truth: TrueTrajectory, rate_hz: float = 50.0, sigma_h_m: float = 
     for k in range(1, n):
         e[k] = phi * e[k - 1] + w[k]
     e += rng.standard_normal((n, 3)) * white_m
-    R_ne = np.swapaxes(R_ecef_to_ned(truth.lat[idx], truth.lon[idx]), 1, 2)
+    R_ned_to_ecef = np.swapaxes(R_ecef_to_ned(truth.lat[idx], truth.lon[idx]), 1, 2)
     lever = np.asarray(lever_arm_b, float)
-    R_be = truth.R_body_to_ecef[idx]
-    p_ant = truth.p_ecef[idx] + R_be @ lever
-    v_ant = truth.v_ecef[idx] + np.einsum("nij,nj->ni", R_be, np.cross(truth.omega_ib_b[idx], lever))
-    p = p_ant + np.einsum("nij,nj->ni", R_ne, e)
-    v = v_ant + np.einsum("nij,nj->ni", R_ne, rng.standard_normal((n, 3)) * sigma_vel_mps)
+    R_body_to_ecef = truth.R_body_to_ecef[idx]
+    p_ant = truth.p_ecef[idx] + R_body_to_ecef @ lever
+    v_ant = truth.v_ecef[idx] + np.einsum("nij,nj->ni", R_body_to_ecef, np.cross(truth.omega_ib_b[idx], lever))
+    p = p_ant + np.einsum("nij,nj->ni", R_ned_to_ecef, e)
+    v = v_ant + np.einsum("nij,nj->ni", R_ned_to_ecef, rng.standard_normal((n, 3)) * sigma_vel_mps)
     s_p = np.tile(np.hypot(sig, white_m), (n, 1))
     s_v = np.full((n, 3), sigma_vel_mps)
     return GnssFixes(t=truth.t[idx].copy(), p_ecef=p, sigma_ned=s_p, v_ecef=v, sigma_v_ned=s_v), e
@@ -102,10 +102,10 @@ def write_gnss_csv(path: str | Path, fx: GnssFixes) -> None:
     """The fixes as dgcal's gnss.csv (`dgcal pos --gnss`): gps_week,gps_sow,x,y,z, the ECEF covariance as sigmas and
     signed square roots of the cross terms (sx,sy,sz,sxy,sxz,syz, m), velocity and its ECEF sigmas (m/s)."""
     geo = ecef_to_geodetic(fx.p_ecef)
-    R_ne = np.swapaxes(R_ecef_to_ned(geo[:, 0], geo[:, 1]), 1, 2)
+    R_ned_to_ecef = np.swapaxes(R_ecef_to_ned(geo[:, 0], geo[:, 1]), 1, 2)
     C_ned = fx.cov_ned if fx.cov_ned is not None else np.einsum("ni,ij->nij", fx.sigma_ned ** 2, np.eye(3))
-    C = R_ne @ C_ned @ np.swapaxes(R_ne, 1, 2)
-    Cv = R_ne @ np.einsum("ni,ij->nij", fx.sigma_v_ned ** 2, np.eye(3)) @ np.swapaxes(R_ne, 1, 2)
+    C = R_ned_to_ecef @ C_ned @ np.swapaxes(R_ned_to_ecef, 1, 2)
+    Cv = R_ned_to_ecef @ np.einsum("ni,ij->nij", fx.sigma_v_ned ** 2, np.eye(3)) @ np.swapaxes(R_ned_to_ecef, 1, 2)
     w, sow = week_sow(fx.t)
     cols = [w.astype(int), sow, fx.p_ecef, np.sqrt(np.einsum("nii->ni", C)), cov_to_sqvar(C[:, 0, 1]),
             cov_to_sqvar(C[:, 0, 2]), cov_to_sqvar(C[:, 1, 2]), fx.v_ecef, np.sqrt(np.einsum("nii->ni", Cv))]
@@ -160,8 +160,8 @@ def compare_ukf_smoother(flight: LowcostFlight, smoother_rate_hz: float = 10.0, 
     s = slice(None, None, step)
     lc = GnssFixes(fx.t[s], fx.p_ecef[s], fx.sigma_ned[s], fx.v_ecef[s], fx.sigma_v_ned[s])
     sm = smooth(flight.imu, lc, grade, SmootherOptions(), mode="lc", frame=u.frame)
-    R_sm = sm.frame.R_nav_to_local_ned(sm.p_nav) @ sm.R_body_to_nav
-    rph_sm = rph_from_R_body_to_ned(R_sm)
+    R_body_to_ned_smoothed = sm.frame.R_nav_to_local_ned(sm.p_nav) @ sm.R_body_to_nav
+    rph_sm = rph_from_R_body_to_ned(R_body_to_ned_smoothed)
     iu = {round(float(t), 3): i for i, t in enumerate(u.t)}
     pairs = [(iu[round(float(t), 3)], k) for k, t in enumerate(sm.t)
              if round(float(t), 3) in iu and t >= u.t[0] + skip_s]
@@ -223,8 +223,8 @@ def terrain_dem(center_w: np.ndarray, half_size_m: float = 600.0, step_m: float 
     return Dem(H, np.array([[step_m, 0.0, x[0]], [0.0, -step_m, y[0]]]))
 
 
-def _ray_dem_hit(C, d, dem):
-    X, ok = intersect_dem(np.asarray(C, float), np.atleast_2d(d), dem, 0.0, 50, 1e-6)
+def _ray_dem_hit(C_world, d, dem):
+    X, ok = intersect_dem(np.asarray(C_world, float), np.atleast_2d(d), dem, 0.0, 50, 1e-6)
     return X[0]
 
 
@@ -247,10 +247,10 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
     psi = np.radians(225.0)
     across_w = np.array([np.cos(psi + np.pi / 2), np.sin(psi + np.pi / 2)])[[1, 0]]  # (E, N) of "right"
     P_xy = c_w[:2] + 18.0 * across_w + np.array([6.0, -9.0])
-    P_w = np.array([P_xy[0], P_xy[1], float(dem.height(P_xy[0], P_xy[1]))])
+    P_world = np.array([P_xy[0], P_xy[1], float(dem.height(P_xy[0], P_xy[1]))])
     camera = seed_camera()
     lever = np.array([0.10, 0.0, 0.05])
-    rows = _exposures(truth, fixes, frame, camera, lever, P_w, dem, rng, n_images, sigma_px, laser_sigma_m,
+    rows = _exposures(truth, fixes, frame, camera, lever, P_world, dem, rng, n_images, sigma_px, laser_sigma_m,
                       trigger_interval_s)
     # the filter runs up to the last exposure (its states are causal); map exposures to its epochs
     t_last = rows[-1]["t"] + 1.0
@@ -270,25 +270,25 @@ def georef_campaign(n_images: int = 15, seed: int = 0, sigma_px: float = 1.0, la
     table = []
     for r in rows:
         rph = u.rph_deg[r["j"]]
-        est = _estimates(u, r, camera, pinhole, lever, P_w, dem, gnss_cov, sigma_px, laser_sigma_m)
+        est = _estimates(u, r, camera, pinhole, lever, P_world, dem, gnss_cov, sigma_px, laser_sigma_m)
         row = {"image": f"IMG_{7242 + len(table):04d}", "t_gps": r["t"], "pitch_deg": float(rph[1]),
                "roll_deg": float(rph[0]), "yaw_deg": float(rph[2]), "laser_range_m": r["rho"],
                "ground_speed_mps": r["speed"],
-               "offset_from_centre_N_m": float(P_w[1] - r["centre_true"][1]),
-               "offset_from_centre_E_m": float(P_w[0] - r["centre_true"][0])}
+               "offset_from_centre_N_m": float(P_world[1] - r["centre_true"][1]),
+               "offset_from_centre_E_m": float(P_world[0] - r["centre_true"][0])}
         for k, e in est.items():
-            d = e.xyz[0, :2] - P_w[:2]
+            d = e.xyz[0, :2] - P_world[:2]
             cases[k].append(d)
             covs[k].append(e.cov[0, :2, :2])
             row[k] = {"dN_m": float(d[1]), "dE_m": float(d[0]), "total_m": float(np.hypot(*d)),
                       "sigma_N_m": float(e.sigma[0, 1]), "sigma_E_m": float(e.sigma[0, 0])}
         table.append(row)
-    summary = {k: _case_summary(np.array(cases[k]), np.array(covs[k]), P_w,
+    summary = {k: _case_summary(np.array(cases[k]), np.array(covs[k]), P_world,
                                 None if k == "truth" else gnss_cov[:2, :2]) for k in cases}
     rph_true = np.array([rph_from_R_body_to_ned(truth.at(r["t"]).R_body_to_ned[0]) for r in rows])
     return {"images": table, "summary": summary, "n_images": len(table), "sigma_px": sigma_px,
-            "reference_point_w": P_w.tolist(), "mean_height_agl_m": float(np.mean([r["C_true"][2] for r in rows])
-                                                                            - P_w[2]),
+            "reference_point_w": P_world.tolist(), "mean_height_agl_m": float(np.mean([r["C_true"][2] for r in rows])
+                                                                            - P_world[2]),
             "ukf_attitude_rms_deg": np.sqrt(np.mean((np.array([x["roll_deg"] for x in table]) - rph_true[:, 0]) ** 2
                                                     )).tolist(),
             "pixel_ground_size_m": float(np.mean([x["laser_range_m"] for x in table]) / camera["f"])}
@@ -303,10 +303,10 @@ def _to_world(frame: NavFrame, p_ecef: np.ndarray) -> np.ndarray:
 
 
 def _exposures(truth: TrueTrajectory, fixes: GnssFixes, frame: NavFrame, camera, lever: np.ndarray,
-               P_w: np.ndarray, dem: Dem, rng, n_images: int, sigma_px: float, laser_sigma_m: float,
+               P_world: np.ndarray, dem: Dem, rng, n_images: int, sigma_px: float, laser_sigma_m: float,
                trigger_interval_s: float) -> list[dict]:
     """The first `n_images` exposures on the straight legs (on the logger's 50 Hz grid) that see the reference
-    point `P_w` well inside the frame: time, noisy pixel (px), true pose (world), noisy laser range (m)."""
+    point `P_world` well inside the frame: time, noisy pixel (px), true pose (world), noisy laser range (m)."""
     w, h = camera.image_size
     rows = []
     t_fix = fixes.t
@@ -317,19 +317,20 @@ def _exposures(truth: TrueTrajectory, fixes: GnssFixes, frame: NavFrame, camera,
             if len(rows) >= n_images:
                 break
             tr = truth.at(t_fix[j])
-            R_b2w = _R_NED_TO_WORLD @ frame.R_nav_to_ecef.T @ tr.R_body_to_ecef[0]
-            C_true, R_true = _to_world(frame, tr.p_ecef[0]) + R_b2w @ lever, R_b2w @ R_CAM_TO_BODY_NADIR
-            X_c = R_true.T @ (P_w - C_true)
+            R_body_to_world = _R_NED_TO_WORLD @ frame.R_nav_to_ecef.T @ tr.R_body_to_ecef[0]
+            C_world_true = _to_world(frame, tr.p_ecef[0]) + R_body_to_world @ lever
+            R_cam_to_world_true = R_body_to_world @ R_CAM_TO_BODY_NADIR
+            X_c = R_cam_to_world_true.T @ (P_world - C_world_true)
             if X_c[2] <= 0:
                 continue
             uv_true = camera.project(X_c[None])[0]
             if not (0.05 * w < uv_true[0] < 0.95 * w and 0.05 * h < uv_true[1] < 0.95 * h):
                 continue
             uv = uv_true + rng.standard_normal(2) * sigma_px
-            centre_hit = _ray_dem_hit(C_true, R_true[:, 2], dem)
-            rho = float(np.linalg.norm(centre_hit - C_true)) + rng.standard_normal() * laser_sigma_m
-            rows.append(dict(j=int(j), t=float(t_fix[j]), uv=uv, C_true=C_true, R_true=R_true, rho=rho,
-                             centre_true=centre_hit, speed=float(np.linalg.norm(tr.v_ned[0]))))
+            centre_hit = _ray_dem_hit(C_world_true, R_cam_to_world_true[:, 2], dem)
+            rho = float(np.linalg.norm(centre_hit - C_world_true)) + rng.standard_normal() * laser_sigma_m
+            rows.append(dict(j=int(j), t=float(t_fix[j]), uv=uv, C_true=C_world_true, R_true=R_cam_to_world_true,
+                             rho=rho, centre_true=centre_hit, speed=float(np.linalg.norm(tr.v_ned[0]))))
         if len(rows) >= n_images:
             break
     if len(rows) < n_images:
@@ -337,48 +338,51 @@ def _exposures(truth: TrueTrajectory, fixes: GnssFixes, frame: NavFrame, camera,
     return rows
 
 
-def _estimates(u, r: dict, camera, pinhole, lever: np.ndarray, P_w: np.ndarray, dem: Dem, gnss_cov: np.ndarray,
+def _estimates(u, r: dict, camera, pinhole, lever: np.ndarray, P_world: np.ndarray, dem: Dem, gnss_cov: np.ndarray,
                sigma_px: float, laser_sigma_m: float) -> dict:
     """The reference point from exposure `r` by each case: raw (level attitude, GNSS course, no distortion),
     distortion, attitude (UKF), laser, DEM and true pose."""
     j = r["j"]
     P_nav = u.P[j]
-    R_nw = _R_NED_TO_WORLD
-    C_imu = R_nw @ u.p_nav[j]
+    R_ned_to_world = _R_NED_TO_WORLD
+    r_imu_world = R_ned_to_world @ u.p_nav[j]
     rph = u.rph_deg[j]
-    R_b2w = R_nw @ R_body_to_ned_from_rph_np(rph)
-    C, R = C_imu + R_b2w @ lever, R_b2w @ R_CAM_TO_BODY_NADIR
+    R_body_to_world = R_ned_to_world @ R_body_to_ned_from_rph_np(rph)
+    C_world, R_cam_to_world = r_imu_world + R_body_to_world @ lever, R_body_to_world @ R_CAM_TO_BODY_NADIR
     cov_rph = np.degrees(np.degrees(P_nav[6:9, 6:9]))
-    cov_p = np.maximum(R_nw @ P_nav[0:3, 0:3] @ R_nw.T, gnss_cov)
+    cov_p = np.maximum(R_ned_to_world @ P_nav[0:3, 0:3] @ R_ned_to_world.T, gnss_cov)
     pose_cov = pose_covariance_from_rph(rph, cov_rph, cov_p, R_CAM_TO_BODY_NADIR, R_enu_to_world=np.eye(3))
     # raw data: level attitude, heading from the GNSS course, no distortion model
     v = u.v_nav[j]
     course = np.degrees(np.arctan2(v[1], v[0]))
-    R_lvl = R_nw @ R_body_to_ned_from_rph_np(np.array([0.0, 0.0, course]))
-    C_lvl, R_l = C_imu + R_lvl @ lever, R_lvl @ R_CAM_TO_BODY_NADIR
+    R_body_to_world_level = R_ned_to_world @ R_body_to_ned_from_rph_np(np.array([0.0, 0.0, course]))
+    C_world_level = r_imu_world + R_body_to_world_level @ lever
+    R_cam_to_world_level = R_body_to_world_level @ R_CAM_TO_BODY_NADIR
     lvl_cov = pose_covariance_from_rph(np.array([0.0, 0.0, course]), np.array([3.0, 3.0, 3.0]) ** 2,
                                        cov_p, R_CAM_TO_BODY_NADIR, np.eye(3))
-    return {"raw": georeference(pinhole, r["uv"], C_lvl, R_l, height=P_w[2], pose_cov=lvl_cov, sigma_px=sigma_px),
-            "distortion": georeference(camera, r["uv"], C_lvl, R_l, height=P_w[2], pose_cov=lvl_cov,
+    level = (C_world_level, R_cam_to_world_level)
+    pose = (C_world, R_cam_to_world)
+    return {"raw": georeference(pinhole, r["uv"], *level, height=P_world[2], pose_cov=lvl_cov, sigma_px=sigma_px),
+            "distortion": georeference(camera, r["uv"], *level, height=P_world[2], pose_cov=lvl_cov,
                                        sigma_px=sigma_px),
-            "attitude": georeference(camera, r["uv"], C, R, height=P_w[2], pose_cov=pose_cov, sigma_px=sigma_px),
-            "laser": georeference(camera, r["uv"], C, R, range_m=r["rho"], pose_cov=pose_cov, sigma_px=sigma_px,
+            "attitude": georeference(camera, r["uv"], *pose, height=P_world[2], pose_cov=pose_cov, sigma_px=sigma_px),
+            "laser": georeference(camera, r["uv"], *pose, range_m=r["rho"], pose_cov=pose_cov, sigma_px=sigma_px,
                                   sigma_range=laser_sigma_m),
-            "dem": georeference(camera, r["uv"], C, R, dem=dem, pose_cov=pose_cov, sigma_px=sigma_px,
+            "dem": georeference(camera, r["uv"], *pose, dem=dem, pose_cov=pose_cov, sigma_px=sigma_px,
                                 sigma_height=0.1),
-            "truth": georeference(camera, r["uv"], r["C_true"], r["R_true"], height=P_w[2], sigma_px=sigma_px)}
+            "truth": georeference(camera, r["uv"], r["C_true"], r["R_true"], height=P_world[2], sigma_px=sigma_px)}
 
 
-def _case_summary(d: np.ndarray, covs: np.ndarray, P_w: np.ndarray, common_cov: np.ndarray | None) -> dict:
+def _case_summary(d: np.ndarray, covs: np.ndarray, P_world: np.ndarray, common_cov: np.ndarray | None) -> dict:
     """Mean, spread and averaged error (m) of one case's horizontal errors d (n,2) (E, N) with covariances (n,2,2)."""
     tot = np.hypot(d[:, 0], d[:, 1])
-    av = average_estimates(d + P_w[:2], covs, common_cov=common_cov)
+    av = average_estimates(d + P_world[:2], covs, common_cov=common_cov)
     z = np.array([np.sqrt(x @ np.linalg.solve(c, x) / 2) for x, c in zip(d, covs)])
     return {"mean_dN_m": float(d[:, 1].mean()), "mean_dE_m": float(d[:, 0].mean()),
             "mean_total_m": float(tot.mean()), "std_total_m": float(tot.std(ddof=1)),
             "std_dN_m": float(d[:, 1].std(ddof=1)), "std_dE_m": float(d[:, 0].std(ddof=1)),
-            "average_error_m": float(np.hypot(*(av.mean - P_w[:2]))),
-            "weighted_average_error_m": float(np.hypot(*(av.weighted - P_w[:2]))),
+            "average_error_m": float(np.hypot(*(av.mean - P_world[:2]))),
+            "weighted_average_error_m": float(np.hypot(*(av.weighted - P_world[:2]))),
             "weighted_average_sigma_m": float(np.sqrt(np.trace(av.cov_weighted))),
             "weighted_average_sigma_common_m": float(np.sqrt(np.trace(av.cov_with_common))),
             "chi2_dof": av.chi2_dof, "normalised_error_rms": float(np.sqrt(np.mean(z ** 2)))}

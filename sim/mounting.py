@@ -107,7 +107,7 @@ def simulate_mounting_flight(rng, world: World, camera, lever_arm_m, R_cam_to_bo
                              pos_common_fraction: float = 0.0) -> FlightSim:
     """Simulate one flight of straight strips (alternating headings) in the world; see the module docstring."""
     wind = np.array([wind_en[0], wind_en[1], 0.0])
-    t_all, p_all, v_all, R_all = [], [], [], []
+    t_all, p_all, v_all, R_body_to_world_all = [], [], [], []
     t_exp, strip_h = [], []
     t = t0
     for h, az, offset, length in _strips(list(heights), n_strips, length_m, spacing_m, azimuth_deg):
@@ -125,16 +125,17 @@ def simulate_mounting_flight(rng, world: World, camera, lever_arm_m, R_cam_to_bo
         roll = 1.5 * np.sin(2 * np.pi * ts / 6.0 + ph[0])
         pitch = 2.0 + 1.0 * np.sin(2 * np.pi * ts / 9.0 + ph[1])
         heading = az + np.degrees(crab) + 0.5 * np.sin(2 * np.pi * ts / 13.0 + ph[2])
-        R_b = R_ENU_TO_NED.T @ R_body_to_ned_from_rph(roll, pitch, heading)  # body -> world (level at the block)
+        # the world is level at the block: ENU
+        R_body_to_world_strip = R_ENU_TO_NED.T @ R_body_to_ned_from_rph(roll, pitch, heading)
         t_all.append(t + ts)
         p_all.append(p)
         v_all.append(v)
-        R_all.append(R_b)
+        R_body_to_world_all.append(R_body_to_world_strip)
         te = np.arange(0.5, dur - 0.5, photo_interval_s)
         t_exp.append(t + te)
         strip_h.append(np.full(len(te), h))
         t += ts[-1] + 30.0  # the turn is not simulated: a gap in the trajectory
-    t_s, p_world, v_world, R_bL = (np.concatenate(x) for x in (t_all, p_all, v_all, R_all))
+    t_s, p_world, v_world, R_body_to_world = (np.concatenate(x) for x in (t_all, p_all, v_all, R_body_to_world_all))
     t_exp, heights_img = np.concatenate(t_exp), np.concatenate(strip_h)
 
     # truth at exposure times, analytically interpolated on the fine samples (rate_hz) would add error:
@@ -143,24 +144,24 @@ def simulate_mounting_flight(rng, world: World, camera, lever_arm_m, R_cam_to_bo
         i = np.clip(np.searchsorted(t_s, tq) - 1, 0, len(t_s) - 2)
         s = (tq - t_s[i]) / (t_s[i + 1] - t_s[i])
         pq = p_world[i] + s[:, None] * (p_world[i + 1] - p_world[i])  # straight constant-velocity strips: linear exact
-        Rq = R_bL[i] @ so3_exp(s[:, None] * so3_log(T(R_bL[i]) @ R_bL[i + 1]))
-        return pq, Rq
+        step = so3_log(T(R_body_to_world[i]) @ R_body_to_world[i + 1])
+        return pq, R_body_to_world[i] @ so3_exp(s[:, None] * step)
 
-    p_e, R_e = at(t_exp)
-    r_cam = p_e + np.einsum("nij,j->ni", R_e, lever_arm_m)
-    R_cam_to_world = R_e @ R_cam_to_body
+    r_imu_world_x, R_body_to_world_x = at(t_exp)
+    C_world = r_imu_world_x + np.einsum("nij,j->ni", R_body_to_world_x, lever_arm_m)
+    R_cam_to_world = R_body_to_world_x @ R_cam_to_body
     names = np.array([f"IMG_{k:04d}.JPG" for k in range(len(t_exp))], dtype=object)
-    xyz, opk, _ = world.poses_to_eop(Poses.from_cam_to_world(R_cam_to_world, r_cam))
+    xyz, opk, _ = world.poses_to_eop(Poses.from_cam_to_world(R_cam_to_world, C_world))
     eop_true = EOP(names, xyz, opk)
     es = np.tile(np.asarray(eop_sigma, float), (len(names), 1))
     es *= (heights_img / heights[0])[:, None]  # bundle accuracy degrades with height
     # position noise in metres along grid E, N, Up (also right for a geographic CRS, whose X, Y are degrees)
     n_grid = rng.normal(0, 1, xyz.shape) * es[:, :3]
-    xyz_noisy = world.to_map(r_cam + np.einsum("nji,nj->ni", world.R_world_to_grid_at(r_cam), n_grid))
+    xyz_noisy = world.to_map(C_world + np.einsum("nji,nj->ni", world.R_world_to_grid_at(C_world), n_grid))
     eop = EOP(names, xyz_noisy, opk + rng.normal(0, 1, opk.shape) * es[:, 3:], es)
     events = Events(names, t_exp - delay_s)
 
-    lat, lon, hh, v_ned, rph = world.world_to_pos(p_world, v_world, R_bL)
+    lat, lon, hh, v_ned, rph = world.world_to_pos(p_world, v_world, R_body_to_world)
     traj_true = Trajectory(t_s, lat, lon, hh, v_ned, rph)
     # smoother-like errors: a part common to the whole flight (bias-driven tilt, GNSS biases: it does not
     # average down over the photos) and a smooth part correlated over ~tau_s, independent between photos
@@ -168,14 +169,14 @@ def simulate_mounting_flight(rng, world: World, camera, lever_arm_m, R_cam_to_bo
     err = (np.sqrt(1 - f) * _smooth_noise(rng, len(t_s), 1.0 / rate_hz, tau_s, np.asarray(pos_sigma, float))
            + np.sqrt(f) * rng.normal(0, 1, 6) * np.asarray(pos_sigma, float))
     p_noisy = p_world + err[:, [1, 0, 2]]  # s_lat_m is north, s_lon_m east (the world is ENU, level at the block)
-    lat_n, lon_n, h_n, _, _ = world.world_to_pos(p_noisy, v_world, R_bL)
+    lat_n, lon_n, h_n, _, _ = world.world_to_pos(p_noisy, v_world, R_body_to_world)
     traj = Trajectory(t_s, lat_n, lon_n, h_n, v_ned + rng.normal(0, 0.02, v_ned.shape), rph + err[:, 3:],
                       np.tile(np.asarray(pos_sigma, float), (len(t_s), 1)))
 
     # image measurements of ground points from the true poses
     rows_im, rows_id, uv_all = [], [], []
     for k in range(len(names)):
-        X_c = (ground_world - r_cam[k]) @ R_cam_to_world[k]
+        X_c = (ground_world - C_world[k]) @ R_cam_to_world[k]
         ok = X_c[:, 2] > 1.0
         uv = np.full((len(ground_world), 2), np.nan)
         uv[ok] = camera.project(X_c[ok])
@@ -199,7 +200,7 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     grid = MapGrid(crs)
     world = World(grid, LocalENU(lat0, lon0, h0))
     camera = mounting_flight_camera()
-    R_cb = default_boresight() if R_cam_to_body is None else np.asarray(R_cam_to_body, float)
+    R_cam_to_body = default_boresight() if R_cam_to_body is None else np.asarray(R_cam_to_body, float)
     lever = np.asarray(lever_arm_m, float)
     k = int(round(np.sqrt(n_ground)))
     g = np.linspace(-450, 450, k)
@@ -209,17 +210,17 @@ def simulate_mounting(seed: int = 0, *, lever_arm_m=(-0.30, 0.12, 0.20), R_cam_t
     ids = np.array([f"P{k:03d}" for k in range(len(ground_world))], dtype=object)
     role = np.array(["control" if (i % 4 == 0) else "check" for i in range(len(ids))], dtype=object)
     ground = Points(ids, world.to_map(ground_world), np.full((len(ids), 3), 0.01), role)
-    cal = simulate_mounting_flight(rng, world, camera, lever, R_cb, delay_s, ground_world, ids,
+    cal = simulate_mounting_flight(rng, world, camera, lever, R_cam_to_body, delay_s, ground_world, ids,
                                    **(calibration or {}))
     mp = dict(heights=(450.0,), n_strips=4, spacing_m=250.0, azimuth_deg=100.0, wind_en=(-3.0, 6.0),
               t0=2200 * SECONDS_PER_WEEK + 310000.0)
     mp.update(mapping or {})
-    mapf = simulate_mounting_flight(rng, world, camera, lever, R_cb, delay_s, ground_world, ids, **mp)
+    mapf = simulate_mounting_flight(rng, world, camera, lever, R_cam_to_body, delay_s, ground_world, ids, **mp)
     noise = {"pos_sigma": [0.05, 0.05, 0.08, 0.01, 0.01, 0.03],
              "eop_sigma_300m": [0.03, 0.03, 0.04, 0.003, 0.003, 0.002],
              "pixel_sigma": 0.5, "pos_error_kernel_s": 0.3,
              "pos_common_fraction": (calibration or {}).get("pos_common_fraction", 0.0)}
-    return MountingSim(crs, camera, lever, R_cb, float(delay_s), ground, cal, mapf, noise)
+    return MountingSim(crs, camera, lever, R_cam_to_body, float(delay_s), ground, cal, mapf, noise)
 
 
 def write_mounting_sim(sim: MountingSim, out: Path) -> None:

@@ -85,14 +85,14 @@ def render(camera: CameraModel, R_world_to_cam: np.ndarray, t_world_to_cam: np.n
     """Radiance image (float32, H x W) of `facets` seen by `camera` with X_cam = R_world_to_cam X_w + t (m)."""
     w, h = camera.image_size
     rays = RayGrid(camera) if rays is None else rays
-    R = np.asarray(R_world_to_cam, float)
+    R_world_to_cam = np.asarray(R_world_to_cam, float)
     t = np.asarray(t_world_to_cam, float).ravel()
     k = int(supersample)
     # per facet, linear forms in d = (x, y, 1): depth s = no / (n.d), texel (col, row) = s (m.d) - m.o
     forms = []
     for f in facets:
-        du, dv = R @ np.asarray(f.du_w, float), R @ np.asarray(f.dv_w, float)
-        o = R @ np.asarray(f.origin_w, float) + t
+        du, dv = R_world_to_cam @ np.asarray(f.du_w, float), R_world_to_cam @ np.asarray(f.dv_w, float)
+        o = R_world_to_cam @ np.asarray(f.origin_w, float) + t
         n = np.cross(du, dv)
         M_inv = np.linalg.inv(np.column_stack([du, dv, n]))
         forms.append((n, float(n @ o), M_inv[0], M_inv[1], float(M_inv[0] @ o), float(M_inv[1] @ o),
@@ -128,13 +128,13 @@ def render(camera: CameraModel, R_world_to_cam: np.ndarray, t_world_to_cam: np.n
 def facet_depth_at(points_cam: np.ndarray, facets: list[Facet], R_world_to_cam: np.ndarray,
                    t_world_to_cam: np.ndarray) -> np.ndarray:
     """Depth (m, camera z) of the nearest solid facet (alpha >= 0.5) along the ray to each camera-frame point."""
-    R = np.asarray(R_world_to_cam, float)
+    R_world_to_cam = np.asarray(R_world_to_cam, float)
     t = np.asarray(t_world_to_cam, float).ravel()
     d = np.asarray(points_cam, float) / np.asarray(points_cam, float)[:, 2:3]
     best = np.full(len(d), np.inf)
     for f in facets:
-        du, dv = R @ np.asarray(f.du_w, float), R @ np.asarray(f.dv_w, float)
-        o = R @ np.asarray(f.origin_w, float) + t
+        du, dv = R_world_to_cam @ np.asarray(f.du_w, float), R_world_to_cam @ np.asarray(f.dv_w, float)
+        o = R_world_to_cam @ np.asarray(f.origin_w, float) + t
         n = np.cross(du, dv)
         M_inv = np.linalg.inv(np.column_stack([du, dv, n]))
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -77,12 +77,12 @@ def integrate_strapdown_ecef(t: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray
     # attitude body -> inertial (= ECEF at t[0]): coning-corrected rotation vector per interval
     phi = dth[1:] + np.cross(dth[:-1], dth[1:]) / 12.0
     steps = Rotation.concatenate([Rotation.from_matrix(R0_body_to_ecef), Rotation.from_rotvec(phi)])
-    C_bi = prefix_product(steps)
+    R_body_to_inertial = prefix_product(steps)
     # velocity increments in the inertial frame, resolved with the attitude at the interval start
     # second-order rotation term (1/6) dth x (dth x dv): without it turns leave an O(dt^2) velocity bias
     dv_b = (dv[1:] + 0.5 * np.cross(dth[1:], dv[1:]) + np.cross(dth[1:], np.cross(dth[1:], dv[1:])) / 6.0
             + (np.cross(dth[:-1], dv[1:]) + np.cross(dv[:-1], dth[1:])) / 12.0)
-    dv_i = C_bi[:-1].apply(dv_b)
+    dv_i = R_body_to_inertial[:-1].apply(dv_b)
     R_i_to_e = np.swapaxes(_Rz(OMEGA_EARTH * tau), -1, -2)  # ECEF rotates by +w*tau about z
     r0 = np.asarray(p0_ecef, float)
     v0_i = np.asarray(v0_ecef, float) + np.cross(OMEGA_IE_E, r0)
@@ -100,5 +100,5 @@ def integrate_strapdown_ecef(t: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray
             break
     p_e = np.einsum("nij,nj->ni", R_i_to_e, r_i)
     v_e = np.einsum("nij,nj->ni", R_i_to_e, v_i) - np.cross(OMEGA_IE_E, p_e)
-    R_be = R_i_to_e @ C_bi.as_matrix()
-    return p_e, v_e, R_be
+    R_body_to_ecef = R_i_to_e @ R_body_to_inertial.as_matrix()
+    return p_e, v_e, R_body_to_ecef

@@ -131,32 +131,32 @@ class FlightProfile:
         phi = np.arctan2(h, -k)
         phidot = (h * kdot - hdot * k) / (h * h + k * k)
         cf, sf = np.cos(phi), np.sin(phi)
-        R = np.empty(phi.shape + (3, 3))
-        R[..., 0, 0] = cp * ct
-        R[..., 0, 1] = cp * st * sf - sp * cf
-        R[..., 0, 2] = cp * st * cf + sp * sf
-        R[..., 1, 0] = sp * ct
-        R[..., 1, 1] = sp * st * sf + cp * cf
-        R[..., 1, 2] = sp * st * cf - cp * sf
-        R[..., 2, 0] = -st
-        R[..., 2, 1] = ct * sf
-        R[..., 2, 2] = ct * cf
+        R_body_to_l = np.empty(phi.shape + (3, 3))
+        R_body_to_l[..., 0, 0] = cp * ct
+        R_body_to_l[..., 0, 1] = cp * st * sf - sp * cf
+        R_body_to_l[..., 0, 2] = cp * st * cf + sp * sf
+        R_body_to_l[..., 1, 0] = sp * ct
+        R_body_to_l[..., 1, 1] = sp * st * sf + cp * cf
+        R_body_to_l[..., 1, 2] = sp * st * cf - cp * sf
+        R_body_to_l[..., 2, 0] = -st
+        R_body_to_l[..., 2, 1] = ct * sf
+        R_body_to_l[..., 2, 2] = ct * cf
         w = np.stack([phidot - psidot * st, thdot * cf + psidot * sf * ct, -thdot * sf + psidot * cf * ct], -1)
-        return R, w
+        return R_body_to_l, w
 
     def kinematics(self, t: np.ndarray, p_l: np.ndarray) -> dict:
         """Full state at sorted times t given the tangent-frame positions p_l there (N,3)."""
         c = self.controls(t)
-        R_bl, w_lb = self.attitude(c)
+        R_body_to_l, w_lb = self.attitude(c)
         p_e = self.origin_ecef + p_l @ self.R_l_to_ecef.T
         v_e = c["v_l"] @ self.R_l_to_ecef.T
         a_e = c["a_l"] @ self.R_l_to_ecef.T
-        R_be = self.R_l_to_ecef @ R_bl
+        R_body_to_ecef = self.R_l_to_ecef @ R_body_to_l
         f_e = (a_e + 2 * np.cross(OMEGA_IE_E, v_e) + np.cross(OMEGA_IE_E, np.cross(OMEGA_IE_E, p_e))
                - gravitation_ecef(p_e))
-        f_b = np.einsum("nji,nj->ni", R_be, f_e)
-        w_ib = w_lb + np.einsum("nji,j->ni", R_be, OMEGA_IE_E)
-        return dict(p_ecef=p_e, v_ecef=v_e, R_body_to_ecef=R_be, f_b=f_b, omega_ib_b=w_ib, v_l=c["v_l"])
+        f_b = np.einsum("nji,nj->ni", R_body_to_ecef, f_e)
+        w_ib = w_lb + np.einsum("nji,j->ni", R_body_to_ecef, OMEGA_IE_E)
+        return dict(p_ecef=p_e, v_ecef=v_e, R_body_to_ecef=R_body_to_ecef, f_b=f_b, omega_ib_b=w_ib, v_l=c["v_l"])
 
     def horizontal_increment(self, ta: np.ndarray, tb: np.ndarray) -> np.ndarray:
         """Integral of the l-frame horizontal velocity from ta to tb (elementwise), m; (N,2)."""
@@ -268,12 +268,12 @@ def assemble_trajectory(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, 
         dth = dt / 6.0 * (w_a + 4.0 * mid["omega_ib_b"] + arr["omega_ib_b"])
         dvl = dt / 6.0 * (f_a + 4.0 * mid["f_b"] + arr["f_b"])
     geo = ecef_to_geodetic(arr["p_ecef"])
-    R_en = R_ecef_to_ned(geo[:, 0], geo[:, 1])
-    v_ned = np.einsum("nij,nj->ni", R_en, arr["v_ecef"])
-    R_bn = R_en @ arr["R_body_to_ecef"]
+    R_ecef_to_local_ned = R_ecef_to_ned(geo[:, 0], geo[:, 1])
+    v_ned = np.einsum("nij,nj->ni", R_ecef_to_local_ned, arr["v_ecef"])
+    R_body_to_ned = R_ecef_to_local_ned @ arr["R_body_to_ecef"]
     return TrueTrajectory(t=t, lat=geo[:, 0], lon=geo[:, 1], h=geo[:, 2], p_ecef=arr["p_ecef"],
-                          v_ecef=arr["v_ecef"], v_ned=v_ned, R_body_to_ned=R_bn,
-                          R_body_to_ecef=arr["R_body_to_ecef"], rph=rph_from_R_body_to_ned(R_bn),
+                          v_ecef=arr["v_ecef"], v_ned=v_ned, R_body_to_ned=R_body_to_ned,
+                          R_body_to_ecef=arr["R_body_to_ecef"], rph=rph_from_R_body_to_ned(R_body_to_ned),
                           omega_ib_b=arr["omega_ib_b"], f_b=arr["f_b"], dtheta=dth, dvel=dvl, rate_hz=rate_hz,
                           profile=profile, p_l=p_l)
 
