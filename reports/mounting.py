@@ -107,9 +107,9 @@ def mount_report_html(main: dict, others: dict | None = None) -> str:
     parts.append("<p>Lever arm: IMU → camera perspective centre, body FRD. Boresight: R_cam_to_body = "
                  "Rz(yaw) Ry(pitch) Rx(roll) (CV camera → body); its sigmas are small rotations about body axes. "
                  "Delay = t_exposure − t_event.</p>")
-    R = np.array(main["boresight_R_cam_to_body"])
+    R_cam_to_body = np.array(main["boresight_R_cam_to_body"])
     parts.append("<h3>R_cam_to_body</h3>" + _table(["", "cam x", "cam y", "cam z"],
-                                                   [[f"body {'xyz'[i]}"] + [f"{v:.8f}" for v in R[i]]
+                                                   [[f"body {'xyz'[i]}"] + [f"{v:.8f}" for v in R_cam_to_body[i]]
                                                     for i in range(3)]))
     if main.get("correlation"):
         names = main.get("parameters", [])

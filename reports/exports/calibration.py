@@ -63,8 +63,8 @@ def _R_zyx(a) -> np.ndarray:
 def metashape_ypr_offset(R_cam_to_body: np.ndarray) -> np.ndarray:
     """Metashape camera orientation offset (yaw, pitch, roll deg): R_cam_to_body = R_CAM_TO_BODY_NADIR
     Rz(-yaw) Rx(pitch) Ry(roll) (rotations about the camera's z, x, y axes)."""
-    R = R_CAM_TO_BODY_NADIR.T @ np.asarray(R_cam_to_body, float)
-    mz, x, y = Rotation.from_matrix(R).as_euler("ZXY", degrees=True)
+    R_cam_to_nadir_cam = R_CAM_TO_BODY_NADIR.T @ np.asarray(R_cam_to_body, float)
+    mz, x, y = Rotation.from_matrix(R_cam_to_nadir_cam).as_euler("ZXY", degrees=True)
     return np.array([-mz, x, y])
 
 
@@ -78,25 +78,26 @@ def calibration_values(mount: MountingResult, fmt: str, reference_lever_arm_m=(0
     """The numbers `fmt` asks for, in its frames (see the module docstring); `reference_lever_arm_m` = IMU ->
     the position reference point (GNSS antenna) in body FRD, m, for the camera-frame offsets of Metashape/Pix4D."""
     l_b = np.asarray(mount.lever_arm_m, float)
-    R = np.asarray(mount.R_cam_to_body, float)
+    R_cam_to_body = np.asarray(mount.R_cam_to_body, float)
     ref = np.asarray(reference_lever_arm_m, float)
     out = {"format": fmt, "delay_s": float(mount.delay_s), "method": mount.method}
     if fmt == "pospac":
-        b = _zyx(R @ R_CV_TO_APPLANIX.T)
+        b = _zyx(R_cam_to_body @ R_CV_TO_APPLANIX.T)
         out.update(lever_arm_xyz_m=l_b.tolist(), frame="vehicle x forward, y right, z down",
                    boresight_tx_ty_tz_deg=b.tolist(), boresight_tx_ty_tz_arcmin=(b * ARCMIN_PER_DEG).tolist())
     elif fmt == "inertial-explorer":
-        R_ie = R_FRD_TO_RFU @ R @ R_CV_TO_IE.T
+        R_ie_cam_to_rfu = R_FRD_TO_RFU @ R_cam_to_body @ R_CV_TO_IE.T
         out.update(lever_arm_xyz_m=(R_FRD_TO_RFU @ l_b).tolist(), frame="vehicle x right, y forward, z up",
-                   boresight_rx_ry_rz_deg=_zyx(R_ie).tolist())
+                   boresight_rx_ry_rz_deg=_zyx(R_ie_cam_to_rfu).tolist())
     elif fmt == "metashape":
-        out.update(antenna_offset_xyz_m=(R.T @ (ref - l_b)).tolist(), frame="camera x right, y down, z forward",
-                   camera_orientation_offset_yaw_pitch_roll_deg=metashape_ypr_offset(R).tolist(),
+        out.update(antenna_offset_xyz_m=(R_cam_to_body.T @ (ref - l_b)).tolist(),
+                   frame="camera x right, y down, z forward",
+                   camera_orientation_offset_yaw_pitch_roll_deg=metashape_ypr_offset(R_cam_to_body).tolist(),
                    reference_lever_arm_body_m=ref.tolist())
     elif fmt == "pix4d":
-        R_photo_to_body = R @ R_CV_TO_PHOTO.T
+        R_photo_to_body = R_cam_to_body @ R_CV_TO_PHOTO.T
         opk = Rotation.from_matrix(R_photo_to_body).as_euler("XYZ", degrees=True)
-        out.update(lever_arm_xyz_m=(R.T @ (ref - l_b)).tolist(), frame="camera x right, y down, z forward",
+        out.update(lever_arm_xyz_m=(R_cam_to_body.T @ (ref - l_b)).tolist(), frame="camera x right, y down, z forward",
                    boresight_omega_phi_kappa_deg=opk.tolist(), reference_lever_arm_body_m=ref.tolist())
     else:
         raise InputError(f"unknown calibration format {fmt!r} (one of {', '.join(CALIBRATION_FORMATS)})",
@@ -172,12 +173,14 @@ def read_calibration_export(path: Path) -> tuple[str, np.ndarray, np.ndarray, fl
     if fmt == "pospac":
         return fmt, vec("lever_arm_xyz_m"), _R_zyx(vec("boresight_tx_ty_tz_deg")) @ R_CV_TO_APPLANIX, delay
     if fmt == "inertial-explorer":
-        R = R_FRD_TO_RFU.T @ _R_zyx(vec("boresight_rx_ry_rz_deg")) @ R_CV_TO_IE
-        return fmt, R_FRD_TO_RFU.T @ vec("lever_arm_xyz_m"), R, delay
+        R_cam_to_body = R_FRD_TO_RFU.T @ _R_zyx(vec("boresight_rx_ry_rz_deg")) @ R_CV_TO_IE
+        return fmt, R_FRD_TO_RFU.T @ vec("lever_arm_xyz_m"), R_cam_to_body, delay
     if fmt == "metashape":
-        R = R_cam_to_body_from_metashape_ypr(vec("camera_orientation_offset_yaw_pitch_roll_deg"))
-        return fmt, vec("reference_lever_arm_body_m") - R @ vec("antenna_offset_xyz_m"), R, delay
+        R_cam_to_body = R_cam_to_body_from_metashape_ypr(vec("camera_orientation_offset_yaw_pitch_roll_deg"))
+        lever = vec("reference_lever_arm_body_m") - R_cam_to_body @ vec("antenna_offset_xyz_m")
+        return fmt, lever, R_cam_to_body, delay
     if fmt == "pix4d":
-        R = Rotation.from_euler("XYZ", vec("boresight_omega_phi_kappa_deg"), degrees=True).as_matrix() @ R_CV_TO_PHOTO
-        return fmt, vec("reference_lever_arm_body_m") - R @ vec("lever_arm_xyz_m"), R, delay
+        R_photo_to_body = Rotation.from_euler("XYZ", vec("boresight_omega_phi_kappa_deg"), degrees=True).as_matrix()
+        R_cam_to_body = R_photo_to_body @ R_CV_TO_PHOTO
+        return fmt, vec("reference_lever_arm_body_m") - R_cam_to_body @ vec("lever_arm_xyz_m"), R_cam_to_body, delay
     raise InputError(f"unknown format {fmt!r}", path, lines.get("format"), "format")

@@ -68,10 +68,10 @@ def write_colmap(out_dir: Path, eop: EOP, grid: MapGrid, camera, points_map: dic
              "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
              "#   POINTS2D[] as (X, Y, POINT3D_ID)", f"# Number of images: {len(eop.image)}"]
     for k, name in enumerate(eop.image):
-        R_w2c, t = poses.R_world_to_cam[k], poses.t_cam[k]
-        q = Rotation.from_matrix(R_w2c).as_quat()  # x, y, z, w
+        R_world_to_cam, t_cam = poses.R_world_to_cam[k], poses.t_cam[k]
+        q = Rotation.from_matrix(R_world_to_cam).as_quat()  # x, y, z, w
         lines.append(" ".join([str(k + 1)] + [repr(float(v)) for v in (q[3], q[0], q[1], q[2])]
-                              + [repr(float(v)) for v in t] + ["1", str(name)]))
+                              + [repr(float(v)) for v in t_cam] + ["1", str(name)]))
         p2d = obs_by_image.get(str(name), [])
         # COLMAP pixels have their origin at the top-left corner of the top-left pixel
         lines.append(" ".join(f"{float(x) + 0.5!r} {float(y) + 0.5!r} {p}" for x, y, p in p2d))
@@ -119,7 +119,7 @@ def read_colmap(in_dir: Path) -> tuple[EOP, MapGrid]:
         raise InputError("must be a CRS text", gpath, field="map_crs")
     grid = MapGrid(parse_crs(crs, str(gpath)))
     world = World(grid, LocalENU(lat0, lon0, h0))
-    names, R, t = [], [], []
+    names, R_world_to_cam, t_cam = [], [], []
     path = in_dir / "images.txt"
     rows = [(n, ln) for n, ln in enumerate(read_text(path).splitlines(), 1) if not ln.startswith("#")]
     for n, ln in rows[0::2]:
@@ -133,9 +133,9 @@ def read_colmap(in_dir: Path) -> tuple[EOP, MapGrid]:
         if not 0.5 < np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz) < 2.0:
             raise InputError("QW QX QY QZ is not a unit quaternion", path, n, "QW")
         names.append(" ".join(tok[9:]))
-        R.append(Rotation.from_quat([qx, qy, qz, qw]).as_matrix())
-        t.append([tx, ty, tz])
-    xyz, opk, _ = world.poses_to_eop(Poses.from_R_t(np.array(R), np.array(t)))
+        R_world_to_cam.append(Rotation.from_quat([qx, qy, qz, qw]).as_matrix())
+        t_cam.append([tx, ty, tz])
+    xyz, opk, _ = world.poses_to_eop(Poses.from_R_t(np.array(R_world_to_cam), np.array(t_cam)))
     return EOP(np.array(names, dtype=object), xyz, opk), grid
 
 
