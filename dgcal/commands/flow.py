@@ -46,18 +46,18 @@ def run(args: argparse.Namespace) -> int:
     from dgcal.pos.lowcost.optic_flow import R_CAM_TO_BODY_FORWARD
     from dgcal.reports.flow import write_flow_outputs
 
-    R = R_CAM_TO_BODY_FORWARD.copy()
+    R_cam_to_body = R_CAM_TO_BODY_FORWARD.copy()
     if args.camera_to_body is not None:
-        R = np.asarray(args.camera_to_body, float).reshape(3, 3)
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        R_cam_to_body = np.asarray(args.camera_to_body, float).reshape(3, 3)
+        if not np.allclose(R_cam_to_body @ R_cam_to_body.T, np.eye(3), atol=1e-6) or np.linalg.det(R_cam_to_body) < 0:
             raise InputError("not a rotation matrix", field="--camera-to-body")
     for name, v in (("--pair-every", args.pair_every), ("--frame-dt", args.frame_dt)):
         if not (np.isfinite(v) and v > 0):
             raise InputError(f"must be positive, not {v}", field=name)
     res = flow_attitude_run(FlowOptions(camera=args.camera, gnss=args.gnss, images=args.images, video=args.video,
                                         frame_times=args.frame_times, video_start_gps=args.video_start, fps=args.fps,
-                                        R_cam_to_body=R, pair_every_s=args.pair_every, frame_dt_s=args.frame_dt,
-                                        sigma_v_mps=args.velocity_sigma, truth=args.truth,
+                                        R_cam_to_body=R_cam_to_body, pair_every_s=args.pair_every,
+                                        frame_dt_s=args.frame_dt, sigma_v_mps=args.velocity_sigma, truth=args.truth,
                                         ground_height_m=args.ground_height, progress=not args.no_progress))
     with staged_dir(args.out) as tmp:
         write_flow_outputs(tmp, res, OUTPUTS)
