@@ -187,23 +187,23 @@ class Poses:
         `R_frame_to_world @ R_sensor_to_frame` (3,3); the covariances carried through, the mounting taken as
         exact: dC_sensor = dC - R_frame_to_world [lever]x dtheta, dtheta_sensor = R_sensor_to_frame^T dtheta."""
         lever = np.asarray(lever_arm_m, float).reshape(3)
-        R_s2f = np.asarray(R_sensor_to_frame, float).reshape(3, 3)
-        R_f2w = self.R_frame_to_world
-        C = self.C_world + np.einsum("nij,j->ni", R_f2w, lever)
+        R_sensor_to_frame = np.asarray(R_sensor_to_frame, float).reshape(3, 3)
+        R_frame_to_world = self.R_frame_to_world
+        C_world = self.C_world + np.einsum("nij,j->ni", R_frame_to_world, lever)
         cov = None
         if self.cov is not None:
             G = np.zeros((len(self), 6, 6))
             G[:, :3, :3] = np.eye(3)
-            G[:, :3, 3:] = -R_f2w @ skew(lever)
-            G[:, 3:, 3:] = R_s2f.T
+            G[:, :3, 3:] = -R_frame_to_world @ skew(lever)
+            G[:, 3:, 3:] = R_sensor_to_frame.T
             cov = G @ self.cov @ transpose(G)
-        return Poses(transpose(R_f2w @ R_s2f), C, cov, frame)
+        return Poses(transpose(R_frame_to_world @ R_sensor_to_frame), C_world, cov, frame)
 
     def retract(self, d: np.ndarray) -> "Poses":
         """Poses moved by errors/updates d (N,6) = [dC (m), dtheta (rad)] under the perturbation rule above."""
         d = np.asarray(d, float).reshape(-1, 6)
-        R_f2w = self.R_frame_to_world @ so3_exp(d[:, 3:])
-        return Poses(transpose(R_f2w), self.C_world + d[:, :3], self.cov, self.frame)
+        R_frame_to_world = self.R_frame_to_world @ so3_exp(d[:, 3:])
+        return Poses(transpose(R_frame_to_world), self.C_world + d[:, :3], self.cov, self.frame)
 
     def difference(self, other: "Poses") -> np.ndarray:
         """d (N,6) with `other.retract(d) == self`: [C - C_other, Log(R_other_frame_to_world^T R_frame_to_world)]
