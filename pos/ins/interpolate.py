@@ -26,7 +26,13 @@ from dgcal.fields.frames import R_body_to_ned_from_rph, R_ecef_to_ned, rph_from_
 
 @dataclass
 class TrajectoryStates:
-    """Interpolated states: ECEF and local-NED position/velocity/attitude, body angular rate, sigmas."""
+    """Interpolated states: ECEF and local-NED position/velocity/attitude, body angular rate, sigmas.
+
+    A trajectory record (the samples of a `Trajectory` at other times, with their kinematics), not a pose type:
+    dgcal's one pose type is `dgcal.fields.pose.Poses`; the body pose of a sample in the world of a problem is
+    made from lat/lon/h and rph by `World.pos_to_world` (`dgcal.calib.mounting.common.pos_at_times` gives
+    `PosSamples`, whose `body` is that `Poses`). `sigma` is the trajectory file's (N,6) sigmas (NED position m,
+    roll/pitch/heading deg), not a pose covariance."""
 
     t: np.ndarray
     p_ecef: np.ndarray
