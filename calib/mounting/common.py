@@ -1,5 +1,8 @@
-"""Shared pieces of the mounting calibration: POS samples (a body pose with its kinematics) and EOPs (camera poses)
-in the world frame, epoch matching, the rotation mean and the result record.
+"""Shared pieces of the mounting calibration: POS and EOPs in the world frame, epoch matching, the rotation
+mean and the result record.
+
+POS samples (`PosSamples`) hold a body pose (`dgcal.fields.pose.Poses`, frame "body") with its kinematics; EOPs
+are camera poses (`Poses`, frame "cam").
 
 Frames (docs/conventions.md, docs/mounting.md): every position and rotation of an epoch is in the one world
 frame of the block (`dgcal.fields.world.World`, a local ENU frame at the block centre), which handles meridian
