@@ -3,9 +3,7 @@
 results)."""
 from __future__ import annotations
 
-import ctypes
 import gc
-import multiprocessing
 import os
 import signal
 import sys
@@ -28,6 +26,7 @@ def cpus() -> int:
 
 def die_with_parent(parent_pid: int) -> None:
     """Ask Linux to SIGKILL this (child) process when its parent dies; exit now if it already has."""
+    import ctypes   # why: only a child needs it; not imported by a process that forks none (`dgcal pos --mode spp`)
     try:
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     except (OSError, AttributeError):   # not Linux: the child may outlive a killed parent
@@ -56,7 +55,7 @@ def fork_map(tasks: Sequence[Callable[[], T]], jobs: int | None = None) -> list[
     jobs = min(cpus() if jobs is None else jobs, len(tasks))
     if jobs <= 1 or not hasattr(os, "fork"):
         return [t() for t in tasks]
-    taken = multiprocessing.get_context("fork").Value("i", 0)   # the next task nobody has taken
+    taken = _fork_context().Value("i", 0)   # the next task nobody has taken
     children = [_start_child(_child, tasks, taken) for _ in range(jobs - 1)]
     results: dict[int, T] = {i: tasks[i]() for i in _take(taken, len(tasks))}
     for proc, conn in children:
@@ -70,10 +69,26 @@ def fork_map(tasks: Sequence[Callable[[], T]], jobs: int | None = None) -> list[
     return [results[i] if i in results else tasks[i]() for i in range(len(tasks))]
 
 
+def _multiprocessing():
+    import multiprocessing   # why: 5 ms of imports, spent by a process only when it forks (not `--no-report` SPP)
+    return multiprocessing
+
+
+def __getattr__(name: str):
+    # `processes.multiprocessing`, as when it was imported at the top: the module, imported on first use
+    if name == "multiprocessing":
+        return _multiprocessing()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _fork_context():
+    return _multiprocessing().get_context("fork")
+
+
 def _start_child(target, *args):
     """A forked child running `target(*args, send_end, parent_pid)` (the streams flushed, the heap frozen), and the
     receiving end of its pipe."""
-    ctx = multiprocessing.get_context("fork")
+    ctx = _fork_context()
     recv_end, send_end = ctx.Pipe(duplex=False)
     for stream in (sys.stdout, sys.stderr):
         stream.flush()
