@@ -1,11 +1,15 @@
 """SPP on the real SEPT RINEX data: dgcal beside RTKLIB (pyrtklib) on the same files, time and accuracy.
 
-Run: .venv/bin/python bench/spp.py [OBS NAV] [--repeats 3]
+Run: .venv/bin/python bench/spp.py [OBS NAV] [--repeats 5] [--as-is]
 
-1. Per call, each in a fresh process (median of `--repeats` alternating runs): `dgcal pos --mode spp
-   --no-report`, the same with the HTML report, and RTKLIB's rnx2rtkp engine (postpos in single mode, through
-   pyrtklib: the process's wall time, and postpos's own time, which is what the rnx2rtkp binary spends after its
-   start-up).
+1. Per call, each in a fresh process (median of `--repeats` alternating runs, after one unmeasured run of each):
+   `dgcal pos --mode spp --no-report`, the same with the HTML report, and RTKLIB's SPP as rnx2rtkp runs it. There is
+   no rnx2rtkp executable here, so RTKLIB's peer is a Python process that imports pyrtklib (nothing else) and runs
+   postpos, rnx2rtkp's engine, in single mode with dgcal's settings, writing its .pos file: process start included
+   on both sides. postpos's own time is shown too (what a compiled rnx2rtkp spends after its start-up). Every
+   process runs with its bytecode (Python's, numpy's, dgcal's) compiled into a private cache folder by the
+   unmeasured runs, as an installed dgcal or `make bytecode` leaves it (this checkout sets PYTHONDONTWRITEBYTECODE:
+   without bytecode a dgcal process compiles every module it imports); `--as-is` runs in the environment as it is.
 2. In one process: dgcal's `spp_files` (read both files, position every epoch, summary) beside RTKLIB's postpos.
 3. Accuracy of both against the known antenna position (3D RMS, mean and spread in E/N/U), and their difference.
 4. dgcal's SPP on 600 simulated epochs (speed, error and sigma honesty).
@@ -13,7 +17,8 @@ Run: .venv/bin/python bench/spp.py [OBS NAV] [--repeats 3]
 from __future__ import annotations
 
 import argparse
-import json
+import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -29,11 +34,28 @@ DATA = ROOT.parent / "shared" / "data" / "rinex-sept"
 REF_ECEF = np.array([-3962108.673, 3381309.574, 3668678.638])
 DGCAL = Path(sys.executable).with_name("dgcal")
 
-_RTKLIB_CALL = """import json, sys, time
+# RTKLIB's SPP as rnx2rtkp runs it, in a process that imports pyrtklib and nothing else (no numpy, no dgcal):
+# postpos in single mode with the settings of dgcal.pos.gnss.rtklib.rtklib_spp (GPS+Galileo+QZSS, 10 deg mask,
+# Klobuchar, Saastamoinen, broadcast orbits), its .pos file written; prints postpos's own time and the epochs
+_RTKLIB_PROCESS = """import math, sys, time
+import pyrtklib as rk
+obs, nav, out = sys.argv[1:4]
+popt, sopt = rk.prcopt_default, rk.solopt_default
+popt.mode, popt.soltype, popt.nf = rk.PMODE_SINGLE, 0, 1
+popt.navsys = rk.SYS_GPS + rk.SYS_GAL + rk.SYS_QZS
+popt.elmin = math.radians(10.0)
+popt.ionoopt, popt.tropopt, popt.sateph, popt.refpos = rk.IONOOPT_BRDC, rk.TROPOPT_SAAS, rk.EPHOPT_BRDC, 0
+sopt.posf = rk.SOLF_XYZ
+buf = rk.Arr1Dchar(len(out) + 1)
+for i, c in enumerate(out):
+    buf[i] = c
+buf[len(out)] = "\\0"
 t0 = time.perf_counter()
-from dgcal.pos.gnss.rtklib import rtklib_spp
-r = rtklib_spp(sys.argv[1], sys.argv[2])
-print(json.dumps({"run_s": r["run_s"], "n": len(r["t_gps"]), "in_process_s": time.perf_counter() - t0}))
+rk.postpos(rk.gtime_t(), rk.gtime_t(), 0.0, 0.0, popt, sopt, rk.filopt_t(), [obs, nav], 2, buf, "", "")
+run_s = time.perf_counter() - t0
+with open(out) as fh:
+    n = sum(1 for line in fh if line.strip() and not line.startswith("%"))
+print(run_s, n)
 """
 
 
@@ -50,41 +72,57 @@ def summary(name: str, p: np.ndarray) -> str:
             f"std E/N/U {e[:, 0].std():5.3f} {e[:, 1].std():5.3f} {e[:, 2].std():5.3f} m")
 
 
-def _wall(cmd: list[str]) -> tuple[float, str]:
+def _wall(cmd: list[str], env: dict) -> tuple[float, str]:
     t0 = time.perf_counter()
-    out = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
     return time.perf_counter() - t0, out.stdout
 
 
-def per_call(obs_path: str, nav_path: str, repeats: int) -> None:
-    """Wall time of one call in a fresh process: dgcal's command (with and without the report) and RTKLIB."""
+def per_call(obs_path: str, nav_path: str, repeats: int, as_is: bool = False) -> None:
+    """Wall time of one call in a fresh process: dgcal's command (without and with the report) beside RTKLIB's SPP
+    process (pyrtklib's postpos, as rnx2rtkp), alternating, after one unmeasured run of each."""
     try:
         import pyrtklib  # noqa: F401
         have_rtklib = True
     except ImportError:
         have_rtklib = False
-    runs: dict[str, list[float]] = {"dgcal --no-report": [], "dgcal (with report)": [], "RTKLIB process": [],
-                                    "RTKLIB postpos": []}
+    rows = {"dgcal --no-report": [], "dgcal (with report)": [], "RTKLIB process": [], "RTKLIB postpos": []}
     with tempfile.TemporaryDirectory() as d:
+        env = dict(os.environ)
+        if not as_is:   # bytecode of every module, written by the unmeasured runs into a cache folder of ours
+            env.pop("PYTHONDONTWRITEBYTECODE", None)
+            env["PYTHONPYCACHEPREFIX"] = f"{d}/pycache"
         base = [str(DGCAL), "pos", "--mode", "spp", "--rinex-obs", obs_path, "--rinex-nav", nav_path,
                 "--no-progress"]
-        for k in range(repeats):
-            runs["dgcal --no-report"].append(_wall(base + ["--out", f"{d}/a{k}", "--no-report"])[0])
+        n_rtklib = None
+        for k in range(repeats + 1):
+            runs = {"dgcal --no-report": base + ["--out", f"{d}/a{k}", "--no-report"],
+                    "dgcal (with report)": base + ["--out", f"{d}/b{k}"]}
             if have_rtklib:
-                dt, out = _wall([sys.executable, "-c", _RTKLIB_CALL, obs_path, nav_path])
-                runs["RTKLIB process"].append(dt)
-                runs["RTKLIB postpos"].append(json.loads(out.strip().splitlines()[-1])["run_s"])
-            runs["dgcal (with report)"].append(_wall(base + ["--out", f"{d}/b{k}"])[0])
-    med = {k: float(np.median(v)) for k, v in runs.items() if v}
-    print(f"1. one call, fresh process ({len(obs_epochs(obs_path))} epochs; median of {repeats} alternating runs)")
+                runs["RTKLIB process"] = [sys.executable, "-c", _RTKLIB_PROCESS, obs_path, nav_path, f"{d}/r{k}.pos"]
+            for name, cmd in runs.items():
+                dt, out = _wall(cmd, env)
+                if k == 0:
+                    continue               # writes the bytecode; not measured
+                rows[name].append(dt)
+                if name == "RTKLIB process":
+                    run_s, n_rtklib = out.split()
+                    rows["RTKLIB postpos"].append(float(run_s))
+    med = {k: float(np.median(v)) for k, v in rows.items() if v}
+    load = " ".join(f"{v:.1f}" for v in os.getloadavg())
+    print(f"1. one call, fresh process ({len(obs_epochs(obs_path))} epochs; median of {repeats} alternating runs; "
+          f"{'environment as it is' if as_is else 'with bytecode'}; load average {load})")
+    peer = med.get("RTKLIB process")
     for k, v in med.items():
-        ratio = f"  {v / med['RTKLIB postpos']:6.1f}x RTKLIB's postpos" if "RTKLIB postpos" in med else ""
+        ratio = f"  {v / peer:5.1f}x RTKLIB's process" if peer and k.startswith("dgcal") else ""
         print(f"   {k:22s} {v:6.3f} s{ratio}")
     if not have_rtklib:
         print("   (pyrtklib not installed: .venv/bin/pip install pyrtklib==0.2.7)")
-    else:
-        print("   (RTKLIB process: python + pyrtklib import + postpos; postpos: the engine's own time, reading "
-              "included, i.e. rnx2rtkp without its start-up)")
+        return
+    exe = shutil.which("rnx2rtkp")
+    print(f"   ({'no rnx2rtkp executable here' if exe is None else f'{exe} not used'}: RTKLIB's process is python + "
+          f"pyrtklib + postpos in single mode writing its .pos, {n_rtklib} epochs; postpos: the engine's own time, "
+          "reading included, i.e. what a compiled rnx2rtkp spends after its start-up)")
 
 
 def obs_epochs(obs_path: str) -> list:
@@ -159,10 +197,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("files", nargs="*", metavar="OBS NAV", help="RINEX observation and navigation files "
                     "(default: ../shared/data/rinex-sept)")
-    ap.add_argument("--repeats", type=int, default=3, help="alternating runs of each (median time)")
+    ap.add_argument("--repeats", type=int, default=5, help="alternating runs of each (median time)")
+    ap.add_argument("--as-is", action="store_true", help="per call: run in this environment as it is (without our "
+                    "bytecode cache: where PYTHONDONTWRITEBYTECODE is set, dgcal's modules are compiled every call)")
     a = ap.parse_args()
     obs_path, nav_path = a.files if len(a.files) == 2 else (str(DATA / "SEPT078M1.21O"), str(DATA / "SEPT078M.21P"))
-    per_call(obs_path, nav_path, a.repeats)
+    per_call(obs_path, nav_path, a.repeats, a.as_is)
     run, rk = in_process(obs_path, nav_path, a.repeats)
     accuracy(run, rk)
     simulated(nav_path)
