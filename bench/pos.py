@@ -38,7 +38,7 @@ def _errors(sol, traj):
 
 
 def acceptance(seeds, duration, rate):
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.pos.gnss.spp import SppOptions
     from dgcal.sim.pos import navigation_errors, simulate_pos
     for seed in seeds:
@@ -78,7 +78,7 @@ def peer_inputs(imu, sim, opts):
     taken apart into arrays: the IMU pieces between the keyframes, each interval's noise and gravity, the initial
     values, the modelled epochs at the keyframes. The peer builds and solves the same graph from them."""
     from dgcal.pos.ins.integrity import check_imu
-    from dgcal.pos.pipeline import fixes_from_spp, tc_epochs
+    from dgcal.pos.gnss_ins import fixes_from_spp, tc_epochs
     from dgcal.pos.gnss.spp import spp
     from dgcal.pos.smoother.batch import SmootherOptions, setup_problem
     from dgcal.pos.smoother.factors import B, CLK, DRIFT, V, X
@@ -198,7 +198,7 @@ def gtsam_peer(d):
 
 def benchmark(hours, rate, systems, runs=3, code_errors=False):
     from dgcal.pos.ins.imu_data import ImuData
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.pos.gnss.spp import SppOptions
     from dgcal.pos.smoother.batch import optimize
     from dgcal.pos.smoother.factors import X
@@ -259,7 +259,7 @@ def benchmark(hours, rate, systems, runs=3, code_errors=False):
 def carrier_acceptance(seeds, duration, rate, misalignment):
     from dgcal.pos.gnss.carrier import code_observations
     from dgcal.pos.gnss.spp import SppOptions
-    from dgcal.pos.pipeline import fixes_from_ppk, process
+    from dgcal.pos.gnss_ins import fixes_from_ppk, process
     from dgcal.sim.pos import navigation_errors, simulate_pos
     for seed in seeds:
         t0 = time.time()
@@ -295,7 +295,7 @@ def carrier_acceptance(seeds, duration, rate, misalignment):
 def carrier_benchmark(hours, rate):
     from dgcal.pos.gnss.carrier import code_observations
     from dgcal.pos.gnss.spp import SppOptions
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.sim.pos import simulate_pos
     t0 = time.time()
     sim = simulate_pos(seed=0, duration_s=hours * 3600.0, rate_hz=rate, n_strips=10, strip_length_m=1000.0,

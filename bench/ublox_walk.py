@@ -79,7 +79,8 @@ def main() -> int:
     a = ap.parse_args()
     from dgcal.pos.gnss.rtklib import rtklib_spp
     from dgcal.pos.gnss.spp import SppOptions, spp_files
-    from dgcal.pos.pipeline import PosOptions, run_pos
+    from dgcal.pos.mode_options import ImuInput, InsModeOptions, RinexInput
+    from dgcal.pos.pipeline import run_pos
     from dgcal.commands.pos import INS_OUTPUTS
     from dgcal.reports.pos import write_pos_outputs
     ref = read_rtklib_pos(a.dir / "gnss_1730_sf.pos")
@@ -95,12 +96,13 @@ def main() -> int:
         r = rtklib_spp(str(obs), str(nav))
         print(f"SPP RTKLIB ({len(r['t_gps'])} epochs): "
               + errors(r["t_gps"], r["p_ecef"], np.ones((len(r["t_gps"]), 3)), ref).split(", median")[0])
-        runs = (("TC with code-bias states", ()), ("TC, code errors as white noise", ("code_bias=false",)))
-        for label, extra in runs:
+        runs = (("TC with code-bias states", True), ("TC, code errors as white noise", False))
+        for label, code_bias in runs:
             out = tmp / label.split(",")[0].replace(" ", "_")
-            opts = PosOptions(mode="tc", rinex_obs=obs, rinex_nav=(nav,), imu=a.dir / "imu_1730.csv",
-                              imu_format=str(IMU_FORMAT), imu_set=IMU_AXES, imu_grade=str(IMU_GRADE),
-                              lever_arm_m=LEVER_ARM, settings=extra, progress=False)
+            opts = InsModeOptions(mode="tc", rover=RinexInput(obs, (nav,)),
+                                  imu=ImuInput(a.dir / "imu_1730.csv", str(IMU_FORMAT), tuple(IMU_AXES)),
+                                  imu_grade=str(IMU_GRADE), lever_arm_m=LEVER_ARM, progress=False)
+            opts.smoother.code_bias = code_bias
             res = run_pos(opts)
             write_pos_outputs(out, res, INS_OUTPUTS)
             print(f"{label}: " + errors(*trajectory_ecef(out / "trajectory.csv"), ref))

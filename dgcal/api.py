@@ -39,7 +39,10 @@ from dgcal.pos.ros_bags import read_rosbag_imu, read_rosbag_navsatfix
 from dgcal.pos.ins.interpolate import interpolate_trajectory
 from dgcal.pos.lowcost.sync import synchronise
 from dgcal.pos.lowcost.ukf import run_ukf
-from dgcal.pos.pipeline import PosOptions, PosResult, run_pos
+from dgcal.pos.gnss.spp_mode import SppModeOptions
+from dgcal.pos.gnss_ins import PosResult
+from dgcal.pos.mode_options import InsModeOptions, PpkModeOptions, UkfModeOptions
+from dgcal.pos.pipeline import run_pos
 from dgcal.reports.exports.calibration import read_calibration_export, write_calibration_exports
 from dgcal.reports.exports.eop import (export_all, read_colmap, read_metashape, read_odm_geo, read_pix4d,
                                        write_colmap, write_metashape, write_odm_geo, write_pix4d)
@@ -59,7 +62,8 @@ __all__ = [
     "TriangulationOptions", "TriangulationResult", "triangulate",
     # POS
     "ImuData", "read_imu_csv", "read_imu_text", "read_kf_gins", "read_rinex_obs", "read_rinex_nav",
-    "SppOptions", "spp", "PosOptions", "PosResult", "run_pos", "interpolate_trajectory", "run_ukf", "synchronise",
+    "SppOptions", "spp", "SppModeOptions", "PpkModeOptions", "InsModeOptions", "UkfModeOptions", "PosResult",
+    "run_pos", "interpolate_trajectory", "run_ukf", "synchronise",
     "ImuFormat", "imu_format", "read_imu", "read_time_tag", "read_ulog_imu", "read_ulog_camera_capture",
     "read_rosbag_imu", "read_rosbag_navsatfix",
     "read_imu_datasheet", "GnssSolution", "read_gnss_solution", "read_rtklib_pos", "write_rtklib_pos",

@@ -15,7 +15,8 @@ import numpy as np
 from dgcal.fields.crs import geodetic_to_ecef
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import write_trajectory
-from dgcal.pos.pipeline import PosResult, antenna_ecef
+from dgcal.pos.gnss_ins import PosResult
+from dgcal.pos.gnss_ins_summary import antenna_ecef
 from dgcal.reports.html import HtmlReport, new_figure
 
 
@@ -191,7 +192,7 @@ def _integrity_section(rep: HtmlReport, it: Mapping) -> None:
 
 
 def write_pos_report(path: str | Path, res) -> Path:
-    """Write DIR/report.html for a dgcal.pos.pipeline.PosResult."""
+    """Write DIR/report.html for a dgcal.pos.gnss_ins.PosResult."""
     s = res.summary
     rep = HtmlReport(f"GNSS/INS trajectory ({res.mode.upper()} smoother)")
     rep.kv_table([("mode", res.mode.upper()), ("keyframes (1 per GNSS epoch)", s["keyframes"]),

@@ -11,7 +11,7 @@ from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.gnss.ppk import STATUS, write_ppk_csv
-from dgcal.pos.pipeline import PpkRun
+from dgcal.pos.ppk_mode import PpkRun
 from dgcal.reports.html import HtmlReport, new_figure
 
 _COLOURS = {"fixed": "tab:green", "float": "tab:orange", "single": "tab:red"}

@@ -8,8 +8,8 @@ n_sat, gdop,pdop,hdop,vdop, chi2_dof, rejected (satellites removed by RAIM, ';'-
 DIR/gnss_summary.json and DIR/gnss_report.html. --mode ppk (rover + base RINEX, carrier phase) writes
 DIR/gnss.csv with gps_week,gps_sow,x,y,z (ECEF, m), fix (fixed/float/single), n_sat, ratio, sx,sy,sz (m),
 sxy,sxz,syz (RTKLIB's signed square roots of the covariances, m), lat,lon,h, s_e,s_n,s_u, age_s,
-n_fixed_amb, fix_forward, fix_backward, plus gnss_summary.json and gnss_report.html (dgcal.pos.pipeline.run_ppk).
---mode tc|lc hand over to dgcal.pos.pipeline.run_pos (trajectory.csv, events.csv). --mode ukf runs seed 000's
+n_fixed_amb, fix_forward, fix_backward, plus gnss_summary.json and gnss_report.html (dgcal.pos.ppk_mode.run_ppk).
+--mode tc|lc hand over to dgcal.pos.gnss_ins.run_gnss_ins (trajectory.csv, events.csv). --mode ukf runs seed 000's
 UKF on the same inputs (dgcal.pos.lowcost.ukf_pos) and writes trajectory.csv, events.csv, trajectory_fixes.csv
 (every fix epoch), accuracy.csv (the UKF beside the lc smoother, against --truth when given) and the report.
 """
@@ -18,12 +18,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from dgcal.steps import Campaign
-
-if TYPE_CHECKING:
-    from dgcal.pos.pipeline import PosOptions
 
 NAME = "pos"
 HELP = "GNSS single-point positioning, carrier-phase PPK, or GNSS/INS smoothing (trajectory + events)"
@@ -120,8 +116,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "consumer) or a datasheet "
                    "TOML file (ARW, VRW, bias instabilities, scale factors, range; docs/formats.md)")
     p.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
-                   help="further option (repeatable): smoother settings for tc/lc, dgcal.pos.gnss.ppk.PpkOptions "
-                   "fields for ppk, UKF settings for ukf (dgcal.pos.lowcost.ukf_pos.UKF_SETTINGS)")
+                   help="further option (repeatable): a field of the mode's options, KEY or GROUP.KEY (spp: "
+                   "SppOptions; ppk: PpkOptions; tc/lc: smoother, output, imu_checks, spp, and dd, ppk with "
+                   "--rinex-base; ukf: ukf, ukf_run, smoother, output; docs/gnss.md); another mode's key is an error")
     p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="known antenna position (ECEF, m) for the spp/ppk summary and report")
     p.add_argument("--forward-filter", action="store_true",
@@ -132,64 +129,108 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="skip the HTML report of any mode (the CSV and JSON files are still written)")
 
 
-def pos_options(args: argparse.Namespace) -> PosOptions:
-    """The dgcal.pos.pipeline.PosOptions of a parsed `dgcal pos` command line."""
-    from dgcal.pos.pipeline import PosOptions
-    tup = lambda v: None if v is None else tuple(v)  # noqa: E731
-    return PosOptions(mode=args.mode, rinex_obs=args.rinex_obs, rinex_nav=tuple(args.rinex_nav or ()), imu=args.imu,
-                      events=args.events, gnss=args.gnss, systems=args.systems, elev_mask_deg=args.elev_mask,
-                      code_sigma_m=args.code_sigma, doppler_sigma_mps=args.doppler_sigma, raim=not args.no_raim,
-                      t_start=args.t_start, t_end=args.t_end, lever_arm_m=tup(args.lever_arm),
-                      imu_grade=args.imu_grade, settings=tuple(args.extra), reference_ecef=tup(args.reference),
-                      progress=not args.no_progress, rinex_base=getattr(args, "rinex_base", None),
-                      base_position_ecef=tup(getattr(args, "base_position", None)),
-                      base_position_llh=tup(getattr(args, "base_position_llh", None)),
-                      dynamics=getattr(args, "dynamics", "kinematic"),
-                      ppk_solution=getattr(args, "ppk_solution", "combined"), ar_ratio=getattr(args, "ar_ratio", 3.0),
-                      n_freq=getattr(args, "frequencies", 3), imu_format=getattr(args, "imu_format", None),
-                      imu_set=tuple(getattr(args, "imu_set", ()) or ()), imu_tag=getattr(args, "imu_tag", None),
-                      imu_time_offset_s=float(getattr(args, "imu_time_offset", 0.0) or 0.0),
-                      estimate_imu_time_offset=bool(getattr(args, "estimate_imu_time_offset", False)),
-                      events_format=getattr(args, "events_format", None),
-                      gnss_format=getattr(args, "gnss_format", None), gnss_quality=getattr(args, "gnss_quality", None),
-                      nmea_date=getattr(args, "nmea_date", None),
-                      gnss_outages=tup(getattr(args, "gnss_outages", None)), truth=getattr(args, "truth", None),
-                      forward_filter=bool(getattr(args, "forward_filter", False)),
-                      iono=getattr(args, "iono", "klobuchar"))
+# option fields named in library errors -> this verb's flags (the rest map by name: rinex_obs -> --rinex-obs)
+OPTION_FLAGS = {"rinex_nav": "--rinex-nav", "base.rinex": "--rinex-base", "base.position_ecef": "--base-position",
+                "base.position_llh": "--base-position-llh", "ppk.dynamics": "--dynamics",
+                "ppk.solution": "--ppk-solution", "ppk.n_freq": "--frequencies", "ppk.ratio_threshold": "--ar-ratio",
+                "ppk.systems": "--systems", "spp.systems": "--systems", "imu.path": "--imu",
+                "imu.format": "--imu-format", "imu.overrides": "--imu-set", "imu.tag": "--imu-tag",
+                "imu.time_offset_s": "--imu-time-offset",
+                "fixes.path": "--gnss", "fixes.format": "--gnss-format", "fixes.quality": "--gnss-quality",
+                "fixes.nmea_date": "--nmea-date", "fixes.outages": "--gnss-outages", "quality": "--gnss-quality",
+                "imu_grade": "--imu-grade", "lever_arm_m": "--lever-arm", "mode": "--mode",
+                "estimate_imu_time_offset": "--estimate-imu-time-offset", "reference_ecef": "--reference"}
 
 
-def spp_options(args: argparse.Namespace):
-    """The dgcal.pos.gnss.spp.SppOptions of a parsed `dgcal pos --mode spp` command line."""
+def _systems(text: str) -> tuple[str, ...]:
     from dgcal.fields.errors import InputError
-    from dgcal.pos.gnss.spp import SppOptions
-    systems = tuple(s for s in str(args.systems).upper() if s in "GECJ")
+    systems = tuple(dict.fromkeys(s for s in str(text).upper() if s in "GECJ"))
     if not systems:
-        raise InputError(f"no known constellation in '{args.systems}'", field="--systems")
-    return SppOptions(elev_mask_deg=args.elev_mask, code_sigma_zenith_m=args.code_sigma,
-                      doppler_sigma_zenith_mps=args.doppler_sigma, systems=systems, raim=not args.no_raim,
-                      iono=args.iono)
+        raise InputError(f"no known constellation in '{text}' (letters of G, E, C, J)", field="--systems")
+    return systems
+
+
+def _other_modes(mode: str) -> dict:
+    """Default options of every other mode: where a `--set` key that this mode lacks belongs (imported only then)."""
+    from dgcal.pos.mode_options import MODE_OPTIONS
+    return {m: (cls(mode=m) if m in ("tc", "lc") else cls()) for m, cls in MODE_OPTIONS.items() if m != mode}
+
+
+def spp_mode_options(args: argparse.Namespace):
+    """The dgcal.pos.gnss.spp_mode.SppModeOptions of a parsed `dgcal pos` command line (GNSS modules only)."""
+    from dgcal.pos.gnss.spp import SppOptions
+    from dgcal.pos.gnss.spp_mode import RinexInput, SppModeOptions
+    spp = SppOptions(elev_mask_deg=args.elev_mask, code_sigma_zenith_m=args.code_sigma,
+                     doppler_sigma_zenith_mps=args.doppler_sigma, systems=_systems(args.systems),
+                     raim=not args.no_raim, iono=args.iono)
+    return SppModeOptions(RinexInput(args.rinex_obs, tuple(args.rinex_nav or ()), args.t_start, args.t_end), spp,
+                          None if args.reference is None else tuple(args.reference), not args.no_progress)
+
+
+def pos_options(args: argparse.Namespace):
+    """The options object of the chosen mode (dgcal.pos.mode_options) of a parsed `dgcal pos` command line, its
+    `--set KEY=VALUE` items applied (a key of another mode is an error naming that mode)."""
+    if args.mode == "spp":
+        opts = spp_mode_options(args)
+    else:
+        from dgcal.pos.gnss.ppk import PpkOptions
+        from dgcal.pos.mode_options import (BaseStation, FixInput, ImuInput, InsModeOptions, PpkModeOptions,
+                                            RinexInput, UkfModeOptions)
+        tup = lambda v: None if v is None else tuple(v)  # noqa: E731
+        spp = spp_mode_options(args).spp
+        rover = RinexInput(args.rinex_obs, tuple(args.rinex_nav or ()), args.t_start, args.t_end)
+        base = BaseStation(args.rinex_base, tup(args.base_position), tup(args.base_position_llh))
+        ppk_common = dict(systems="".join(spp.systems), n_freq=args.frequencies, elev_mask_deg=args.elev_mask,
+                          ar_elev_mask_deg=args.elev_mask, ratio_threshold=args.ar_ratio)
+        if args.mode == "ppk":
+            opts = PpkModeOptions(rover, base, PpkOptions(**ppk_common, dynamics=args.dynamics,
+                                                          solution=args.ppk_solution), spp, tup(args.reference),
+                                  not args.no_progress)
+        else:
+            cls = UkfModeOptions if args.mode == "ukf" else InsModeOptions
+            opts = cls(mode=args.mode, rover=rover, base=base, spp=spp,
+                       imu=ImuInput(args.imu, args.imu_format, tuple(args.imu_set or ()), args.imu_tag,
+                                    float(args.imu_time_offset or 0.0)),
+                       fixes=FixInput(args.gnss, args.gnss_format, args.gnss_quality, args.nmea_date,
+                                      tup(args.gnss_outages)),
+                       events=args.events, events_format=args.events_format, lever_arm_m=tup(args.lever_arm),
+                       imu_grade=args.imu_grade, estimate_imu_time_offset=bool(args.estimate_imu_time_offset),
+                       progress=not args.no_progress)
+            opts.ppk = PpkOptions(**{**vars(opts.ppk), **ppk_common})
+            opts.dd.elev_mask_deg = args.elev_mask
+            opts.output.forward_filter = bool(args.forward_filter)
+            if args.mode == "ukf":
+                opts.truth = args.truth
+    if args.extra:
+        from dgcal.settings import apply_settings
+        apply_settings(opts, args.extra, others=lambda: _other_modes(args.mode))
+    return opts
 
 
 def spp_files_in(out_dir: Path, args: argparse.Namespace) -> tuple[dict, dict]:
     """`dgcal pos --mode spp`'s positioning: gnss.csv and its summary written in `out_dir`; returns the summary and
     the series its report plots (dgcal.reports.gnss.spp_report_series: plain arrays, which pickle without the GNSS
-    modules). Imports the GNSS modules only, not dgcal.pos.pipeline (whose GNSS/INS imports take longer than the
+    modules). Imports the GNSS modules only, not dgcal.pos.mode_options (whose GNSS/INS imports take longer than the
     SPP) nor matplotlib."""
-    from dgcal.pos.gnss.spp import spp_files
+    from dgcal.pos.gnss.spp_mode import run_spp
     from dgcal.reports.gnss import spp_report_series, write_spp_files
-    sp = spp_files(args.rinex_obs, tuple(args.rinex_nav or ()), spp_options(args), t_start=args.t_start,
-                   t_end=args.t_end, reference_ecef=args.reference, progress=not args.no_progress)
+    sp = run_spp(pos_options(args))
     write_spp_files(out_dir, sp, SPP_OUTPUTS)
     return sp.summary, (None if args.no_report else spp_report_series(sp.solution, sp.reference_ecef))
 
 
 def run(args: argparse.Namespace) -> int:
+    from dgcal.flags import flags_in_errors
+    with flags_in_errors(OPTION_FLAGS):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from dgcal.fields.io.atomic import staged_dir   # why not csv_tables: SPP forks before anything imports numpy
     from dgcal.fields.processes import forked_call
     if args.mode == "spp":
         if args.extra:
-            from dgcal.fields.errors import InputError
-            raise InputError(f"--mode spp takes no --set ({', '.join(args.extra)})", field="--set")
+            pos_options(args)              # --set keys refused before anything is written
         with staged_dir(args.out) as tmp:
             if args.no_report:
                 s = spp_files_in(tmp, args)[0]
@@ -203,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     opts = pos_options(args)
     if opts.mode == "ppk":
-        from dgcal.pos.pipeline import run_ppk
+        from dgcal.pos.ppk_mode import run_ppk
         from dgcal.reports.ppk import write_ppk_outputs
         run_ = run_ppk(opts)
         with staged_dir(args.out) as tmp:
@@ -218,9 +259,9 @@ def run(args: argparse.Namespace) -> int:
             msg += f"; fixed-epoch 3D RMS {1e3 * s['error_fixed']['rms_3d_m']:.1f} mm vs --reference"
         print(msg, file=sys.stderr)
         return 0
-    from dgcal.pos.pipeline import run_pos
+    from dgcal.pos.gnss_ins import run_gnss_ins
     from dgcal.reports.pos import write_pos_outputs
-    res = run_pos(opts)
+    res = run_gnss_ins(opts)
     for w in res.summary.get("warnings", []):       # data integrity (IMU, GNSS epochs, RINEX records)
         print(f"warning: {w}", file=sys.stderr)
     if opts.mode == "ukf":
@@ -245,7 +286,7 @@ def run(args: argparse.Namespace) -> int:
     if "imu_time_offset" in s:
         o = s["imu_time_offset"]
         print(f"IMU time offset estimated: {o['offset_ms']:+.2f} +- {o['sigma_ms']:.2f} ms (applied on top of "
-              f"--imu-time-offset {1e3 * opts.imu_time_offset_s:+.1f} ms)", file=sys.stderr)
+              f"--imu-time-offset {1e3 * opts.imu.time_offset_s:+.1f} ms)", file=sys.stderr)
     w = s.get("withheld_fixes")
     if w and w.get("n"):
         print(f"withheld fixes: {w['n']}, antenna 3D RMS {w['rms_3d_m']} m (N,E,D {w['rms_ned_m']} m), max "

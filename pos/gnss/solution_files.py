@@ -25,9 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from dgcal.fields.constants import SECONDS_PER_WEEK
-from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
+from dgcal.fields.crs import R_ecef_to_ned_at, ecef_to_geodetic, geodetic_to_ecef
 from dgcal.fields.errors import InputError
-from dgcal.fields.frames import R_ecef_to_ned
 from dgcal.fields.io.csv_tables import atomic_write, read_table
 from dgcal.fields.io import validate
 from dgcal.fields.io.text_files import read_text
@@ -87,11 +86,6 @@ def cov_to_sqvar(c: np.ndarray) -> np.ndarray:
     return np.sign(c) * np.sqrt(np.abs(c))
 
 
-def _R_ecef_to_ned_at(p_ecef: np.ndarray) -> np.ndarray:
-    geo = ecef_to_geodetic(p_ecef)
-    return R_ecef_to_ned(geo[:, 0], geo[:, 1])
-
-
 def _enu_cov_to_ned(ee, nn, uu, en, eu, nu) -> np.ndarray:
     """(N,3,3) NED covariance from ENU variances and covariances."""
     n = len(ee)
@@ -110,8 +104,8 @@ def _ecef_cov_to_ned(p_ecef, xx, yy, zz, xy, yz, zx) -> np.ndarray:
     C[:, 0, 1] = C[:, 1, 0] = xy
     C[:, 1, 2] = C[:, 2, 1] = yz
     C[:, 0, 2] = C[:, 2, 0] = zx
-    R = _R_ecef_to_ned_at(p_ecef)
-    return R @ C @ np.swapaxes(R, 1, 2)
+    R_ecef_to_ned = R_ecef_to_ned_at(p_ecef).reshape(-1, 3, 3)
+    return R_ecef_to_ned @ C @ np.swapaxes(R_ecef_to_ned, 1, 2)
 
 
 # --------------------------------------------------------------------------------------------- RTKLIB .pos
@@ -233,8 +227,8 @@ def read_rtklib_pos(path: str | Path) -> GnssSolution:
     v = Cv = None
     if kind in ("llh", "dms") and all(k in col for k in ("vn(m/s)", "ve(m/s)", "vu(m/s)")):
         v_ned = np.column_stack([col["vn(m/s)"], col["ve(m/s)"], -col["vu(m/s)"]])
-        R = _R_ecef_to_ned_at(p)
-        v = np.einsum("nji,nj->ni", R, v_ned)
+        R_ecef_to_ned = R_ecef_to_ned_at(p).reshape(-1, 3, 3)
+        v = np.einsum("nji,nj->ni", R_ecef_to_ned, v_ned)
         s = [col.get(k, np.full(len(t), np.nan)) for k in ("sdvn", "sdve", "sdvu")]
         c = [sqvar_to_cov(col.get(k, np.zeros(len(t)))) for k in ("sdvne", "sdveu", "sdvun")]
         Cv = _enu_cov_to_ned(s[1] ** 2, s[0] ** 2, s[2] ** 2, *c)
@@ -303,7 +297,7 @@ def write_rtklib_pos(path: str | Path, sol: GnssSolution, kind: str = "llh") -> 
     """Write an RTKLIB `.pos` (GPST calendar time, llh or xyz, covariance as RTKLIB writes it), atomically."""
     p = sol.p_ecef
     n = len(sol.t)
-    R = _R_ecef_to_ned_at(p)
+    R_ecef_to_ned = R_ecef_to_ned_at(p).reshape(-1, 3, 3)
     with atomic_write(path, newline="\n") as fh:
         fh.write("% program   : dgcal\n")
         if kind == "llh":
@@ -326,7 +320,7 @@ def write_rtklib_pos(path: str | Path, sol: GnssSolution, kind: str = "llh") -> 
                 fh.write(f"{ts} {geo[i, 0]:14.9f} {geo[i, 1]:14.9f} {geo[i, 2]:10.4f} {int(sol.quality[i]):3d} "
                          f"{int(sol.n_sat[i]):3d} " + " ".join(f"{v:8.4f}" for v in sds) + "   0.00    0.0\n")
             else:
-                Ce = R[i].T @ C @ R[i]
+                Ce = R_ecef_to_ned[i].T @ C @ R_ecef_to_ned[i]
                 sds = (*np.sqrt(np.diag(Ce)), *cov_to_sqvar([Ce[0, 1], Ce[1, 2], Ce[2, 0]]))
                 fh.write(f"{ts} {p[i, 0]:14.4f} {p[i, 1]:14.4f} {p[i, 2]:14.4f} {int(sol.quality[i]):3d} "
                          f"{int(sol.n_sat[i]):3d} " + " ".join(f"{v:8.4f}" for v in sds) + "   0.00    0.0\n")
@@ -584,7 +578,7 @@ def select_quality(sol: GnssSolution, allowed: str | None) -> GnssSolution:
     for name in str(allowed).split(","):
         name = name.strip().lower()
         if name not in codes:
-            raise InputError(f"unknown fix quality {name!r} (one of {', '.join(codes)}, all)", field="--gnss-quality")
+            raise InputError(f"unknown fix quality {name!r} (one of {', '.join(codes)}, all)", field="quality")
         want.add(codes[name])
     keep = np.isin(sol.quality, sorted(want))
     if keep.sum() < 2:

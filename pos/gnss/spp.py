@@ -230,9 +230,9 @@ def spp_files(obs_path: str | Path | None, nav_paths: Sequence[str | Path], opts
 
     Only the GNSS modules are imported: this is what the command runs, in well under a second for an hour of
     1 Hz data (the GNSS/INS pipeline's imports alone take longer)."""
-    for name, val in (("rinex-obs", obs_path), ("rinex-nav", nav_paths)):
+    for name, val in (("rinex_obs", obs_path), ("rinex_nav", nav_paths)):
         if not val:
-            raise InputError("required for --mode spp", field="--" + name)
+            raise InputError("required for --mode spp", field=name)
     nav = read_rinex_nav(nav_paths[0], list(nav_paths[1:]))
     rx = read_obs_file(obs_path, t_start=t_start, t_end=t_end)
     obs = read_rinex_obs(obs_path, systems=opts.systems, rinex=rx)

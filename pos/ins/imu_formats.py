@@ -48,6 +48,7 @@ import numpy as np
 
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
+from dgcal.fields.key_values import split_key_value
 from dgcal.fields.io.timescales import gps_from_unix_gpst, gps_from_unix_utc
 from dgcal.pos.ins.imu_data import ACC_UNITS, GYRO_UNITS, ImuData, data_lines, finish_imu, parse_numeric
 from dgcal.pos.ins.time_tags import read_time_tag, ticks_to_gps
@@ -167,7 +168,7 @@ def _parse_value(text: str):
         return text
 
 
-def format_dict(spec: str | Path | dict | None, overrides=(), where: str = "--imu-format"
+def format_dict(spec: str | Path | dict | None, overrides=(), where: str = "imu.format"
                 ) -> tuple[dict, str, Path | None]:
     """The raw description of a preset name, a TOML file or a dict, with `overrides` (`section.key=value`)
     and any `preset` it names merged under it; returns (dict, source name, directory of the TOML file)."""
@@ -192,16 +193,14 @@ def format_dict(spec: str | Path | dict | None, overrides=(), where: str = "--im
             raise InputError(f"not valid TOML: {msg}", path, line) from None
         src, base_dir = str(path), path.parent
     for item in overrides:
-        key, sep, val = str(item).partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"expected KEY=VALUE, got {item!r}", field="--imu-set")
-        parts = key.strip().split(".")
+        key, val = split_key_value(item, "imu.overrides")
+        parts = key.split(".")
         node = d
         for p in parts[:-1]:
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
-                raise InputError(f"{key!r}: {p!r} is not a section", field="--imu-set")
-        node[parts[-1]] = _parse_value(val.strip())
+                raise InputError(f"{key!r}: {p!r} is not a section", field="imu.overrides")
+        node[parts[-1]] = _parse_value(val)
     preset = d.pop("preset", None)
     if preset is not None:
         if str(preset).lower() not in PRESETS:

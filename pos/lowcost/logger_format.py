@@ -43,6 +43,7 @@ import numpy as np
 
 from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
+from dgcal.fields.key_values import split_key_value
 from dgcal.fields.io import validate
 from dgcal.fields.io.text_files import read_text
 
@@ -88,12 +89,11 @@ class LoggerFormat:
         """A copy with `ROLE=COLUMN` items (flags) applied; InputError naming the bad item."""
         cols = dict(self.columns)
         for item in items or ():
-            role, sep, col = str(item).partition("=")
-            role = role.strip().lower()
-            if not sep or role not in LOGGER_ROLES:
+            role, col = split_key_value(item, "--logger-column")
+            role = role.lower()
+            if role not in LOGGER_ROLES:
                 raise InputError(f"bad column {item!r}: ROLE=COLUMN with ROLE one of {', '.join(LOGGER_ROLES)}",
                                  field="--logger-column")
-            col = col.strip()
             cols[role] = int(col) if col.isdigit() and not self.header else col
         return replace(self, columns=cols)
 

@@ -24,9 +24,6 @@ from dgcal.pos.smoother.initial import GnssFixes
 from dgcal.pos.smoother.integrity import gnss_warnings, screen_fixes
 from dgcal.pos.smoother.output import solution_trajectory
 
-# `dgcal pos --mode ukf --set KEY=VALUE` keys (dgcal.pos.lowcost.ukf.UkfOptions fields and the comparison)
-UKF_SETTINGS = {"compare": bool, "compare_rate": float, "skip_s": float, "gnss_error_states": bool,
-                "gnss_corr_s": float, "gnss_white_m": float, "scale_corr_s": float, "alpha": float}
 QUANTITIES = ("roll", "pitch", "heading", "north", "east", "down")
 
 

@@ -8,7 +8,7 @@ from rosbags.typesys import Stores, get_typestore
 from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.timescales import gps_from_unix_utc
-from dgcal.pos.pipeline import load_imu
+from dgcal.pos.readers import ImuInput, read_imu_input
 from dgcal.pos.ros_bags import is_ros_bag, read_rosbag_imu, read_rosbag_navsatfix
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
@@ -81,7 +81,7 @@ def test_imu_bag_in_body_frd_and_gps_time(tmp_path, motion, version):
     assert np.allclose(imu.accel_m_s2[1:], a[1:] * [1, -1, -1], atol=1e-9)
     assert np.mean(imu.accel_m_s2[:, 2]) < -9.0                         # FRD: gravity's reaction along -z
     # the CLI's loader recognises the bag by its content
-    assert np.allclose(load_imu(bag).dtheta, imu.dtheta)
+    assert np.allclose(read_imu_input(ImuInput(bag)).dtheta, imu.dtheta)
     # bag receive time instead of the header stamp
     assert np.allclose(read_rosbag_imu(bag, time="bag").t - imu.t, 0.004, atol=1e-5)
 

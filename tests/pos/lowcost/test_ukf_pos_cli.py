@@ -60,7 +60,8 @@ def test_ukf_mode_accuracy_and_honest_sigmas(run):
 def test_ukf_mode_needs_gnss(tmp_path, capsys, run):
     rc = main(["pos", "--mode", "ukf", "--imu", str(run / "sim/imu.csv"), "--imu-grade", "adis16405",
                "--out", str(tmp_path / "out"), "--no-progress"])
-    assert rc == 2 and "--mode ukf needs --gnss" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert rc == 2 and "ukf mode needs antenna positions" in err and "--gnss" in err
     assert not (tmp_path / "out/trajectory.csv").exists()
 
 

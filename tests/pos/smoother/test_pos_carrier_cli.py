@@ -56,7 +56,7 @@ def test_tc_with_base_end_to_end(dataset, tmp_path):
         assert (out / name).is_file(), name
     s = json.loads((out / "pos_summary.json").read_text())
     c = s["carrier"]
-    assert c["base_position_source"] == "--base-position" and c["base_minus_spp_m"] < 5.0
+    assert c["base_position_source"] == "base.position_ecef" and c["base_minus_spp_m"] < 5.0
     assert c["ppk_fix_rate"] > 0.5 and c["keyframes_with_phase"] >= 0.9 * s["keyframes"]
     assert "ddp" in s["residuals"] and "ddc" in s["residuals"]
     # against the true trajectory (IMU), 10 Hz

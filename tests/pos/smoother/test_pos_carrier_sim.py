@@ -16,7 +16,7 @@ import pytest
 
 from dgcal.pos.gnss.carrier import code_observations
 from dgcal.pos.gnss.spp import SppOptions
-from dgcal.pos.pipeline import fixes_from_ppk, process
+from dgcal.pos.gnss_ins import fixes_from_ppk, process
 from dgcal.sim.pos import navigation_errors, simulate_pos
 
 

@@ -84,7 +84,7 @@ def biased_flights():
     each processed TC with and without the code-bias states. A flight draws one set of satellite biases, a few
     independent samples of the position error: the statistics pool the eight."""
     from dgcal.pos.gnss.spp import SppOptions
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.pos.smoother.batch import SmootherOptions
     from dgcal.sim.gnss import CodeErrorModel
     from dgcal.sim.pos import simulate_pos
@@ -150,7 +150,7 @@ def test_real_multi_gnss_code_with_a_static_imu(shared_data):
     from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
     from dgcal.pos.gnss.spp import SppOptions
     from dgcal.pos.ins.imu_data import ImuData
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.pos.smoother.batch import SmootherOptions
     ref = np.array([-3962108.673, 3381309.574, 3668678.638])
     nav = read_rinex_nav(shared_data / "rinex-sept" / "SEPT078M.21P")

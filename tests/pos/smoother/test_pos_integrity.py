@@ -30,7 +30,7 @@ SIGMA_LC = np.array([0.02, 0.02, 0.04])      # PPK-class antenna positions (N, E
 def flight():
     """A 3-minute multirotor flight at 100 Hz (events on the strips from ~70 s), its LC fixes from the true
     antenna track with PPK-class noise, and the clean LC solution."""
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.sim.pos import simulate_pos
     sim = simulate_pos(seed=0, duration_s=180.0, rate_hz=100.0, carrier=False)
     t = np.array([e.t_gps for e in sim.obs.epochs])
@@ -45,7 +45,7 @@ def flight():
 
 
 def _run(flight, imu=None, lc=None):
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     sim = flight["sim"]
     return process("lc", imu if imu is not None else sim.imu, sim.grade, sim.lever_arm_b,
                    lc_fixes=lc if lc is not None else flight["lc"], events=sim.events, forward=False)
@@ -77,7 +77,7 @@ def test_clean_data_raise_no_warning(flight, tmp_path):
     from dgcal.pos.gnss.rinex import write_rinex_obs
     from dgcal.pos.gnss.rinex_obs import read_obs_file
     from dgcal.pos.gnss.spp import SppOptions
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     sim = flight["sim"]
     opts = SppOptions(code_sigma_zenith_m=sim.sigma_pr, doppler_sigma_zenith_mps=sim.sigma_doppler,
                       model_errors=False, systems=("G", "E"))
@@ -167,7 +167,7 @@ def test_gnss_epoch_1000_km_off_is_rejected(flight):
 
 def test_tc_pseudorange_outlier_is_rejected(flight):
     from dgcal.pos.gnss.spp import SppOptions
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     sim = flight["sim"]
     obs = copy.deepcopy(sim.obs)
     k = 100

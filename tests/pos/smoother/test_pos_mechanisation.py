@@ -52,7 +52,7 @@ def test_densified_trajectory_is_gtsams_prediction_between_keyframes():
     """At the keyframes the trajectory is the solution; between them it is gtsam's prediction from the keyframe
     (its bias, its interval's gravity) plus the closure spread linearly in time."""
     from dgcal.pos.gnss.spp import SppOptions
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.pos.smoother.output import output_times
     from dgcal.pos.smoother.preintegration import rotation_compensated_accel, split_at_keyframes
     from dgcal.sim.pos import simulate_pos
@@ -94,7 +94,7 @@ def test_whitened_errors_undo_the_huber_weights():
     from dgcal.pos.smoother.integrity import factor_table, whitened_errors
     from dgcal.pos.smoother.linearised import keyframe_rows
     from dgcal.pos.gnss.spp import SppOptions
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.sim.pos import simulate_pos
     sim = simulate_pos(seed=3, duration_s=40.0, rate_hz=50.0, carrier=False)
     opts = SppOptions(code_sigma_zenith_m=sim.sigma_pr, doppler_sigma_zenith_mps=sim.sigma_doppler,

@@ -107,20 +107,20 @@ def test_event_outside_the_flight_names_the_events_file(dataset, tmp_path):
 
 
 def test_bad_settings_and_missing_inputs(dataset, tmp_path):
-    from dgcal.pos.pipeline import PosOptions, parse_settings, run_pos
-    with pytest.raises(InputError, match="--set"):
-        parse_settings(["nonsense=3"])
-    with pytest.raises(InputError, match="--set"):
-        parse_settings(["use_doppler=maybe"])
-    assert parse_settings(["rate=20", "use_doppler=false", "huber_k=none"]) == {
-        "rate": 20.0, "use_doppler": False, "huber_k": None}
-    with pytest.raises(InputError, match="--imu"):
-        run_pos(PosOptions(mode="tc", imu=None, events=str(dataset / "events.csv")))
-    with pytest.raises(InputError, match="--imu-grade"):
-        run_pos(PosOptions(mode="tc", imu=str(dataset / "imu.csv"), events=str(dataset / "events.csv"),
-                           imu_grade="potato"))
+    from dgcal.pos.mode_options import ImuInput, InsModeOptions
+    from dgcal.pos.pipeline import run_pos
+    with pytest.raises(InputError) as exc:
+        run_pos(InsModeOptions(mode="tc", events=dataset / "events.csv"))
+    assert exc.value.field == "imu.path"
+    with pytest.raises(InputError) as exc:
+        run_pos(InsModeOptions(mode="tc", imu=ImuInput(dataset / "imu.csv"), events=dataset / "events.csv",
+                               imu_grade="potato"))
+    assert exc.value.field == "imu_grade"
     assert _dgcal(["pos", "--mode", "tc", "--imu", str(dataset / "imu.csv"), "--events",
                    str(dataset / "events.csv"), "--out", str(tmp_path / "y")]) == 2
+    for bad in ("nonsense=3", "use_doppler=maybe"):
+        assert _dgcal(_pos_args(dataset, tmp_path / "z", "tc", ["--set", bad])) == 2
+    assert not (tmp_path / "z").exists()
 
 
 def test_imu_time_offset_estimated(dataset, tmp_path, capsys):

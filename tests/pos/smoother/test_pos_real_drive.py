@@ -21,7 +21,8 @@ from dgcal.fields.frames import R_ecef_to_ned
 from dgcal.pos.gnss.solution_files import read_rtklib_pos
 from dgcal.pos.ins.error_model import ImuErrorModel
 from dgcal.pos.ins.imu_formats import imu_format, read_imu
-from dgcal.pos.pipeline import antenna_ecef, fixes_from_solution, process
+from dgcal.pos.gnss_ins import fixes_from_solution, process
+from dgcal.pos.gnss_ins_summary import antenna_ecef
 from dgcal.pos.smoother.batch import SmootherOptions
 
 

@@ -15,7 +15,7 @@ from dgcal.sim.pos import navigation_errors  # noqa: E402
 
 @pytest.fixture(scope="module")
 def flight():
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.pos.gnss.spp import SppOptions
     from dgcal.sim.pos import simulate_pos
     sim = simulate_pos(seed=0, duration_s=300.0, rate_hz=100.0)
@@ -103,7 +103,7 @@ def test_initialisation_in_a_turn():
     """Data that start in the middle of the climbing orbit (15 deg bank, no static alignment) still converge."""
 
     from dgcal.pos.gnss.observations import GnssObservations
-    from dgcal.pos.pipeline import process
+    from dgcal.pos.gnss_ins import process
     from dgcal.pos.gnss.spp import SppOptions
     from dgcal.sim.pos import simulate_pos
     sim = simulate_pos(seed=7, duration_s=150.0, rate_hz=50.0)
