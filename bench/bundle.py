@@ -459,6 +459,10 @@ def bench_photos(repeats: int, threads: int) -> None:
           + ", ".join(str([f"{r['iterations']} it{'' if r['converged'] else ' CAP'}" for r in run["runs"]])
                       for run in runs["dgcal"])
           + f"; {'none' if not capped else len(capped)} ended at the iteration cap")
+    own = [r["seconds"] - r["tie_s"] for r in (d_, p_)]
+    print(f"   without the extract + match both run alike (pycolmap's SIFT and matching of the same pairs, the part "
+          f"most at the mercy of the machine's load): dgcal {own[0]:.1f} s beside the peer's mapper {own[1]:.1f} s, "
+          f"ratio {own[0] / own[1]:.2f}")
 
 
 def main() -> None:
