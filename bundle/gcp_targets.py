@@ -22,7 +22,7 @@ def aruco_dictionary(name: str):
     if not key.startswith("DICT_"):
         key = "DICT_" + key
     if not hasattr(cv2.aruco, key):
-        raise InputError(f"unknown ArUco dictionary {name!r} (e.g. DICT_4X4_50, DICT_5X5_100)", field="--targets")
+        raise InputError(f"unknown ArUco dictionary {name!r} (e.g. DICT_4X4_50, DICT_5X5_100)", field="targets")
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, key))
 
 
@@ -47,7 +47,7 @@ def detect_gcp_targets(image_dir: str | Path, names: list[str], dictionary: str 
         path = Path(image_dir) / n
         img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
         if img is None:
-            raise InputError("cannot read image", path, field="--images")
+            raise InputError("cannot read image", path, field="images")
         corners, ids, _ = det.detectMarkers(img)
         if ids is None:
             continue

@@ -128,7 +128,7 @@ def gather_measurements(opts: TriangulateOptions) -> tuple[Points, Measurements 
             raise InputError(f"the file's CRS {c!r} differs from --crs {opts.crs!r}", src, 1, "--crs")
     if points is None:
         if meas_points is None:
-            raise InputError("no ground points: give --gcp (or an ODM gcp_list.txt as --measurements)", field="--gcp")
+            raise InputError("no ground points: give --gcp (or an ODM gcp_list.txt as --measurements)", field="gcp")
         points = meas_points
     if opts.gcp_sigma_m:
         points.sigma[:] = np.asarray(opts.gcp_sigma_m, float)
@@ -140,10 +140,10 @@ def check_image_size(folder: Path, name: str, camera: CameraModel) -> None:
     path = Path(folder) / name
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
     if img is None:
-        raise InputError("cannot read image", path, field="--images")
+        raise InputError("cannot read image", path, field="images")
     if (img.shape[1], img.shape[0]) != tuple(camera.image_size):
         raise InputError(f"image is {img.shape[1]}x{img.shape[0]} but the camera is "
-                         f"{camera.image_size[0]}x{camera.image_size[1]}", path, field="--images")
+                         f"{camera.image_size[0]}x{camera.image_size[1]}", path, field="images")
 
 
 def image_pairs(names: list[str], camera: CameraModel, points: Points, approx: EOP | None) -> list[tuple[str, str]]:
@@ -183,12 +183,12 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
     """Read and assemble every input of the triangulation: camera, ground points, merged measurements and,
     with an image folder, the image list, detected GCP targets and SIFT tie points (see the module doc)."""
     if not opts.images and not opts.measurements:
-        raise InputError("give --images DIR or --measurements MEAS.csv (or both)", field="--measurements")
+        raise InputError("give --images DIR or --measurements MEAS.csv (or both)", field="measurements")
     camera = load_camera(opts.camera)
     points, meas = gather_measurements(opts)
     if opts.image_size and tuple(opts.image_size) != tuple(camera.image_size):
         raise InputError(f"--image-size {tuple(opts.image_size)} differs from the camera's {tuple(camera.image_size)}",
-                         field="--image-size")
+                         field="image_size")
     approx = read_eop(opts.approx) if opts.approx else opts.approx_eop
     inp = TriangulationInputs(camera, points, meas, approx=approx,
                               centre_priors=read_eop(opts.gnss) if opts.gnss else None)
@@ -227,7 +227,7 @@ def refine_parameters(camera: CameraModel, refine: tuple[str, ...]) -> tuple[str
     bad = [p for p in names if p not in camera.PARAMS]
     if bad:
         raise InputError(f"unknown camera parameter {bad[0]!r} ({camera.NAME} has {', '.join(camera.PARAMS)})",
-                         field="--refine")
+                         field="refine")
     return names
 
 

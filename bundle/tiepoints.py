@@ -24,10 +24,10 @@ def list_images(folder: str | Path) -> list[str]:
     """Image file names (sorted) in a folder; InputError when there are none."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise InputError("image folder not found", folder, field="--images")
+        raise InputError("image folder not found", folder, field="images")
     names = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
     if not names:
-        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in the folder", folder, field="--images")
+        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in the folder", folder, field="images")
     return names
 
 
@@ -73,7 +73,7 @@ def extract_tie_points(image_dir: str | Path, names: list[str] | None = None,
     if missing:
         raise InputError(f"image {missing[0]} not found"
                          + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""),
-                         image_dir, field="--images")
+                         image_dir, field="images")
     pairs = pairs if pairs is not None else sequential_pairs(names)
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:

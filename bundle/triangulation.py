@@ -119,7 +119,7 @@ class _Block:
 def _check_measurements(camera: CameraModel, meas: Measurements, image_size) -> None:
     if image_size is not None and tuple(int(v) for v in image_size) != tuple(camera.image_size):
         raise InputError(f"image size {tuple(image_size)} differs from the camera's {tuple(camera.image_size)}",
-                         field="--image-size")
+                         field="image_size")
     w_img, h_img = camera.image_size
     out = ((meas.xy[:, 0] < -0.5) | (meas.xy[:, 1] < -0.5) | (meas.xy[:, 0] > w_img - 0.5)
            | (meas.xy[:, 1] > h_img - 0.5))
@@ -145,7 +145,7 @@ def _georef(points: Points, meas: Measurements, crs: str | None, opt: Triangulat
     spread = np.ptp(P_world[ctrl_mask], axis=0)
     if ctrl_mask.sum() > 2 and max(spread[:2]) > 5e4:
         raise InputError(f"control points span {max(spread[:2]) / 1e3:.0f} km in CRS {crs}: wrong CRS or "
-                         "coordinate order?", points.path, field="--crs")
+                         "coordinate order?", points.path, field="crs")
     return geo, P_world
 
 

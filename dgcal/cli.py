@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from dgcal.fields.errors import InputError
+from dgcal.flags import flags_in_errors
 
 
 _ARGV: list[str] | None = None  # the command line being parsed; None builds every verb (slow, complete)
@@ -73,7 +74,9 @@ def add_verbs(sub, package: str, argv: list[str] | None, run_key: str = "_run") 
         mod = importlib.import_module(modname)
         p = sub.add_parser(name, help=help_text, description=getattr(mod, "DESCRIPTION", None) or mod.__doc__)
         mod.add_arguments(p)
-        p.set_defaults(**{run_key: mod.run})
+        # library errors name options' fields: the verb's flags by destination, and its table where names differ
+        flags = {a.dest: max(a.option_strings, key=len) for a in p._actions if a.option_strings}
+        p.set_defaults(**{run_key: mod.run, "_flags": {**flags, **getattr(mod, "OPTION_FLAGS", {})}})
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
@@ -94,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
     try:
-        return int(args._run(args) or 0)
+        with flags_in_errors(getattr(args, "_flags", {})):
+            return int(args._run(args) or 0)
     except InputError as exc:
         if args.debug:
             import traceback   # why: only on a failure

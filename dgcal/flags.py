@@ -9,17 +9,15 @@ from dgcal.fields.errors import InputError
 
 
 def flag_of(field: str, flags: dict[str, str]) -> str | None:
-    """The flag of an options field: the verb's table, else a top-level field's own name as a flag (`rinex_obs` ->
-    `--rinex-obs`); None for a field of a nested options object the table does not list."""
-    if field in flags:
-        return flags[field]
-    return None if "." in field else "--" + field.replace("_", "-")
+    """The flag of an options field from the verb's table (its flags by destination, `rinex_obs` -> `--rinex-obs`,
+    and its `OPTION_FLAGS` where the names differ); None for anything else (a field of a file)."""
+    return flags.get(field)
 
 
 @contextmanager
 def flags_in_errors(flags: dict[str, str]) -> Iterator[None]:
     """Within the block, an InputError (or ResultError) without a file whose field is an options field of `flags`
-    (field -> flag where the names differ) comes out naming the flag."""
+    (field -> flag) comes out naming the flag."""
     try:
         yield
     except InputError as exc:

@@ -118,7 +118,7 @@ class World:
         lat, lon, h = grid.to_geodetic(centre + [0.0, 0.0, _undulation(grid, gd, centre)[0]])[0]
         if not (np.isfinite([lat, lon, h]).all() and abs(lat) <= 90):
             raise InputError(f"the ground points are not valid coordinates in {crs_text or grid.crs.srs} "
-                             f"(centre {centre[0].round(3).tolist()}): wrong --crs?", source, field="--crs")
+                             f"(centre {centre[0].round(3).tolist()}): wrong --crs?", source, field="crs")
         return cls(grid, LocalENU(float(lat), float(lon), float(h)), geoid=gd, crs_text=crs_text)
 
     @property
@@ -232,7 +232,7 @@ class World:
     def _geodetic(self) -> None:
         if self.local_only:
             raise InputError("geodetic POS samples need a map CRS (this world is an engineering frame)",
-                             field="--crs")
+                             field="crs")
 
     def pos_to_world(self, lat_deg: np.ndarray, lon_deg: np.ndarray, h_m: np.ndarray, v_ned: np.ndarray,
                      rph_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -224,4 +224,4 @@ def read_any_events(path: str | Path, fmt: str | None = None, name_pattern: str 
     if fmt == "px4":
         return read_ulog_camera_capture(path)
     raise InputError(f"unknown events format {fmt!r} (one of {', '.join(EVENT_FORMATS)})", path,
-                     field="--events-format")
+                     field="events_format")

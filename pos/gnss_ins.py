@@ -117,7 +117,7 @@ def tc_epochs(raw, nav, spp_sol, opts):
 
 
 def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_opts=None,
-            lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool | str = True,
+            lc_fixes: GnssFixes | None = None, events=None, rate_hz: float = 10.0, forward: bool | str = False,
             smoother_opts=None, progress: bool = False, carrier: tuple | None = None,
             ppk_opts: PpkOptions | None = None, dd_opts: DDOptions | None = None,
             imu_checks: ImuIntegrityOptions | None = None, estimate_imu_time_offset: bool = False) -> PosResult:
@@ -131,8 +131,8 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     arcs' integers and the double differences (`dgcal.pos.gnss.dd.carrier_front_end`) replace the pseudoranges.
 
     forward: True for the forward solution and normalised innovations of the smoother's problem linearised at its
-    solution (`linear_forward_solution`, cheap), "filter" for the iterated filter about its own estimates
-    (`forward_solution`), False for none.
+    solution (`linear_forward_solution`, about a tenth of the smoothing), "filter" for the iterated filter about its
+    own estimates (`forward_solution`), False (the default: what the trajectory and events need) for none.
 
     estimate_imu_time_offset: the IMU-GNSS time offset estimated from the smoother's chi-square profile
     (`dgcal.pos.smoother.time_offset`, 7-11 smoothings without covariances), applied to the IMU's time tags and

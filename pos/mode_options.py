@@ -25,10 +25,11 @@ from dgcal.pos.smoother.batch import SmootherOptions
 @dataclass
 class OutputSettings:
     """What the GNSS/INS modes write beside the smoothed keyframes: the trajectory rate (Hz), the forward solution
-    (the linearised problem's forward pass; `forward_filter`: an iterated Kalman filter instead, slower)."""
+    and its normalised innovations (opt-in: the linearised problem's forward pass; `forward_filter`: an iterated
+    Kalman filter instead, slower)."""
 
     rate_hz: float = 10.0
-    forward: bool = True
+    forward: bool = False
     forward_filter: bool = False
 
 

@@ -301,7 +301,7 @@ def check_dg_files(opts: CheckOptions) -> DgCheck:
     Table 2 statistics, ASPRS 2023 and the predicted budget; improvement rates (%) over the first mounting."""
     tau = opts.pos_correlation_time_s
     if tau is not None and not tau >= 0:
-        raise InputError(f"must be a time >= 0 s, not {tau}", field="--pos-correlation-time")
+        raise InputError(f"must be a time >= 0 s, not {tau}", field="pos_correlation_time")
     grid = MapGrid(opts.crs)
     events = read_any_events(opts.events)
     traj = read_any_trajectory(opts.trajectory, near_t=float(events.t[0]) if len(events) else None)

@@ -371,7 +371,7 @@ def georeference_files(opts: GeorefOptions) -> GeorefRun:
         eop = dg_eop(grid, read_trajectory(opts.trajectory), read_events(opts.events),
                      read_mounting_json(opts.mounting))[0]
     else:
-        raise InputError("give --eop, or --trajectory with --events and --mounting", field="--eop")
+        raise InputError("give --eop, or --trajectory with --events and --mounting", field="eop")
     dem: Dem | None = None
     ranges = None
     if opts.dem is not None:

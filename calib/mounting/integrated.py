@@ -60,11 +60,11 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     `calibrate_proposed`; 0 = independent per photo)."""
     if not 0.0 <= pos_common_fraction <= 1.0:
         raise InputError(f"pos_common_fraction must be within 0..1, got {pos_common_fraction}",
-                         field="--pos-common-fraction")
+                         field="pos_common_fraction")
     bad = [k for k in refine_intrinsics if k not in camera.PARAMS]
     if bad:
         raise InputError(f"camera model {camera.NAME} has no parameter {bad[0]!r} ({', '.join(camera.PARAMS)})",
-                         field="--refine-intrinsics")
+                         field="refine_intrinsics")
     i_intr = [camera.PARAMS.index(k) for k in refine_intrinsics]
     world = World.at_map_points(grid, eop.xyz)
     ep = build_epochs(world, eop, events, traj)

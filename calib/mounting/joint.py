@@ -220,7 +220,7 @@ def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = Tr
     """
     if not 0.0 <= pos_common_fraction <= 1.0:
         raise InputError(f"pos_common_fraction must be within 0..1, got {pos_common_fraction}",
-                         field="--pos-common-fraction")
+                         field="pos_common_fraction")
     init = calibrate_traditional(ep)
     x0 = np.r_[0.0, init.lever_arm_m, 0, 0, 0]
     R_hat = init.R_cam_to_body

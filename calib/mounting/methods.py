@@ -57,7 +57,7 @@ METHOD_NAMES: tuple[str, ...] = tuple(METHODS) + tuple(ALIASES)  # every accepte
 DEFAULT_METHOD = "joint"
 
 
-def mounting_method(name: str, field_name: str = "--method") -> MountingMethod:
+def mounting_method(name: str, field_name: str = "method") -> MountingMethod:
     """The registry entry of a method name or alias (`traditional` = `two-step`, `proposed` = `joint`)."""
     key = str(name).strip().lower()
     try:
@@ -90,7 +90,7 @@ def calibrate_mounting(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events
     m = mounting_method(method)
     if m.needs_image_measurements:
         raise InputError(f"method {method!r} needs image measurements: use calibrate_mounting_files "
-                         "(dgcal mount --measurements --gcp --camera)", field="--method")
+                         "(dgcal mount --measurements --gcp --camera)", field="method")
     world, ep = prepare_epochs(eop, grid, traj, events)
     res = calibrate_traditional(ep) if m.name == "two-step" else calibrate_proposed(ep, **kw)
     res.warnings = list(ep.warnings) + observability_warnings(ep, res if m.name != "two-step" else None)
@@ -149,7 +149,7 @@ def calibrate_mounting_files(opts: MountOptions) -> MountingRun:
     if m.needs_image_measurements:
         missing = [o for o in ("measurements", "gcp", "camera") if getattr(opts, o) is None]
         if missing:
-            raise InputError(f"--method {opts.method} needs --{missing[0]}", field=f"--{missing[0]}")
+            raise InputError(f"--method {opts.method} needs --{missing[0]}", field=missing[0])
     grid = MapGrid(opts.crs)
     eop, events = read_eop(opts.eop), read_any_events(opts.events)
     traj = read_any_trajectory(opts.trajectory, near_t=float(events.t[0]) if len(events) else None)

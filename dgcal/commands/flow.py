@@ -9,6 +9,7 @@ from pathlib import Path
 NAME = "flow"
 HELP = "GNSS + optic-flow attitude, FOE offsets and height above ground of a forward camera (seed 001)"
 OUTPUTS = {"pairs": "flow.csv", "summary": "flow.json", "report": "report.html"}
+OPTION_FLAGS = {"video_start_gps": "--video-start"}   # FlowOptions fields named in errors -> flags
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -129,7 +129,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="skip the HTML report of any mode (the CSV and JSON files are still written)")
 
 
-# option fields named in library errors -> this verb's flags (the rest map by name: rinex_obs -> --rinex-obs)
+# option fields named in library errors -> this verb's flags where the names differ (dgcal.cli maps the rest)
 OPTION_FLAGS = {"rinex_nav": "--rinex-nav", "base.rinex": "--rinex-base", "base.position_ecef": "--base-position",
                 "base.position_llh": "--base-position-llh", "ppk.dynamics": "--dynamics",
                 "ppk.solution": "--ppk-solution", "ppk.n_freq": "--frequencies", "ppk.ratio_threshold": "--ar-ratio",
@@ -220,12 +220,6 @@ def spp_files_in(out_dir: Path, args: argparse.Namespace) -> tuple[dict, dict]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dgcal.flags import flags_in_errors
-    with flags_in_errors(OPTION_FLAGS):
-        return _run(args)
-
-
-def _run(args: argparse.Namespace) -> int:
     from dgcal.fields.io.atomic import staged_dir   # why not csv_tables: SPP forks before anything imports numpy
     from dgcal.fields.processes import forked_call
     if args.mode == "spp":

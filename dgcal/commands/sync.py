@@ -11,6 +11,9 @@ from pathlib import Path
 NAME = "sync"
 HELP = "restore and align logger streams, find exposure times, write events.csv (every stage checked)"
 OUTPUTS = {"events": "events.csv", "exposures": "exposures.csv", "summary": "sync.json", "report": "report.html"}
+# SyncOptions fields named in library errors -> flags where the names differ
+OPTION_FLAGS = {"blackout_s": "--blackout", "rate_hz": "--rate", "max_time_error_s": "--max-time-error",
+                "end_gap_s": "--end-gap", "logger_columns": "--logger-column"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

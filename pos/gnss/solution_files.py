@@ -347,7 +347,7 @@ def read_nmea_gga(path: str | Path, date: str | None = None, leap_seconds: float
         try:
             day_u = unix_from_calendar(f"{date} 00:00:00")
         except ValueError:
-            raise InputError(f"date {date!r} is not YYYY-MM-DD", field="--nmea-date") from None
+            raise InputError(f"date {date!r} is not YYYY-MM-DD", field="nmea_date") from None
     rows, gst = [], {}
     rmc_day = None
     for ln, line in enumerate(text.splitlines(), start=1):

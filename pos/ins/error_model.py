@@ -254,7 +254,7 @@ def read_imu_datasheet(path: str | Path) -> ImuErrorModel:
     `imu_model_from_datasheet_dict`)."""
     path = Path(path)
     if not path.is_file():
-        raise InputError("file not found", path, field="--imu-grade")
+        raise InputError("file not found", path)
     try:
         d = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as exc:

@@ -115,7 +115,7 @@ class Frames:
     def __init__(self, opts: FlowOptions):
         self.video = None
         if (opts.images is None) == (opts.video is None):
-            raise InputError("give exactly one of --images DIR or --video FILE", field="--images")
+            raise InputError("give exactly one of --images DIR or --video FILE", field="images")
         if opts.images is not None:
             d = Path(opts.images)
             if not d.is_dir():
@@ -144,7 +144,7 @@ class Frames:
             if not fps or fps <= 0 or n < 2:
                 raise InputError("the video has no frame rate or fewer than two frames (--fps?)", opts.video)
             if opts.video_start_gps is None:
-                raise InputError("the GPS time of the video's first frame is needed", field="--video-start")
+                raise InputError("the GPS time of the video's first frame is needed", field="video_start_gps")
             self.video, self.fps = Path(opts.video), float(fps)
             self.t = opts.video_start_gps + np.arange(n) / self.fps
             self.names = [f"{self.video.name}#{k}" for k in range(n)]

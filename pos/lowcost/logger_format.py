@@ -89,11 +89,11 @@ class LoggerFormat:
         """A copy with `ROLE=COLUMN` items (flags) applied; InputError naming the bad item."""
         cols = dict(self.columns)
         for item in items or ():
-            role, col = split_key_value(item, "--logger-column")
+            role, col = split_key_value(item, "logger_columns")
             role = role.lower()
             if role not in LOGGER_ROLES:
                 raise InputError(f"bad column {item!r}: ROLE=COLUMN with ROLE one of {', '.join(LOGGER_ROLES)}",
-                                 field="--logger-column")
+                                 field="logger_columns")
             cols[role] = int(col) if col.isdigit() and not self.header else col
         return replace(self, columns=cols)
 

@@ -401,7 +401,7 @@ def synchronise_logger_files(opts: SyncOptions) -> SyncResult:
     fmt = fmt.with_columns(opts.logger_columns)
     if opts.laser_unit:
         if opts.laser_unit not in LENGTH_UNITS:
-            raise InputError(f"unknown unit (one of {', '.join(LENGTH_UNITS)})", field="--laser-unit")
+            raise InputError(f"unknown unit (one of {', '.join(LENGTH_UNITS)})", field="laser_unit")
         fmt.units["laser"] = opts.laser_unit
     rate = opts.rate_hz or fmt.rate_hz
     st = SyncSettings(rate_hz=rate, gnss_rate_hz=opts.gnss_rate_hz or fmt.gnss.rate_hz,
@@ -409,12 +409,12 @@ def synchronise_logger_files(opts: SyncOptions) -> SyncResult:
                       tau=opts.tau, blackout_s=opts.blackout_s, photo_polarity=fmt.photo_polarity,
                       pps_inverted=fmt.pps_inverted, end_gap_s=opts.end_gap_s, search_s=opts.search_s,
                       max_drift_ppm=opts.max_drift_ppm, max_time_error_s=opts.max_time_error_s)
-    for name, v in (("--tau", st.tau), ("--blackout", st.blackout_s), ("--rate", st.rate_hz),
-                    ("--max-time-error", st.max_time_error_s), ("--max-drift-ppm", st.max_drift_ppm)):
+    for name, v in (("tau", st.tau), ("blackout_s", st.blackout_s), ("rate_hz", st.rate_hz),
+                    ("max_time_error_s", st.max_time_error_s), ("max_drift_ppm", st.max_drift_ppm)):
         if not (np.isfinite(v) and v > 0):
             raise InputError(f"must be positive, not {v}", field=name)
     if st.end_gap_s is not None and not (np.isfinite(st.end_gap_s) and st.end_gap_s >= 0):
-        raise InputError(f"must be >= 0, not {st.end_gap_s}", field="--end-gap")
+        raise InputError(f"must be >= 0, not {st.end_gap_s}", field="end_gap_s")
     g = read_gnss_log(opts.gnss_log, fmt.gnss)
     week = int(np.floor(g.t[0] / SECONDS_PER_WEEK))
     lg = read_logger(opts.logger, fmt, gps_week=week)

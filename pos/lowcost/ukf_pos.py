@@ -129,7 +129,7 @@ def process_ukf(imu, grade, lever_arm_b, fixes: GnssFixes, events=None, rate_hz:
     if truth is not None:
         t = t[(t >= truth.t[0]) & (t <= truth.t[-1])]
     if len(t) < 2:
-        raise InputError(f"fewer than two epochs after the {skip_s:g} s the filter needs to converge", field="--imu")
+        raise InputError(f"fewer than two epochs after the {skip_s:g} s the filter needs to converge", field="imu.path")
     table = accuracy_rows("ukf", _common(key, t), truth)
     if sm_tr is not None:
         table += accuracy_rows("smoother", _common(sm_tr, t), truth)

@@ -101,7 +101,7 @@ def calibration_values(mount: MountingResult, fmt: str, reference_lever_arm_m=(0
                    boresight_omega_phi_kappa_deg=opk.tolist(), reference_lever_arm_body_m=ref.tolist())
     else:
         raise InputError(f"unknown calibration format {fmt!r} (one of {', '.join(CALIBRATION_FORMATS)})",
-                         field="--calibration-formats")
+                         field="calibration_formats")
     return out
 
 

@@ -261,7 +261,7 @@ def odm_ypr_for_opk(lat_deg, lon_deg, alt_m, opk_enu_deg) -> np.ndarray:
     if np.max(np.abs(f)) > 1e-8:
         k = int(np.argmax(np.max(np.abs(f), axis=1)))
         raise InputError(f"no ODM yaw/pitch/roll gives omega/phi/kappa {target[k].round(6).tolist()} at latitude "
-                         f"{lat[k]:.4f} (ODM's conversion degenerates near the equator)", field="--formats")
+                         f"{lat[k]:.4f} (ODM's conversion degenerates near the equator)", field="formats")
     ypr[:, 0] = np.mod(ypr[:, 0], 360.0)
     return ypr
 
@@ -325,7 +325,7 @@ def export_all(out_dir: Path, eop: EOP, grid: MapGrid, camera=None, formats=FORM
     for f in formats:
         if f == "colmap":
             if camera is None:
-                raise InputError("the COLMAP export needs a camera (--camera)", field="--camera")
+                raise InputError("the COLMAP export needs a camera (--camera)", field="camera")
             write_colmap(out_dir / "colmap", eop, grid, camera, points_map, observations)
             paths[f] = out_dir / "colmap"
         elif f == "pix4d":
@@ -341,7 +341,7 @@ def export_all(out_dir: Path, eop: EOP, grid: MapGrid, camera=None, formats=FORM
             write_eop(out_dir / "eop.csv", eop)
             paths[f] = out_dir / "eop.csv"
         else:
-            raise InputError(f"unknown export format {f!r} (one of {', '.join(FORMATS)})", field="--formats")
+            raise InputError(f"unknown export format {f!r} (one of {', '.join(FORMATS)})", field="formats")
     return paths
 
 
@@ -353,9 +353,9 @@ def export_formats(requested: tuple[str, ...] | None, have_camera: bool) -> list
     formats = [f.strip().lower() for f in requested if f.strip()]
     bad = [f for f in formats if f not in FORMATS]
     if bad:
-        raise InputError(f"unknown format {bad[0]!r} (one of {', '.join(FORMATS)})", field="--formats")
+        raise InputError(f"unknown format {bad[0]!r} (one of {', '.join(FORMATS)})", field="formats")
     if "colmap" in formats and not have_camera:
-        raise InputError("the COLMAP export needs --camera", field="--camera")
+        raise InputError("the COLMAP export needs --camera", field="camera")
     return formats
 
 

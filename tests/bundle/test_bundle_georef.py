@@ -95,7 +95,7 @@ def test_geoid_constant_undulation():
 
 
 def test_bad_crs_and_local_frame():
-    with pytest.raises(InputError, match="--crs"):
+    with pytest.raises(InputError, match="'crs'"):
         World.from_crs("EPSG:4326", CENTRE)
     loc = World.from_crs("local", np.array([10.0, 20.0, 3.0]))
     P = np.array([[11.0, 22.0, 4.0]])

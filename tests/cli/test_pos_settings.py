@@ -94,10 +94,10 @@ def test_library_errors_name_fields_and_the_command_line_its_flags():
     with pytest.raises(InputError) as exc, flags_in_errors({"base.position_ecef": "--base-position"}):
         raise InputError("off", field="base.position_ecef")
     assert exc.value.field == "--base-position" and "--base-position" in str(exc.value)
-    with pytest.raises(InputError) as exc, flags_in_errors({}):
+    with pytest.raises(InputError) as exc, flags_in_errors({"rinex_obs": "--rinex-obs"}):
         raise InputError("required", field="rinex_obs")
     assert exc.value.field == "--rinex-obs"
-    with pytest.raises(InputError) as exc, flags_in_errors({}):
+    with pytest.raises(InputError) as exc, flags_in_errors({"gps_sow": "--sow"}):
         raise InputError("bad", "file.csv", 3, "gps_sow")
     assert exc.value.field == "gps_sow" and exc.value.path == "file.csv"
 

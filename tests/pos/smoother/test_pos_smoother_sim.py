@@ -24,7 +24,7 @@ def flight():
     out = {"sim": sim}
     for mode in ("tc", "lc"):
         out[mode] = process(mode, sim.imu, sim.grade, sim.lever_arm_b, raw_obs=sim.obs, nav=sim.nav,
-                            spp_opts=opts, events=sim.events)
+                            spp_opts=opts, events=sim.events, forward=True)
     return out
 
 
