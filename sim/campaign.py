@@ -493,7 +493,7 @@ lever_arm_gnss = [{", ".join(f"{v:g}" for v in lever_g)}]{extra}
 method = "proposed"
 compare = ["traditional", "iso"]
 # iso adjusts the triangulation's image measurements (tie and ground points) with the POS as observations
-pos_common_fraction = 1.0     # the smoother's attitude error is mostly a bias common to the flight
+# pos_common_fraction: the share of the POS error common to the flight in the sigmas (default 1, as dgcal mount's)
 
 [check]                       # DG accuracy on the check points (here: the calibration flight itself)
 gcp = "flight/gcp.csv"

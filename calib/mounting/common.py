@@ -27,6 +27,12 @@ from dgcal.fields.pose import Poses
 from dgcal.fields.world import World
 from dgcal.pos.ins.interpolate import interpolate_trajectory
 
+# The share (0-1) of the POS error variance common to every photo of a flight, added to the mounting sigmas (joint,
+# iso), in every entry point (`dgcal mount`, `dgcal run`, the Python API): a smoothed MEMS trajectory's attitude
+# error is mostly a bias over a flight (the accelerometer bias it cannot tell from tilt), which no number of photos
+# averages down; 0 (the seed's independent errors) gave lever-arm z sigmas 4-5x too small (issue 27).
+POS_COMMON_FRACTION = 1.0
+
 
 def rotation_mean(R: np.ndarray) -> np.ndarray:
     """Chordal L2 mean of rotation matrices (N,3,3)."""

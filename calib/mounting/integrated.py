@@ -33,7 +33,7 @@ from dgcal.bundle.solver.covariance import Covariance, normal_rhs
 from dgcal.bundle.solver.lm import LMOptions, minimise, normals_at
 from dgcal.bundle.solver.normals import Problem
 from dgcal.calib.camera.files import load_camera
-from dgcal.calib.mounting.common import MountingResult, build_epochs
+from dgcal.calib.mounting.common import POS_COMMON_FRACTION, MountingResult, build_epochs
 from dgcal.calib.mounting.observability import observability_warnings
 from dgcal.calib.mounting.joint import DEFAULT_POS_SIGMA, default_cov, calibrate_proposed
 from dgcal.fields.crs import MapGrid
@@ -51,7 +51,7 @@ DEFAULT_GCP_SIGMA = 0.02
 
 def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, meas: Measurements, gcp: Points,
                   camera, *, fix_delay: bool = False, max_iterations: int = 30,
-                  refine_intrinsics: tuple[str, ...] = (), pos_common_fraction: float = 0.0,
+                  refine_intrinsics: tuple[str, ...] = (), pos_common_fraction: float = POS_COMMON_FRACTION,
                   critical_w: float = 4.0) -> MountingResult:
     """ISO mounting calibration; `eop` (e.g. a bundle or DG result) only initialises the image poses; image
     measurements whose w-test exceeds `critical_w` are rejected (listed in extra["rejected_observations"]).

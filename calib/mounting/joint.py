@@ -26,7 +26,7 @@ from dgcal.bundle.solver.blocks import BlockEval, FunctionBlock, State
 from dgcal.bundle.solver.covariance import Covariance, normal_rhs
 from dgcal.bundle.solver.lm import LMOptions, minimise
 from dgcal.bundle.solver.normals import Problem, linearise
-from dgcal.calib.mounting.common import Epochs, MountingResult
+from dgcal.calib.mounting.common import POS_COMMON_FRACTION, Epochs, MountingResult
 from dgcal.calib.mounting.two_step import calibrate_traditional
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import skew
@@ -211,7 +211,7 @@ def chi2_quantile(p: float, dof: int) -> float:
 
 
 def calibrate_proposed(ep: Epochs, *, fix_delay: bool = False, reject: bool = True,
-                       confidence: float = 0.999, pos_common_fraction: float = 0.0) -> MountingResult:
+                       confidence: float = 0.999, pos_common_fraction: float = POS_COMMON_FRACTION) -> MountingResult:
     """Delay, lever arm and boresight by weighted least squares with outlier rejection (see module docstring).
 
     `pos_common_fraction` (0-1) is the share of the POS error variance common to all epochs of the

@@ -18,7 +18,7 @@ from functools import partial
 from pathlib import Path
 from typing import Callable
 
-from dgcal.calib.mounting.common import Epochs, MountingResult, build_epochs
+from dgcal.calib.mounting.common import POS_COMMON_FRACTION, Epochs, MountingResult, build_epochs
 from dgcal.calib.mounting.integrated import calibrate_iso_files
 from dgcal.calib.mounting.joint import calibrate_proposed
 from dgcal.calib.mounting.observability import observability_warnings
@@ -116,7 +116,8 @@ class MountOptions:
     method: str = DEFAULT_METHOD
     reject: bool = True              # joint: chi-square rejection of epochs
     fix_delay: bool = False          # joint, iso: hold the delay at 0
-    pos_common_fraction: float = 0.0  # joint, iso: share (0-1) of the POS error variance common to the flight
+    pos_common_fraction: float = POS_COMMON_FRACTION  # joint, iso: share (0-1) of the POS error variance common to
+    #                                                    the flight (common.POS_COMMON_FRACTION)
     measurements: Path | None = None  # iso: image measurements (CSV or ODM gcp_list.txt)
     gcp: Path | None = None          # iso: ground points
     camera: Path | None = None       # iso: camera file

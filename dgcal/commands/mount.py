@@ -29,9 +29,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, help="output directory (mounting.json, report.html)")
     p.add_argument("--no-reject", action="store_true", help="keep every epoch (no chi-square rejection)")
     p.add_argument("--fix-delay", action="store_true", help="joint/iso: hold the delay at 0")
-    p.add_argument("--pos-common-fraction", type=float, default=0.0, metavar="F",
+    p.add_argument("--pos-common-fraction", type=float, default=None, metavar="F",
                    help="joint/iso: share (0-1) of the POS error variance common to the whole flight, added to the "
-                        "sigmas (0: independent per photo, as in the seed; 1: conservative for a MEMS smoother)")
+                        "sigmas (default 1, as in dgcal run: a MEMS smoother's attitude error is mostly a bias over a "
+                        "flight; 0: independent per photo, as in the seed)")
     p.add_argument("--measurements", type=Path, help="iso: image measurements of ground points (or gcp_list.txt)")
     p.add_argument("--gcp", type=Path, help="iso: ground control points CSV (role check points are not used)")
     p.add_argument("--camera", type=Path, help="iso: camera file (camera.json, ...)")
@@ -46,9 +47,10 @@ def run(args: argparse.Namespace) -> int:
 
     opts = MountOptions(eop=args.eop, crs=args.crs, trajectory=args.trajectory, events=args.events,
                         method=args.method or DEFAULT_METHOD, reject=not args.no_reject, fix_delay=args.fix_delay,
-                        pos_common_fraction=args.pos_common_fraction, measurements=args.measurements, gcp=args.gcp,
-                        camera=args.camera,
+                        measurements=args.measurements, gcp=args.gcp, camera=args.camera,
                         refine_intrinsics=tuple(k.strip() for k in args.refine_intrinsics.split(",") if k.strip()))
+    if args.pos_common_fraction is not None:          # else the library's one default
+        opts.pos_common_fraction = args.pos_common_fraction
     cal = calibrate_mounting_files(opts)
     with staged_dir(args.out) as tmp:
         write_mount_outputs(tmp, cal, OUTPUTS)

@@ -49,6 +49,27 @@ def _errors(c, method):
     return m, d_delay, d_lever, d_bore
 
 
+def test_mount_verb_and_campaign_give_the_same_sigmas(campaign, tmp_path):
+    """One default per physical question (issue 27): `dgcal mount` as the README shows it and the campaign's mount
+    step on the same EOPs and POS give the same mounting and sigmas, both with the POS error common to the flight
+    (F = 1) in them; F = 0 gives smaller ones."""
+    import tomllib
+    crs = tomllib.loads((campaign["data"] / "campaign.toml").read_text())["crs"]
+    out = campaign["out"]
+    base = ["mount", "--eop", str(out / "triangulation" / "eop.csv"), "--crs", crs, "--trajectory",
+            str(out / "pos" / "trajectory.csv"), "--events", str(out / "pos" / "events.csv"), "--method", "proposed"]
+    assert campaign["runner"](base + ["--out", str(tmp_path / "verb")]) == 0
+    assert campaign["runner"](base + ["--out", str(tmp_path / "f0"), "--pos-common-fraction", "0"]) == 0
+    verb = json.loads((tmp_path / "verb" / "mounting.json").read_text())
+    f0 = json.loads((tmp_path / "f0" / "mounting.json").read_text())
+    run = _mount(campaign, "proposed")
+    assert verb["pos_common_fraction"] == run["pos_common_fraction"] == 1.0
+    np.testing.assert_allclose(verb["covariance"], run["covariance"], rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(verb["lever_arm_m"], run["lever_arm_m"], rtol=0, atol=1e-12)
+    s1, s0 = np.sqrt(np.diag(verb["covariance"])), np.sqrt(np.diag(f0["covariance"]))
+    assert np.all(s1 >= s0 - 1e-15) and s1[3] > 1.5 * s0[3]          # lever-arm z: the common error counts
+
+
 def test_every_step_ran_and_wrote_its_outputs(campaign):
     assert set(campaign["res"]["steps"].values()) == {"ran"}
     assert list(campaign["res"]["steps"]) == ["camera", "triangulate", "pos", "mount_proposed", "mount_traditional",
