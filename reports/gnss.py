@@ -16,6 +16,7 @@ from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.gnss.spp import enu_sigmas, write_gnss_csv
+from dgcal.reports.honesty import honesty_rows, honesty_section, no_reference
 
 if TYPE_CHECKING:
     from dgcal.pos.gnss.spp import SppRun, SppSolution
@@ -51,6 +52,27 @@ def spp_report_series(sol: SppSolution, ref_ecef: np.ndarray | None = None) -> d
             "sky_elev_deg": np.concatenate([e.elev_deg for e in eps]) if eps else empty}
 
 
+TIME_CORRELATED = ("Errors of consecutive epochs are correlated in time: n overstates the number of independent "
+                   "values.")
+
+
+def spp_honesty(sol: SppSolution, ref_ecef: np.ndarray | None) -> dict:
+    """The honesty record of an SPP run (dgcal.reports.honesty): every fix's E/N/U error against the known antenna
+    position `ref_ecef` (ECEF m, taken as exact; ENU axes at the reference) over its sigma from the fix's covariance;
+    without a reference the line that there is none."""
+    if ref_ecef is None:
+        return no_reference("No reference: give the antenna's known position (--reference X Y Z, ECEF m) to "
+                            "compare the fixes with it.")
+    ok = sol.ok
+    ref = np.asarray(ref_ecef, float)
+    lat, lon, _ = ecef_to_geodetic(ref)
+    err = (sol.p_ecef[ok] - ref) @ R_ecef_to_enu(lat, lon).T
+    sig = enu_sigmas(sol.p_ecef[ok], sol.cov_p[ok])[1] if ok.any() else np.zeros((0, 3))
+    return honesty_section(honesty_rows(err, sig, ("E", "N", "U"), "known antenna position"),
+                           ["Known antenna position (--reference), taken as exact: each fix's E/N/U error over "
+                            "its sigma from the fix's covariance.", TIME_CORRELATED])
+
+
 def write_spp_report(path: str | Path, sol: SppSolution, summary: dict, ref_ecef: np.ndarray | None = None) -> Path:
     """Write ``gnss_report.html`` for an ``SppSolution`` (``ref_ecef``: known position, else the median)."""
     from dgcal.reports.gnss_page import draw_spp_report   # why: matplotlib only when a report is drawn
@@ -59,9 +81,10 @@ def write_spp_report(path: str | Path, sol: SppSolution, summary: dict, ref_ecef
 
 def write_spp_files(out_dir: str | Path, run: SppRun, names: Mapping[str, str]) -> dict[str, Path]:
     """gnss.csv (ECEF m) and the JSON summary of an SPP run in `out_dir`, named by role (`gnss`, `gnss_summary`) in
-    `names`; returns the paths by role."""
+    `names`; returns the paths by role. The summary gains the honesty record (`honesty`, see `spp_honesty`)."""
     out = Path(out_dir)
     paths = {role: out / names[role] for role in ("gnss", "gnss_summary")}
+    run.summary["honesty"] = spp_honesty(run.solution, run.reference_ecef)
     write_gnss_csv(paths["gnss"], run.solution)
     with atomic_write(paths["gnss_summary"]) as fh:
         json.dump(run.summary, fh, indent=2)

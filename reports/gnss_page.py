@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dgcal.reports.honesty import add_honesty
 from dgcal.reports.html import HtmlReport, new_figure
 
 
@@ -31,6 +32,7 @@ def draw_spp_report(path: str | Path, series: dict, summary: dict) -> Path:
         warn.append(f"{summary['n_rejected']} satellite observations rejected by RAIM.")
     warn += list(summary.get("warnings", []))
     rep.warnings(warn)
+    add_honesty(rep, summary.get("honesty"))
     if not len(series["t_fix_s"]):
         return rep.write(path)
     what = "the reference position" if series["reference_known"] else "the median position"

@@ -12,12 +12,56 @@ from pathlib import Path
 
 import numpy as np
 
-from dgcal.fields.crs import geodetic_to_ecef
+from dgcal.fields.crs import R_ecef_to_ned_at, geodetic_to_ecef
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import write_trajectory
+from dgcal.pos.gnss.solution_files import GnssSolution
 from dgcal.pos.gnss_ins import PosResult
 from dgcal.pos.gnss_ins_summary import antenna_ecef
+from dgcal.pos.ins.interpolate import interpolate_trajectory
+from dgcal.reports.gnss import TIME_CORRELATED
+from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
+
+
+def withheld_errors(res, withheld: GnssSolution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """At the withheld fixes inside the trajectory's span: the trajectory's antenna (IMU position + R_body_to_ecef
+    lever arm) minus the fix, N/E/D m (n,3) in the local frame of each fix (as pos_summary.json withheld_fixes), the
+    trajectory's N/E/D position sigmas there (n,3) and the fixes' own (n,3)."""
+    traj = res.trajectory
+    ok = (withheld.t >= traj.t[0]) & (withheld.t <= traj.t[-1])
+    w = withheld.subset(ok)
+    if len(w) == 0 or traj.sigma is None:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
+    st = interpolate_trajectory(traj, w.t)
+    lever = np.asarray(res.smoothed.problem.lever_arm_b, float)
+    p_ant = st.p_ecef + np.einsum("nij,j->ni", st.R_body_to_ecef, lever)
+    d_ned = np.einsum("nij,nj->ni", R_ecef_to_ned_at(w.p_ecef).reshape(-1, 3, 3), p_ant - w.p_ecef)
+    return d_ned, st.sigma[:, :3], w.sigma_ned
+
+
+def pos_honesty(res, withheld: GnssSolution | None = None) -> dict:
+    """The honesty record of a GNSS/INS run (dgcal.reports.honesty): with the withheld fixes (`withheld`, the
+    fixes left out in outages) each one's N/E/D error of the trajectory's antenna over the trajectory's sigma and
+    the fix's own sigma in quadrature; without them the line that there is no reference, or that the run kept only
+    the RMS of its withheld fixes (pos_summary.json withheld_fixes)."""
+    if withheld is not None:
+        err, s_traj, s_fix = withheld_errors(res, withheld)
+        if len(err):
+            rows = honesty_rows(err, combined_sigma(s_traj, s_fix), ("N", "E", "D"), "withheld fixes")
+            return honesty_section(rows, [
+                "GNSS fixes withheld in outages (--gnss-outages): the trajectory's antenna (IMU + lever arm) minus "
+                "each withheld fix, N/E/D, over the trajectory's sigma there and the fix's own sigma added in "
+                "quadrature (the fix is a measurement, not the truth).", TIME_CORRELATED])
+    w = res.summary.get("withheld_fixes") or {}
+    if w.get("n"):
+        return no_reference(f"{w['n']} fixes were withheld (3D RMS {w['rms_3d_m']} m, pos_summary.json "
+                            "withheld_fixes), but their per-epoch errors and sigmas were not kept with the "
+                            "result: no error/sigma.")
+    how = ("withhold some of the GNSS fixes (--gnss-outages START LENGTH PERIOD) to compare the trajectory with "
+           "them" if res.mode == "lc" else "the trajectory has no reference in TC mode (a simulation's truth: "
+           "the campaign report)")
+    return no_reference(f"No reference: {how}.")
 
 
 def _map(res):
@@ -191,8 +235,9 @@ def _integrity_section(rep: HtmlReport, it: Mapping) -> None:
         rep.text(f"{more} more findings in pos_summary.json.")
 
 
-def write_pos_report(path: str | Path, res) -> Path:
-    """Write DIR/report.html for a dgcal.pos.gnss_ins.PosResult."""
+def write_pos_report(path: str | Path, res, honesty: dict | None = None) -> Path:
+    """Write DIR/report.html for a dgcal.pos.gnss_ins.PosResult; `honesty`: its honesty record (None: the summary's,
+    else `pos_honesty` without withheld fixes)."""
     s = res.summary
     rep = HtmlReport(f"GNSS/INS trajectory ({res.mode.upper()} smoother)")
     rep.kv_table([("mode", res.mode.upper()), ("keyframes (1 per GNSS epoch)", s["keyframes"]),
@@ -214,6 +259,7 @@ def write_pos_report(path: str | Path, res) -> Path:
         warn.append(f"{s['epochs_without_gnss_update']} keyframes without a GNSS update (IMU only there)")
     warn += list(s.get("warnings", []))
     rep.warnings(warn)
+    add_honesty(rep, honesty or s.get("honesty") or pos_honesty(res))
     _integrity_section(rep, s.get("integrity", {}))
     toff = s.get("imu_time_offset")
     if toff is not None:
@@ -274,12 +320,16 @@ def write_pos_report(path: str | Path, res) -> Path:
     return rep.write(path)
 
 
-def write_pos_outputs(out_dir: str | Path, res: PosResult, names: Mapping[str, str], report: bool = True
-                      ) -> dict[str, Path]:
+def write_pos_outputs(out_dir: str | Path, res: PosResult, names: Mapping[str, str], report: bool = True,
+                      withheld: GnssSolution | None = None) -> dict[str, Path]:
     """`dgcal pos --mode tc|lc`'s files in `out_dir`, named by role in `names`: trajectory (output rate),
-    events (one row per event), trajectory_forward (keyframes of the forward solution), summary (JSON)
-    and report (HTML, unless `report` is False); returns the paths written by role."""
+    events (one row per event), trajectory_forward (keyframes of the forward solution), summary (JSON, with the
+    honesty record `honesty`: `pos_honesty` with the withheld fixes `withheld`, or the result's own `withheld` when
+    it keeps them) and report (HTML, unless `report` is False); returns the paths written by role."""
     out = Path(out_dir)
+    if withheld is None:
+        withheld = getattr(res, "withheld", None)   # the withheld fixes, once the pipeline keeps them with the result
+    res.summary["honesty"] = pos_honesty(res, withheld)
     paths = {"trajectory": out / names["trajectory"]}
     write_trajectory(paths["trajectory"], res.trajectory)
     if res.events is not None:

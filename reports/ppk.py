@@ -12,9 +12,35 @@ from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.gnss.ppk import STATUS, write_ppk_csv
 from dgcal.pos.ppk_mode import PpkRun
+from dgcal.reports.gnss import TIME_CORRELATED
+from dgcal.reports.honesty import add_honesty, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
 
 _COLOURS = {"fixed": "tab:green", "float": "tab:orange", "single": "tab:red"}
+
+
+def ppk_honesty(run: PpkRun) -> dict:
+    """The honesty record of a PPK run (dgcal.reports.honesty): E/N/U errors against the known antenna position
+    (`run.reference_ecef`, taken as exact; ENU axes at the reference) over each epoch's sigma from its covariance,
+    by solution status (fixed, float, single); without a reference the line that there is none."""
+    if run.reference_ecef is None:
+        return no_reference("No reference: give the rover antenna's known position (--reference X Y Z, ECEF m) to "
+                            "compare the solution with it.")
+    res = run.result
+    ref = np.asarray(run.reference_ecef, float)
+    lat, lon, _ = ecef_to_geodetic(ref)
+    R = R_ecef_to_enu(lat, lon)
+    rows = []
+    for code, name in ((3, "fixed"), (2, "float"), (1, "single")):
+        m = res.status == code
+        if not m.any():
+            continue
+        err = (res.p[m] - ref) @ R.T
+        sig = np.sqrt(np.maximum(np.diagonal(R @ res.P[m] @ R.T, axis1=1, axis2=2), 0.0))
+        rows += honesty_rows(err, sig, [f"{a} {name}" for a in "ENU"], "known antenna position")
+    return honesty_section(rows, ["Known antenna position (--reference), taken as exact (its own error counts "
+                                  "against the fixed epochs' millimetre sigmas): each epoch's E/N/U error over its "
+                                  "sigma from the solution's covariance, by solution status.", TIME_CORRELATED])
 
 
 def write_ppk_report(path: str | Path, run: PpkRun) -> Path:
@@ -31,6 +57,7 @@ def write_ppk_report(path: str | Path, run: PpkRun) -> Path:
                   ("age of differential median / max (s)", f"{s['age_s']['median']} / {s['age_s']['max']}"),
                   ("slips flagged rover / base", f"{s['slips_flagged_rover']} / {s['slips_flagged_base']}")])
     rep.warnings(run.warnings)
+    add_honesty(rep, s.get("honesty") or ppk_honesty(run))
     ok = res.status >= 1
     if not ok.any():
         return rep.write(path)
@@ -66,9 +93,11 @@ def write_ppk_report(path: str | Path, run: PpkRun) -> Path:
 def write_ppk_outputs(out_dir: str | Path, run: PpkRun, names: Mapping[str, str], report: bool = True
                       ) -> dict[str, Path]:
     """`dgcal pos --mode ppk`'s files in `out_dir`, by role in `names`: gnss (gnss.csv), gnss_summary (JSON),
-    gnss_report (HTML, unless `report` is False); returns the paths by role."""
+    gnss_report (HTML, unless `report` is False); returns the paths by role. The summary gains the honesty record
+    (`honesty`, see `ppk_honesty`)."""
     out = Path(out_dir)
     paths = {role: out / names[role] for role in ("gnss", "gnss_summary")}
+    run.summary["honesty"] = ppk_honesty(run)
     write_ppk_csv(paths["gnss"], run.result)
     with atomic_write(paths["gnss_summary"]) as fh:
         json.dump(run.summary, fh, indent=2, default=float)
