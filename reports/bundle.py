@@ -10,16 +10,50 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 
 from dgcal.fields.io.csv_tables import atomic_write
+from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
 
 
-def summary_dict(res) -> dict:
-    """The JSON summary: global figures, per-image EOP sigmas, GCP residuals, check-point errors."""
+def triangulation_honesty(res, points=None) -> dict:
+    """The honesty record of an aerial triangulation (dgcal.reports.honesty): every evaluated check point's error
+    (grid E, N, Up) over its sigma from the adjustment, with the check point's survey sigma (`points`, a
+    dgcal.fields.io.formats.Points; NaN or absent: taken as exact) in quadrature."""
+    ev = [c for c in res.check if c.get("evaluated")]
+    if not ev:
+        return no_reference("No check point evaluated (none has the role check, or none is seen in two oriented "
+                            "images): nothing independent to compare the adjustment with. Control points are not "
+                            "a reference: the adjustment fits them.")
+    err = np.array([c["dENU_m"] for c in ev], float)
+    sig = np.array([c["sigma_ENU_m"] for c in ev], float)
+    survey = np.zeros_like(sig)
+    if points is not None:
+        idx = points.index()
+        survey = np.array([points.sigma[idx[c["id"]]] if c["id"] in idx else [np.nan] * 3 for c in ev], float)
+    given = np.isfinite(survey).all(axis=1)
+    rows = honesty_rows(err, combined_sigma(sig, np.where(np.isfinite(survey), survey, 0.0)), ("E", "N", "U"),
+                        "check points")
+    notes = ["Check points (role check, not in the adjustment's datum): each point's error (evaluated − given, grid "
+             "E, N, height) over its sigma from the adjustment (adjusted as a tie point, or intersected from the "
+             "adjusted images with their pose covariance)."]
+    if given.all():
+        notes.append("The check points' own survey sigmas (ground point file sx, sy, sz) are added in quadrature.")
+    elif given.any():
+        notes.append(f"The survey sigmas of the {int(given.sum())} check points that give them are added in "
+                     f"quadrature; the other {int((~given).sum())} are taken as exact.")
+    else:
+        notes.append("The ground point file gives no survey sigma for the check points: they are taken as exact.")
+    return honesty_section(rows, notes)
+
+
+def summary_dict(res, honesty: dict | None = None) -> dict:
+    """The JSON summary: global figures, per-image EOP sigmas, GCP residuals, check-point errors, the honesty record
+    (`honesty`; None: `triangulation_honesty` without survey sigmas)."""
     d = dict(res.summary)
     d["images"] = [{**s, "X": res.eop.xyz[i].tolist(), "opk_deg": res.eop.opk[i].tolist()}
                    for i, s in enumerate(res.image_stats)]
     d["control_points"] = res.gcp
     d["check_points"] = res.check
+    d["honesty"] = honesty if honesty is not None else triangulation_honesty(res)
     return _clean(d)
 
 
@@ -41,9 +75,9 @@ def _clean(v):
     return v
 
 
-def write_summary_json(path: str | Path, res) -> dict:
-    """Write the JSON summary atomically; returns it."""
-    d = summary_dict(res)
+def write_summary_json(path: str | Path, res, honesty: dict | None = None) -> dict:
+    """Write the JSON summary atomically (`summary_dict`); returns it."""
+    d = summary_dict(res, honesty)
     with atomic_write(path) as fh:
         json.dump(d, fh, indent=1)
     return d
@@ -67,8 +101,10 @@ def _footprints(res) -> list[np.ndarray]:
     return out
 
 
-def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulation") -> Path:
-    """Write the HTML report (one self-contained file) and return its path."""
+def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulation", honesty: dict | None = None
+                        ) -> Path:
+    """Write the HTML report (one self-contained file) and return its path; `honesty`: the honesty record (None:
+    `triangulation_honesty` without survey sigmas)."""
     s = res.summary
     rep = HtmlReport(title)
     if s.get("problems"):
@@ -86,6 +122,7 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
                              f"refined: {', '.join(s['camera']['refined']) or 'none (fixed)'}")])
     rep.heading("Warnings")
     rep.warnings(s["warnings"])
+    add_honesty(rep, honesty if honesty is not None else triangulation_honesty(res))
     rep.figure(partial(_map_figure, res), "Footprints at the mean control height (grey), control (green) and check "
                f"(red) points with their horizontal errors magnified {_arrow_scale(res):.0f} times.")
     rep.figure(partial(_sigma_figure, res), "Standard deviations of each image's projection centre and angles (map "

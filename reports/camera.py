@@ -12,6 +12,7 @@ import numpy as np
 from dgcal.calib.selfcal.calibration import CameraCalibration, write_camera_outputs
 from dgcal.calib.selfcal.diagnostics import residual_pattern
 from dgcal.calib.selfcal.uncertainty import UncertaintyMap
+from dgcal.reports.honesty import add_honesty, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
 
 
@@ -216,6 +217,9 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
                   ("converged", str(ba.converged))])
     rep.heading("Warnings")
     rep.warnings(cal.warnings)
+    add_honesty(rep, no_reference("No reference: nothing independent of the adjustment to compare the camera with "
+                                  "(a simulation's truth: the campaign report; the residuals and the cross-validation "
+                                  "of --model auto check the fit, not the sigmas)."))
     if cal.comparison is not None:
         rep.heading("Model comparison (--model auto)")
         cols = ["model", "RMS (px)", "free params", "radial chi2/dof", "radial pattern (px)", "valid fraction",

@@ -4,7 +4,8 @@ accuracy on the check points against the predicted budget — and every warning,
 of the steps; figures are embedded (base64 PNG) and the per-step reports are linked.
 
 With a simulation's `truth.json` (campaign key `truth`) the report also compares the estimates with the truth
-(errors and error/sigma ratios).
+(errors and error/sigma ratios). The honesty table (dgcal.reports.honesty) gathers the steps' own (check points,
+withheld fixes) and, with a truth, the mounting, camera, trajectory and EOPs against it.
 """
 from __future__ import annotations
 
@@ -18,8 +19,12 @@ from scipy.spatial.transform import Rotation
 
 from dgcal.calib.camera.files import camera_from_json_dict
 from dgcal.calib.mounting.methods import canonical_method
+from dgcal.fields.crs import R_ecef_to_ned_at, geodetic_to_ecef
+from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import read_eop, read_points, read_trajectory
+from dgcal.pos.ins.interpolate import interpolate_trajectory
+from dgcal.reports.honesty import add_honesty, honesty_rows, honesty_section, merge_sections, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
 
 _PRINT_CSS = """<style>
@@ -88,12 +93,117 @@ def collect(cfg: dict, out: Path, files: dict, steps: dict | None = None, timing
             d["warnings"] += [f"check {k}: {w}" for w in c.get("warnings", [])]
             d["warnings"] += [f"check {k} (ASPRS): {w}" for w in c.get("asprs_2023", {}).get("warnings", [])]
     truth_path = cfg.get("truth")
+    truth_sec = None
     if truth_path:
         tp = Path(truth_path)
-        truth = _load(tp if tp.is_absolute() else cfg["_base"] / tp)
+        tp = tp if tp.is_absolute() else cfg["_base"] / tp
+        truth = _load(tp)
         if truth is not None:
             d["truth_comparison"] = compare_with_truth(d, truth)
+            truth_sec = truth_honesty(d, truth, tp.parent, files)
+    steps_sec = [(name, (d.get(key) or {}).get("honesty")) for name, key in
+                 (("triangulation", "triangulation"), ("pos", "pos"), ("check", "check"))]
+    d["honesty"] = merge_sections([s for _, s in steps_sec] + [truth_sec],
+                                  [name for name, _ in steps_sec] + ["truth"])
+    if not d["honesty"]["rows"] and not d["honesty"]["notes"]:
+        d["honesty"] = no_reference("No reference: no step of this campaign has check points or withheld fixes, "
+                                    "and there is no simulation truth.")
     return d
+
+
+def truth_honesty(d: dict, truth: dict, base: Path, files: dict) -> dict:
+    """The honesty rows against a simulation's truth (`truth`: truth.json, its files relative to `base`): the
+    mounting of every method (delay, lever arm, boresight; the three components of a vector pooled), the camera
+    parameters (pooled: their errors in their own units, so no RMS error), the POS trajectory (N/E/D position,
+    roll/pitch/heading) and the triangulation's EOPs (X/Y/Z, omega/phi/kappa)."""
+    rows = []
+    tc = d.get("truth_comparison", {})
+    for k, e in tc.get("mounting", {}).items():
+        m = d["mounting"][k]
+        ref = f"mounting {k}"
+        rows += honesty_rows([1e3 * e["delay_error_s"]], [1e3 * m.get("delay_sigma_s", np.nan)], ["delay"], ref, "ms")
+        rows += honesty_rows(np.asarray(e["lever_arm_error_m"], float),
+                             np.asarray(m.get("lever_arm_sigma_m", [np.nan] * 3), float), ["lever arm x/y/z"], ref)
+        rows += honesty_rows(np.asarray(e["boresight_error_deg"], float),
+                             np.asarray(m.get("boresight_sigma_deg", [np.nan] * 3), float), ["boresight x/y/z"], ref,
+                             "deg")
+    cam_err = tc.get("camera") or {}
+    sig = (d.get("camera") or {}).get("sigmas") or {}
+    names = [k for k in cam_err if sig.get(k)]
+    if names:
+        row = honesty_rows(np.array([cam_err[k]["error"] for k in names]), np.array([sig[k] for k in names]),
+                           ["camera parameters"], "camera", "")
+        rows += [{**r, "rms_error": None, "median_sigma": None} for r in row]   # mixed units: ratios only
+    notes = ["Simulation truth: estimate − truth over the sigma the estimate reports (mounting and camera: one value "
+             "per parameter, a vector's components pooled; camera parameters pooled, their error/sigma only)."]
+    for what, compare, key, est in (("trajectory", _trajectory_rows, "trajectory", files["pos"].get("trajectory")),
+                                    ("EOPs", _eop_rows, "eop", files["triangulation"].get("eop"))):
+        try:
+            more, note = compare(_truth_file(truth, base, key), est)
+        except (InputError, OSError, ValueError) as exc:   # the table must not cost the report
+            more, note = [], f"The true {what} could not be compared: {exc}"
+        rows, notes = rows + more, notes + [note]
+    return honesty_section(rows, notes)
+
+
+def _truth_file(truth: dict, base: Path, key: str) -> Path | None:
+    """A file of the simulation's truth (truth.json `files`: 'path (what it is)'), None when not given."""
+    text = (truth.get("files") or {}).get(key)
+    if not text:
+        return None
+    p = Path(str(text).split(" (")[0].strip())
+    return p if p.is_absolute() else base / p
+
+
+TRUTH_SAMPLES = 2000   # the true trajectory is compared at about this many samples at most (evenly spread)
+
+
+def _trajectory_rows(truth_p: Path | None, traj_p: Path | None) -> tuple[list, str]:
+    """The POS trajectory against the true one at the truth's samples inside its span (TRUTH_SAMPLES at most, evenly
+    spread): IMU position N/E/D (m, local frame of each true sample) and roll/pitch/heading (deg) over the
+    trajectory's sigmas."""
+    if truth_p is None or traj_p is None or not Path(truth_p).is_file() or not Path(traj_p).is_file():
+        return [], ""
+    tr, true = read_trajectory(traj_p), read_trajectory(truth_p)
+    if tr.sigma is None:
+        return [], "The POS trajectory has no sigmas: not compared with the true trajectory."
+    m = (true.t >= tr.t[0]) & (true.t <= tr.t[-1])
+    if not m.any():
+        return [], ""
+    m = np.flatnonzero(m)
+    m = m[::max(1, len(m) // TRUTH_SAMPLES)]
+    st = interpolate_trajectory(tr, true.t[m])
+    p_true = geodetic_to_ecef(true.lat[m], true.lon[m], true.h[m])
+    d_ned = np.einsum("nij,nj->ni", R_ecef_to_ned_at(p_true).reshape(-1, 3, 3), st.p_ecef - p_true)
+    d_rph = (st.rph - true.rph[m] + 180.0) % 360.0 - 180.0
+    ref = "POS trajectory"
+    rows = (honesty_rows(d_ned, st.sigma[:, :3], ("N", "E", "D"), ref)
+            + honesty_rows(d_rph, st.sigma[:, 3:], ("roll", "pitch", "heading"), ref, "deg"))
+    return rows, ("True IMU trajectory: the POS trajectory interpolated at its samples, position N/E/D and roll/pitch/"
+                  "heading over the trajectory's sigmas; errors of consecutive samples are correlated in time, so n "
+                  "overstates the number of independent values.")
+
+
+def _eop_rows(truth_p: Path | None, eop_p: Path | None) -> tuple[list, str]:
+    """The triangulation's EOPs against the true ones, image by image: X/Y/Z (m, map CRS) and omega/phi/kappa (deg)
+    over the EOPs' sigmas."""
+    if truth_p is None or eop_p is None or not Path(truth_p).is_file() or not Path(eop_p).is_file():
+        return [], ""
+    est, true = read_eop(eop_p), read_eop(truth_p)
+    if est.sigma is None:
+        return [], "The triangulation's EOPs have no sigmas: not compared with the true EOPs."
+    row = {str(k): i for i, k in enumerate(true.image)}
+    i_est = np.array([i for i, k in enumerate(est.image) if str(k) in row], int)
+    i_true = np.array([row[str(est.image[i])] for i in i_est], int)
+    if not len(i_est):
+        return [], ""
+    dx = est.xyz[i_est] - true.xyz[i_true]
+    da = (est.opk[i_est] - true.opk[i_true] + 180.0) % 360.0 - 180.0
+    ref = "triangulation EOPs"
+    rows = (honesty_rows(dx, est.sigma[i_est, :3], ("X", "Y", "Z"), ref)
+            + honesty_rows(da, est.sigma[i_est, 3:], ("omega", "phi", "kappa"), ref, "deg"))
+    return rows, ("True EOPs: the triangulation's projection centres (map CRS) and omega/phi/kappa over their sigmas, "
+                  "image by image.")
 
 
 def compare_with_truth(d: dict, truth: dict) -> dict:
@@ -283,7 +393,7 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
     rep.raw(_PRINT_CSS)
     rep.raw('<p class="nav small"><a href="#summary">Summary</a><a href="#camera">Camera</a>'
             '<a href="#triangulation">Triangulation</a><a href="#pos">POS</a><a href="#mounting">Mounting</a>'
-            '<a href="#dg">DG accuracy</a><a href="#warnings">Warnings</a></p>')
+            '<a href="#dg">DG accuracy</a><a href="#honesty">Honesty</a><a href="#warnings">Warnings</a></p>')
     rep.kv_table([("campaign file", d["campaign"]), ("map CRS", d.get("crs")), ("generated (UTC)", d["generated_utc"])])
     _summary_section(rep, d)
     _camera_section(rep, d, out, files)
@@ -291,6 +401,8 @@ def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
     _pos_section(rep, d, out, files)
     _mounting_section(rep, d, out, files)
     _dg_section(rep, d, out, files)
+    rep.raw('<h2 id="honesty">Honesty: errors against their sigmas</h2>')
+    add_honesty(rep, d.get("honesty"), heading=None)
     rep.raw('<h2 id="warnings">Warnings</h2>')
     rep.warnings(d.get("warnings", []))
     return rep.render()

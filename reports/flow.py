@@ -12,6 +12,7 @@ import numpy as np
 
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.lowcost.flow import ROW_COLUMNS, FlowRun
+from dgcal.reports.honesty import add_honesty, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
 
 TRUTH_COLUMNS = ("true_roll", "true_pitch", "true_yaw", "err_roll", "err_pitch", "err_yaw", "true_agl_m", "err_agl_m")
@@ -84,6 +85,23 @@ def _errors(run: FlowRun):
     return fig
 
 
+def flow_honesty(run: FlowRun) -> dict:
+    """The honesty record of a flow run (dgcal.reports.honesty): with a true trajectory, every frame pair's roll,
+    pitch and yaw error (and height above ground, with a ground height) over the pair's sigma; without one the line
+    that there is no reference."""
+    if run.table2 is None:
+        return no_reference("No reference: give a true trajectory (--truth) to compare the attitudes with it.")
+    rows = honesty_rows(np.column_stack([_col(run, f"err_{a}") for a in ("roll", "pitch", "yaw")]),
+                        np.column_stack([_col(run, f"sigma_{a}") for a in ("roll", "pitch", "yaw")]),
+                        ("roll", "pitch", "yaw"), "true trajectory", "deg")
+    rows += honesty_rows(_col(run, "err_agl_m"), _col(run, "sigma_agl_m"), ["height above ground"],
+                         "true trajectory")
+    return honesty_section(rows, ["True trajectory (--truth; the height above ground with --ground-height): each "
+                                  "frame pair's error over its sigma, the truth taken as exact. Errors of "
+                                  "neighbouring pairs are correlated in time: n overstates the number of "
+                                  "independent values."])
+
+
 def write_flow_report(path: Path, run: FlowRun) -> Path:
     """One-file HTML report of a `dgcal flow` run."""
     s = run.summary
@@ -97,6 +115,7 @@ def write_flow_report(path: Path, run: FlowRun) -> Path:
                   ("median drift angle (deg)", m["drift_angle"]),
                   ("median height above ground (m)", m["agl_m"]), ("median FOE inliers", m["n_inliers"])])
     rep.warnings([f"{f['t_gps']:.2f}: {f['reason']}" for f in s["failed"][:20]], "Every frame pair gave an attitude.")
+    add_honesty(rep, s.get("honesty") or flow_honesty(run))
     t2 = run.table2
     if t2 is not None:
         rep.heading("Seed 001 Table 2: Euler angle errors")
@@ -123,9 +142,11 @@ def write_flow_report(path: Path, run: FlowRun) -> Path:
 
 
 def write_flow_outputs(out_dir: str | Path, run: FlowRun, names: Mapping[str, str]) -> dict[str, Path]:
-    """`dgcal flow`'s files in `out_dir`, by role in `names`: pairs (flow.csv), summary (flow.json), report (HTML)."""
+    """`dgcal flow`'s files in `out_dir`, by role in `names`: pairs (flow.csv), summary (flow.json, with the honesty
+    record `honesty`: `flow_honesty`), report (HTML)."""
     out = Path(out_dir)
     paths = {k: out / names[k] for k in ("pairs", "summary", "report")}
+    run.summary["honesty"] = flow_honesty(run)
     write_flow_csv(paths["pairs"], run)
     with atomic_write(paths["summary"]) as fh:
         json.dump(run.summary, fh, indent=1)

@@ -11,7 +11,11 @@ import numpy as np
 
 from dgcal.calib.dg.single_image import GeorefRun, ImageGeoref
 from dgcal.fields.io.csv_tables import atomic_write, write_table
+from dgcal.reports.honesty import add_honesty, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
+
+GEOREF_NO_REFERENCE = ("No reference: the ground points are not compared with known coordinates (chi2/dof above is "
+                       "how the single-image estimates of a point agree with each other; check points: dgcal check).")
 
 
 def write_georef_outputs(out_dir: str | Path, run: GeorefRun, names: Mapping[str, str]) -> dict[str, Path]:
@@ -37,7 +41,8 @@ def write_georef_outputs(out_dir: str | Path, run: GeorefRun, names: Mapping[str
     georef_report(res, opts.crs, src).write(paths["report"])
     with atomic_write(paths["summary"]) as fh:
         json.dump({"crs": opts.crs, "n_points": int(len(res.id)), "n_ok": int(res.ok.sum()),
-                   "height_source": opts.height_source(), "averages": js}, fh, indent=2)
+                   "height_source": opts.height_source(), "averages": js,
+                   "honesty": no_reference(GEOREF_NO_REFERENCE)}, fh, indent=2)
     return paths
 
 
@@ -51,6 +56,7 @@ def georef_report(res: ImageGeoref, crs: str, height_source: str) -> HtmlReport:
         s = np.sqrt(np.diag(av.cov_weighted))
         rows.append([pid, av.n, *np.round(av.weighted, 3), round(z, 3), *np.round(s, 3), round(av.chi2_dof, 2)])
     rep.table(["id", "images", "x", "y", "z", "sx", "sy", "chi2/dof"], rows)
+    add_honesty(rep, no_reference(GEOREF_NO_REFERENCE))
     ids = list(res.averages)[:6]
     if ids:
         fig, axes = new_figure(4.0 * len(ids), 4.0, ncols=len(ids), squeeze=False)

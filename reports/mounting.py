@@ -12,6 +12,7 @@ import numpy as np
 from dgcal.calib.dg.accuracy import DgCheck
 from dgcal.calib.mounting.methods import MountingRun
 from dgcal.fields.io.csv_tables import atomic_write, write_table
+from dgcal.reports.honesty import combined_sigma, honesty_html, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import figures_png, new_figure
 
 
@@ -91,6 +92,11 @@ def _per_epoch_plots(results: dict) -> list[str]:
     return _imgs(figs)
 
 
+MOUNT_NO_REFERENCE = ("No reference: the mounting's errors are known only against a simulation's truth (the "
+                      "campaign report with `truth`); on real data its sigmas are checked through the DG check "
+                      "points (dgcal check).")
+
+
 def mount_report_html(main: dict, others: dict | None = None) -> str:
     """The mounting report: estimates with sigmas, correlations, warnings, per-epoch plots and residuals."""
     parts = []
@@ -125,12 +131,45 @@ def mount_report_html(main: dict, others: dict | None = None) -> str:
                  + ("".join(f"<p class='warn'>{html.escape(w)}</p>" for w in warn) or "<p>none</p>"))
     if main.get("rejected_epochs"):
         parts.append("<h2>Rejected epochs</h2><p>" + html.escape(", ".join(main["rejected_epochs"])) + "</p>")
+    parts.append(honesty_html(no_reference(MOUNT_NO_REFERENCE)))
     parts.append("<h2>Per-epoch values</h2>" + "".join(_per_epoch_plots(results)))
     return _page("dgcal mounting calibration", parts)
 
 
-def check_report_html(checks: dict, improvement: dict | None = None) -> str:
-    """DG check-point report: seed Table 2 per method, improvement rates, ASPRS 2023, predicted budget, plot."""
+def check_honesty(checks: dict) -> dict:
+    """The honesty record of a DG check (dgcal.reports.honesty) from its JSON record per method (`checks`): every
+    check point's E/N/U error over its predicted sigma (all sources of the budget) and the check points' own survey
+    sigma in quadrature. The survey sigmas are known here as their RMS over the points (ASPRS 2023 record:
+    E = N = checkpoint RMSE_H/sqrt(2), U = checkpoint RMSE_V), so each point is given that RMS."""
+    rows, surveyed = [], []
+    for name, c in checks.items():
+        pts = c.get("points", [])
+        err = np.array([p["err_enu"] for p in pts], float).reshape(-1, 3)
+        sig = np.array([p["sigma_pred_enu"] for p in pts], float).reshape(-1, 3)
+        a = c.get("asprs_2023", {})
+        survey = None
+        if a.get("checkpoint_RMSE_H") is not None and a.get("checkpoint_RMSE_V") is not None:
+            survey = np.array([a["checkpoint_RMSE_H"] / np.sqrt(2.0)] * 2 + [a["checkpoint_RMSE_V"]])
+            surveyed.append(name)
+        rows += honesty_rows(err, combined_sigma(sig, survey), ("E", "N", "U"), f"check points, {name}")
+    if not rows:
+        return no_reference("No check point was evaluated: nothing to compare the DG coordinates with.")
+    notes = ["Check points (role check in the ground point file): each point's DG error (map E, N, height) over "
+             "its predicted sigma from the error budget (image measurements, POS, delay, lever arm, boresight)."]
+    if surveyed:
+        notes.append("The check points' own survey sigmas are added in quadrature (their RMS over the points: "
+                     "E = N = checkpoint RMSE_H/√2, U = checkpoint RMSE_V).")
+    if len(surveyed) < len(checks):
+        notes.append("Without survey sigmas for every check point (" + ", ".join(k for k in checks if k not in
+                     surveyed) + ") the check points are taken as exact there.")
+    notes.append("Check points seen from the same strips share its POS errors: their errors are correlated, so n "
+                 "overstates the number of independent values.")
+    return honesty_section(rows, notes)
+
+
+def check_report_html(checks: dict, improvement: dict | None = None, honesty: dict | None = None) -> str:
+    """DG check-point report: seed Table 2 per method, improvement rates, ASPRS 2023, predicted budget, the honesty
+    table (`honesty`; None: from `checks`), plot."""
     parts = []
     rows = []
     for name, c in checks.items():
@@ -140,6 +179,7 @@ def check_report_html(checks: dict, improvement: dict | None = None) -> str:
                         + [f"{s[what][k]:.4f}" for k in ("E", "N", "U", "2D", "3D")])
     parts.append("<h2>DG check-point errors (m), seed 003 Table 2</h2>"
                  + _table(["method", "", "E", "N", "U", "2D", "3D"], rows))
+    parts.append(honesty_html(honesty if honesty is not None else check_honesty(checks)))
     if improvement:
         parts.append("<h2>Improvement rates (%), seed Tables 4-5: (old − new)/new</h2>" + _table(
             ["method", "2D", "3D"], [[k, f"{v['2D']:.2f}", f"{v['3D']:.2f}"] for k, v in improvement.items()]))
@@ -223,14 +263,17 @@ def write_epochs_csv(path: Path, d: dict) -> bool:
 
 def write_check_outputs(out_dir: str | Path, res: DgCheck, names: Mapping[str, str]) -> dict[str, Path]:
     """Write `dgcal check`'s files into `out_dir` under `names` (roles check, report, points): the JSON record
-    (per method, and the improvement over the first), the HTML report and the per-point CSV (m)."""
+    (per method, the improvement over the first, and the honesty record `honesty`: `check_honesty`), the HTML
+    report and the per-point CSV (m)."""
     out = Path(out_dir)
     paths = {role: out / names[role] for role in ("check", "report", "points")}
     js = {k: v.to_json() for k, v in res.checks.items()}
+    honesty = check_honesty(js)
     with atomic_write(paths["check"]) as fh:
-        json.dump({"checks": js, "improvement_over_" + res.reference: res.improvement}, fh, indent=2)
+        json.dump({"checks": js, "improvement_over_" + res.reference: res.improvement, "honesty": honesty}, fh,
+                  indent=2)
     with atomic_write(paths["report"]) as fh:
-        fh.write(check_report_html(js, res.improvement))
+        fh.write(check_report_html(js, res.improvement, honesty))
     rows = []
     for k, c in res.checks.items():
         for i in range(len(c.ids)):

@@ -12,7 +12,7 @@ from dgcal.calib.camera.files import write_camera_json
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.io.csv_tables import write_table
 from dgcal.fields.io.formats import write_eop
-from dgcal.reports.bundle import write_bundle_report, write_summary_json
+from dgcal.reports.bundle import triangulation_honesty, write_bundle_report, write_summary_json
 from dgcal.reports.exports.eop import export_all
 
 ROLES = ("eop", "summary", "report", "points", "residuals", "exports", "camera_refined")
@@ -21,8 +21,8 @@ ROLES = ("eop", "summary", "report", "points", "residuals", "exports", "camera_r
 def write_triangulation_outputs(out_dir: str | Path, run: TriangulationRun,
                                 names: Mapping[str, str]) -> dict[str, Path]:
     """Write the triangulation's files into `out_dir`, named by role in `names` (`ROLES`): eop.csv (PATB, m,
-    deg), summary.json, report.html, points.csv (adjusted points, map CRS), residuals.csv (px) and the
-    exports folder (the formats of `run.formats`); returns the paths by role."""
+    deg), summary.json (with the check points' honesty record), report.html, points.csv (adjusted points, map
+    CRS), residuals.csv (px) and the exports folder (the formats of `run.formats`); returns the paths by role."""
     out = Path(out_dir)
     res = run.result
     paths = {role: out / names[role] for role in ROLES if role in names}
@@ -40,8 +40,9 @@ def write_triangulation_outputs(out_dir: str | Path, run: TriangulationRun,
     else:
         paths.pop("camera_refined", None)
     write_eop(paths["eop"], res.eop)
-    write_summary_json(paths["summary"], res)
-    write_bundle_report(paths["report"], res)
+    honesty = triangulation_honesty(res, run.inputs.points)
+    write_summary_json(paths["summary"], res, honesty)
+    write_bundle_report(paths["report"], res, honesty=honesty)
     X_map = res.georef.to_map(res.bundle.X_world)
     write_table(paths["points"], ["id", "x", "y", "z", "kind"],
                 ([p, *X_map[j], res.point_kind[j]] for j, p in enumerate(res.point_ids)), fmt="%.6f")
