@@ -40,7 +40,8 @@ from typing import Callable, Sequence
 from dgcal.commands import camera, check, mount, pos, triangulate
 from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
-from dgcal.fields.io.atomic import MANIFEST, atomic_write, clean_stale, file_sha256, manifest_problems, staged_dir
+from dgcal.fields.io.atomic import (MANIFEST, atomic_write, clean_stale, file_sha256, manifest_problems, output_lock,
+                                    staged_dir)
 from dgcal.fields.io.text_files import read_text
 from dgcal.fields.processes import cpus, fork_map
 from dgcal.precompile import load_cached_kernels
@@ -218,7 +219,13 @@ def run_campaign(path: Path, out: Path, force: bool = False, runner: Callable[[l
     that many steps at once, each in a child process, as soon as the steps it follows are done (POS beside
     the camera and triangulation, the mounting methods side by side); 1 runs them in order in this process.
     A failing step raises InputError once the steps running beside it have ended (their results are kept,
-    as are earlier ones)."""
+    as are earlier ones). The campaign folder is locked for the whole run (a second run on it is refused)."""
+    with output_lock(out):
+        return _run_campaign(path, Path(out), force, runner, log, report, rerun, jobs)
+
+
+def _run_campaign(path: Path, out: Path, force: bool, runner: Callable[[list[str]], int] | None, log, report: bool,
+                  rerun: Sequence[str], jobs: int) -> dict:
     from dgcal.cli import main as dgcal_main
 
     runner = runner or dgcal_main

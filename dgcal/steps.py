@@ -142,8 +142,14 @@ class Campaign:
         return [float(x) for x in v]
 
     def extra_args(self, section: str) -> list[str]:
-        """`args = [...]` of [section]: further arguments of its verb, appended to the step's argv."""
-        return [str(v) for v in (self.section(section) or {}).get("args", [])]
+        """`args = [...]` of [section]: further arguments of its verb, appended to the step's argv; never `--out`
+        (a step's outputs stay inside the campaign folder, where later steps and the report find them)."""
+        args = [str(v) for v in (self.section(section) or {}).get("args", [])]
+        for a in args:
+            if a == "--out" or a.startswith("--out="):
+                raise self.error("args cannot move a step's outputs (--out): they stay in the campaign folder",
+                                 f"{section}.args")
+        return args
 
     def step_names(self) -> list[str]:
         """Names of the steps planned so far (what a new step follows)."""

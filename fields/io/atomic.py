@@ -10,6 +10,9 @@
 - `out` holds other files too (a user's folder, or `merge=True`: a campaign folder holding the steps' folders
   beside its report): the new files are moved in one by one, and the manifest, written last, is what marks
   the set complete (`read_manifest`).
+`output_lock(out)` (taken by `staged_dir`, and by a campaign for its whole run) refuses a second dgcal process
+writing into the same folder: one-line InputError naming the folder and the process holding it. Errors of the
+file system (read-only, full disk, `out` a file) are one-line InputErrors naming the folder, not internal errors.
 The manifest lists every file with its size and SHA-256 (`entries`), so a folder can be checked against it
 (`manifest_problems`). A stale staging or set-aside folder of an interrupted run, and the temporary files of
 an interrupted `atomic_write` in `out`, are cleaned up at the next `staged_dir(out)` (or `clean_stale(out)`):
@@ -18,6 +21,8 @@ the old outputs are put back when the new ones never arrived.
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
 import hashlib
 import json
 import os
@@ -27,6 +32,8 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Iterator
+
+from dgcal.fields.errors import InputError
 
 MANIFEST = ".dgcal-outputs.json"
 
@@ -67,6 +74,7 @@ def clean_stale(out: str | Path) -> None:
     """Remove what an interrupted `staged_dir(out)` left: staging folders, and set-aside old outputs (put back
     when `out` itself is missing, i.e. the run died between its two renames)."""
     out = Path(out)
+    _remove_stale_lock(out)
     for p in _siblings(out, "staging"):
         shutil.rmtree(p, ignore_errors=True)
     for p in _siblings(out, "old"):
@@ -82,6 +90,26 @@ def clean_stale(out: str | Path) -> None:
             if _PARTIAL.match(p.name) and p.is_file():
                 with contextlib.suppress(OSError):
                     p.unlink()
+
+
+def _remove_stale_lock(out: Path) -> None:
+    """The lock file of a killed writer (no process holds it) removed; a held one is left alone."""
+    key = lock_path(out)
+    if not key.is_file() or str(key.resolve()) in _HELD:
+        return
+    try:
+        fd = os.open(key, os.O_RDWR)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with contextlib.suppress(OSError):
+            if os.fstat(fd).st_ino == os.stat(key).st_ino:
+                os.unlink(key)
+    except OSError:
+        pass                               # held by a live writer
+    finally:
+        os.close(fd)
 
 
 def read_manifest(out: str | Path) -> dict | None:
@@ -138,12 +166,92 @@ def _write_manifest(folder: Path, files: list[str], entries: dict) -> None:
         json.dump({"files": files, "entries": entries, "written_unix": time.time()}, fh, indent=1)
 
 
+# errors of the file system that are the user's to fix (not dgcal's bugs)
+_OS_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.EEXIST, errno.ENOTDIR,
+              errno.EISDIR, errno.ENAMETOOLONG, errno.ENOENT, errno.EMLINK, errno.EFBIG}
+_HELD: dict[str, int] = {}        # lock files this process (or the parent it was forked from) holds -> depth
+
+
+def lock_path(out: str | Path) -> Path:
+    """The lock file of an output folder: `.NAME.lock` beside it."""
+    out = Path(out)
+    return out.parent / f".{out.name}.lock"
+
+
+@contextlib.contextmanager
+def os_errors_named(out: str | Path, doing: str = "write the outputs") -> Iterator[None]:
+    """Within the block, an OSError of the file system (full disk, read-only, permission, a file where a folder
+    should be) becomes a one-line InputError naming `out`."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in _OS_ERRNOS:
+            raise
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        raise InputError(f"cannot {doing}: {exc.strerror or exc}{where}", out) from None
+
+
+@contextlib.contextmanager
+def output_lock(out: str | Path) -> Iterator[None]:
+    """Hold the lock of output folder `out` for the block; InputError when another process holds it (re-entrant
+    within a process and the children it forks, which work for it)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("is a file, not a folder: give a folder for the outputs", out)
+    with os_errors_named(out, "create the output folder's parent"):
+        out.parent.mkdir(parents=True, exist_ok=True)
+    key = str(lock_path(out).resolve())
+    if key in _HELD:
+        _HELD[key] += 1
+        try:
+            yield
+        finally:
+            _HELD[key] -= 1
+        return
+    while True:
+        with os_errors_named(out, "lock the output folder"):
+            fd = os.open(key, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip() or "unknown"
+            os.close(fd)
+            raise InputError(f"another dgcal run (process {holder}) is writing into this folder: wait for it to end "
+                             "or give another output folder", out) from None
+        try:      # the holder before us may have removed the file between our open and our lock: then again
+            same = os.fstat(fd).st_ino == os.stat(key).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        _HELD[key] = 1
+        try:
+            yield
+        finally:
+            _HELD.pop(key, None)
+            with contextlib.suppress(OSError):
+                os.unlink(key)   # before the unlock: a process that opened it meanwhile sees the inode go, retries
+    finally:
+        os.close(fd)
+
+
 @contextlib.contextmanager
 def staged_dir(out: str | Path, merge: bool = False) -> Iterator[Path]:
     """Yield a staging folder whose contents become `out` only if the block succeeds (see the module doc);
-    `merge`: always move the new files into `out` (never swap the folder), for a folder holding more."""
+    `merge`: always move the new files into `out` (never swap the folder), for a folder holding more. The folder
+    is locked meanwhile (`output_lock`); file-system errors are one-line InputErrors naming `out`."""
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    with output_lock(out), os_errors_named(out):
+        with _staged(out, merge) as tmp:
+            yield tmp
+
+
+@contextlib.contextmanager
+def _staged(out: Path, merge: bool) -> Iterator[Path]:
     clean_stale(out)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging.", dir=out.parent))
     os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; the output folder should get the user's usual mode

@@ -81,3 +81,97 @@ def test_kill_9_never_leaves_a_mixed_folder(tmp_path):
         seen.add(_state(out))
         assert not [q for q in tmp_path.iterdir() if q.name.startswith(".")]
     assert "run15" in seen and len(seen) >= 2   # killed and finished runs: every state was consistent
+
+
+HOLDER = """
+import sys, time
+from dgcal.fields.io.atomic import staged_dir
+with staged_dir(sys.argv[1]) as tmp:
+    (tmp / "a.txt").write_text("first")
+    print("holding", flush=True)
+    time.sleep(float(sys.argv[2]))
+"""
+
+
+def test_a_second_writer_of_one_folder_is_refused_and_the_first_finishes(tmp_path):
+    """Two processes on one --out: the second is refused with a one-line error naming the folder and the first's
+    process; the first's outputs arrive whole (issue 31: they used to delete each other's staging)."""
+    from dgcal.fields.errors import InputError
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-c", HOLDER, str(out), "3"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout.readline().strip() == "holding"
+        with pytest.raises(InputError) as exc:
+            with staged_dir(out) as tmp:
+                (tmp / "b.txt").write_text("second")
+        msg = str(exc.value)
+        assert str(out) in msg and "another dgcal run" in msg and str(p.pid) in msg and "\n" not in msg
+    finally:
+        assert p.wait(timeout=30) == 0
+    assert (out / "a.txt").read_text() == "first" and not (out / "b.txt").exists()
+    with staged_dir(out) as tmp:             # released: the next run goes through
+        (tmp / "b.txt").write_text("second")
+    assert (out / "b.txt").is_file() and not (out / "a.txt").exists()
+
+
+def test_the_lock_is_reentrant_in_a_process_and_its_forks(tmp_path):
+    from dgcal.fields.io.atomic import output_lock
+    out = tmp_path / "campaign"
+    with output_lock(out):
+        with staged_dir(out, merge=True) as tmp:       # the campaign's report inside its own locked run
+            (tmp / "report.json").write_text("{}")
+        pid = os.fork()
+        if pid == 0:                                   # a forked step writing for the campaign
+            try:
+                with staged_dir(out, merge=True) as tmp:
+                    (tmp / "child.txt").write_text("x")
+                os._exit(0)
+            except BaseException:
+                os._exit(1)
+        assert os.waitpid(pid, 0)[1] == 0
+    assert (out / "report.json").is_file() and (out / "child.txt").is_file()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_a_read_only_parent_is_a_one_line_input_error(tmp_path):
+    from dgcal.fields.errors import InputError
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        with pytest.raises(InputError, match="cannot"):
+            with staged_dir(ro / "out") as tmp:
+                (tmp / "a.txt").write_text("x")
+    finally:
+        ro.chmod(0o755)
+
+
+def test_out_that_is_a_file_and_a_full_disk_are_input_errors(tmp_path, monkeypatch):
+    """`--out` naming a file, and the disk filling up while the outputs are written, end as one-line input errors
+    naming the folder (exit 2), not as internal errors; nothing half-written stays."""
+    import errno
+    from dgcal.fields.errors import InputError
+    f = tmp_path / "file.txt"
+    f.write_text("mine")
+    with pytest.raises(InputError, match="is a file"):
+        with staged_dir(f):
+            pass
+    assert f.read_text() == "mine"
+    out = tmp_path / "out"
+    with pytest.raises(InputError) as exc:
+        with staged_dir(out) as tmp:
+            (tmp / "a.txt").write_text("x")
+            raise OSError(errno.ENOSPC, "No space left on device", str(tmp / "b.txt"))
+    assert "No space left on device" in str(exc.value) and str(out) in str(exc.value)
+    assert not out.exists() and not list(tmp_path.glob(".out.staging.*"))
+
+
+def test_campaign_args_cannot_move_a_steps_outputs(tmp_path):
+    from dgcal.fields.errors import InputError
+    from dgcal.steps import Campaign
+    c = Campaign.__new__(Campaign)
+    c.cfg, c.file = {"mount": {"args": ["--no-reject", "--out", "/elsewhere"]}}, tmp_path / "campaign.toml"
+    with pytest.raises(InputError, match="mount.args"):
+        c.extra_args("mount")
+    c.cfg = {"mount": {"args": ["--no-reject"]}}
+    assert c.extra_args("mount") == ["--no-reject"]
