@@ -56,6 +56,7 @@ class PosResult:
     fixes: GnssFixes | None = None
     summary: dict = field(default_factory=dict)
     carrier: object | None = None  # dgcal.pos.gnss.dd.CarrierFrontEnd (TC with a base station)
+    withheld: GnssSolution | None = None   # fixes withheld inside the outages (the trajectory's check)
 
 
 def fixes_from_spp(sol) -> GnssFixes:
@@ -354,6 +355,7 @@ def run_gnss_ins(opts: InsModeOptions) -> PosResult | UkfPosResult:
         res.summary.setdefault("carrier", {}).update(base_info)
     if withheld is not None:
         res.summary["withheld_fixes"] = withheld_fix_errors(res.trajectory, withheld, lever)
+        res.withheld = withheld
     return res
 
 
