@@ -106,10 +106,48 @@ def code_sigma_m(elev: np.ndarray, zenith_m: float = 0.3) -> np.ndarray:
     return zenith_m * np.sqrt(0.5 + 0.5 / s ** 2)
 
 
+# Broadcast orbit and clock: the signal-in-space range error (orbit and clock, RMS over the Earth) each system's
+# broadcast ephemerides leave, as measured against precise orbits and clocks (Montenbruck et al. 2018, "Multi-GNSS
+# signal-in-space range error assessment", GPS Solutions 22:7: GPS 0.6 m, Galileo 0.2-0.3 m, QZSS 0.6 m, BeiDou
+# ~1 m). The navigation message's own URA/SISA (2-3 m when all is nominal) is a conservative bound, three to ten
+# times these: as the budget it made SPP's sigmas two to four times too large (issue 27).
+SISRE_M = {"G": 0.6, "E": 0.3, "J": 0.6, "C": 1.0}
+# The URA/SISA a nominal message states (m): GPS and BeiDou URA index 0 (at most 2.4 m; RINEX files write 2.0),
+# QZSS 2.8 m, Galileo's usual SISA 3.12 m. A satellite whose message states more is trusted less in proportion.
+URA_NOMINAL_M = {"G": 2.4, "E": 3.12, "J": 2.8, "C": 2.4}
+# Saastamoinen with the standard atmosphere: its zenith delay is off by ~0.1 m (the wet part the standard humidity
+# does not know); mapped to the satellite's elevation.
+ZTD_SIGMA_M = 0.1
+# Klobuchar with the day's coefficients: the share of the modelled slant delay taken as the error that reaches the
+# position (the model removes about half of the delay's RMS at mid-latitudes, and of the half it leaves the part
+# common to all satellites goes into the receiver clock); the whole delay with default coefficients.
+KLOBUCHAR_SHARE = 0.3
+
+
+def tropo_mapping(elev: np.ndarray) -> np.ndarray:
+    """Elevation mapping of a zenith tropospheric delay, ``1.001 / sqrt(0.002001 + sin^2 el)`` (Black & Eisner)."""
+    s = np.sin(np.maximum(np.asarray(elev, float), 0.0))
+    return 1.001 / np.sqrt(0.002001 + s ** 2)
+
+
+def orbit_clock_sigma_m(ura_m: np.ndarray | float, system: np.ndarray | str | None = None) -> np.ndarray:
+    """Sigma (m) of a broadcast orbit and clock: the system's `SISRE_M`, scaled up by the navigation message's
+    URA/SISA `ura_m` where it states more than a nominal message (`URA_NOMINAL_M`). Without `system` (or for a system
+    not in the tables) GPS's values."""
+    ura = np.asarray(ura_m, float)
+    if system is None:
+        sis, nom = SISRE_M["G"], URA_NOMINAL_M["G"]
+    else:
+        sy = np.asarray(system)
+        sis = np.select([sy == k for k in SISRE_M], list(SISRE_M.values()), SISRE_M["G"])
+        nom = np.select([sy == k for k in URA_NOMINAL_M], list(URA_NOMINAL_M.values()), URA_NOMINAL_M["G"])
+    return sis * np.maximum(1.0, np.where(np.isfinite(ura), ura, 0.0) / nom)
+
+
 def model_sigma_m(elev: np.ndarray, iono_m: np.ndarray, ura_m: np.ndarray | float = 2.0,
-                  iono_share: float = 0.5) -> np.ndarray:
-    """Sigma (m) of the broadcast-model errors: `iono_share` of the Klobuchar delay (50 % with the day's
-    coefficients), 0.3 m zenith tropo, orbit/clock URA."""
-    s = np.sin(np.maximum(np.asarray(elev, float), np.radians(2.0)))
-    tropo = 0.3 / (s + 0.1)
-    return np.sqrt((iono_share * np.asarray(iono_m)) ** 2 + tropo ** 2 + np.asarray(ura_m) ** 2)
+                  iono_share: float = KLOBUCHAR_SHARE, system: np.ndarray | str | None = None) -> np.ndarray:
+    """Sigma (m) of the broadcast-model errors of a pseudorange: `iono_share` of the Klobuchar delay `iono_m`
+    (`KLOBUCHAR_SHARE` with the day's coefficients), the troposphere's `ZTD_SIGMA_M` mapped to the elevation, and the
+    orbit and clock (`orbit_clock_sigma_m` of the message's URA/SISA and the satellite's system)."""
+    tropo = ZTD_SIGMA_M * tropo_mapping(elev)
+    return np.sqrt((iono_share * np.asarray(iono_m)) ** 2 + tropo ** 2 + orbit_clock_sigma_m(ura_m, system) ** 2)

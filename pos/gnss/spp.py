@@ -10,7 +10,7 @@ starting from the previous epoch's solution; the work runs on all epochs at once
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -21,7 +21,8 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import write_table
 from dgcal.pos.gnss.observations import CLOCK_GROUP, SYSTEMS, GnssEpoch, GnssObservations, split_gps_time
-from dgcal.pos.gnss.spp_batch import GROUPS, ObsTable, merge_fits, model, solve_epochs, to_epoch
+from dgcal.pos.gnss.spp_batch import (GROUPS, ObsTable, code_noise_from_residuals, merge_fits, model, solve_epochs,
+                                      to_epoch)
 from dgcal.pos.gnss.rinex import BroadcastNav, read_rinex_nav, read_rinex_obs
 from dgcal.pos.gnss.rinex_obs import read_obs_file
 
@@ -31,9 +32,14 @@ class SppOptions:
     """Settings of the front end and SPP.
 
     ``code_sigma_zenith_m``/``doppler_sigma_zenith_mps``: measurement noise at the zenith
-    (elevation scaled by ``code_sigma_m``); ``model_errors``: add the broadcast-model error
-    budget (iono, tropo, URA) to the code sigma (True for real data; False for simulated data
-    built with the same models); ``raim_alpha``: false-alarm probability of the chi-square test. ``iono``: ``auto``
+    (elevation scaled by ``code_sigma_m``); ``code_sigma_from_data``: on real data (``model_errors``) `spp`
+    estimates the receiver's code noise at the zenith from the file's own post-fit residuals
+    (`dgcal.pos.gnss.spp_batch.code_noise_from_residuals`: a first round with ``code_sigma_zenith_m``, then every
+    epoch again with the estimate); the given value stays when the data are too few, for simulated data (their
+    noise is what was given) and for a single epoch (`solve_epoch`); ``model_errors``: add the broadcast-model error
+    budget (`dgcal.pos.gnss.corrections.model_sigma_m`: Klobuchar, troposphere, orbit and clock) to the code sigma
+    (True for real data; False for simulated data built with the same models); ``raim_alpha``: false-alarm
+    probability of the chi-square test. ``iono``: ``auto``
     uses the dual-frequency ionosphere-free code combination for every GPS, QZSS and Galileo satellite with a
     second code (``GnssEpoch.pr2_m``) and Klobuchar for the others, ``klobuchar`` the first code only,
     ``iono-free`` only satellites with two codes.
@@ -41,6 +47,7 @@ class SppOptions:
 
     elev_mask_deg: float = 10.0
     code_sigma_zenith_m: float = 0.3
+    code_sigma_from_data: bool = True
     doppler_sigma_zenith_mps: float = 0.1
     model_errors: bool = True
     systems: tuple[str, ...] = SYSTEMS
@@ -155,6 +162,8 @@ class SppSolution:
     rejected: list[list[str]]
     epochs: list[GnssEpoch | None]
     residuals_m: list[dict[str, float]] = field(default_factory=list)
+    options: SppOptions | None = None                 # the options the epochs were solved with
+    code_noise: dict = field(default_factory=dict)    # the code noise at the zenith: given or estimated, and from what
 
 
 def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None,
@@ -166,6 +175,10 @@ def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None
     round, starting with the header position for all: an epoch's solution depends on its start only through
     where the models are evaluated (~5e-4 m per metre), so each round brings the epoch-by-epoch result ~2000
     times closer; an epoch is solved again only while its start moves by 10 um or more (what remains is ~5 nm).
+    With `code_sigma_from_data` (and `model_errors`: real data) the receiver's code noise at the zenith is estimated
+    from the residuals of the first round, solved without RAIM (`code_noise_from_residuals`), and every epoch solved
+    again with it: the result is `solve_epoch`'s chain with `code_sigma_zenith_m` the estimate
+    (`SppSolution.options`; `.code_noise` says what was given, estimated, and from how many residual differences).
     `progress` is accepted for the callers (no bar: an hour takes about a second)."""
     if opts is None:
         opts = SppOptions()
@@ -173,16 +186,21 @@ def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None
     E = len(obs.epochs)
     header = np.asarray(obs.p_approx_ecef, float) if _has_position(obs.p_approx_ecef) else np.full(3, np.nan)
     guesses = np.tile(header, (E, 1))
-    fits = solve_epochs(tab, nav, guesses, opts)
-    for _ in range(10):
-        new = _previous_fix(fits, header)
-        # an epoch whose start moved by less than 10 um would move by less than 5 nm: only the others again
-        moved = np.flatnonzero(~(np.all(np.abs(new - guesses) < 1e-5, axis=1)
-                                 | np.all(np.isnan(new) & np.isnan(guesses), axis=1)))
-        if not len(moved):
-            break
-        fits = merge_fits(fits, solve_epochs(tab, nav, new, opts, moved), moved)
-        guesses = new
+    estimate = opts.code_sigma_from_data and opts.model_errors
+    # the first round's residuals tell the noise (the rounds after it move the fixes by millimetres), all of them:
+    # RAIM at a noise still unknown would take the largest away
+    fits = solve_epochs(tab, nav, guesses, replace(opts, raim=False) if estimate else opts)
+    noise = {"code_sigma_zenith_m": opts.code_sigma_zenith_m, "estimated": False}
+    if estimate:
+        est = code_noise_from_residuals(tab, fits, opts.code_sigma_zenith_m)
+        noise.update(given_m=opts.code_sigma_zenith_m, differences=0 if est is None else est[1])
+        opts = replace(opts, code_sigma_from_data=False)
+        if est is not None:
+            noise.update(code_sigma_zenith_m=est[0], estimated=True)
+            opts = replace(opts, code_sigma_zenith_m=est[0])
+        guesses = _previous_fix(fits, header)
+        fits = solve_epochs(tab, nav, guesses, opts)
+    fits = _chain(tab, nav, fits, guesses, header, opts)
     b = fits.bounds
     groups = sorted({CLOCK_GROUP[s] for s in obs.systems}, key=SYSTEMS.index)
     pa = fits.m.p_approx
@@ -197,7 +215,23 @@ def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None
         drift_mps=fits.drift, drift_sigma_mps=fits.drift_sigma, n_sat=fits.n_sat, dop=fits.dop,
         chi2_dof=fits.chi2_dof, used=[list(ep.sat) if ep is not None else [] for ep in epochs],
         rejected=[list(r) for r in fits.rejected], epochs=epochs,
-        residuals_m=[dict(zip(ep.sat, res[b[e]:b[e + 1]])) if ep is not None else {} for e, ep in enumerate(epochs)])
+        residuals_m=[dict(zip(ep.sat, res[b[e]:b[e + 1]])) if ep is not None else {} for e, ep in enumerate(epochs)],
+        options=opts, code_noise=noise)
+
+
+def _chain(tab: ObsTable, nav: BroadcastNav, fits, guesses: np.ndarray, header: np.ndarray, opts: SppOptions):
+    """`fits` (every epoch solved from `guesses` (E,3)) solved again from the previous epoch's solution until no
+    start moves (see `spp`)."""
+    for _ in range(10):
+        new = _previous_fix(fits, header)
+        # an epoch whose start moved by less than 10 um would move by less than 5 nm: only the others again
+        moved = np.flatnonzero(~(np.all(np.abs(new - guesses) < 1e-5, axis=1)
+                                 | np.all(np.isnan(new) & np.isnan(guesses), axis=1)))
+        if not len(moved):
+            break
+        fits = merge_fits(fits, solve_epochs(tab, nav, new, opts, moved), moved)
+        guesses = new
+    return fits
 
 
 def _previous_fix(fits, header: np.ndarray) -> np.ndarray:
@@ -326,7 +360,9 @@ def spp_summary(sol: SppSolution, obs: GnssObservations, nav: BroadcastNav,
         "ionosphere_model": getattr(nav, "ion_source", "GPSA/GPSB"),
         "ionosphere": opts.iono,
         "warnings": list(getattr(nav, "warnings", [])),
+        "code_noise": dict(sol.code_noise),
         "options": {"elev_mask_deg": opts.elev_mask_deg, "code_sigma_zenith_m": opts.code_sigma_zenith_m,
+                    "code_sigma_from_data": opts.code_sigma_from_data, "model_errors": opts.model_errors,
                     "doppler_sigma_zenith_mps": opts.doppler_sigma_zenith_mps,
                     "systems": list(opts.systems), "raim": opts.raim},
     }

@@ -19,8 +19,8 @@ from dgcal.fields.constants import C_LIGHT
 from dgcal.fields.crs import R_ecef_to_enu_at, ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.pos.gnss.chi2_points import chi2_limit
-from dgcal.pos.gnss.corrections import (code_sigma_m, klobuchar_delay_m, model_sigma_m, sagnac_rotate,
-                                        saastamoinen_delay_m)
+from dgcal.pos.gnss.corrections import (KLOBUCHAR_SHARE, code_sigma_m, klobuchar_delay_m, model_sigma_m,
+                                        sagnac_rotate, saastamoinen_delay_m)
 from dgcal.pos.gnss.ephemeris import group_delay_s, states_at_transmission
 from dgcal.pos.gnss.observations import GnssEpoch
 
@@ -206,9 +206,9 @@ def model(tab: ObsTable, nav, p_rx: np.ndarray, opts, epochs: np.ndarray) -> Mod
         sig = np.where(dual, sig * np.sqrt(g ** 2 + 1.0) / np.where(dual, g - 1.0, 1.0), sig)
     bias = np.zeros(n)
     if opts.model_errors:
-        # default Klobuchar coefficients are not the day's ionosphere: their error is the whole delay, not half
-        share = 1.0 if getattr(nav, "ion_source", "") == "default" else 0.5
-        bias = model_sigma_m(elev, iono, ura, iono_share=share)
+        # default Klobuchar coefficients are not the day's ionosphere: their error is the whole delay
+        share = 1.0 if getattr(nav, "ion_source", "") == "default" else KLOBUCHAR_SHARE
+        bias = model_sigma_m(elev, iono, ura, iono_share=share, system=tab.system[idx])
         # the ionosphere-free combination amplifies the receiver's and the satellite's code biases that no
         # broadcast message corrects (C1C against C1W, L2C inter-signal, ~1 ns): 2.55 x ~0.4 m
         bias = np.where(dual, np.hypot(bias, IF_CODE_BIAS_M), bias)
@@ -563,6 +563,50 @@ def solve_epochs(tab: ObsTable, nav, guesses: np.ndarray, opts, which: np.ndarra
         cov_v=np.where(ok[:, None, None], cov_v, np.nan), drift=np.where(ok, drift, nan),
         drift_sigma=np.where(ok, dsig, nan), n_sat=n_sat, rejected=rejected, dop=dop,
         chi2_dof=np.where(ok & (dof > 0), chi2 / np.where(dof > 0, dof, 1), nan), m=m, res=res, bounds=b)
+
+
+MIN_NOISE_PAIRS = 30   # residual differences below which the data do not tell the receiver's code noise
+NOISE_LAG_S = 30.0     # residuals differenced this far apart: past the code's own correlation, within the slow errors'
+
+
+def code_noise_from_residuals(tab: ObsTable, fits: EpochFits, sigma_zenith_m: float, lag_s: float = NOISE_LAG_S,
+                              max_lag_s: float = 120.0) -> tuple[float, int] | None:
+    """The receiver's code noise at the zenith (m) told by its own post-fit residuals, and the number of residual
+    differences it rests on (None: fewer than `MIN_NOISE_PAIRS`).
+
+    A satellite's residuals `lag_s` apart (the first of its epochs at least that much later, at most `max_lag_s`)
+    share its slow errors (broadcast orbit, clock, ionosphere and troposphere change by centimetres in that time):
+    their difference is the receiver's noise of the two epochs. Not of consecutive epochs: receivers smooth their
+    code (a geodetic Septentrio's 1 s differences show a third of its 30 s ones) and a moving antenna's multipath
+    changes over seconds. Each difference is divided by the noise's elevation law of the fit (`code_sigma_m`
+    relative to `sigma_zenith_m`, the ionosphere-free combination's factor included); the scale is their RMS within
+    five robust sigmas (median absolute deviation) of their median (a multipath jump or a cycle of a tracking loop
+    does not count, a heavy tail does), and a residual keeps on average 1 - p/n of its noise's variance (p
+    parameters, n satellites), which is given back."""
+    m, res = fits.m, fits.res
+    n = np.diff(fits.bounds).astype(float)
+    p = 3.0 + np.isfinite(fits.clk).sum(axis=1)
+    use = (fits.ok & (n - p >= 2))[m.ep]           # residuals of epochs with two or more redundant satellites
+    if use.sum() < 2:
+        return None
+    ep, r = m.ep[use], res[use]
+    law = np.sqrt(np.maximum(m.sigma_pr[use] ** 2 - m.sigma_bias[use] ** 2, 0.0)) / sigma_zenith_m
+    sat = np.unique(tab.sat[m.idx[use]].astype(str), return_inverse=True)[1]
+    t = tab.t[ep] - tab.t[ep].min()
+    order = np.lexsort((t, sat))                                   # by satellite, then time
+    key = sat[order] * (t.max() + 2.0 * max_lag_s) + t[order]      # one increasing line, satellites apart
+    later = np.searchsorted(key, key + lag_s - 1e-3)
+    ok = later < len(order)
+    a, b = order[ok], order[later[ok]]
+    pair = (sat[a] == sat[b]) & (t[b] - t[a] <= max_lag_s)
+    a, b = a[pair], b[pair]
+    if len(a) < MIN_NOISE_PAIRS:
+        return None
+    u = (r[b] - r[a]) / np.hypot(law[a], law[b])
+    u = np.abs(u - np.median(u))
+    rms = np.sqrt(np.mean(u[u <= 5.0 * 1.4826 * np.median(u)] ** 2))
+    kept = 1.0 - p / np.maximum(n, p + 2.0)
+    return float(rms / np.sqrt(np.mean(0.5 * (kept[ep[a]] + kept[ep[b]])))), int(len(a))
 
 
 def merge_fits(full: EpochFits, part: EpochFits, which: np.ndarray) -> EpochFits:

@@ -32,9 +32,11 @@ def test_real_spp_within_3m(real_sol):
     # a static receiver: Doppler (from carrier phase) velocity ~ 0
     assert np.sqrt(np.mean(np.sum(sol.v_ecef ** 2, axis=1))) < 0.05
     assert np.all(sol.dop["pdop"] < 2.0) and np.all(sol.n_sat >= 20)
-    # the reported sigma (with the broadcast-model budget) is not optimistic
+    # the reported sigma (the broadcast-model budget and the receiver's own noise) fits the error: 1.7 m against a
+    # 1.0 m 3D sigma, this minute's height error a 2-sigma draw (test_gnss_spp_honesty.py); the budget that copied
+    # RTKLIB's gave 2.8 m
     s3 = np.sqrt(np.trace(sol.cov_p, axis1=1, axis2=2))
-    assert np.median(np.linalg.norm(err, axis=1) / s3) < 1.0
+    assert 1.0 < np.median(np.linalg.norm(err, axis=1) / s3) < 2.5
     # QZSS shares the GPS clock; Galileo has its own, both near the GPS one (same receiver)
     assert set(sol.clk_m) == {"G", "E"}
     assert np.all(np.abs(sol.clk_m["E"] - sol.clk_m["G"]) < 20.0)
@@ -193,10 +195,12 @@ def test_dual_frequency_ionosphere_free_code(real, shared_data):
 @pytest.mark.parametrize("kw", [{}, {"iono": "auto"}, {"model_errors": False, "systems": ("G",)}])
 def test_batched_spp_equals_the_epoch_by_epoch_chain(real, kw):
     """`spp` solves all epochs at once in rounds; it must give what `solve_epoch` gives epoch by epoch, each epoch
-    started from the previous solution (to a micrometre), with the same satellites, rejections and modelled epochs."""
+    started from the previous solution (to a micrometre), with the same satellites, rejections and modelled epochs
+    (at the code noise `spp` estimated: `SppSolution.options`)."""
     obs, nav = real
-    opts = SppOptions(**kw)
-    sol = spp(obs, nav, opts)
+    sol = spp(obs, nav, SppOptions(**kw))
+    opts = sol.options                       # with the code noise the residuals told
+    assert opts.code_sigma_zenith_m != 0.3 if kw.get("model_errors", True) else opts.code_sigma_zenith_m == 0.3
     guess = obs.p_approx_ecef
     for i, raw in enumerate(obs.epochs):
         s = solve_epoch(raw, nav, guess, opts)
