@@ -13,6 +13,11 @@ Run: .venv/bin/python bench/spp.py [OBS NAV] [--repeats 5] [--as-is]
 2. In one process: dgcal's `spp_files` (read both files, position every epoch, summary) beside RTKLIB's postpos.
 3. Accuracy of both against the known antenna position (3D RMS, mean and spread in E/N/U), and their difference.
 4. dgcal's SPP on 600 simulated epochs (speed, error and sigma honesty).
+5. Honest sigmas on real receivers (issue 27), dgcal beside RTKLIB's pntpos (its covariance): per file the epochs,
+   3D RMS, error/sigma RMS and max per E/N/U axis, median sigmas, dgcal's code noise told by the residuals; pooled
+   over the files. The static Septentrio and Trimble files of ../shared/data against their known positions and,
+   when cssrlib-data's doy2021-265 drive is there (../shared/data/rinex-kinematic or DGCAL_KINEMATIC_DATA), the
+   car's rover against dgcal's own PPK fixes and its static base. `--honesty-only` runs this part alone.
 """
 from __future__ import annotations
 
@@ -193,6 +198,114 @@ def simulated(nav_path: str) -> None:
           f"{np.sqrt(np.mean((err / sig) ** 2, axis=0)).round(2)}")
 
 
+BASE_3034_ECEF = np.array([-3959400.631, 3385704.533, 3667523.111])   # GSI 3034, as cssrlib's RTK examples
+KINEMATIC_FILES = ("SEPT265G.21O", "SEPT2650.21P", "3034265G.21O")
+
+
+def rtklib_pntpos_cov(obs_path: str, nav_path: str, systems: str = "GEJ"):
+    """RTKLIB's pntpos per epoch with its covariance (sol.qr), dgcal's settings: t_gps, p_ecef (n,3), cov (n,3,3)."""
+    import pyrtklib as rk
+    from dgcal.fields.constants import SECONDS_PER_WEEK
+    obs, nav, sta = rk.obs_t(), rk.nav_t(), rk.sta_t()
+    rk.readrnx(obs_path, 1, "", obs, nav, sta)
+    rk.readrnx(nav_path, 1, "", obs, nav, sta)
+    rk.sortobs(obs)
+    rk.uniqnav(nav)
+    opt = rk.prcopt_default
+    opt.mode = rk.PMODE_SINGLE
+    opt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS}[c] for c in systems)
+    opt.elmin, opt.tropopt, opt.ionoopt, opt.sateph = np.radians(10.0), rk.TROPOPT_SAAS, rk.IONOOPT_BRDC, rk.EPHOPT_BRDC
+    t, p, c = [], [], []
+    i = 0
+    while i < obs.n:
+        m = 0
+        while i + m < obs.n and abs(rk.timediff(obs.data[i + m].time, obs.data[i].time)) < 0.05:
+            m += 1
+        sol = rk.sol_t()
+        if rk.pntpos(obs.data[i:i + m].ptr, m, nav, opt, sol, rk.Arr1Ddouble(2 * m), rk.Arr1Dssat_t(rk.MAXSAT).ptr,
+                     rk.Arr1Dchar(100)):
+            week = rk.Arr1Dint(1)
+            tow = rk.time2gpst(sol.time, week)
+            t.append(week[0] * SECONDS_PER_WEEK + tow)
+            p.append([sol.rr[k] for k in range(3)])
+            q = [sol.qr[k] for k in range(6)]
+            c.append([[q[0], q[3], q[5]], [q[3], q[1], q[4]], [q[5], q[4], q[2]]])
+        i += m
+    return np.array(t), np.array(p), np.array(c)
+
+
+def _honesty_row(name: str, t, p, cov, ref_t, ref_p, extra: str = "") -> np.ndarray:
+    """Print one file's honesty line (epochs with a reference within 0.5 s: RTKLIB stamps its fixes at the
+    clock-corrected time); its error/sigma RMS per E/N/U axis."""
+    from dgcal.fields.crs import R_ecef_to_enu_at
+    k = np.clip(np.searchsorted(ref_t, t - 0.5), 0, len(ref_t) - 1)
+    have = np.abs(ref_t[k] - t) < 0.5
+    r = ref_p[k[have]]
+    R = R_ecef_to_enu_at(r)
+    e = np.einsum("nij,nj->ni", R, p[have] - r)
+    s = np.sqrt(np.diagonal(R @ cov[have] @ np.swapaxes(R, 1, 2), axis1=1, axis2=2))
+    z = e / s
+    zr = np.sqrt(np.mean(z ** 2, axis=0))
+    print(f"   {name:45s} {int(have.sum()):4d} {np.sqrt(np.mean(np.sum(e ** 2, axis=1))):6.2f} m  "
+          f"{zr[0]:5.2f} {zr[1]:5.2f} {zr[2]:5.2f}  {np.abs(z).max():4.1f}  "
+          f"{' '.join(f'{x:4.2f}' for x in np.median(s, axis=0))} m{extra}")
+    return zr
+
+
+def honesty(shared: Path) -> None:
+    """Error/sigma of dgcal's SPP and RTKLIB's pntpos on the real receivers with a known answer (section 5)."""
+    from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
+    from dgcal.pos.gnss.spp import SppOptions, spp
+    try:
+        import pyrtklib  # noqa: F401
+        have_rtklib = True
+    except ImportError:
+        have_rtklib = False
+    nav78 = str(shared / "rinex-sept" / "SEPT078M.21P")
+    files = [("Septentrio static (rinex-sept)", str(shared / "rinex-sept" / "SEPT078M1.21O"), nav78, REF_ECEF),
+             ("Trimble NetR9 static (rinex-3034)", str(shared / "rinex-3034" / "3034078M1.21O"), nav78,
+              BASE_3034_ECEF)]
+    d = Path(os.environ.get("DGCAL_KINEMATIC_DATA") or shared / "rinex-kinematic")
+    rover, nav265, base = (str(d / f) for f in KINEMATIC_FILES)
+    if all(Path(f).is_file() for f in (rover, nav265, base)):
+        from dgcal.cli import main as dgcal_main
+        with tempfile.TemporaryDirectory() as out:
+            assert dgcal_main(["pos", "--mode", "ppk", "--rinex-obs", rover, "--rinex-nav", nav265, "--rinex-base",
+                               base, "--base-position", *map(str, BASE_3034_ECEF), "--out", out, "--no-report",
+                               "--no-progress"]) == 0
+            tab = np.genfromtxt(Path(out) / "gnss.csv", delimiter=",", names=True, dtype=None, encoding=None)
+        fixed = tab["fix"] == "fixed"
+        ppk = ((tab["gps_week"] * 604800.0 + tab["gps_sow"])[fixed],
+               np.column_stack([tab["x"], tab["y"], tab["z"]])[fixed])
+        print(flush=True)
+        files += [("mosaic-X5 in a car (vs its PPK fixes)", rover, nav265, ppk),
+                  ("Trimble NetR9 static (the car's base)", base, nav265, BASE_3034_ECEF)]
+    else:
+        print(f"   (the doy2021-265 drive is not in {d}: static receivers only)")
+    print("5. honest sigmas: epochs, 3D RMS, error/sigma RMS E N U, max |error/sigma|, median sigma E N U")
+    pooled = {"dgcal": [], "RTKLIB": []}
+    def reference(ref, t):
+        """The reference epochs and positions: a PPK track (t, p) as it is, a static position at the times t."""
+        return ref if isinstance(ref, tuple) else (t, np.tile(ref, (len(t), 1)))
+
+    for name, obs_path, nav_path, ref in files:
+        sol = spp(read_rinex_obs(obs_path), read_rinex_nav(nav_path), SppOptions())
+        ok = sol.ok
+        t = sol.t_gps[ok]
+        pooled["dgcal"].append(_honesty_row(f"dgcal  {name}", t, sol.p_ecef[ok], sol.cov_p[ok], *reference(ref, t),
+                                            f"; code noise {sol.code_noise['code_sigma_zenith_m']:.2f} m"))
+        if have_rtklib:
+            tr, pr, cr = rtklib_pntpos_cov(obs_path, nav_path)
+            pooled["RTKLIB"].append(_honesty_row(f"RTKLIB {name}", tr, pr, cr, *reference(ref, tr)))
+    for k, v in pooled.items():
+        if v:
+            z = np.array(v)
+            zr = np.sqrt(np.mean(z ** 2, axis=0))
+            print(f"   {k:6s} pooled error/sigma RMS E N U {zr[0]:.2f} {zr[1]:.2f} {zr[2]:.2f}, all axes "
+                  f"{np.sqrt(np.mean(z ** 2)):.2f} ({len(v)} files; a static file is one draw of the hour's "
+                  f"broadcast errors)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("files", nargs="*", metavar="OBS NAV", help="RINEX observation and navigation files "
@@ -200,12 +313,15 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5, help="alternating runs of each (median time)")
     ap.add_argument("--as-is", action="store_true", help="per call: run in this environment as it is (without our "
                     "bytecode cache: where PYTHONDONTWRITEBYTECODE is set, dgcal's modules are compiled every call)")
+    ap.add_argument("--honesty-only", action="store_true", help="section 5 alone (no timing)")
     a = ap.parse_args()
     obs_path, nav_path = a.files if len(a.files) == 2 else (str(DATA / "SEPT078M1.21O"), str(DATA / "SEPT078M.21P"))
-    per_call(obs_path, nav_path, a.repeats, a.as_is)
-    run, rk = in_process(obs_path, nav_path, a.repeats)
-    accuracy(run, rk)
-    simulated(nav_path)
+    if not a.honesty_only:
+        per_call(obs_path, nav_path, a.repeats, a.as_is)
+        run, rk = in_process(obs_path, nav_path, a.repeats)
+        accuracy(run, rk)
+        simulated(nav_path)
+    honesty(DATA.parent)
 
 
 if __name__ == "__main__":
