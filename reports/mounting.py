@@ -103,7 +103,8 @@ def mount_report_html(main: dict, others: dict | None = None) -> str:
     results = {main["method"]: main, **(others or {})}
     rows = []
     for name, r in results.items():
-        rows.append([name, f"{r['delay_s']:.5f} ± {r['delay_sigma_s']:.5f}"]
+        held = r.get("delay_sigma_s", 0.0) == 0.0          # two-step (or a held delay): not estimated
+        rows.append([name, "not estimated (0)" if held else f"{r['delay_s']:.5f} ± {r['delay_sigma_s']:.5f}"]
                     + [f"{v:.4f} ± {s:.4f}" for v, s in zip(r["lever_arm_m"], r["lever_arm_sigma_m"])]
                     + [f"{v:.4f}" for v in r["boresight_rpy_deg"]]
                     + [f"{s:.4f}" for s in r["boresight_sigma_deg"]] + [r.get("n_epochs", "")])

@@ -35,6 +35,7 @@ from dgcal.bundle.solver.normals import Problem
 from dgcal.calib.camera.files import load_camera
 from dgcal.calib.mounting.common import POS_COMMON_FRACTION, MountingResult, build_epochs
 from dgcal.calib.mounting.observability import observability_warnings
+from dgcal.calib.mounting.plausibility import check_epochs, result_warnings
 from dgcal.calib.mounting.joint import DEFAULT_POS_SIGMA, default_cov, calibrate_proposed
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
@@ -68,6 +69,7 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
     i_intr = [camera.PARAMS.index(k) for k in refine_intrinsics]
     world = World.at_map_points(grid, eop.xyz)
     ep = build_epochs(world, eop, events, traj)
+    check_epochs(ep, eop.path)
     init = calibrate_proposed(ep, fix_delay=fix_delay)
     blk = _iso_block(camera, ep, meas, gcp, world)
     R_hat = init.R_cam_to_body.copy()
@@ -106,6 +108,7 @@ def calibrate_iso(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events, mea
         res.warnings.append(f"{len(rejected)} image measurement(s) rejected as blunders (w-test > {critical_w:g}): "
                             + ", ".join(f"{r['id']} in {r['image']}" for r in rejected[:5])
                             + (" ..." if len(rejected) > 5 else ""))
+    res.warnings += result_warnings(res, ep)
     return res
 
 

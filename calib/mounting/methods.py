@@ -22,6 +22,7 @@ from dgcal.calib.mounting.common import POS_COMMON_FRACTION, Epochs, MountingRes
 from dgcal.calib.mounting.integrated import calibrate_iso_files
 from dgcal.calib.mounting.joint import calibrate_proposed
 from dgcal.calib.mounting.observability import observability_warnings
+from dgcal.calib.mounting.plausibility import check_epochs, result_warnings, unseen_delay_warning
 from dgcal.calib.mounting.two_step import calibrate_traditional
 from dgcal.fields.crs import MapGrid
 from dgcal.fields.errors import InputError
@@ -77,7 +78,9 @@ def canonical_method(name: str) -> str:
 def prepare_epochs(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events) -> tuple[World, Epochs]:
     """The world (tangent at the centre of the EOPs) and the matched epochs in it."""
     world = World.at_map_points(grid, eop.xyz)
-    return world, build_epochs(world, eop, events, traj)
+    ep = build_epochs(world, eop, events, traj)
+    check_epochs(ep, eop.path)
+    return world, ep
 
 
 def calibrate_mounting(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events,
@@ -94,6 +97,11 @@ def calibrate_mounting(eop: EOP, grid: MapGrid, traj: Trajectory, events: Events
     world, ep = prepare_epochs(eop, grid, traj, events)
     res = calibrate_traditional(ep) if m.name == "two-step" else calibrate_proposed(ep, **kw)
     res.warnings = list(ep.warnings) + observability_warnings(ep, res if m.name != "two-step" else None)
+    res.warnings += result_warnings(res, ep, refuse=m.name != "two-step")
+    if m.name == "two-step":            # the delay it cannot see, from the joint method on the same epochs
+        unseen = unseen_delay_warning(res, calibrate_proposed(ep, pos_common_fraction=0.0), ep)
+        if unseen:
+            res.warnings.append(unseen)
     res.extra["skipped_images"] = ep.skipped
     res.extra["block_origin_lat_lon_h"] = [world.enu.lat0, world.enu.lon0, world.enu.h0]
     _name(res, method, m)

@@ -55,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
     with staged_dir(args.out) as tmp:
         write_mount_outputs(tmp, cal, OUTPUTS)
     res, s = cal.result, cal.result.sigmas
-    print(f"{res.method}: delay {res.delay_s:+.4f} ± {s[0]:.4f} s, lever arm "
+    delay = "not estimated (0)" if s[0] == 0 else f"{res.delay_s:+.4f} ± {s[0]:.4f} s"
+    print(f"{res.method}: delay {delay}, lever arm "
           + ", ".join(f"{v:+.3f}±{e:.3f}" for v, e in zip(res.lever_arm_m, s[1:4])) + " m, "
           + f"{res.n_epochs} epochs, {len(res.rejected)} rejected")
     for w in res.warnings:
