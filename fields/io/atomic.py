@@ -191,6 +191,22 @@ def os_errors_named(out: str | Path, doing: str = "write the outputs") -> Iterat
         raise InputError(f"cannot {doing}: {exc.strerror or exc}{where}", out) from None
 
 
+LOCK_WAIT_S = 3.0     # a killed run's forked children release the lock a moment after their parent died
+
+
+def _flock_within(fd: int, wait_s: float) -> bool:
+    """Take an exclusive lock on `fd`, retrying for up to `wait_s` seconds; False when another process holds it."""
+    end = time.monotonic() + wait_s
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            if time.monotonic() >= end:
+                return False
+            time.sleep(0.05)
+
+
 @contextlib.contextmanager
 def output_lock(out: str | Path) -> Iterator[None]:
     """Hold the lock of output folder `out` for the block; InputError when another process holds it (re-entrant
@@ -211,9 +227,7 @@ def output_lock(out: str | Path) -> Iterator[None]:
     while True:
         with os_errors_named(out, "lock the output folder"):
             fd = os.open(key, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        if not _flock_within(fd, LOCK_WAIT_S):
             holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip() or "unknown"
             os.close(fd)
             raise InputError(f"another dgcal run (process {holder}) is writing into this folder: wait for it to end "

@@ -98,7 +98,7 @@ def test_a_second_writer_of_one_folder_is_refused_and_the_first_finishes(tmp_pat
     process; the first's outputs arrive whole (issue 31: they used to delete each other's staging)."""
     from dgcal.fields.errors import InputError
     out = tmp_path / "out"
-    p = subprocess.Popen([sys.executable, "-c", HOLDER, str(out), "3"], stdout=subprocess.PIPE, text=True)
+    p = subprocess.Popen([sys.executable, "-c", HOLDER, str(out), "6"], stdout=subprocess.PIPE, text=True)
     try:
         assert p.stdout.readline().strip() == "holding"
         with pytest.raises(InputError) as exc:
