@@ -110,7 +110,9 @@ def tc_epochs(raw, nav, spp_sol, opts):
     if redo:
         t = np.array([raw.epochs[i].t_gps for i in redo])
         p = np.stack([np.interp(t, t_ok, p_ok[:, j]) for j in range(3)], axis=1)
-        for i, m in zip(redo, prepare_epochs([raw.epochs[i] for i in redo], nav, p, opts)):
+        # the options SPP solved with (its code noise estimated from the data's residuals), not the caller's
+        used = getattr(spp_sol, "options", None) or opts
+        for i, m in zip(redo, prepare_epochs([raw.epochs[i] for i in redo], nav, p, used)):
             out[i] = m if m.n > 0 else None
     epochs = [e for e in out if e is not None]
     return GnssObservations(epochs=epochs, receiver=raw.receiver, p_approx_ecef=np.median(p_ok, axis=0),

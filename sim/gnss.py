@@ -31,7 +31,8 @@ from dgcal.fields.crs import LocalENU, ecef_to_geodetic
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir
 from dgcal.pos.gnss.carrier import CarrierObs
-from dgcal.pos.gnss.corrections import code_sigma_m, klobuchar_delay_m, model_sigma_m, saastamoinen_delay_m
+from dgcal.pos.gnss.corrections import (KLOBUCHAR_SHARE, code_sigma_m, klobuchar_delay_m, model_sigma_m,
+                                        saastamoinen_delay_m)
 from dgcal.pos.gnss.ephemeris import satellite_states
 from dgcal.pos.gnss.observations import GnssEpoch, GnssObservations
 from dgcal.pos.gnss.rinex import BroadcastNav, read_rinex_nav, signal_frequency_hz, write_rinex_obs
@@ -318,8 +319,9 @@ def _satellite_code_errors(model: CodeErrorModel, t: np.ndarray, K: np.ndarray, 
     col = {s: j for j, s in enumerate(sats)}
     dt = np.r_[0.0, np.diff(t)]
     u = _gauss_markov(len(t), (len(sats),), dt, model.tau_s, rng)
-    share = 1.0 if getattr(nav, "ion_source", "") == "default" else 0.5
-    sigma = model_sigma_m(el, iono, np.where(np.isfinite(ura), ura, 2.0), iono_share=share)
+    share = 1.0 if getattr(nav, "ion_source", "") == "default" else KLOBUCHAR_SHARE
+    sigma = model_sigma_m(el, iono, np.where(np.isfinite(ura), ura, 2.0), iono_share=share,
+                          system=np.array([s[0] for s in S]))
     return model.scale * sigma * u[K, [col[s] for s in S]]
 
 

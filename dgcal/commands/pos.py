@@ -101,7 +101,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--systems", default="GECJ", help="constellations to use, letters of G,E,C,J")
     p.add_argument("--elev-mask", type=float, default=10.0, help="elevation mask, degrees")
-    p.add_argument("--code-sigma", type=float, default=0.3, help="code noise at zenith, m")
+    p.add_argument("--code-sigma", type=float, default=0.3,
+                   help="code noise at zenith, m (real data: the starting value; the receiver's own is estimated from "
+                   "its residuals, --set code_sigma_from_data=false keeps this one)")
     p.add_argument("--doppler-sigma", type=float, default=0.1, help="range-rate noise at zenith, m/s")
     p.add_argument("--no-raim", action="store_true", help="keep all satellites (no outlier rejection)")
     p.add_argument("--iono", choices=("klobuchar", "auto", "iono-free"), default="klobuchar",
