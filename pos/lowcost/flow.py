@@ -4,8 +4,16 @@ with their GPS times) and the GNSS velocity: per frame pair the pseudo-roll/pitc
 ground, all with sigmas, and seed 001's Table 2 statistics when a true trajectory is given.
 
 Sigmas: roll = the pseudo-roll's, from the GNSS velocity noise (estimated from the data unless given) through
-the derivative (`dgcal.pos.gnss.pseudo_attitude`); pitch and yaw from the FOE's delete-a-block jackknife
-covariance, the pseudo-roll and the velocity noise (`dgcal.pos.lowcost.optic_flow.flow_attitude`).
+the derivative (`dgcal.pos.gnss.pseudo_attitude`), plus what the flow's residual rotation says of the pseudo
+roll-rate; pitch, yaw and AGL from the FOE's delete-a-block jackknife, the roll and the velocity noise
+(`dgcal.pos.lowcost.optic_flow.flow_attitude`), floored over the run at the formal variance times the run's median
+jackknife/formal ratio (`apply_variance_floor`).
+
+A pair that cannot be trusted is listed as failed with its reason, never reported: its flow does not fit one focus
+of expansion (residual RMS beyond the tracker's forward-backward bound: e.g. on the take-off run, where the ground
+is too close to track), most of its tracks are outliers, or its height above ground disagrees with the GNSS
+track and its neighbours (`track_gate`). The warp of a pair starts from the last trusted pair's height carried
+along the GNSS track; a failed or rejected pair seeds nothing (`solve_pairs`).
 """
 from __future__ import annotations
 
@@ -26,7 +34,8 @@ from dgcal.fields.io.formats import Trajectory
 from dgcal.pos.gnss.pseudo_attitude import PseudoAttitude, pseudo_attitude
 from dgcal.pos.gnss.solution_files import read_gnss_solution
 from dgcal.pos.ins.interpolate import interpolate_trajectory
-from dgcal.pos.lowcost.optic_flow import R_CAM_TO_BODY_FORWARD, flow_attitude, mean_velocity
+from dgcal.pos.lowcost.optic_flow import (FB_MAX_PX, R_CAM_TO_BODY_FORWARD, FlowAttitude, apply_variance_floor,
+                                          flow_attitude, mean_velocity, variance_floor_ratios)
 from dgcal.pos.lowcost.ukf_pos import read_true_trajectory
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -34,7 +43,8 @@ SEED001_TABLE2 = {"roll": {"mean_deg": -0.0276, "std_deg": 0.1981}, "pitch": {"m
                   "yaw": {"mean_deg": 0.0934, "std_deg": 0.4210}}
 ROW_COLUMNS = ("t_gps", "image1", "image2", "dt_s", "roll", "pitch", "yaw", "sigma_roll", "sigma_pitch", "sigma_yaw",
                "pseudo_roll", "pseudo_pitch", "pseudo_yaw", "angle_of_attack", "drift_angle", "foe_x", "foe_y",
-               "sigma_foe_x", "sigma_foe_y", "agl_m", "sigma_agl_m", "n_tracks", "n_inliers")
+               "sigma_foe_x", "sigma_foe_y", "agl_m", "sigma_agl_m", "n_tracks", "n_inliers", "residual_px",
+               "parallax_px")
 
 
 @dataclass
@@ -60,6 +70,9 @@ class FlowOptions:
     window_s: float = 0.8
     blocks: int = 5
     min_speed_mps: float = 5.0
+    max_residual_px: float = FB_MAX_PX
+    track_window_s: float = 30.0
+    track_k_sigma: float = 5.0
     truth: Path | None = None
     ground_height_m: float | None = None
     progress: bool = False
@@ -180,21 +193,91 @@ def _interp_angles(t: float, tt: np.ndarray, a_deg: np.ndarray) -> float:
     return float(np.degrees(np.interp(t, tt, np.unwrap(np.radians(a_deg)))) % 360.0)
 
 
-def flow_attitude_run(opts: FlowOptions) -> FlowRun:
-    """`dgcal flow`: read the inputs of `opts` and estimate the attitude of every frame pair (see the module doc)."""
-    camera = read_camera(opts.camera)
-    tv, v = read_gnss_velocity(opts.gnss)
-    pa = pseudo_attitude(tv, v, window_s=opts.window_s, min_speed=opts.min_speed_mps,
-                         sigma_v_mps="auto" if opts.sigma_v_mps is None else opts.sigma_v_mps)
-    frames = Frames(opts)
-    truth = read_true_trajectory(opts.truth) if opts.truth else None
-    t0, t1 = max(frames.t[0], tv[0]), min(frames.t[-1], tv[-1]) - opts.frame_dt_s
-    if t1 <= t0:
-        raise InputError("the frames and the GNSS velocity do not overlap in time", opts.gnss)
-    rows, failed = [], []
+def gnss_height_track(t: np.ndarray, v_ned: np.ndarray) -> np.ndarray:
+    """Height (m) along the GNSS track relative to its first sample: the vertical velocity integrated (trapezoids)."""
+    up = -np.asarray(v_ned, float)[:, 2]
+    return np.r_[0.0, np.cumsum(0.5 * (up[1:] + up[:-1]) * np.diff(t))]
+
+
+def pair_gate(fa: FlowAttitude, max_residual_px: float = FB_MAX_PX, min_inlier_fraction: float = 0.5) -> str | None:
+    """Why a frame pair's solution cannot be trusted on its own evidence (None: it can): the focus-of-expansion fit's
+    residual RMS beyond what tracking noise can give (the tracker drops tracks whose forward-backward round trip
+    misses by more), most tracks outliers to it, or sigmas that are not finite."""
+    q = fa.quality
+    if not q["rms_px"] <= max_residual_px:
+        return (f"the flow does not fit one focus of expansion: residual RMS {q['rms_px']:.2f} px, more than tracking "
+                f"noise ({max_residual_px:g} px)")
+    if fa.n_inliers < min_inlier_fraction * fa.n_tracks:
+        return f"only {fa.n_inliers} of {fa.n_tracks} tracks fit one focus of expansion"
+    sig = (fa.sigma_roll, fa.sigma_pitch, fa.sigma_yaw, fa.sigma_agl_m)
+    if not all(np.isfinite(sig)) or not np.isfinite(fa.agl_m):
+        return "the sigmas are not finite"
+    return None
+
+
+def track_gate(t: np.ndarray, agl: np.ndarray, sigma_agl: np.ndarray, h_track: np.ndarray, window_s: float = 30.0,
+               k_sigma: float = 5.0, min_neighbours: int = 3) -> list[str | None]:
+    """Heights above ground checked against the GNSS track: each pair's ground height (track height minus its AGL)
+    beside the median of its neighbours' within `window_s` s, within `k_sigma` times its sigma and the
+    neighbours' scatter (terrain and noise: 1.4826 MAD) combined; a reason per pair (None: consistent, or fewer than
+    `min_neighbours` neighbours to judge)."""
+    g = h_track - agl
+    out: list[str | None] = []
+    for i in range(len(t)):
+        nb = (np.abs(t - t[i]) <= window_s) & (np.arange(len(t)) != i)
+        if nb.sum() < min_neighbours:
+            out.append(None)
+            continue
+        ref = float(np.median(g[nb]))
+        spread = 1.4826 * float(np.median(np.abs(g[nb] - ref)))
+        tol = k_sigma * float(np.hypot(sigma_agl[i], spread))
+        if abs(g[i] - ref) > tol:
+            out.append(f"height above ground {agl[i]:.1f} +- {sigma_agl[i]:.1f} m disagrees with the GNSS track and "
+                       f"the neighbouring pairs ({h_track[i] - ref:.1f} m)")
+        else:
+            out.append(None)
+    return out
+
+
+def solve_pairs(camera, frames, tv: np.ndarray, v: np.ndarray, pa: PseudoAttitude, opts: FlowOptions, t0: float,
+                t1: float) -> tuple[list[dict], list[tuple[float, str]]]:
+    """The frame pairs of [t0, t1] (a pair every `opts.pair_every_s` s), each solved, checked on its own
+    (`pair_gate`) and against the GNSS track (`track_gate`); (rows, failed (time, reason)) in time order.
+
+    The ground-plane warp of a pair starts from the height of the last pair that passed its own checks, carried
+    along the GNSS track (its vertical velocity integrated); a pair that fails from it is solved again from plain
+    tracking. A pair that fails a check never seeds another, and one seeded by a pair that the track check
+    rejects afterwards is solved again."""
+    h_all = gnss_height_track(tv, v)
     grid = np.arange(t0, t1, opts.pair_every_s)
     it = tqdm(grid, desc="flow pairs", unit="pair", leave=False) if opts.progress else grid
-    agl_guess = None
+    done: list[dict] = []        # solved pairs: {"t", "fa", "args", "seed_from" (index into done or None)}
+    failed: list[tuple[float, str]] = []
+
+    def solve(args: dict, ok: list[int]) -> tuple[FlowAttitude | None, str | None, int | None]:
+        """One pair seeded by the last pair of `ok` (if any; from plain tracking when that fails): the solution,
+        why it is not to be trusted (None: it is) and the pair that seeded it."""
+        seeds = [(None, None)]
+        if ok:
+            k = ok[-1]
+            s = done[k]["fa"].agl_m + float(np.interp(args["ta"], tv, h_all) - np.interp(done[k]["t"], tv, h_all))
+            if s > 0:
+                seeds.insert(0, (s, k))
+        reason = ""
+        for seed, src in seeds:
+            try:
+                fa = flow_attitude(camera, frames.image(args["i"]), frames.image(args["j"]), args["tb"] - args["ta"],
+                                   args["rph1"], args["w"], args["vm"], opts.R_cam_to_body, agl_guess_m=seed,
+                                   **args["kw"])
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                reason = str(exc)
+                continue
+            reason = pair_gate(fa, opts.max_residual_px)
+            if reason is None:
+                return fa, None, src
+        return None, reason, None
+
+    ok: list[int] = []
     for tg in it:
         i = int(np.argmin(np.abs(frames.t - tg)))
         j = int(np.argmin(np.abs(frames.t - (frames.t[i] + opts.frame_dt_s))))
@@ -210,23 +293,70 @@ def flow_attitude_run(opts: FlowOptions) -> FlowRun:
         w = np.array([np.interp(0.5 * (ta + tb), pa.t, pa.omega_b[:, c]) for c in range(3)])
         vm, gain = mean_velocity(tv, v, ta, tb)
         s_roll = float(np.interp(ta, pa.t, pa.sigma_rph[:, 0]))
-        try:
-            fa = flow_attitude(camera, frames.image(i), frames.image(j), tb - ta, rph1, w, vm, opts.R_cam_to_body,
-                               sigma_roll_deg=s_roll, sigma_v_mps=pa.sigma_v_mps * gain, blocks=opts.blocks,
-                               agl_guess_m=agl_guess)
-        except (ValueError, np.linalg.LinAlgError) as exc:
-            failed.append((ta, str(exc)))
+        args = {"i": i, "j": j, "ta": ta, "tb": tb, "rph1": rph1, "w": w, "vm": vm,
+                "names": (frames.names[i], frames.names[j]),
+                "kw": {"sigma_roll_deg": s_roll, "sigma_v_mps": pa.sigma_v_mps * gain, "blocks": opts.blocks,
+                       "roll_lag_s": opts.window_s / 4}}
+        fa, reason, src = solve(args, ok)
+        if reason is not None:
+            failed.append((ta, reason))
             continue
-        agl_guess = fa.agl_m
-        sf = np.sqrt(np.clip(np.diag(fa.foe_cov), 0, None))
-        rows.append({"t_gps": ta, "image1": frames.names[i], "image2": frames.names[j], "dt_s": tb - ta,
-                     "roll": fa.roll, "pitch": fa.pitch, "yaw": fa.yaw, "sigma_roll": fa.sigma_roll,
-                     "sigma_pitch": fa.sigma_pitch, "sigma_yaw": fa.sigma_yaw, "pseudo_roll": float(rph1[0]),
-                     "pseudo_pitch": fa.pseudo_pitch, "pseudo_yaw": fa.pseudo_yaw,
-                     "angle_of_attack": fa.pitch_offset, "drift_angle": fa.yaw_offset, "foe_x": float(fa.foe[0]),
-                     "foe_y": float(fa.foe[1]), "sigma_foe_x": float(sf[0]), "sigma_foe_y": float(sf[1]),
-                     "agl_m": fa.agl_m, "sigma_agl_m": fa.sigma_agl_m, "n_tracks": fa.n_tracks,
-                     "n_inliers": fa.n_inliers})
+        done.append({"t": ta, "fa": fa, "args": args, "seed_from": src})
+        ok.append(len(done) - 1)
+    # the run's floor under the pairs' sigmas, then the GNSS-track check; a pair seeded by a rejected one is solved
+    # again (seeded by the last pair before it that is not rejected)
+    ratios = variance_floor_ratios([d["fa"] for d in done])
+    for d in done:
+        apply_variance_floor(d["fa"], ratios)
+    rejected: dict[int, str] = {}
+    while True:   # ends: each round rejects pairs, or solves again pairs whose new seeds are not rejected
+        keep = [n for n in range(len(done)) if n not in rejected]
+        t_keep = np.array([done[n]["t"] for n in keep])
+        why = track_gate(t_keep, np.array([done[n]["fa"].agl_m for n in keep]),
+                         np.array([done[n]["fa"].sigma_agl_m for n in keep]), np.interp(t_keep, tv, h_all),
+                         opts.track_window_s, opts.track_k_sigma)
+        new = {n: r for n, r in zip(keep, why) if r is not None}
+        rejected.update(new)
+        again = [n for n in range(len(done)) if n not in rejected and done[n]["seed_from"] in rejected]
+        if not new and not again:
+            break
+        for n in again:
+            fa, reason, src = solve(done[n]["args"], [m for m in range(n) if m not in rejected])
+            if reason is not None:
+                rejected[n] = reason
+            else:
+                apply_variance_floor(fa, ratios)
+                done[n].update(fa=fa, seed_from=src)
+    failed += [(done[n]["t"], r) for n, r in rejected.items()]
+    return [_row(d["fa"], d["args"]) for n, d in enumerate(done) if n not in rejected], sorted(failed)
+
+
+def _row(fa: FlowAttitude, args: dict) -> dict:
+    """A pair's row of flow.csv (ROW_COLUMNS)."""
+    sf = np.sqrt(np.clip(np.diag(fa.foe_cov), 0, None))
+    return {"t_gps": args["ta"], "image1": args["names"][0], "image2": args["names"][1],
+            "dt_s": args["tb"] - args["ta"],
+            "roll": fa.roll, "pitch": fa.pitch, "yaw": fa.yaw, "sigma_roll": fa.sigma_roll,
+            "sigma_pitch": fa.sigma_pitch, "sigma_yaw": fa.sigma_yaw, "pseudo_roll": float(args["rph1"][0]),
+            "pseudo_pitch": fa.pseudo_pitch, "pseudo_yaw": fa.pseudo_yaw,
+            "angle_of_attack": fa.pitch_offset, "drift_angle": fa.yaw_offset, "foe_x": float(fa.foe[0]),
+            "foe_y": float(fa.foe[1]), "sigma_foe_x": float(sf[0]), "sigma_foe_y": float(sf[1]),
+            "agl_m": fa.agl_m, "sigma_agl_m": fa.sigma_agl_m, "n_tracks": fa.n_tracks,
+            "n_inliers": fa.n_inliers, "residual_px": fa.quality["rms_px"], "parallax_px": fa.quality["parallax_px"]}
+
+
+def flow_attitude_run(opts: FlowOptions) -> FlowRun:
+    """`dgcal flow`: read the inputs of `opts` and estimate the attitude of every frame pair (see the module doc)."""
+    camera = read_camera(opts.camera)
+    tv, v = read_gnss_velocity(opts.gnss)
+    pa = pseudo_attitude(tv, v, window_s=opts.window_s, min_speed=opts.min_speed_mps,
+                         sigma_v_mps="auto" if opts.sigma_v_mps is None else opts.sigma_v_mps)
+    frames = Frames(opts)
+    truth = read_true_trajectory(opts.truth) if opts.truth else None
+    t0, t1 = max(frames.t[0], tv[0]), min(frames.t[-1], tv[-1]) - opts.frame_dt_s
+    if t1 <= t0:
+        raise InputError("the frames and the GNSS velocity do not overlap in time", opts.gnss)
+    rows, failed = solve_pairs(camera, frames, tv, v, pa, opts, t0, t1)
     if not rows:
         raise InputError("no frame pair gave an attitude: " + (failed[0][1] if failed else "no pairs in the overlap"),
                          opts.images or opts.video)

@@ -29,11 +29,14 @@ from dgcal.fields.pose import so3_exp
 
 # forward camera looking along body x: camera x = body y (right), camera y = body z (down), camera z = body x
 R_CAM_TO_BODY_FORWARD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+# tracks whose forward-backward Lucas-Kanade round trip misses by more than this (px) are dropped: the bound of a
+# track's error, so a focus-of-expansion fit whose residual RMS exceeds it is not tracking noise
+FB_MAX_PX = 0.3
 
 
 def track_features(img1: np.ndarray, img2: np.ndarray, mask: np.ndarray | None = None, max_corners: int = 500,
                    quality: float = 0.005, min_distance: int = 6, win: int = 21, levels: int = 3,
-                   fb_max_px: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+                   fb_max_px: float = FB_MAX_PX) -> tuple[np.ndarray, np.ndarray]:
     """Pyramidal Lucas-Kanade tracks (px) of good features from img1 to img2, kept when the
     forward-backward round trip closes within `fb_max_px`; ((M,2), (M,2))."""
     a = _to_u8(img1)
@@ -77,6 +80,12 @@ class Foe:
     sigma_rotation_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
     cov_formal: np.ndarray | None = None   # from the residual scatter, tracks taken as independent
     n_blocks: int = 0                      # image blocks of the delete-a-block jackknife (0: not used)
+    rotation_rad: np.ndarray = field(default_factory=lambda: np.zeros(3))   # the residual rotation (x, y, z)
+    flow_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))       # de-rotated flow length of each inlier
+    # the jackknife's replicates: block left out of each, [e, rotation] (rad) without it
+    jack_blocks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    jack_rotation_rad: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    jack_e: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def t_hat_cam(self) -> np.ndarray:
@@ -149,6 +158,7 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     R_derotated_to_cam1 = R_derotated_to_cam1_at(sol.x) if axes else np.eye(3)
     cov_e = cov[:2, :2]
     nb = 0
+    jack_blocks, jack_e, jack_rot = np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 3))
     if blocks is not None:
         lab = np.asarray(blocks)[keep][inl]
         ids = np.unique(lab)
@@ -163,9 +173,17 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
             dev = est - est.mean(axis=0)
             cov_j = (nb - 1) / nb * dev.T @ dev
             cov_e = cov_j[:2, :2]
+            jack_blocks, jack_e = ids, est[:, :2]
+            jack_rot = np.zeros((nb, 3))
+            jack_rot[:, axes] = est[:, 2:]
+    w_fit = np.zeros(3)
+    w_fit[axes] = sol.x[2:]
+    d_fit = D2_all[inl] @ R_derotated_to_cam1.T
+    flow = np.linalg.norm(d_fit[:, :2] / d_fit[:, 2:3] - x1_all[inl], axis=1)
     return Foe(e=sol.x[:2], cov=cov_e, inliers=mask, rms_rad=float(np.sqrt(s2)),
                R_derotated_to_cam1=R_derotated_to_cam1, sigma_rotation_rad=np.sqrt(np.diag(cov)[2:]),
-               cov_formal=cov[:2, :2], n_blocks=nb)
+               cov_formal=cov[:2, :2], n_blocks=nb, rotation_rad=w_fit, flow_rad=flow, jack_blocks=jack_blocks,
+               jack_rotation_rad=jack_rot, jack_e=jack_e)
 
 
 def _refit(x1: np.ndarray, D2: np.ndarray, p0: np.ndarray, axes: list[int], f_scale: float) -> np.ndarray:
@@ -227,6 +245,27 @@ class FlowAttitude:
     pseudo_pitch: float = float("nan")    # flight-path angle (deg)
     pseudo_yaw: float = float("nan")      # course over ground (deg)
     n_blocks: int = 0
+    quality: dict = field(default_factory=dict)   # the fit's diagnostics (see `flow_attitude`)
+    # pitch, yaw, AGL variance parts (deg^2, m^2): "jackknife", "formal", "other" (see `flow_attitude`)
+    variance: dict = field(default_factory=dict)
+
+
+def variance_floor_ratios(fas: list[FlowAttitude]) -> np.ndarray:
+    """The imagery's correlation factor of a run: per quantity (pitch, yaw, AGL) the median over its pairs with a
+    jackknife of the jackknife variance over the formal one (tracks taken as independent)."""
+    r = [fa.variance["jackknife"] / np.maximum(fa.variance["formal"], 1e-300) for fa in fas
+         if fa.variance.get("n_blocks")]
+    return np.median(r, axis=0) if r else np.full(3, 4.0)
+
+
+def apply_variance_floor(fa: FlowAttitude, ratios: np.ndarray) -> None:
+    """Floor a pair's pitch, yaw and AGL sigmas (in place) at its formal variance times the run's `ratios`
+    (`variance_floor_ratios`): a jackknife over a dozen image blocks has about as many degrees of freedom and now
+    and then falls well short; the formal variance has one per track, and the run's factor carries the tracking
+    errors' correlation into it. A pair whose own jackknife is larger (few or clustered tracks) keeps it."""
+    v = fa.variance
+    sig = np.sqrt(np.maximum(v["jackknife"], np.asarray(ratios) * v["formal"]) + v["other"])
+    fa.sigma_pitch, fa.sigma_yaw, fa.sigma_agl_m = (float(x) for x in sig)
 
 
 def ground_mask(camera, R_cam_to_ned: np.ndarray, min_depression_deg: float = 12.0, step: int = 1) -> np.ndarray:
@@ -276,25 +315,17 @@ def _agl_of(d1: np.ndarray, d2: np.ndarray, e: np.ndarray, v_ned: np.ndarray, ro
     return height_above_ground(depth_from_flow(d1, d2, t_c, baseline), d1 @ R_cam_to_ned.T)
 
 
-def _agl_sigma(d1, d2, foe, v_ned, roll, R_cam_to_body, baseline, sigma_v, labels, med) -> float:
-    """1-sigma (m) of the median height above ground: the FOE's covariance and the baseline's (GNSS speed) error
-    propagated, and the tracks' scatter by the delete-a-block jackknife (or the median's standard error)."""
-    def m(e, b=baseline, sel=None):
-        a = _agl_of(d1 if sel is None else d1[sel], d2 if sel is None else d2[sel], e, v_ned, roll, R_cam_to_body, b)
+def _agl_formal_var(d1, d2, foe, v_ned, roll, R_cam_to_body, baseline, med) -> float:
+    """Variance (m^2) of the median height above ground without the jackknife: the FOE's covariance propagated
+    and the median's standard error from the tracks' scatter (taken as independent)."""
+    def m(e):
+        a = _agl_of(d1, d2, e, v_ned, roll, R_cam_to_body, baseline)
         a = a[np.isfinite(a) & (a > 0)]
         return float(np.median(a)) if len(a) else np.nan
     J = np.array([(m(foe.e + h) - med) / 1e-5 for h in np.eye(2) * 1e-5])
-    var = float(J @ foe.cov @ J) + (med * sigma_v / max(np.linalg.norm(v_ned), 1e-9)) ** 2
-    if labels is not None and len(np.unique(labels)) >= 6:
-        ids = np.unique(labels)
-        est = np.array([m(foe.e, sel=labels != b) for b in ids])
-        est = est[np.isfinite(est)]
-        var += (len(est) - 1) / len(est) * float(np.sum((est - est.mean()) ** 2))
-    else:
-        a = _agl_of(d1, d2, foe.e, v_ned, roll, R_cam_to_body, baseline)
-        a = a[np.isfinite(a) & (a > 0)]
-        var += (1.4826 * np.median(np.abs(a - med)) * 1.2533) ** 2 / max(len(a), 1)
-    return float(np.sqrt(var))
+    a = _agl_of(d1, d2, foe.e, v_ned, roll, R_cam_to_body, baseline)
+    a = a[np.isfinite(a) & (a > 0)]
+    return float(J @ foe.cov @ J) + (1.4826 * np.median(np.abs(a - med)) * 1.2533) ** 2 / max(len(a), 1)
 
 
 def image_blocks(uv: np.ndarray, image_size, n: int = 5) -> np.ndarray:
@@ -309,7 +340,7 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
                   omega_b: np.ndarray, v_ned_mid: np.ndarray, R_cam_to_body: np.ndarray = R_CAM_TO_BODY_FORWARD,
                   min_depression_deg: float = 10.0, max_corners: int = 600, refine: int = 2,
                   agl_guess_m: float | None = None, sigma_roll_deg: float = 0.0, sigma_v_mps: float = 0.0,
-                  blocks: int = 5) -> FlowAttitude:
+                  blocks: int = 5, roll_lag_s: float = 0.0) -> FlowAttitude:
     """Seed 001 attitude from one frame pair `dt` s apart: pseudo-roll (deg) at frame 1, pseudo body rates
     `omega_b` (rad/s) over the pair for the de-rotation, GNSS velocity (NED m/s) along the chord: its mean over
     the pair (`mean_velocity`; the velocity at mid-pair differs from it where the path's curvature changes).
@@ -322,9 +353,17 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
     `camera.ray` in the geometry).
 
     Sigmas of pitch and yaw: the FOE covariance by the delete-a-block jackknife over a `blocks` x `blocks`
-    image grid (tracking errors are correlated between neighbours; 0: the formal covariance), plus the
-    pseudo-roll's `sigma_roll_deg` and the GNSS velocity's `sigma_v_mps` (per axis) propagated through
-    `pitch_yaw_from_velocity`, plus the change of pitch and yaw in the last pass (what the warp still moves)."""
+    image grid (tracking errors are correlated between neighbours; 0: the formal covariance times four), plus the
+    roll's and the GNSS velocity's `sigma_v_mps` (per axis) propagated through `pitch_yaw_from_velocity`, plus the
+    change of pitch and yaw in the last pass (what the warp still moves). The roll's sigma is the pseudo-roll's
+    `sigma_roll_deg` and, where the flow finds the pseudo roll-rate off (the residual rotation about body x over the
+    pair), that rate error times `roll_lag_s`: the pseudo-roll comes from the same smoothed derivatives and is
+    off by about that much (a ramp's corner under a moving average of width w: the rate off by half its change,
+    the angle by w/8 of it, so w/4 for the pseudo attitude's derivative window w). The height above ground's:
+    the jackknife's replicates (each refits FOE and rotation without one block), the GNSS speed, the roll, and
+    the last pass's change. `variance` keeps the parts (`apply_variance_floor` floors them over a run) and
+    `quality` the fit's diagnostics: residual RMS and median de-rotated flow (px), residual rotation (deg), the
+    pseudo roll-rate error (deg/s), the jackknife's blocks and the last pass's changes."""
     rph1 = np.asarray(pseudo_rph1_deg, float)
     R_cam1_to_ned = R_body_to_ned_from_rph(*rph1) @ R_cam_to_body
     mask = ground_mask(camera, R_cam1_to_ned, min_depression_deg, step=4)
@@ -337,7 +376,7 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
         n_c1 = R_cam1_to_ned.T @ np.array([0.0, 0.0, 1.0])
         H = ground_homography(K, R_cam2_to_cam1, (R_cam1_to_ned.T @ v_ned_mid) * dt, n_c1, agl_guess_m)
     prev = None
-    pitch = yaw = None  # the previous pass's, for `prev`
+    pitch = yaw = med = None  # the previous pass's, for `prev`
     for k in range(refine + 1):
         if H is None:
             uv1, uv2 = track_features(img1, img2, mask, max_corners=max_corners)
@@ -353,14 +392,15 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
             raise ValueError(f"only {len(uv1)} tracked ground features")
         d1, d2 = derotate(camera, uv1, uv2, R_cam2_to_cam1)
         last = k == refine
-        foe = focus_of_expansion(d1, d2, blocks=image_blocks(uv1, camera.image_size, blocks) if blocks and last
-                                 else None)
+        labels = image_blocks(uv1, camera.image_size, blocks) if blocks and last else None
+        foe = focus_of_expansion(d1, d2, blocks=labels)
+        d2_pre = d2
         d2 = d2 @ foe.R_derotated_to_cam1.T
         R_cam2_to_cam1_fit = foe.R_derotated_to_cam1 @ R_cam2_to_cam1
         t_c = foe.t_hat_cam
         v_b = R_cam_to_body @ t_c
         if k:
-            prev = (pitch, yaw)
+            prev = (pitch, yaw, med)
         pitch, yaw = pitch_yaw_from_velocity(v_b, v_ned_mid, rph1[0])
         inl = foe.inliers
         D = depth_from_flow(d1[inl], d2[inl], t_c, speed * dt)
@@ -376,20 +416,66 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
     def py(e, v, r):
         p_, y_ = pitch_yaw_from_velocity(R_cam_to_body @ np.array([e[0], e[1], 1.0]), v, r)
         return np.array([p_ - pitch, (y_ - yaw + 180.0) % 360.0 - 180.0])
+    # the pseudo roll-rate's error over the pair, as the flow sees it (the residual rotation about body x): the
+    # pseudo-roll, from the same derivatives of the GNSS velocity, is off by about that rate over `roll_lag_s`
+    rate_err = float((np.asarray(R_cam_to_body, float) @ foe.rotation_rad)[0]) / dt
+    sigma_roll = float(np.hypot(sigma_roll_deg, np.degrees(rate_err) * roll_lag_s))
     J = np.column_stack([py(foe.e + h, v_ned_mid, rph1[0]) / 1e-5 for h in np.eye(2) * 1e-5])
     Jv = np.column_stack([py(foe.e, v_ned_mid + h, rph1[0]) / 1e-4 for h in np.eye(3) * 1e-4])
     Jr = py(foe.e, v_ned_mid, rph1[0] + 1e-4) / 1e-4
-    C = J @ foe.cov @ J.T + sigma_v_mps ** 2 * Jv @ Jv.T + sigma_roll_deg ** 2 * np.outer(Jr, Jr)
+    # pitch and yaw variances, three parts: the FOE's by the jackknife (without it the formal covariance, which
+    # misses the neighbours' correlation, about a factor two in sigma), the FOE's formal one (tracks independent: for
+    # the run's floor, `apply_variance_floor`) and the rest (GNSS velocity, pseudo-roll, the last pass's change)
+    inflate = 1.0 if foe.n_blocks else 4.0
+    v_jack = inflate * np.diag(J @ foe.cov @ J.T)
+    v_formal = np.diag(J @ foe.cov_formal @ J.T) if foe.cov_formal is not None else v_jack / inflate
+    C_other = sigma_v_mps ** 2 * Jv @ Jv.T + sigma_roll ** 2 * np.outer(Jr, Jr)
     if prev is not None:  # the warp's own effect: what the last pass still changed
         d = np.array([pitch - prev[0], (yaw - prev[1] + 180.0) % 360.0 - 180.0])
-        C = C + np.diag(d ** 2)
-    sig_agl = _agl_sigma(d1[inl], d2[inl], foe, v_ned_mid, rph1[0], R_cam_to_body, speed * dt, sigma_v_mps,
-                         image_blocks(uv1[inl], camera.image_size, blocks) if blocks else None, med)
+        C_other = C_other + np.diag(d ** 2)
+    # height above ground, the same parts: the jackknife's replicates (FOE, residual rotation and tracks without one
+    # image block; without it the FOE's formal covariance and the median's standard error), the formal one, and the
+    # GNSS speed (the baseline), the pseudo-roll and what the last pass still changed
+    var_agl_other = (med * sigma_v_mps / max(speed, 1e-9)) ** 2 + (0.0 if prev is None else (med - prev[2]) ** 2)
+    d1i, d2i = d1[inl], d2_pre[inl]
+    d2f = d2i @ foe.R_derotated_to_cam1.T
+    # the pseudo-roll's error tilts the ground plane under the tracks (not symmetric about the camera in a turn)
+    a_r = _agl_of(d1i, d2f, foe.e, v_ned_mid, rph1[0] + 1e-3, R_cam_to_body, speed * dt)
+    a_r = a_r[np.isfinite(a_r) & (a_r > 0)]
+    if len(a_r):
+        var_agl_other += ((float(np.median(a_r)) - med) / 1e-3 * sigma_roll) ** 2
+    var_agl_formal = _agl_formal_var(d1i, d2f, foe, v_ned_mid, rph1[0], R_cam_to_body, speed * dt, med)
+    if foe.n_blocks:
+        lab = labels[inl]
+        reps = []
+        for b, e_b, w_b in zip(foe.jack_blocks, foe.jack_e, foe.jack_rotation_rad):
+            sel = lab != b
+            a = _agl_of(d1i[sel], d2i[sel] @ so3_exp(w_b).T, e_b, v_ned_mid, rph1[0], R_cam_to_body, speed * dt)
+            a = a[np.isfinite(a) & (a > 0)]
+            reps.append(np.median(a) if len(a) else np.nan)
+        reps = np.array(reps)
+        reps = reps[np.isfinite(reps)]
+        var_agl_jack = (len(reps) - 1) / len(reps) * float(np.sum((reps - reps.mean()) ** 2))
+    else:
+        var_agl_jack = inflate * var_agl_formal
+    variance = {"jackknife": np.r_[v_jack, var_agl_jack], "formal": np.r_[v_formal, var_agl_formal],
+                "other": np.r_[np.diag(C_other), var_agl_other], "n_blocks": int(foe.n_blocks)}
+    sig = np.sqrt(variance["jackknife"] + variance["other"])
+    f_px = float(K[0, 0])
+    flow_px = foe.flow_rad * f_px
+    quality = {"rms_px": foe.rms_rad * f_px, "parallax_px": float(np.median(flow_px)) if len(flow_px) else 0.0,
+               "rotation_deg": np.degrees(foe.rotation_rad).tolist(),
+               "roll_rate_error_dps": float(np.degrees(rate_err)), "n_blocks": int(foe.n_blocks),
+               "last_change": [] if prev is None else [float(pitch - prev[0]),
+                                                       float((yaw - prev[1] + 180.0) % 360.0 - 180.0),
+                                                       float(med - prev[2])]}
     pp = np.degrees(np.arctan2(-v_ned_mid[2], np.hypot(v_ned_mid[0], v_ned_mid[1])))
     pyaw = np.degrees(np.arctan2(v_ned_mid[1], v_ned_mid[0]))
-    return FlowAttitude(roll=float(rph1[0]), pitch=pitch, yaw=yaw, sigma_pitch=float(np.sqrt(C[0, 0])),
-                        sigma_yaw=float(np.sqrt(C[1, 1])), pitch_offset=float(pitch - pp),
-                        yaw_offset=float((yaw - pyaw + 180.0) % 360.0 - 180.0), agl_m=med, sigma_agl_m=sig_agl,
-                        n_tracks=int(len(uv1)), n_inliers=int(inl.sum()), sigma_roll=float(sigma_roll_deg),
+    return FlowAttitude(roll=float(rph1[0]), pitch=pitch, yaw=yaw, sigma_pitch=float(sig[0]),
+                        sigma_yaw=float(sig[1]), pitch_offset=float(pitch - pp),
+                        yaw_offset=float((yaw - pyaw + 180.0) % 360.0 - 180.0), agl_m=med,
+                        sigma_agl_m=float(sig[2]), n_tracks=int(len(uv1)), n_inliers=int(inl.sum()),
+                        sigma_roll=sigma_roll,
                         foe=np.array(foe.e, float), foe_cov=np.array(foe.cov, float), pseudo_pitch=float(pp),
-                        pseudo_yaw=float(pyaw % 360.0), n_blocks=int(foe.n_blocks))
+                        pseudo_yaw=float(pyaw % 360.0), n_blocks=int(foe.n_blocks), quality=quality,
+                        variance=variance)
