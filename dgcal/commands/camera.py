@@ -8,6 +8,7 @@ import argparse
 import sys
 
 from dgcal.steps import Campaign
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "camera"
 HELP = "calibrate camera intrinsics from a target field or board (fraser7, opencv8, fisheye or auto)"
@@ -39,15 +40,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the field's sx,sy,sz (default: targets fixed)")
     p.add_argument("--initial", metavar="CAMERA",
                    help="start from this camera (camera.json, opencv.yaml, cameras.txt, Metashape XML, ...)")
-    p.add_argument("--reject", type=float, default=4.0, metavar="K",
+    p.add_argument("--reject", type=arg_types.positive, default=4.0, metavar="K",
                    help="reject observations beyond K robust sigmas of all observations and of their own image "
                         "(default 4; 0 keeps every observation, as OpenCV's calibrateCamera)")
-    p.add_argument("--max-frames", type=int, default=100, metavar="N",
+    p.add_argument("--max-frames", type=arg_types.positive_int, default=100, metavar="N",
                    help="frames chosen from videos at most (default 100)")
-    p.add_argument("--uncertainty-range", type=float, default=None, metavar="M",
+    p.add_argument("--uncertainty-range", type=arg_types.positive, default=None, metavar="M",
                    help="range (m) of the projection-uncertainty map (default: the median target distance; the map "
                         "at infinity is always given)")
-    p.add_argument("--workers", type=int, default=None, help="detection processes (default: up to 2)")
+    p.add_argument("--workers", type=arg_types.positive_int, default=None,
+                   help="detection processes (default: up to 2)")
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
 

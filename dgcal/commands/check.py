@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from dgcal.steps import Campaign
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "check"
 HELP = "DG accuracy on check points (seed Table 2, ASPRS 2023, predicted error budget)"
@@ -23,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", required=True, type=Path, help="camera file (camera.json, ...)")
     p.add_argument("--crs", required=True, help="CRS of the ground points")
     p.add_argument("--all-points", action="store_true", help="use control points as check points too")
-    p.add_argument("--pos-correlation-time", type=float, default=None, metavar="S",
+    p.add_argument("--pos-correlation-time", type=arg_types.non_negative, default=None, metavar="S",
                    help="correlation time (s) of the POS errors between images in the predicted budget "
                         "(default: the median straight-strip duration of the trajectory; 0: independent)")
     p.add_argument("--out", required=True, type=Path,

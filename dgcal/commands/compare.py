@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "compare"
 HELP = "compare two mounting calibrations (chi-square test of change)"
@@ -12,7 +13,8 @@ OUTPUTS: dict[str, str] = {}  # writes only the --out file it is given
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("old", type=Path, help="earlier mounting.json")
     p.add_argument("new", type=Path, help="newer mounting.json")
-    p.add_argument("--alpha", type=float, default=0.01, help="significance level of the test (default 0.01)")
+    p.add_argument("--alpha", type=arg_types.probability, default=0.01,
+                   help="significance level of the test (default 0.01)")
     p.add_argument("--out", type=Path, help="write the comparison as JSON here")
     p.add_argument("--fail-on-change", action="store_true", help="exit 1 when the change is significant")
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "export"
 HELP = "DG EOPs of a flight -> COLMAP, Pix4D, Metashape, ODM geo.txt, eop.csv; or the calibration -> Metashape, " \
@@ -26,7 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration", action="store_true",
                    help="export the lever arm, boresight and delay of --mounting in the programs' conventions "
                    "(no flight needed)")
-    p.add_argument("--reference-lever-arm", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+    p.add_argument("--reference-lever-arm", type=arg_types.finite, nargs=3, default=(0.0, 0.0, 0.0),
+                   metavar=("X", "Y", "Z"),
                    help="--calibration: IMU -> the position reference point (GNSS antenna) in body FRD, m, for the "
                    "camera-frame offsets of Metashape and Pix4D (default 0: positions of the IMU)")
     p.add_argument("--out", required=True, type=Path, help="output directory")

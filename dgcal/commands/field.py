@@ -3,6 +3,7 @@ PNG with its target CSV (ids = the board's corner indices) and layout."""
 from __future__ import annotations
 
 import argparse
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "field"
 HELP = "write a printable ChArUco target plate or a standard board (PDF, PNG) and its field CSV"
@@ -16,14 +17,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--board", metavar="BOARD.toml",
                    help="a standard board (charuco, chessboard, aruco-grid) instead of the rotating plate: writes its "
                         "field.csv (ids = corner indices), board.toml and a printable sheet")
-    p.add_argument("--diameter", type=float, default=2.4, help="plate diameter (m, default 2.4)")
-    p.add_argument("--square", type=float, default=0.08, help="chessboard square (m, default 0.08)")
-    p.add_argument("--marker", type=float, default=0.06, help="ArUco marker side (m, default 0.06)")
+    p.add_argument("--diameter", type=arg_types.positive, default=2.4, help="plate diameter (m, default 2.4)")
+    p.add_argument("--square", type=arg_types.positive, default=0.08, help="chessboard square (m, default 0.08)")
+    p.add_argument("--marker", type=arg_types.positive, default=0.06, help="ArUco marker side (m, default 0.06)")
     p.add_argument("--dictionary", default="DICT_5X5_1000", help="OpenCV ArUco dictionary (default DICT_5X5_1000)")
     p.add_argument("--nonplanar", action="store_true", help="add four raised blocks (0.10 m and 0.20 m high)")
-    p.add_argument("--sigma-xy", type=float, default=0.0002, help="target sigma in the plate plane (m)")
-    p.add_argument("--sigma-z", type=float, default=0.0005, help="target sigma across the plate (m)")
-    p.add_argument("--dpi", type=float, default=None, help="PNG resolution (dots per inch, default 100; 300 for a "
+    p.add_argument("--sigma-xy", type=arg_types.positive, default=0.0002, help="target sigma in the plate plane (m)")
+    p.add_argument("--sigma-z", type=arg_types.positive, default=0.0005, help="target sigma across the plate (m)")
+    p.add_argument("--dpi", type=arg_types.positive, default=None,
+                   help="PNG resolution (dots per inch, default 100; 300 for a "
                    "board)")
     p.add_argument("--no-png", action="store_true", help="skip the PNG raster")
     p.add_argument("--tiles", choices=("A4", "A3", "A2", "A1", "A0"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "flow"
 HELP = "GNSS + optic-flow attitude, FOE offsets and height above ground of a forward camera (seed 001)"
@@ -23,17 +24,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path)
     p.add_argument("--frame-times", type=Path, default=None,
                    help="CSV image,t_gps of the frames (default: frames.csv in or beside --images)")
-    p.add_argument("--video-start", type=float, default=None, help="GPS time of the video's first frame (s)")
-    p.add_argument("--fps", type=float, default=None, help="video frame rate (default: the container's)")
-    p.add_argument("--pair-every", type=float, default=2.0, help="a frame pair every S s (default 2)")
-    p.add_argument("--frame-dt", type=float, default=0.5, help="frames of a pair S s apart (default 0.5)")
-    p.add_argument("--velocity-sigma", type=float, default=None,
+    p.add_argument("--video-start", type=arg_types.finite, default=None, help="GPS time of the video's first frame (s)")
+    p.add_argument("--fps", type=arg_types.positive, default=None, help="video frame rate (default: the container's)")
+    p.add_argument("--pair-every", type=arg_types.positive, default=2.0, help="a frame pair every S s (default 2)")
+    p.add_argument("--frame-dt", type=arg_types.positive, default=0.5, help="frames of a pair S s apart (default 0.5)")
+    p.add_argument("--velocity-sigma", type=arg_types.positive, default=None,
                    help="GNSS velocity noise per axis (m/s; default: estimated from the data)")
-    p.add_argument("--camera-to-body", type=float, nargs=9, default=None, metavar="R",
+    p.add_argument("--camera-to-body", type=arg_types.finite, nargs=9, default=None, metavar="R",
                    help="R_cam_to_body row-major (default: the camera looks along body x, image right = body y)")
     p.add_argument("--truth", type=Path, default=None,
                    help="true trajectory (trajectory CSV or a simulator's truth_trajectory.csv) for Table 2")
-    p.add_argument("--ground-height", type=float, default=None,
+    p.add_argument("--ground-height", type=arg_types.finite, default=None,
                    help="ground's ellipsoidal height (m) for the AGL errors against --truth")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

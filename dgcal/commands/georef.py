@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "georef"
 HELP = "single-image georeferencing of pixels (known height, DEM or laser range) with averaging"
@@ -21,12 +22,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--events", type=Path, help="events CSV image,gps_week,gps_sow")
     p.add_argument("--mounting", type=Path, help="mounting.json")
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--height", type=float, help="known ground height (m, ellipsoidal)")
+    src.add_argument("--height", type=arg_types.finite, help="known ground height (m, ellipsoidal)")
     src.add_argument("--dem", type=Path, help="GeoTIFF DEM in --crs")
     src.add_argument("--ranges", type=Path, help="laser ranges CSV image,range_m[,s_range_m] (to the image centre)")
-    p.add_argument("--sigma-px", type=float, default=0.5, help="pixel sigma when the CSV has none (px)")
-    p.add_argument("--sigma-height", type=float, default=0.0, help="sigma of the height / DEM (m)")
-    p.add_argument("--sigma-range", type=float, default=0.5, help="laser range sigma when the CSV has none (m)")
+    p.add_argument("--sigma-px", type=arg_types.positive, default=0.5, help="pixel sigma when the CSV has none (px)")
+    p.add_argument("--sigma-height", type=arg_types.non_negative, default=0.0, help="sigma of the height / DEM (m)")
+    p.add_argument("--sigma-range", type=arg_types.positive, default=0.5,
+                   help="laser range sigma when the CSV has none (m)")
     p.add_argument("--out", required=True, type=Path,
                    help="output directory (georef_points.csv, georef_average.csv, georef.json, georef.html)")
 

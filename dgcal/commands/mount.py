@@ -10,6 +10,7 @@ import argparse
 from pathlib import Path
 
 from dgcal.steps import Campaign
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "mount"
 HELP = "system calibration: lever arm, boresight, exposure delay (methods two-step, joint, iso)"
@@ -29,7 +30,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, help="output directory (mounting.json, report.html)")
     p.add_argument("--no-reject", action="store_true", help="keep every epoch (no chi-square rejection)")
     p.add_argument("--fix-delay", action="store_true", help="joint/iso: hold the delay at 0")
-    p.add_argument("--pos-common-fraction", type=float, default=None, metavar="F",
+    p.add_argument("--pos-common-fraction", type=arg_types.fraction, default=None, metavar="F",
                    help="joint/iso: share (0-1) of the POS error variance common to the whole flight, added to the "
                         "sigmas (default 1, as in dgcal run: a MEMS smoother's attitude error is mostly a bias over a "
                         "flight; 0: independent per photo, as in the seed)")

@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 from dgcal.steps import Campaign
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "pos"
 HELP = "GNSS single-point positioning, carrier-phase PPK, or GNSS/INS smoothing (trajectory + events)"
@@ -53,10 +54,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "table")
     p.add_argument("--rinex-base", metavar="BASE", help="RINEX observation file of the base station (ppk; tc: "
                    "double-differenced carrier phase and code against it)")
-    p.add_argument("--base-position", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
+    p.add_argument("--base-position", type=arg_types.finite, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="base antenna position, ECEF m (ppk, tc with --rinex-base; default: the base header's "
                    "APPROX POSITION, with a warning)")
-    p.add_argument("--base-position-llh", type=float, nargs=3, metavar=("LAT", "LON", "H"), default=None,
+    p.add_argument("--base-position-llh", type=arg_types.finite, nargs=3, metavar=("LAT", "LON", "H"), default=None,
                    help="base antenna position, geodetic degrees and ellipsoidal height m (ppk, tc)")
     p.add_argument("--dynamics", choices=("kinematic", "static"), default="kinematic",
                    help="ppk rover model: kinematic (any motion, default) or static")
@@ -75,7 +76,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "axes.euler_zyx_deg=[180,0,180], time.kind=unix_utc")
     p.add_argument("--imu-tag", metavar="FILE.tag", default=None,
                    help="RTKLIB time-tag file of a tick-counter IMU log (default: the IMU file + .tag)")
-    p.add_argument("--imu-time-offset", type=float, default=0.0, metavar="S",
+    p.add_argument("--imu-time-offset", type=arg_types.finite, default=0.0, metavar="S",
                    help="seconds added to every IMU sample time (e.g. -0.125 for a logger's delay)")
     p.add_argument("--estimate-imu-time-offset", action="store_true",
                    help="tc/lc: estimate the IMU-GNSS time offset (beyond --imu-time-offset) from the data, with its "
@@ -91,7 +92,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="format of --gnss (default: recognised by content)")
     p.add_argument("--gnss-quality", default=None, metavar="Q[,Q]",
                    help="lc: fix qualities of --gnss to use (fixed, float, sbas, dgps, single, ppp; default all)")
-    p.add_argument("--gnss-outages", type=float, nargs=3, default=None, metavar=("START", "LENGTH", "PERIOD"),
+    p.add_argument("--gnss-outages", type=arg_types.finite, nargs=3, default=None,
+                   metavar=("START", "LENGTH", "PERIOD"),
                    help="lc: withhold the --gnss fixes inside outages of LENGTH s every PERIOD s from START s "
                    "after the first fix, and report the trajectory's errors at them (pos_summary.json withheld_fixes)")
     p.add_argument("--nmea-date", default=None, metavar="YYYY-MM-DD",
@@ -100,18 +102,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="tc/lc: also write the trajectory as an Applanix SBET (and FILE's smrmsg beside it)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--systems", default="GECJ", help="constellations to use, letters of G,E,C,J")
-    p.add_argument("--elev-mask", type=float, default=10.0, help="elevation mask, degrees")
-    p.add_argument("--code-sigma", type=float, default=0.3,
+    p.add_argument("--elev-mask", type=arg_types.elevation_deg, default=10.0, help="elevation mask, degrees")
+    p.add_argument("--code-sigma", type=arg_types.positive, default=0.3,
                    help="code noise at zenith, m (real data: the starting value; the receiver's own is estimated from "
                    "its residuals, --set code_sigma_from_data=false keeps this one)")
-    p.add_argument("--doppler-sigma", type=float, default=0.1, help="range-rate noise at zenith, m/s")
+    p.add_argument("--doppler-sigma", type=arg_types.positive, default=0.1, help="range-rate noise at zenith, m/s")
     p.add_argument("--no-raim", action="store_true", help="keep all satellites (no outlier rejection)")
     p.add_argument("--iono", choices=("klobuchar", "auto", "iono-free"), default="klobuchar",
                    help="spp/tc code ionosphere: the broadcast Klobuchar model on the first code (default), the "
                    "dual-frequency ionosphere-free combination where a second code exists (auto), or only that")
-    p.add_argument("--t-start", type=float, default=None, help="first epoch, continuous GPS seconds")
-    p.add_argument("--t-end", type=float, default=None, help="last epoch, continuous GPS seconds")
-    p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
+    p.add_argument("--t-start", type=arg_types.finite, default=None, help="first epoch, continuous GPS seconds")
+    p.add_argument("--t-end", type=arg_types.finite, default=None, help="last epoch, continuous GPS seconds")
+    p.add_argument("--lever-arm", type=arg_types.finite, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="GNSS antenna lever arm in the IMU body frame, m (tc/lc/ukf)")
     p.add_argument("--imu-grade", default=None,
                    help="IMU error model (tc/lc/ukf; default adis16488): a preset (navigation, adis16488, adis16405, "
@@ -121,7 +123,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="further option (repeatable): a field of the mode's options, KEY or GROUP.KEY (spp: "
                    "SppOptions; ppk: PpkOptions; tc/lc: smoother, output, imu_checks, spp, and dd, ppk with "
                    "--rinex-base; ukf: ukf, ukf_run, smoother, output; docs/gnss.md); another mode's key is an error")
-    p.add_argument("--reference", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
+    p.add_argument("--reference", type=arg_types.finite, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="known antenna position (ECEF, m) for the spp/ppk summary and report")
     p.add_argument("--forward-filter", action="store_true",
                    help="tc/lc: trajectory_forward.csv and the innovations from an iterated Kalman filter about its "

@@ -8,6 +8,7 @@ import argparse
 from pathlib import Path
 
 from dgcal.step_pool import default_jobs
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "run"
 HELP = "run (or resume) a calibration campaign from CAMPAIGN.toml and write its calibration report"
@@ -27,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def add_jobs_argument(p: argparse.ArgumentParser) -> None:
     """--jobs: steps run at once (each in its own process)."""
     n = default_jobs()
-    p.add_argument("--jobs", "-j", type=int, default=n, metavar="N",
+    p.add_argument("--jobs", "-j", type=arg_types.positive_int, default=n, metavar="N",
                    help=f"run up to N independent steps at once, each in its own process (default {n}: one per "
                         "CPU, at most 4; 1 runs the steps in order in this process)")
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "sync"
 HELP = "restore and align logger streams, find exposure times, write events.csv (every stage checked)"
@@ -26,20 +27,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--logger-column", action="append", default=[], metavar="ROLE=COLUMN",
                    help="logger column of a role (counter, pps, photo, trigger, laser, baro, gps_time); repeatable")
     p.add_argument("--laser-unit", default=None, help="laser range unit: m, cm, mm, ft")
-    p.add_argument("--rate", type=float, default=None, help="logger sample rate (Hz; default: the format's, 50)")
-    p.add_argument("--gnss-rate", type=float, default=None, help="GNSS packet rate (Hz; default: --rate)")
-    p.add_argument("--counter-bits", type=int, default=None, help="logger counter width for wrap-around (0: none; "
+    p.add_argument("--rate", type=arg_types.positive, default=None,
+                   help="logger sample rate (Hz; default: the format's, 50)")
+    p.add_argument("--gnss-rate", type=arg_types.positive, default=None,
+                   help="GNSS packet rate (Hz; default: --rate)")
+    p.add_argument("--counter-bits", type=arg_types.positive_int, default=None,
+                   help="logger counter width for wrap-around (0: none; "
                    "default: the format's, 16)")
-    p.add_argument("--tau", type=float, default=0.05, help="light sensor time constant (s)")
-    p.add_argument("--blackout", type=float, default=0.06, help="camera viewfinder blackout (mirror-up) time (s)")
-    p.add_argument("--end-gap", type=float, default=None, metavar="S",
+    p.add_argument("--tau", type=arg_types.positive, default=0.05, help="light sensor time constant (s)")
+    p.add_argument("--blackout", type=arg_types.non_negative, default=0.06,
+                   help="camera viewfinder blackout (mirror-up) time (s)")
+    p.add_argument("--end-gap", type=arg_types.non_negative, default=None, metavar="S",
                    help="the recorders stopped within S s of each other (default: unknown; the laser/baro "
                    "alignment then fixes the whole second, and S only cross-checks it); below 0.45 s to pick the whole "
                    "second from the ends alone")
-    p.add_argument("--search-range", type=float, default=None, metavar="S",
+    p.add_argument("--search-range", type=arg_types.non_negative, default=None, metavar="S",
                    help="coarse search within S s of the stream-end offset (default: the whole overlap)")
-    p.add_argument("--max-drift-ppm", type=float, default=200.0, help="plausible crystal drift (ppm)")
-    p.add_argument("--max-time-error", type=float, default=0.005, metavar="S",
+    p.add_argument("--max-drift-ppm", type=arg_types.positive, default=200.0, help="plausible crystal drift (ppm)")
+    p.add_argument("--max-time-error", type=arg_types.positive, default=0.005, metavar="S",
                    help="the events must be good to S s (clock bound + 3 sigma); default 0.005")
     p.add_argument("--out", required=True, type=Path)
 

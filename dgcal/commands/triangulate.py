@@ -13,6 +13,7 @@ import argparse
 import sys
 
 from dgcal.steps import Campaign
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "triangulate"
 HELP = "aerial triangulation with GCPs: EOPs with covariance, check points, report, exports"
@@ -31,16 +32,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image-size", nargs=2, type=int, metavar=("W", "H"),
                    help="image size (px) when there are no images")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--sigma-px", type=float, default=0.5, help="measurement sigma (px) where the file gives none")
-    p.add_argument("--tie-sigma-px", type=float, default=None, help="sigma of SIFT/tie measurements (px)")
-    p.add_argument("--gcp-sigma", nargs=3, type=float, metavar=("SX", "SY", "SZ"),
+    p.add_argument("--sigma-px", type=arg_types.positive, default=0.5,
+                   help="measurement sigma (px) where the file gives none")
+    p.add_argument("--tie-sigma-px", type=arg_types.positive, default=None, help="sigma of SIFT/tie measurements (px)")
+    p.add_argument("--gcp-sigma", nargs=3, type=arg_types.positive, metavar=("SX", "SY", "SZ"),
                    help="ground point sigmas (m), overriding the file's")
     p.add_argument("--fixed-gcps", action="store_true", help="hold control points fixed instead of weighted")
     p.add_argument("--refine", default="", help="camera parameters to refine, comma separated, or 'all'")
     p.add_argument("--geoid", help="geoid undulation (m) or PROJ vertical grid: map heights are orthometric")
     p.add_argument("--approx", help="approximate EOP CSV in --crs (initial values and spatial image pairs)")
     p.add_argument("--gnss", help="EOP CSV in --crs whose X,Y,Z (and sX..sZ) are camera-centre priors")
-    p.add_argument("--max-features", type=int, default=4000, help="SIFT features per image")
+    p.add_argument("--max-features", type=arg_types.positive_int, default=4000, help="SIFT features per image")
     p.add_argument("--targets", metavar="DICT", help="detect ArUco GCP targets (e.g. DICT_4X4_50) in --images; "
                    "marker id = point id; measurements in --measurements take precedence")
     p.add_argument("--no-blunder-rejection", action="store_true", help="report suspects without removing them")

@@ -9,6 +9,7 @@ from dgcal.fields.targets.boards import read_board
 from dgcal.fields.targets.plate import FieldOptions, make_target_field
 from dgcal.sim import camera_field
 from dgcal.sim.camera_field import simulate_board_views, simulate_camera_field
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "camera-field"
 HELP = "rendered photos of the rotating coded-target plate (or of a standard board) with known fraser7 truth"
@@ -23,12 +24,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="image size in pixels (default 3000 2000, 1200 800 with --board; 5472 3648 for a 20 MP camera)")
     p.add_argument("--camera", help="truth camera.json (default: a built-in fraser7 lens for the image size)")
     p.add_argument("--nonplanar", action="store_true", help="plate with four raised blocks (0.1 m, 0.2 m)")
-    p.add_argument("--diameter", type=float, default=2.4, help="plate diameter (m)")
-    p.add_argument("--square", type=float, default=0.08, help="chessboard square (m)")
-    p.add_argument("--marker", type=float, default=0.06, help="ArUco marker side (m)")
+    p.add_argument("--diameter", type=arg_types.positive, default=2.4, help="plate diameter (m)")
+    p.add_argument("--square", type=arg_types.positive, default=0.08, help="chessboard square (m)")
+    p.add_argument("--marker", type=arg_types.positive, default=0.06, help="ArUco marker side (m)")
     p.add_argument("--dictionary", default="DICT_5X5_1000")
-    p.add_argument("--blur", type=float, default=0.8, help="Gaussian optical blur sigma (px)")
-    p.add_argument("--noise", type=float, default=2.0, help="Gaussian noise sigma (8-bit DN)")
+    p.add_argument("--blur", type=arg_types.finite, default=0.8, help="Gaussian optical blur sigma (px)")
+    p.add_argument("--noise", type=arg_types.finite, default=2.0, help="Gaussian noise sigma (8-bit DN)")
     p.add_argument("--jpeg-quality", type=int, default=95)
     p.add_argument("--board", metavar="BOARD.toml",
                    help="render hand-held views of this standard board (charuco, chessboard, aruco-grid) instead of "

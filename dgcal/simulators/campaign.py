@@ -6,6 +6,7 @@ from pathlib import Path
 
 from dgcal.sim import campaign
 from dgcal.sim.campaign import DEFAULT_CRS, simulate_campaign
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "campaign"
 HELP = "a complete calibration campaign (camera field, control-field flight, IMU, GNSS, events) with truth"
@@ -20,8 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="carrier (default): rover + base RINEX with carrier phase, POS step TC with carrier phase; "
                    "lc: POS step LC from cm-level antenna positions (PPK-like gnss.csv, written in every mode); "
                    "tc: rover RINEX pseudoranges only (metre-level)")
-    p.add_argument("--delay", type=float, default=-0.14, help="exposure delay t_exposure - t_event (s)")
-    p.add_argument("--heights", type=float, nargs="+", default=[300.0, 600.0], help="flying heights above ground (m)")
+    p.add_argument("--delay", type=arg_types.finite, default=-0.14, help="exposure delay t_exposure - t_event (s)")
+    p.add_argument("--heights", type=arg_types.finite, nargs="+", default=[300.0, 600.0],
+                   help="flying heights above ground (m)")
     p.add_argument("--strips", type=int, default=4, help="strips per height (alternating headings)")
     p.add_argument("--n-tie", type=int, default=1500, help="number of simulated tie points")
     p.add_argument("--field-images", type=int, default=36, help="photos of the target plate")

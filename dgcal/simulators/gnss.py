@@ -6,6 +6,7 @@ from pathlib import Path
 
 from dgcal.sim import gnss
 from dgcal.sim.gnss import simulate_gnss_dataset
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "gnss"
 HELP = "simulate RINEX 3 GNSS observations of a static or moving receiver from broadcast orbits"
@@ -17,17 +18,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: the bundled "
                    "SEPT078M.21P, i.e. 2021-03-19); it is copied to DIR/nav.rnx")
-    p.add_argument("--t0", type=float, default=None,
+    p.add_argument("--t0", type=arg_types.finite, default=None,
                    help="start, continuous GPS seconds (default 2021-03-19 12:00 GPS)")
-    p.add_argument("--duration", type=float, default=300.0, help="s")
-    p.add_argument("--rate", type=float, default=1.0, help="Hz")
-    p.add_argument("--lat", type=float, default=35.3, help="deg (default: near the SEPT station)")
-    p.add_argument("--lon", type=float, default=139.5, help="deg")
-    p.add_argument("--height", type=float, default=100.0, help="m, ellipsoidal")
-    p.add_argument("--radius", type=float, default=0.0, help="circle radius (m); 0 = static")
-    p.add_argument("--speed", type=float, default=10.0, help="m/s along the circle")
-    p.add_argument("--sigma-pr", type=float, default=0.5, help="zenith code noise, m")
-    p.add_argument("--sigma-doppler", type=float, default=0.05, help="zenith range-rate noise, m/s")
+    p.add_argument("--duration", type=arg_types.finite, default=300.0, help="s")
+    p.add_argument("--rate", type=arg_types.positive, default=1.0, help="Hz")
+    p.add_argument("--lat", type=arg_types.finite, default=35.3, help="deg (default: near the SEPT station)")
+    p.add_argument("--lon", type=arg_types.finite, default=139.5, help="deg")
+    p.add_argument("--height", type=arg_types.finite, default=100.0, help="m, ellipsoidal")
+    p.add_argument("--radius", type=arg_types.finite, default=0.0, help="circle radius (m); 0 = static")
+    p.add_argument("--speed", type=arg_types.finite, default=10.0, help="m/s along the circle")
+    p.add_argument("--sigma-pr", type=arg_types.finite, default=0.5, help="zenith code noise, m")
+    p.add_argument("--sigma-doppler", type=arg_types.finite, default=0.05, help="zenith range-rate noise, m/s")
     p.add_argument("--systems", default="GE", help="constellation letters, e.g. GEC")
 
 

@@ -8,6 +8,7 @@ from dgcal.fields.errors import InputError
 from dgcal.sim import pos
 from dgcal.sim.gnss import CodeErrorModel
 from dgcal.sim.pos import simulate_pos, write_pos_dataset
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "pos"
 HELP = "simulate a UAV flight: raw IMU, RINEX code/Doppler, rover + base carrier phase, events, truth"
@@ -17,25 +18,25 @@ DESCRIPTION = pos.__doc__  # --help shows the simulator's own documentation
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=1200.0, help="flight duration, s")
+    p.add_argument("--duration", type=arg_types.finite, default=1200.0, help="flight duration, s")
     p.add_argument("--kind", default="multirotor", choices=("multirotor", "fixed-wing"))
     p.add_argument("--imu-grade", default="adis16488", help="navigation, adis16488, adis16405, consumer")
-    p.add_argument("--rate", type=float, default=200.0, help="IMU rate, Hz")
-    p.add_argument("--lever-arm", type=float, nargs=3, default=(0.05, -0.10, -0.30), metavar=("X", "Y", "Z"),
+    p.add_argument("--rate", type=arg_types.positive, default=200.0, help="IMU rate, Hz")
+    p.add_argument("--lever-arm", type=arg_types.finite, nargs=3, default=(0.05, -0.10, -0.30), metavar=("X", "Y", "Z"),
                    help="GNSS antenna lever arm, body FRD, m")
     p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: ../shared/data/rinex-sept)")
     p.add_argument("--outage-sats", type=int, default=3, help="satellites kept during the 60 s outage")
     p.add_argument("--no-carrier", action="store_true", help="no rover.rnx / base.rnx (carrier phase)")
-    p.add_argument("--airframe-mask", type=float, default=None, metavar="DEG",
+    p.add_argument("--airframe-mask", type=arg_types.finite, default=None, metavar="DEG",
                    help="carrier: hide satellites less than DEG above the body's horizontal plane (banks mask the low "
                    "wing's side; dgcal.sim.rover_motion)")
-    p.add_argument("--turn-slip-rate", type=float, default=0.0, metavar="P",
+    p.add_argument("--turn-slip-rate", type=arg_types.finite, default=0.0, metavar="P",
                    help="carrier: slip probability per satellite and epoch while banked (one or all frequencies, half "
                    "without LLI)")
-    p.add_argument("--half-cycles", type=float, default=0.0, metavar="SHARE",
+    p.add_argument("--half-cycles", type=arg_types.finite, default=0.0, metavar="SHARE",
                    help="carrier: share of new arcs starting with an unresolved half cycle (LLI bit 1)")
     p.add_argument("--no-doppler", action="store_true", help="carrier: a rover receiver without Doppler")
-    p.add_argument("--code-errors", type=float, default=None, metavar="SCALE",
+    p.add_argument("--code-errors", type=arg_types.finite, default=None, metavar="SCALE",
                    help="give every satellite of obs.rnx the slow error real broadcast models leave: SCALE x the "
                    "front end's budget (1: as budgeted; dgcal.sim.gnss.CodeErrorModel). Default: none (exact models)")
 

@@ -7,6 +7,7 @@ import argparse
 from dgcal.fields.errors import InputError
 from dgcal.sim import rover_motion
 from dgcal.sim.rover_motion import ROVER_KINDS, simulate_kinematic_rover, write_rover_dataset
+import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
 NAME = "rover"
 HELP = "simulate a moving rover + base (RINEX 3 carrier phase): UAV flight or car, masking, slips, truth"
@@ -43,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--half-cycles", type=_share, default=0.3,
                    help="share of new arcs that start with an unresolved half cycle (LLI bit 1)")
     p.add_argument("--base-distance", type=_positive, default=4000.0, help="base to rover, m")
-    p.add_argument("--urban", type=float, default=0.3, help="car: building height / distance on both sides")
+    p.add_argument("--urban", type=arg_types.finite, default=0.3, help="car: building height / distance on both sides")
     p.add_argument("--frequencies", type=int, default=2, choices=(1, 2, 3))
     p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: ../shared/data/rinex-sept)")
 
