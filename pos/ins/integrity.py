@@ -32,6 +32,7 @@ import numpy as np
 
 from dgcal.fields.errors import ResultError
 from dgcal.pos.ins.imu_data import ImuData
+from dgcal.pos.ins.plausibility import check_imu_units
 
 
 @dataclass
@@ -334,6 +335,7 @@ def check_imu(imu, opts: ImuIntegrityOptions | None = None):
     rep = ImuIntegrity(n_in=len(imu), rate_hz=float(imu.rate_hz), n_out=len(imu))
     if len(imu) < 3:
         return imu, rep
+    check_imu_units(imu)                  # g for m/s^2, a z axis up, deg/s for rad/s: refused by their cause
     t = np.asarray(imu.t, float)
     dt0 = float(imu.dt[0])
     g, a = np.array(imu.dtheta, float), np.array(imu.dvel, float)          # copies: repaired in place
