@@ -191,6 +191,28 @@ def values_in_range(a, lo: float, hi: float, path=None, field=None, lines=None, 
     return a
 
 
+# ECEF positions of receivers, vehicles and aircraft: the WGS84 polar radius minus 1 km to the equatorial plus 50 km
+ECEF_NORM_RANGE_M = (6356752.3 - 1.0e3, 6378137.0 + 5.0e4)
+
+
+def ecef_near_surface(p_ecef, path=None, lines=None, field: str = "x,y,z") -> np.ndarray:
+    """ECEF positions (N,3) m that lie near the Earth's surface (within `ECEF_NORM_RANGE_M` of its centre); else an
+    InputError naming the row and the likely cause (kilometres, not metres; a missing coordinate; not ECEF)."""
+    p = np.asarray(p_ecef, float).reshape(-1, 3)
+    r = np.linalg.norm(p, axis=1)
+    lo, hi = ECEF_NORM_RANGE_M
+    bad = ~((r >= lo) & (r <= hi))
+    if bad.any():
+        i = int(np.argmax(bad))
+        why = ("kilometres, not metres?" if 6.3e3 < r[i] < 6.5e3 else
+               "a coordinate missing or zero?" if np.any(p[i] == 0) else
+               "not ECEF metres (geodetic or map coordinates?)")
+        raise InputError(f"ECEF position {np.round(p[i], 3).tolist()} is {r[i] / 1e3:.3f} km from the Earth's "
+                         f"centre, not near its surface ({lo / 1e3:.0f}-{hi / 1e3:.0f} km): {why}", path,
+                         _line(lines, i), field)
+    return p
+
+
 def positive_values(a, path=None, field=None, lines=None, allow_nan: bool = False, hi: float = math.inf,
                     strict: bool = True, what: str = "value") -> np.ndarray:
     """Every value finite and > 0 (>= 0 unless `strict`) and <= hi; NaN allowed when `allow_nan`."""

@@ -202,14 +202,10 @@ def read_rtklib_pos(path: str | Path) -> GnssSolution:
         if badll.size:
             raise InputError(f"latitude/longitude out of range: {lat[badll[0]]}, {lon[badll[0]]}", path,
                              int(lno[badll[0]]), names[0])
+        validate.values_in_range(h, -1.0e3, 5.0e4, path, names[2], lno, unit="m")   # below a balloon's ceiling
         p = np.asarray(geodetic_to_ecef(lat, lon, h), float).reshape(-1, 3)
     else:
-        p = vals[:, :3].copy()
-        r = np.linalg.norm(p, axis=1)
-        badr = np.flatnonzero((r < 6.0e6) | (r > 6.5e6))
-        if badr.size:
-            raise InputError(f"ECEF position {p[badr[0]].round(1).tolist()} is not on the Earth's surface", path,
-                             int(lno[badr[0]]), names[0])
+        p = validate.ecef_near_surface(vals[:, :3].copy(), path, lno, names[0])
     q = _required(col, "Q", path).astype(int)
     ns = col.get("ns", np.zeros(len(t))).astype(int)
     if kind in ("llh", "dms"):
@@ -511,7 +507,7 @@ def read_gnss_csv(path: str | Path) -> GnssSolution:
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         raise InputError("time does not increase", tab.path, int(tab.lines[back[0] + 1]), "gps_sow")
-    p = np.column_stack([tab["x"], tab["y"], tab["z"]])
+    p = validate.ecef_near_surface(np.column_stack([tab["x"], tab["y"], tab["z"]]), tab.path, tab.lines)
     n = len(t)
     if all(c in tab for c in ("sx", "sy", "sz")):
         s = [np.where(np.isfinite(tab[c]), tab[c], 3.0) for c in ("sx", "sy", "sz")]
