@@ -22,6 +22,7 @@ Checks (name: what is compared; a failure raises `dgcal.fields.errors.ResultErro
 from __future__ import annotations
 
 import datetime
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -188,6 +189,7 @@ def _synchronise(gnss_t, logger_counter, pps, photo, images, trigger, image_cloc
     l_ax = restore_from_counter(logger_counter, dt, bits=st.counter_bits)
     _packets_check(checks, "gnss-packets", g_ax)
     _packets_check(checks, "logger-packets", l_ax)
+    _coverage_check(checks, g_ax, l_ax)
     rec = ~l_ax.filled
     # 1. the PPS: drift and sub-second phase
     clock = fit_pps_clock(l_ax.t, l_ax.fill(pps), valid=rec, inverted=st.pps_inverted, dt_s=dt,
@@ -236,6 +238,21 @@ def _synchronise(gnss_t, logger_counter, pps, photo, images, trigger, image_cloc
                       None if gnss_h is None else g_ax.fill(gnss_h), None if h_l is None else l_ax.fill(h_l),
                       coarse, figs, match, checks, sig[keep], bound[keep],
                       np.array([pairs[i][1] for i in keep], int), unmatched, len(images))
+
+
+MIN_GNSS_COVERAGE = 0.5        # share of the logger's span the GNSS log must cover to fix the whole second
+
+
+def _coverage_check(checks: Checks, g_ax: RestoredAxis, l_ax: RestoredAxis) -> None:
+    """The GNSS log must cover most of the logger's record: a few rows cannot fix the whole second (a log cut to
+    10 rows moved every event by minutes)."""
+    g_span = float(g_ax.t[-1] - g_ax.t[0]) if len(g_ax.t) > 1 else 0.0
+    l_span = float(l_ax.t[-1] - l_ax.t[0]) if len(l_ax.t) > 1 else 0.0
+    fig = f"GNSS log {g_span:.1f} s of the logger's {l_span:.1f} s"
+    if l_span > 0 and g_span < MIN_GNSS_COVERAGE * l_span:
+        checks.fail("gnss-coverage", fig, f">= {MIN_GNSS_COVERAGE:.0%} of the logger's span",
+                    f"{fig}: the GNSS log is cut short or belongs to another record", field="gnss_log")
+    checks.add("gnss-coverage", "pass", fig, f">= {MIN_GNSS_COVERAGE:.0%} of the logger's span")
 
 
 def _pps_checks(checks: Checks, clock, st: SyncSettings, dt: float) -> None:
@@ -458,7 +475,31 @@ def read_images(images: Path) -> tuple[list[str], np.ndarray | None]:
             i = int(np.argmax(np.abs(clock - np.median(clock))))
             raise InputError(f"the camera times span {span:.6g} s: more than {MAX_CAMERA_SPAN_S:g} s for one flight",
                              images, int(im.lines[i]), "camera_time_s")
-    return [str(x) for x in im["image"]], clock
+    names = [str(x) for x in im["image"]]
+    _check_capture_order(names, clock, images, im.lines)
+    return names, clock
+
+
+def _check_capture_order(names: list[str], clock, path, lines) -> None:
+    """Rows of an images CSV in capture order: camera times that increase, or (without them, when the images are
+    paired by order) image numbers that do; InputError naming the first row out of order."""
+    if clock is not None:
+        back = np.flatnonzero(np.diff(clock) < 0)
+        if len(back):
+            i = int(back[0]) + 1
+            raise InputError(f"camera time goes back ({clock[i]:.3f} s after {clock[i - 1]:.3f} s): the rows must be "
+                             "in capture order", path, int(lines[i]), "camera_time_s")
+        return
+    nums = [re.findall(r"\d+", n) for n in names]
+    if len(names) < 2 or not all(nums):
+        return
+    idx = np.array([int(n[-1]) for n in nums])
+    back = np.flatnonzero(np.diff(idx) < 0)
+    if len(back) and not (len(back) == 1 and idx[back[0] + 1] <= 1):      # a counter's one wrap (9999 -> 0001)
+        i = int(back[0]) + 1
+        raise InputError(f"{names[i]} comes after {names[i - 1]}: without camera times the images are paired with the "
+                         "exposures in row order, so the rows must be in capture order (sort them, or add "
+                         "camera_time_s)", path, int(lines[i]), "image")
 
 
 MAX_CAMERA_CLOCK_S = 1e11      # s, |camera time| (any origin; Unix seconds are 1.7e9)

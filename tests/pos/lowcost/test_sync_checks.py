@@ -197,3 +197,30 @@ def test_logger_format_errors_name_the_entry(tmp_path, capsys):
     (tmp_path / "l.csv").write_text("counter,pps,photo\n1,0,1\n2,x,1\n")
     with pytest.raises(Exception, match=r"l.csv:3: field 'pps': not a number"):
         read_logger(tmp_path / "l.csv")
+
+
+def test_a_gnss_log_cut_short_is_refused(long_log):
+    """A GNSS log of a few rows cannot fix the whole second (it moved every event by minutes): check 'gnss-coverage'
+    refuses it (issue 31)."""
+    import dataclasses
+    short = dataclasses.replace(long_log, gnss_t=long_log.gnss_t[:10], gnss_h=long_log.gnss_h[:10])
+    with pytest.raises(ResultError, match="check 'gnss-coverage' failed.*cut short"):
+        _sync(short)
+    assert any(c.name == "gnss-coverage" and c.status == "pass" for c in _sync(long_log).checks)
+
+
+def test_an_images_csv_out_of_capture_order_is_refused(tmp_path):
+    """Without camera times the images are paired with the exposures in row order: a reversed images.csv is refused
+    naming its first row out of order; camera times that go back too (issue 31)."""
+    from dgcal.fields.errors import InputError
+    from dgcal.pos.lowcost.sync import read_images
+    p = tmp_path / "images.csv"
+    p.write_text("image\nIMG_0003.JPG\nIMG_0002.JPG\nIMG_0001.JPG\n")
+    with pytest.raises(InputError) as exc:
+        read_images(p)
+    assert "images.csv:3" in str(exc.value) and "capture order" in str(exc.value)
+    p.write_text("image\nIMG_9998.JPG\nIMG_9999.JPG\nIMG_0001.JPG\n")      # a counter's wrap is in order
+    assert read_images(p)[0][-1] == "IMG_0001.JPG"
+    p.write_text("image,camera_time_s\nA.JPG,10.0\nB.JPG,12.0\nC.JPG,11.0\n")
+    with pytest.raises(InputError, match="camera time goes back"):
+        read_images(p)
