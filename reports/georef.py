@@ -30,7 +30,7 @@ def write_georef_outputs(out_dir: str | Path, run: GeorefRun, names: Mapping[str
                 fmt="%.4f")
     rows, js = [], {}
     for pid, (av, z) in res.averages.items():
-        s2 = np.sqrt(np.diag(av.cov_weighted))
+        s2 = np.sqrt(np.diag(av.cov_with_common))
         rows.append([pid, *av.weighted, z, *s2, av.n, av.chi2_dof, *av.mean])
         js[pid] = {"xy_weighted": av.weighted.tolist(), "sigma_xy": s2.tolist(), "xy_mean": av.mean.tolist(),
                    "z": z, "n_images": av.n, "chi2_dof": av.chi2_dof}
@@ -42,6 +42,7 @@ def write_georef_outputs(out_dir: str | Path, run: GeorefRun, names: Mapping[str
     with atomic_write(paths["summary"]) as fh:
         json.dump({"crs": opts.crs, "n_points": int(len(res.id)), "n_ok": int(res.ok.sum()),
                    "height_source": opts.height_source(), "averages": js,
+                   "rejected_gross": [{"image": i, "id": k} for i, k in res.rejected],
                    "honesty": no_reference(GEOREF_NO_REFERENCE)}, fh, indent=2)
     return paths
 
@@ -53,7 +54,7 @@ def georef_report(res: ImageGeoref, crs: str, height_source: str) -> HtmlReport:
                   ("georeferenced", int(res.ok.sum())), ("points averaged", len(res.averages))])
     rows = []
     for pid, (av, z) in res.averages.items():
-        s = np.sqrt(np.diag(av.cov_weighted))
+        s = np.sqrt(np.diag(av.cov_with_common))
         rows.append([pid, av.n, *np.round(av.weighted, 3), round(z, 3), *np.round(s, 3), round(av.chi2_dof, 2)])
     rep.table(["id", "images", "x", "y", "z", "sx", "sy", "chi2/dof"], rows)
     add_honesty(rep, no_reference(GEOREF_NO_REFERENCE))

@@ -20,7 +20,7 @@ differences over all inputs.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -258,6 +258,7 @@ class ImageGeoref:
     cov: np.ndarray
     ok: np.ndarray
     averages: dict  # id -> AveragedPoint of (E, N) plus mean height
+    rejected: list = field(default_factory=list)   # (image, id) of estimates screened out as gross errors
 
 
 def georeference_images(camera, meas, eop, *, height: float | None = None, dem=None, ranges: dict | None = None,
@@ -305,14 +306,50 @@ def georeference_images(camera, meas, eop, *, height: float | None = None, dem=N
         raise InputError("no measurement belongs to an image with an exterior orientation", field="image")
     X, Cv, OK = np.array(X), np.array(Cv), np.array(OK)
     ids = np.array(rows_id)
-    averages = {}
+    imgs = np.array(rows_img)
+    averages, rejected = {}, []
     for pid in dict.fromkeys(rows_id):
+        m = (ids == pid) & OK
+        for k in screen_estimates(X[:, :2], Cv[:, :2, :2], np.flatnonzero(m)):
+            OK[k] = False
+            rejected.append((str(imgs[k]), pid))
         m = (ids == pid) & OK
         if m.sum() == 0:
             continue
         cov2 = Cv[m][:, :2, :2] + np.eye(2) * 1e-12
-        averages[pid] = (average_estimates(X[m][:, :2], cov2), float(np.mean(X[m][:, 2])))
-    return ImageGeoref(np.array(rows_img), ids, X, Cv, OK, averages)
+        # the pose errors of one pass (GNSS/INS, mounting, the bundle's datum) are shared by the images of a point:
+        # averaging does not reduce them; counting them as independent made the sigmas 2.75-4x too small
+        av = average_estimates(X[m][:, :2], cov2)
+        common = _psd(np.mean(cov2, axis=0) - av.cov_weighted)
+        averages[pid] = (average_estimates(X[m][:, :2], cov2, common_cov=common), float(np.mean(X[m][:, 2])))
+    return ImageGeoref(imgs, ids, X, Cv, OK, averages, rejected)
+
+
+SCREEN_CHI2 = 13.8      # chi-square (2 dof) 0.999 point: an estimate beyond it from the others' mean is a gross error
+
+
+def screen_estimates(xy: np.ndarray, cov: np.ndarray, rows: np.ndarray) -> list[int]:
+    """Rows (of `rows`) whose horizontal estimate (E, N m) is a gross error: outside the largest set of estimates
+    that agree with one another (pairwise within `SCREEN_CHI2` of their summed covariances), when that set holds at
+    least half of them and two or more (robust to several gross errors; no majority: all kept)."""
+    rows = np.asarray(rows, int)
+    n = len(rows)
+    if n < 3:
+        return []
+    d = xy[rows][:, None, :] - xy[rows][None, :, :]                       # (n,n,2)
+    S = cov[rows][:, None] + cov[rows][None, :] + np.eye(2) * 1e-12
+    chi2 = np.einsum("abi,abi->ab", d, np.linalg.solve(S, d[..., None])[..., 0])
+    agree = chi2 <= SCREEN_CHI2
+    best = int(np.argmax(agree.sum(axis=1)))
+    keep = agree[best]
+    if keep.sum() < max(2, (n + 1) // 2) or keep.all():
+        return []
+    return [int(k) for k in rows[~keep]]
+
+
+def _psd(C: np.ndarray) -> np.ndarray:
+    w, V = np.linalg.eigh((C + C.T) / 2)
+    return (V * np.clip(w, 0, None)) @ V.T
 
 
 @dataclass

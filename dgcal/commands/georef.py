@@ -4,6 +4,7 @@ propagated covariances, and per point the covariance-weighted average over its i
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
 
@@ -47,4 +48,8 @@ def run(args: argparse.Namespace) -> int:
     res = run_.result
     print(f"{int(res.ok.sum())}/{len(res.id)} pixels georeferenced, {len(res.averages)} points averaged -> "
           f"{args.out / OUTPUTS['average']}")
+    if res.rejected:
+        print(f"warning: {len(res.rejected)} single-image estimate(s) screened out as gross errors: "
+              + ", ".join(f"{k} in {i}" for i, k in res.rejected[:5]) + (" ..." if len(res.rejected) > 5 else ""),
+              file=sys.stderr)
     return 0
