@@ -36,6 +36,9 @@ from typing import Iterator
 from dgcal.fields.errors import InputError
 
 MANIFEST = ".dgcal-outputs.json"
+# in a folder while new files are merged into it (a user's folder, a campaign's): readers of dgcal's files refuse a
+# folder that holds it (an interrupted merge leaves new files beside old ones: fields.io.text_files)
+INCOMPLETE = ".dgcal-incomplete"
 
 
 def _umask() -> int:
@@ -284,7 +287,9 @@ def _staged(out: Path, merge: bool) -> Iterator[Path]:
             os.replace(tmp, out)
             shutil.rmtree(old, ignore_errors=True)
         else:
-            # a folder holding the user's own files: merge, the manifest last marks the set complete
+            # a folder holding the user's own files: merge, the manifest last marks the set complete; the marker
+            # first tells readers that an interrupted merge left a mixture
+            (out / INCOMPLETE).write_text(f"dgcal process {os.getpid()} is merging new outputs into this folder\n")
             with contextlib.suppress(OSError):
                 (out / MANIFEST).unlink()
             for p in sorted(tmp.rglob("*")):
@@ -295,5 +300,6 @@ def _staged(out: Path, merge: bool) -> Iterator[Path]:
                     dest.parent.mkdir(parents=True, exist_ok=True)
                     os.replace(p, dest)
             _write_manifest(out, files, entries)
+            (out / INCOMPLETE).unlink()
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import IO, Iterator
 
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.atomic import INCOMPLETE
 
 
 def _check_file(path: Path) -> None:
@@ -13,6 +14,9 @@ def _check_file(path: Path) -> None:
         raise InputError("file not found", path)
     if path.is_dir():
         raise InputError("is a folder, expected a file", path)
+    if (path.parent / INCOMPLETE).exists():
+        raise InputError("the dgcal run writing this folder was interrupted (or is still running): its files may mix "
+                         "two runs; run that step again", path)
 
 
 def read_text(path: str | Path, encoding: str = "utf-8-sig") -> str:

@@ -175,3 +175,40 @@ def test_campaign_args_cannot_move_a_steps_outputs(tmp_path):
         c.extra_args("mount")
     c.cfg = {"mount": {"args": ["--no-reject"]}}
     assert c.extra_args("mount") == ["--no-reject"]
+
+
+def test_an_interrupted_merge_is_refused_by_the_readers(tmp_path, monkeypatch):
+    """A user's folder gets new files one by one: killed midway it holds new files beside old ones, and every dgcal
+    reader refuses its files until the step runs again (issue 31); a finished merge leaves no trace of that."""
+    from dgcal.fields.errors import InputError
+    from dgcal.fields.io.atomic import INCOMPLETE
+    from dgcal.fields.io.text_files import read_text
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's")
+    with staged_dir(out) as tmp:
+        (tmp / "camera.json").write_text("{}")
+        (tmp / "poses.csv").write_text("old")
+    assert not (out / INCOMPLETE).exists() and read_text(out / "poses.csv") == "old"
+    real = os.replace
+    calls = []
+
+    def dies_after_one(src, dst):
+        calls.append(dst)
+        if len(calls) == 2:
+            raise KeyboardInterrupt          # the kill, between two moves
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", dies_after_one)
+    with pytest.raises(KeyboardInterrupt):
+        with staged_dir(out) as tmp:
+            (tmp / "camera.json").write_text('{"new": 1}')
+            (tmp / "poses.csv").write_text("new")
+    monkeypatch.setattr(os, "replace", real)
+    assert (out / INCOMPLETE).exists()
+    with pytest.raises(InputError, match="interrupted"):
+        read_text(out / "poses.csv")
+    with staged_dir(out) as tmp:                # the step run again: complete, readable
+        (tmp / "camera.json").write_text('{"new": 2}')
+        (tmp / "poses.csv").write_text("newer")
+    assert read_text(out / "poses.csv") == "newer" and not (out / INCOMPLETE).exists()
