@@ -6,8 +6,8 @@ ground, all with sigmas, and seed 001's Table 2 statistics when a true trajector
 Sigmas: roll = the pseudo-roll's, from the GNSS velocity noise (estimated from the data unless given) through
 the derivative (`dgcal.pos.gnss.pseudo_attitude`), plus what the flow's residual rotation says of the pseudo
 roll-rate; pitch, yaw and AGL from the FOE's delete-a-block jackknife, the roll and the velocity noise
-(`dgcal.pos.lowcost.optic_flow.flow_attitude`), floored over the run at the formal variance times the run's median
-jackknife/formal ratio (`apply_variance_floor`).
+(`dgcal.pos.lowcost.optic_flow.flow_attitude`), raised toward the pair's formal variance times the run's median
+jackknife/formal ratio (`pool_sigmas`).
 
 A pair that cannot be trusted is listed as failed with its reason, never reported: its flow does not fit one focus
 of expansion (residual RMS beyond the tracker's forward-backward bound: e.g. on the take-off run, where the ground
@@ -34,8 +34,8 @@ from dgcal.fields.io.formats import Trajectory
 from dgcal.pos.gnss.pseudo_attitude import PseudoAttitude, pseudo_attitude
 from dgcal.pos.gnss.solution_files import read_gnss_solution
 from dgcal.pos.ins.interpolate import interpolate_trajectory
-from dgcal.pos.lowcost.optic_flow import (FB_MAX_PX, R_CAM_TO_BODY_FORWARD, FlowAttitude, apply_variance_floor,
-                                          flow_attitude, mean_velocity, variance_floor_ratios)
+from dgcal.pos.lowcost.optic_flow import (FB_MAX_PX, R_CAM_TO_BODY_FORWARD, FlowAttitude, flow_attitude,
+                                          mean_velocity, pool_sigmas, variance_ratios)
 from dgcal.pos.lowcost.ukf_pos import read_true_trajectory
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -303,11 +303,11 @@ def solve_pairs(camera, frames, tv: np.ndarray, v: np.ndarray, pa: PseudoAttitud
             continue
         done.append({"t": ta, "fa": fa, "args": args, "seed_from": src})
         ok.append(len(done) - 1)
-    # the run's floor under the pairs' sigmas, then the GNSS-track check; a pair seeded by a rejected one is solved
+    # the pairs' sigmas with the run's evidence, then the GNSS-track check; a pair seeded by a rejected one is solved
     # again (seeded by the last pair before it that is not rejected)
-    ratios = variance_floor_ratios([d["fa"] for d in done])
+    ratios = variance_ratios([d["fa"] for d in done])
     for d in done:
-        apply_variance_floor(d["fa"], ratios)
+        pool_sigmas(d["fa"], ratios)
     rejected: dict[int, str] = {}
     while True:   # ends: each round rejects pairs, or solves again pairs whose new seeds are not rejected
         keep = [n for n in range(len(done)) if n not in rejected]
@@ -325,7 +325,7 @@ def solve_pairs(camera, frames, tv: np.ndarray, v: np.ndarray, pa: PseudoAttitud
             if reason is not None:
                 rejected[n] = reason
             else:
-                apply_variance_floor(fa, ratios)
+                pool_sigmas(fa, ratios)
                 done[n].update(fa=fa, seed_from=src)
     failed += [(done[n]["t"], r) for n, r in rejected.items()]
     return [_row(d["fa"], d["args"]) for n, d in enumerate(done) if n not in rejected], sorted(failed)

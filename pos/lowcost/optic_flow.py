@@ -80,6 +80,7 @@ class Foe:
     sigma_rotation_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
     cov_formal: np.ndarray | None = None   # from the residual scatter, tracks taken as independent
     n_blocks: int = 0                      # image blocks of the delete-a-block jackknife (0: not used)
+    vif: np.ndarray = field(default_factory=lambda: np.ones(2))   # FOE variance with / without the rotation
     rotation_rad: np.ndarray = field(default_factory=lambda: np.zeros(3))   # the residual rotation (x, y, z)
     flow_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))       # de-rotated flow length of each inlier
     # the jackknife's replicates: block left out of each, [e, rotation] (rad) without it
@@ -153,6 +154,8 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     Jm = sol.jac[inl]
     s2 = float(np.sum(r[inl] ** 2) / max(inl.sum() - len(sol.x), 1))
     cov = np.linalg.inv(Jm.T @ Jm) * s2
+    # how much estimating the rotation costs the FOE: formal variance with it over without it, per FOE axis
+    vif = np.diag(cov)[:2] / np.diag(np.linalg.inv(Jm[:, :2].T @ Jm[:, :2]) * s2)
     mask = np.zeros(len(keep), bool)
     mask[np.flatnonzero(keep)[inl]] = True
     R_derotated_to_cam1 = R_derotated_to_cam1_at(sol.x) if axes else np.eye(3)
@@ -183,7 +186,7 @@ def focus_of_expansion(d1: np.ndarray, d2: np.ndarray, estimate_rotation: str = 
     return Foe(e=sol.x[:2], cov=cov_e, inliers=mask, rms_rad=float(np.sqrt(s2)),
                R_derotated_to_cam1=R_derotated_to_cam1, sigma_rotation_rad=np.sqrt(np.diag(cov)[2:]),
                cov_formal=cov[:2, :2], n_blocks=nb, rotation_rad=w_fit, flow_rad=flow, jack_blocks=jack_blocks,
-               jack_rotation_rad=jack_rot, jack_e=jack_e)
+               jack_rotation_rad=jack_rot, jack_e=jack_e, vif=vif)
 
 
 def _refit(x1: np.ndarray, D2: np.ndarray, p0: np.ndarray, axes: list[int], f_scale: float) -> np.ndarray:
@@ -250,21 +253,25 @@ class FlowAttitude:
     variance: dict = field(default_factory=dict)
 
 
-def variance_floor_ratios(fas: list[FlowAttitude]) -> np.ndarray:
-    """The imagery's correlation factor of a run: per quantity (pitch, yaw, AGL) the median over its pairs with a
-    jackknife of the jackknife variance over the formal one (tracks taken as independent)."""
+def variance_ratios(fas: list[FlowAttitude]) -> np.ndarray:
+    """The imagery's correlation factor over a run of pairs: per quantity (pitch, yaw, AGL) the median over the pairs
+    with a jackknife of its variance over the formal one (tracks taken as independent)."""
     r = [fa.variance["jackknife"] / np.maximum(fa.variance["formal"], 1e-300) for fa in fas
          if fa.variance.get("n_blocks")]
     return np.median(r, axis=0) if r else np.full(3, 4.0)
 
 
-def apply_variance_floor(fa: FlowAttitude, ratios: np.ndarray) -> None:
-    """Floor a pair's pitch, yaw and AGL sigmas (in place) at its formal variance times the run's `ratios`
-    (`variance_floor_ratios`): a jackknife over a dozen image blocks has about as many degrees of freedom and now
-    and then falls well short; the formal variance has one per track, and the run's factor carries the tracking
-    errors' correlation into it. A pair whose own jackknife is larger (few or clustered tracks) keeps it."""
+def pool_sigmas(fa: FlowAttitude, ratios: np.ndarray) -> None:
+    """A pair's pitch, yaw and AGL sigmas (in place) with the run's evidence: a jackknife over a dozen image blocks
+    has about as many degrees of freedom and now and then falls well short, while the pair's formal variance times
+    the run's `ratios` (`variance_ratios`: the tracking errors' correlation) has one per track. Their mean, scaled
+    for the degrees of freedom of the two (2 nu: error / sigma is Student-t, whose variance is 2nu / (2nu - 2)),
+    raises the jackknife's variance, never lowers it (a pair with few or clustered tracks keeps its own)."""
     v = fa.variance
-    sig = np.sqrt(np.maximum(v["jackknife"], np.asarray(ratios) * v["formal"]) + v["other"])
+    nu2 = 2.0 * (v["n_blocks"] - 1)
+    t = nu2 / (nu2 - 2.0) if v["n_blocks"] else 1.0
+    pooled = t * 0.5 * (v["jackknife"] + np.asarray(ratios) * v["formal"])
+    sig = np.sqrt(np.maximum(v["jackknife"], pooled) + v["other"])
     fa.sigma_pitch, fa.sigma_yaw, fa.sigma_agl_m = (float(x) for x in sig)
 
 
@@ -361,7 +368,7 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
     off by about that much (a ramp's corner under a moving average of width w: the rate off by half its change,
     the angle by w/8 of it, so w/4 for the pseudo attitude's derivative window w). The height above ground's:
     the jackknife's replicates (each refits FOE and rotation without one block), the GNSS speed, the roll, and
-    the last pass's change. `variance` keeps the parts (`apply_variance_floor` floors them over a run) and
+    the last pass's change. `variance` keeps the parts (`pool_sigmas` uses a run of pairs) and
     `quality` the fit's diagnostics: residual RMS and median de-rotated flow (px), residual rotation (deg), the
     pseudo roll-rate error (deg/s), the jackknife's blocks and the last pass's changes."""
     rph1 = np.asarray(pseudo_rph1_deg, float)
@@ -423,9 +430,9 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
     J = np.column_stack([py(foe.e + h, v_ned_mid, rph1[0]) / 1e-5 for h in np.eye(2) * 1e-5])
     Jv = np.column_stack([py(foe.e, v_ned_mid + h, rph1[0]) / 1e-4 for h in np.eye(3) * 1e-4])
     Jr = py(foe.e, v_ned_mid, rph1[0] + 1e-4) / 1e-4
-    # pitch and yaw variances, three parts: the FOE's by the jackknife (without it the formal covariance, which
-    # misses the neighbours' correlation, about a factor two in sigma), the FOE's formal one (tracks independent: for
-    # the run's floor, `apply_variance_floor`) and the rest (GNSS velocity, pseudo-roll, the last pass's change)
+    # pitch and yaw variances, three parts: the FOE's by the jackknife (without it the formal covariance times four:
+    # it misses the neighbours' correlation, about a factor two in sigma), the FOE's formal one (tracks independent:
+    # for `pool_sigmas`) and the rest (GNSS velocity, the roll, the last pass's change)
     inflate = 1.0 if foe.n_blocks else 4.0
     v_jack = inflate * np.diag(J @ foe.cov @ J.T)
     v_formal = np.diag(J @ foe.cov_formal @ J.T) if foe.cov_formal is not None else v_jack / inflate
@@ -460,12 +467,16 @@ def flow_attitude(camera, img1: np.ndarray, img2: np.ndarray, dt: float, pseudo_
         var_agl_jack = inflate * var_agl_formal
     variance = {"jackknife": np.r_[v_jack, var_agl_jack], "formal": np.r_[v_formal, var_agl_formal],
                 "other": np.r_[np.diag(C_other), var_agl_other], "n_blocks": int(foe.n_blocks)}
-    sig = np.sqrt(variance["jackknife"] + variance["other"])
+    # the jackknife's variance has n_blocks - 1 = nu degrees of freedom: error / sigma is Student-t, whose variance
+    # is nu / (nu - 2) (a run of pairs does better: `pool_sigmas`)
+    nu = foe.n_blocks - 1.0
+    sig = np.sqrt(variance["jackknife"] * (nu / (nu - 2.0) if foe.n_blocks else 1.0) + variance["other"])
     f_px = float(K[0, 0])
     flow_px = foe.flow_rad * f_px
     quality = {"rms_px": foe.rms_rad * f_px, "parallax_px": float(np.median(flow_px)) if len(flow_px) else 0.0,
                "rotation_deg": np.degrees(foe.rotation_rad).tolist(),
                "roll_rate_error_dps": float(np.degrees(rate_err)), "n_blocks": int(foe.n_blocks),
+               "vif": foe.vif.tolist(),
                "last_change": [] if prev is None else [float(pitch - prev[0]),
                                                        float((yaw - prev[1] + 180.0) % 360.0 - 180.0),
                                                        float(med - prev[2])]}
