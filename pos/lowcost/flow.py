@@ -216,20 +216,28 @@ def pair_gate(fa: FlowAttitude, max_residual_px: float = FB_MAX_PX, min_inlier_f
 
 
 def track_gate(t: np.ndarray, agl: np.ndarray, sigma_agl: np.ndarray, h_track: np.ndarray, window_s: float = 30.0,
-               k_sigma: float = 5.0, min_neighbours: int = 3) -> list[str | None]:
+               k_sigma: float = 5.0, min_neighbours: int = 4) -> list[str | None]:
     """Heights above ground checked against the GNSS track: each pair's ground height (track height minus its AGL)
-    beside the median of its neighbours' within `window_s` s, within `k_sigma` times its sigma and the
-    neighbours' scatter (terrain and noise: 1.4826 MAD) combined; a reason per pair (None: consistent, or fewer than
-    `min_neighbours` neighbours to judge)."""
+    beside a robust straight line through its neighbours' within `window_s` s (terrain that rises or falls along
+    the track), within `k_sigma` times its sigma and the neighbours' scatter about the line (1.4826 MAD) combined;
+    a reason per pair (None: consistent, or fewer than `min_neighbours` neighbours to judge)."""
     g = h_track - agl
     out: list[str | None] = []
     for i in range(len(t)):
-        nb = (np.abs(t - t[i]) <= window_s) & (np.arange(len(t)) != i)
-        if nb.sum() < min_neighbours:
+        nb = np.flatnonzero((np.abs(t - t[i]) <= window_s) & (np.arange(len(t)) != i))
+        if len(nb) < min_neighbours:
             out.append(None)
             continue
-        ref = float(np.median(g[nb]))
-        spread = 1.4826 * float(np.median(np.abs(g[nb] - ref)))
+        x, y = t[nb] - t[i], g[nb]
+        use = np.ones(len(nb), bool)
+        for _ in range(3):   # least squares, then without the neighbours 3.5 robust sigmas off the line
+            c = np.polyfit(x[use], y[use], 1) if np.ptp(x[use]) > 0 else np.array([0.0, np.median(y[use])])
+            r = y - np.polyval(c, x)
+            spread = 1.4826 * float(np.median(np.abs(r[use])))
+            use = np.abs(r) <= 3.5 * max(spread, 1e-9)
+            if use.sum() < min_neighbours:
+                break
+        ref = float(c[1])
         tol = k_sigma * float(np.hypot(sigma_agl[i], spread))
         if abs(g[i] - ref) > tol:
             out.append(f"height above ground {agl[i]:.1f} +- {sigma_agl[i]:.1f} m disagrees with the GNSS track and "
