@@ -28,10 +28,19 @@ def write_accuracy_csv(path: Path, table: list[dict]) -> None:
                               for c in ACCURACY_COLUMNS) + "\n")
 
 
+def _shade_outages(axs, res: UkfPosResult, t0: float) -> None:
+    """Grey bands over the GNSS outages the UKF predicted through."""
+    for i, o in enumerate(res.summary.get("gnss_outages", [])):
+        for a in axs:
+            a.axvspan(o["t_start_gps"] - t0, o["t_start_gps"] + o["length_s"] - t0, color="grey", alpha=0.15, lw=0,
+                      label="GNSS outage" if i == 0 and a is axs[0] else None)
+
+
 def _sigmas(res: UkfPosResult):
     fig, axs = new_figure(9, 5.5, nrows=2, sharex=True)
     k = res.keyframes
     t = k.t - k.t[0]
+    _shade_outages(axs, res, k.t[0])
     for j, name in enumerate(("north", "east", "down")):
         axs[0].plot(t, k.sigma[:, j], lw=0.8, label=f"UKF {name}")
     for j, name in enumerate(("roll", "pitch", "heading")):
@@ -56,6 +65,7 @@ def _errors(res: UkfPosResult):
     k = res.keyframes
     d_att, _ = errors_vs_truth(k, res.truth)
     t = k.t - k.t[0]
+    _shade_outages(axs, res, k.t[0])
     for i, (a, name) in enumerate(zip(axs, ("roll", "pitch", "heading"))):
         a.plot(t, d_att[:, i], lw=0.7, label="UKF error")
         a.fill_between(t, -k.sigma[:, 3 + i], k.sigma[:, 3 + i], alpha=0.25, label="UKF 1 sigma")
@@ -73,6 +83,7 @@ def _innovations(res: UkfPosResult):
     fig, ax = new_figure(9, 3)
     u = res.ukf
     ax.plot(u.t - u.t[0], u.nis, ".", ms=1, alpha=0.5)
+    _shade_outages([ax], res, u.t[0])
     ax.axhline(1.0, color="#d33", lw=0.7)
     ax.set_yscale("log")
     ax.set_ylabel("NIS / dof")
@@ -85,7 +96,21 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
     """One-file HTML report of a `dgcal pos --mode ukf` run."""
     s = res.summary
     rep = HtmlReport("GNSS/INS trajectory (seed 000 UKF)")
-    rep.kv_table([("filter", s["filter"]), ("epochs (one per GNSS fix)", s["keyframes"]),
+    outages = s.get("gnss_outages", [])
+    st = s.get("start") or {}
+    head = ("from the GNSS course at the start" if st.get("heading_known") else
+            "unknown at the start (slower than the alignment speed)"
+            + (f", from the GNSS course after {st['t_heading_aligned'] - s['t_start_gps']:.1f} s"
+               if st.get("t_heading_aligned") is not None else ", never moving fast enough for the course"))
+    rep.kv_table([("filter", s["filter"]), ("epochs (every GNSS fix; the output rate where no fix is near)",
+                                            s["keyframes"]),
+                  ("epochs predicted without a GNSS update", s.get("epochs_without_gnss_update")),
+                  ("GNSS outages bridged by the IMU (longest, s)",
+                   f"{len(outages)} ({max(o['length_s'] for o in outages):.1f})" if outages else "none"),
+                  ("events inside GNSS outages", s.get("events_in_gnss_outages")),
+                  ("start: roll, pitch (deg)", f"{st.get('roll_pitch_deg')} +- {st.get('roll_pitch_sigma_deg')} "
+                                               f"({st.get('levelled')})" if st else None),
+                  ("start: heading", head if st else None),
                   ("duration (s)", round(s["t_end_gps"] - s["t_start_gps"], 1)),
                   ("median sigma N/E/D (m)", s["median_sigma_m"]),
                   ("median sigma roll/pitch/heading (deg)", s["median_sigma_deg"]),
@@ -108,8 +133,10 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
     rep.heading("Accuracy: the UKF beside the smoother")
     rep.text("Median 1-sigma each solution claims" + (", and its errors against the true trajectory (mean, std, "
              "RMS) with the RMS of error / sigma" if res.truth is not None else " (give --truth for the errors)")
-             + f", over the epochs after the first {s['skip_s']:g} s that both share. Seed 000 (real flight, "
-             f"vs a vertical gyro): roll std {SEED000['roll']} deg, pitch std {SEED000['pitch']} deg.")
+             + f", over the epochs after the first {s['skip_s']:g} s that both share"
+             + ("; rows ukf_outages: the UKF alone on its epochs inside the GNSS outages" if outages else "")
+             + f". Seed 000 (real flight, vs a vertical gyro): roll std {SEED000['roll']} deg, pitch std "
+             f"{SEED000['pitch']} deg.")
     rep.table(list(ACCURACY_COLUMNS), [[r.get(c) for c in ACCURACY_COLUMNS] for r in rows])
     rep.heading("Sigma envelopes").figure(partial(_sigmas, res), "1-sigma of the UKF (and the smoother, dashed)")
     if res.truth is not None:
@@ -122,8 +149,8 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
 def write_ukf_outputs(out_dir: str | Path, res: UkfPosResult, names: Mapping[str, str], report: bool = True
                       ) -> dict[str, Path]:
     """`dgcal pos --mode ukf`'s files in `out_dir`, by role in `names`: trajectory (output rate), events (one row per
-    event), trajectory_fixes (every fix epoch), accuracy (CSV), summary (JSON), report (HTML, unless `report` is
-    False); returns the paths."""
+    event), trajectory_fixes (every filter epoch: each fix, and the IMU's predictions where no fix is near, as in GNSS
+    outages), accuracy (CSV), summary (JSON), report (HTML, unless `report` is False); returns the paths."""
     out = Path(out_dir)
     paths = {"trajectory": out / names["trajectory"]}
     write_trajectory(paths["trajectory"], res.trajectory)

@@ -4,11 +4,16 @@ a down-looking laser range finder (10 Hz) along the camera axis.
 
 GNSS position errors are time-correlated (first-order Gauss-Markov, the OEMV-1 class of seed 000 Table 3:
 about 1.5 m horizontal RMS) plus a little white noise; velocities carry white noise only.
+
+Other settings of the same family (`simulate_lowcost_flight`): slow platforms (`speed` 1 m/s with a gentle
+`bank_deg`, `climb_rate`, short legs), a static start (`static_s` at rest, then a smooth acceleration to the
+speed), a constant crab angle (`crab_deg`: heading - course) and GNSS outages (`gnss_outages`: START LENGTH
+PERIOD s, the fixes inside withheld; the spans in `LowcostFlight.outages` and truth.json).
 """
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +34,8 @@ from dgcal.pos.lowcost.ukf import run_ukf
 from dgcal.pos.smoother.batch import SmootherOptions, smooth
 from dgcal.pos.smoother.initial import GnssFixes
 from dgcal.sim.imu import ImuErrorRealisation, simulate_imu
-from dgcal.sim.trajectory import TrueTrajectory, camera_events, simulate_true_trajectory
+from dgcal.sim.trajectory import (FlightProfile, Segment, SmoothSteps, TrueTrajectory, assemble_trajectory,
+                                  camera_events, simulate_true_trajectory)
 
 
 @dataclass
@@ -42,6 +48,7 @@ class LowcostFlight:
     fixes: GnssFixes
     gnss_error_ned: np.ndarray  # true position error of each fix (N,3) m
     h_ground: float
+    outages: list = field(default_factory=list)  # GNSS outages [(t_start, t_end) GPS s]: no fixes inside
 
 
 def gnss_fixes(truth: TrueTrajectory, rate_hz: float = 50.0, sigma_h_m: float = 1.5, sigma_v_m: float = 2.5,
@@ -78,15 +85,93 @@ def simulate_lowcost_flight(duration_s: float = 180.0, rate_hz: float = 100.0, g
                             height_agl: float = 113.0, speed: float = 26.0, bank_deg: float = 20.0,
                             leg_length_m: float = 1200.0, loop_width_m: float = 400.0, lat0: float = 39.65,
                             lon0: float = -79.95, h_ground: float = 300.0, grade: str = "adis16405",
-                            seed: int = 0) -> LowcostFlight:
-    """The seed 000 flight (Phastball: 113 m AGL, 26 m/s, NASCAR loop) with IMU and 50 Hz GNSS; truth body FRD."""
+                            seed: int = 0, climb_rate: float = 4.0, margin_m: float = 150.0, crab_deg: float = 0.0,
+                            static_s: float = 0.0, gnss_outages: tuple[float, float, float] | None = None
+                            ) -> LowcostFlight:
+    """The seed 000 flight (Phastball: 113 m AGL, 26 m/s, NASCAR loop) with IMU and 50 Hz GNSS; truth body FRD.
+
+    `static_s` > 0: the platform first rests that long (GNSS running), then accelerates smoothly to `speed`
+    (over max(2, speed/2) s, straight and level) before the flight plan starts. `gnss_outages` = (start, length,
+    period) s from the first fix: the fixes in [t0 + start + k period, + length) are withheld."""
+    shift = 0.0
+    ramp_s = max(2.0, speed / 2.0)
+    if static_s > 0:
+        shift = static_s + ramp_s
     truth = simulate_true_trajectory("fixed-wing", lat0=lat0, lon0=lon0, h_ground=h_ground, heights_agl=(height_agl,),
                                      n_strips=2, strip_length_m=leg_length_m, strip_spacing_m=loop_width_m,
-                                     strip_heading_deg=225.0, speed=speed, bank_deg=bank_deg, climb_rate=4.0,
-                                     aoa_deg=2.0, rate_hz=rate_hz, duration_s=duration_s)
+                                     strip_heading_deg=225.0, speed=speed, bank_deg=bank_deg, climb_rate=climb_rate,
+                                     aoa_deg=2.0, crab_deg=crab_deg, margin_m=margin_m, rate_hz=rate_hz,
+                                     duration_s=max(duration_s - shift, 1.0))
+    if static_s > 0:
+        truth = _with_static_start(truth, static_s, ramp_s, duration_s)
     imu, err = simulate_imu(truth, grade, seed=seed)
     fixes, e = gnss_fixes(truth, gnss_hz, seed=seed + 1)
-    return LowcostFlight(truth, imu, err, fixes, e, h_ground)
+    spans: list = []
+    if gnss_outages is not None:
+        keep, spans = outage_spans(fixes.t, gnss_outages)
+        fixes = GnssFixes(fixes.t[keep], fixes.p_ecef[keep], fixes.sigma_ned[keep], fixes.v_ecef[keep],
+                          fixes.sigma_v_ned[keep])
+        e = e[keep]
+    return LowcostFlight(truth, imu, err, fixes, e, h_ground, spans)
+
+
+def outage_spans(t: np.ndarray, outages: tuple[float, float, float]) -> tuple[np.ndarray, list]:
+    """Fixes outside GNSS outages (start, length, period) s from t[0] (the mask of epochs kept) and the outages'
+    [t_start, t_end) spans (GPS s) inside the fixes' time span."""
+    start, length, period = (float(v) for v in outages)
+    if not (length > 0 and period > length and start >= 0):
+        raise ValueError(f"GNSS outages need start >= 0, length > 0 and period > length, not {outages}")
+    t = np.asarray(t, float)
+    x = t - (t[0] + start)
+    keep = ~((x >= 0) & (np.mod(x, period) < length))
+    a = t[0] + start + period * np.arange(int(np.floor((t[-1] - t[0] - start) / period)) + 1)
+    spans = [(float(s), float(min(s + length, t[-1]))) for s in a if s < t[-1]]
+    return keep, spans
+
+
+@dataclass
+class _RampedProfile(FlightProfile):
+    """A flight profile whose horizontal speed is `speed` times a smooth factor `ramp` (0 at rest, then 1)."""
+
+    ramp: SmoothSteps | None = None
+
+    def controls(self, t: np.ndarray) -> dict:
+        c = super().controls(t)
+        _, s, sd, sdd = self.ramp.evaluate(np.asarray(t, float) - self.t0)
+        V, psi, r, rdot = self.speed, c["psi"], c["r"], c["rdot"]
+        u = np.stack([np.cos(psi), np.sin(psi)], -1)      # along the course
+        w = np.stack([-np.sin(psi), np.cos(psi)], -1)     # to its right
+        c["v_l"][..., :2] = (s * V)[..., None] * u
+        c["a_l"][..., :2] = (sd * V)[..., None] * u + (s * V * r)[..., None] * w
+        c["j_l"][..., :2] = ((sdd * V - s * V * r * r)[..., None] * u
+                             + (2 * sd * V * r + s * V * rdot)[..., None] * w)
+        return c
+
+
+def _with_static_start(truth: TrueTrajectory, static_s: float, ramp_s: float, duration_s: float) -> TrueTrajectory:
+    """`truth`'s flight plan delayed by static_s + ramp_s: at rest for static_s, a straight level acceleration to its
+    speed over ramp_s, then the plan; `duration_s` in all."""
+    p = truth.profile
+    shift = static_s + ramp_s
+
+    def later(st: SmoothSteps) -> SmoothSteps:
+        return SmoothSteps(st.a + shift, st.T, st.delta)
+
+    prof = _RampedProfile(p.lat0, p.lon0, p.h0, p.t0, p.p0_l.copy(), p.speed, p.heading0, later(p.turn),
+                          later(p.climb), p.aoa_rad, p.crab_rad, ramp=SmoothSteps([static_s], [ramp_s], [1.0]))
+    rate = truth.rate_hz
+    n = int(np.floor(duration_s * rate + 1e-9)) + 1
+    t = p.t0 + np.arange(n) / rate
+    inc = prof.horizontal_increment(t[:-1], t[1:])
+    p_l = np.zeros((n, 3))
+    p_l[:, :2] = prof.p0_l[:2] + np.vstack([np.zeros(2), np.cumsum(inc, axis=0)])
+    p_l[:, 2] = prof.p0_l[2] - prof.climb.evaluate(t - p.t0)[0]
+    out = assemble_trajectory(prof, t, p_l, with_increments=True, rate_hz=rate)
+    t_end = float(t[-1])
+    out.segments = [Segment("static", p.t0, p.t0 + static_s), Segment("takeoff", p.t0 + static_s, p.t0 + shift)]
+    out.segments += [Segment(s.kind, s.t_start + shift, min(s.t_end + shift, t_end), s.index, s.height_agl,
+                             s.heading_deg) for s in truth.segments if s.t_start + shift < t_end]
+    return out
 
 
 def laser_ranges(truth: TrueTrajectory, t: np.ndarray, ground_height, axis_b=(0.0, 0.0, 1.0), sigma_m: float = 0.3,
@@ -133,7 +218,8 @@ def write_lowcost_dataset(out: str | Path, f: LowcostFlight, seed: int = 0, even
                    header="t_gps,lat,lon,h,vn,ve,vd,roll,pitch,heading", comments="")
         (Path(d) / "truth.json").write_text(json.dumps({"imu_errors": f.imu_errors.as_dict(),
                                                        "h_ground": f.h_ground, "seed": seed,
-                                                       "imu_grade": f.imu_errors.grade.name}, indent=1))
+                                                       "imu_grade": f.imu_errors.grade.name,
+                                                       "gnss_outages": [list(o) for o in f.outages]}, indent=1))
 def attitude_error_stats(err_deg: np.ndarray) -> dict:
     """Mean, std and RMS (deg) of roll/pitch/heading errors (N,3) — the rows of seed 000 / 001 accuracy tables."""
     e = np.asarray(err_deg, float)
@@ -196,6 +282,70 @@ def format_accuracy_table(report: dict) -> str:
         lines.append(f"{k:10s}{r['roll']['rms_deg']:10.3f}{r['pitch']['rms_deg']:10.3f}{r['heading']['rms_deg']:10.3f}"
                      f"{r['roll']['std_deg']:10.3f}{r['pitch']['std_deg']:10.3f}{pos:>22s}")
     lines.append(f"{'seed 000':10s}{'':30s}{2.6:10.3f}{2.1:10.3f}")
+    return "\n".join(lines)
+
+
+# --- the UKF through GNSS outages and from slow or static starts (issue 27) ---------------------------------
+
+SLOW_1MPS = dict(speed=1.0, bank_deg=1.2, height_agl=10.0, climb_rate=0.3, leg_length_m=60.0, loop_width_m=20.0,
+                 margin_m=10.0)
+MID_10MPS = dict(speed=10.0, bank_deg=15.0, height_agl=60.0, climb_rate=2.0, leg_length_m=500.0, loop_width_m=150.0,
+                 margin_m=50.0)
+# name -> (flight settings of simulate_lowcost_flight, duration s, GNSS outages (start, length, period) s, static s)
+UKF_STUDY_SETTINGS = {
+    "26 m/s, 30 s outages": ({}, 240.0, (60.0, 30.0, 120.0), 0.0),
+    "10 m/s, 60 s outages": (MID_10MPS, 240.0, (40.0, 60.0, 120.0), 0.0),
+    "1 m/s, 10 s outages": (SLOW_1MPS, 240.0, (60.0, 10.0, 40.0), 0.0),
+    "1 m/s from rest, 60 s outages": (SLOW_1MPS, 300.0, (80.0, 60.0, 120.0), 20.0),
+    "26 m/s from rest, 45 s outages": ({}, 240.0, (90.0, 45.0, 150.0), 20.0),
+    "10 m/s from rest, 20 s outages": (MID_10MPS, 200.0, (50.0, 20.0, 50.0), 15.0),
+}
+
+
+def ukf_outage_study(settings: dict | None = None, seeds=range(5), rate_hz: float = 10.0) -> dict:
+    """Seed 000's UKF on the low-cost family at other settings (`UKF_STUDY_SETTINGS`: slow platforms, starts at rest,
+    GNSS outages): per setting, the RMS and the largest |error| / sigma of roll, pitch, heading, N, E, D (IMU against
+    the truth at every state from the first fix, nothing left out for convergence) with GNSS and inside the outages,
+    pooled over the seeds; the heading before the course is known (a uniform heading's sigma) is left out of the
+    heading column and counted apart. Returns {name: {"with_gnss"|"outages": {"rms": [6], "max": [6], "n"},
+    "heading_unknown_epochs": n, "max_heading_unknown_z": z}}."""
+    out = {}
+    for name, (kw, dur, outages, static) in (settings or UKF_STUDY_SETTINGS).items():
+        pools = {"with_gnss": [], "outages": []}
+        n_unknown, z_unknown = 0, 0.0
+        for seed in seeds:
+            f = simulate_lowcost_flight(duration_s=dur, seed=seed, gnss_outages=outages, static_s=static, **kw)
+            u = run_ukf(f.imu, f.fixes, f.imu_errors.grade, rate_hz=rate_hz)
+            e_att = np.radians(_rph_error(f.truth, u.t, u.rph_deg))
+            z_att = e_att / np.sqrt(np.einsum("kii->ki", u.P[:, 6:9, 6:9]))
+            e_pos = u.p_nav - u.frame.from_ecef(f.truth.at(u.t).p_ecef)
+            z = np.column_stack([z_att, e_pos / u.sigma_p_nav])
+            unknown = ~u.heading_known
+            n_unknown += int(unknown.sum())
+            z_unknown = max(z_unknown, float(np.abs(z[unknown, 2]).max()) if unknown.any() else 0.0)
+            z[unknown, 2] = np.nan
+            inside = np.zeros(len(u.t), bool)
+            for a, b in f.outages:
+                inside |= (u.t >= a) & (u.t < b)
+            pools["with_gnss"].append(z[~inside])
+            pools["outages"].append(z[inside])
+        row = {}
+        for k, zs in pools.items():
+            z = np.vstack(zs)
+            row[k] = {"rms": np.sqrt(np.nanmean(z ** 2, axis=0)).round(3).tolist(),
+                      "max": np.nanmax(np.abs(z), axis=0).round(3).tolist(), "n": int(len(z))}
+        row.update(heading_unknown_epochs=n_unknown, max_heading_unknown_z=round(z_unknown, 3))
+        out[name] = row
+    return out
+
+
+def format_outage_study(study: dict) -> str:
+    """`ukf_outage_study` as the Markdown table of docs/lowcost_payload.md (roll/pitch/heading/N/E/D)."""
+    f = lambda v: "/".join(f"{x:.2f}" for x in v)  # noqa: E731
+    lines = ["| setting | with GNSS | inside the outages | max \\|error\\|/sigma |", "|---|---|---|---|"]
+    for name, r in study.items():
+        mx = np.maximum(r["with_gnss"]["max"], r["outages"]["max"])
+        lines.append(f"| {name} | {f(r['with_gnss']['rms'])} | {f(r['outages']['rms'])} | {f(mx)} |")
     return "\n".join(lines)
 
 

@@ -1,10 +1,14 @@
 """`dgcal pos --mode ukf`: seed 000's 15-state UKF (with three GNSS error states) on the pos pipeline's inputs, the
 gtsam LC smoother on the same fixes beside it, and both against a true trajectory when one is given.
 
+The UKF has a state at every fix and, where no fix is near (GNSS outages, the IMU record after the last fix), at the
+output rate, predicted by the IMU: the trajectory at the output rate and the events' poses cover the whole span from
+the first fix to the end of the IMU record.
+
 The accuracy table has one row per solution and quantity (roll, pitch, heading deg; north, east, down m):
 the median 1-sigma the solution claims and, with a truth, the error's mean, std, RMS and the normalised
 error RMS (error / claimed sigma: 1 when the sigmas are honest), over the epochs after `skip_s` of
-convergence that both solutions share.
+convergence that both solutions share; with GNSS outages, rows `ukf_outages` over the UKF's epochs inside them.
 """
 from __future__ import annotations
 
@@ -45,12 +49,43 @@ class UkfPosResult:
 
 
 def decimate(tr: Trajectory, rate_hz: float) -> Trajectory:
-    """Every k-th sample of a trajectory so its rate is at most `rate_hz` (Hz), keeping the last one."""
-    dt = float(np.median(np.diff(tr.t))) if len(tr.t) > 1 else 1.0
-    k = max(1, int(round(1.0 / (rate_hz * dt))))
-    idx = np.unique(np.r_[np.arange(0, len(tr.t), k), len(tr.t) - 1])
+    """The samples of a trajectory nearest to a grid at `rate_hz` (Hz) from its first epoch: at most one per grid step
+    (the closest to it), and the last one; irregular epochs (fixes, with predictions in GNSS outages) come out on the
+    grid wherever they have a sample near it."""
+    t = np.asarray(tr.t, float)
+    if len(t) < 2:
+        return tr
+    step = 1.0 / rate_hz
+    g = np.round((t - t[0]) / step)
+    off = np.abs((t - t[0]) - g * step)
+    order = np.lexsort((off, g))
+    first = np.r_[True, g[order][1:] != g[order][:-1]]
+    idx = np.unique(np.r_[order[first], len(t) - 1])
     return Trajectory(tr.t[idx], tr.lat[idx], tr.lon[idx], tr.h[idx], tr.v_ned[idx], tr.rph[idx],
                       None if tr.sigma is None else tr.sigma[idx])
+
+
+def gnss_outages(u: UkfSolution, min_gap_s: float | None = None) -> list[tuple[float, float]]:
+    """The spans (t_start, t_end) GPS s in which the UKF predicted without a GNSS update for longer than `min_gap_s`
+    (default: 5 median fix intervals, at least 1 s), the end of the IMU record after the last fix included."""
+    tu = u.t[u.updated] if u.updated is not None else u.t
+    if len(tu) < 2:
+        return [(float(u.t[0]), float(u.t[-1]))] if u.t[-1] > u.t[0] else []
+    gap = max(1.0, 5.0 * float(np.median(np.diff(tu)))) if min_gap_s is None else float(min_gap_s)
+    d = np.diff(tu)
+    spans = [(float(tu[k]), float(tu[k + 1])) for k in np.flatnonzero(d > gap)]
+    if u.t[-1] - tu[-1] > gap:
+        spans.append((float(tu[-1]), float(u.t[-1])))
+    return spans
+
+
+def in_spans(t: np.ndarray, spans: list) -> np.ndarray:
+    """Mask of the times strictly inside any of the spans (t_start, t_end)."""
+    t = np.asarray(t, float)
+    m = np.zeros(len(t), bool)
+    for a, b in spans:
+        m |= (t > a) & (t < b)
+    return m
 
 
 def errors_vs_truth(tr: Trajectory, truth: Trajectory) -> tuple[np.ndarray, np.ndarray]:
@@ -106,10 +141,15 @@ def process_ukf(imu, grade, lever_arm_b, fixes: GnssFixes, events=None, rate_hz:
     opts.lever_arm_b = np.asarray(lever_arm_b, float)
     # the fixes the IMU's accelerations make impossible never reach the filter (as for the smoother)
     fixes, rejected = screen_fixes(fixes, imu, GNSS_OUTLIER_SIGMA)
-    u = run_ukf(imu, fixes, grade, opts, progress=progress)
+    u = run_ukf(imu, fixes, grade, opts, progress=progress, rate_hz=rate_hz)
     key = u.to_trajectory()
     traj = decimate(key, rate_hz)
-    ev = trajectory_at_events(key, events) if events is not None and len(events) else None
+    ev = None
+    if events is not None and len(events):
+        # every epoch from the first fix to the IMU's end has a state (predicted through GNSS outages): any event in
+        # that span is interpolated between its neighbours, however far the fixes are
+        ev = trajectory_at_events(key, events, max_gap_s=1.01 * float(np.max(np.diff(key.t))) if len(key.t) > 1
+                                  else None)
     sm_tr = None
     if compare:
         step = max(1, int(round(1.0 / (compare_rate_hz * np.median(np.diff(fixes.t))))))
@@ -133,19 +173,28 @@ def process_ukf(imu, grade, lever_arm_b, fixes: GnssFixes, events=None, rate_hz:
     table = accuracy_rows("ukf", _common(key, t), truth)
     if sm_tr is not None:
         table += accuracy_rows("smoother", _common(sm_tr, t), truth)
+    outages = gnss_outages(u)
+    if outages:  # the UKF alone inside the GNSS outages (after the convergence time), every epoch it has there
+        m = in_spans(key.t, outages) & (key.t >= key.t[0] + skip_s)
+        if truth is not None:
+            m &= (key.t >= truth.t[0]) & (key.t <= truth.t[-1])
+        if m.sum() >= 2:
+            table += accuracy_rows("ukf_outages", _common(key, key.t[m]), truth)
     res = UkfPosResult("ukf", u, traj, key, ev, fixes, sm_tr, truth, table)
-    res.summary = summarize_ukf(res, skip_s, int(len(t)))
+    res.summary = summarize_ukf(res, skip_s, int(len(t)), outages)
     if rejected:
         res.summary.setdefault("integrity", {})["gnss_rejected"] = rejected
         res.summary.setdefault("warnings", []).extend(gnss_warnings(rejected))
     return res
 
 
-def summarize_ukf(res: UkfPosResult, skip_s: float, n_compared: int) -> dict:
+def summarize_ukf(res: UkfPosResult, skip_s: float, n_compared: int, outages: list | None = None) -> dict:
     """Numbers for pos_summary.json of `--mode ukf`."""
     s = res.keyframes.sigma
     u = res.ukf
     nis = u.nis[np.isfinite(u.nis)]
+    outages = gnss_outages(u) if outages is None else outages
+    ev_out = int(in_spans(res.events.t, outages).sum()) if res.events is not None else 0
     out = {"mode": "ukf", "filter": f"UKF, {u.info.get('n_states', 15)} states (seed 000's 15"
            + (" + 3 GNSS error states)" if u.info.get("gnss_error_states") else ")"),
            "keyframes": int(len(u.t)), "t_start_gps": float(u.t[0]), "t_end_gps": float(u.t[-1]),
@@ -157,6 +206,9 @@ def summarize_ukf(res: UkfPosResult, skip_s: float, n_compared: int) -> dict:
            "accel_bias_mg_mean": (u.bias[:, :3].mean(0) / 9.80665e-3).round(4).tolist(),
            "nis_mean": float(nis.mean()) if len(nis) else None,
            "events": int(len(res.events.t)) if res.events is not None else 0,
+           "epochs_with_gnss": int(u.updated.sum()), "epochs_without_gnss_update": int((~u.updated).sum()),
+           "gnss_outages": [{"t_start_gps": a, "length_s": round(b - a, 3)} for a, b in outages],
+           "events_in_gnss_outages": ev_out, "start": u.info.get("start"),
            "compared_epochs": n_compared, "skip_s": skip_s, "truth": res.truth is not None,
            "smoother_compared": res.smoother is not None, "accuracy": res.table}
     return out

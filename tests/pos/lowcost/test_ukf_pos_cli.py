@@ -57,6 +57,34 @@ def test_ukf_mode_accuracy_and_honest_sigmas(run):
     assert 0.7 <= zp <= 1.4, zp
 
 
+def test_ukf_mode_through_gnss_outages(tmp_path, run):
+    """Issue 27: --gnss-outages withholds fixes; the UKF predicts through them at the output rate, the events inside get
+    poses with sigmas, the withheld fixes check the trajectory and the accuracy table has the outage rows."""
+    out = tmp_path / "out"
+    rc = main(["pos", "--mode", "ukf", "--imu", str(run / "sim/imu.csv"), "--gnss", str(run / "sim/gnss.csv"),
+               "--events", str(run / "sim/events.csv"), "--imu-grade", "adis16405", "--truth",
+               str(run / "sim/truth_trajectory.csv"), "--gnss-outages", "60", "40", "120", "--set", "compare=false",
+               "--out", str(out), "--no-progress"])
+    assert rc == 0
+    s = json.loads((out / "pos_summary.json").read_text())
+    spans = [(o["t_start_gps"], o["t_start_gps"] + o["length_s"]) for o in s["gnss_outages"]]
+    assert len(spans) == 2 and all(39.9 < b - a < 40.2 for a, b in spans)
+    assert s["withheld_fixes"]["n"] > 3000 and s["withheld_fixes"]["rms_3d_m"] < 100.0
+    events = read_events(run / "sim/events.csv")
+    ev = read_trajectory(out / "events.csv")
+    assert list(ev.image) == list(events.image)                       # every event, none refused
+    inside = np.zeros(len(ev.t), bool)
+    for a, b in spans:
+        inside |= (ev.t > a) & (ev.t < b)
+    assert inside.sum() == s["events_in_gnss_outages"] > 0
+    tr = read_trajectory(out / "trajectory.csv")
+    assert np.max(np.diff(tr.t)) < 0.1 + 1e-3                            # 10 Hz through the outages
+    acc = _accuracy(out / "accuracy.csv")
+    z = [acc[("ukf_outages", q)]["normalised_rms"] for q in ("roll", "pitch", "heading", "north", "east", "down")]
+    assert all(v < 2.5 for v in z) and 0.4 < np.sqrt(np.mean(np.square(z))) < 1.6, z
+    assert acc[("ukf_outages", "north")]["median_sigma"] > 3 * acc[("ukf", "north")]["median_sigma"]
+
+
 def test_ukf_mode_needs_gnss(tmp_path, capsys, run):
     rc = main(["pos", "--mode", "ukf", "--imu", str(run / "sim/imu.csv"), "--imu-grade", "adis16405",
                "--out", str(tmp_path / "out"), "--no-progress"])
