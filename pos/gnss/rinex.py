@@ -161,14 +161,23 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
         if nav == -1:
             raise InputError("RINEX version not supported by the decoder", p, 1)
     by_sat: dict[str, list] = {}
+    dropped: list[str] = []
     for e in nav.eph:
         sid = sat2id(e.sat)
         if isinstance(sid, str) and sid[0] in SYSTEMS:
+            why = implausible_ephemeris(e)
+            if why:
+                dropped.append(f"{sid} toe {float(getattr(e, 'toes', np.nan)):.0f}: {why}")
+                continue
             by_sat.setdefault(sid, []).append(e)
     if not by_sat:
-        raise InputError("no GPS/Galileo/BeiDou/QZSS ephemeris in navigation file", all_paths[0])
+        raise InputError("no GPS/Galileo/BeiDou/QZSS ephemeris in navigation file"
+                         + (f" (all implausible: {dropped[0]})" if dropped else ""), all_paths[0])
     source = ", ".join(str(p) for p in all_paths)
     warnings, ion_source = [], "GPSA/GPSB"
+    if dropped:
+        warnings.append(f"{source}: {len(dropped)} ephemeris record(s) with impossible orbit or clock values left "
+                        f"out: {'; '.join(dropped[:3])}" + (" ..." if len(dropped) > 3 else ""))
     if ion_gps is None:
         if ion_qzs is not None:
             ion_gps, ion_source = ion_qzs, "QZSA/QZSB"
@@ -180,6 +189,23 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
                             "RTKLIB's default Klobuchar coefficients are used")
     return BroadcastNav(eph=nav.eph, by_sat=by_sat, ion_gps=ion_gps, ion_bds=ion_bds,
                         leap_seconds=leap, source=source, ion_source=ion_source, warnings=warnings)
+
+
+# what a GNSS broadcast ephemeris can hold: orbits from MEO to GEO (Galileo E14/E18: e 0.16), clocks below a second
+EPH_LIMITS = {"A": (2.0e7, 4.5e7), "e": (0.0, 0.25), "af0": (-1.0, 1.0), "af1": (-1e-6, 1e-6), "af2": (-1e-9, 1e-9),
+              "i0": (-3.2, 3.2), "deln": (-1e-6, 1e-6), "idot": (-1e-6, 1e-6), "OMGd": (-1e-5, 1e-5)}
+
+
+def implausible_ephemeris(e) -> str:
+    """Why a decoded ephemeris cannot be a satellite's (a corrupt record: 1e20, inf), or '' when it can."""
+    for name, (lo, hi) in EPH_LIMITS.items():
+        v = getattr(e, name, None)
+        if v is None:
+            continue
+        v = float(v)
+        if not (np.isfinite(v) and lo <= v <= hi):
+            return f"{name} = {v:.6g} outside [{lo:g}, {hi:g}]"
+    return ""
 
 
 # ----------------------------------------------------------------------------------------- obs

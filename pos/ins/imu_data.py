@@ -202,7 +202,28 @@ def finish_imu(path: Path, lines: np.ndarray, t: np.ndarray, g: np.ndarray, a: n
         imu.path, imu.lines = path, lines
     else:
         raise InputError(f"unknown IMU data kind {kind!r} (use 'increments' or 'rates')", path)
+    _check_ranges(imu, path, lines)
     return imu.rotated(R_sensor_to_body) if R_sensor_to_body is not None else imu
+
+
+MAX_GYRO_RAD_S = 100.0          # 5700 deg/s: beyond any IMU's range (a sample beyond is a corrupt value)
+MAX_ACCEL_M_S2 = 2000.0         # 200 g: beyond any navigation IMU's accelerometer range
+
+
+def _check_ranges(imu: ImuData, path: Path, lines: np.ndarray) -> None:
+    """Every sample's rate and specific force within what an IMU can measure (1e20 in a column is a corrupt file,
+    not a manoeuvre); InputError naming the line and column."""
+    dt = imu.dt
+    for name, inc, lim, cols in (("gyro", imu.dtheta, MAX_GYRO_RAD_S, ("gx", "gy", "gz")),
+                                 ("accel", imu.dvel, MAX_ACCEL_M_S2, ("ax", "ay", "az"))):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = np.abs(inc / dt[:, None])
+        bad = ~(v <= lim)
+        if bad.any():
+            i, j = np.argwhere(bad)[0]
+            unit = "rad/s" if name == "gyro" else "m/s^2"
+            raise InputError(f"{name} {v[i, j]:.4g} {unit} is beyond any IMU's range ({lim:g} {unit}): a corrupt "
+                             "value or a unit mistake", path, int(lines[i]) if lines is not None else None, cols[j])
 
 
 def read_kf_gins(path: str | Path, gps_week: int | None = None, rate_hz: float | None = None) -> ImuData:

@@ -68,10 +68,28 @@ def _gps_time(path: Path, sow: np.ndarray, gps_week: int | None) -> np.ndarray:
     return t
 
 
+# what an SBET record can hold (radians, metres, m/s, m/s^2, rad/s): beyond is a corrupt file or another format
+SBET_LIMITS = {"time": (-1.0, 2.0e9), "lat": (-np.pi / 2, np.pi / 2), "lon": (-2 * np.pi, 2 * np.pi),
+               "alt": (-1.0e3, 1.0e5), "vx": (-1.0e3, 1.0e3), "vy": (-1.0e3, 1.0e3), "vz": (-1.0e3, 1.0e3),
+               "roll": (-7.0, 7.0), "pitch": (-7.0, 7.0), "heading": (-7.0, 7.0), "wander": (-7.0, 7.0),
+               "ax": (-2.0e3, 2.0e3), "ay": (-2.0e3, 2.0e3), "az": (-2.0e3, 2.0e3),
+               "wx": (-100.0, 100.0), "wy": (-100.0, 100.0), "wz": (-100.0, 100.0)}
+
+
+def _check_sbet_ranges(r: np.ndarray, path: Path) -> None:
+    """Every field of every record within `SBET_LIMITS`; InputError naming the record and field."""
+    for name, (lo, hi) in SBET_LIMITS.items():
+        bad = np.flatnonzero((r[name] < lo) | (r[name] > hi))
+        if bad.size:
+            raise InputError(f"{r[name][bad[0]]:.6g} in record {bad[0] + 1} is outside [{lo:g}, {hi:g}]: a corrupt "
+                             "file, or not an SBET", path, field=name)
+
+
 def read_sbet(path: str | Path, gps_week: int | None) -> Sbet:
     """Read an SBET; times are GPS seconds of week of `gps_week` (None: the file holds continuous GPS seconds)."""
     path = Path(path)
     r = _read_records(path, SBET_DTYPE, "SBET")
+    _check_sbet_ranges(r, path)
     t = _gps_time(path, r["time"], gps_week)
     w = r["wander"]
     cw, sw = np.cos(w), np.sin(w)
