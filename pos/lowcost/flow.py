@@ -54,7 +54,9 @@ class FlowOptions:
     `frame_times` CSV image,t_gps — default frames.csv in or beside the folder — or a `video` whose frame 0 is
     at `video_start_gps`, at `fps` or the container's rate), the camera-to-body rotation (default: looking along
     body x), a pair every `pair_every_s` s of frames `frame_dt_s` apart, the GNSS velocity noise (m/s, None:
-    estimated), the derivative window (s), the jackknife grid, a true trajectory and ground height (m, for AGL)."""
+    estimated), the derivative window (s), the jackknife grid, the slowest usable GNSS speed (m/s), the checks of
+    a pair (`pair_gate`: residual RMS bound, px; parallax over residual) and against the GNSS track
+    (`track_gate`: neighbours within s, k sigma), a true trajectory and ground height (m, for AGL)."""
 
     camera: Path
     gnss: Path
@@ -71,6 +73,7 @@ class FlowOptions:
     blocks: int = 5
     min_speed_mps: float = 5.0
     max_residual_px: float = FB_MAX_PX
+    min_parallax_snr: float = 20.0
     track_window_s: float = 30.0
     track_k_sigma: float = 5.0
     truth: Path | None = None
@@ -199,16 +202,23 @@ def gnss_height_track(t: np.ndarray, v_ned: np.ndarray) -> np.ndarray:
     return np.r_[0.0, np.cumsum(0.5 * (up[1:] + up[:-1]) * np.diff(t))]
 
 
-def pair_gate(fa: FlowAttitude, max_residual_px: float = FB_MAX_PX, min_inlier_fraction: float = 0.5) -> str | None:
+def pair_gate(fa: FlowAttitude, max_residual_px: float = FB_MAX_PX, min_inlier_fraction: float = 0.5,
+              min_parallax_snr: float = 20.0) -> str | None:
     """Why a frame pair's solution cannot be trusted on its own evidence (None: it can): the focus-of-expansion fit's
     residual RMS beyond what tracking noise can give (the tracker drops tracks whose forward-backward round trip
-    misses by more), most tracks outliers to it, or sigmas that are not finite."""
+    misses by more), most tracks outliers to it, too little parallax (the de-rotated flow's median under
+    `min_parallax_snr` times the residual RMS: little translation, or a near-pure rotation, where the FOE and the
+    depths are no longer linear in the tracking errors and their sigmas fall short), or sigmas that are not
+    finite."""
     q = fa.quality
     if not q["rms_px"] <= max_residual_px:
         return (f"the flow does not fit one focus of expansion: residual RMS {q['rms_px']:.2f} px, more than tracking "
                 f"noise ({max_residual_px:g} px)")
     if fa.n_inliers < min_inlier_fraction * fa.n_tracks:
         return f"only {fa.n_inliers} of {fa.n_tracks} tracks fit one focus of expansion"
+    if not q["parallax_px"] >= min_parallax_snr * q["rms_px"]:
+        return (f"too little parallax: de-rotated flow {q['parallax_px']:.2f} px, under {min_parallax_snr:g} times the "
+                f"fit's residual ({q['rms_px']:.3f} px)")
     sig = (fa.sigma_roll, fa.sigma_pitch, fa.sigma_yaw, fa.sigma_agl_m)
     if not all(np.isfinite(sig)) or not np.isfinite(fa.agl_m):
         return "the sigmas are not finite"
@@ -280,7 +290,7 @@ def solve_pairs(camera, frames, tv: np.ndarray, v: np.ndarray, pa: PseudoAttitud
             except (ValueError, np.linalg.LinAlgError) as exc:
                 reason = str(exc)
                 continue
-            reason = pair_gate(fa, opts.max_residual_px)
+            reason = pair_gate(fa, opts.max_residual_px, min_parallax_snr=opts.min_parallax_snr)
             if reason is None:
                 return fa, None, src
         return None, reason, None

@@ -31,6 +31,9 @@ def test_pair_gate_reasons():
     assert pair_gate(_fa(60.0)) is None
     assert "does not fit one focus of expansion" in pair_gate(_fa(5.3, rms_px=1.02))
     assert "of 120 tracks" in pair_gate(_fa(60.0, n_inliers=40))
+    little = _fa(60.0)
+    little.quality["parallax_px"] = 0.3   # 15 times the residual: a near-pure rotation, or frames too close
+    assert "too little parallax" in pair_gate(little)
     bad = _fa(60.0)
     bad.sigma_yaw = float("nan")
     assert "not finite" in pair_gate(bad)
