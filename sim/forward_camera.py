@@ -21,9 +21,12 @@ from dgcal.fields.frames import R_NED_TO_ENU
 from dgcal.fields.io.csv_tables import staged_dir
 from dgcal.pos.gnss.pseudo_attitude import pseudo_attitude
 from dgcal.calib.camera.files import write_camera
-from dgcal.pos.lowcost.optic_flow import R_CAM_TO_BODY_FORWARD, flow_attitude, mean_velocity
+from dgcal.pos.lowcost.optic_flow import (R_CAM_TO_BODY_FORWARD, flow_attitude, mean_velocity, pool_sigmas,
+                                          variance_ratios)
 from dgcal.sim.render import Facet, RayGrid, render
 from dgcal.sim.trajectory import TrueTrajectory, simulate_true_trajectory
+
+PSEUDO_WINDOW_S = 0.8   # the pseudo attitude's derivative window (s), as `dgcal flow`'s default
 
 
 def ground_texture(size_m: float = 6000.0, texel_m: float = 2.0, seed: int = 0) -> Facet:
@@ -115,13 +118,13 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
     sim = sim or make_forward_camera_sim(seed=seed)
     tr = sim.truth
     tv, v = gnss_velocity(tr, seed=seed + 1)
-    pa = pseudo_attitude(tv, v, sigma_v_mps="auto")
+    pa = pseudo_attitude(tv, v, window_s=PSEUDO_WINDOW_S, sigma_v_mps="auto")
     rng = np.random.default_rng(seed + 2)
     agl_true = np.array([sim.enu.from_ecef(p)[2] for p in tr.p_ecef[::int(tr.rate_hz)]])
     t_agl = tr.t[::int(tr.rate_hz)]
     t_start = t_agl[np.argmax(agl_true > min_agl_m)]
     times = np.arange(t_start, tr.t[-1] - frame_dt - 1.0, pair_every_s)
-    rows = []
+    rows, fas = [], []
     it = times
     if progress:
         it = tqdm(times, desc="flow pairs", unit="pair", leave=False)
@@ -140,11 +143,12 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
         try:
             fa = flow_attitude(sim.camera, img1, img2, frame_dt, rph1, w, v_mid, sim.R_cam_to_body,
                                sigma_roll_deg=float(np.interp(t1, pa.t, pa.sigma_rph[:, 0])),
-                               sigma_v_mps=pa.sigma_v_mps * gain)
+                               sigma_v_mps=pa.sigma_v_mps * gain, roll_lag_s=PSEUDO_WINDOW_S / 4)
         except ValueError:
             continue
         s = tr.at(t1)
         C_enu, _ = sim.pose(t1)
+        fas.append(fa)
         rows.append({"t": float(t1), "roll": fa.roll, "pitch": fa.pitch, "yaw": fa.yaw,
                      "sigma_roll": fa.sigma_roll, "sigma_pitch": fa.sigma_pitch, "sigma_yaw": fa.sigma_yaw,
                      "pseudo_pitch": float(rph1[1]), "pseudo_yaw": float(rph1[2]),
@@ -153,6 +157,10 @@ def flow_attitude_study(sim: ForwardCameraSim | None = None, pair_every_s: float
                      "true_agl": float(C_enu[2]), "n_tracks": fa.n_tracks, "n_inliers": fa.n_inliers})
     if not rows:
         raise RuntimeError("no usable frame pairs")
+    ratios = variance_ratios(fas)   # the sigmas as `dgcal flow` gives them: pooled over the run
+    for fa, r in zip(fas, rows):
+        pool_sigmas(fa, ratios)
+        r.update(sigma_pitch=fa.sigma_pitch, sigma_yaw=fa.sigma_yaw, sigma_agl=fa.sigma_agl_m)
     R = {k: np.array([r[k] for r in rows]) for k in rows[0]}
     err = np.column_stack([R["roll"] - R["true_roll"], R["pitch"] - R["true_pitch"],
                            (R["yaw"] - R["true_yaw"] + 180.0) % 360.0 - 180.0])
