@@ -242,7 +242,7 @@ class FlowAttitude:
     sigma_agl_m: float
     n_tracks: int
     n_inliers: int
-    sigma_roll: float = float("nan")      # the pseudo-roll's (given)
+    sigma_roll: float = float("nan")      # the pseudo-roll's (given) with the flow's pseudo roll-rate error
     foe: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))   # FOE, normalised image coordinates
     foe_cov: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
     pseudo_pitch: float = float("nan")    # flight-path angle (deg)
@@ -332,7 +332,8 @@ def _agl_formal_var(d1, d2, foe, v_ned, roll, R_cam_to_body, baseline, med) -> f
     J = np.array([(m(foe.e + h) - med) / 1e-5 for h in np.eye(2) * 1e-5])
     a = _agl_of(d1, d2, foe.e, v_ned, roll, R_cam_to_body, baseline)
     a = a[np.isfinite(a) & (a > 0)]
-    return float(J @ foe.cov @ J) + (1.4826 * np.median(np.abs(a - med)) * 1.2533) ** 2 / max(len(a), 1)
+    cov = foe.cov_formal if foe.cov_formal is not None else foe.cov
+    return float(J @ cov @ J) + (1.4826 * np.median(np.abs(a - med)) * 1.2533) ** 2 / max(len(a), 1)
 
 
 def image_blocks(uv: np.ndarray, image_size, n: int = 5) -> np.ndarray:
