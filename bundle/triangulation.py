@@ -587,7 +587,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     out.dropped = dropped
     out.summary.update({"initial_orientation": init.method, "rounds": rounds, "adjustment_runs": adj.runs,
                         "n_dropped_tie_observations": len(dropped), "dropped_tie_observations": dropped[:1000]})
-    out.problems = _problems(res, adj, blk, opt)
+    out.problems = _problems(res, adj, blk, opt, suspects)
     out.summary["problems"] = out.problems
     out.summary["trusted"] = not out.problems
     clock["done"] = time.perf_counter()
@@ -603,7 +603,8 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     return out
 
 
-def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: TriangulationOptions) -> list[str]:
+def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: TriangulationOptions,
+              suspects: list[Suspect] = ()) -> list[str]:
     """Why the result cannot be trusted (empty when it can)."""
     out = []
     if not res.converged:
@@ -618,7 +619,26 @@ def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: Triangulation
     if connected.any() and left.sum() > opt.max_left_out * connected.sum():
         out.append(f"{int(left.sum())} of {int(connected.sum())} connected images left out "
                    f"(more than {opt.max_left_out:.0%})")
+    # control points the images reject (their coordinates or their measurements): one is a blunder, many are a wrong
+    # datum or unit
+    ctrl = {blk.point_ids[j] for j in np.flatnonzero(np.isfinite(blk.X_prior).all(1))}
+    n_ctrl = len(ctrl)
+    n_obs = dict(zip(blk.point_ids, np.bincount(blk.op, minlength=len(blk.point_ids)).tolist()))
+    meas_rej: dict[str, int] = {}
+    for s_ in suspects:
+        if s_.removed and s_.kind == "measurement" and s_.point in ctrl:
+            meas_rej[s_.point] = meas_rej.get(s_.point, 0) + 1
+    # a point disagrees when its coordinates go, or most of its measurements (single bad clicks are blunders)
+    n_rej = len({s_.point for s_ in suspects if s_.removed and s_.kind == "coordinates" and s_.point in ctrl}
+                | {p for p, k in meas_rej.items() if k > 0.5 * n_obs.get(p, 0)})
+    if n_ctrl and n_rej >= max(3, MAX_REJECTED_CONTROL * n_ctrl):
+        out.append(f"{n_rej} of {n_ctrl} control points had their coordinates or measurements rejected as "
+                   "blunders: so many disagreeing with the images point to their coordinates as a whole (heights "
+                   "in feet? another CRS, datum or vertical reference? a shifted file?), not to single blunders")
     return out
+
+
+MAX_REJECTED_CONTROL = 0.25    # share of control points with rejections before their coordinates as a whole are doubted
 
 
 def _outputs(camera, res: BundleResult, adj: _Adjuster, geo: World, points: Points, meas: Measurements,

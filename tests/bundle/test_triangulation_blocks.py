@@ -135,6 +135,17 @@ def test_gcp_height_blunder_named_as_a_coordinate_blunder(dz):
         assert res.summary["check_rmse_m"][key] <= 1.5 * clean.summary["check_rmse_m"][key]
 
 
+def test_control_heights_in_feet_are_not_trusted():
+    """Control point heights in feet (issue 31: 9 of 12 rejected as blunders, EOPs 93 m off, "trusted"): so many
+    coordinates rejected points to the file as a whole, and the result is refused naming the likely causes."""
+    sim = simulate_block(3, BlockPattern(n_strips=(4,), images_per_strip=(15,), terrain_amplitude_m=50),
+                         n_control=12, n_tie=4000)
+    pts = copy.deepcopy(sim.points)
+    pts.xyz[:, 2] = pts.xyz[:, 2] / 0.3048
+    with pytest.raises(ResultError, match="heights in feet"):
+        triangulate(sim.camera, pts, sim.measurements, sim.crs, TriangulationOptions())
+
+
 def test_untrusted_result_is_an_error_unless_accepted(tmp_path):
     # stated sigmas 6x too small: sigma0 ~ 6, the result is refused; with --accept-poor it is written and says so
     sim = simulate_block(2, BlockPattern(n_strips=(3,), images_per_strip=(10,)), n_control=8, n_tie=2000)
