@@ -22,10 +22,14 @@ from dgcal.pos.smoother.carrier import (atmosphere_position_covariance, dd_resid
                                        keyframe_poses, linear_dd_factors)
 from dgcal.pos.smoother.code_bias import CB, CodeBiasArcs, bias_estimates, bias_process_factors, code_bias_arcs, \
     insert_initial
-from dgcal.pos.smoother.covariance import smoothed_covariances
+from dgcal.pos.smoother.covariance import smoothed_covariances, variance_factors
+from dgcal.pos.smoother.fix_velocity import shifted_velocities, velocity_latency, velocity_mode
+from dgcal.pos.smoother.fix_errors import (LcFixModel, error_estimates, fix_factors, fix_residuals, lc_fix_model,
+                                          process_factors, set_white_share)
+from dgcal.pos.smoother.fix_errors import insert_initial as insert_fix_errors
 from dgcal.pos.smoother.linearised import KeyframeBlocks, KeyframeRows, keyframe_rows
 from dgcal.pos.smoother.static import static_ends, static_white_noise, zero_motion_factors
-from dgcal.pos.smoother.factors import (B, CLK, DRIFT, V, X, ZERO, clock_factors, doppler_factors, position_factor,
+from dgcal.pos.smoother.factors import (B, CLK, DRIFT, FE, V, X, ZERO, clock_factors, doppler_factors, position_factor,
                                   pseudorange_factors, velocity_factor)
 from dgcal.pos.smoother.preintegration import (ImuSegments, bias_moved, interval_gravity, interval_params,
                                                preintegrate, preintegration_params, set_gravity, split_at_keyframes)
@@ -56,7 +60,7 @@ class SmootherOptions:
     prior_rot_sigma_deg: tuple = (10.0, 10.0, 30.0)
     prior_pos_sigma_m: float = 20.0
     prior_vel_sigma_mps: float = 2.0
-    lc_velocity: bool = True
+    lc_velocity: str = "auto"       # LC: the fixes' velocities: auto (when their latency is known), true, false
     max_iterations: int = 30
     covariances: bool = True
     dd_outlier_sigma: float = 5.0   # TC with a base: double differences beyond this (normalised) are dropped
@@ -65,6 +69,9 @@ class SmootherOptions:
     gnss_outlier_sigma: float | None = 5.0   # GNSS epoch screening and post-fit rejection (None: off)
     code_bias: bool = True          # TC: each satellite's slow pseudorange error as a Gauss-Markov state
     code_bias_tau_s: float = 1800.0  # its correlation time (s; broadcast orbit, clock and atmosphere errors)
+    motion_noise: bool = True       # LC: raise the IMU white noise to what its factors' residuals show in motion
+    lc_fix_tau_s: float | None = 60.0   # LC: the fixes' time-correlated errors as Gauss-Markov states (None: white)
+    lc_fix_white_share: float | None = None  # LC: the white share of the fixes' stated variance (None: estimated)
 
 
 @dataclass
@@ -91,6 +98,8 @@ class NavSolution:
     residuals: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
     code_bias: dict = field(default_factory=dict)  # TC: sat -> (keyframes, estimated pseudorange bias m)
+    fix_error: tuple | None = None  # LC: (keyframes (n,), the fixes' estimated correlated error (n,3) nav m)
+    imu_noise: object = None        # the IMU model smoothed with (ImuErrorModel: raised to what rest and motion show)
     problem: object = field(default=None, repr=False)  # the Problem it came from (forward pass, outputs)
     values: object = field(default=None, repr=False)  # its gtsam Values (the linearisation point)
     rows: object = field(default=None, repr=False)    # the problem linearised at `values` (linearised.KeyframeRows)
@@ -132,6 +141,7 @@ class Problem:
     code_bias: CodeBiasArcs | None = None   # TC: the satellites' code-bias arcs (dgcal.pos.smoother.code_bias)
     bias_factor_groups: list = field(default_factory=list)  # per keyframe: the code-bias process factors ending there
     dd_lin: tuple | None = None   # the poses (R_body_to_nav (K,3,3), p (K,3)) the DD factors are linearised at
+    lc: LcFixModel | None = None  # LC: the fixes with their error states (dgcal.pos.smoother.fix_errors)
     _blocks: KeyframeBlocks | None = field(default=None, repr=False)
 
     def ordering(self) -> gtsam.Ordering:
@@ -149,9 +159,14 @@ class Problem:
         if K is None and first == 0:
             # the whole problem's layout is asked for by the ordering, the covariances and the forward pass
             if self._blocks is None:
-                self._blocks = KeyframeBlocks(len(self.t_key), self.systems, 0, self.code_bias)
+                self._blocks = KeyframeBlocks(len(self.t_key), self.systems, 0, self.code_bias, self.fix_span)
             return self._blocks
-        return KeyframeBlocks(len(self.t_key) if K is None else K, self.systems, first, self.code_bias)
+        return KeyframeBlocks(len(self.t_key) if K is None else K, self.systems, first, self.code_bias, self.fix_span)
+
+    @property
+    def fix_span(self) -> tuple | None:
+        """LC with the fixes' error states: their first and last keyframe."""
+        return self.lc.span if self.lc is not None else None
 
 
 def _imu_rate_at(imu, t: np.ndarray) -> np.ndarray:
@@ -207,6 +222,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     dd: dict = {}
     arcs: CodeBiasArcs | None = None
     bias_groups: list = []
+    lc_model: LcFixModel | None = None
     if mode == "tc" and carrier is not None:
         dd = keyframe_dd_factors(t_key, carrier.at(t_key), lever, frame, carrier.phase_corr, carrier.code_corr, X,
                                  values)
@@ -259,18 +275,29 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
     else:
         lc = lc_fixes if lc_fixes is not None else fixes
         idx = np.clip(np.searchsorted(t_key, lc.t - 1e-3), 0, K - 1)
-        for j, k in enumerate(idx):
-            if abs(t_key[k] - lc.t[j]) > 1e-3 or not np.all(np.isfinite(lc.p_ecef[j])):
-                continue
-            noise = lc.sigma_ned[j] if lc.cov_ned is None else lc.cov_ned[j]
-            epoch_factors[k].append(("pos", position_factor(k, frame.from_ecef(lc.p_ecef[j]), noise,
-                                                            lever, opts.huber_k), None))
-            gnss_update[k] = True
-            n_sat[k] = 1
-            if opts.lc_velocity and lc.v_ecef is not None and np.all(np.isfinite(lc.v_ecef[j])):
-                v_nav = lc.v_ecef[j] @ frame.R_nav_to_ecef
-                v_lever = R_body_to_nav[k] @ np.cross(omega_b[k], lever)
-                epoch_factors[k].append(("vel", velocity_factor(k, v_nav - v_lever, lc.sigma_v_ned[j]), None))
+        use = (np.abs(t_key[idx] - lc.t) <= 1e-3) & np.all(np.isfinite(lc.p_ecef), axis=1)
+        use[np.flatnonzero(use)[1:][np.diff(idx[use]) == 0]] = False     # one fix per keyframe
+        rows = np.flatnonzero(use)
+        C = lc.cov_ned[rows] if lc.cov_ned is not None else np.einsum("ni,ij->nij", lc.sigma_ned[rows] ** 2, np.eye(3))
+        z = frame.from_ecef(lc.p_ecef[rows]) if len(rows) else np.zeros((0, 3))
+        if opts.lc_fix_tau_s and len(rows) >= 2:
+            share = opts.lc_fix_white_share if opts.lc_fix_white_share is not None else LC_WHITE_SHARE_START
+            lc_model = lc_fix_model(t_key, idx[rows], z, C, share, opts.lc_fix_tau_s, lever)
+            insert_fix_errors(lc_model, values)
+            bias_groups = [[] for _ in range(K)]
+            for k, f in process_factors(lc_model, values):
+                bias_groups[k].append(f)
+            lc_model.lin = keyframe_poses(values, K)
+            for k, f in fix_factors(lc_model, values, *lc_model.lin).items():
+                epoch_factors[k].append(("pos", f, None))
+        else:
+            for i, k in enumerate(idx[rows]):
+                epoch_factors[k].append(("pos", position_factor(k, z[i], C[i], lever, opts.huber_k), None))
+        gnss_update[idx[rows]] = True
+        n_sat[idx[rows]] = 1
+        vmode = velocity_mode(opts.lc_velocity)
+        if lc.v_ecef is not None and (vmode == "true" or (vmode == "auto" and lc.velocity_on_time)):
+            add_lc_velocities(epoch_factors, lc, t_key, frame, R_body_to_nav, omega_b, lever)
 
     if static is not None and static.any():
         for k, kind, f in zero_motion_factors(static, t_key):
@@ -279,9 +306,61 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
                       n_sat, gnss_update, omega_b, params, huber_k=opts.huber_k, seg=seg, interval_params=per_interval,
                       bias_hat=np.zeros((K - 1, 6)), dd={k: v[1] for k, v in dd.items()}, lever_arm_b=lever,
                       carrier=carrier, code_bias=arcs if arcs is not None and len(arcs) else None,
-                      bias_factor_groups=bias_groups, dd_lin=keyframe_poses(values, K) if dd else None)
+                      bias_factor_groups=bias_groups, dd_lin=keyframe_poses(values, K) if dd else None,
+                      lc=lc_model)
     problem.graph = assemble_graph(problem)
     return problem
+
+
+def _lc_fix_keyframes(lc: GnssFixes, t_key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fixes of `lc` at keyframes (rows, keyframes)."""
+    K = len(t_key)
+    idx = np.clip(np.searchsorted(t_key, lc.t - 1e-3), 0, K - 1)
+    use = np.abs(t_key[idx] - lc.t) <= 1e-3
+    rows = np.flatnonzero(use)
+    return rows, idx[rows]
+
+
+def add_lc_velocities(epoch_factors: list, lc: GnssFixes, t_key: np.ndarray, frame: NavFrame,
+                      R_body_to_nav: np.ndarray, omega_b: np.ndarray, lever: np.ndarray, latency_s: float = 0.0,
+                      latency_sigma_s: float = 0.0, accel_nav: np.ndarray | None = None) -> int:
+    """Velocity factors of the LC fixes (`epoch_factors` per keyframe, in place): the antenna velocity minus the
+    lever arm's rate, each fix's velocity taken `latency_s` later (`dgcal.pos.smoother.fix_velocity`), with the
+    latency's uncertainty `latency_sigma_s` as noise along the antenna's acceleration `accel_nav` (K,3) nav m/s^2
+    (a velocity late by delta is off by delta a). Returns the number added."""
+    rows, ks = _lc_fix_keyframes(lc, t_key)
+    v = lc.v_ecef if not latency_s else shifted_velocities(lc.t, lc.v_ecef, latency_s)
+    n = 0
+    for j, k in zip(rows, ks):
+        if not (np.all(np.isfinite(v[j])) and np.all(np.isfinite(lc.sigma_v_ned[j]))):
+            continue
+        v_nav = v[j] @ frame.R_nav_to_ecef
+        v_lever = R_body_to_nav[k] @ np.cross(omega_b[k], lever)
+        noise = lc.sigma_v_ned[j]
+        if latency_sigma_s and accel_nav is not None:
+            noise = np.diag(noise ** 2) + latency_sigma_s ** 2 * np.outer(accel_nav[k], accel_nav[k])
+        epoch_factors[k].append(("vel", velocity_factor(k, v_nav - v_lever, noise), None))
+        n += 1
+    return n
+
+
+def lc_velocities_auto(problem: Problem, values, lc: GnssFixes) -> dict:
+    """LC, `lc_velocity` "auto": the fixes' velocity latency against the solution at `values`
+    (`dgcal.pos.smoother.fix_velocity.velocity_latency`) and their velocity factors with it: a latency the data
+    determine and show is removed, and what is not known of it is noise along the acceleration (graph rebuilt).
+    Returns what was found."""
+    sol = read_states(problem, values)
+    lever = problem.lever_arm_b
+    v_ant = sol.v_nav + np.einsum("kij,kj->ki", sol.R_body_to_nav, np.cross(problem.omega_b, lever))
+    rows, ks = _lc_fix_keyframes(lc, problem.t_key)
+    R_nav_to_ecef = problem.frame.R_nav_to_ecef
+    lat = velocity_latency(problem.t_key, v_ant, ks, lc.v_ecef[rows] @ R_nav_to_ecef, lc.sigma_v_ned[rows])
+    out = lat.as_dict()
+    out["factors"] = add_lc_velocities(problem.epoch_factors, lc, problem.t_key, problem.frame, sol.R_body_to_nav,
+                                       problem.omega_b, lever, lat.shift_s, lat.sigma_left_s,
+                                       np.gradient(v_ant, problem.t_key, axis=0))
+    problem.graph = assemble_graph(problem)
+    return out
 
 
 def update_gravity(problem: Problem, p_nav: np.ndarray, share: float = 0.0) -> np.ndarray:
@@ -362,6 +441,50 @@ def screen_dd(problem: Problem, values, threshold: float) -> int:
     return dropped
 
 
+def lc_rows(problem: Problem) -> np.ndarray:
+    """The rows of `problem.lc` whose fix is still in the graph (the post-fit screening removes some)."""
+    lc = problem.lc
+    has = np.array([any(e[0] == "pos" for e in problem.epoch_factors[k]) for k in lc.k], bool)
+    return np.flatnonzero(has)
+
+
+def relinearise_lc(problem: Problem, values, force: bool = False) -> bool:
+    """Re-linearise the LC fix factors (`dgcal.pos.smoother.fix_errors`) at `values` when a keyframe pose moved from
+    their linearisation point by more than DD_RELINEARISE_M or DD_RELINEARISE_RAD (or `force`: the model changed);
+    the graph is rebuilt. True if it was."""
+    lc = problem.lc
+    if lc is None:
+        return False
+    K = len(problem.t_key)
+    R_body_to_nav, p = keyframe_poses(values, K)
+    if not force and lc.lin is not None and not _moved(lc.lin, R_body_to_nav, p, lc.k):
+        return False
+    new = fix_factors(lc, values, R_body_to_nav, p, lc_rows(problem))
+    for k, f in new.items():
+        problem.epoch_factors[k] = [("pos", f, None) if e[0] == "pos" else e for e in problem.epoch_factors[k]]
+    lc.lin = (R_body_to_nav, p)
+    problem.graph = assemble_graph(problem)
+    return True
+
+
+def _moved(lin: tuple, R_body_to_nav: np.ndarray, p: np.ndarray, k: np.ndarray | None = None) -> bool:
+    """Whether a keyframe pose (of keyframes `k`, all if None) moved from `lin` beyond the re-linearisation
+    thresholds."""
+    R0, p0 = lin
+    if k is not None:
+        R0, p0, R_body_to_nav, p = R0[k], p0[k], R_body_to_nav[k], p[k]
+    cos = np.clip((np.einsum("kij,kij->k", R_body_to_nav, R0) - 1.0) / 2.0, -1.0, 1.0)
+    return bool(np.max(np.linalg.norm(p - p0, axis=1)) > DD_RELINEARISE_M
+                or np.max(np.arccos(cos)) > DD_RELINEARISE_RAD)
+
+
+def relinearise(problem: Problem, values) -> bool:
+    """Re-linearise the problem's linearised factors (double differences, LC fixes) where the poses moved."""
+    a = relinearise_dd(problem, values)
+    b = relinearise_lc(problem, values)
+    return a or b
+
+
 DD_RELINEARISE_M = 1.0       # position move (m) beyond which the double differences are re-linearised
 DD_RELINEARISE_RAD = 5e-4    # attitude move (rad, 0.03 deg)
 
@@ -374,11 +497,8 @@ def relinearise_dd(problem: Problem, values) -> bool:
         return False
     K = len(problem.t_key)
     R_body_to_nav, p = keyframe_poses(values, K)
-    if problem.dd_lin is not None:
-        R_body_to_nav_lin, p0 = problem.dd_lin
-        cos = np.clip((np.einsum("kij,kij->k", R_body_to_nav, R_body_to_nav_lin) - 1.0) / 2.0, -1.0, 1.0)
-        if np.max(np.linalg.norm(p - p0, axis=1)) <= DD_RELINEARISE_M and np.max(np.arccos(cos)) <= DD_RELINEARISE_RAD:
-            return False
+    if problem.dd_lin is not None and not _moved(problem.dd_lin, R_body_to_nav, p):
+        return False
     new = linear_dd_factors(problem.dd, problem.lever_arm_b, problem.frame, values, X, R_body_to_nav, p)
     for k, f in new.items():
         problem.epoch_factors[k] = [("dd", f, None) if e[0] == "dd" else e for e in problem.epoch_factors[k]]
@@ -450,9 +570,9 @@ def optimize(problem: Problem, max_iterations: int = 30, hook=None, resume: bool
 def read_states(problem: Problem, values) -> NavSolution:
     """Keyframe states from gtsam Values (no covariances)."""
     K = len(problem.t_key)
-    # the problem's only Pose3 and Point3 variables are X(k) and V(k), extracted in key (= keyframe) order
+    # the problem's only Pose3 variables are X(k), extracted in key (= keyframe) order, as are the velocities V(k)
     R_body_to_nav, p = keyframe_poses(values, K)
-    v = gtsam.utilities.extractPoint3(values).reshape(K, 3)
+    v = gtsam.utilities.extractVectors(values, "v").reshape(K, 3)
     b = np.array([values.atConstantBias(B(k)).vector() for k in range(K)])
     clock = {s: np.array([values.atDouble(CLK(s, k)) for k in range(K)]) for s in problem.systems}
     drift = (np.array([values.atDouble(DRIFT(k)) for k in range(K)]) if problem.systems
@@ -461,6 +581,8 @@ def read_states(problem: Problem, values) -> NavSolution:
                       n_sat=problem.n_sat.copy(), gnss_update=problem.gnss_update.copy())
     if problem.code_bias is not None:
         sol.code_bias = bias_estimates(problem.code_bias, values)
+    if problem.lc is not None:
+        sol.fix_error = error_estimates(problem.lc, values)
     return sol
 
 
@@ -476,6 +598,8 @@ def gnss_residuals(problem: Problem, values, rows: KeyframeRows) -> dict:
         if kd is None or np.isfinite(sig):
             continue
         kind, k = kd
+        if kind == "pos" and problem.lc is not None:
+            continue    # below, all at once
         if kind == "dd":
             data = problem.dd[k]
             e, s = dd_residuals(data, values, X, problem.lever_arm_b, problem.frame)
@@ -490,6 +614,11 @@ def gnss_residuals(problem: Problem, values, rows: KeyframeRows) -> dict:
         with np.errstate(divide="ignore", invalid="ignore"):
             s = np.where(w != 0, e / np.where(w != 0, w, 1.0), np.nan)
         out.setdefault(kind, []).append((np.full(len(e), k), e, s))
+    if problem.lc is not None:
+        rows_lc = lc_rows(problem)
+        if len(rows_lc):
+            k, e, s = fix_residuals(problem.lc, values, *keyframe_poses(values, len(problem.t_key)), rows_lc)
+            out["pos"] = [(np.repeat(k, 3), e.ravel(), s.ravel())]
     res = {kind: tuple(np.concatenate(c) for c in zip(*r)) for kind, r in out.items()}
     # the recorded kinds (one row per factor): whitened error times sigma
     rec = np.flatnonzero(np.isfinite(tab.sigma))
@@ -542,15 +671,17 @@ def add_atmosphere_budget(sol: NavSolution, problem: Problem) -> None:
 # leaning) looks much like an accelerometer bias, which the smoother estimates, so most of it is taken up there. The
 # share is calibrated on simulated flights with carrier phase, where roll and pitch are otherwise known to a
 # hundredth of a degree (a misaligned ADIS16488-class IMU, 20 flights: roll/pitch error/sigma RMS 1.38/1.34 without,
-# 1.01/0.92 with it; the whole variance would make them 0.65/0.68). Code-only TC and LC, whose roll/pitch sigmas are
-# larger, are left as they were (their attitude sigmas are conservative already)
+# 1.01/0.92 with it; the whole variance would make them 0.65/0.68). The same share holds for LC and code-only TC,
+# where it limits roll and pitch on long flights (20-minute UAV flights, 8 seeds each: LC on PPK positions
+# 1.71/1.28 without, 1.08/0.86 with it; TC code 1.32/1.09 without, 1.00/0.86 with it); on 5-minute ones the turn
+# noise's sigmas are larger and it adds little
 TILT_SHARE = 1.0 / 3.0
 
 
 def add_tilt_budget(sol: NavSolution, noise: ImuErrorModel) -> None:
     """Add the tilt an accelerometer triad's misalignment leaves in roll and pitch (its z axis leaning towards x or
     y by `accel_misalign_sigma`, rad: no GNSS sees it), `TILT_SHARE` of its variance, to the keyframes' rotation
-    variances about body x and y (TC with carrier phase)."""
+    variances about body x and y (every mode)."""
     s2 = TILT_SHARE * float(noise.accel_misalign_sigma) ** 2
     if s2 <= 0:
         return
@@ -577,9 +708,15 @@ def solution_values(sol: NavSolution, problem: Problem):
         ks, bias = sol.code_bias[arcs.sat[a]]
         for k in range(arcs.k0[a], arcs.k1[a] + 1):
             vals.insert(CB(arcs.slot[a], k), -float(bias[np.searchsorted(ks, k)]))
+    if problem.lc is not None:
+        for k, e in zip(*sol.fix_error):
+            vals.insert(FE(int(k)), -e)
     if problem.values.exists(ZERO()):
         vals.insert(ZERO(), 0.0)
     return vals
+
+
+LC_WHITE_SHARE_START = 1.0    # LC: the white share of the fixes' stated variance the first pass assumes
 
 
 # the IMU noise floor of the coarse first pass (ADIS16488-class): densities below it are raised to it
@@ -697,12 +834,97 @@ def _dd_converged(problem: Problem, values, max_iterations: int, iterations: lis
     """`values` once the double differences are linearised where the solution is: re-linearised and re-optimised
     while the poses moved beyond the thresholds of `relinearise_dd` (at most `rounds` times)."""
     for _ in range(rounds):
-        if not relinearise_dd(problem, values):
+        if not relinearise(problem, values):
             break
         problem.values = values
         values = optimize(problem, max_iterations)
         iterations.append(problem.iterations)
     return values
+
+
+VCE_ROUNDS = 3      # LC: re-estimations of the noise (fixes' white share, IMU white noise) at most
+VCE_TOL = 0.15      # ... until their variance factors are within this of one (relative)
+MAX_IMU_VARIANCE_STEP = 16.0   # the IMU's white noise variance is raised by at most this factor per round
+
+
+def _noise_groups(problem: Problem) -> np.ndarray:
+    """The variance-component group of every row of the problem's graph: 0 the LC fixes with error states, 1 the IMU
+    factors, -1 the rest."""
+    tab = factor_table(problem)
+    group = np.full(int(tab.start[-1]), -1, np.int64)
+    i0 = len(problem.prior_factors)
+    group[tab.start[i0]:tab.start[i0 + len(problem.imu_factors)]] = 1
+    if problem.lc is not None:
+        for i, kd in enumerate(tab.kinds):
+            if kd is not None and kd[0] == "pos":
+                group[tab.start[i]:tab.start[i + 1]] = 0
+    return group
+
+
+def set_imu_noise(problem: Problem, imu, noise: ImuErrorModel, earth_rotation: bool = True) -> None:
+    """The IMU factors preintegrated again with the noise model `noise` (each interval's gravity and linearisation
+    bias kept; scale/misalignment turn noise and the bridges' noise added as when built), in place."""
+    frame, seg = problem.frame, problem.seg
+    per = with_bridges(interval_params(noise, frame, seg, earth_rotation), imu, noise, frame, problem.t_key,
+                       earth_rotation)
+    set_gravity(per, np.array([p.n_gravity for p in problem.interval_params]))
+    problem.interval_params = per
+    problem.params = preintegration_params(noise, frame, earth_rotation)
+    biases = [gtsam.imuBias.ConstantBias(b[:3], b[3:]) for b in problem.bias_hat]
+    problem.pims = preintegrate(problem.params, seg, biases, per)
+    problem.imu_factors = [gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim)
+                           for k, pim in enumerate(problem.pims)]
+    problem.graph = assemble_graph(problem)
+
+
+def _variance_components(problem: Problem, values, rows: KeyframeRows, P: np.ndarray, opts: SmootherOptions,
+                         iterations: list, imu, noise: ImuErrorModel):
+    """LC: the noise the data show (Helmert's variance components, `dgcal.pos.smoother.covariance.variance_factors`),
+    re-solved until it fits (within VCE_TOL, at most VCE_ROUNDS times): the fixes' white share
+    (`dgcal.pos.smoother.fix_errors`, unless `opts.lc_fix_white_share` fixes it), and the IMU's white noise in
+    motion, raised (never lowered) when the IMU factors' residuals exceed their model beyond its own uncertainty (a
+    vehicle's vibration on the road; the static start and end show the engine's, `static_white_noise`). Returns the
+    values, rows and covariances of the final solution, the IMU noise model and what was estimated."""
+    lc = problem.lc
+    K = len(problem.t_key)
+    est_fix = lc is not None and opts.lc_fix_white_share is None
+    est_imu = opts.motion_noise
+    shares = [lc.white_share] if lc is not None else []
+    imu_scale = 1.0
+    f = np.ones(2)
+    red = np.zeros(2)
+    for _ in range(VCE_ROUNDS):
+        ss, red = variance_factors(problem.graph, values, problem.blocks(), rows, _noise_groups(problem), 2)
+        f = np.where(red > 0.5, ss / np.maximum(red, 0.5), 1.0)
+        fix_moves = est_fix and abs(f[0] - 1.0) > VCE_TOL
+        imu_moves = est_imu and f[1] > 1.0 + max(VCE_TOL, 3.0 * np.sqrt(2.0 / max(red[1], 1.0)))
+        if not (fix_moves or imu_moves):
+            break
+        if fix_moves:
+            set_white_share(lc, lc.white_share * f[0])
+            shares.append(lc.white_share)
+            problem.bias_factor_groups = [[] for _ in range(K)]
+            for k, fac in process_factors(lc, values):
+                problem.bias_factor_groups[k].append(fac)
+            relinearise_lc(problem, values, force=True)
+        if imu_moves:
+            s = float(np.sqrt(min(f[1], MAX_IMU_VARIANCE_STEP)))
+            imu_scale *= s
+            noise = dataclasses.replace(noise, gyro_arw=noise.gyro_arw * s, accel_vrw=noise.accel_vrw * s)
+            set_imu_noise(problem, imu, noise, opts.earth_rotation)
+        problem.values = values
+        values = optimize(problem, opts.max_iterations)
+        iterations.append(problem.iterations)
+        values = _dd_converged(problem, values, opts.max_iterations, iterations)
+        rows = keyframe_rows(problem.graph, values, problem.blocks())
+        P = smoothed_covariances(problem.graph, values, problem.blocks(), rows)
+    info = {"imu_white_noise_scale": round(imu_scale, 3), "imu_variance_factor": round(float(f[1]), 3),
+            "imu_redundancy": round(float(red[1]), 1)}
+    if lc is not None:
+        info["lc_fix_errors"] = {"white_share": [round(float(x), 4) for x in shares],
+                                 "variance_factor": round(float(f[0]), 3), "redundancy": round(float(red[0]), 1),
+                                 "tau_s": lc.tau_s}
+    return values, rows, P, noise, info
 
 
 def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOptions | None = None,
@@ -741,11 +963,15 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         if n != 2:
             return False
         update_gravity(problem, read_states(problem, vals).p_nav)
-        relinearise_dd(problem, vals)
+        relinearise(problem, vals)
         return True
     values = optimize(problem, opts.max_iterations, gravity_at_track)
     iterations.append(problem.iterations)
     values = _dd_converged(problem, values, opts.max_iterations, iterations)
+    velocity_info = None
+    lc_v = (lc_fixes if lc_fixes is not None else fixes) if mode == "lc" else None
+    if lc_v is not None and lc_v.v_ecef is not None and velocity_mode(opts.lc_velocity) == "auto":
+        velocity_info = lc_velocities_auto(problem, values, lc_v) if not lc_v.velocity_on_time else {"on_time": True}
     timing["optimize_s"] = time.perf_counter() - t0
     sol = read_states(problem, values)
     t0 = time.perf_counter()
@@ -756,7 +982,8 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
     post = reject_outliers(problem, rows, opts.gnss_outlier_sigma) if opts.gnss_outlier_sigma else []
     rejected += post
     reoptimise = False
-    if (dropped or post) and not second_pass:
+    added = bool(velocity_info and velocity_info.get("factors"))
+    if (dropped or post or added) and not second_pass:
         problem.values = values
         values = _dd_converged(problem, optimize(problem, opts.max_iterations), opts.max_iterations, iterations)
         sol = read_states(problem, values)
@@ -764,7 +991,7 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
     if second_pass:
         # gravity along the solved track and the biases, from pass one; re-optimised when they (or the rejections)
         # changed the problem materially
-        reoptimise = refine_imu(problem, noise, sol) or dropped or post
+        reoptimise = refine_imu(problem, noise, sol) or dropped or post or added
         if reoptimise:
             problem.values = values
             values = optimize(problem, opts.max_iterations)
@@ -776,6 +1003,7 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         rows = keyframe_rows(problem.graph, values, problem.blocks())
     timing["second_pass_s"] = time.perf_counter() - t0
     P = None
+    vce_info: dict = {}
     if opts.covariances:
         t0 = time.perf_counter()
         P, dx = smoothed_covariances(problem.graph, values, problem.blocks(), rows, step=True)
@@ -788,6 +1016,10 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
             sol = read_states(problem, values)
             rows = keyframe_rows(problem.graph, values, problem.blocks())
             P = smoothed_covariances(problem.graph, values, problem.blocks(), rows)
+        if mode == "lc":
+            values, rows, P, noise, vce_info = _variance_components(problem, values, rows, P, opts, iterations, imu,
+                                                                    noise)
+            sol = read_states(problem, values)
         timing["covariance_s"] = time.perf_counter() - t0
     sol.residuals = gnss_residuals(problem, values, rows)
     sol.info = {"mode": mode, "keyframes": len(t_key), "factors": problem.graph.size(),
@@ -801,11 +1033,16 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
                 "imu_noise_used": {"gyro_arw_deg_rt_h": round(float(np.degrees(noise.gyro_arw) * 60.0), 4),
                                    "accel_vrw_m_s_rt_h": round(float(noise.accel_vrw * 60.0), 4)},
                 "static_start_end_s": _static_spans(t_key, static), "gnss_rejected": rejected}
+    if problem.lc is not None:
+        sol.info["lc_fix_errors"] = {"white_share": [problem.lc.white_share], "tau_s": problem.lc.tau_s}
+    sol.info.update(vce_info)
+    if velocity_info is not None:
+        sol.info["lc_velocity"] = velocity_info
     if opts.covariances:
         add_marginals(sol, problem, values, rows, P)
         if problem.dd and problem.carrier is not None:
             add_atmosphere_budget(sol, problem)
-            add_tilt_budget(sol, noise)
+        add_tilt_budget(sol, noise)
     sol.info["timing"] = {k: round(v, 2) for k, v in timing.items()}
-    sol.problem, sol.values, sol.rows = problem, values, rows
+    sol.problem, sol.values, sol.rows, sol.imu_noise = problem, values, rows, noise
     return sol

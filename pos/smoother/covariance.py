@@ -63,6 +63,35 @@ def smoothed_covariances(graph, values, blocks: KeyframeBlocks, rows: KeyframeRo
     return _unscale(P, blocks), dx * blocks.scale
 
 
+def variance_factors(graph, values, blocks: KeyframeBlocks, rows: KeyframeRows, group: np.ndarray,
+                     n_groups: int) -> tuple[np.ndarray, np.ndarray]:
+    """Helmert's variance components of groups of rows: per group, the sum of its whitened squared residuals and its
+    redundancy, the sum over its rows of 1 - a J a' (a the row, J the posterior covariance of the two keyframes it
+    reaches, from the block-tridiagonal recursion with the lag-one covariances -G[k] P[k+1]). Their ratio is the
+    factor by which the group's noise variance is too small (1 when the model fits); the redundancy tells how well
+    the data determine it. `group` (gtsam's rows of the graph): the group of each row, -1 for none. Returns (sum of
+    squares (n_groups,), redundancy (n_groups,))."""
+    K, n = blocks.K, blocks.n
+    D, U, Dn, _, _ = _pair_blocks(rows, blocks)
+    D = blocks.pad_inactive(D + Dn)
+    Sinv = schur_inverses(np.ascontiguousarray(D), np.ascontiguousarray(U))
+    G = Sinv[:-1] @ U
+    P = rts_covariances(Sinv, np.ascontiguousarray(G))
+    J = np.zeros((K, 2 * n, 2 * n))
+    J[:, n:, n:] = P
+    if K > 1:
+        C = -G @ P[1:]
+        J[1:, :n, :n] = P[:-1]
+        J[1:, :n, n:] = C
+        J[1:, n:, :n] = np.swapaxes(C, 1, 2)
+    g = np.where(rows.row >= 0, np.asarray(group)[np.maximum(rows.row, 0)], -1)
+    h = np.einsum("kmj,kmj->km", rows.A @ J, rows.A)        # each row's leverage a J a'
+    ok = g >= 0
+    ss = np.bincount(g[ok], weights=rows.b[ok] ** 2, minlength=n_groups)
+    red = np.bincount(g[ok], weights=1.0 - h[ok], minlength=n_groups)
+    return ss, red
+
+
 def forward_pass(graph, values, blocks: KeyframeBlocks, rows: KeyframeRows | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Kalman filter on the graph linearised at `values`: for each keyframe k the correction (K,n) to its

@@ -42,6 +42,11 @@ def DRIFT(k: int) -> int:
     return gtsam.symbol("d", k)
 
 
+def FE(k: int) -> int:
+    """Key of the LC fixes' correction (nav N, E, D, m: minus their time-correlated error) at keyframe k."""
+    return gtsam.symbol("f", k)
+
+
 def ZERO() -> int:
     """Key of a constant 0.0 (pinned by a tight prior): the 'previous clock' of the Doppler factors, see
     `doppler_factors`."""
@@ -153,6 +158,8 @@ def position_factor(k: int, p_ant_nav, sigma_ned, lever_arm_b, huber_k=None):
 
 
 def velocity_factor(k: int, v_nav, sigma_ned):
-    """LC: IMU velocity (nav frame, m/s; the antenna's lever-arm rate already removed) with sigmas (m/s)."""
-    return gtsam.PriorFactorPoint3(V(k), np.asarray(v_nav, float),
-                                   gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma_ned, float)))
+    """LC: IMU velocity (nav frame, m/s; the antenna's lever-arm rate already removed) with sigmas (m/s) or a full
+    3x3 covariance (m^2/s^2)."""
+    s = np.asarray(sigma_ned, float)
+    noise = gtsam.noiseModel.Gaussian.Covariance(s) if s.shape == (3, 3) else gtsam.noiseModel.Diagonal.Sigmas(s)
+    return gtsam.PriorFactorPoint3(V(k), np.asarray(v_nav, float), noise)

@@ -22,8 +22,9 @@ from scipy.spatial.transform import Rotation
 from dgcal.pos.smoother.batch import NavSolution, Problem, read_states
 from dgcal.pos.smoother.carrier import dd_errors
 from dgcal.pos.smoother.covariance import forward_innovations
+from dgcal.pos.smoother.fix_errors import fix_error_at, fix_white_sigma
 from dgcal.pos.smoother.integrity import factor_table
-from dgcal.pos.smoother.factors import CLK, DRIFT, ZERO, B, V, X
+from dgcal.pos.smoother.factors import CLK, DRIFT, FE, ZERO, B, V, X
 
 
 def _dense_system(graph, vals, entries: list, has_zero: bool, scale: np.ndarray):
@@ -76,8 +77,8 @@ def _retract(vals, entries: list, dx: np.ndarray) -> None:
         c = gtsam.Symbol(key).chr()
         if c == ord("x"):
             vals.update(key, vals.atPose3(key).retract(d))
-        elif c == ord("v"):
-            vals.update(key, vals.atPoint3(key) + d)
+        elif c in (ord("v"), ord("f")):
+            vals.update(key, vals.atVector(key) + d)
         elif c == ord("b"):
             b = vals.atConstantBias(key).vector() + d
             vals.update(key, gtsam.imuBias.ConstantBias(b[:3], b[3:]))
@@ -92,8 +93,8 @@ def _local(vals_a, vals_b, entries: list, n: int) -> np.ndarray:
         c = gtsam.Symbol(key).chr()
         if c == ord("x"):
             d[off:off + 6] = vals_a.atPose3(key).localCoordinates(vals_b.atPose3(key))
-        elif c == ord("v"):
-            d[off:off + 3] = vals_b.atPoint3(key) - vals_a.atPoint3(key)
+        elif c in (ord("v"), ord("f")):
+            d[off:off + 3] = vals_b.atVector(key) - vals_a.atVector(key)
         elif c == ord("b"):
             d[off:off + 6] = vals_b.atConstantBias(key).vector() - vals_a.atConstantBias(key).vector()
         else:
@@ -107,8 +108,8 @@ def _copy(dst, src, entries: list) -> None:
         c = gtsam.Symbol(key).chr()
         if c == ord("x"):
             dst.insert(key, src.atPose3(key))
-        elif c == ord("v"):
-            dst.insert(key, src.atPoint3(key))
+        elif c in (ord("v"), ord("f")):
+            dst.insert(key, src.atVector(key))
         elif c == ord("b"):
             dst.insert(key, src.atConstantBias(key))
         else:
@@ -138,7 +139,8 @@ def linear_forward_solution(problem: Problem, values, rows=None) -> NavSolution:
     rec = np.isfinite(tab.sigma)
     for i in np.flatnonzero(~rec & (code >= 0)):
         kind, k = tab.kinds[i]
-        sig = _dd_sigmas(problem, k) if kind == "dd" else _sigmas(graph.at(i))
+        sig = _dd_sigmas(problem, k) if kind == "dd" else _fix_sigmas(problem, k) if _is_lc_fix(problem, kind) \
+            else _sigmas(graph.at(i))
         w = innov[tab.start[i]:tab.start[i + 1]]
         for j in range(len(w)):
             s = sig[min(j, len(sig) - 1)]
@@ -212,10 +214,16 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
                     vals.insert(CLK(s, k), out.atDouble(CLK(s, k - 1)) + dr0 * dt)
                 vals.insert(DRIFT(k), dr0)
             for key, _, _ in entries_at[k]:
-                if gtsam.Symbol(key).chr() == ord("q"):
+                c = gtsam.Symbol(key).chr()
+                if c == ord("q"):
                     prev = arcs.previous(key, k)
                     phi = float(np.exp(-dt / arcs.tau_s))
                     vals.insert(key, phi * out.atDouble(prev) if prev is not None else 0.0)
+                elif c == ord("f"):
+                    # the fixes' error: decays towards zero by the Gauss-Markov process (sigma changes are slow)
+                    first = k == problem.lc.span[0]
+                    phi = float(np.exp(-dt / problem.lc.tau_s))
+                    vals.insert(key, np.zeros(3) if first else phi * out.atVector(FE(k - 1)))
             nb = 2
             prior_vals = gtsam.Values(vals)
         graph = gtsam.NonlinearFactorGraph()
@@ -224,6 +232,8 @@ def forward_solution(problem: Problem, values=None, iterations: int = 3) -> NavS
         for kind, f, _ in problem.epoch_factors[k]:  # innovations at the prediction
             if kind == "dd":
                 e, sig = dd_errors(problem.dd[k], vals, X, problem.lever_arm_b, problem.frame), _dd_sigmas(problem, k)
+            elif _is_lc_fix(problem, kind):
+                e, sig = fix_error_at(problem.lc, k, vals)
             else:
                 e, sig = np.atleast_1d(f.unwhitenedError(vals)), _sigmas(f)
             for j in range(len(e)):
@@ -328,6 +338,16 @@ def _restrict(entries: list, zero: bool):
 def _dd_sigmas(problem: Problem, k: int) -> np.ndarray:
     """Sigmas (m) of keyframe k's double-difference rows as its factor combines them."""
     return np.sqrt(np.diag(problem.dd[k].cov))
+
+
+def _is_lc_fix(problem: Problem, kind: str) -> bool:
+    """Whether a factor of this kind is an LC fix with error states (`dgcal.pos.smoother.fix_errors`)."""
+    return kind == "pos" and problem.lc is not None
+
+
+def _fix_sigmas(problem: Problem, k: int) -> np.ndarray:
+    """White sigmas (m) of the LC fix at keyframe k."""
+    return fix_white_sigma(problem.lc, k)
 
 
 def _sigmas(f) -> np.ndarray:

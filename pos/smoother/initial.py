@@ -24,6 +24,9 @@ class GnssFixes:
 
     t (N,) GPS s; p_ecef (N,3) m; sigma_ned (N,3) m; v_ecef (N,3) m/s or None; sigma_v_ned (N,3) m/s or None;
     cov_ned (N,3,3) m^2 or None: the full position covariance (local NED), used instead of sigma_ned when given.
+    velocity_on_time: True when the velocities are known to be the epoch's (a receiver's Doppler velocity, SPP's);
+    None when that is not known (a solution file: RTKLIB's filter velocity lags), and the LC smoother measures their
+    latency (`dgcal.pos.smoother.fix_velocity`).
     """
 
     t: np.ndarray
@@ -32,6 +35,7 @@ class GnssFixes:
     v_ecef: np.ndarray | None = None
     sigma_v_ned: np.ndarray | None = None
     cov_ned: np.ndarray | None = None
+    velocity_on_time: bool | None = None
 
 
 def interp_rows(t_new: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -53,11 +57,24 @@ def initial_track(t_key: np.ndarray, fixes: GnssFixes, frame: NavFrame):
     return p, v
 
 
+def wide_derivative(t: np.ndarray, y: np.ndarray, half_window_s: float = 0.5) -> np.ndarray:
+    """d y / d t (along axis 0) as the secant over about +-`half_window_s` (at least the neighbours): at 50 Hz the
+    neighbours' difference of 5 cm/s velocity noise is 3.5 m/s^2, which put a pseudo-attitude's roll tens of
+    degrees off (and the smoother into a wrong minimum)."""
+    t = np.asarray(t, float)
+    if len(t) < 2:
+        return np.zeros_like(y)
+    m = max(1, int(round(half_window_s / float(np.median(np.diff(t))))))
+    i = np.arange(len(t))
+    lo, hi = np.maximum(i - m, 0), np.minimum(i + m, len(t) - 1)
+    return (y[hi] - y[lo]) / (t[hi] - t[lo])[:, None]
+
+
 def anchor_attitude(t_key: np.ndarray, v_nav: np.ndarray, min_speed: float = 3.0) -> tuple[int, np.ndarray]:
     """Keyframe index and coarse R_body_to_nav at the first moving epoch: the pseudo-attitude of the GNSS
     velocity (dgcal.pos.gnss.pseudo_attitude: roll from the turn's centripetal acceleration, pitch = flight-path
     angle, heading = course); level with heading = course if it cannot be formed."""
-    pa = pseudo_attitude(t_key, v_nav, window_s=0.0, min_speed=min_speed)
+    pa = pseudo_attitude(t_key, v_nav, a_ned=wide_derivative(t_key, v_nav), min_speed=min_speed)
     ok = np.flatnonzero(pa.valid & np.all(np.isfinite(pa.rph), axis=1))
     if len(ok):
         a = int(ok[0])

@@ -152,7 +152,8 @@ def screen_fixes(fixes: GnssFixes, imu, k_sigma: float = 5.0, max_rounds: int = 
         v[bad_v] = np.nan
         sv[bad_v] = np.nan
     sub = GnssFixes(t[keep], fixes.p_ecef[keep], fixes.sigma_ned[keep], None if v is None else v[keep],
-                    None if sv is None else sv[keep], None if fixes.cov_ned is None else fixes.cov_ned[keep])
+                    None if sv is None else sv[keep], None if fixes.cov_ned is None else fixes.cov_ned[keep],
+                    fixes.velocity_on_time)
     out.sort(key=lambda r: r["t_gps"])
     return sub, out
 
@@ -242,7 +243,8 @@ def _factor_table(problem) -> FactorTable:
         for kind, f, sig in fl:
             dims.append(1 if sig is not None else f.dim())
             sigma.append(np.nan if sig is None else sig)
-            huber.append(k_rob if kind in _ROBUST_KINDS else np.nan)
+            # the linearised factors (LC fixes with error states, double differences) are not robust
+            huber.append(k_rob if kind in _ROBUST_KINDS and not isinstance(f, gtsam.LinearContainerFactor) else np.nan)
     return FactorTable(factor_kinds(problem), np.r_[0, np.cumsum(dims)].astype(np.int64), np.array(sigma, float),
                        np.array(huber, float))
 

@@ -18,24 +18,27 @@ from dataclasses import dataclass
 import numpy as np
 
 from dgcal.fields.constants import C_LIGHT
-from dgcal.pos.smoother.factors import B, CLK, DRIFT, V, X, ZERO
+from dgcal.pos.smoother.factors import B, CLK, DRIFT, FE, V, X, ZERO
 
 _KEY_BITS = 56           # gtsam symbols: the character in the top byte, the index below
-_DIM = {ord("x"): 6, ord("v"): 3, ord("b"): 6}   # every other key of the smoother is a scalar
+_DIM = {ord("x"): 6, ord("v"): 3, ord("b"): 6, ord("f"): 3}   # every other key of the smoother is a scalar
 
 
 class KeyframeBlocks:
-    """Variable layout of one keyframe block: X (6), V (3), B (6), one clock per system (1 each), drift (1) and
-    the slots of the satellites' code biases (1 each, `dgcal.pos.smoother.code_bias`; a slot without an arc at a
-    keyframe has no variable there and is carried with unit information, coupled to nothing)."""
+    """Variable layout of one keyframe block: X (6), V (3), B (6), one clock per system (1 each), drift (1), the
+    slots of the satellites' code biases (1 each, `dgcal.pos.smoother.code_bias`; a slot without an arc at a
+    keyframe has no variable there and is carried with unit information, coupled to nothing) and the LC fixes'
+    error states (3, `dgcal.pos.smoother.fix_errors`, likewise outside their span)."""
 
-    def __init__(self, K: int, systems: list, first: int = 0, arcs=None):
-        """Blocks for keyframes first .. first+K-1 (numbered 0 .. K-1 here)."""
+    def __init__(self, K: int, systems: list, first: int = 0, arcs=None, fix_span: tuple | None = None):
+        """Blocks for keyframes first .. first+K-1 (numbered 0 .. K-1 here); `fix_span`: the first and last keyframe
+        of the LC fixes' error states (`dgcal.pos.smoother.fix_errors`, 3 each, after the code-bias slots)."""
         self.K = K
         self.systems = list(systems)
         self.n_slots = arcs.n_slots if arcs is not None else 0
         self.base = 15 + len(systems) + (1 if systems else 0)
-        self.n = self.base + self.n_slots
+        self.fix = self.base + self.n_slots if fix_span is not None else None   # offset of the fix error states
+        self.n = self.base + self.n_slots + (3 if fix_span is not None else 0)
         self.where: dict = {}
         for i in range(K):
             k = first + i
@@ -48,10 +51,16 @@ class KeyframeBlocks:
                 self.where[DRIFT(k)] = (i, 15 + len(systems), 1)
         self.active = np.ones((K, self.n), bool)
         if self.n_slots:
-            self.active[:, self.base:] = arcs.active(first + K)[first:first + K]
+            self.active[:, self.base:self.base + self.n_slots] = arcs.active(first + K)[first:first + K]
             for key, (k, slot) in arcs.where().items():
                 if first <= k < first + K:
                     self.where[key] = (k - first, self.base + slot, 1)
+        if fix_span is not None:
+            k0, k1 = fix_span
+            ks = np.arange(first, first + K)
+            self.active[:, self.fix:self.fix + 3] = ((ks >= k0) & (ks <= k1))[:, None]
+            for k in range(max(k0, first), min(k1, first + K - 1) + 1):
+                self.where[FE(k)] = (k - first, self.fix, 3)
         self.where[ZERO()] = None  # a pinned constant: conditioned on (its rows/columns dropped)
         # seconds -> metres for the clock variables (x_s = x_m / c); the code biases are in metres already
         self.scale = np.ones(self.n)

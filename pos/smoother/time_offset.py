@@ -94,8 +94,18 @@ def shifted_imu(imu, offset_s: float):
 def smoother_chi2(imu, fixes, grade, opts, mode: str = "tc", gnss=None, lc_fixes=None, carrier=None
                   ) -> Callable[[float], float]:
     """chi2(offset): the smoother's final chi-square (twice gtsam's error, both passes, no covariances) with the
-    IMU's time tags shifted by `offset` s; the GNSS inputs as `dgcal.pos.smoother.batch.smooth` takes them."""
+    IMU's time tags shifted by `offset` s; the GNSS inputs as `dgcal.pos.smoother.batch.smooth` takes them.
+
+    LC: the noise is what the data show (the IMU's white noise in motion and the fixes' white share, estimated by
+    one smoothing with covariances at the offset as given, `dgcal.pos.smoother.batch`) and held for every trial: a
+    profile drawn with weights the data contradict has its minimum elsewhere (on the real drive the IMU noise the
+    static start shows, half what the drive shows, moved it by 15 ms)."""
     quiet = replace(opts, covariances=False)
+    if mode == "lc" and opts.covariances:
+        cal = smooth(imu, fixes, grade, opts, mode=mode, gnss=gnss, lc_fixes=lc_fixes, carrier=carrier)
+        grade = cal.imu_noise if cal.imu_noise is not None else grade
+        share = cal.problem.lc.white_share if cal.problem.lc is not None else opts.lc_fix_white_share
+        quiet = replace(quiet, motion_noise=False, lc_fix_white_share=share)
 
     def chi2(offset_s: float) -> float:
         sol = smooth(shifted_imu(imu, offset_s), fixes, grade, quiet, mode=mode, gnss=gnss, lc_fixes=lc_fixes,

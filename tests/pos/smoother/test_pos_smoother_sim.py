@@ -17,14 +17,19 @@ from dgcal.sim.pos import navigation_errors  # noqa: E402
 def flight():
     from dgcal.pos.gnss_ins import process
     from dgcal.pos.gnss.spp import SppOptions
+    from dgcal.pos.smoother.batch import SmootherOptions
     from dgcal.sim.pos import simulate_pos
     sim = simulate_pos(seed=0, duration_s=300.0, rate_hz=100.0)
     opts = SppOptions(code_sigma_zenith_m=sim.sigma_pr, doppler_sigma_zenith_mps=sim.sigma_doppler,
                       model_errors=False, systems=("G", "E"))
     out = {"sim": sim}
     for mode in ("tc", "lc"):
+        # LC on SPP: its Doppler velocities are the epochs' (`GnssFixes.velocity_on_time`, which fixes_from_spp does
+        # not say yet); by default ("auto") the smoother would measure their latency, which 1 Hz metre-level positions
+        # cannot tell, and count them only across the acceleration: heading error/sigma 0.3-0.5 here
+        so = SmootherOptions(lc_velocity="true") if mode == "lc" else None
         out[mode] = process(mode, sim.imu, sim.grade, sim.lever_arm_b, raw_obs=sim.obs, nav=sim.nav,
-                            spp_opts=opts, events=sim.events, forward=True)
+                            spp_opts=opts, events=sim.events, forward=True, smoother_opts=so)
     return out
 
 
@@ -61,8 +66,10 @@ def test_sigmas_cover_the_errors(flight, mode):
     nees_a = rms((dth / sa).ravel())
     assert 0.7 <= nees_p <= 1.4, nees_p
     # scale factor and misalignment are carried as white noise in the turns (not estimated): in this
-    # manoeuvre-rich 5-minute flight the attitude sigmas are conservative, by up to 1/0.6
-    assert 0.6 <= nees_a <= 1.4, nees_a
+    # manoeuvre-rich 5-minute flight the attitude sigmas are conservative, by up to 1/0.6; roll and pitch also carry
+    # the tilt budget of the accelerometer triad's misalignment (`add_tilt_budget`, calibrated on 20-minute flights,
+    # where it is what limits them: error/sigma 1.3-1.7 without it, 0.9-1.1 with it), which takes LC to 0.57 here
+    assert 0.55 <= nees_a <= 1.4, nees_a
 
 
 def test_smoother_beats_forward(flight):

@@ -229,20 +229,25 @@ def _lc_problem(K=40, seed=0):
 
 
 def test_block_covariances_equal_gtsam_marginals():
-    from dgcal.pos.smoother.covariance import KeyframeBlocks, smoothed_covariances
+    """The block recursion's marginals are gtsam's, the LC fixes' error states (`FE`) included."""
+    from dgcal.pos.smoother.covariance import smoothed_covariances
+    from dgcal.pos.smoother.factors import FE
     pr, vals = _lc_problem()
-    P = smoothed_covariances(pr.graph, vals, KeyframeBlocks(len(pr.t_key), []))
+    blocks = pr.blocks()
+    assert blocks.fix is not None and blocks.n == 18
+    P = smoothed_covariances(pr.graph, vals, blocks)
     m = gtsam.Marginals(pr.graph, vals)
     for k in (0, 7, len(pr.t_key) - 1):
         assert np.allclose(P[k, :6, :6], m.marginalCovariance(X(k)), rtol=1e-6, atol=1e-12)
         assert np.allclose(P[k, 6:9, 6:9], m.marginalCovariance(V(k)), rtol=1e-6, atol=1e-12)
+        assert np.allclose(P[k, 15:18, 15:18], m.marginalCovariance(FE(k)), rtol=1e-6, atol=1e-12)
 
 
 def test_forward_pass_meets_the_smoother_at_the_last_epoch():
     """Filter and smoother agree at the final epoch (same information), and the filter is never tighter."""
-    from dgcal.pos.smoother.covariance import KeyframeBlocks, forward_pass, smoothed_covariances
+    from dgcal.pos.smoother.covariance import forward_pass, smoothed_covariances
     pr, vals = _lc_problem()
-    blocks = KeyframeBlocks(len(pr.t_key), [])
+    blocks = pr.blocks()
     dx, Pf = forward_pass(pr.graph, vals, blocks)
     Ps = smoothed_covariances(pr.graph, vals, blocks)
     assert np.allclose(Pf[-1], Ps[-1], rtol=1e-6, atol=1e-12)
