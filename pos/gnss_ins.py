@@ -71,7 +71,8 @@ def fixes_from_spp(sol) -> GnssFixes:
     v = sol.v_ecef[ok]
     good_v = np.all(np.isfinite(v), axis=1) & np.all(np.isfinite(s_v), axis=1)
     v = np.where(good_v[:, None], v, np.nan)
-    return GnssFixes(sol.t_gps[ok], p, s_p, v, np.where(good_v[:, None], s_v, np.nan))
+    return GnssFixes(sol.t_gps[ok], p, s_p, v, np.where(good_v[:, None], s_v, np.nan),
+                     velocity_on_time=True)      # SPP's Doppler velocity is the epoch's own
 
 
 def fixes_from_solution(sol: GnssSolution) -> GnssFixes:

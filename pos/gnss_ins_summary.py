@@ -89,7 +89,9 @@ def summarize(res) -> dict:
         "residuals": {k: _stats(v) for k, v in sol.residuals.items()},
         "smoother": {k: sol.info[k] for k in ("lm_iterations", "second_pass_reoptimised", "timing",
                                               "static_start_end_s", "static_white_noise", "imu_noise_used",
-                                              "atmosphere_budget_m", "dd_rows_dropped")
+                                              "atmosphere_budget_m", "dd_rows_dropped", "lc_fix_errors",
+                                              "lc_velocity", "imu_white_noise_scale", "imu_variance_factor",
+                                              "imu_redundancy", "tilt_budget_deg")
                      if k in sol.info},
         "events": int(len(res.events.t)) if res.events is not None else 0,
     }
@@ -134,4 +136,10 @@ def withheld_fix_errors(traj, withheld: GnssSolution, lever_arm_b) -> dict:
     fixed = w.quality == 1
     if fixed.any() and not fixed.all():
         out["rms_3d_fixed_m"] = round(float(np.sqrt(np.mean(np.sum(d_ned[fixed] ** 2, axis=1)))), 4)
+    if st.sigma is not None:
+        # the trajectory's position sigma (lever arm's attitude part neglected: millimetres) with the fix's own
+        var = st.sigma[:, :3] ** 2 + np.einsum("nii->ni", w.cov_ned)
+        z = d_ned / np.sqrt(var)
+        out["normalised_rms_ned"] = np.sqrt(np.mean(z ** 2, axis=0)).round(3).tolist()
+        out["normalised_max"] = round(float(np.max(np.abs(z))), 2)
     return out

@@ -163,3 +163,6 @@ def test_drive_through_the_cli_defaults(shared_data, tmp_path):
     assert rms3 <= 0.25
     assert np.all((z_axes >= 0.7) & (z_axes <= 1.4)), z_axes
     assert np.abs(z).max() < 6.0
+    # the summary says the same (pos_summary.json withheld_fixes, what a user reads)
+    np.testing.assert_allclose(summary["withheld_fixes"]["normalised_rms_ned"], z_axes, atol=0.01)
+    assert summary["smoother"]["lc_velocity"] and "lc_fix_errors" in summary["smoother"]
