@@ -27,7 +27,8 @@ from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
 from dgcal.pos.gnss.rinex_obs import read_obs_file
 from dgcal.pos.gnss.solution_files import GnssSolution
 from dgcal.pos.gnss.spp import SppOptions, prepare_epochs, spp
-from dgcal.pos.gnss_ins_summary import add_integrity, antenna_track, carrier_summary, summarize, withheld_fix_errors
+from dgcal.pos.gnss_ins_summary import (add_integrity, antenna_track, carrier_summary, observability_warnings,
+                                        summarize, withheld_fix_errors)
 from dgcal.pos.ins.error_model import imu_grade
 from dgcal.pos.ins.integrity import ImuIntegrityOptions, check_imu
 from dgcal.pos.ins.interpolate import trajectory_at_events
@@ -221,6 +222,7 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     if offset is not None:
         res.summary["imu_time_offset"] = offset.as_dict()
     add_integrity(res.summary, imu_report, sol.info.get("gnss_rejected", []))
+    res.summary.setdefault("warnings", []).extend(observability_warnings(sol, grade))
     if fe is not None:
         res.summary["carrier"] = carrier_summary(res)
     return res

@@ -8,8 +8,10 @@ from scipy.special import chdtri
 from dgcal.fields.constants import G0
 from dgcal.fields.crs import R_ecef_to_ned_at
 from dgcal.pos.gnss.solution_files import GnssSolution
+from dgcal.pos.ins.error_model import imu_grade
 from dgcal.pos.ins.integrity import ImuIntegrity
 from dgcal.pos.ins.interpolate import interpolate_trajectory
+from dgcal.pos.smoother.batch import HEADING_SPEED_MPS
 from dgcal.pos.smoother.integrity import gnss_warnings
 
 
@@ -142,4 +144,24 @@ def withheld_fix_errors(traj, withheld: GnssSolution, lever_arm_b) -> dict:
         z = d_ned / np.sqrt(var)
         out["normalised_rms_ned"] = np.sqrt(np.mean(z ** 2, axis=0)).round(3).tolist()
         out["normalised_max"] = round(float(np.max(np.abs(z))), 2)
+    return out
+
+
+def observability_warnings(sol, grade) -> list[str]:
+    """What the motion could not determine: a heading never taken from a course (the platform never moved faster than
+    `HEADING_SPEED_MPS`: its sigma is that of an unknown heading), and gyro biases beyond the grade's (3 sigma of its
+    turn-on bias and instability): a heading drifting where the motion leaves it unobservable, or a wrong grade."""
+    out = []
+    v_h = np.hypot(sol.v_nav[:, 0], sol.v_nav[:, 1])
+    if not np.any(v_h > HEADING_SPEED_MPS):
+        out.append(f"heading not observable: the platform never moved faster than {HEADING_SPEED_MPS:g} m/s (max "
+                   f"{v_h.max():.1f} m/s), so no course fixed it; its sigma is that of an unknown heading")
+    model = imu_grade(grade) if isinstance(grade, str) else grade
+    lim = 3.0 * float(np.hypot(model.gyro_bias_sigma, model.gyro_bias_instability))
+    b = np.abs(sol.bias[:, 3:]).max(axis=0)
+    if lim > 0 and np.any(b > lim):
+        axis = "xyz"[int(np.argmax(b / lim))]
+        out.append(f"gyro {axis} bias estimate {np.degrees(b.max()) * 3600:.0f} deg/h is beyond the {model.name} "
+                   f"grade's {np.degrees(lim) * 3600:.0f} deg/h (3 sigma): the motion leaves the heading (or that "
+                   "axis) unobservable — slow, straight or static — or the grade is wrong; distrust the heading")
     return out

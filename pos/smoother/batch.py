@@ -74,6 +74,10 @@ class SmootherOptions:
     lc_fix_white_share: float | None = None  # LC: the white share of the fixes' stated variance (None: estimated)
 
 
+HEADING_SPEED_MPS = 3.0          # the GNSS course gives the first heading above this ground speed
+HEADING_UNKNOWN_SIGMA_DEG = 104.0  # a heading uniform over the circle (180/sqrt(3) deg)
+
+
 @dataclass
 class NavSolution:
     """Keyframe states in the nav frame with covariances (gtsam tangent conventions, see docs/pos_smoother.md).
@@ -205,6 +209,10 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
 
     prior = []
     rs = np.radians(opts.prior_rot_sigma_deg)
+    if not np.any(np.hypot(v_ant[:, 0], v_ant[:, 1]) > HEADING_SPEED_MPS):
+        # no course to take the heading from (static, slow): it starts as good as unknown, so its sigma says so
+        rs = rs.copy()
+        rs[2] = np.radians(HEADING_UNKNOWN_SIGMA_DEG)
     prior.append(gtsam.PriorFactorPose3(X(0), values.atPose3(X(0)), gtsam.noiseModel.Diagonal.Sigmas(
         np.r_[rs, [opts.prior_pos_sigma_m] * 3])))
     prior.append(gtsam.PriorFactorPoint3(V(0), v_ant[0], gtsam.noiseModel.Isotropic.Sigma(3, opts.prior_vel_sigma_mps)))
