@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the field's sx,sy,sz (default: targets fixed)")
     p.add_argument("--initial", metavar="CAMERA",
                    help="start from this camera (camera.json, opencv.yaml, cameras.txt, Metashape XML, ...)")
-    p.add_argument("--reject", type=arg_types.positive, default=4.0, metavar="K",
+    p.add_argument("--reject", type=arg_types.non_negative, default=4.0, metavar="K",
                    help="reject observations beyond K robust sigmas of all observations and of their own image "
                         "(default 4; 0 keeps every observation, as OpenCV's calibrateCamera)")
     p.add_argument("--max-frames", type=arg_types.positive_int, default=100, metavar="N",
