@@ -213,8 +213,12 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
         ev = trajectory_at_events(dense, events) if events is not None and len(events) else None
         return dense, ev, time.perf_counter() - t0
 
-    # independent: the dense trajectory (plain arrays) from a child while this process runs the forward pass
-    (fw, timing["forward_s"]), (dense, ev, timing["outputs_s"]) = fork_map([forward_pass, outputs])
+    if forward:
+        # independent: the dense trajectory (plain arrays) from a child while this process runs the forward pass
+        (fw, timing["forward_s"]), (dense, ev, timing["outputs_s"]) = fork_map([forward_pass, outputs])
+    else:                                 # nothing to run beside it: no fork, no copy of the trajectory back
+        fw, timing["forward_s"] = None, 0.0
+        dense, ev, timing["outputs_s"] = outputs()
     sol.info.setdefault("timing", {}).update({k: round(v, 2) for k, v in timing.items()})
     res = PosResult(mode, sol, fw, dense, solution_trajectory(sol), solution_trajectory(fw) if fw else None, ev,
                     spp_sol, fixes, carrier=fe)
