@@ -14,36 +14,22 @@ HELP = "simulate a moving rover + base (RINEX 3 carrier phase): UAV flight or ca
 DESCRIPTION = rover_motion.__doc__  # --help shows the simulator's own documentation
 
 
-def _positive(text: str) -> float:
-    v = float(text)
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, not {text}")
-    return v
-
-
-def _share(text: str) -> float:
-    v = float(text)
-    if not 0.0 <= v <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be within 0..1, not {text}")
-    return v
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--kind", default="uav", choices=ROVER_KINDS, help="uav (survey flight) or car (stop-and-go)")
     p.add_argument("--uav", default="fixed-wing", choices=("fixed-wing", "multirotor"),
                    help="airframe of --kind uav (fixed-wing 25 m/s, multirotor 10 m/s unless --speed)")
-    p.add_argument("--speed", type=_positive, default=None, help="UAV speed, m/s")
-    p.add_argument("--bank", type=_positive, default=30.0, help="UAV bank angle in turns, deg")
-    p.add_argument("--duration", type=_positive, default=600.0, help="s")
-    p.add_argument("--rate", type=_positive, default=1.0, help="GNSS epochs per second")
+    p.add_argument("--speed", type=arg_types.positive, default=None, help="UAV speed, m/s")
+    p.add_argument("--bank", type=arg_types.positive, default=30.0, help="UAV bank angle in turns, deg")
+    p.add_argument("--duration", type=arg_types.positive, default=600.0, help="s")
+    p.add_argument("--rate", type=arg_types.positive, default=1.0, help="GNSS epochs per second")
     p.add_argument("--no-doppler", action="store_true", help="a rover receiver that outputs no Doppler")
-    p.add_argument("--slip-rate", type=_share, default=0.01,
+    p.add_argument("--slip-rate", type=arg_types.fraction, default=0.01,
                    help="slip probability per satellite and epoch while turning (twice below 25 deg elevation)")
-    p.add_argument("--half-cycles", type=_share, default=0.3,
+    p.add_argument("--half-cycles", type=arg_types.fraction, default=0.3,
                    help="share of new arcs that start with an unresolved half cycle (LLI bit 1)")
-    p.add_argument("--base-distance", type=_positive, default=4000.0, help="base to rover, m")
+    p.add_argument("--base-distance", type=arg_types.positive, default=4000.0, help="base to rover, m")
     p.add_argument("--urban", type=arg_types.finite, default=0.3, help="car: building height / distance on both sides")
     p.add_argument("--frequencies", type=int, default=2, choices=(1, 2, 3))
     p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: ../shared/data/rinex-sept)")
