@@ -121,3 +121,21 @@ def test_ukf_sigmas_honest_over_several_seeds():
     za, zp = np.sqrt(np.mean(np.vstack(za) ** 2, axis=0)), np.sqrt(np.mean(np.vstack(zp) ** 2, axis=0))
     assert np.all((za >= 0.7) & (za <= 1.4)), za
     assert np.all((zp >= 0.7) & (zp <= 1.4)), zp
+
+
+def test_simulate_lowcost_slow_platform_with_outages(tmp_path):
+    """`dgcal simulate lowcost --speed --static --gnss-outages`: the slow-platform and outage families of issue 27
+    from the command line (a 2 m/s flight after 10 s at rest, 15 s of every 45 s without fixes)."""
+    from dgcal.fields.io.csv_tables import read_table
+    out = tmp_path / "slow"
+    assert main(["simulate", "lowcost", "--out", str(out), "--duration", "90", "--speed", "2", "--static", "10",
+                 "--gnss-outages", "30", "15", "45"]) == 0
+    truth = read_table(out / "truth_trajectory.csv", ("t_gps", "vn", "ve"))
+    speed = np.hypot(truth["vn"], truth["ve"])
+    assert np.median(speed) == pytest.approx(2.0, abs=0.3) and speed[:50].max() < 0.1
+    fixes = read_table(out / "gnss_fixes.csv", ("t_gps",))["t_gps"]
+    gaps = np.diff(fixes)
+    assert gaps.max() == pytest.approx(15.0, abs=0.5)
+    assert json.loads((out / "truth.json").read_text())
+    with pytest.raises(SystemExit):
+        main(["simulate", "lowcost", "--out", str(tmp_path / "bad"), "--speed", "-2"])
