@@ -31,13 +31,14 @@ from dgcal.pos.gnss_ins_summary import (add_integrity, antenna_track, carrier_su
                                         summarize, withheld_fix_errors)
 from dgcal.pos.ins.error_model import imu_grade
 from dgcal.pos.ins.integrity import ImuIntegrityOptions, check_imu
+from dgcal.pos.ins.plausibility import check_turn_sense
 from dgcal.pos.ins.interpolate import trajectory_at_events
 from dgcal.pos.lowcost.ukf_pos import UkfPosResult, process_ukf, read_true_trajectory
 from dgcal.pos.mode_options import InsModeOptions, UkfModeOptions
 from dgcal.pos.readers import read_fix_input, read_imu_input
 from dgcal.pos.smoother.batch import SmootherOptions, smooth
 from dgcal.pos.smoother.forward_filter import forward_solution, linear_forward_solution
-from dgcal.pos.smoother.initial import GnssFixes
+from dgcal.pos.smoother.initial import GnssFixes, wide_derivative
 from dgcal.pos.smoother.output import densify, solution_trajectory
 from dgcal.pos.smoother.time_offset import estimate_time_offset, shifted_imu, smoother_chi2
 
@@ -232,6 +233,14 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     return res
 
 
+def track_velocity_ned(fixes: GnssFixes) -> np.ndarray:
+    """Velocities (N,3) m/s along the fixes' track in the local NED frame of the first fix (secants of the positions
+    over about a second: solution files' own velocities may lag)."""
+    R_ecef_to_ned = R_ecef_to_ned_at(fixes.p_ecef[0])
+    p_ned = (fixes.p_ecef - fixes.p_ecef[0]) @ R_ecef_to_ned.T
+    return wide_derivative(fixes.t, p_ned, half_window_s=0.5)     # 50 Hz fixes' noise: a secant over 1 s
+
+
 def fixes_with_ppk(fixes: GnssFixes, res: PpkResult) -> GnssFixes:
     """SPP fixes with the positions replaced by PPK's (float or fixed) where it has them (initial track, m)."""
     ok = (res.status >= 2) & np.all(np.isfinite(res.p), axis=1)
@@ -341,6 +350,8 @@ def run_gnss_ins(opts: InsModeOptions) -> PosResult | UkfPosResult:
         imu = imu.between(t0, t1)
         if len(imu) < 2:
             raise InputError("fewer than two IMU samples between t_start and t_end", opts.imu.path)
+    if lc is not None and len(lc.t) > 2:
+        check_turn_sense(imu, lc.t, track_velocity_ned(lc), opts.fixes.path)
     out = opts.output
     forward = "filter" if out.forward_filter else bool(out.forward)
     try:

@@ -44,3 +44,37 @@ def check_imu_units(imu) -> None:
     if rate > MAX_RATE_RAD_S:
         raise InputError(f"angular rates reach {rate:.0f} rad/s ({np.degrees(rate):.0f} deg/s), beyond any gyro's "
                          "range: deg/s read as rad/s? (units.gyro)", imu.path, field="units.gyro")
+
+
+MIN_TURN_RATE_DEG_S = 2.0       # course rates that make a turn's sense unmistakable
+MIN_TURN_EPOCHS = 10
+
+
+def check_turn_sense(imu, t_fix: np.ndarray, v_ned: np.ndarray, path=None) -> None:
+    """Refuse an IMU and a GNSS track that turn in opposite directions: the yaw rate the gyros measure (body z, FRD:
+    positive turning right) against the GNSS course rate (from NED velocities (N,3) m/s at GPS times `t_fix`),
+    over the turns faster than `MIN_TURN_RATE_DEG_S`. Opposite senses mean a mirrored track (ECEF x and y swapped,
+    a sign lost) or a flipped IMU z axis; InputError naming the GNSS file."""
+    t_fix, v_ned = np.asarray(t_fix, float), np.asarray(v_ned, float)
+    one_per_second = np.r_[0, np.flatnonzero(np.diff(np.floor(t_fix)) > 0) + 1]     # 50 Hz fixes: noise only
+    t_fix, v_ned = t_fix[one_per_second], v_ned[one_per_second]
+    moving = np.hypot(v_ned[:, 0], v_ned[:, 1]) > 3.0
+    k = np.flatnonzero(moving[:-1] & moving[1:] & (np.diff(t_fix) > 0) & (np.diff(t_fix) < 2.5))
+    t_imu = np.asarray(imu.t, float)
+    k = k[(t_fix[k] >= t_imu[0]) & (t_fix[k + 1] <= t_imu[-1])]
+    if len(k) < MIN_TURN_EPOCHS:
+        return
+    course = np.arctan2(v_ned[:, 1], v_ned[:, 0])
+    dt = t_fix[k + 1] - t_fix[k]
+    course_rate = (np.angle(np.exp(1j * (course[k + 1] - course[k])))) / dt
+    theta_z = np.r_[0.0, np.cumsum(np.asarray(imu.dtheta, float)[:, 2])]
+    t_cum = np.r_[t_imu[0] - float(imu.dt[0]), t_imu]
+    gyro_rate = (np.interp(t_fix[k + 1], t_cum, theta_z) - np.interp(t_fix[k], t_cum, theta_z)) / dt
+    turning = np.abs(course_rate) > np.radians(MIN_TURN_RATE_DEG_S)
+    if turning.sum() < MIN_TURN_EPOCHS:
+        return
+    agree = np.sign(course_rate[turning]) == np.sign(gyro_rate[turning])
+    if agree.mean() < 0.2:
+        raise InputError(f"the GNSS track and the IMU turn in opposite directions in {100 * (1 - agree.mean()):.0f} % "
+                         f"of {int(turning.sum())} turning epochs: a mirrored track (ECEF x and y swapped, a sign "
+                         "lost) or the IMU's z axis flipped", path, field="x,y,z")

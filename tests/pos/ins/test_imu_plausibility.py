@@ -41,3 +41,23 @@ def test_unit_and_axis_mistakes_are_named(change, field, words):
     with pytest.raises(InputError) as exc:
         check_imu(bad)
     assert exc.value.field == field and words in str(exc.value) and "imu.csv" in str(exc.value)
+
+
+def test_a_mirrored_gnss_track_is_refused_by_its_turns():
+    """ECEF x and y swapped mirror the track: its turns go the other way from the gyros' (issue 31: 15,400 km off
+    without a word). The simulated low-cost flight passes; mirrored (east negated) it is refused, as is a flipped
+    IMU z axis."""
+    from dgcal.pos.gnss_ins import track_velocity_ned
+    from dgcal.pos.ins.plausibility import check_turn_sense
+    from dgcal.sim.lowcost_flight import simulate_lowcost_flight
+    fl = simulate_lowcost_flight(duration_s=150.0, seed=2)
+    fx = fl.fixes
+    v = track_velocity_ned(fx)
+    check_turn_sense(fl.imu, fx.t, v)
+    mirrored = v * np.array([1.0, -1.0, 1.0])
+    with pytest.raises(InputError, match="opposite directions") as exc:
+        check_turn_sense(fl.imu, fx.t, mirrored, "gnss.csv")
+    assert "x and y swapped" in str(exc.value) and "gnss.csv" in str(exc.value)
+    flipped = ImuData(fl.imu.t, fl.imu.dtheta * np.array([1.0, 1.0, -1.0]), fl.imu.dvel, fl.imu.rate_hz)
+    with pytest.raises(InputError, match="opposite directions"):
+        check_turn_sense(flipped, fx.t, v)
