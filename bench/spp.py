@@ -202,38 +202,6 @@ BASE_3034_ECEF = np.array([-3959400.631, 3385704.533, 3667523.111])   # GSI 3034
 KINEMATIC_FILES = ("SEPT265G.21O", "SEPT2650.21P", "3034265G.21O")
 
 
-def rtklib_pntpos_cov(obs_path: str, nav_path: str, systems: str = "GEJ"):
-    """RTKLIB's pntpos per epoch with its covariance (sol.qr), dgcal's settings: t_gps, p_ecef (n,3), cov (n,3,3)."""
-    import pyrtklib as rk
-    from dgcal.fields.constants import SECONDS_PER_WEEK
-    obs, nav, sta = rk.obs_t(), rk.nav_t(), rk.sta_t()
-    rk.readrnx(obs_path, 1, "", obs, nav, sta)
-    rk.readrnx(nav_path, 1, "", obs, nav, sta)
-    rk.sortobs(obs)
-    rk.uniqnav(nav)
-    opt = rk.prcopt_default
-    opt.mode = rk.PMODE_SINGLE
-    opt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS}[c] for c in systems)
-    opt.elmin, opt.tropopt, opt.ionoopt, opt.sateph = np.radians(10.0), rk.TROPOPT_SAAS, rk.IONOOPT_BRDC, rk.EPHOPT_BRDC
-    t, p, c = [], [], []
-    i = 0
-    while i < obs.n:
-        m = 0
-        while i + m < obs.n and abs(rk.timediff(obs.data[i + m].time, obs.data[i].time)) < 0.05:
-            m += 1
-        sol = rk.sol_t()
-        if rk.pntpos(obs.data[i:i + m].ptr, m, nav, opt, sol, rk.Arr1Ddouble(2 * m), rk.Arr1Dssat_t(rk.MAXSAT).ptr,
-                     rk.Arr1Dchar(100)):
-            week = rk.Arr1Dint(1)
-            tow = rk.time2gpst(sol.time, week)
-            t.append(week[0] * SECONDS_PER_WEEK + tow)
-            p.append([sol.rr[k] for k in range(3)])
-            q = [sol.qr[k] for k in range(6)]
-            c.append([[q[0], q[3], q[5]], [q[3], q[1], q[4]], [q[5], q[4], q[2]]])
-        i += m
-    return np.array(t), np.array(p), np.array(c)
-
-
 def _honesty_row(name: str, t, p, cov, ref_t, ref_p, extra: str = "") -> np.ndarray:
     """Print one file's honesty line (epochs with a reference within 0.5 s: RTKLIB stamps its fixes at the
     clock-corrected time); its error/sigma RMS per E/N/U axis."""
@@ -256,6 +224,7 @@ def honesty(shared: Path) -> None:
     """Error/sigma of dgcal's SPP and RTKLIB's pntpos on the real receivers with a known answer (section 5)."""
     from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
     from dgcal.pos.gnss.spp import SppOptions, spp
+    from dgcal.pos.gnss.rtklib import rtklib_pntpos_cov
     try:
         import pyrtklib  # noqa: F401
         have_rtklib = True

@@ -10,11 +10,18 @@ from dgcal.fields.constants import SECONDS_PER_WEEK
 def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
                   systems: str = "GEJ") -> tuple[np.ndarray, np.ndarray]:
     """RTKLIB pntpos per epoch (Klobuchar, Saastamoinen, broadcast orbits): (t_gps, p_ecef)."""
+    t, p, _ = rtklib_pntpos_cov(obs_path, nav_path, elev_mask_deg, systems)
+    return t, p
+
+
+def rtklib_pntpos_cov(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
+                      systems: str = "GEJ") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """RTKLIB pntpos per epoch with its covariance (sol.qr): t_gps (n,), p_ecef (n,3) m, cov (n,3,3) m^2 ECEF."""
     import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
 
     obs, nav, sta = rk.obs_t(), rk.nav_t(), rk.sta_t()
-    rk.readrnx(obs_path, 1, "", obs, nav, sta)
-    rk.readrnx(nav_path, 1, "", obs, nav, sta)
+    rk.readrnx(str(obs_path), 1, "", obs, nav, sta)
+    rk.readrnx(str(nav_path), 1, "", obs, nav, sta)
     rk.sortobs(obs)
     rk.uniqnav(nav)
     opt = rk.prcopt_default
@@ -25,7 +32,7 @@ def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
     opt.tropopt = rk.TROPOPT_SAAS
     opt.ionoopt = rk.IONOOPT_BRDC
     opt.sateph = rk.EPHOPT_BRDC
-    ts, ps = [], []
+    ts, ps, cs = [], [], []
     i = 0
     while i < obs.n:
         m = 0
@@ -42,8 +49,10 @@ def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
             tow = rk.time2gpst(sol.time, week)
             ts.append(week[0] * SECONDS_PER_WEEK + tow)
             ps.append([sol.rr[0], sol.rr[1], sol.rr[2]])
+            q = [sol.qr[k] for k in range(6)]           # RTKLIB's order: xx yy zz xy yz zx
+            cs.append([[q[0], q[3], q[5]], [q[3], q[1], q[4]], [q[5], q[4], q[2]]])
         i += m
-    return np.array(ts), np.array(ps)
+    return np.array(ts), np.array(ps), np.array(cs).reshape(-1, 3, 3)
 
 
 _POSTPOS_FIELDS = ("mode", "soltype", "nf", "navsys", "elmin", "modear", "ionoopt", "tropopt", "refpos", "sateph")

@@ -21,6 +21,7 @@ from dgcal.fields.crs import R_ecef_to_enu_at
 from dgcal.pos.gnss.corrections import (KLOBUCHAR_SHARE, SISRE_M, ZTD_SIGMA_M, model_sigma_m, orbit_clock_sigma_m,
                                         tropo_mapping)
 from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
+from dgcal.pos.gnss.rtklib import rtklib_pntpos_cov
 from dgcal.pos.gnss.spp import SppOptions, spp
 from test_ppk_real_kinematic import BASE_ECEF, FILES
 
@@ -39,37 +40,6 @@ def enu_z(p_ecef, cov, ref_ecef):
 
 def rms(x, axis=0):
     return np.sqrt(np.mean(np.asarray(x) ** 2, axis=axis))
-
-
-def rtklib_pntpos_cov(obs_path, nav_path, systems="GEJ"):
-    """RTKLIB's pntpos per epoch with its covariance (sol.qr): t_gps, p_ecef (n,3), cov (n,3,3)."""
-    import pyrtklib as rk
-    obs, nav, sta = rk.obs_t(), rk.nav_t(), rk.sta_t()
-    rk.readrnx(str(obs_path), 1, "", obs, nav, sta)
-    rk.readrnx(str(nav_path), 1, "", obs, nav, sta)
-    rk.sortobs(obs)
-    rk.uniqnav(nav)
-    opt = rk.prcopt_default
-    opt.mode = rk.PMODE_SINGLE
-    opt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS}[s] for s in systems)
-    opt.elmin, opt.tropopt, opt.ionoopt, opt.sateph = np.radians(10.0), rk.TROPOPT_SAAS, rk.IONOOPT_BRDC, rk.EPHOPT_BRDC
-    t, p, c = [], [], []
-    i = 0
-    while i < obs.n:
-        m = 0
-        while i + m < obs.n and abs(rk.timediff(obs.data[i + m].time, obs.data[i].time)) < 0.05:
-            m += 1
-        sol = rk.sol_t()
-        if rk.pntpos(obs.data[i:i + m].ptr, m, nav, opt, sol, rk.Arr1Ddouble(2 * m), rk.Arr1Dssat_t(rk.MAXSAT).ptr,
-                     rk.Arr1Dchar(100)):
-            week = rk.Arr1Dint(1)
-            tow = rk.time2gpst(sol.time, week)
-            t.append(week[0] * SECONDS_PER_WEEK + tow)
-            p.append([sol.rr[k] for k in range(3)])
-            q = [sol.qr[k] for k in range(6)]
-            c.append([[q[0], q[3], q[5]], [q[3], q[1], q[4]], [q[5], q[4], q[2]]])
-        i += m
-    return np.array(t), np.array(p), np.array(c)
 
 
 def test_budget_parts():
