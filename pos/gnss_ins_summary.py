@@ -122,26 +122,35 @@ def _stats(rows) -> dict:
             "max_abs": float(np.max(np.abs(e))), "share_beyond_3sigma": float(np.mean(np.abs(z) > 3))}
 
 
-def withheld_fix_errors(traj, withheld: GnssSolution, lever_arm_b) -> dict:
-    """Antenna position of the trajectory (IMU + R_body_to_ecef lever arm) minus the withheld fixes inside the
-    outages: counts and RMS (m) along N, E, D and 3D, by fix quality."""
+def withheld_fix_residuals(traj, withheld: GnssSolution, lever_arm_b) -> tuple:
+    """At the withheld fixes inside the trajectory's span: (those fixes, the trajectory's antenna (IMU position +
+    R_body_to_ecef lever arm) minus each fix, N/E/D m (n,3) in the local frame of each fix, the trajectory's N/E/D
+    position sigmas there (n,3) or None)."""
     ok = (withheld.t >= traj.t[0]) & (withheld.t <= traj.t[-1])
     w = withheld.subset(ok)
     if len(w) == 0:
-        return {"n": 0}
+        return w, np.zeros((0, 3)), None
     st = interpolate_trajectory(traj, w.t)
     p_ant = st.p_ecef + np.einsum("nij,j->ni", st.R_body_to_ecef, np.asarray(lever_arm_b, float))
     d_ned = np.einsum("nij,nj->ni", R_ecef_to_ned_at(w.p_ecef).reshape(-1, 3, 3), p_ant - w.p_ecef)
+    return w, d_ned, None if st.sigma is None else st.sigma[:, :3]
+
+
+def withheld_fix_errors(traj, withheld: GnssSolution, lever_arm_b) -> dict:
+    """The trajectory against the withheld fixes inside the outages (`withheld_fix_residuals`): counts and RMS (m)
+    along N, E, D and 3D, by fix quality, and error/sigma per axis (the trajectory's sigma and the fix's own)."""
+    w, d_ned, s_traj = withheld_fix_residuals(traj, withheld, lever_arm_b)
+    if len(w) == 0:
+        return {"n": 0}
     out = {"n": int(len(w)), "rms_ned_m": np.sqrt(np.mean(d_ned ** 2, axis=0)).round(4).tolist(),
            "rms_3d_m": round(float(np.sqrt(np.mean(np.sum(d_ned ** 2, axis=1)))), 4),
            "max_3d_m": round(float(np.max(np.linalg.norm(d_ned, axis=1))), 4)}
     fixed = w.quality == 1
     if fixed.any() and not fixed.all():
         out["rms_3d_fixed_m"] = round(float(np.sqrt(np.mean(np.sum(d_ned[fixed] ** 2, axis=1)))), 4)
-    if st.sigma is not None:
+    if s_traj is not None:
         # the trajectory's position sigma (lever arm's attitude part neglected: millimetres) with the fix's own
-        var = st.sigma[:, :3] ** 2 + np.einsum("nii->ni", w.cov_ned)
-        z = d_ned / np.sqrt(var)
+        z = d_ned / np.sqrt(s_traj ** 2 + w.sigma_ned ** 2)
         out["normalised_rms_ned"] = np.sqrt(np.mean(z ** 2, axis=0)).round(3).tolist()
         out["normalised_max"] = round(float(np.max(np.abs(z))), 2)
     return out

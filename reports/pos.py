@@ -12,32 +12,25 @@ from pathlib import Path
 
 import numpy as np
 
-from dgcal.fields.crs import R_ecef_to_ned_at, geodetic_to_ecef
+from dgcal.fields.crs import geodetic_to_ecef
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import write_trajectory
 from dgcal.pos.gnss.solution_files import GnssSolution
 from dgcal.pos.gnss_ins import PosResult
-from dgcal.pos.gnss_ins_summary import antenna_ecef
-from dgcal.pos.ins.interpolate import interpolate_trajectory
+from dgcal.pos.gnss_ins_summary import antenna_ecef, withheld_fix_residuals
 from dgcal.reports.gnss import TIME_CORRELATED
 from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
 
 
 def withheld_errors(res, withheld: GnssSolution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """At the withheld fixes inside the trajectory's span: the trajectory's antenna (IMU position + R_body_to_ecef
-    lever arm) minus the fix, N/E/D m (n,3) in the local frame of each fix (as pos_summary.json withheld_fixes), the
-    trajectory's N/E/D position sigmas there (n,3) and the fixes' own (n,3)."""
-    traj = res.trajectory
-    ok = (withheld.t >= traj.t[0]) & (withheld.t <= traj.t[-1])
-    w = withheld.subset(ok)
-    if len(w) == 0 or traj.sigma is None:
+    """At the withheld fixes inside the trajectory's span: the trajectory's antenna minus the fix, N/E/D m (n,3), as
+    pos_summary.json withheld_fixes (`dgcal.pos.gnss_ins_summary.withheld_fix_residuals`), the trajectory's N/E/D
+    position sigmas there (n,3) and the fixes' own (n,3); empty without trajectory sigmas."""
+    w, d_ned, s_traj = withheld_fix_residuals(res.trajectory, withheld, res.smoothed.problem.lever_arm_b)
+    if len(w) == 0 or s_traj is None:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
-    st = interpolate_trajectory(traj, w.t)
-    lever = np.asarray(res.smoothed.problem.lever_arm_b, float)
-    p_ant = st.p_ecef + np.einsum("nij,j->ni", st.R_body_to_ecef, lever)
-    d_ned = np.einsum("nij,nj->ni", R_ecef_to_ned_at(w.p_ecef).reshape(-1, 3, 3), p_ant - w.p_ecef)
-    return d_ned, st.sigma[:, :3], w.sigma_ned
+    return d_ned, s_traj, w.sigma_ned
 
 
 def pos_honesty(res, withheld: GnssSolution | None = None) -> dict:
