@@ -18,7 +18,7 @@ from typing import ClassVar
 import numpy as np
 from scipy.optimize import least_squares
 
-from dgcal.calib.camera.models import CameraModel, Fisheye, Fraser7, OpenCV8, model_class
+from dgcal.calib.camera.models import CameraModel, Fisheye, Fraser7, OpenCV8, model_class, parameter_index
 from dgcal.fields.errors import InputError
 
 OPENCV5_KEYS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
@@ -366,7 +366,7 @@ class AustralisModel(_NewtonRay):
             raise InputError(f"Australis model needs 10 parameters {AUSTRALIS_PARAMS}", field="params")
 
     def __getitem__(self, name: str) -> float:
-        return float(self.params[AUSTRALIS_PARAMS.index(name)])
+        return float(self.params[parameter_index(name, "Australis", AUSTRALIS_PARAMS)])
 
     def as_dict(self) -> dict[str, float]:
         """Parameters by name (mm-based units when pixel_size_mm is set)."""

@@ -37,6 +37,26 @@ import numpy as np
 from dgcal.fields.errors import InputError
 
 
+class UnknownParameterError(KeyError):
+    """A camera parameter the model does not have (`cam["fx"]` on fraser7): the message names the model's own."""
+
+    def __init__(self, name: str, model: str, params: tuple[str, ...]):
+        super().__init__(name)
+        self.message = (f"camera model {model or 'camera'} has no parameter {name!r}; its parameters are "
+                        f"{', '.join(params)}")
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def parameter_index(name: str, model: str, params: tuple[str, ...]) -> int:
+    """Position of parameter `name` in `params`, or `UnknownParameterError` naming the model's parameters."""
+    try:
+        return params.index(name)
+    except ValueError:
+        raise UnknownParameterError(name, model, params) from None
+
+
 @dataclass
 class CameraModel:
     """Base class: a parameter vector in the order `PARAMS` and the image size [width, height] (px)."""
@@ -59,7 +79,9 @@ class CameraModel:
         return {k: float(v) for k, v in zip(self.PARAMS, self.params)}
 
     def __getitem__(self, name: str) -> float:
-        return float(self.params[self.PARAMS.index(name)])
+        """The parameter called `name` (px or dimensionless); `UnknownParameterError` (a KeyError) if the model
+        has no such parameter."""
+        return float(self.params[parameter_index(name, self.NAME, self.PARAMS)])
 
     @classmethod
     def from_dict(cls, image_size, values: dict[str, float]) -> "CameraModel":
