@@ -1,4 +1,4 @@
-"""Ground-control files of other software: ODM `gcp_list.txt` (read/write) and MicMac XML (read).
+"""Ground-control files of other software: ODM `gcp_list.txt` (read/write), MicMac XML (read), the dispatch.
 
 - ODM/OpenDroneMap `gcp_list.txt`: first line the CRS (EPSG code, PROJ string or WGS84 UTM name), then
   one measurement per line, whitespace separated: `geo_x geo_y geo_z im_x im_y image_name [gcp_name [extra]]`.
@@ -10,12 +10,16 @@
 - MicMac `DicoAppuisFlottant` (ground points: `Pt`, `NamePt`, `Incertitude`) and
   `SetOfMesureAppuisFlottants` (image measurements: `NameIm`, `NamePt`, `PtIm`). MicMac V1 measures
   pixels from the top-left pixel's centre too (its calibration PP of an ideal camera is (w-1)/2), so no shift.
+- `read_any_points` / `read_any_measurements` recognise these, Metashape's markers XML
+  (`dgcal.fields.io.metashape_markers`), Pix4D's BINGO export (`dgcal.fields.io.bingo`) and COLMAP models
+  (`dgcal.fields.io.colmap_tracks`) by content, not by extension.
 """
 from __future__ import annotations
 
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -24,6 +28,9 @@ from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.text_files import read_text
 from dgcal.fields.io.formats import Measurements, Points, read_measurements, read_points
+from dgcal.fields.io.bingo import is_bingo, read_bingo
+from dgcal.fields.io.colmap_tracks import colmap_model_files, read_colmap_tracks
+from dgcal.fields.io.metashape_markers import is_metashape_markers, read_metashape_markers
 
 _WGS84_UTM = re.compile(r"^\s*WGS84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.I)
 _WGS84_LONGLAT = re.compile(r"^\s*WGS84\s+(long?lat|lonlat|latlong?)\s*$", re.I)
@@ -243,9 +250,15 @@ def _head(p: Path, size: int = 2000) -> str:
 
 
 def read_any_points(path: str | Path) -> tuple[Points, str | None]:
-    """Ground points from a dgcal CSV or a MicMac XML; with the CRS when the file names one (else None)."""
+    """Ground points from a dgcal CSV, a MicMac XML, a Metashape markers XML (its chunk CRS) or an ODM
+    gcp_list.txt; with the CRS when the file names one (else None). The format is recognised by content."""
     p = Path(path)
     if _head(p).startswith("<"):
+        if is_metashape_markers(p):
+            pts, _, crs = read_metashape_markers(p)
+            if pts is None:
+                raise InputError("no marker of the Metashape file has reference coordinates", p, field="reference")
+            return pts, crs
         return read_micmac_points(p), None
     if is_odm_gcp_list(p):
         crs, pts, _ = read_odm_gcp_list(p)
@@ -253,14 +266,31 @@ def read_any_points(path: str | Path) -> tuple[Points, str | None]:
     return read_points(p), None
 
 
-def read_any_measurements(path: str | Path) -> tuple[Measurements, str | None, Points | None]:
-    """Image measurements from a dgcal CSV, an ODM gcp_list.txt (with its CRS and points) or a MicMac XML."""
+def read_any_measurements(path: str | Path, image_size: tuple[int, int] | None = None,
+                          pixel_size_mm: float | None = None,
+                          image_names: Mapping[str, str] | Sequence[str] | None = None,
+                          ) -> tuple[Measurements, str | None, Points | None]:
+    """Image measurements (px, OpenCV convention) with the file's CRS and ground points when it has them, from
+    (recognised by content) a dgcal CSV, an ODM gcp_list.txt, a MicMac XML, a Metashape markers XML, a Pix4D /
+    BINGO `_bingo.txt` (sensor mm: needs `image_size` (w, h) px and `pixel_size_mm`) or a COLMAP model folder
+    (its tracks as tie points). `image_names` (the images' file names, or a {label: name} map) turns the labels of
+    Pix4D and Metashape, which drop the extension, into file names."""
     p = Path(path)
+    if p.is_dir() or colmap_model_files(p) is not None:
+        return read_colmap_tracks(p), None, None
     if _head(p).startswith("<"):
+        if is_metashape_markers(p):
+            pts, meas, crs = read_metashape_markers(p, image_names=image_names)
+            return meas, crs, pts
         return read_micmac_measurements(p), None, None
     if is_odm_gcp_list(p):
         crs, pts, meas = read_odm_gcp_list(p)
         return meas, crs, pts
+    if is_bingo(p):
+        if image_size is None or pixel_size_mm is None:
+            raise InputError("a BINGO file holds sensor millimetres: give the camera's image size and its pixel "
+                             "size in mm to turn them into pixels", p, field="pixel_size_mm")
+        return read_bingo(p, image_size, pixel_size_mm, image_names), None, None
     return read_measurements(p), None, None
 
 
