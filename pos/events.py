@@ -4,13 +4,25 @@ messages (dgcal.pos.ins.ulog), `read_any_events` choosing by content, and buildi
 `image,utc` CSV: a header with `image` and `utc` (UTC as `YYYY-MM-DD[T ]hh:mm:ss[.fff][Z]` or Unix seconds);
 GPS time = UTC + the leap seconds (dgcal.fields.io.timescales), or a `gpst` column (same forms) without them.
 
-DJI `Timestamp.MRK` (Phantom 4 RTK, Matrice RTK payloads): one tab-separated line per photo:
+DJI `Timestamp.MRK` (Phantom 4 RTK, Matrice RTK payloads such as the Zenmuse P1): one tab-separated line per photo:
   `1  282401.669089  [2404]  101,N  107,E  129,V  22.77995359,Lat  114.10089118,Lon  139.231,Ellh
    0.002967, 0.003104, 0.007622  50,Q`
-= photo index, GPS seconds of week, [GPS week], offsets of the camera (CMOS centre) from the antenna
-phase centre along North, East, Vertical in millimetres, the antenna's latitude, longitude (deg) and
-ellipsoidal height (m), its standard deviations N, E, V (m) and the RTK flag (50 fixed, 34 float,
-16 single). The time is the recorded trigger time (an event, in dgcal's delay convention).
+= photo index, GPS seconds of week, [GPS week], the compensation (mm) applied along North, East and Vertical
+(V positive downward) from the GNSS antenna phase centre to the camera's CMOS centre, the latitude, longitude (deg)
+and ellipsoidal height (m) *after compensation*, i.e. of the camera, their standard deviations N, E, V (m) and the
+RTK flag (50 fixed, 34 float, 16 single). Source: DJI Zenmuse P1 User Manual (2021, "Image Log File", items 4-9:
+"Compensation value in the north/east/elevation direction ... downward direction is represented by a positive
+value", "Longitude after compensation", "Latitude after compensation", "Ellipsoid height"); the DJI Matrice 4
+Series User Manual (2025) describes the same columns. For the Phantom 4 RTK, DJI's white paper describes columns 4-6
+as the antenna-to-CMOS offsets; whether its columns 7-9 are compensated was not confirmed. A PPK solution computed at
+the antenna needs the N/E/V offsets added to reach the camera (as SBG Qinertia's DJI import does).
+The time is the recorded trigger time (an event, in dgcal's delay convention).
+
+Pairing MRK rows with image files: DJI names the photos of an MRK `DJI_0001.JPG`, ... on older payloads, while the
+P1 writes `DJI_<yyyymmddhhmmss>_<index>.JPG`. `MrkRecords.events(pattern, image_names)` pairs by the index in the
+name: a pattern with `{index}` (digits, compared as a number, so `0436` is photo 436) and `{any}` (any text), e.g.
+`DJI_{any}_{index}.JPG`, or a regular expression `re:<regex>` with a group `(?P<index>...)`; letter case is ignored.
+`pair_by_time_order` pairs the rows in time order with the image names in name order (P1 names sort by time).
 """
 from __future__ import annotations
 
@@ -50,7 +62,8 @@ _PREFIXES = [re.compile("".join(p for _, p in _PARTS[:k + 1])) for k in range(le
 
 @dataclass
 class MrkRecords:
-    """DJI MRK rows: event time (GPS s), camera offsets from the antenna (N, E, V; m), antenna position and sigmas."""
+    """DJI MRK rows: event time (GPS s), compensation antenna -> camera (N, E, V down; m), the compensated camera
+    position (lat, lon deg, ellipsoidal h m) and its sigmas N, E, V (m), RTK flag."""
 
     index: np.ndarray
     t: np.ndarray
@@ -63,10 +76,72 @@ class MrkRecords:
     lines: np.ndarray
     path: Path | None = None
 
-    def events(self, name_pattern: str = "DJI_{index:04d}.JPG") -> Events:
-        """The marks as Events; image names from `name_pattern` (fields: index)."""
-        names = np.array([name_pattern.format(index=int(i)) for i in self.index], dtype=object)
-        return Events(image=names, t=self.t.copy(), lines=self.lines.copy(), path=self.path)
+    def events(self, name_pattern: str = "DJI_{index:04d}.JPG", image_names=None) -> Events:
+        """The marks as Events. Without `image_names`: names made from `name_pattern` (`{index}` fields). With
+        them: each image whose name matches the pattern gets the row of its index (see the module docstring)."""
+        if image_names is None:
+            if "{any}" in name_pattern or name_pattern.startswith("re:"):
+                raise InputError(f"the pattern {name_pattern!r} can only pair existing image names: give the images",
+                                 self.path, field="name_pattern")
+            names = np.array([name_pattern.format(index=int(i)) for i in self.index], dtype=object)
+            return Events(image=names, t=self.t.copy(), lines=self.lines.copy(), path=self.path)
+        return pair_by_index(self, image_names, name_pattern)
+
+
+def index_pattern(pattern: str) -> re.Pattern:
+    """A regex (case-insensitive, whole name) with a group `index` from a name pattern: `{index}` / `{index:04d}` =
+    digits, `{any}` = any text, `*` = any text, the rest literal; `re:<regex>` is used as it is."""
+    if pattern.startswith("re:"):
+        try:
+            rx = re.compile(pattern[3:], re.I)
+        except re.error as exc:
+            raise InputError(f"invalid regular expression: {exc}", field="name_pattern") from None
+        if "index" not in rx.groupindex:
+            raise InputError("the regular expression needs a group (?P<index>...)", field="name_pattern")
+        return rx
+    parts = re.split(r"(\{index(?::[^}]*)?\}|\{any\}|\*)", pattern)
+    if sum(1 for t in parts if t.startswith("{index")) != 1:
+        raise InputError(f"the pattern {pattern!r} needs exactly one {{index}}", field="name_pattern")
+    body = "".join("(?P<index>\\d+)" if t.startswith("{index") else ".*?" if t in ("{any}", "*") else re.escape(t)
+                   for t in parts)
+    return re.compile(body + "$", re.I)
+
+
+def pair_by_index(rec: MrkRecords, image_names, pattern: str = "DJI_{any}_{index}.JPG") -> Events:
+    """Events named by the image files whose names carry an MRK photo index (`pattern`, see `index_pattern`), in
+    MRK row order; an image whose index has no MRK row, or two images with one index, are InputErrors."""
+    rx = index_pattern(pattern)
+    names = sorted(str(n) for n in image_names)
+    by_index: dict[int, str] = {}
+    for n in names:
+        m = rx.match(Path(n).name)
+        if m is None:
+            continue
+        k = int(m.group("index"))
+        if k in by_index:
+            raise InputError(f"images {by_index[k]!r} and {n!r} both carry photo index {k}", rec.path,
+                             field="name_pattern")
+        by_index[k] = n
+    if not by_index:
+        raise InputError(f"no image name matches {pattern!r} (e.g. {names[0] if names else 'no images'!r})",
+                         rec.path, field="name_pattern")
+    row = {int(k): i for i, k in enumerate(rec.index)}
+    missing = sorted(k for k in by_index if k not in row)
+    if missing:
+        raise InputError(f"{len(missing)} image(s) have no MRK row, e.g. {by_index[missing[0]]!r} (photo index "
+                         f"{missing[0]}; the MRK has {int(rec.index.min())}..{int(rec.index.max())})", rec.path,
+                         field="index")
+    rows = np.array(sorted(row[k] for k in by_index))
+    return Events(image=np.array([by_index[int(rec.index[i])] for i in rows], dtype=object), t=rec.t[rows].copy(),
+                  lines=rec.lines[rows].copy(), path=rec.path)
+
+
+def pair_by_time_order(rec: MrkRecords, image_names) -> Events:
+    """Events pairing the MRK rows in time order with the image names in name order (counts must agree)."""
+    order = np.argsort(rec.t, kind="stable")
+    ev = Events(image=np.array([f"#{int(i)}" for i in rec.index[order]], dtype=object), t=rec.t[order].copy(),
+                lines=rec.lines[order].copy(), path=rec.path)
+    return match_events_to_images(ev, image_names)
 
 
 def _diagnose(line: str) -> str:
@@ -211,14 +286,24 @@ def sniff_events_format(path: str | Path) -> str:
     return "dgcal"
 
 
-def read_any_events(path: str | Path, fmt: str | None = None, name_pattern: str = "DJI_{index:04d}.JPG") -> Events:
+def read_any_events(path: str | Path, fmt: str | None = None, name_pattern: str = "DJI_{index:04d}.JPG",
+                    image_names=None, pairing: str = "index") -> Events:
     """Camera events from a dgcal events CSV, a DJI `.MRK`, an `image,utc` CSV or a PX4 ULog's camera_capture
-    (`fmt` one of EVENT_FORMATS; default: recognised by content)."""
+    (`fmt` one of EVENT_FORMATS; default: recognised by content). An MRK's rows are named by `name_pattern`, or
+    paired with `image_names` (the image files) by the index in their names (`pairing="index"`) or in time order
+    (`pairing="time"`); see the module docstring."""
     fmt = fmt or sniff_events_format(path)
     if fmt == "dgcal":
         return read_events(path)
     if fmt == "mrk":
-        return read_mrk(path).events(name_pattern)
+        rec = read_mrk(path)
+        if pairing == "time":
+            if image_names is None:
+                raise InputError("pairing MRK rows in time order needs the image names", path, field="images")
+            return pair_by_time_order(rec, image_names)
+        if pairing != "index":
+            raise InputError(f"unknown pairing {pairing!r} (index or time)", path, field="pairing")
+        return rec.events(name_pattern, image_names)
     if fmt == "utc-csv":
         return read_utc_events(path)
     if fmt == "px4":

@@ -1,0 +1,53 @@
+"""MRK rows paired with P1 image files (`DJI_<yyyymmddhhmmss>_<index>.JPG`) by index pattern or time order."""
+import numpy as np
+import pytest
+from test_pos_io_sbet_marks import MRK
+
+from dgcal.fields.errors import InputError
+from dgcal.pos.events import (index_pattern, pair_by_index, pair_by_time_order, read_any_events, read_mrk)
+
+P1_NAMES = ["DJI_20230712132737_0001.JPG", "DJI_20230712132739_0002.JPG", "DJI_20230712132741_0003.JPG"]
+
+
+@pytest.fixture
+def mrk(tmp_path):
+    p = tmp_path / "DJI_202307121327_001_Timestamp.MRK"
+    p.write_text(MRK)
+    return p
+
+
+def test_pair_p1_names_by_index(mrk):
+    rec = read_mrk(mrk)
+    ev = rec.events("DJI_{any}_{index}.JPG", image_names=P1_NAMES[::-1])
+    assert list(ev.image) == P1_NAMES and np.array_equal(ev.t, rec.t)
+    ev2 = read_any_events(mrk, image_names=[n.lower() for n in P1_NAMES], name_pattern="re:.*_(?P<index>\\d{4})\\.jpg")
+    assert list(ev2.t) == list(rec.t)
+    # extra files that do not match the pattern are left alone; a subset of images pairs with its rows
+    ev3 = pair_by_index(rec, P1_NAMES[1:] + ["notes.txt"], "DJI_{any}_{index}.JPG")
+    assert list(ev3.image) == P1_NAMES[1:] and list(ev3.t) == list(rec.t[1:])
+
+
+def test_pair_by_time_order(mrk):
+    rec = read_mrk(mrk)
+    ev = read_any_events(mrk, image_names=P1_NAMES[::-1], pairing="time")
+    assert list(ev.image) == P1_NAMES and np.array_equal(ev.t, rec.t)
+    with pytest.raises(InputError, match="3 events but 2 images"):
+        pair_by_time_order(rec, P1_NAMES[:2])
+
+
+def test_pairing_errors(mrk):
+    rec = read_mrk(mrk)
+    with pytest.raises(InputError, match=r"1 image\(s\) have no MRK row, e.g. 'DJI_20230712132743_0004.JPG'"):
+        pair_by_index(rec, P1_NAMES + ["DJI_20230712132743_0004.JPG"])
+    with pytest.raises(InputError, match="both carry photo index 2"):
+        pair_by_index(rec, P1_NAMES + ["DJI_20230712139999_0002.JPG"])
+    with pytest.raises(InputError, match="no image name matches"):
+        pair_by_index(rec, ["IMG_1.JPG"])
+    with pytest.raises(InputError, match="field 'name_pattern'"):
+        rec.events("DJI_{any}_{index}.JPG")          # {any} cannot make names
+    with pytest.raises(InputError, match="exactly one"):
+        index_pattern("DJI_{any}.JPG")
+    with pytest.raises(InputError, match="needs the image names"):
+        read_any_events(mrk, pairing="time")
+    # the default names stay DJI_0001.JPG ...
+    assert list(read_any_events(mrk).image) == ["DJI_0001.JPG", "DJI_0002.JPG", "DJI_0003.JPG"]
