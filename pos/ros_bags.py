@@ -11,6 +11,7 @@
 """
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +21,9 @@ from rosbags.typesys import Stores, get_typestore
 from dgcal.fields.crs import geodetic_to_ecef
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.timescales import gps_from_unix_utc
+from dgcal.fields.io.validate import ecef_near_surface, gps_seconds_values, values_in_range
 from dgcal.pos.gnss.solution_files import GnssSolution
-from dgcal.pos.ins.imu_data import ImuData
+from dgcal.pos.ins.imu_data import MAX_ACCEL_M_S2, MAX_GYRO_RAD_S, ImuData
 
 IMU_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
 FIX_TYPES = ("sensor_msgs/msg/NavSatFix", "sensor_msgs/NavSatFix")
@@ -30,6 +32,7 @@ STATUS_TO_Q = {0: 5, 1: 3, 2: 1}
 # sigmas (horizontal, vertical m) for a fix without covariance (position_covariance_type 0), per RTKLIB Q
 DEFAULT_SIGMA = {5: (2.5, 5.0), 3: (1.0, 2.0), 1: (0.02, 0.04)}
 # ENU -> NED axis permutation (N = E-row 1, E = row 0, D = -U)
+MAX_COVARIANCE_M2 = 1e8     # a (10 km)^2 variance: a larger one is no information (taken as not given)
 P_ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 
@@ -54,16 +57,22 @@ def _bag_path(path: Path) -> Path:
     return path
 
 
+def _bag_error(path: Path, exc: BaseException, doing: str) -> InputError:
+    """One InputError naming the bag for what rosbags (or sqlite, the YAML or the decoder) raised on a damaged bag."""
+    msg = " ".join(str(exc).split())[:100] or type(exc).__name__
+    return InputError(f"cannot {doing} ({msg}): a damaged or incomplete bag", path)
+
+
 def _messages(path: Path, types: tuple[str, ...], topic: str | None, what: str):
-    """(bag time ns, message) of the one topic of `types` (or `topic`) in the bag; InputError when ambiguous."""
+    """(bag time ns, message) of the one topic of `types` (or `topic`) in the bag; InputError when ambiguous, and
+    for any failure of rosbags on a damaged bag (its own errors, sqlite's, decoding, assertions)."""
     if not path.exists():
         raise InputError("file not found", path)
     try:
         reader = AnyReader([_bag_path(path)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except Exception as exc:  # noqa: BLE001 - rosbags raises its own and OS errors on corrupt bags
-        msg = str(exc).strip().splitlines()[0][:100] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"cannot read the ROS bag ({msg})", path) from None
+        raise _bag_error(path, exc, "read the ROS bag") from None
     try:
         conns = [c for c in reader.connections if c.msgtype in types and (topic is None or c.topic == topic)]
         topics = sorted({c.topic for c in conns})
@@ -79,11 +88,17 @@ def _messages(path: Path, types: tuple[str, ...], topic: str | None, what: str):
             try:
                 out.append((t_ns, reader.deserialize(raw, conn.msgtype)))
             except Exception as exc:  # noqa: BLE001 - a truncated message in a damaged bag
-                raise InputError(f"message {len(out) + 1} of {topics[0]} cannot be decoded ({exc})", path,
+                raise InputError(f"message {len(out) + 1} of {topics[0]} cannot be decoded "
+                                 f"({' '.join(str(exc).split())[:80] or type(exc).__name__})", path,
                                  field=topics[0]) from None
         return topics[0], out
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - the chunks, index or database of a damaged bag
+        raise _bag_error(path, exc, "read the ROS bag's messages") from None
     finally:
-        reader.close()
+        with contextlib.suppress(Exception):
+            reader.close()
 
 
 def _times(bag_ns: np.ndarray, stamp_s: np.ndarray, time: str, leap_seconds: float | None, path: Path,
@@ -95,7 +110,8 @@ def _times(bag_ns: np.ndarray, stamp_s: np.ndarray, time: str, leap_seconds: flo
     if time == "header" and np.any(u <= 0):
         raise InputError("header stamps are zero: the driver did not stamp the messages (use the bag time)", path,
                          field=f"{topic}.header.stamp")
-    return gps_from_unix_utc(u, leap_seconds)
+    t = gps_from_unix_utc(u, leap_seconds)
+    return gps_seconds_values(t, path, f"{topic}.header.stamp" if time == "header" else f"{topic} bag time")
 
 
 def read_rosbag_imu(path: str | Path, topic: str | None = None, time: str = "header",
@@ -119,6 +135,10 @@ def read_rosbag_imu(path: str | Path, topic: str | None = None, time: str = "hea
     bad = ~(np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1))
     if bad.any():
         raise InputError(f"non-finite IMU message {int(np.flatnonzero(bad)[0]) + 1}", path, field=name)
+    values_in_range(g, -MAX_GYRO_RAD_S, MAX_GYRO_RAD_S, path, f"{name}.angular_velocity", unit="rad/s")
+    values_in_range(a, -MAX_ACCEL_M_S2, MAX_ACCEL_M_S2, path, f"{name}.linear_acceleration", unit="m/s^2")
+    if keep.sum() < 2:
+        raise InputError(f"fewer than two messages with increasing times on {name}", path, field=name)
     imu = ImuData.from_rates(t[keep], g[keep], a[keep])
     imu.path = path
     return imu
@@ -145,7 +165,9 @@ def read_rosbag_navsatfix(path: str | Path, topic: str | None = None, time: str 
     q = np.array([STATUS_TO_Q[s] for s in status[idx]], int)
     t = _times(bag_ns, stamp, time, leap_seconds, path, name)
     cov_ned = np.einsum("ij,njk,lk->nil", P_ENU_TO_NED, cov_enu, P_ENU_TO_NED)
-    unknown = (cov_type == 0) | ~np.isfinite(cov_ned).all(axis=(1, 2)) | (np.einsum("nii->n", cov_ned) <= 0)
+    with np.errstate(invalid="ignore"):
+        unknown = ((cov_type == 0) | ~np.isfinite(cov_ned).all(axis=(1, 2)) | (np.einsum("nii->n", cov_ned) <= 0)
+                   | (np.abs(cov_ned) > MAX_COVARIANCE_M2).any(axis=(1, 2)))
     for k in np.flatnonzero(unknown):
         sh, sv = DEFAULT_SIGMA[int(q[k])]
         cov_ned[k] = np.diag([sh ** 2, sh ** 2, sv ** 2])
@@ -153,7 +175,7 @@ def read_rosbag_navsatfix(path: str | Path, topic: str | None = None, time: str 
     keep = np.ones(len(t), bool)
     keep[1:] = np.diff(t[order]) > 0
     order = order[keep]
-    p = geodetic_to_ecef(llh[idx, 0], llh[idx, 1], llh[idx, 2])
+    p = ecef_near_surface(geodetic_to_ecef(llh[idx, 0], llh[idx, 1], llh[idx, 2]), path, field=f"{name}.altitude")
     return GnssSolution(t[order], p[order], cov_ned[order], q[order], np.zeros(len(order), int), path=path,
                         info={"format": "rosbag", "topic": name, "time": time,
                               "covariance": "default" if unknown.all() else "from the messages"})
