@@ -250,3 +250,54 @@ GPS_SECONDS_MAX = (GPS_WEEK_MAX + 1) * SECONDS_PER_WEEK
 def gps_seconds_values(t, path=None, field=None, lines=None) -> np.ndarray:
     """Continuous GPS seconds within GPS weeks 0..GPS_WEEK_MAX."""
     return values_in_range(t, 0.0, GPS_SECONDS_MAX, path, field, lines, unit="s")
+
+
+# ---------------------------------------------------------------------------------------------
+# TOML files: every number bounded where it is read
+# ---------------------------------------------------------------------------------------------
+MAX_TOML_NUMBER = 1e12   # no setting of a dgcal TOML file is larger (ECEF m ~6.4e6, GPS s ~1.5e9)
+
+
+def _toml_key_line(text: str, keys: tuple[str, ...]) -> int | None:
+    """The line of `text` that sets the key path `keys` (its last key, in its table when found there)."""
+    import re
+    table, first, want = (), None, ".".join(keys[:-1])
+    pat = re.compile(r"""^\s*(?:[\w.-]+\s*\.\s*)*["']?""" + re.escape(keys[-1]) + r"""["']?\s*=""")
+    for i, line in enumerate(text.splitlines(), 1):
+        head = re.match(r"^\s*\[\[?\s*([^\]]+?)\s*\]\]?", line)
+        if head:
+            table = tuple(k.strip().strip("\"'") for k in head.group(1).split("."))
+            continue
+        if pat.match(line):
+            if ".".join(table) == want or (not table and not want):
+                return i
+            first = first or i
+    return first
+
+
+def toml_numbers_in_range(d: dict, path: str | Path | None = None, text: str | None = None,
+                          limit: float = MAX_TOML_NUMBER) -> dict:
+    """`d` (a parsed TOML file) when every number in it is finite and within ±`limit` (TOML reads 20-digit integers,
+    nan and inf, which would overflow or poison what is computed from them); else InputError naming the file, the
+    line (from `text`, the file's text, or the file itself) and the key (`table.key[i]`)."""
+    def walk(v, keys: tuple, shown: str):
+        if isinstance(v, dict):
+            for k, x in v.items():
+                walk(x, (*keys, str(k)), f"{shown}.{k}" if shown else str(k))
+        elif isinstance(v, list):
+            for i, x in enumerate(v):
+                walk(x, keys, f"{shown}[{i}]")
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            bad = (not math.isfinite(v)) if isinstance(v, float) else False
+            if bad or abs(v) > limit:
+                src = text
+                if src is None and path is not None:
+                    try:
+                        src = Path(path).read_text(encoding="utf-8", errors="replace")
+                    except OSError:
+                        src = None
+                line = _toml_key_line(src, keys) if src and keys else None
+                what = "not a finite number" if bad else f"{_fmt(v)} is out of range (|x| <= {limit:g})"
+                raise InputError(what, path, line, shown or None)
+    walk(d, (), "")
+    return d

@@ -42,6 +42,7 @@ import numpy as np
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.text_files import read_text
+from dgcal.fields.io.validate import toml_numbers_in_range
 from dgcal.fields.io.formats import Points, write_points
 from dgcal.fields.targets.plate import read_layout_json
 
@@ -352,6 +353,7 @@ def read_board(path: str | Path) -> Board:
                          int(m.group(1)) if m else None) from None
     except RecursionError:
         raise InputError("not valid TOML (nested too deeply)", p) from None
+    toml_numbers_in_range(d, p, text)
     if "board" in d and isinstance(d["board"], dict):   # a [board] table is accepted too
         d = d["board"]
     return board_from_dict(d, p, text)

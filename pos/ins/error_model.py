@@ -20,6 +20,7 @@ import numpy as np
 
 from dgcal.fields.constants import G0
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.validate import toml_numbers_in_range
 
 DEG = np.pi / 180.0
 
@@ -256,10 +257,11 @@ def read_imu_datasheet(path: str | Path) -> ImuErrorModel:
     if not path.is_file():
         raise InputError("file not found", path)
     try:
-        d = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        d = tomllib.loads(text)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read: {exc}", path) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not valid TOML: {str(exc).split(' (at line')[0]}", path, getattr(exc, "lineno", None)) \
             from None
-    return imu_model_from_datasheet_dict(d, str(path))
+    return imu_model_from_datasheet_dict(toml_numbers_in_range(d, path, text), str(path))

@@ -50,6 +50,7 @@ from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.key_values import split_key_value
 from dgcal.fields.io.timescales import gps_from_unix_gpst, gps_from_unix_utc
+from dgcal.fields.io.validate import toml_numbers_in_range
 from dgcal.pos.ins.imu_data import ACC_UNITS, GYRO_UNITS, ImuData, data_lines, finish_imu, parse_numeric
 from dgcal.pos.ins.time_tags import read_time_tag, ticks_to_gps
 
@@ -184,7 +185,8 @@ def format_dict(spec: str | Path | dict | None, overrides=(), where: str = "imu.
         if not path.is_file():
             raise InputError(f"neither a preset ({', '.join(PRESETS)}) nor a file", path, field=where)
         try:
-            d = tomllib.loads(path.read_text(encoding="utf-8"))
+            text = path.read_text(encoding="utf-8")
+            d = toml_numbers_in_range(tomllib.loads(text), path, text)
         except (OSError, UnicodeDecodeError) as exc:
             raise InputError(f"cannot read: {exc}", path) from None
         except tomllib.TOMLDecodeError as exc:

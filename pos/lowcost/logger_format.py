@@ -111,7 +111,8 @@ def read_logger_format(path: str | Path) -> LoggerFormat:
     """A LoggerFormat from a TOML description (see the module documentation); unknown keys are errors."""
     path = Path(path)
     try:
-        cfg = tomllib.loads(read_text(path, encoding="utf-8"))
+        text = read_text(path, encoding="utf-8")
+        cfg = validate.toml_numbers_in_range(tomllib.loads(text), path, text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not a TOML file: {' '.join(str(exc).split())}", path) from None
     except RecursionError:
