@@ -145,9 +145,12 @@ def orbit_clock_sigma_m(ura_m: np.ndarray | float, system: np.ndarray | str | No
 
 
 def model_sigma_m(elev: np.ndarray, iono_m: np.ndarray, ura_m: np.ndarray | float = 2.0,
-                  iono_share: float = KLOBUCHAR_SHARE, system: np.ndarray | str | None = None) -> np.ndarray:
+                  iono_share: float = KLOBUCHAR_SHARE, system: np.ndarray | str | None = None,
+                  orbit_clock_m: np.ndarray | float | None = None) -> np.ndarray:
     """Sigma (m) of the broadcast-model errors of a pseudorange: `iono_share` of the Klobuchar delay `iono_m`
     (`KLOBUCHAR_SHARE` with the day's coefficients), the troposphere's `ZTD_SIGMA_M` mapped to the elevation, and the
-    orbit and clock (`orbit_clock_sigma_m` of the message's URA/SISA and the satellite's system)."""
+    orbit and clock (`orbit_clock_sigma_m` of the message's URA/SISA and the satellite's system; `orbit_clock_m`
+    instead when given, e.g. precise products' `dgcal.pos.gnss.precise.PRECISE_SIGMA_M`)."""
     tropo = ZTD_SIGMA_M * tropo_mapping(elev)
-    return np.sqrt((iono_share * np.asarray(iono_m)) ** 2 + tropo ** 2 + orbit_clock_sigma_m(ura_m, system) ** 2)
+    oc = orbit_clock_sigma_m(ura_m, system) if orbit_clock_m is None else np.asarray(orbit_clock_m, float)
+    return np.sqrt((iono_share * np.asarray(iono_m)) ** 2 + tropo ** 2 + oc ** 2)

@@ -10,6 +10,7 @@ from cssrlib.ephemeris import eph2pos
 from cssrlib.gnss import timeadd
 
 from dgcal.fields.constants import C_LIGHT, GM_GPS, OMEGA_EARTH
+from dgcal.pos.gnss.precise import PRECISE_SIGMA_M
 from dgcal.pos.gnss.rinex import BroadcastNav, gps_seconds_from_gtime, gtime_from_gps_seconds
 
 MAX_AGE_S = {"G": 7200.0, "J": 7200.0, "E": 10800.0, "C": 3900.0}   # |t - toe| allowed
@@ -161,8 +162,11 @@ def satellite_states(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray
     for the single-frequency signal (polynomial + relativistic term - TGD/BGD), ``drift`` (n,)
     s/s, ``ura`` (n,) m, and ``ok`` (n,) bool (False: no valid healthy ephemeris, values NaN).
     BeiDou GEO satellites use cssrlib's ``eph2pos`` (their frame rotation), the rest the
-    vectorised ``kepler_states``.
+    vectorised ``kepler_states``. With precise products (``nav.precise``) every satellite's orbit and clock come
+    from them (`precise_states`), and ``ura`` is their accuracy.
     """
+    if getattr(nav, "precise", None) is not None:
+        return precise_states(nav, sats, t_gps)
     n = len(sats)
     t_gps = np.array(np.broadcast_to(np.asarray(t_gps, float), (n,)))
     p = np.full((n, 3), np.nan)
@@ -207,14 +211,57 @@ def satellite_states(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray
 def group_delay_s(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray) -> np.ndarray:
     """The broadcast group delay (s) that `satellite_states` subtracts for the single-frequency signal (GPS/QZSS
     TGD, Galileo BGD, BeiDou TGD1) of each satellite at `t_gps`; 0 without an ephemeris. Dual-frequency
-    ionosphere-free users add it back: the broadcast clock refers to that combination."""
+    ionosphere-free users add it back: the broadcast clock refers to that combination (and so do precise clocks)."""
     t_gps = np.array(np.broadcast_to(np.asarray(t_gps, float), (len(sats),)))
+    if getattr(nav, "precise", None) is not None:
+        return precise_group_delay_s(nav, sats, t_gps)
     out = np.zeros(len(sats))
     for i, sid in enumerate(sats):
         eph = _select_cached(nav, sid, t_gps[i])
         if eph is not None:
             out[i] = float(getattr(eph, "tgd", 0.0) or 0.0)
     return out
+
+
+# BeiDou: broadcast clocks refer to B3I and TGD1 is B1I's delay against B3I; precise clocks to the B1I/B3I
+# ionosphere-free combination, from which B1I is off by +f3^2/(f1^2-f3^2) TGD1 (a group delay of -1.94 TGD1)
+_BDS_B1_IF = -1268.52 ** 2 / (1561.098 ** 2 - 1268.52 ** 2)
+
+
+def precise_group_delay_s(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray) -> np.ndarray:
+    """Delay (s) of the single-frequency signal against the precise clocks' ionosphere-free reference, from each
+    satellite's broadcast record nearest in time, healthy or not (a group delay is a hardware constant): GPS/QZSS
+    TGD, Galileo BGD(E1,E5a) (IGS clocks refer to E1/E5a), BeiDou ``_BDS_B1_IF`` x TGD1; 0 without any record."""
+    out = np.zeros(len(sats))
+    for i, sid in enumerate(sats):
+        cands = nav.by_sat.get(sid)
+        if not cands:
+            continue
+        toe = nav._toe.get(sid)
+        if toe is None:
+            toe = np.array([gps_seconds_from_gtime(e.toe) for e in cands])
+            nav._toe[sid] = toe
+        e = cands[int(np.argmin(np.abs(t_gps[i] - toe)))]
+        tgd = float(getattr(e, "tgd", 0.0) or 0.0)
+        if sid[0] == "E" and (int(getattr(e, "code", 0)) >> 9) & 1:   # E1/E5b clock: cssrlib keeps BGD(E1,E5a)
+            tgd = float(getattr(e, "tgd_b", 0.0) or 0.0)                 # in tgd_b
+        elif sid[0] == "C":
+            tgd *= _BDS_B1_IF
+        out[i] = tgd
+    return out
+
+
+def precise_states(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`satellite_states` from the precise products of ``nav.precise`` (`dgcal.pos.gnss.precise`): centre-of-mass
+    positions, clocks with the relativistic term, minus the single-frequency signal's delay against the products'
+    ionosphere-free reference (`precise_group_delay_s`, from the broadcast group delays); ``ura`` is
+    `PRECISE_SIGMA_M`. A satellite without products at the time is not ok (no fallback to the broadcast orbit)."""
+    t_gps = np.array(np.broadcast_to(np.asarray(t_gps, float), (len(sats),)))
+    p, v, clk, drift, ok = nav.precise.states(list(sats), t_gps)
+    clk = clk - precise_group_delay_s(nav, sats, t_gps)
+    ura = np.where(ok, PRECISE_SIGMA_M, np.nan)
+    return p, v, clk, drift, ura, ok
 
 
 def _geo_state(eph, t_gps: float):

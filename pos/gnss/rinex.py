@@ -22,6 +22,7 @@ from dgcal.fields.constants import C_LIGHT, SECONDS_PER_DAY, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.gnss.observations import SYSTEMS, GnssEpoch, GnssObservations
+from dgcal.pos.gnss.precise import product_kind, read_precise
 from dgcal.pos.gnss.rinex_nav import ION_DEFAULT, nav_text_for_cssrlib
 from dgcal.pos.gnss.rinex_obs import RinexObsFile, read_obs_file
 
@@ -133,21 +134,43 @@ class BroadcastNav:
     _toe: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     ion_source: str = "GPSA/GPSB"
     warnings: list[str] = field(default_factory=list)
+    precise: object | None = None           # dgcal.pos.gnss.precise.PreciseProducts: used for every satellite
+
+    @property
+    def orbits(self) -> str:
+        """Which orbits and clocks positioning uses: "broadcast", or the precise products ("SP3 a + CLK b")."""
+        return "broadcast" if self.precise is None else self.precise.label
 
 
 def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> BroadcastNav:
     """Read one or more RINEX navigation files (2.10/2.11 GPS, 3.x mixed) into ``BroadcastNav`` via cssrlib.
 
+    Precise products among the files (SP3 orbits, RINEX clock files; recognised by content,
+    `dgcal.pos.gnss.precise.product_kind`) are read into ``BroadcastNav.precise``: every satellite's orbit
+    and clock then come from them, the broadcast records give the group delays, the ionosphere and the
+    leap seconds (at least one broadcast file is needed). Records of systems dgcal does not use
+    (GLONASS, SBAS, NavIC) are skipped with one warning per file (`dgcal.pos.gnss.rinex_nav`).
     Without Klobuchar coefficients in any header the QZSS ones are used, else RTKLIB's defaults,
     with a warning in ``BroadcastNav.warnings`` (never silently zero).
     """
-
-    all_paths = [Path(path)] + [Path(p) for p in paths]
+    given = [Path(path)] + [Path(p) for p in paths]
+    kinds = {p: product_kind(p) for p in given}
+    sp3 = [p for p in given if kinds[p] == "sp3"]
+    clk = [p for p in given if kinds[p] == "clk"]
+    atx = [p for p in given if kinds[p] == "atx"]
+    all_paths = [p for p in given if kinds[p] == "nav"]
+    if not all_paths:
+        raise InputError("precise orbits and clocks need a broadcast navigation file beside them (group delays, "
+                         "ionosphere)", given[0], field="rinex_nav")
+    precise = read_precise(sp3, clk) if sp3 or clk else None
+    skipped_notes: list[str] = []
     nav = Nav()
     ion_gps = ion_qzs = ion_bds = None
     leap = 18
     for k, p in enumerate(all_paths):
         text, hdr = nav_text_for_cssrlib(p)
+        if hdr.skipped:
+            skipped_notes.append(f"{p}: " + hdr.skipped)
         ion_gps = hdr.ion_gps if hdr.ion_gps is not None else ion_gps
         ion_qzs = hdr.ion_qzs if hdr.ion_qzs is not None else ion_qzs
         ion_bds = hdr.ion_bds if hdr.ion_bds is not None else ion_bds
@@ -174,7 +197,15 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
         raise InputError("no GPS/Galileo/BeiDou/QZSS ephemeris in navigation file"
                          + (f" (all implausible: {dropped[0]})" if dropped else ""), all_paths[0])
     source = ", ".join(str(p) for p in all_paths)
-    warnings, ion_source = [], "GPSA/GPSB"
+    warnings, ion_source = list(skipped_notes), "GPSA/GPSB"
+    if precise is not None:
+        source += " + " + ", ".join(str(p) for p in sp3 + clk)
+        warnings.append(f"orbits and clocks: {precise.label} (centre of mass; satellite antenna offsets not applied"
+                        + (f": ANTEX {', '.join(p.name for p in atx)} is not read yet" if atx else "")
+                        + "; the broadcast records give the group delays)")
+    elif atx:
+        warnings.append(f"{', '.join(str(p) for p in atx)}: ANTEX file not used (only with SP3 orbits, and not "
+                        "read yet)")
     if dropped:
         warnings.append(f"{source}: {len(dropped)} ephemeris record(s) with impossible orbit or clock values left "
                         f"out: {'; '.join(dropped[:3])}" + (" ..." if len(dropped) > 3 else ""))
@@ -188,7 +219,8 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
             warnings.append(f"{source}: no ionosphere coefficients (GPSA/GPSB, ION ALPHA/BETA); "
                             "RTKLIB's default Klobuchar coefficients are used")
     return BroadcastNav(eph=nav.eph, by_sat=by_sat, ion_gps=ion_gps, ion_bds=ion_bds,
-                        leap_seconds=leap, source=source, ion_source=ion_source, warnings=warnings)
+                        leap_seconds=leap, source=source, ion_source=ion_source, warnings=warnings,
+                        precise=precise)
 
 
 # what a GNSS broadcast ephemeris can hold: orbits from MEO to GEO (Galileo E14/E18: e 0.16), clocks below a second

@@ -28,6 +28,19 @@ _GPS_FIELDS = (("SV clock bias", "SV clock drift", "SV clock drift rate"),
                ("Toe", "Cic", "OMEGA0", "Cis"), ("i0", "Crc", "omega", "OMEGA DOT"),
                ("IDOT", "L2 codes", "GPS week", "L2 P flag"), ("SV accuracy", "SV health", "TGD", "IODC"),
                ("transmission time", "fit interval", "spare", "spare"))
+_GAL_FIELDS = (("SV clock bias", "SV clock drift", "SV clock drift rate"),
+               ("IODnav", "Crs", "Delta n", "M0"), ("Cuc", "e", "Cus", "sqrt(A)"),
+               ("Toe", "Cic", "OMEGA0", "Cis"), ("i0", "Crc", "omega", "OMEGA DOT"),
+               ("IDOT", "data sources", "GAL week", "spare"), ("SISA", "SV health", "BGD E5a/E1", "BGD E5b/E1"),
+               ("transmission time", "spare", "spare", "spare"))
+_BDS_FIELDS = (("SV clock bias", "SV clock drift", "SV clock drift rate"),
+               ("AODE", "Crs", "Delta n", "M0"), ("Cuc", "e", "Cus", "sqrt(A)"),
+               ("Toe", "Cic", "OMEGA0", "Cis"), ("i0", "Crc", "omega", "OMEGA DOT"),
+               ("IDOT", "spare", "BDT week", "spare"), ("SV accuracy", "SatH1", "TGD1", "TGD2"),
+               ("transmission time", "AODC", "spare", "spare"))
+_FIELDS = {"G": _GPS_FIELDS, "J": _GPS_FIELDS, "E": _GAL_FIELDS, "C": _BDS_FIELDS}
+USED_SYSTEMS = "GECJ"
+SYSTEM_NAMES = {"G": "GPS", "R": "GLONASS", "E": "Galileo", "C": "BeiDou", "J": "QZSS", "S": "SBAS", "I": "NavIC"}
 
 
 @dataclass
@@ -41,6 +54,7 @@ class NavHeader:
     ion_bds: np.ndarray | None
     leap_seconds: int
     end_line: int
+    skipped: str = ""                   # the records left out (systems dgcal does not use), for a warning
 
 
 def _num(s: str, path, ln: int, name: str) -> float:
@@ -137,16 +151,73 @@ def _rinex2_gps_to_3(lines: list[str], hdr: NavHeader, path: Path) -> list[str]:
     return out
 
 
+def _rinex3_used_records(lines: list[str], hdr: NavHeader, path: Path) -> tuple[list[str], str]:
+    """The lines of a RINEX 3 navigation file with the records of systems dgcal does not use blanked (same line
+    numbers), and a note naming what was left out. A record is its first line (system letter, PRN, epoch) and the
+    indented lines after it, so GLONASS records of any length (4 lines before RINEX 3.05, 5 from 3.05 on, as DJI
+    writes them either way) are skipped alike. Records of the systems used are checked field by field
+    (`InputError` naming file, line and field); they must have their 8 lines."""
+    out = list(lines)
+    skipped: dict[str, list[int]] = {}
+    n = len(lines)
+    i = hdr.end_line + 1
+    while i < n:
+        line = lines[i]
+        if not line.strip():
+            i += 1
+            continue
+        ln = i + 1
+        sys = line[0]
+        if sys not in SYSTEM_NAMES or not line[1:3].strip().isdigit():
+            raise InputError(f"expected a record's first line (system letter, PRN, epoch), not {line[:23]!r}",
+                             path, ln, "SV / EPOCH / SV CLK")
+        j = i + 1
+        while j < n and lines[j][:4] == "    " and lines[j].strip():
+            j += 1
+        if sys not in USED_SYSTEMS:
+            cnt = skipped.setdefault(sys, [0, ln])
+            cnt[0] += 1
+            for k in range(i, j):
+                out[k] = ""
+            i = j
+            continue
+        names = _FIELDS[sys]
+        if j - i < 8:                   # line j is where the missing orbit line should be
+            raise InputError(f"{SYSTEM_NAMES[sys]} record with {j - i - 1} orbit lines (7 expected)", path,
+                             min(j + 1, n), f"BROADCAST ORBIT - {j - i}")
+        if j - i > 8:
+            raise InputError(f"{SYSTEM_NAMES[sys]} record with {j - i - 1} orbit lines (7 expected)", path,
+                             i + 9, "BROADCAST ORBIT - 8")
+        try:
+            ep = [int(x) for x in line[4:23].split()]
+            if len(ep) != 6 or not (1980 <= ep[0] <= 2200 and 1 <= ep[1] <= 12 and 1 <= ep[2] <= 31):
+                raise ValueError
+        except ValueError:
+            raise InputError(f"bad epoch {line[4:23].strip()!r}", path, ln, "SV / EPOCH / SV CLK") from None
+        for k in range(3):
+            _num(line[23 + 19 * k:42 + 19 * k], path, ln, names[0][k])
+        for m in range(1, 8):
+            orb = lines[i + m]
+            for k in range(4):
+                _num(orb[4 + 19 * k:23 + 19 * k], path, i + m + 1, f"BROADCAST ORBIT - {m}: {names[m][k]}")
+        i = j
+    note = ""
+    if skipped:
+        parts = [f"{c} {SYSTEM_NAMES[sy]} (first at line {first})" for sy, (c, first) in skipped.items()]
+        note = (f"{sum(c for c, _ in skipped.values())} navigation record(s) of systems dgcal does not use skipped: "
+                + ", ".join(parts))
+    return out, note
+
+
 def nav_text_for_cssrlib(path: str | Path) -> tuple[io.StringIO, NavHeader]:
     """The file's text in a layout cssrlib's ``rnxdec._decode_nav`` reads, line numbers unchanged, and its header."""
     path = Path(path)
     lines = read_lines(path)
     hdr = parse_nav_header(lines, path)
-    if hdr.version >= 3.02:
-        text = lines
-    elif hdr.version >= 3.0:
-        text = list(lines)
-        text[0] = f"{3.02:9.2f}" + lines[0][9:]
+    if hdr.version >= 3.0:
+        text, hdr.skipped = _rinex3_used_records(lines, hdr, path)
+        if hdr.version < 3.02:
+            text[0] = f"{3.02:9.2f}" + lines[0][9:]
     elif hdr.file_type == "N":
         text = _rinex2_gps_to_3(lines, hdr, path)
     else:

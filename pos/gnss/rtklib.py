@@ -2,21 +2,48 @@
 rtklibexplorer's demo5 fork (pyrtklib5, ``engine="demo5"``), for side-by-side comparison with dgcal."""
 from __future__ import annotations
 
+import gzip
+import os
+import shutil
+import tempfile
+import time
+from typing import Sequence
+
 import numpy as np
 
 from dgcal.fields.constants import SECONDS_PER_WEEK
 
 
 def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
-                  systems: str = "GEJ") -> tuple[np.ndarray, np.ndarray]:
-    """RTKLIB pntpos per epoch (Klobuchar, Saastamoinen, broadcast orbits): (t_gps, p_ecef)."""
-    t, p, _ = rtklib_pntpos_cov(obs_path, nav_path, elev_mask_deg, systems)
+                  systems: str = "GEJ", sp3: Sequence[str] = (), clk: Sequence[str] = ()
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """RTKLIB pntpos per epoch (Klobuchar, Saastamoinen, broadcast orbits, or the `sp3` orbits and `clk` clocks
+    given): (t_gps, p_ecef)."""
+    t, p, _ = rtklib_pntpos_cov(obs_path, nav_path, elev_mask_deg, systems, sp3, clk)
     return t, p
 
 
+def _plain_copies(paths: Sequence[str], folder: str) -> list[str]:
+    """Uncompressed copies of gzip files in `folder` under names RTKLIB recognises (.sp3, .clk); others as given."""
+    out = []
+    for p in paths:
+        p = str(p)
+        if p.endswith(".gz"):
+            name = os.path.basename(p)[:-3]
+            dst = os.path.join(folder, name)
+            with gzip.open(p, "rb") as src, open(dst, "wb") as fh:
+                shutil.copyfileobj(src, fh)
+            p = dst
+        out.append(p)
+    return out
+
+
 def rtklib_pntpos_cov(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
-                      systems: str = "GEJ") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """RTKLIB pntpos per epoch with its covariance (sol.qr): t_gps (n,), p_ecef (n,3) m, cov (n,3,3) m^2 ECEF."""
+                      systems: str = "GEJ", sp3: Sequence[str] = (), clk: Sequence[str] = ()
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """RTKLIB pntpos per epoch with its covariance (sol.qr): t_gps (n,), p_ecef (n,3) m, cov (n,3,3) m^2 ECEF.
+    With `sp3` (and `clk`) files RTKLIB's precise ephemeris (EPHOPT_PREC; no satellite antenna offsets without
+    an ANTEX file, as dgcal)."""
     import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
 
     obs, nav, sta = rk.obs_t(), rk.nav_t(), rk.sta_t()
@@ -24,6 +51,11 @@ def rtklib_pntpos_cov(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
     rk.readrnx(str(nav_path), 1, "", obs, nav, sta)
     rk.sortobs(obs)
     rk.uniqnav(nav)
+    with tempfile.TemporaryDirectory() as d:
+        for f in _plain_copies(sp3, d):
+            rk.readsp3(f, nav, 0)
+        for f in _plain_copies(clk, d):
+            rk.readrnxc(f, nav)
     opt = rk.prcopt_default
     opt.mode = rk.PMODE_SINGLE
     opt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS, "C": rk.SYS_CMP}[s]
@@ -31,7 +63,7 @@ def rtklib_pntpos_cov(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
     opt.elmin = np.radians(elev_mask_deg)
     opt.tropopt = rk.TROPOPT_SAAS
     opt.ionoopt = rk.IONOOPT_BRDC
-    opt.sateph = rk.EPHOPT_BRDC
+    opt.sateph = rk.EPHOPT_PREC if sp3 else rk.EPHOPT_BRDC
     ts, ps, cs = [], [], []
     i = 0
     while i < obs.n:
@@ -71,36 +103,35 @@ def _module(engine: str):
 
 def rtklib_ppk(rover_obs: str, nav_path: str, base_obs: str, base_ecef, elev_mask_deg: float = 10.0,
                systems: str = "GEJ", n_freq: int = 3, static: bool = False, solution: str = "combined",
-               fix_and_hold: bool = True, engine: str = "rtklib") -> dict:
+               fix_and_hold: bool = True, engine: str = "rtklib", precise: Sequence[str] = ()) -> dict:
     """RTKLIB's PPK (postpos, as rnx2rtkp) on RINEX files: per epoch t_gps, p_ecef (m), q (1 fix, 2 float, 5 single),
-    ns, ratio, sdx/sdy/sdz (m) and the run time (s), epochs in time order. Broadcast orbits, Saastamoinen,
-    broadcast ionosphere, LAMBDA ratio 3; `engine` "demo5" runs rtklibexplorer's fork (pyrtklib5) instead."""
+    ns, ratio, sdx/sdy/sdz (m) and the run time (s), epochs in time order. Broadcast orbits (or the SP3/CLK files
+    `precise`), Saastamoinen, broadcast ionosphere, LAMBDA ratio 3; `engine` "demo5" runs rtklibexplorer's fork
+    (pyrtklib5) instead."""
     rk = _module(engine)
     settings = {"mode": rk.PMODE_STATIC if static else rk.PMODE_KINEMA,
                 "soltype": {"forward": 0, "backward": 1, "combined": 2}[solution], "nf": int(n_freq),
                 "modear": 3 if fix_and_hold else 1}
     return _postpos([str(rover_obs), str(nav_path), str(base_obs)], settings, elev_mask_deg, systems, base_ecef,
-                    engine)
+                    engine, precise)
 
 
-def rtklib_spp(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0, systems: str = "GEJ") -> dict:
+def rtklib_spp(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0, systems: str = "GEJ",
+               precise: Sequence[str] = ()) -> dict:
     """RTKLIB's single-point positioning as rnx2rtkp runs it (postpos, PMODE_SINGLE: Klobuchar, Saastamoinen,
     broadcast orbits) on RINEX files: per epoch t_gps, p_ecef (m), q (5 single), ns, and the run time (s) of
     postpos itself (reading the files included, the process start not)."""
     import pyrtklib as rk  # why: optional dependency (the `test` extra), needed only for this comparison
     return _postpos([str(obs_path), str(nav_path)], {"mode": rk.PMODE_SINGLE, "soltype": 0, "nf": 1},
-                    elev_mask_deg, systems, None)
+                    elev_mask_deg, systems, None, precise=precise)
 
 
 def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: str, base_ecef,
-             engine: str = "rtklib") -> dict:
+             engine: str = "rtklib", precise: Sequence[str] = ()) -> dict:
     """RTKLIB's postpos on `files` (rnx2rtkp's engine) with the prcopt fields `settings` and dgcal's shared
-    settings (broadcast orbits and ionosphere, Saastamoinen, ratio 3, `base_ecef` when given); prcopt_default is
-    restored afterwards. Returns the solution file's epochs as arrays and the run time."""
-    import os
-    import tempfile
-    import time
-
+    settings (broadcast orbits, or precise ones from the SP3/CLK files `precise`, broadcast ionosphere,
+    Saastamoinen, ratio 3, `base_ecef` when given); prcopt_default is restored afterwards. Returns the solution
+    file's epochs as arrays and the run time."""
     rk = _module(engine)
     popt, sopt, fopt = rk.prcopt_default, rk.solopt_default, rk.filopt_t()
     saved = {k: getattr(popt, k) for k in _POSTPOS_FIELDS}
@@ -114,7 +145,7 @@ def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: st
         popt.elmin = np.radians(elev_mask_deg)
         popt.ionoopt = rk.IONOOPT_BRDC
         popt.tropopt = rk.TROPOPT_SAAS
-        popt.sateph = rk.EPHOPT_BRDC
+        popt.sateph = rk.EPHOPT_PREC if precise else rk.EPHOPT_BRDC
         popt.refpos = 0
         popt.thresar[0] = 3.0
         if base_ecef is not None:
@@ -122,6 +153,7 @@ def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: st
                 popt.rb[i] = float(base_ecef[i])
         sopt.posf = rk.SOLF_XYZ
         with tempfile.TemporaryDirectory() as d:
+            files = files + _plain_copies(precise, d)
             out_path = os.path.join(d, "rtklib.pos")
             if engine == "demo5":                      # pyrtklib5 takes the output path as a string
                 buf = out_path

@@ -208,7 +208,10 @@ def model(tab: ObsTable, nav, p_rx: np.ndarray, opts, epochs: np.ndarray) -> Mod
     if opts.model_errors:
         # default Klobuchar coefficients are not the day's ionosphere: their error is the whole delay
         share = 1.0 if getattr(nav, "ion_source", "") == "default" else KLOBUCHAR_SHARE
-        bias = model_sigma_m(elev, iono, ura, iono_share=share, system=tab.system[idx])
+        # precise products: `ura` is their accuracy, not a broadcast message's URA
+        precise = getattr(nav, "precise", None) is not None
+        bias = model_sigma_m(elev, iono, ura, iono_share=share, system=tab.system[idx],
+                             orbit_clock_m=ura if precise else None)
         # the ionosphere-free combination amplifies the receiver's and the satellite's code biases that no
         # broadcast message corrects (C1C against C1W, L2C inter-signal, ~1 ns): 2.55 x ~0.4 m
         bias = np.where(dual, np.hypot(bias, IF_CODE_BIAS_M), bias)
