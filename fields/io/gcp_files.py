@@ -11,7 +11,8 @@
   `SetOfMesureAppuisFlottants` (image measurements: `NameIm`, `NamePt`, `PtIm`). MicMac V1 measures
   pixels from the top-left pixel's centre too (its calibration PP of an ideal camera is (w-1)/2), so no shift.
 - `read_any_points` / `read_any_measurements` recognise these, Metashape's markers XML
-  (`dgcal.fields.io.metashape_markers`), Pix4D's BINGO export (`dgcal.fields.io.bingo`) and COLMAP models
+  (`dgcal.fields.io.metashape_markers`), Pix4D's BINGO export (`dgcal.fields.io.bingo`), its GCP and marks
+  files (`dgcal.fields.io.pix4d_marks`) and COLMAP models
   (`dgcal.fields.io.colmap_tracks`) by content, not by extension.
 """
 from __future__ import annotations
@@ -31,6 +32,7 @@ from dgcal.fields.io.formats import Measurements, Points, read_measurements, rea
 from dgcal.fields.io.bingo import is_bingo, read_bingo
 from dgcal.fields.io.colmap_tracks import colmap_model_files, read_colmap_tracks
 from dgcal.fields.io.metashape_markers import is_metashape_markers, read_metashape_markers
+from dgcal.fields.io.pix4d_marks import is_pix4d_gcps, is_pix4d_marks, read_pix4d_gcps, read_pix4d_marks
 
 _WGS84_UTM = re.compile(r"^\s*WGS84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.I)
 _WGS84_LONGLAT = re.compile(r"^\s*WGS84\s+(long?lat|lonlat|latlong?)\s*$", re.I)
@@ -250,8 +252,8 @@ def _head(p: Path, size: int = 2000) -> str:
 
 
 def read_any_points(path: str | Path) -> tuple[Points, str | None]:
-    """Ground points from a dgcal CSV, a MicMac XML, a Metashape markers XML (its chunk CRS) or an ODM
-    gcp_list.txt; with the CRS when the file names one (else None). The format is recognised by content."""
+    """Ground points from a dgcal CSV, a MicMac XML, a Metashape markers XML (its chunk CRS), an ODM gcp_list.txt
+    or a Pix4D GCP file; with the CRS when the file names one (else None). The format is recognised by content."""
     p = Path(path)
     if _head(p).startswith("<"):
         if is_metashape_markers(p):
@@ -263,6 +265,8 @@ def read_any_points(path: str | Path) -> tuple[Points, str | None]:
     if is_odm_gcp_list(p):
         crs, pts, _ = read_odm_gcp_list(p)
         return pts, crs
+    if is_pix4d_gcps(p):
+        return read_pix4d_gcps(p), None
     return read_points(p), None
 
 
@@ -271,8 +275,9 @@ def read_any_measurements(path: str | Path, image_size: tuple[int, int] | None =
                           image_names: Mapping[str, str] | Sequence[str] | None = None,
                           ) -> tuple[Measurements, str | None, Points | None]:
     """Image measurements (px, OpenCV convention) with the file's CRS and ground points when it has them, from
-    (recognised by content) a dgcal CSV, an ODM gcp_list.txt, a MicMac XML, a Metashape markers XML, a Pix4D /
-    BINGO `_bingo.txt` (sensor mm: needs `image_size` (w, h) px and `pixel_size_mm`) or a COLMAP model folder
+    (recognised by content) a dgcal CSV, an ODM gcp_list.txt, a MicMac XML, a Metashape markers XML, a Pix4D
+    marks file, a Pix4D / BINGO `_bingo.txt` (sensor mm: needs `image_size` (w, h) px and `pixel_size_mm`) or a
+    COLMAP model folder
     (its tracks as tie points). `image_names` (the images' file names, or a {label: name} map) turns the labels of
     Pix4D and Metashape, which drop the extension, into file names."""
     p = Path(path)
@@ -291,6 +296,8 @@ def read_any_measurements(path: str | Path, image_size: tuple[int, int] | None =
             raise InputError("a BINGO file holds sensor millimetres: give the camera's image size and its pixel "
                              "size in mm to turn them into pixels", p, field="pixel_size_mm")
         return read_bingo(p, image_size, pixel_size_mm, image_names), None, None
+    if is_pix4d_marks(p):
+        return read_pix4d_marks(p, image_names=image_names), None, None
     return read_measurements(p), None, None
 
 

@@ -1,5 +1,6 @@
-"""Mutated BINGO, Metashape markers, COLMAP images.txt, DJI JPEG and centres files: a result with sound numbers or
-one InputError line naming the file, never a crash or a hang (the checks of tests/fields/fuzz_checks.py)."""
+"""Mutated BINGO, Pix4D GCP and marks, Metashape markers, COLMAP images.txt, DJI JPEG and centres files: a
+result with sound numbers or one InputError line naming the file, never a crash or a hang
+(tests/fields/fuzz_checks.py)."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,12 +11,14 @@ from test_bingo_metashape import METASHAPE, PIX_MM, H, W, pix4d_bingo_text, trut
 from test_colmap_tracks import write_text_model
 from test_dji_images import jpeg_with, xmp_payload
 from test_fuzz_readers import DEFAULT_CASES, LONG_CASES, OPS, mutate
+from test_pix4d_companions import GCPS, MARKS
 
 from dgcal.fields.io.bingo import read_bingo
 from dgcal.fields.io.centres import read_centres
 from dgcal.fields.io.colmap_tracks import read_colmap_tracks
 from dgcal.fields.io.dji_images import read_dji_photo
 from dgcal.fields.io.metashape_markers import read_metashape_markers
+from dgcal.fields.io.pix4d_marks import read_pix4d_gcps, read_pix4d_marks
 
 
 def _colmap(tmp):
@@ -28,6 +31,8 @@ READERS = {
                           lambda p: read_bingo(p, (W, H), PIX_MM)),
     "metashape-markers": lambda tmp: (METASHAPE.encode(), "markers.xml", read_metashape_markers),
     "colmap-images-txt": _colmap,
+    "pix4d-gcps": lambda tmp: (GCPS.encode(), "gcps.txt", read_pix4d_gcps),
+    "pix4d-marks": lambda tmp: (MARKS.encode(), "marks.csv", read_pix4d_marks),
     "dji-jpeg": lambda tmp: (jpeg_with([xmp_payload()]), "DJI_0001.JPG", read_dji_photo),
     "centres-csv": lambda tmp: (b"image,X,Y,Z,omega,phi,kappa,sX,sY,sZ\nDJI_0001.JPG,500100.1,2519800.2,140.1,,,,"
                                 b"0.02,0.02,0.05\nDJI_0002.JPG,500110.1,2519800.2,140.3,1,2,3,0.02,0.02,0.05\n",
