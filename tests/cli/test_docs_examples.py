@@ -1,11 +1,12 @@
-"""Every example of docs/lowcost_payload.md and docs/timesync.md runs as written (issue 15).
+"""Every example of README.md, docs/lowcost_payload.md and docs/timesync.md runs as written (issues 15, 30).
 
 Each ```python block is executed in a fresh namespace in its own temporary working directory; it makes its own
 inputs with dgcal's simulators and asserts what it shows, so a broken call or a wrong claim fails here. Each
 ```sh block's `dgcal ...` lines are run in order through `dgcal.cli.main` in a temporary directory and must exit
-0; lines that need the user's own files (not written by an earlier `dgcal simulate` line of the block) are
-listed in USER_FILE_LINES and not run — only parsed, so they still match the current CLI — and that list is
-itself checked against the docs.
+0; lines that need the user's own files (not written by an earlier `dgcal simulate` line of the block), or that
+take minutes (`dgcal demo`, whose campaign tests/cli/test_campaign_acceptance.py runs), are listed in
+USER_FILE_LINES and not run — only parsed, so they still match the current CLI — and that list is itself checked
+against the docs. The README must show every verb of `dgcal --help` in a block run here.
 """
 from __future__ import annotations
 
@@ -17,21 +18,29 @@ import pytest
 
 from dgcal.cli import build_parser, main
 
-DOCS = Path(__file__).resolve().parents[2] / "docs"
-FILES = ("lowcost_payload.md", "timesync.md")
+ROOT = Path(__file__).resolve().parents[2]
+DOCS = ROOT / "docs"
+FILES = ("lowcost_payload.md", "timesync.md", "README.md")
 
 # (doc, a substring naming the line) -> why the line cannot run here: it reads the user's own files
 USER_FILE_LINES = {
     ("lowcost_payload.md", "--trajectory traj.csv"):
         "needs the user's camera.json, pixels.csv, traj.csv, events.csv, mounting.json and dem.tif",
+    ("README.md", "dgcal demo --out"):
+        "the full demo campaign takes minutes; tests/cli/test_campaign_acceptance.py runs the same campaign",
 }
 
 _FENCE = re.compile(r"^```(\w*)[ \t]*\n(.*?)^```[ \t]*$", re.S | re.M)
 
 
+def doc_path(doc: str) -> Path:
+    """README.md at the repository's root, the others in docs/."""
+    return ROOT / doc if doc == "README.md" else DOCS / doc
+
+
 def blocks(doc: str, lang: str) -> list[str]:
     """The fenced blocks of one language in a doc, in order."""
-    return [body for tag, body in _FENCE.findall((DOCS / doc).read_text(encoding="utf-8")) if tag == lang]
+    return [body for tag, body in _FENCE.findall(doc_path(doc).read_text(encoding="utf-8")) if tag == lang]
 
 
 def dgcal_lines(block: str) -> list[str]:
@@ -76,7 +85,15 @@ def test_python_example(doc, index, tmp_path, monkeypatch):
     code = blocks(doc, "python")[index]
     monkeypatch.chdir(tmp_path)
     namespace = {"__name__": f"docs_example_{index}"}
-    exec(compile(code, f"{DOCS / doc}:python block {index}", "exec"), namespace)  # the docs' own code
+    exec(compile(code, f"{doc_path(doc)}:python block {index}", "exec"), namespace)  # the docs' own code
+
+
+def test_readme_shows_every_verb():
+    """Each verb of the CLI has a line in a README sh block (run by test_sh_example or listed in USER_FILE_LINES)."""
+    parser = build_parser(None)
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    shown = {shlex.split(ln, comments=True)[1] for b in blocks("README.md", "sh") for ln in dgcal_lines(b)}
+    assert set(sub.choices) <= shown, sorted(set(sub.choices) - shown)
 
 
 @pytest.mark.parametrize("doc,index", SH_CASES)
