@@ -12,6 +12,7 @@ from matplotlib.collections import PolyCollection
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.units import fmt_number
 
 
 def triangulation_honesty(res, points=None) -> dict:
@@ -109,8 +110,12 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
     rep = HtmlReport(title)
     if s.get("problems"):
         rep.warnings(["NOT TRUSTED (written with --accept-poor): " + "; ".join(s["problems"])])
-    rep.heading("Summary")
     chk = s["check_rmse_m"]
+    rep.headline([("check-point RMSE E / N / U (m)", _triple(chk)), ("check points evaluated", chk["n"]),
+                  ("images oriented / given", f"{s['n_oriented']} / {s['n_images']}"),
+                  ("σ0 (a posteriori, unitless)", s["sigma0"])],
+                 "Aerial triangulation: the errors on the check points (not used in the adjustment).")
+    rep.heading("Summary")
     rep.kv_table([("map CRS", s["crs"]), ("images oriented / given", f"{s['n_oriented']} / {s['n_images']}"),
                   ("control points used", s["n_control"]), ("tie points", s["n_tie_points"]),
                   ("observations", s["n_observations"]), ("sigma0 (a posteriori)", s["sigma0"]),
@@ -129,33 +134,34 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
                "CRS).")
     # --- tables -----------------------------------------------------------------------------
     rep.heading("Control points")
-    rep.table(["id", "images", "dE (m)", "dN (m)", "dU (m)", "RMS (px)", "max |w|"],
+    rep.table(["id", "images", "dE (m)", "dN (m)", "dU (m)", "RMS (px)", "max |w| (unitless)"],
               [[c["id"], c["n_images"], *c["dENU_m"], c["rms_px"],
                 max([m["w"] for m in c["measurements"] if m["w"] is not None], default=float("nan"))]
                for c in res.gcp])
     rep.heading("Check points")
-    rep.table(["id", "images", "dE (m)", "dN (m)", "dU (m)", "sE (m)", "sN (m)", "sU (m)"],
+    rep.table(["id", "images", "dE (m)", "dN (m)", "dU (m)", "σE (m)", "σN (m)", "σU (m)"],
               [[c["id"], c["n_images"], *(c["dENU_m"] if c.get("evaluated") else [float("nan")] * 3),
                 *(c["sigma_ENU_m"] if c.get("evaluated") else [float("nan")] * 3)] for c in res.check])
     rep.heading("Suspect measurements (standardised residual test)")
     if res.suspects:
-        rep.table(["image", "id", "rx (px)", "ry (px)", "|w|", "redundancy", "removed"],
+        rep.table(["image", "id", "rx (px)", "ry (px)", "|w| (unitless)", "redundancy number (unitless)", "removed"],
                   [[x.image, x.point, *x.residual_px, x.w, x.redundancy, x.removed] for x in res.suspects])
     else:
         rep.text("No GCP measurement exceeds the critical standardised residual.", cls="ok")
     if s["unknown_points"]:
         rep.heading("Measured points not in the ground point file (used as tie points)")
-        rep.table(["id", "images", "X", "Y", "Z"],
+        rep.table(["id", "images", "X coordinate (m)", "Y coordinate (m)", "Z coordinate (m)"],
                   [[u["id"], u["n_images"], *(u["xyz"] or [float("nan")] * 3)] for u in s["unknown_points"]
                    if not str(u["id"]).startswith("tie_")][:200])
     rep.heading("Images")
-    rep.table(["image", "obs", "control obs", "RMS (px)", "sX", "sY", "sZ", "s_omega", "s_phi", "s_kappa"],
+    rep.table(["image", "observations", "control observations", "RMS (px)", "σX (m)", "σY (m)", "σZ (m)", "σω (°)",
+               "σφ (°)", "σκ (°)"],
               [[st["image"], st["n_obs"], st["n_control"], st["rms_px"], *st["sigma"]] for st in res.image_stats])
     return rep.write(path)
 
 
 def _triple(d: dict) -> str:
-    return " / ".join("–" if d.get(k) is None else f"{d[k]:.4f}" for k in ("E", "N", "U"))
+    return " / ".join(fmt_number(d.get(k), "m") for k in ("E", "N", "U"))
 
 
 def _arrow_scale(res) -> float:
@@ -203,12 +209,12 @@ def _sigma_figure(res):
     """Each image's projection-centre (cm) and angle (arcsec) standard deviations."""
     fig, axes = new_figure(9, 5, nrows=2, sharex=True)
     k = np.arange(len(res.images))
-    for j, lab in enumerate(("sX", "sY", "sZ")):
+    for j, lab in enumerate(("σX", "σY", "σZ")):
         axes[0].plot(k, res.eop.sigma[:, j] * 100, ".-", lw=0.7, label=lab)
-    for j, lab in enumerate(("s_omega", "s_phi", "s_kappa")):
+    for j, lab in enumerate(("σω", "σφ", "σκ")):
         axes[1].plot(k, res.eop.sigma[:, 3 + j] * 3600, ".-", lw=0.7, label=lab)
-    axes[0].set_ylabel("cm")
-    axes[1].set_ylabel("arcsec")
+    axes[0].set_ylabel("projection centre σ (cm)")
+    axes[1].set_ylabel("angle σ (arcsec)")
     axes[1].set_xlabel("image index")
     axes[0].legend(fontsize=8)
     axes[1].legend(fontsize=8)

@@ -13,8 +13,11 @@ from dgcal.calib.selfcal.calibration import CameraCalibration, write_camera_outp
 from dgcal.calib.selfcal.diagnostics import residual_pattern
 from dgcal.calib.selfcal.uncertainty import UncertaintyMap
 from dgcal.reports.honesty import add_honesty, no_reference
+from dgcal.reports.distortion import CAPTION as DISTORTION_CAPTION
+from dgcal.reports.distortion import distortion_figure as model_distortion_figure
 from dgcal.reports.html import HtmlReport, new_figure
-
+from dgcal.reports.tables import parameter_rows, parameter_unit
+from dgcal.reports.units import pm, with_unit
 
 PLOTTED_POINTS = 200_000    # observations drawn as dots at most (an even subsample of more)
 
@@ -59,34 +62,9 @@ def residual_vector_figure(cal: CameraCalibration, cells=(16, 11)):
 
 
 def distortion_figure(cal: CameraCalibration):
-    """Radial and tangential distortion (distorted - ideal pinhole position, px) against the image radius,
-    along lines from the principal point to the right edge, the bottom edge and the farthest corner."""
-    cam = cal.camera
-    w, h = cam.image_size
-    K = cam.pinhole_K()
-    c = K[:2, 2]
-    corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], float)
-    far = corners[np.argmax(np.linalg.norm(corners - c, axis=1))]
-    ends = {"to right edge": np.array([w - 1, c[1]]), "to bottom edge": np.array([c[0], h - 1]),
-            "to farthest corner": far}
-    fig, (ax1, ax2) = new_figure(9, 4.2, ncols=2)
-    for (lab, end), style in zip(ends.items(), ("-", "--", ":")):
-        rmax = float(np.linalg.norm(end - c))
-        e = (end - c) / max(rmax, 1e-9)
-        r = np.linspace(0, rmax, 150)
-        uv = c + r[:, None] * e
-        ideal = cam.undistort_points(uv, K)
-        d = uv - ideal
-        radial = d @ e
-        tang = d[:, 0] * -e[1] + d[:, 1] * e[0]
-        ax1.plot(r, radial, style, label=lab)
-        ax2.plot(r, tang, style, label=lab)
-    for ax, t in ((ax1, "radial distortion (px)"), (ax2, "tangential distortion (px)")):
-        ax.set_xlabel("image radius from principal point (px)")
-        ax.set_title(t)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    return fig
+    """Radial (positive outward) and tangential distortion (px) against the image radius: the one curve of every
+    report (dgcal.reports.distortion)."""
+    return model_distortion_figure(cal.camera)
 
 
 def correlation_figure(cal: CameraCalibration):
@@ -117,11 +95,9 @@ def per_image_figure(cal: CameraCalibration):
     ax.bar(range(len(names)), np.nan_to_num(vals), color="tab:blue")
     ax.axhline(cal.ba.rms_px, color="tab:red", lw=1, label=f"overall {cal.ba.rms_px:.3f} px")
     if len(names) <= 60:
-        size_pt = 6
-        ax.set_xticks(range(len(names)), names, rotation=90, fontsize=size_pt)
-        # room below for the upright names (~0.62 em a character), so the figure fits its canvas
-        below_in = 0.2 + max(map(len, names)) * size_pt * 0.62 / 72
-        fig.subplots_adjust(bottom=min(0.6, below_in / fig.get_figheight()))
+        ax.set_xticks(range(len(names)), names, rotation=90, fontsize=6)   # constrained layout makes room below
+    else:
+        ax.set_xlabel("image (in the order of camera.json)")
     ax.set_ylabel("RMS (px)")
     ax.set_title("per-image RMS residual")
     ax.legend(fontsize=8)
@@ -208,13 +184,19 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
     """The report page (not yet written)."""
     ba, cam = cal.ba, cal.camera
     rep = HtmlReport(title)
+    head = [(f"{k} (px)", pm(v, s, "px", signed=False)) for k, v, s, f in zip(cam.PARAMS, cam.params, cam.sigmas,
+                                                                              ba.free)
+            if parameter_unit(k) == "px" and k.lower() not in ("b1", "b2")]
+    rep.headline(head + [("RMS residual per point (px)", ba.rms_px), ("σ0 (a posteriori, unitless)", ba.sigma0)],
+                 f"Camera {cam.NAME}, {cam.image_size[0]} × {cam.image_size[1]} px: focal length and principal "
+                 "point with 1-sigma (all parameters below).")
     rep.heading("Summary")
-    rep.kv_table([("model", cam.NAME), ("image size (px)", f"{cam.image_size[0]} x {cam.image_size[1]}"),
+    rep.kv_table([("model", cam.NAME), ("image size (px)", f"{cam.image_size[0]} × {cam.image_size[1]}"),
                   ("images used", len(ba.image_names) - len(ba.dropped_images)),
                   ("observations used", ba.n_observations), ("observations rejected", ba.n_rejected),
-                  ("RMS residual (px, per point)", ba.rms_px), ("sigma0 (a posteriori)", ba.sigma0),
-                  ("redundancy", ba.redundancy), ("targets", ba.refine_targets),
-                  ("converged", str(ba.converged))])
+                  ("RMS residual per point (px)", ba.rms_px), ("σ0 (a posteriori, unitless)", ba.sigma0),
+                  ("redundancy", ba.redundancy), ("target coordinates refined", ba.refine_targets),
+                  ("converged", bool(ba.converged))])
     rep.heading("Warnings")
     rep.warnings(cal.warnings)
     add_honesty(rep, no_reference("No reference: nothing independent of the adjustment to compare the camera with "
@@ -222,8 +204,9 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
                                   "of --model auto check the fit, not the sigmas)."))
     if cal.comparison is not None:
         rep.heading("Model comparison (--model auto)")
-        cols = ["model", "RMS (px)", "free params", "radial chi2/dof", "radial pattern (px)", "valid fraction",
-                "cross-validation RMS (px)", "cross-validation max (px)", "CV / noise", "verdict"]
+        cols = ["model", "RMS (px)", "free parameters", "radial χ²/dof (unitless)", "radial pattern (px)",
+                "valid fraction (unitless)", "cross-validation RMS (px)", "cross-validation max (px)",
+                "cross-validation / noise (unitless)", "verdict"]
         rows = []
         for f in cal.comparison.fits.values():
             r = f.row()
@@ -243,22 +226,21 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
         if cal.opencv_uncertainty is not None:
             rep.figure(partial(uncertainty_figure, cal, cal.opencv_uncertainty, "OpenCV block"),
                        f"The same for the OpenCV block (a conversion fitted inside the valid region, max error "
-                       f"{cal.conversion_errors.get('opencv', 0):.3g} px there).")
+                       f"{with_unit(cal.conversion_errors.get('opencv', 0), 'px')} there).")
     rep.heading("Parameters")
     sig = cal.diagnostics.significance
-    rows = []
-    for k, v, s, f in zip(cam.PARAMS, cam.params, cam.sigmas, ba.free):
-        rows.append([k, float(v), float(s) if f else "fixed", f"{sig[k]:.1f}" if k in sig else ""])
-    rep.table(["parameter", "value", "sigma", "t = value/sigma"], rows)
-    rep.text("Sigmas come from the adjustment covariance scaled by sigma0^2. Pixels: OpenCV convention.",
-             "small")
+    rep.table(["parameter", "unit", "value (unit column)", "σ (unit column)", "t = value/σ (unitless)"],
+              parameter_rows(cam.PARAMS, cam.params, [s if f else None for s, f in zip(cam.sigmas, ba.free)],
+                             [sig.get(k) for k in cam.PARAMS]))
+    rep.text("Sigmas come from the adjustment covariance scaled by σ0². px: pixels, OpenCV convention (origin at the "
+             "centre of the top-left pixel); the distortion coefficients are unitless (they act on normalised image "
+             "coordinates). σ '–': held fixed.", "small")
     rep.heading("Residuals over the frame")
     rep.figure(partial(residual_vector_figure, cal), "Cell means of the residual vectors, exaggerated; a systematic "
                "swirl or radial pattern means the model or the target coordinates do not fit.")
     rep.figure(partial(radial_profile_figure, cal))
     rep.heading("Distortion")
-    rep.figure(partial(distortion_figure, cal), "Distortion (distorted - ideal pinhole position of the same ray, same "
-               "focal length) along three lines from the principal point.")
+    rep.figure(partial(distortion_figure, cal), DISTORTION_CAPTION)
     rep.heading("Correlations")
     rep.figure(partial(correlation_figure, cal))
     rep.heading("Per-image RMS")
@@ -270,7 +252,7 @@ def build_camera_report(cal: CameraCalibration, title: str = "dgcal camera calib
         rep.text(f"frames looked at: {cal.frames.summary()}; video frames are chosen by sharpness and coverage "
                  "diversity (all of them in frames.csv)")
         rows = cal.frames.rows()
-        rep.table(["frame", "source", "number", "time (s)", "corners", "sharpness", "status"], rows[:300])
+        rep.table(["frame", "source", "number", "time (s)", "corners", "sharpness (unitless)", "status"], rows[:300])
         if len(rows) > 300:
             rep.text(f"... and {len(rows) - 300} more in frames.csv.", "small")
     if ba.rejected:

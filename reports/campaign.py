@@ -24,14 +24,17 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import read_eop, read_points, read_trajectory
 from dgcal.pos.ins.interpolate import interpolate_trajectory
+from dgcal.reports.boresight import CAPTION as BORESIGHT_CAPTION
+from dgcal.reports.boresight import boresight_angles_deg, matrix_text
+from dgcal.reports.distortion import CAPTION as DISTORTION_CAPTION
+from dgcal.reports.distortion import distortion_figure
+from dgcal.reports.glossary import METHOD_NOTE, label, method_name
 from dgcal.reports.honesty import add_honesty, honesty_rows, honesty_section, merge_sections, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
-
-_PRINT_CSS = """<style>
-@media print{body{max-width:none;margin:0;font-size:10pt}figure{page-break-inside:avoid}h2{page-break-after:avoid}
-a{color:#222;text-decoration:none}}
-.lead td,.lead th{font-size:1.05em}.nav a{margin-right:1em}
-</style>"""
+from dgcal.reports.mounting import (IMPROVEMENT_NOTE, LEVER_NOTE, MOUNT_HEADER, _mount_row, add_boresight_matrices,
+                                    improvement_pct)
+from dgcal.reports.tables import add_residual_table, parameter_rows, parameter_unit
+from dgcal.reports.units import pm, value_sigma
 
 METHOD_ORDER = ("joint", "iso", "two-step")  # canonical names (dgcal.calib.mounting.methods)
 
@@ -239,22 +242,8 @@ def compare_with_truth(d: dict, truth: dict) -> dict:
 
 # ----------------------------------------------------------------------------------------------- figures
 def _fig_distortion(cam: dict):
-    model = camera_from_json_dict(cam)
-    w, h = model.image_size
-    r_max = 0.5 * np.hypot(w, h)
-    cx, cy = model.pinhole_K()[0, 2], model.pinhole_K()[1, 2]
-    ang = np.radians([0, 33.7, 90])
-    fig, ax = new_figure(7.0, 3.4)
-    for a in ang:
-        r = np.linspace(0, r_max, 200)
-        uv = np.column_stack([cx + r * np.cos(a), cy + r * np.sin(a)])
-        und = model.undistort_points(uv)
-        ax.plot(r, np.linalg.norm(uv - und, axis=1), label=f"{np.degrees(a):.0f}° from the x axis")
-    ax.set_xlabel("distance from the principal point (px)")
-    ax.set_ylabel("distortion (px)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    return fig
+    """The camera's distortion curve, as the camera report draws it (radial part positive outward)."""
+    return distortion_figure(camera_from_json_dict(cam))
 
 
 def _canonical(name: str, m: dict) -> str:
@@ -377,20 +366,13 @@ def _link(rep: HtmlReport, out: Path, path: Path | None, text: str) -> None:
 
 
 def _mount_rows(mounts: dict) -> list:
-    rows = []
-    for k, m in mounts.items():
-        ls, bs = m.get("lever_arm_sigma_m", [0, 0, 0]), m.get("boresight_sigma_deg", [0, 0, 0])
-        rows.append([k, f"{m['delay_s']:+.4f} ± {m.get('delay_sigma_s', 0):.4f}",
-                     *(f"{v:+.4f} ± {s:.4f}" for v, s in zip(m["lever_arm_m"], ls)),
-                     *(f"{v:+.4f}" for v in m["boresight_rpy_deg"]),
-                     ", ".join(f"{s:.4f}" for s in bs), m.get("n_epochs", ""), len(m.get("rejected_epochs", []))])
-    return rows
+    """Every method's estimates with sigmas (the mounting report's rows) and its rejected epochs."""
+    return [_mount_row(k, m) + [len(m.get("rejected_epochs", []))] for k, m in mounts.items()]
 
 
 def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:
     """The report page (one self-contained HTML string)."""
     rep = HtmlReport(f"Calibration report{(' — ' + d['name']) if d.get('name') else ''}")
-    rep.raw(_PRINT_CSS)
     rep.raw('<p class="nav small"><a href="#summary">Summary</a><a href="#camera">Camera</a>'
             '<a href="#triangulation">Triangulation</a><a href="#pos">POS</a><a href="#mounting">Mounting</a>'
             '<a href="#dg">DG accuracy</a><a href="#honesty">Honesty</a><a href="#warnings">Warnings</a></p>')
@@ -415,41 +397,41 @@ def _summary_section(rep: HtmlReport, d: dict) -> None:
     chosen = d.get("mounting_method")
     if chosen:
         m = mounts[chosen]
-        rep.text(f"System calibration by the '{chosen}' method: the values to use for direct georeferencing.")
-        rep.raw('<div class="lead">')
-        rep.kv_table([
-            ("exposure delay (s)", f"{m['delay_s']:+.4f} ± {m.get('delay_sigma_s', 0):.4f}"),
-            ("lever arm IMU → camera, body FRD (m)",
-             ", ".join(f"{v:+.4f} ± {s:.4f}" for v, s in zip(m["lever_arm_m"], m["lever_arm_sigma_m"]))),
-            ("boresight roll, pitch, yaw of R_cam_to_body (deg)",
-             ", ".join(f"{v:+.4f}" for v in m["boresight_rpy_deg"])),
-            ("boresight sigmas about body x, y, z (deg)", ", ".join(f"{s:.4f}" for s in m["boresight_sigma_deg"])),
-            ("boresight R_cam_to_body", "; ".join(", ".join(f"{v:+.6f}" for v in row)
-                                                   for row in m["boresight_R_cam_to_body"])),
-        ])
-        rep.raw("</div>")
+        theta, _ = boresight_angles_deg(m["boresight_R_cam_to_body"])
+        held = m.get("delay_sigma_s", 0.0) == 0.0
+        rep.headline([
+            ("exposure delay (ms)", "not estimated (0)" if held else pm(1e3 * m["delay_s"],
+                                                                        1e3 * m["delay_sigma_s"], "ms")),
+            ("lever arm IMU → camera x, y, z, body axes (m)",
+             ", ".join(pm(v, s_, "m") for v, s_ in zip(m["lever_arm_m"], m["lever_arm_sigma_m"]))),
+            ("boresight θx, θy, θz about body axes (°)",
+             ", ".join(pm(v, s_, "°") for v, s_ in zip(theta, m["boresight_sigma_deg"]))),
+            ("boresight R_cam_to_body (rows, unitless)", matrix_text(m["boresight_R_cam_to_body"]))],
+            f"System calibration by the {method_name(chosen)} method, with 1-sigma: the values to use for direct "
+            "georeferencing.")
+        rep.text(BORESIGHT_CAPTION, cls="small")
     chk = d.get("check", {}).get("checks", {})
     if chk:
         rep.table(["method", "check points", "RMS E (m)", "RMS N (m)", "RMS U (m)", "RMS 2D (m)", "RMS 3D (m)",
-                   "predicted 3D (m)", "achieved / predicted 3D"],
-                  [[k, c["stats"]["n"], *(_m(c["stats"]["rms"][a]) for a in ("E", "N", "U", "2D", "3D")),
+                   "predicted 3D (m)", "achieved / predicted 3D (ratio)"],
+                  [[method_name(k), c["stats"]["n"], *(_m(c["stats"]["rms"][a]) for a in ("E", "N", "U", "2D", "3D")),
                     _m(c["budget"]["predicted_rms"]["3D"]), _m(c["budget"]["ratio_achieved_to_predicted"]["3D"], 2)]
                    for k, c in chk.items()])
     if d.get("steps"):
         rep.table(["step", "status", "time (s)"],
-                  [[k, v, _m(d["timings_s"].get(k), 1)] for k, v in d["steps"].items()])
+                  [[_step_name(k), v, _m(d["timings_s"].get(k), 1)] for k, v in d["steps"].items()])
     tc = d.get("truth_comparison")
     if tc:
         rep.heading("Against the simulation truth")
         rows = []
         for k, e in tc["mounting"].items():
-            rows.append([k, f"{e['delay_error_s'] * 1e3:+.2f} ms ({_ratio(e['delay_error_over_sigma'])})",
-                         *(f"{v * 100:+.2f} cm ({_ratio(r)})" for v, r in zip(e["lever_arm_error_m"],
-                                                                           e["lever_arm_error_over_sigma"])),
-                         *(f"{v:+.4f}° ({_ratio(r)})" for v, r in zip(e["boresight_error_deg"],
-                                                                    e["boresight_error_over_sigma"]))])
-        rep.table(["method", "delay", "lever x", "lever y", "lever z", "boresight x", "boresight y", "boresight z"],
-                  rows)
+            rows.append([method_name(k), f"{e['delay_error_s'] * 1e3:+.2f} ({_ratio(e['delay_error_over_sigma'])})",
+                         *(f"{v * 100:+.2f} ({_ratio(r)})" for v, r in zip(e["lever_arm_error_m"],
+                                                                        e["lever_arm_error_over_sigma"])),
+                         *(f"{v:+.4f} ({_ratio(r)})" for v, r in zip(e["boresight_error_deg"],
+                                                                  e["boresight_error_over_sigma"]))])
+        rep.table(["method", "delay (ms)", "lever arm x (cm)", "lever arm y (cm)", "lever arm z (cm)",
+                   "boresight θx (°)", "boresight θy (°)", "boresight θz (°)"], rows)
         rep.text("Errors are estimate − truth; in brackets the error in units of the reported sigma.", cls="small")
 
 
@@ -460,21 +442,22 @@ def _camera_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
     if cam:
         rep.kv_table([("model", cam["model"]), ("image size (px)", " × ".join(map(str, cam["image_size"]))),
                       ("RMS residual (px)", cam.get("rms_px")), ("observations", cam.get("n_observations")),
-                      ("rejected", cam.get("n_rejected")), ("images", cam.get("n_images")),
+                      ("observations rejected", cam.get("n_rejected")), ("images", cam.get("n_images")),
                       ("sigma0", cam.get("sigma0"))])
         sig = cam.get("sigmas") or {}
         truth_cam = (d.get("truth_comparison") or {}).get("camera", {})
-        hdr = ["parameter", "value", "sigma"] + (["error vs truth", "error / sigma"] if truth_cam else [])
-        rows = []
-        for k, v in (cam.get("parameters") or {}).items():
-            r = [k, v, sig.get(k, float("nan"))]
-            if truth_cam:
+        params = cam.get("parameters") or {}
+        rows = parameter_rows(list(params), list(params.values()), [sig.get(k) for k in params])
+        hdr = ["parameter", "unit", "value (unit column)", "σ (unit column)"]
+        if truth_cam:
+            hdr += ["error vs truth (unit column)", "error / σ"]
+            for r, k in zip(rows, params):
                 e = truth_cam.get(k, {})
-                r += [e.get("error", float("nan")), _ratio(e.get("error_over_sigma"))]
-            rows.append(r)
+                r += [value_sigma(e.get("error", float("nan")), sig.get(k), parameter_unit(k), signed=True)[0],
+                      _ratio(e.get("error_over_sigma"))]
         rep.table(hdr, rows)
         try:
-            rep.figure(_fig_distortion(cam), "Distortion magnitude (image displacement) along three directions.")
+            rep.figure(_fig_distortion(cam), DISTORTION_CAPTION)
         except Exception as exc:  # noqa: BLE001 - a missing figure must not lose the report
             rep.text(f"(distortion plot unavailable: {exc})", cls="small")
         _link(rep, out, files["camera"].get("report"), "residuals, correlations, coverage")
@@ -505,9 +488,8 @@ def _pos_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
     rep.raw('<h2 id="pos">POS (GNSS/INS smoothing)</h2>')
     pos = d.get("pos")
     if pos:
-        rep.kv_table([(k, _short(v)) for k, v in pos.items() if not isinstance(v, dict)])
-        for k, v in (pos.get("residuals") or {}).items():
-            rep.kv_table([(f"{k} residuals {a}", b) for a, b in v.items()])
+        rep.kv_table([(k, v) for k, v in pos.items() if not isinstance(v, dict) and k not in POS_SKIPPED])
+        add_residual_table(rep, pos.get("residuals") or {})
         rep.figure(partial(_fig_pos_sigma, files["pos"].get("trajectory")),
                    "Smoothed trajectory: 1-sigma of position and attitude over the flight.")
         _link(rep, out, files["pos"].get("report"), "smoother details")
@@ -521,19 +503,17 @@ def _mounting_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
     mounts = d.get("mounting", {})
     chosen = d.get("mounting_method")
     if mounts:
-        rep.table(["method", "delay (s)", "lever x (m)", "lever y (m)", "lever z (m)", "roll (°)", "pitch (°)",
-                   "yaw (°)", "boresight sigmas x,y,z (°)", "epochs", "rejected"], _mount_rows(mounts))
-        rep.text("Lever arm: IMU origin → camera perspective centre in the body frame (x forward, y right, z down). "
-                 "Boresight: R_cam_to_body = Rz(yaw) Ry(pitch) Rx(roll); its sigmas are small rotations about the "
-                 "body axes. Delay: t_exposure − t_event.", cls="small")
+        rep.table(MOUNT_HEADER + ["rejected epochs"], _mount_rows(mounts))
+        rep.text(LEVER_NOTE + " " + METHOD_NOTE, cls="small")
         m = mounts[chosen]
+        add_boresight_matrices(rep, m["boresight_R_cam_to_body"])
         rep.figure(partial(_fig_correlation, m),
-                   f"Correlations of the '{chosen}' estimate (delay, lever arm, boresight).")
+                   f"Correlations of the {method_name(chosen)} estimate (delay, lever arm, boresight).")
         rep.figure(partial(_fig_per_epoch, files["mounts"]),
-                   "Per-epoch lever arms of the two-step (traditional) method (seed 003 Fig. 22): a non-zero delay "
-                   "shows as a shift that depends on the speed and heading.")
+                   "Per-epoch lever arms of the two-step method (seed 003 Fig. 22): a non-zero delay shows as a shift "
+                   "that depends on the speed and heading.")
         for k in mounts:
-            _link(rep, out, files["mounts"].get(k, {}).get("report"), f"{k}: per-epoch plots, residuals")
+            _link(rep, out, files["mounts"].get(k, {}).get("report"), f"{method_name(k)}: per-epoch plots, residuals")
     else:
         rep.text("No mounting step in this campaign.")
 
@@ -544,23 +524,27 @@ def _dg_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
     chk = d.get("check", {}).get("checks", {})
     if chk:
         for k, c in chk.items():
-            rep.heading(f"{k}", 3)
+            rep.heading(method_name(k), 3)
             st = c["stats"]
             rep.table(["statistic", "E (m)", "N (m)", "U (m)", "2D (m)", "3D (m)"],
                       [[s.upper(), *(_m(st[s][a]) for a in ("E", "N", "U", "2D", "3D"))]
                        for s in ("avg", "std", "rms")])
             b = c["budget"]
             rep.table(["predicted RMS from", "E (m)", "N (m)", "U (m)", "2D (m)", "3D (m)"],
-                      [[src, *(_m(v[a]) for a in ("E", "N", "U", "2D", "3D"))] for src, v in b["sources"].items()]
+                      [[label(src), *(_m(v[a]) for a in ("E", "N", "U", "2D", "3D"))]
+                       for src, v in b["sources"].items()]
                       + [["all sources", *(_m(b["predicted_rms"][a]) for a in ("E", "N", "U", "2D", "3D"))],
                          ["achieved", *(_m(b["achieved_rms"][a]) for a in ("E", "N", "U", "2D", "3D"))]])
             a = c.get("asprs_2023", {})
-            rep.kv_table([(f"ASPRS 2023 {key} (m)" if key != "n_checkpoints" else "ASPRS 2023 check points",
-                           _m(v) if key != "n_checkpoints" else v) for key, v in a.items() if not isinstance(v, list)])
+            rep.kv_table([(asprs_label(key), v) for key, v in a.items() if not isinstance(v, list)])
         imp = {k: v for k, v in d["check"].items() if k.startswith("improvement_over_") and v}
-        for k, v in imp.items():
-            rep.heading(f"Improvement rates over {k[len('improvement_over_'):]} (seed Tables 4–5, %)", 3)
-            rep.table(["method", "2D (%)", "3D (%)"], [[m_, _m(r["2D"], 1), _m(r["3D"], 1)] for m_, r in v.items()])
+        for k in imp:
+            ref = k[len("improvement_over_"):]
+            rows = improvement_pct(chk, ref)
+            rep.heading(f"Improvement over the {method_name(ref)} method", 3)
+            rep.table(["method", "2D improvement (%)", "3D improvement (%)"],
+                      [[method_name(m_), r["2D"], r["3D"]] for m_, r in rows.items()])
+            rep.text(IMPROVEMENT_NOTE, cls="small")
         rep.figure(partial(_fig_check, d["check"]), "Check-point errors of direct georeferencing per method.")
         _link(rep, out, files["check"].get("report"), "per-point table")
     else:
@@ -580,10 +564,22 @@ def _ratio(v) -> str:
     return "–" if v is None else f"{v:+.1f}σ"
 
 
-def _short(v):
-    if isinstance(v, list):
-        return ", ".join(f"{x:.5g}" if isinstance(x, float) else str(x) for x in v)
-    return v
+def _step_name(step: str) -> str:
+    """A campaign step as words: 'mount_proposed' → 'mount (joint)'."""
+    if step.startswith("mount_"):
+        return f"mount ({method_name(step[len('mount_'):])})"
+    return label(step)
+
+
+def asprs_label(key: str) -> str:
+    """Words for a key of the ASPRS 2023 record ('RMSE_H' → 'ASPRS 2023 RMSE horizontal (m)')."""
+    if key == "n_checkpoints":
+        return "ASPRS 2023 check points"
+    words = str(key).replace("RMSE_H", "RMSE horizontal").replace("RMSE_V", "RMSE vertical").replace("_", " ")
+    return f"ASPRS 2023 {words} (m)"
+
+
+POS_SKIPPED = ("warnings", "honesty", "integrity")   # shown elsewhere (warnings, honesty table) or too long
 
 
 def write_campaign_report(cfg: dict, out: Path, files: dict, steps: dict | None = None,

@@ -107,22 +107,24 @@ def write_flow_report(path: Path, run: FlowRun) -> Path:
     s = run.summary
     rep = HtmlReport("GNSS / optic-flow attitude (seed 001)")
     m = s["median"]
+    rep.headline([("median σ roll, pitch, yaw (°)", [m["sigma_roll"], m["sigma_pitch"], m["sigma_yaw"]]),
+                  ("frame pairs with an attitude", s["n_pairs"])],
+                 "Attitude from GNSS velocity and the forward camera's optic flow: its 1-sigma.")
     rep.kv_table([("frame pairs", s["n_pairs"]), ("pairs that failed", s["n_failed"]),
                   ("a pair every (s)", s["pair_every_s"]), ("frames apart (s)", s["frame_dt_s"]),
                   ("GNSS velocity noise (m/s, per axis)", s["gnss_velocity_sigma_mps"]),
-                  ("median sigma roll / pitch / yaw (deg)", [m["sigma_roll"], m["sigma_pitch"], m["sigma_yaw"]]),
-                  ("median angle of attack (deg)", m["angle_of_attack"]),
-                  ("median drift angle (deg)", m["drift_angle"]),
+                  ("median angle of attack (°)", m["angle_of_attack"]),
+                  ("median drift angle (°)", m["drift_angle"]),
                   ("median height above ground (m)", m["agl_m"]), ("median FOE inliers", m["n_inliers"])])
     rep.warnings([f"{f['t_gps']:.2f}: {f['reason']}" for f in s["failed"][:20]], "Every frame pair gave an attitude.")
     add_honesty(rep, s.get("honesty") or flow_honesty(run))
     t2 = run.table2
     if t2 is not None:
         rep.heading("Seed 001 Table 2: Euler angle errors")
-        rep.table(["", "roll", "pitch", "yaw"],
+        rep.table(["quantity (unit)", "roll (unit of the row)", "pitch (unit of the row)", "yaw (unit of the row)"],
                   [["error mean (deg)"] + [t2[k]["mean_deg"] for k in ("roll", "pitch", "yaw")],
                    ["error std (deg)"] + [t2[k]["std_deg"] for k in ("roll", "pitch", "yaw")],
-                   ["error / sigma RMS"] + [t2[k]["normalised_rms"] for k in ("roll", "pitch", "yaw")],
+                   ["error/σ RMS (unitless)"] + [t2[k]["normalised_rms"] for k in ("roll", "pitch", "yaw")],
                    ["seed 001 mean (deg)"] + [t2["seed001"][k]["mean_deg"] for k in ("roll", "pitch", "yaw")],
                    ["seed 001 std (deg)"] + [t2["seed001"][k]["std_deg"] for k in ("roll", "pitch", "yaw")]])
         po = t2["pseudo_only"]

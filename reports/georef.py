@@ -50,13 +50,17 @@ def write_georef_outputs(out_dir: str | Path, run: GeorefRun, names: Mapping[str
 def georef_report(res: ImageGeoref, crs: str, height_source: str) -> HtmlReport:
     """One-file report: per point the spread of its single-image estimates around the average (seed Fig. 19)."""
     rep = HtmlReport("dgcal single-image georeferencing")
+    sig = [np.sqrt(np.diag(av.cov_with_common)) for av, _ in res.averages.values()]
+    rep.headline([("points averaged", len(res.averages)),
+                  ("median σ x, y of the averages (m)", np.median(sig, axis=0) if sig else None)],
+                 "Ground points from single images (averaged over the images that see them), with 1-sigma.")
     rep.kv_table([("CRS", crs), ("height source", height_source), ("pixels", len(res.id)),
                   ("georeferenced", int(res.ok.sum())), ("points averaged", len(res.averages))])
     rows = []
     for pid, (av, z) in res.averages.items():
         s = np.sqrt(np.diag(av.cov_with_common))
         rows.append([pid, av.n, *np.round(av.weighted, 3), round(z, 3), *np.round(s, 3), round(av.chi2_dof, 2)])
-    rep.table(["id", "images", "x", "y", "z", "sx", "sy", "chi2/dof"], rows)
+    rep.table(["id", "images", "x (m)", "y (m)", "z (m)", "σx (m)", "σy (m)", "χ²/dof (unitless)"], rows)
     add_honesty(rep, no_reference(GEOREF_NO_REFERENCE))
     ids = list(res.averages)[:6]
     if ids:

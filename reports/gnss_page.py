@@ -10,20 +10,22 @@ import numpy as np
 
 from dgcal.reports.honesty import add_honesty
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.units import fmt_value
 
 
 def draw_spp_report(path: str | Path, series: dict, summary: dict) -> Path:
     """Write ``gnss_report.html`` from an SPP run's summary and its `series` (times s since the first fix, ENU m
     about the reference or the median position, sigmas m, residuals m, sky directions degrees)."""
     rep = HtmlReport("dgcal pos — GNSS single-point positioning")
-    rep.kv_table([("observations", summary.get("rinex_obs", "")),
-                  ("navigation", summary.get("rinex_nav", "")),
-                  ("signals", ", ".join(f"{k}:{v}" for k, v in summary.get("signals", {}).items())),
-                  ("epochs / with fix", f"{summary['n_epochs']} / {summary['n_fixed']}"),
-                  ("mean satellites used", summary["mean_n_sat"]),
+    rep.headline([("median σ east, north, up (m)", summary["median_sigma_enu_m"]),
+                  ("epochs with a fix / all", f"{summary['n_fixed']} / {summary['n_epochs']}")],
+                 "Single-point positioning (code): each fix's 1-sigma.")
+    rep.kv_table([("observations (RINEX)", summary.get("rinex_obs", "")),
+                  ("navigation (RINEX)", summary.get("rinex_nav", "")),
+                  ("signals", "; ".join(f"{k}: {fmt_value(v)}" for k, v in summary.get("signals", {}).items())),
+                  ("satellites used, mean", summary["mean_n_sat"]),
                   ("median PDOP", summary["median_pdop"]),
-                  ("median sigma E/N/U (m)", " / ".join(f"{v:.2f}" for v in summary["median_sigma_enu_m"])),
-                  ("satellites rejected by RAIM", summary["n_rejected"])])
+                  ("satellite observations rejected by RAIM", summary["n_rejected"])])
     warn = []
     if summary["n_fixed"] < summary["n_epochs"]:
         warn.append(f"{summary['n_epochs'] - summary['n_fixed']} epochs without a fix "
@@ -120,4 +122,6 @@ def _sky_figure(s: dict):
     ax.set_theta_zero_location("N")
     ax.set_theta_direction(-1)
     ax.set_ylim(0, 90)
+    ax.set_yticks([30, 60, 90], ["60°", "30°", "0°"])   # elevation at the rings (radius: zenith angle)
+    ax.set_title("satellites used: azimuth clockwise from north, elevation on the rings", fontsize=9)
     return fig

@@ -19,7 +19,7 @@ FEW_VALUES = 10           # below this many values a verdict is weak (the RMS of
 VERDICTS = ("honest", "sigmas too small", "sigmas too large")
 TITLE = "Honesty: errors against their sigmas"
 HEADER = ("reference", "quantity", "n", "RMS error", "median sigma", "error/sigma RMS", "max |error|/sigma",
-          "verdict")
+          "verdict")   # the RMS error and median sigma carry their unit in each cell (rows of different units)
 LEGEND = (f"error/sigma is each error divided by the sigma the run claimed for it: honest sigmas give an RMS near 1 "
           f"({HONEST_RMS[0]}–{HONEST_RMS[1]} is taken as honest) and no value beyond {HONEST_MAX:g}; above "
           f"{HONEST_RMS[1]} (or a value beyond {HONEST_MAX:g}) the sigmas are too small, below {HONEST_RMS[0]} too "
@@ -95,10 +95,9 @@ def merge_sections(sections: Iterable[dict | None], prefixes: Iterable[str] | No
 
 
 def _num(v: float, unit: str = "") -> str:
-    if v is None or not np.isfinite(v):
-        return "–"
-    text = f"{v:.3g}" if abs(v) < 1e5 else f"{v:.3e}"
-    return f"{text} {unit}".rstrip()
+    """A number with its unit at the unit's resolution (dgcal.reports.units; NumPy only, like this module)."""
+    from dgcal.reports.units import with_unit
+    return "–" if v is None or not np.isfinite(v) else with_unit(v, unit)
 
 
 def table_rows(section: dict) -> list[list[str]]:

@@ -6,6 +6,7 @@ import base64
 import functools
 import html
 import io
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -17,10 +18,17 @@ import matplotlib.pyplot as plt  # noqa: E402  (after the backend choice)
 import numpy as np  # noqa: E402
 from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from dgcal.fields.io.csv_tables import atomic_write  # noqa: E402
 from dgcal.fields.processes import fork_map  # noqa: E402
+from dgcal.reports.glossary import glossary_for, humanise_text, is_raw_key, label  # noqa: E402
+from dgcal.reports.units import column_decimals, fmt_value, gps_time, is_coordinate_label, unit_of_label  # noqa: E402
+
+# tick labels in full numbers (no "1e9" offset or ×10⁶ factor above the axis: a GPS time or a coordinate reads as is)
+matplotlib.rcParams.update({"axes.formatter.useoffset": False, "axes.formatter.limits": (-6, 12),
+                            "figure.constrained_layout.use": False})
 
 _STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;
@@ -32,6 +40,10 @@ th{background:#eef2f6}td:first-child,th:first-child{text-align:left}
 .ok{background:#eaf7ea;border-left:4px solid #3a3;padding:.4em .8em;margin:.3em 0}
 figure{margin:1em 0}figcaption{font-size:.9em;color:#555}img{max-width:100%}
 .small{font-size:.85em;color:#555}
+.lead{margin:.6em 0 1em}.lead table{font-size:1.05em}.lead th{background:#dde6ef}
+.nav a{margin-right:1em}dl.glossary dt{font-weight:600;margin-top:.4em}dl.glossary dd{margin-left:1.2em;color:#444}
+@media print{body{max-width:none;margin:0;font-size:10pt}figure{page-break-inside:avoid}h2{page-break-after:avoid}
+a{color:#222;text-decoration:none}}
 """
 
 
@@ -114,27 +126,41 @@ def _made_png(fig_or_maker, dpi: int) -> bytes | None:
     return None if fig is None else figure_png(fig, dpi)
 
 
-MIN_BOTTOM_IN = 0.55   # room for tick labels and an x-axis label below the lowest axes
+MIN_BOTTOM_IN = 0.55   # room for tick labels and an x-axis label below the lowest axes (without a layout engine)
 
 
 def new_figure(w_in: float = 8.0, h_in: float = 5.0, **kw):
-    """A matplotlib (figure, axes) on the Agg backend, for embedding. A short figure keeps MIN_BOTTOM_IN below its
-    axes (matplotlib's 11 % of the height is less): the x-axis label then lies inside the canvas, and the figure is
-    cut from one drawing (`figure_png`)."""
+    """A matplotlib (figure, axes) on the Agg backend, for embedding, laid out by matplotlib's constrained layout
+    (tick labels, axis labels, titles, colour bars and legends beside the axes do not overlap) with at most 8 ticks
+    on an x axis. `layout=None` instead keeps MIN_BOTTOM_IN below the axes (matplotlib's 11 % of a short figure's
+    height is less), so the x-axis label lies inside the canvas."""
+    kw.setdefault("layout", "constrained")
     fig, axes = plt.subplots(figsize=(w_in, h_in), **kw)
-    if "layout" not in kw and fig.subplotpars.bottom * h_in < MIN_BOTTOM_IN:
+    if kw["layout"] is None and fig.subplotpars.bottom * h_in < MIN_BOTTOM_IN:
         fig.subplots_adjust(bottom=MIN_BOTTOM_IN / h_in)
+    for ax in np.atleast_1d(axes).ravel():
+        if getattr(ax, "name", "") == "rectilinear":
+            ax.xaxis.set_major_locator(MaxNLocator(nbins=8))
     return fig, axes
 
 
-def _fmt(v) -> str:
-    if isinstance(v, float):
-        if v != v:
-            return "–"
-        if v != 0 and (abs(v) < 1e-3 or abs(v) >= 1e6):
-            return f"{v:.4e}"
-        return f"{v:.6g}"
-    return str(v)
+def _fmt(v, unit: str = "", coordinate: bool = False, decimals: int | None = None) -> str:
+    """A cell's text: numbers by unit (dgcal.reports.units), lists comma-separated, never e± notation."""
+    return fmt_value(v, unit, coordinate, decimals)
+
+
+def _label(k) -> str:
+    """A row or column name as words: a raw summary key through the glossary's labels."""
+    return label(k) if is_raw_key(k) else str(k)
+
+
+def _cell(key_label: str, v) -> str:
+    """A key/value table's value formatted by the unit of its label (GPS times as week and seconds of week)."""
+    if isinstance(v, str):
+        return v
+    if "GPS time" in key_label or key_label.endswith("(GPS s)"):
+        return fmt_value([gps_time(x) for x in v]) if isinstance(v, (list, tuple)) else gps_time(v)
+    return _fmt(v, unit_of_label(key_label), is_coordinate_label(key_label))
 
 
 @dataclass
@@ -149,6 +175,10 @@ def _figure_html(png: bytes, caption: str) -> str:
     b64 = base64.b64encode(png).decode("ascii")
     cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
     return f'<figure><img src="data:image/png;base64,{b64}" alt="{html.escape(caption)}">{cap}</figure>'
+
+
+def _strip_tags(text: str) -> str:
+    return re.sub(r"<[^>]*>", " ", text)
 
 
 class HtmlReport:
@@ -172,18 +202,52 @@ class HtmlReport:
         if not items:
             self.parts.append(f'<div class="ok">{html.escape(none_text)}</div>')
         for w in items:
-            self.parts.append(f'<div class="warn">{html.escape(w)}</div>')
+            self.parts.append(f'<div class="warn">{html.escape(humanise_text(w))}</div>')
         return self
 
-    def kv_table(self, pairs: Iterable[tuple[str, object]]) -> "HtmlReport":
-        rows = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(_fmt(v))}</td></tr>" for k, v in pairs)
-        self.parts.append(f"<table>{rows}</table>")
+    def kv_table(self, pairs: Iterable[tuple[str, object]], cls: str | None = None) -> "HtmlReport":
+        """A table of name/value rows: a raw summary key becomes words (dgcal.reports.glossary.label), a value is
+        formatted by the unit in its name's parentheses (dgcal.reports.units); rows whose value is None are left
+        out. `cls`: a class of the table ('lead': the headline result)."""
+        rows = "".join(f"<tr><th>{html.escape(lab)}</th><td>{html.escape(_cell(lab, v))}</td></tr>"
+                       for lab, v in ((_label(k), v) for k, v in pairs if v is not None))
+        c = f' class="{cls}"' if cls else ""
+        self.parts.append(f"<table{c}>{rows}</table>")
+        return self
+
+    def headline(self, pairs: Iterable[tuple[str, object]], text: str | None = None) -> "HtmlReport":
+        """The page's result at its top: an optional sentence, then the values with their sigmas (a lead table)."""
+        self.parts.append('<div class="lead">')
+        if text:
+            self.text(text)
+        self.kv_table(pairs)
+        self.parts.append("</div>")
         return self
 
     def table(self, header: Sequence[str], rows: Iterable[Sequence]) -> "HtmlReport":
-        head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
-        body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(v))}</td>" for v in r) + "</tr>" for r in rows)
+        """A table with a header row; every column's numbers formatted by the unit in its header's parentheses."""
+        header = [_label(h) for h in header]
+        units = [unit_of_label(h) for h in header]
+        coords = [is_coordinate_label(h) for h in header]
+        rows = [list(r) for r in rows]
+        width = max([len(header)] + [len(r) for r in rows])
+        units += [""] * (width - len(units))
+        coords += [False] * (width - len(coords))
+        dec = [None if coords[j] else column_decimals([r[j] for r in rows if j < len(r)], units[j])
+               for j in range(width)]
+        head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+        body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(v, units[j], coords[j], dec[j]))}</td>"
+                                        for j, v in enumerate(r)) + "</tr>" for r in rows)
         self.parts.append(f"<table><tr>{head}</tr>{body}</table>")
+        return self
+
+    def glossary(self) -> "HtmlReport":
+        """The glossary of the technical terms the page uses so far (dgcal.reports.glossary), as a last section."""
+        text = " ".join(p if isinstance(p, str) else p.caption for p in self.parts)
+        entries = glossary_for(_strip_tags(text))
+        if entries:
+            self.parts.append('<h2 id="glossary">Glossary</h2><dl class="glossary">' + "".join(
+                f"<dt>{html.escape(t)}</dt><dd>{html.escape(w)}</dd>" for t, w in entries) + "</dl>")
         return self
 
     def figure(self, fig_or_png, caption: str = "") -> "HtmlReport":
@@ -202,8 +266,11 @@ class HtmlReport:
         self.parts.append(html_text)
         return self
 
-    def render(self) -> str:
-        """The page; its figures drawn first, side by side (`figures_png`)."""
+    def render(self, glossary: bool = True) -> str:
+        """The page; its figures drawn first, side by side (`figures_png`); with `glossary`, the glossary of the
+        terms it uses last (once)."""
+        if glossary and not any(isinstance(p, str) and 'id="glossary"' in p for p in self.parts):
+            self.glossary()
         pending = [(i, p) for i, p in enumerate(self.parts) if isinstance(p, _Figure)]
         pngs = figures_png([p.fig for _, p in pending])
         for (i, p), png in zip(pending, pngs):

@@ -1,8 +1,6 @@
 """HTML reports (single file, PNG plots embedded as base64) of the mounting calibration and of DG check points."""
 from __future__ import annotations
 
-import base64
-import html
 import json
 from collections.abc import Mapping
 from pathlib import Path
@@ -12,37 +10,59 @@ import numpy as np
 from dgcal.calib.dg.accuracy import DgCheck
 from dgcal.calib.mounting.methods import MountingRun
 from dgcal.fields.io.csv_tables import atomic_write, write_table
-from dgcal.reports.honesty import combined_sigma, honesty_html, honesty_rows, honesty_section, no_reference
-from dgcal.reports.html import figures_png, new_figure
+from dgcal.reports.boresight import CAPTION as BORESIGHT_CAPTION
+from dgcal.reports.boresight import boresight_angles_deg
+from dgcal.reports.glossary import METHOD_NOTE, label, method_name
+from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
+from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.units import fmt_value, pm, with_unit
 
 
-def _png(fig) -> str:
-    return _imgs([fig])[0]
+def improvement_pct(checks: dict, reference: str | None = None) -> dict:
+    """Improvement of every method's 2D and 3D check-point RMS over the `reference` method's (default: the first),
+    in percent of the old: (old − new) / old × 100 (positive: the method is better)."""
+    if not checks:
+        return {}
+    ref = reference if reference in checks else next(iter(checks))
+    old = checks[ref]["stats"]["rms"]
+    return {k: {q: (100.0 * (old[q] - c["stats"]["rms"][q]) / old[q] if old[q] else float("nan"))
+                for q in ("2D", "3D")} for k, c in checks.items() if k != ref}
 
 
-def _imgs(figs: list) -> list[str]:
-    """<img> elements of figures drawn side by side (`figures_png`)."""
-    pngs = figures_png(figs, dpi=90)
-    return [f'<img alt="plot" src="data:image/png;base64,{base64.b64encode(p).decode()}">' for p in pngs]
+IMPROVEMENT_NOTE = ("Improvement = (old − new) / old × 100 %, old the RMS error of the reference method: the share of "
+                    "its error the method removes (100 % = no error left; negative: worse). The seed paper's Tables "
+                    "4–5 divide by the new RMS instead, (old − new) / new, which exceeds 100 % when the error drops "
+                    "below half.")
 
 
-def _table(header, rows) -> str:
-    h = "".join(f"<th>{html.escape(str(c))}</th>" for c in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
+def _mount_row(name: str, r: dict) -> list:
+    """One method's estimates as text: delay, lever arm x/y/z and boresight angles about body x/y/z with sigmas."""
+    held = r.get("delay_sigma_s", 0.0) == 0.0          # two-step (or a held delay): not estimated
+    theta, _ = boresight_angles_deg(r["boresight_R_cam_to_body"])
+    return ([method_name(name), "not estimated (0)" if held else pm(1e3 * r["delay_s"], 1e3 * r["delay_sigma_s"],
+                                                                   "ms")]
+            + [pm(v, s, "m") for v, s in zip(r["lever_arm_m"], r["lever_arm_sigma_m"])]
+            + [pm(v, s, "°") for v, s in zip(theta, r["boresight_sigma_deg"])] + [r.get("n_epochs", "")])
 
 
-_CSS = ("body{font-family:sans-serif;max-width:1100px;margin:auto;padding:1em}table{border-collapse:collapse;"
-        "margin:.5em 0}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}th{background:#eee}"
-        ".warn{color:#a40}img{max-width:100%}@media print{img{max-width:90%}}")
+MOUNT_HEADER = ["method", "exposure delay (ms)", "lever arm x (m)", "lever arm y (m)", "lever arm z (m)",
+                "boresight θx (°)", "boresight θy (°)", "boresight θz (°)", "epochs"]
+LEVER_NOTE = ("Lever arm: IMU origin → camera perspective centre, body axes (x forward, y right, z down). Exposure "
+              "delay = exposure time − event time.")
 
 
-def _page(title: str, parts: list[str]) -> str:
-    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>{''.join(parts)}</body></html>\n")
+def add_boresight_matrices(rep: HtmlReport, R_cam_to_body) -> None:
+    """R_cam_to_body and the nominal mounting it is measured from, as two small tables, with the caption."""
+    theta, R_nom = boresight_angles_deg(R_cam_to_body)
+    R = np.asarray(R_cam_to_body, float)
+    rep.table(["R_cam_to_body, R_nominal (unitless)", "camera x", "camera y", "camera z", "", "camera x",
+               "camera y", "camera z"],
+              [[f"body {'xyz'[i]}", *(f"{v:+.8f}" for v in R[i]), f"body {'xyz'[i]}", *(f"{v:+.0f}" for v in R_nom[i])]
+               for i in range(3)])
+    rep.text(BORESIGHT_CAPTION, cls="small")
 
 
-def _per_epoch_plots(results: dict) -> list[str]:
+def _per_epoch_plots(results: dict) -> list:
     figs = []
     fig, axes = new_figure(10, 7, nrows=3, ncols=1, sharex=True)
     for name, res in results.items():
@@ -51,10 +71,11 @@ def _per_epoch_plots(results: dict) -> list[str]:
             continue
         la = np.array(pe["lever_arm_m"])
         for k, ax in enumerate(axes):
-            ax.plot(la[:, k], ".", ms=3, label=f"{name} per epoch")
+            ax.plot(la[:, k], ".", ms=3, label=f"{method_name(name)} per epoch")
             ax.axhline(res["lever_arm_m"][k], lw=1, color=ax.lines[-1].get_color())
             ax.set_ylabel(f"lever {'xyz'[k]} (m)")
-    axes[0].legend(fontsize=8)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("epoch")
     fig.suptitle("Lever arm per epoch (seed 003 Fig. 22): an uncalibrated delay shows as a speed-dependent bias")
     figs.append(fig)
@@ -65,9 +86,10 @@ def _per_epoch_plots(results: dict) -> list[str]:
             continue
         b = np.array(pe["boresight_deg"])
         for k, ax in enumerate(axes):
-            ax.plot(b[:, k], ".", ms=3, label=name)
+            ax.plot(b[:, k], ".", ms=3, label=method_name(name))
             ax.set_ylabel(f"about body {'xyz'[k]} (deg)")
-    axes[0].legend(fontsize=8)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("epoch")
     fig.suptitle("Boresight per epoch, relative to the estimate")
     figs.append(fig)
@@ -87,9 +109,9 @@ def _per_epoch_plots(results: dict) -> list[str]:
             axes[0].legend(fontsize=8, ncol=4)
             axes[1].legend(fontsize=8, ncol=3)
             axes[1].set_xlabel("epoch")
-            fig.suptitle(f"{name}: residuals per epoch")
+            fig.suptitle(f"{method_name(name)}: residuals per epoch")
             figs.append(fig)
-    return _imgs(figs)
+    return figs
 
 
 MOUNT_NO_REFERENCE = ("No reference: the mounting's errors are known only against a simulation's truth (the "
@@ -98,43 +120,43 @@ MOUNT_NO_REFERENCE = ("No reference: the mounting's errors are known only agains
 
 
 def mount_report_html(main: dict, others: dict | None = None) -> str:
-    """The mounting report: estimates with sigmas, correlations, warnings, per-epoch plots and residuals."""
-    parts = []
+    """The mounting report: the estimate with sigmas at the top, every method beside it, correlations, warnings,
+    per-epoch plots and residuals."""
     results = {main["method"]: main, **(others or {})}
-    rows = []
-    for name, r in results.items():
-        held = r.get("delay_sigma_s", 0.0) == 0.0          # two-step (or a held delay): not estimated
-        rows.append([name, "not estimated (0)" if held else f"{r['delay_s']:.5f} ± {r['delay_sigma_s']:.5f}"]
-                    + [f"{v:.4f} ± {s:.4f}" for v, s in zip(r["lever_arm_m"], r["lever_arm_sigma_m"])]
-                    + [f"{v:.4f}" for v in r["boresight_rpy_deg"]]
-                    + [f"{s:.4f}" for s in r["boresight_sigma_deg"]] + [r.get("n_epochs", "")])
-    parts.append("<h2>Estimates</h2>" + _table(
-        ["method", "delay (s)", "lever x (m)", "lever y (m)", "lever z (m)", "bore roll (deg)", "bore pitch (deg)",
-         "bore yaw (deg)", "σ about x (deg)", "σ about y (deg)", "σ about z (deg)", "epochs"], rows))
-    parts.append("<p>Lever arm: IMU → camera perspective centre, body FRD. Boresight: R_cam_to_body = "
-                 "Rz(yaw) Ry(pitch) Rx(roll) (CV camera → body); its sigmas are small rotations about body axes. "
-                 "Delay = t_exposure − t_event.</p>")
-    R_cam_to_body = np.array(main["boresight_R_cam_to_body"])
-    parts.append("<h3>R_cam_to_body</h3>" + _table(["", "cam x", "cam y", "cam z"],
-                                                   [[f"body {'xyz'[i]}"] + [f"{v:.8f}" for v in R_cam_to_body[i]]
-                                                    for i in range(3)]))
-    if main.get("correlation"):
-        names = main.get("parameters", [])
-        corr = main["correlation"]
-        parts.append("<h2>Correlations</h2>" + _table(
-            [""] + names, [[names[i]] + ["" if v is None else f"{v:+.3f}" for v in corr[i]]
-                           for i in range(len(names))]))
-    for k in ("sigma0", "redundancy", "covariance_scaled_by", "boresight_parameterisation", "propagation"):
-        if k in main:
-            parts.append(f"<p><b>{k}</b>: {html.escape(str(main[k]))}</p>")
-    warn = main.get("warnings", [])
-    parts.append("<h2>Warnings</h2>"
-                 + ("".join(f"<p class='warn'>{html.escape(w)}</p>" for w in warn) or "<p>none</p>"))
-    if main.get("rejected_epochs"):
-        parts.append("<h2>Rejected epochs</h2><p>" + html.escape(", ".join(main["rejected_epochs"])) + "</p>")
-    parts.append(honesty_html(no_reference(MOUNT_NO_REFERENCE)))
-    parts.append("<h2>Per-epoch values</h2>" + "".join(_per_epoch_plots(results)))
-    return _page("dgcal mounting calibration", parts)
+    rep = HtmlReport("dgcal mounting calibration")
+    m = main
+    theta, _ = boresight_angles_deg(m["boresight_R_cam_to_body"])
+    held = m.get("delay_sigma_s", 0.0) == 0.0
+    rep.headline([
+        ("method", method_name(m["method"])),
+        ("exposure delay (ms)", "not estimated (0)" if held else pm(1e3 * m["delay_s"], 1e3 * m["delay_sigma_s"],
+                                                                    "ms")),
+        ("lever arm x, y, z (m)", ", ".join(pm(v, s, "m") for v, s in zip(m["lever_arm_m"],
+                                                                           m["lever_arm_sigma_m"]))),
+        ("boresight θx, θy, θz about body axes (°)", ", ".join(pm(v, s, "°") for v, s in
+                                                               zip(theta, m["boresight_sigma_deg"]))),
+        ("epochs", m.get("n_epochs"))], "The mounting to use for direct georeferencing, with 1-sigma:")
+    rep.heading("Estimates of every method")
+    rep.table(MOUNT_HEADER, [_mount_row(k, r) for k, r in results.items()])
+    rep.text(LEVER_NOTE + " " + METHOD_NOTE, cls="small")
+    add_boresight_matrices(rep, m["boresight_R_cam_to_body"])
+    if m.get("correlation"):
+        names = [label(n) for n in m.get("parameters", [])]
+        corr = m["correlation"]
+        rep.heading("Correlations (unitless)")
+        rep.table(["correlation (unitless)"] + names,
+                  [[names[i]] + ["" if v is None else f"{v:+.3f}" for v in corr[i]] for i in range(len(names))])
+    rep.kv_table([(k, m[k]) for k in ("sigma0", "redundancy", "covariance_scaled_by") if k in m])
+    rep.heading("Warnings")
+    rep.warnings(m.get("warnings", []))
+    if m.get("rejected_epochs"):
+        rep.heading("Rejected epochs")
+        rep.text(", ".join(map(str, m["rejected_epochs"])))
+    add_honesty(rep, no_reference(MOUNT_NO_REFERENCE))
+    rep.heading("Per-epoch values")
+    for fig in _per_epoch_plots(results):
+        rep.figure(fig)
+    return rep.render()
 
 
 def check_honesty(checks: dict) -> dict:
@@ -152,7 +174,7 @@ def check_honesty(checks: dict) -> dict:
         if a.get("checkpoint_RMSE_H") is not None and a.get("checkpoint_RMSE_V") is not None:
             survey = np.array([a["checkpoint_RMSE_H"] / np.sqrt(2.0)] * 2 + [a["checkpoint_RMSE_V"]])
             surveyed.append(name)
-        rows += honesty_rows(err, combined_sigma(sig, survey), ("E", "N", "U"), f"check points, {name}")
+        rows += honesty_rows(err, combined_sigma(sig, survey), ("E", "N", "U"), f"check points, {method_name(name)}")
     if not rows:
         return no_reference("No check point was evaluated: nothing to compare the DG coordinates with.")
     notes = ["Check points (role check in the ground point file): each point's DG error (map E, N, height) over "
@@ -168,44 +190,46 @@ def check_honesty(checks: dict) -> dict:
     return honesty_section(rows, notes)
 
 
+AXES = ("E", "N", "U", "2D", "3D")
+
+
 def check_report_html(checks: dict, improvement: dict | None = None, honesty: dict | None = None) -> str:
-    """DG check-point report: seed Table 2 per method, improvement rates, ASPRS 2023, predicted budget, the honesty
-    table (`honesty`; None: from `checks`), plot."""
-    parts = []
-    rows = []
-    for name, c in checks.items():
-        s = c["stats"]
-        for what in ("avg", "std", "rms"):
-            rows.append([f"{name} ({s['n']})", what.upper()]
-                        + [f"{s[what][k]:.4f}" for k in ("E", "N", "U", "2D", "3D")])
-    parts.append("<h2>DG check-point errors (m), seed 003 Table 2</h2>"
-                 + _table(["method", "", "E", "N", "U", "2D", "3D"], rows))
-    parts.append(honesty_html(honesty if honesty is not None else check_honesty(checks)))
-    if improvement:
-        parts.append("<h2>Improvement rates (%), seed Tables 4-5: (old − new)/new</h2>" + _table(
-            ["method", "2D", "3D"], [[k, f"{v['2D']:.2f}", f"{v['3D']:.2f}"] for k, v in improvement.items()]))
-    rows = []
-    for name, c in checks.items():
-        a = c["asprs_2023"]
-        rows.append([name, a["n_checkpoints"], f"{a['RMSE_x']:.4f}", f"{a['RMSE_y']:.4f}", f"{a['RMSE_H']:.4f}",
-                     f"{a['RMSE_V']:.4f}", f"{a.get('product_RMSE_H', float('nan')):.4f}",
-                     f"{a.get('product_RMSE_V', float('nan')):.4f}"])
-    parts.append("<h2>ASPRS Positional Accuracy Standards (2023)</h2>" + _table(
-        ["method", "check points", "RMSE_x", "RMSE_y", "RMSE_H", "RMSE_V", "RMSE_H incl. survey",
-         "RMSE_V incl. survey"], rows))
+    """DG check-point report: the RMS per method at the top, seed Table 2 per method, improvement over the first
+    method ((old − new)/old, recomputed from the RMS; `improvement` only says whether to show it), ASPRS 2023,
+    predicted budget, the honesty table (`honesty`; None: from `checks`), plot."""
+    rep = HtmlReport("dgcal DG check points")
+    rep.headline([(f"{method_name(k)}: RMS 2D, 3D on {c['stats']['n']} check points (m)",
+                   [c["stats"]["rms"]["2D"], c["stats"]["rms"]["3D"]]) for k, c in checks.items()],
+                 "Direct georeferencing on the check points:")
+    rep.heading("DG check-point errors, seed 003 Table 2")
+    rep.table(["method", "check points", "statistic", *(f"{a} (m)" for a in AXES)],
+              [[method_name(name), c["stats"]["n"], what.upper(), *(c["stats"][what][k] for k in AXES)]
+               for name, c in checks.items() for what in ("avg", "std", "rms")])
+    add_honesty(rep, honesty if honesty is not None else check_honesty(checks))
+    imp = improvement_pct(checks)
+    if improvement is not None and imp:
+        ref = method_name(next(iter(checks)))
+        rep.heading(f"Improvement over the {ref} method")
+        rep.table(["method", "2D improvement (%)", "3D improvement (%)"],
+                  [[method_name(k), v["2D"], v["3D"]] for k, v in imp.items()])
+        rep.text(IMPROVEMENT_NOTE, cls="small")
+    rep.heading("ASPRS Positional Accuracy Standards (2023)")
+    rep.table(["method", "check points", "RMSE x (m)", "RMSE y (m)", "RMSE horizontal (m)", "RMSE vertical (m)",
+               "RMSE horizontal incl. survey (m)", "RMSE vertical incl. survey (m)"],
+              [[method_name(name), a["n_checkpoints"], a["RMSE_x"], a["RMSE_y"], a["RMSE_H"], a["RMSE_V"],
+                a.get("product_RMSE_H"), a.get("product_RMSE_V")] for name, a in
+               ((n, c["asprs_2023"]) for n, c in checks.items())])
     for name, c in checks.items():
         b = c["budget"]
         mag = b.get("magnitudes", {})
-        rows = [[k, mag.get(k, "")] + [f"{v[q]:.4f}" for q in ("E", "N", "U", "2D", "3D")]
-                for k, v in b["sources"].items()]
-        rows.append(["predicted total", ""] + [f"{b['predicted_rms'][q]:.4f}" for q in ("E", "N", "U", "2D", "3D")])
-        rows.append(["achieved", ""] + [f"{b['achieved_rms'][q]:.4f}" for q in ("E", "N", "U", "2D", "3D")])
-        parts.append(f"<h2>{html.escape(name)}: error budget (seed Table 6), RMS σ on the ground (m)</h2>"
-                     + _table(["source", "magnitude", "E", "N", "U", "2D", "3D"], rows)
-                     + f"<p>mean flying height {b['mean_flying_height_m']:.0f} m, mean speed "
-                       f"{b['mean_speed_m_s']:.1f} m/s</p>")
-        for w in c.get("warnings", []) + c["asprs_2023"].get("warnings", []):
-            parts.append(f"<p class='warn'>{html.escape(w)}</p>")
+        rep.heading(f"{method_name(name)}: error budget (seed Table 6), RMS σ on the ground")
+        rep.table(["source", "magnitude", *(f"{a} (m)" for a in AXES)],
+                  [[label(k), fmt_value(mag.get(k, "")), *(v[q] for q in AXES)] for k, v in b["sources"].items()]
+                  + [["predicted total", "", *(b["predicted_rms"][q] for q in AXES)],
+                     ["achieved", "", *(b["achieved_rms"][q] for q in AXES)]])
+        rep.text(f"mean flying height {with_unit(round(b['mean_flying_height_m']), 'm')}, mean speed "
+                 f"{with_unit(b['mean_speed_m_s'], 'm/s')}", cls="small")
+        rep.warnings(c.get("warnings", []) + c["asprs_2023"].get("warnings", []), f"{method_name(name)}: no warnings.")
     fig, axes = new_figure(5 * len(checks), 4.8, nrows=1, ncols=len(checks), squeeze=False)
     # one arrow scale for all methods, so the panels compare
     emax = max(max(np.hypot(p["err_enu"][0], p["err_enu"][1]) for p in c["points"]) for c in checks.values())
@@ -217,13 +241,13 @@ def check_report_html(checks: dict, improvement: dict | None = None, honesty: di
         ref = np.array([p["ref"] for p in c["points"]])[:, :2] - origin
         err = np.array([p["err_enu"] for p in c["points"]])
         ax.quiver(ref[:, 0], ref[:, 1], err[:, 0] * k, err[:, 1] * k, angles="xy", scale_units="xy", scale=1)
-        ax.set_title(f"{name}: horizontal errors", fontsize=9)
+        ax.set_title(f"{method_name(name)}: horizontal errors", fontsize=9)
         ax.set_xlabel("E − E0 (m)")
         ax.set_ylabel("N − N0 (m)")
         ax.set_aspect("equal")
-    fig.suptitle(f"arrows: {emax:.3f} m error drawn as {0.15 * span:.0f} m (same scale in every panel)", fontsize=9)
-    parts.append(_png(fig))
-    return _page("dgcal DG check points", parts)
+    rep.figure(fig, f"Horizontal DG errors on the check points: arrows {with_unit(emax, 'm')} error drawn as "
+                    f"{0.15 * span:.0f} m (the same scale in every panel); E0, N0 the check points' centre.")
+    return rep.render()
 
 
 # ----------------------------------------------------------------------------------------------- outputs

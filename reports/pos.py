@@ -20,7 +20,10 @@ from dgcal.pos.gnss_ins import PosResult
 from dgcal.pos.gnss_ins_summary import antenna_ecef, withheld_fix_residuals
 from dgcal.reports.gnss import TIME_CORRELATED
 from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
+from dgcal.reports.glossary import label
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.tables import add_residual_table
+from dgcal.reports.units import fmt_value, pm, with_unit
 
 
 def withheld_errors(res, withheld: GnssSolution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -48,9 +51,9 @@ def pos_honesty(res, withheld: GnssSolution | None = None) -> dict:
                 "quadrature (the fix is a measurement, not the truth).", TIME_CORRELATED])
     w = res.summary.get("withheld_fixes") or {}
     if w.get("n"):
-        return no_reference(f"{w['n']} fixes were withheld (3D RMS {w['rms_3d_m']} m, pos_summary.json "
-                            "withheld_fixes), but their per-epoch errors and sigmas were not kept with the "
-                            "result: no error/sigma.")
+        return no_reference(f"{w['n']} fixes were withheld (3D RMS {with_unit(w['rms_3d_m'], 'm')}, the "
+                            "withheld-fix record of pos_summary.json), but their per-epoch errors and sigmas were "
+                            "not kept with the result: no error/sigma.")
     how = ("withhold some of the GNSS fixes (--gnss-outages START LENGTH PERIOD) to compare the trajectory with "
            "them" if res.mode == "lc" else "the trajectory has no reference in TC mode (a simulation's truth: "
            "the campaign report)")
@@ -124,8 +127,10 @@ def _residuals(res, which: str):
     kinds = [k for k in ("pr", "ddp", "ddp_float", "ddc", "dop", "pos", "vel") if k in rows]
     fig, axs = new_figure(9, 2.6 * max(len(kinds), 1), nrows=max(len(kinds), 1), squeeze=False)
     t = res.smoothed.t - res.smoothed.t[0]
-    unit = {"pr": "pseudorange (m)", "dop": "range rate (m/s)", "pos": "position (m)", "vel": "velocity (m/s)",
-            "ddp": "DD phase (m)", "ddp_float": "DD phase, float,\ntime difference (m)", "ddc": "DD code (m)"}
+    unit = {"pr": "pseudorange (m)", "dop": "Doppler\nrange rate (m/s)", "pos": "position (m)",
+            "vel": "velocity (m/s)", "ddp": "double-differenced\nphase (m)",
+            "ddp_float": "double-differenced phase,\nfloat, time-differenced (m)",
+            "ddc": "double-differenced\ncode (m)"}
     for ax, kind in zip(axs[:, 0], kinds):
         k, e, s = rows[kind]
         ax.plot(t[k.astype(int)], e, ".", ms=1.5, alpha=0.6)
@@ -233,21 +238,28 @@ def write_pos_report(path: str | Path, res, honesty: dict | None = None) -> Path
     else `pos_honesty` without withheld fixes)."""
     s = res.summary
     rep = HtmlReport(f"GNSS/INS trajectory ({res.mode.upper()} smoother)")
-    rep.kv_table([("mode", res.mode.upper()), ("keyframes (1 per GNSS epoch)", s["keyframes"]),
+    rep.headline([("median σ north, east, down (m)", s["median_sigma_m"]),
+                  ("median σ roll, pitch, heading (°)", s["median_sigma_deg"])],
+                 f"{res.mode.upper()} smoothed trajectory, {with_unit(s['t_end_gps'] - s['t_start_gps'], 's')} "
+                 "long: its 1-sigma over the flight.")
+    lat, lon, h = s["nav_frame_origin_deg_m"]
+    rep.kv_table([("mode", res.mode.upper()), ("keyframes (one per GNSS epoch)", s["keyframes"]),
+                  ("start (GPS time)", s["t_start_gps"]), ("end (GPS time)", s["t_end_gps"]),
                   ("duration (s)", round(s["t_end_gps"] - s["t_start_gps"], 1)),
                   ("epochs with a GNSS update", s["epochs_with_gnss"]),
-                  ("epochs without GNSS update", s["epochs_without_gnss_update"]),
-                  ("constellations", ", ".join(s["systems"]) or "-"),
-                  ("median sigma N/E/D (m)", s["median_sigma_m"]), ("max sigma N/E/D (m)", s["max_sigma_m"]),
-                  ("median sigma roll/pitch/heading (deg)", s["median_sigma_deg"]),
-                  ("gyro bias mean x/y/z (deg/h)", s["gyro_bias_deg_h_mean"]),
-                  ("accelerometer bias mean x/y/z (mg)", s["accel_bias_mg_mean"]),
+                  ("epochs without a GNSS update", s["epochs_without_gnss_update"]),
+                  ("constellations", ", ".join(s["systems"]) or "–"),
+                  ("max σ north, east, down (m)", s["max_sigma_m"]),
+                  ("gyro bias, mean x, y, z (°/h)", s["gyro_bias_deg_h_mean"]),
+                  ("accelerometer bias, mean x, y, z (mg)", s["accel_bias_mg_mean"]),
                   ("events", s["events"]),
-                  ("nav frame origin (lat, lon, h)", s["nav_frame_origin_deg_m"])])
+                  ("navigation frame origin (NED; latitude, longitude, height)",
+                   f"{lat:.8f}°, {lon:.8f}°, {with_unit(h, 'm')}")])
     warn = []
     for kind, st in s.get("residuals", {}).items():
         if st["rms_normalised"] > 2.0:
-            warn.append(f"{kind} residuals are {st['rms_normalised']:.1f} times their sigma: check the noise settings")
+            warn.append(f"{label(kind)} residuals are {st['rms_normalised']:.1f} times their sigma: check the noise "
+                        "settings")
     if s["epochs_without_gnss_update"] > 0:
         warn.append(f"{s['epochs_without_gnss_update']} keyframes without a GNSS update (IMU only there)")
     warn += list(s.get("warnings", []))
@@ -257,15 +269,15 @@ def write_pos_report(path: str | Path, res, honesty: dict | None = None) -> Path
     toff = s.get("imu_time_offset")
     if toff is not None:
         rep.heading("IMU-GNSS time offset (estimated)")
-        rep.kv_table([("offset added to the IMU tags (ms)", f"{toff['offset_ms']:+.3f} +- {toff['sigma_ms']:.3f}"),
-                      ("smoother runs of the chi-square profile (offset ms, chi-square)",
+        rep.kv_table([("offset added to the IMU tags (ms)", pm(toff["offset_ms"], toff["sigma_ms"], "ms")),
+                      ("smoother runs of the χ² profile (offset ms: χ²)",
                        "; ".join(f"{d:+.1f}: {c:.1f}" for d, c in toff["trials"]))])
     c = s.get("carrier")
     if c is not None and res.carrier is not None:
         ints = c.get("integers") or {}
         rep.heading("Carrier phase (TC against a base station)")
-        rep.kv_table([("base position (ECEF m) and source",
-                       f"{c.get('base_ecef_m')} ({c.get('base_position_source')})"),
+        rep.kv_table([("base position (ECEF X, Y, Z) and source",
+                       f"{fmt_value(c.get('base_ecef_m'), 'm', coordinate=True)} m ({c.get('base_position_source')})"),
                       ("base minus its own SPP (m)", c.get("base_minus_spp_m")),
                       ("PPK epochs fixed / float / single",
                        f"{c['ppk_counts']['fixed']} / {c['ppk_counts']['float']} / {c['ppk_counts']['single']} "
@@ -289,25 +301,21 @@ def write_pos_report(path: str | Path, res, honesty: dict | None = None) -> Path
     rep.heading("Sigma envelopes").figure(partial(_sigmas, res), "1-sigma of the smoothed solution (from the "
                                           "adjustment covariance)")
     rep.heading("Residuals")
-    rep.table(["factor", "n", "RMS", "RMS / sigma", "max |e|", "share > 3 sigma"],
-              [[k, v["n"], round(v["rms"], 4), round(v["rms_normalised"], 3), round(v["max_abs"], 3),
-                round(v["share_beyond_3sigma"], 4)] for k, v in s.get("residuals", {}).items()])
+    add_residual_table(rep, s.get("residuals", {}))
     rep.figure(partial(_residuals, res, "post-fit"), "Post-fit residuals of the GNSS factors")
     if res.forward is not None:
         rep.heading("Forward-only solution and innovations")
         rep.text("The forward solution uses each epoch's data and everything before it (a Kalman filter on "
                  "the same factors); innovations are the GNSS errors at the IMU prediction from the previous "
                  "epoch, normalised by the measurement sigma only.")
-        rep.table(["factor", "n", "RMS", "RMS / sigma", "max |e|", "share > 3 sigma"],
-                  [[k, v["n"], round(v["rms"], 4), round(v["rms_normalised"], 3), round(v["max_abs"], 3),
-                    round(v["share_beyond_3sigma"], 4)] for k, v in s.get("innovations", {}).items()])
+        add_residual_table(rep, s.get("innovations", {}))
         nis = s.get("normalised_innovations", {})
         if nis:
             rep.text("Normalised innovations: each GNSS factor's innovation squared against its full predicted "
                      "covariance (filter prediction plus measurement noise), per dimension: 1 when both are right.")
-            rep.table(["factor", "n", "NIS per dimension", "RMS normalised", "share > chi2 99 %"],
-                      [[k, v["n"], round(v["nis_per_dim"], 3), round(v["rms_normalised"], 3),
-                        round(v["share_beyond_99pc"], 4)] for k, v in nis.items()])
+            rep.table(["factor", "n", "NIS per dimension", "RMS / σ", "share beyond χ² 99 % (%)"],
+                      [[label(k), v["n"], round(v["nis_per_dim"], 3), round(v["rms_normalised"], 3),
+                        100 * v["share_beyond_99pc"]] for k, v in nis.items()])
         rep.figure(partial(_smooth_vs_forward, res), "Forward minus smoothed position, and the two sigma envelopes")
         rep.figure(partial(_residuals, res, "innovations"), "Innovations")
     return rep.write(path)

@@ -15,6 +15,7 @@ from dgcal.pos.ppk_mode import PpkRun
 from dgcal.reports.gnss import TIME_CORRELATED
 from dgcal.reports.honesty import add_honesty, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.units import fmt_value
 
 _COLOURS = {"fixed": "tab:green", "float": "tab:orange", "single": "tab:red"}
 
@@ -47,13 +48,20 @@ def write_ppk_report(path: str | Path, run: PpkRun) -> Path:
     """``gnss_report.html`` of a PPK run: fix status over time, position about the reference (or median)."""
     res, s = run.result, run.summary
     rep = HtmlReport("dgcal pos — carrier-phase PPK")
-    rep.kv_table([("rover", s.get("rinex_obs", "")), ("base", s.get("rinex_base", "")),
-                  ("navigation", s.get("rinex_nav", "")),
-                  ("base position", f"{np.round(run.base_ecef, 3).tolist()} ({s.get('base_position_source')})"),
+    rep.headline([("fix rate (fixed epochs / all)", f"{100 * s['fix_rate']:.1f} %"),
+                  ("epochs fixed / float / single", f"{s['counts']['fixed']} / {s['counts']['float']} / "
+                                                      f"{s['counts']['single']} of {s['n_epochs']}")],
+                 "Carrier-phase PPK of the rover against the base (the honesty table below: its errors against a "
+                 "known position, when one is given).")
+    rep.kv_table([("rover observations (RINEX)", s.get("rinex_obs", "")),
+                  ("base observations (RINEX)", s.get("rinex_base", "")),
+                  ("navigation (RINEX)", s.get("rinex_nav", "")),
+                  ("base position (ECEF X, Y, Z) and source",
+                   f"{fmt_value(run.base_ecef, 'm', coordinate=True)} m ({s.get('base_position_source')})"),
                   ("epochs fixed / float / single", f"{s['counts']['fixed']} / {s['counts']['float']} / "
                                                       f"{s['counts']['single']} of {s['n_epochs']}"),
                   ("fix rate", f"{100 * s['fix_rate']:.1f} %"),
-                  ("median ratio (fixed)", s.get("median_ratio_fixed")),
+                  ("median ratio of the ambiguity test, fixed epochs (unitless)", s.get("median_ratio_fixed")),
                   ("age of differential median / max (s)", f"{s['age_s']['median']} / {s['age_s']['max']}"),
                   ("slips flagged rover / base", f"{s['slips_flagged_rover']} / {s['slips_flagged_base']}")])
     rep.warnings(run.warnings)
@@ -85,7 +93,7 @@ def write_ppk_report(path: str | Path, run: PpkRun) -> Path:
     ax2.semilogy(t, np.where(np.isfinite(res.ratio), res.ratio, np.nan), "k.", ms=2)
     ax.set_xlabel("time since first epoch (s)")
     ax.set_ylabel("satellites")
-    ax2.set_ylabel("ratio")
+    ax2.set_ylabel("ambiguity ratio")
     rep.figure(fig, "Satellites with double differences and the ratio of the ambiguity test.")
     return rep.write(path)
 

@@ -11,6 +11,7 @@ import numpy as np
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import week_sow, write_events
 from dgcal.reports.honesty import add_honesty, no_reference
+from dgcal.reports.glossary import label
 from dgcal.reports.html import HtmlReport, new_figure
 
 SYNC_NO_REFERENCE = ("No reference: the exposure times are not compared with known ones (the checks above test the "
@@ -32,17 +33,18 @@ def write_sync_report(path: Path, res) -> Path:
     rep.heading("Summary")
     rep.kv_table([(k, v) for k, v in s.items() if k not in ("checks", "warnings", "coarse_alignment",
                                                            "unmatched_spikes_gps_s")]
-                 + [(f"coarse alignment: {k}", v) for k, v in s["coarse_alignment"].items()])
+                 + [(f"coarse alignment: {label(k)}", v) for k, v in s["coarse_alignment"].items()])
     rep.heading("Unmatched images")
     if um:
         rep.table(["image", "reason"], [[u["image"], u["reason"]] for u in um])
     else:
         rep.text("Every image was paired with an exposure spike.")
     if s["unmatched_spikes_gps_s"]:
-        rep.text("Spikes without an image (GPS s): " + ", ".join(f"{t:.3f}" for t in s["unmatched_spikes_gps_s"]))
+        rep.text("Spikes without an image (GPS seconds of week): "
+                 + ", ".join(f"{t % 604800.0:.3f}" for t in s["unmatched_spikes_gps_s"]))
     rep.heading("Triggers and shutter lag")
     rep.kv_table([("skipped triggers (index)", ", ".join(map(str, skipped)) or "none")]
-                 + [(f"lag {k} (s)", v) for k, v in lag.items()])
+                 + [(f"shutter lag, {label(k)} (s)", v) for k, v in lag.items()])
     fig, ax = new_figure(10, 3, ncols=2)
     for a, axis, name in ((ax[0], res.gnss_axis, "GNSS"), (ax[1], res.logger_axis, "logger")):
         a.plot(axis.t - axis.t[0], axis.filled.astype(int), lw=0.6)
@@ -58,7 +60,7 @@ def write_sync_report(path: Path, res) -> Path:
         ax.errorbar(sp.t_exposure - t0, np.zeros_like(sp.t_exposure), yerr=sp.sigma_t * 1e3, fmt="none", alpha=0.5,
                     label="exposure sigma")
         ax.set_xlabel("GPS time since logger start (s)")
-        ax.set_ylabel("ms")
+        ax.set_ylabel("time (ms)")
         ax.legend()
         rep.figure(fig, "Exposure spikes: the seed's peak time lies at the end of the blackout, "
                         "the fitted centre is the exposure")

@@ -14,6 +14,7 @@ from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import write_trajectory
 from dgcal.pos.lowcost.ukf_pos import UkfPosResult, errors_vs_truth
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.units import fmt_number, pm
 
 ACCURACY_COLUMNS = ("solution", "quantity", "unit", "median_sigma", "mean", "std", "rms", "normalised_rms")
 SEED000 = {"roll": 2.6, "pitch": 2.1}  # seed 000 (real flight, vs a vertical gyro): std of the UKF errors, deg
@@ -96,6 +97,9 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
     """One-file HTML report of a `dgcal pos --mode ukf` run."""
     s = res.summary
     rep = HtmlReport("GNSS/INS trajectory (seed 000 UKF)")
+    rep.headline([("median σ north, east, down (m)", s["median_sigma_m"]),
+                  ("median σ roll, pitch, heading (°)", s["median_sigma_deg"])],
+                 "The UKF trajectory's 1-sigma (the accuracy table below: against the truth, when given).")
     outages = s.get("gnss_outages", [])
     st = s.get("start") or {}
     head = ("from the GNSS course at the start" if st.get("heading_known") else
@@ -108,15 +112,14 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
                   ("GNSS outages bridged by the IMU (longest, s)",
                    f"{len(outages)} ({max(o['length_s'] for o in outages):.1f})" if outages else "none"),
                   ("events inside GNSS outages", s.get("events_in_gnss_outages")),
-                  ("start: roll, pitch (deg)", f"{st.get('roll_pitch_deg')} +- {st.get('roll_pitch_sigma_deg')} "
-                                               f"({st.get('levelled')})" if st else None),
+                  ("start: roll, pitch (°)", ", ".join(pm(v, sg, "°") for v, sg in zip(
+                      st.get("roll_pitch_deg") or [], st.get("roll_pitch_sigma_deg") or []))
+                   + f" ({st.get('levelled')})" if st else None),
                   ("start: heading", head if st else None),
                   ("duration (s)", round(s["t_end_gps"] - s["t_start_gps"], 1)),
-                  ("median sigma N/E/D (m)", s["median_sigma_m"]),
-                  ("median sigma roll/pitch/heading (deg)", s["median_sigma_deg"]),
-                  ("gyro bias mean x/y/z (deg/h)", s["gyro_bias_deg_h_mean"]),
-                  ("accelerometer bias mean x/y/z (mg)", s["accel_bias_mg_mean"]),
-                  ("mean normalised innovation squared per dof", s["nis_mean"]),
+                  ("gyro bias, mean x, y, z (°/h)", s["gyro_bias_deg_h_mean"]),
+                  ("accelerometer bias, mean x, y, z (mg)", s["accel_bias_mg_mean"]),
+                  ("NIS per dimension, mean (unitless)", s["nis_mean"]),
                   ("events", s["events"]), ("epochs compared (after convergence)", s["compared_epochs"])])
     warn = []
     if s["nis_mean"] is not None and s["nis_mean"] > 2.0:
@@ -137,7 +140,11 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
              + ("; rows ukf_outages: the UKF alone on its epochs inside the GNSS outages" if outages else "")
              + f". Seed 000 (real flight, vs a vertical gyro): roll std {SEED000['roll']} deg, pitch std "
              f"{SEED000['pitch']} deg.")
-    rep.table(list(ACCURACY_COLUMNS), [[r.get(c) for c in ACCURACY_COLUMNS] for r in rows])
+    rep.table(["solution", "quantity", "unit", "median σ (unit column)", "mean error (unit column)",
+               "error std (unit column)", "error RMS (unit column)", "error/σ RMS"],
+              [[r.get("solution"), r.get("quantity"), r.get("unit")]
+               + [fmt_number(r.get(c), r.get("unit")) for c in ACCURACY_COLUMNS[3:7]]
+               + [fmt_number(r.get("normalised_rms"), "", decimals=2)] for r in rows])
     rep.heading("Sigma envelopes").figure(partial(_sigmas, res), "1-sigma of the UKF (and the smoother, dashed)")
     if res.truth is not None:
         rep.heading("Errors against the truth").figure(partial(_errors, res),
