@@ -37,7 +37,8 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
 from dgcal.fields.io.csv_tables import atomic_write, read_table
 from dgcal.fields.io.text_files import read_text
-from dgcal.fields.io.formats import Events, gps_seconds, read_events, week_sow
+from dgcal.fields.crs import MapGrid, height_unit_factor
+from dgcal.fields.io.formats import EOP, Events, gps_seconds, read_events, week_sow
 from dgcal.fields.io.timescales import gps_from_unix_gpst, gps_from_unix_utc, unix_from_calendar
 from dgcal.pos.ins.ulog import read_ulog_camera_capture
 
@@ -134,6 +135,28 @@ def pair_by_index(rec: MrkRecords, image_names, pattern: str = "DJI_{any}_{index
     rows = np.array(sorted(row[k] for k in by_index))
     return Events(image=np.array([by_index[int(rec.index[i])] for i in rows], dtype=object), t=rec.t[rows].copy(),
                   lines=rec.lines[rows].copy(), path=rec.path)
+
+
+def mrk_centres(rec: MrkRecords, crs: str, events: Events | None = None) -> EOP:
+    """Camera-centre priors from MRK rows: the compensated camera positions (DJI P1 manual) in map CRS `crs` with
+    sX, sY, sZ from the rows' sigmas E, N, V (NaN where 0); one per event of `events` (paired rows, e.g. from
+    `pair_by_index`), or one per row named as `rec.events()` names them. Angles NaN."""
+    ev = rec.events() if events is None else events
+    row = {int(ln): i for i, ln in enumerate(rec.lines)}
+    try:
+        rows = np.array([row[int(ln)] for ln in ev.lines], int)
+    except (KeyError, TypeError):
+        raise InputError("the events are not rows of this MRK file", rec.path, field="events") from None
+    grid = MapGrid(crs)
+    if grid.crs.is_geographic:
+        raise InputError(f"camera centres need a projected CRS, not the geographic {crs!r}", rec.path, field="crs")
+    xyz = grid.from_geodetic(rec.lat[rows], rec.lon[rows], rec.h[rows])
+    unit = height_unit_factor(grid.crs)
+    s = np.where(rec.sigma_nev_m[rows] > 0, rec.sigma_nev_m[rows], np.nan)    # a zero sigma is "not given"
+    sig = np.full((len(rows), 6), np.nan)
+    sig[:, 0], sig[:, 1], sig[:, 2] = s[:, 1] / unit, s[:, 0] / unit, s[:, 2] / grid.z_unit_m
+    return EOP(np.asarray(ev.image, dtype=object), xyz, np.full((len(rows), 3), np.nan), sig, None,
+               rec.lines[rows].copy(), rec.path)
 
 
 def pair_by_time_order(rec: MrkRecords, image_names) -> Events:

@@ -26,6 +26,7 @@ import numpy as np
 from dgcal.fields.crs import MapGrid, height_unit_factor
 from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
+from dgcal.fields.io.centres import read_centres
 from dgcal.fields.io.formats import EOP
 
 XMP_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
@@ -235,3 +236,19 @@ def dji_centres(images, crs: str, geoid_undulation_m: float = 0.0) -> EOP:
     sig[:, 0], sig[:, 1], sig[:, 2] = s_neu[:, 1] / unit, s_neu[:, 0] / unit, s_neu[:, 2] / grid.z_unit_m
     names = np.array([p.name for p in photos], dtype=object)
     return EOP(names, xyz, np.full((len(photos), 3), np.nan), sig, None, None, None)
+
+
+def read_any_centres(path: str | Path, crs: str, geoid_undulation_m: float = 0.0) -> EOP:
+    """Camera centres (`--gnss`) from a centres CSV (in `crs`), a folder of DJI JPEGs or one JPEG (converted into
+    `crs`), recognised by what `path` is and holds."""
+    p = Path(path)
+    if p.is_dir():
+        return dji_centres(p, crs, geoid_undulation_m)
+    try:
+        with open(p, "rb") as fh:
+            magic = fh.read(2)
+    except OSError:
+        magic = b""
+    if magic == b"\xff\xd8":
+        return dji_centres([p], crs, geoid_undulation_m)
+    return read_centres(p)

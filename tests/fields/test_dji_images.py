@@ -132,3 +132,18 @@ def test_centres_csv_round_trip_with_blank_angles(tmp_path):
     out.write_text(out.read_text().replace(",0.0110,", ",-0.0110,", 1))
     with pytest.raises(InputError, match=r"centres.csv:2: field 'sx'"):
         read_centres(out)
+
+
+def test_read_any_centres_folder_jpeg_or_csv(tmp_path):
+    from dgcal.fields.io.dji_images import read_any_centres
+    d = tmp_path / "imgs"
+    d.mkdir()
+    (d / "DJI_0001.JPG").write_bytes(jpeg_with([xmp_payload()]))
+    a = read_any_centres(d, "EPSG:32650")
+    b = read_any_centres(d / "DJI_0001.JPG", "EPSG:32650")
+    write_centres(tmp_path / "c.csv", a)
+    c = read_any_centres(tmp_path / "c.csv", "EPSG:32650")
+    assert list(a.image) == list(b.image) == list(c.image) == ["DJI_0001.JPG"]
+    assert np.allclose(a.xyz, c.xyz, atol=1e-4) and np.allclose(a.xyz, b.xyz)
+    with pytest.raises(InputError, match="projected CRS"):
+        read_any_centres(d, "EPSG:4326")

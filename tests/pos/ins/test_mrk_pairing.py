@@ -51,3 +51,18 @@ def test_pairing_errors(mrk):
         read_any_events(mrk, pairing="time")
     # the default names stay DJI_0001.JPG ...
     assert list(read_any_events(mrk).image) == ["DJI_0001.JPG", "DJI_0002.JPG", "DJI_0003.JPG"]
+
+
+def test_mrk_centres_are_the_rows_positions_in_the_map_crs(mrk):
+    import pyproj
+    from dgcal.pos.events import mrk_centres
+    rec = read_mrk(mrk)
+    ev = pair_by_index(rec, P1_NAMES[1:], "DJI_{any}_{index}.JPG")
+    c = mrk_centres(rec, "EPSG:32650", ev)
+    assert list(c.image) == P1_NAMES[1:] and list(c.lines) == [2, 4]
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:32650", always_xy=True).transform(rec.lon[1:], rec.lat[1:])
+    np.testing.assert_allclose(c.xyz, np.column_stack([x, y, rec.h[1:]]), atol=1e-6)
+    np.testing.assert_allclose(c.sigma[:, :3], rec.sigma_nev_m[1:][:, [1, 0, 2]])
+    assert np.isnan(c.opk).all() and list(mrk_centres(rec, "EPSG:32650").image)[0] == "DJI_0001.JPG"
+    with pytest.raises(InputError, match="projected CRS"):
+        mrk_centres(rec, "EPSG:4326")
