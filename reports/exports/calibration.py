@@ -16,10 +16,11 @@ files back into dgcal's convention (round trip exact to the printed digits: 1e-9
   boresight (rx, ry, rz) with R_camera_to_vehicle = Rz(rz) Ry(ry) Rx(rx) (deg).
 - Metashape (Reference settings / Camera Calibration > GPS/INS Offset): antenna offset = the position reference
   point (GNSS antenna, or the IMU when an IMU trajectory is imported) relative to the camera centre in the
-  camera frame (x right, y down, z forward), m; camera orientation offset (yaw, pitch, roll) = the rotation
-  between the nominal camera of the imported yaw/pitch/roll (nadir, image top to the heading) and the real one:
-  R_cam_to_body = R_CAM_TO_BODY_NADIR Rz(-yaw) Rx(pitch) Ry(roll), angles in deg, about the camera's own
-  z (view), x (right), y (down) axes.
+  camera frame (x right, y down, z forward), m; camera orientation offset (yaw, pitch, roll) = the camera's
+  Metashape yaw/pitch/roll on a level platform heading north: R_cam_to_body = R_ENU_TO_NED ypr2mat(yaw, pitch,
+  roll) diag(1, -1, -1) with Metashape's ypr2mat = Rz(-yaw) Rx(pitch) Ry(roll) (x right, y forward, z up), deg:
+  yaw +90 turns the image top to the right (clockwise, as a heading), pitch +90 looks forward, roll is right
+  wing down; the reference rotation angles must be imported as yaw/pitch/roll.
 - Pix4D (camera rig relatives / Image Properties Editor "lever arm"): the antenna or IMU relative to the camera
   in the camera frame (x right, y down, z forward) as Metashape, boresight as the PATB omega/phi/kappa of the
   photogrammetric camera (x right, y up, z back) in the body FRD frame: R_photo_to_body = Rx(om) Ry(ph) Rz(ka).
@@ -37,7 +38,7 @@ from scipy.spatial.transform import Rotation
 
 from dgcal.calib.mounting.common import MountingResult
 from dgcal.fields.errors import InputError
-from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, R_CV_TO_PHOTO
+from dgcal.fields.frames import R_CAM_TO_BODY_NADIR, R_CV_TO_PHOTO, R_ENU_TO_NED
 from dgcal.fields.io import validate
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.text_files import read_text
@@ -61,17 +62,17 @@ def _R_zyx(a) -> np.ndarray:
 
 
 def metashape_ypr_offset(R_cam_to_body: np.ndarray) -> np.ndarray:
-    """Metashape camera orientation offset (yaw, pitch, roll deg): R_cam_to_body = R_CAM_TO_BODY_NADIR
-    Rz(-yaw) Rx(pitch) Ry(roll) (rotations about the camera's z, x, y axes)."""
-    R_cam_to_nadir_cam = R_CAM_TO_BODY_NADIR.T @ np.asarray(R_cam_to_body, float)
-    mz, x, y = Rotation.from_matrix(R_cam_to_nadir_cam).as_euler("ZXY", degrees=True)
+    """Metashape camera orientation offset (yaw, pitch, roll deg): R_cam_to_body = R_ENU_TO_NED Rz(-yaw) Rx(pitch)
+    Ry(roll) diag(1, -1, -1), Metashape's ypr2mat in a level north-facing body (x right, y forward, z up)."""
+    R_ypr = R_ENU_TO_NED.T @ np.asarray(R_cam_to_body, float) @ R_CV_TO_PHOTO
+    mz, x, y = Rotation.from_matrix(R_ypr).as_euler("ZXY", degrees=True)
     return np.array([-mz, x, y])
 
 
 def R_cam_to_body_from_metashape_ypr(ypr) -> np.ndarray:
     """Inverse of `metashape_ypr_offset`."""
     yaw, pitch, roll = (float(v) for v in ypr)
-    return R_CAM_TO_BODY_NADIR @ Rotation.from_euler("ZXY", [-yaw, pitch, roll], degrees=True).as_matrix()
+    return R_ENU_TO_NED @ Rotation.from_euler("ZXY", [-yaw, pitch, roll], degrees=True).as_matrix() @ R_CV_TO_PHOTO
 
 
 def calibration_values(mount: MountingResult, fmt: str, reference_lever_arm_m=(0.0, 0.0, 0.0)) -> dict:
