@@ -11,9 +11,14 @@ files back into dgcal's convention (round trip exact to the printed digits: 1e-9
   (-y_cv), y = right (x_cv), z = viewing direction (z_cv); boresight angles (tx, ty, tz) = roll, pitch, heading
   (Z-Y-X) of the sensor frame in the vehicle frame: R_sensor_to_vehicle = Rz(tz) Ry(ty) Rx(tx) (deg and arc
   minutes).
-- Inertial Explorer (NovAtel Waypoint): vehicle frame x right, y forward, z up (RFU): lever arm IMU -> camera in
-  it; camera frame of a nominal nadir camera x right, y = top of the image, z up (back, photogrammetric);
-  boresight (rx, ry, rz) with R_camera_to_vehicle = Rz(rz) Ry(ry) Rx(rx) (deg).
+- Inertial Explorer (NovAtel Waypoint): vehicle frame x right, y forward, z up (RFU, IE's body frame, attitude
+  Rz(-heading) Rx(pitch) Ry(roll)): lever arm IMU -> camera in it. IE's Boresight Settings > Axes selects the
+  image system; its default, the conventional frame, is x forward, y left, z up. This file assumes instead the
+  image system x right, y forward (image top), z up: the camera's photogrammetric axes (x right, y image top,
+  z back) of a nadir camera with the image top forward; choose that Axes setting in IE. Boresight (rx, ry, rz)
+  with R_camera_to_vehicle = Rz(rz) Ry(ry) Rx(rx) (deg), zero for the nominal mount. IE's boresight equations
+  (Waypoint manual, appendix Boresight equations) were not available as text: check the angles once against IE's
+  Solve Boresight on the calibration flight.
 - Metashape (Reference settings / Camera Calibration > GPS/INS Offset): antenna offset = the position reference
   point (GNSS antenna, or the IMU when an IMU trajectory is imported) relative to the camera centre in the
   camera frame (x right, y down, z forward), m; camera orientation offset (yaw, pitch, roll) = the camera's
@@ -89,6 +94,8 @@ def calibration_values(mount: MountingResult, fmt: str, reference_lever_arm_m=(0
     elif fmt == "inertial-explorer":
         R_ie_cam_to_rfu = R_FRD_TO_RFU @ R_cam_to_body @ R_CV_TO_IE.T
         out.update(lever_arm_xyz_m=(R_FRD_TO_RFU @ l_b).tolist(), frame="vehicle x right, y forward, z up",
+                   image_axes_setting="x right, y forward, z up (not IE's default conventional frame x forward, "
+                                      "y left, z up)",
                    boresight_rx_ry_rz_deg=_zyx(R_ie_cam_to_rfu).tolist())
     elif fmt == "metashape":
         out.update(antenna_offset_xyz_m=(R_cam_to_body.T @ (ref - l_b)).tolist(),

@@ -192,3 +192,20 @@ def test_colmap_model_projects_to_the_true_pixels_with_pycolmap(flight, tmp_path
     # the camera's fraser7 B1/B2 are fitted into COLMAP's OPENCV model, to within the error georef.json states
     assert n > 50 and worst < geo["camera_conversion_max_error_px"] + 0.02, worst
     assert worst_conj > 5
+
+
+def test_inertial_explorer_lever_arm_and_stated_axes(tmp_path):
+    """IE's body frame x right, y forward, z up with attitude R_body_to_ENU = Rz(-heading) Rx(pitch) Ry(roll)
+    (Waypoint manual sec. 3.8.2.4): the camera IE places from dgcal's lever arm is where dgcal's FRD lever arm with
+    R_body_to_NED = Rz(heading) Ry(pitch) Rx(roll) puts it; the file names the Axes setting it assumes."""
+    from dgcal.reports.exports.calibration import write_calibration_export
+    m = _mount(Rotation.from_rotvec([0.01, -0.02, 0.03]).as_matrix() @ metashape_R_cam_to_body((0, 0, 0)))
+    v = write_calibration_export(tmp_path / "ie.txt", m, "inertial-explorer")
+    text = (tmp_path / "ie.txt").read_text()
+    assert "Axes" in text and "x right, y forward, z up" in text and "x forward, y left, z up" in text
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        roll, pitch, heading = rng.normal(0, 10), rng.normal(0, 10), rng.uniform(0, 360)
+        enu_ie = _rz(-heading) @ _rx(pitch) @ _ry(roll) @ np.array(v["lever_arm_xyz_m"])
+        ned = _rz(heading) @ _ry(pitch) @ _rx(roll) @ m.lever_arm_m
+        assert np.allclose(enu_ie, [ned[1], ned[0], -ned[2]], atol=1e-9)
