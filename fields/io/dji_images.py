@@ -16,10 +16,12 @@ Sigmas: RtkStdLat/Lon/Hgt when present and positive, else by RtkFlag: fixed (50)
 """
 from __future__ import annotations
 
+import io
 import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -53,29 +55,40 @@ class DjiPhoto:
     tags: dict[str, str] = field(default_factory=dict, repr=False)
 
 
-def jpeg_app1_segments(data: bytes, path: Path | None = None) -> list[bytes]:
-    """The payloads of a JPEG's APP1 segments (EXIF, XMP), read up to the start of the scan."""
-    if data[:2] != b"\xff\xd8":
+def jpeg_app1_segments(data: bytes | BinaryIO, path: Path | None = None) -> list[bytes]:
+    """The payloads of a JPEG's APP1 segments (EXIF, XMP), read up to the start of the scan: only the segment
+    headers and the APP1 payloads are read from a file (the previews DJI stores in APP2 are skipped over)."""
+    fh = io.BytesIO(data) if isinstance(data, (bytes, bytearray)) else data
+    if fh.read(2) != b"\xff\xd8":
         raise InputError("not a JPEG file (no SOI marker)", path, field="image")
-    out, i, n = [], 2, len(data)
-    while i + 4 <= n:
-        if data[i] != 0xFF:
-            raise InputError(f"damaged JPEG: no segment marker at byte {i}", path, field="image")
-        marker = data[i + 1]
+    out = []
+    while True:
+        pos = fh.tell()
+        head = fh.read(2)
+        if len(head) < 2:
+            break
+        if head[0] != 0xFF:
+            raise InputError(f"damaged JPEG: no segment marker at byte {pos}", path, field="image")
+        marker = head[1]
         if marker == 0xFF:               # fill byte
-            i += 1
+            fh.seek(pos + 1)
             continue
         if marker in (0xD9, 0xDA):       # end of image / start of scan: no metadata after it
             break
         if 0xD0 <= marker <= 0xD7 or marker == 0x01:
-            i += 2
             continue
-        length = struct.unpack(">H", data[i + 2:i + 4])[0]
-        if length < 2 or i + 2 + length > n:
-            raise InputError(f"damaged JPEG: segment at byte {i} runs past the end of the file", path, field="image")
+        raw = fh.read(2)
+        length = struct.unpack(">H", raw)[0] if len(raw) == 2 else 0
+        if length < 2:
+            raise InputError(f"damaged JPEG: bad segment length at byte {pos}", path, field="image")
         if marker == 0xE1:
-            out.append(data[i + 4:i + 2 + length])
-        i += 2 + length
+            payload = fh.read(length - 2)
+            if len(payload) < length - 2:
+                raise InputError(f"damaged JPEG: segment at byte {pos} runs past the end of the file", path,
+                                 field="image")
+            out.append(payload)
+        else:
+            fh.seek(length - 2, io.SEEK_CUR)
     return out
 
 
@@ -155,10 +168,9 @@ def read_dji_photo(path: str | Path, geoid_undulation_m: float = 0.0) -> DjiPhot
     path = Path(path)
     try:
         with open(path, "rb") as fh:
-            data = fh.read(1 << 20)      # DJI puts EXIF and XMP in the first kilobytes; 1 MiB covers thumbnails
+            segs = jpeg_app1_segments(fh, path)
     except OSError as exc:
         raise InputError(f"cannot read image ({exc.strerror})", path, field="image") from None
-    segs = jpeg_app1_segments(data, path)
     tags = dji_xmp_tags(segs)
     lat = _tag_number(tags, ("GpsLatitude", "Latitude"), path, -90, 90, "deg")
     lon = _tag_number(tags, ("GpsLongitude", "GpsLongtitude", "Longitude"), path, -180, 180, "deg")

@@ -147,3 +147,12 @@ def test_read_any_centres_folder_jpeg_or_csv(tmp_path):
     assert np.allclose(a.xyz, c.xyz, atol=1e-4) and np.allclose(a.xyz, b.xyz)
     with pytest.raises(InputError, match="projected CRS"):
         read_any_centres(d, "EPSG:4326")
+
+
+def test_large_preview_segments_before_the_xmp_are_skipped(tmp_path):
+    """DJI stores previews in APP2 segments: metadata after 2 MB of them is still found (headers only are read)."""
+    data = jpeg_with([xmp_payload()])
+    app2 = b"\xff\xe2" + struct.pack(">H", 65535) + b"\x00" * 65533
+    p = tmp_path / "big.jpg"
+    p.write_bytes(data[:2] + app2 * 32 + data[2:])
+    assert read_dji_photo(p).rtk_flag == 50
