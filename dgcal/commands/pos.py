@@ -45,6 +45,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rinex-obs", metavar="OBS", help="RINEX 2.10/2.11/3.x observation file of the rover")
     p.add_argument("--rinex-nav", metavar="NAV", nargs="+",
                    help="RINEX 3 (mixed) or RINEX 2 GPS broadcast navigation file(s)")
+    p.add_argument("--sp3", metavar="SP3", nargs="+", default=None,
+                   help="precise orbits (SP3-c/d, plain or .gz; with their own clocks unless --clk) for spp, ppk and "
+                   "tc: every satellite's orbit and clock from them; --rinex-nav still gives group delays and "
+                   "ionosphere (docs/gnss.md)")
+    p.add_argument("--clk", metavar="CLK", nargs="+", default=None,
+                   help="precise satellite clocks (RINEX clock files, plain or .gz) beside --sp3")
     p.add_argument("--mode", choices=("spp", "ppk", "tc", "lc", "ukf"), default="spp",
                    help="spp: GNSS code only; ppk: carrier-phase PPK against --rinex-base; tc: tightly coupled "
                    "GNSS/INS; lc: loosely coupled; ukf: seed 000's 15-state UKF on the fixes (--gnss or SPP), "
@@ -160,6 +166,14 @@ def _other_modes(mode: str) -> dict:
     return {m: (cls(mode=m) if m in ("tc", "lc") else cls()) for m, cls in MODE_OPTIONS.items() if m != mode}
 
 
+def _nav_files(args: argparse.Namespace) -> tuple:
+    """--rinex-nav's files, then --sp3's and --clk's (each checked to be what its flag says): the navigation
+    files every mode reads together (dgcal.pos.gnss.rinex.read_rinex_nav tells them apart by content)."""
+    from dgcal.pos.gnss.precise import require_kind
+    return (tuple(args.rinex_nav or ()) + tuple(require_kind(f, "sp3", "--sp3") for f in args.sp3 or ())
+            + tuple(require_kind(f, "clk", "--clk") for f in args.clk or ()))
+
+
 def spp_mode_options(args: argparse.Namespace):
     """The dgcal.pos.gnss.spp_mode.SppModeOptions of a parsed `dgcal pos` command line (GNSS modules only)."""
     from dgcal.pos.gnss.spp import SppOptions
@@ -167,7 +181,7 @@ def spp_mode_options(args: argparse.Namespace):
     spp = SppOptions(elev_mask_deg=args.elev_mask, code_sigma_zenith_m=args.code_sigma,
                      doppler_sigma_zenith_mps=args.doppler_sigma, systems=_systems(args.systems),
                      raim=not args.no_raim, iono=args.iono)
-    return SppModeOptions(RinexInput(args.rinex_obs, tuple(args.rinex_nav or ()), args.t_start, args.t_end), spp,
+    return SppModeOptions(RinexInput(args.rinex_obs, _nav_files(args), args.t_start, args.t_end), spp,
                           None if args.reference is None else tuple(args.reference), not args.no_progress)
 
 
@@ -182,7 +196,7 @@ def pos_options(args: argparse.Namespace):
                                             RinexInput, UkfModeOptions)
         tup = lambda v: None if v is None else tuple(v)  # noqa: E731
         spp = spp_mode_options(args).spp
-        rover = RinexInput(args.rinex_obs, tuple(args.rinex_nav or ()), args.t_start, args.t_end)
+        rover = RinexInput(args.rinex_obs, _nav_files(args), args.t_start, args.t_end)
         base = BaseStation(args.rinex_base, tup(args.base_position), tup(args.base_position_llh))
         ppk_common = dict(systems="".join(spp.systems), n_freq=args.frequencies, elev_mask_deg=args.elev_mask,
                           ar_elev_mask_deg=args.elev_mask, ratio_threshold=args.ar_ratio)

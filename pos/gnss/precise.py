@@ -70,6 +70,18 @@ def product_kind(path: str | Path, first_line: str | None = None) -> str:
     return "nav"
 
 
+_KIND_NAMES = {"sp3": "an SP3 orbit file (first line #c or #d)", "clk": "a RINEX clock file (type 'C')",
+               "atx": "an ANTEX file", "nav": "a RINEX navigation file"}
+
+
+def require_kind(path: str | Path, kind: str, field: str) -> Path:
+    """`path` if its content is of `kind` ("sp3", "clk"), else an `InputError` naming the file and `field`."""
+    path = Path(path)
+    if product_kind(path) != kind:
+        raise InputError(f"not {_KIND_NAMES[kind]}", path, 1, field)
+    return path
+
+
 def _gps_seconds(y: int, mo: int, d: int, h: int, mi: int, s: float) -> float:
     """Calendar epoch (any time scale) -> continuous seconds since the GPS epoch in that scale."""
     days = _dt.date(y, mo, d).toordinal() - _GPS_EPOCH_DAYS

@@ -16,7 +16,8 @@ class RinexInput:
     """A receiver's RINEX observations with the broadcast navigation file(s) and the time span to use."""
 
     rinex_obs: Path | None = None           # RINEX 2.10/2.11/3.x observations
-    rinex_nav: tuple[Path, ...] = ()        # broadcast navigation file(s): the first, then any others merged
+    rinex_nav: tuple[Path, ...] = ()        # broadcast navigation file(s), merged; SP3 orbits and RINEX clock files
+    #                                         among them are precise products (recognised by content)
     t_start: float | None = None            # first epoch, continuous GPS seconds
     t_end: float | None = None              # last epoch, continuous GPS seconds
 

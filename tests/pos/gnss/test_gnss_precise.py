@@ -5,7 +5,9 @@ Real products: CODE's final multi-GNSS SP3 of 2021-03-19 (tests/pos/gnss/data, c
 ../shared/data/rinex-sept and rinex-3034. CODE's 30 s clock file of that day is not available: the SP3's own
 5-minute clocks are used, and the RINEX clock reader is checked on files written from broadcast clocks.
 """
+import csv
 import gzip
+import json
 import tempfile
 from pathlib import Path
 
@@ -15,6 +17,7 @@ from cssrlib.gnss import Nav, gpst2time, id2sat
 from cssrlib.peph import peph
 from cssrlib.rinex import rnxdec
 
+from dgcal.cli import main
 from dgcal.fields.errors import InputError
 from dgcal.pos.gnss.ephemeris import precise_group_delay_s, satellite_states, select_ephemeris
 from dgcal.pos.gnss.precise import (read_precise, read_rinex_clock, read_sp3, write_rinex_clock, write_sp3)
@@ -194,3 +197,58 @@ def test_sp3_and_clock_errors_name_file_line_field(tmp_path):
 def test_precise_products_need_a_broadcast_file(shared_data):
     with pytest.raises(InputError, match="broadcast navigation file"):
         read_rinex_nav(SP3)
+
+
+BASE = "rinex-3034/3034078M1.21O"
+BASE_ECEF = [-3959400.631, 3385704.533, 3667523.111]
+
+
+def _gnss_csv(out: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    with open(out / "gnss.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    t = np.array([float(r["gps_week"]) * 604800.0 + float(r["gps_sow"]) for r in rows])
+    p = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
+    fix = np.array([r.get("fix", "single") for r in rows])
+    return t, p, fix
+
+
+def test_cli_spp_and_ppk_with_sp3_beside_rtklib(shared_data, tmp_path, capsys):
+    """`dgcal pos --sp3` on the real minute: SPP says which orbits it used; PPK of the 5.3 km baseline with CODE's
+    SP3 fixes as with broadcast orbits and agrees with RTKLIB's PPK on the same SP3 to 1 cm per fixed epoch
+    (both within 2 cm of the known rover position). A file of the wrong kind after --sp3 is refused."""
+    from dgcal.pos.gnss.rtklib import rtklib_ppk
+
+    common = ["--rinex-obs", str(shared_data / OBS), "--rinex-nav", str(shared_data / NAV), "--sp3", str(SP3),
+              "--no-progress", "--no-report"]
+    assert main(["pos", "--mode", "spp", *common, "--out", str(tmp_path / "spp")]) == 0
+    s = json.loads((tmp_path / "spp" / "gnss_summary.json").read_text())
+    assert s["orbits"] == f"SP3 {SP3.name} (its own clocks)" and str(SP3) in s["rinex_nav"]
+    assert any("antenna offsets not applied" in w for w in s["warnings"])
+    assert main(["pos", "--mode", "ppk", *common, "--rinex-base", str(shared_data / BASE), "--base-position",
+                 *map(str, BASE_ECEF), "--systems", "GEJ", "--out", str(tmp_path / "ppk")]) == 0
+    t, p, fix = _gnss_csv(tmp_path / "ppk")
+    fixed = fix == "fixed"
+    err = np.linalg.norm(p[fixed] - REF, axis=1)
+    d = read_sp3(SP3)
+    keep = [j for j, sid in enumerate(d.sats) if sid[0] in "GEJ"]      # RTKLIB 2.4.3: at most 85 satellites
+    sub = tmp_path / "gej.sp3"
+    write_sp3(sub, d.t, [d.sats[j] for j in keep], d.p[:, keep], d.clk[:, keep])
+    rk = rtklib_ppk(str(shared_data / OBS), str(shared_data / NAV), str(shared_data / BASE), BASE_ECEF,
+                    systems="GEJ", precise=[str(sub)])
+    rf = rk["q"] == 1
+    both, ia, ib = np.intersect1d(np.round(t[fixed], 3), np.round(rk["t_gps"][rf], 3), return_indices=True)
+    apart = np.linalg.norm(p[fixed][ia] - rk["p_ecef"][rf][ib], axis=1)
+    err_rk = np.linalg.norm(rk["p_ecef"][rf] - REF, axis=1)
+    print(f"PPK with SP3: dgcal {fixed.mean():.0%} fixed, 3D RMS {1e3 * np.sqrt(np.mean(err ** 2)):.1f} mm; "
+          f"RTKLIB {rf.mean():.0%} fixed, {1e3 * np.sqrt(np.mean(err_rk ** 2)):.1f} mm; apart max "
+          f"{1e3 * apart.max():.1f} mm over {len(both)} common fixed epochs")
+    assert fixed.mean() >= 0.8 and rf.mean() >= 0.8 and len(both) >= 40
+    assert np.sqrt(np.mean(err ** 2)) < 0.02 and np.sqrt(np.mean(err_rk ** 2)) < 0.02
+    assert apart.max() < 0.01
+    wrong = ["pos", "--mode", "spp", "--rinex-obs", str(shared_data / OBS), "--rinex-nav", str(shared_data / NAV),
+             "--sp3", str(shared_data / NAV), "--no-progress", "--no-report", "--out", str(tmp_path / "wrong")]
+    capsys.readouterr()
+    assert main(wrong) == 2
+    err = capsys.readouterr().err.strip()
+    assert "not an SP3 orbit file" in err and "SEPT078M.21P" in err and "--sp3" in err and "\n" not in err
+    assert not (tmp_path / "wrong").exists()
