@@ -27,6 +27,7 @@ import numpy as np
 
 from dgcal.fields.crs import MapGrid, height_unit_factor
 from dgcal.fields.errors import InputError
+from dgcal.fields.frames import R_NED_TO_ENU, R_body_to_ned_from_rph, R_enu_to_grid, opk_from_R_cam_to_map
 from dgcal.fields.io import validate
 from dgcal.fields.io.centres import read_centres
 from dgcal.fields.io.formats import EOP
@@ -228,9 +229,10 @@ def list_jpegs(folder: str | Path) -> list[Path]:
     return files
 
 
-def dji_centres(images, crs: str, geoid_undulation_m: float = 0.0) -> EOP:
+def dji_centres(images, crs: str, geoid_undulation_m: float = 0.0, angles: bool = False) -> EOP:
     """Camera centres of DJI JPEGs (a folder or a list of files) as an EOP in map CRS `crs` (X, Y, Z in its
-    units, ellipsoidal heights), sigmas sX,sY,sZ from the photos (see `photo_sigma_m`), angles NaN."""
+    units, ellipsoidal heights), sigmas sX,sY,sZ from the photos (see `photo_sigma_m`); angles NaN, or with
+    `angles` the PATB omega/phi/kappa (deg, grid axes) of the gimbal attitude (`gimbal_opk`) as approximations."""
     files = list_jpegs(images) if isinstance(images, (str, Path)) and Path(images).is_dir() else \
         [Path(p) for p in images]
     photos = [read_dji_photo(p, geoid_undulation_m) for p in files]
@@ -246,8 +248,29 @@ def dji_centres(images, crs: str, geoid_undulation_m: float = 0.0) -> EOP:
     s_neu = np.array([photo_sigma_m(p) for p in photos])
     sig = np.full((len(photos), 6), np.nan)
     sig[:, 0], sig[:, 1], sig[:, 2] = s_neu[:, 1] / unit, s_neu[:, 0] / unit, s_neu[:, 2] / grid.z_unit_m
+    opk = np.full((len(photos), 3), np.nan)
+    if angles:
+        rpy = np.array([p.gimbal_rpy_deg if p.gimbal_rpy_deg is not None else (np.nan,) * 3 for p in photos])
+        ok = np.isfinite(rpy).all(axis=1)
+        if ok.any():
+            opk[ok] = gimbal_opk(rpy[ok], grid.convergence_deg(lat[ok], lon[ok]))
     names = np.array([p.name for p in photos], dtype=object)
-    return EOP(names, xyz, np.full((len(photos), 3), np.nan), sig, None, None, None)
+    return EOP(names, xyz, opk, sig, None, None, None)
+
+
+# the CV camera axes in DJI's gimbal frame (x along the optical axis at zero pitch, y right, z down):
+# x_cam = gimbal y, y_cam = gimbal z, z_cam = gimbal x
+R_CAM_TO_GIMBAL = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def gimbal_opk(rpy_deg: np.ndarray, convergence_deg) -> np.ndarray:
+    """PATB omega, phi, kappa (deg, grid axes) of cameras from DJI gimbal roll, pitch, yaw (deg; NED, Z-Y-X as DJI's
+    manuals state) and the meridian convergence at the cameras (deg): nadir (pitch -90) with yaw 0 is (0, 0, 0)."""
+    rpy = np.asarray(rpy_deg, float).reshape(-1, 3)
+    R_gimbal_to_ned = R_body_to_ned_from_rph(rpy[:, 0], rpy[:, 1], rpy[:, 2])
+    R_cam_to_grid = R_enu_to_grid(np.asarray(convergence_deg, float).reshape(-1)) @ R_NED_TO_ENU @ \
+        R_gimbal_to_ned @ R_CAM_TO_GIMBAL
+    return opk_from_R_cam_to_map(R_cam_to_grid)
 
 
 def read_any_centres(path: str | Path, crs: str, geoid_undulation_m: float = 0.0) -> EOP:

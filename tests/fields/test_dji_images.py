@@ -156,3 +156,24 @@ def test_large_preview_segments_before_the_xmp_are_skipped(tmp_path):
     p = tmp_path / "big.jpg"
     p.write_bytes(data[:2] + app2 * 32 + data[2:])
     assert read_dji_photo(p).rtk_flag == 50
+
+
+def test_gimbal_angles_as_patb():
+    from dgcal.fields.frames import R_cam_to_map_from_opk
+    from dgcal.fields.io.dji_images import gimbal_opk
+    # nadir, image top to north: (0, 0, 0); image top to east: kappa -90 (photo y axis -> east)
+    assert np.allclose(gimbal_opk([[0.0, -90.0, 0.0]], 0.0), [[0, 0, 0]], atol=1e-9)
+    assert np.allclose(gimbal_opk([[0.0, -90.0, 90.0]], 0.0), [[0, 0, -90]], atol=1e-9)
+    # with a convergence of 1.1 deg (grid north 1.1 deg east of true north) a true-north image top has kappa +1.1
+    assert np.allclose(gimbal_opk([[0.0, -90.0, 0.0]], 1.1), [[0, 0, 1.1]], atol=1e-9)
+    # an oblique view (pitch -60, yaw 30): the optical axis points 30 deg east of north, 60 deg below the horizon
+    R = R_cam_to_map_from_opk(*gimbal_opk([[0.0, -60.0, 30.0]], 0.0)[0])
+    z = R[:, 2]
+    assert np.allclose(z, [np.sin(np.radians(30)) * 0.5, np.cos(np.radians(30)) * 0.5, -np.sin(np.radians(60))])
+    assert R[2, 0] == pytest.approx(0.0, abs=1e-12)       # zero roll: the image x axis stays level
+
+
+def test_centres_with_gimbal_angles(tmp_path):
+    (tmp_path / "a.JPG").write_bytes(jpeg_with([xmp_payload()]))
+    eop = dji_centres(tmp_path, "EPSG:32650", angles=True)
+    assert np.isfinite(eop.opk).all() and abs(eop.opk[0, 0]) < 1e-6
