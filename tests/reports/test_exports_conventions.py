@@ -209,3 +209,13 @@ def test_inertial_explorer_lever_arm_and_stated_axes(tmp_path):
         enu_ie = _rz(-heading) @ _rx(pitch) @ _ry(roll) @ np.array(v["lever_arm_xyz_m"])
         ned = _rz(heading) @ _ry(pitch) @ _rx(roll) @ m.lever_arm_m
         assert np.allclose(enu_ie, [ned[1], ned[0], -ned[2]], atol=1e-9)
+
+
+def test_odm_geo_yaw_is_not_a_heading(tmp_path):
+    """What docs/formats.md says of geo.txt: for a level camera the yaw ODM's compute_opk needs is the heading of the
+    image top + the longitude + 90 deg (- 90 deg south of the equator), pitch and roll 0."""
+    from dgcal.reports.exports.eop import odm_ypr_for_opk
+    for lat, lon, heading in ((40.0, -105.0, 0.0), (24.0, 121.3, 75.0), (-33.9, 151.2, 200.0), (-5.0, -60.0, 310.0)):
+        ypr = odm_ypr_for_opk(lat, lon, 100.0, np.array([[0.0, 0.0, -heading]]))[0]   # kappa = -heading (PATB)
+        expected = heading + lon + (90.0 if lat > 0 else -90.0)
+        assert abs((ypr[0] - expected + 180) % 360 - 180) < 1e-4 and np.allclose(ypr[1:], 0, atol=1e-6), ypr
