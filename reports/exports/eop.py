@@ -2,14 +2,15 @@
 orientation file, Metashape OPK CSV, ODM `geo.txt`, and dgcal's eop.csv.
 
 Angles: Pix4D and Metashape files carry PATB omega/phi/kappa in degrees exactly as dgcal's EOP file
-(M = Rx(omega) Ry(phi) Rz(kappa) from photo axes x right, y up, z back to the map CRS axes); the Pix4D header
-is Pix4D's own `imageName X Y Z Omega Phi Kappa`.
-ODM geo.txt carries yaw, pitch, roll (ODM's convention for a nadir camera: yaw 0 = image top to north, pitch
-0 = nadir, roll 0), which ODM/OpenSfM turn into omega/phi/kappa with `odm_opk_from_ypr` (a copy of
-opendm/photo.py `compute_opk`, also opensfm/exif.py `extract_opk`) and then into the camera rotation in the
-local level frame (opensfm geometry.rotation_from_opk: the PATB matrix, world East, North, Up). That formula
-builds its "NED to world" matrix from the ECEF north vector and (0, 0, -1), so it is no rotation away from
-longitude -90 deg: the yaw/pitch/roll a camera's attitude would give come out as other omega/phi/kappa.
+(M = Rx(omega) Ry(phi) Rz(kappa) from photo axes x right, y up, z back to the map CRS axes), Pix4D's own
+definition (support.pix4d.com art. 202559089) and Metashape's for its "Omega, Phi, Kappa" rotation angles; the
+Pix4D header is Pix4D's own `imageName X Y Z Omega Phi Kappa`.
+ODM geo.txt carries yaw, pitch, roll, which ODM turns into omega/phi/kappa with opendm/photo.py `compute_opk`
+(copied here as `odm_opk_from_ypr`) and OpenSfM into the camera rotation in the local level frame
+(opensfm geometry.rotation_from_opk: the PATB matrix, world East, North, Up). ODM's comments mean yaw 0 = image
+top to north, pitch 0 = nadir, but `compute_opk` builds its "NED to world" matrix from the ECEF north vector and
+ECEF (0, 0, -1), so the angles of that meaning come out as other omega/phi/kappa (for a level camera the yaw it
+needs is the heading + the longitude + 90 deg, - 90 deg south of the equator).
 `write_odm_geo` therefore writes the yaw/pitch/roll that ODM's own formula turns into the camera's true
 omega/phi/kappa (solved per image by Newton's method, 1e-10 deg) in the local East/North/Up frame at the
 camera (the EOP's grid angles turned by the meridian convergence); `read_odm_geo` reads them back the way
