@@ -66,7 +66,7 @@ def test_single_axis_conventions():
     ie = calibration_values(m, "inertial-explorer")["boresight_rx_ry_rz_deg"]
     assert abs(abs(ie[0]) - 2.0) < 1e-9 and abs(ie[1]) < 1e-9 and abs(ie[2]) < 1e-9
     ypr = metashape_ypr_offset(R)
-    assert np.allclose(np.abs(ypr), [0, 2, 0], atol=1e-9)
+    assert np.allclose(ypr, [0, 2, 0], atol=1e-9)                      # nose-up: Metashape pitch +2
     assert _angle_deg(R_cam_to_body_from_metashape_ypr(ypr), R) < 1e-9
 
 
