@@ -51,14 +51,16 @@ def pixels_to_mm(xy_px: np.ndarray, image_size: tuple[int, int], pixel_size_mm: 
 
 
 def is_bingo(path: str | Path) -> bool:
-    """True when a text file looks like BINGO image measurements: a header line, `id x y` rows, a `-99` line."""
+    """True when a text file looks like BINGO image measurements: a header line, `id x y` rows (numbers), `-99`
+    or blank lines between images."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(8192).decode("utf-8", "replace").lstrip("\ufeff")
     except OSError:
         return False
     lines = [ln.split() for ln in head.splitlines() if ln.strip()]
-    if len(lines) < 3 or [END] not in lines or "," in lines[0][0]:
+    # Pix4D's article shows images separated by blank lines: `-99` is not required to recognise the layout
+    if len(lines) < 2 or "," in lines[0][0]:
         return False
     first, rows = lines[0], lines[1:20]
     return len(first) in (1, 2) and first != [END] and len(rows[0]) == 3 and all(

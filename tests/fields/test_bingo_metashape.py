@@ -167,3 +167,15 @@ def test_metashape_errors_name_line_and_field(tmp_path, old, new, line, field):
     assert f"markers.xml:{line}:" in str(exc.value)
     if field:
         assert f"field '{field}'" in str(exc.value)
+
+
+def test_pix4d_article_example_with_blank_lines(tmp_path):
+    """The example of Pix4D's article 203590305 (images separated by blank lines, no -99) reads by content."""
+    from dgcal.fields.io.gcp_files import read_any_measurements
+    p = tmp_path / "project_bingo.txt"
+    p.write_text("P1060498 H_8.07_6.0525\n1006 -1.90643 1.83493\n1020 2.00132 -0.797681\n\n"
+                 "P1060499 H_8.07_6.0525\n\n1006 -2.42102 1.87814\n1020 2.15263 -0.33399\n")
+    assert is_bingo(p)
+    m, _, _ = read_any_measurements(p, (4000, 3000), 0.0015, ["P1060498.JPG", "P1060499.JPG"])
+    assert list(m.image) == ["P1060498.JPG"] * 2 + ["P1060499.JPG"] * 2 and list(m.id) == ["1006", "1020"] * 2
+    assert np.allclose(m.xy[0], [1999.5 - 1.90643 / 0.0015, 1499.5 - 1.83493 / 0.0015])
