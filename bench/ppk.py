@@ -5,6 +5,8 @@ Run:
     .venv/bin/python bench/ppk.py ROVER NAV BASE X Y Z  # any rover + base (ECEF m of the base), e.g. a moving one:
                                                         # two and three frequencies
     .venv/bin/python bench/ppk.py sim uav|car [SEEDS]   # simulated rovers (dgcal.sim.rover_motion), truth known
+    .venv/bin/python bench/ppk.py precise               # the static baseline with CODE's SP3 beside RTKLIB 2.4.3
+                                                        # (pyrtklib) with the same SP3, and both with broadcast
 
 Prints per engine: epochs, fix rate (combined, forward, backward), time per epoch; against the truth (static
 point or simulation): fixed-epoch 3D RMS, wrong fixes (> 10 cm while fixed) and dgcal's error/sigma RMS and maximum;
@@ -148,8 +150,53 @@ def simulated(kind: str, seeds) -> None:
         print("\n".join(truth_lines(res, sec, sim.carrier.truth["p_ecef"], demo5)))
 
 
+PRECISE_SP3 = ROOT / "tests" / "pos" / "gnss" / "data" / "COD0MGXFIN_20210781100_02H_05M_ORB.SP3.gz"
+
+
+def precise() -> None:
+    """The static baseline with CODE's final MGEX SP3 of the day (orbits and its 5-minute clocks) and with broadcast
+    orbits, dgcal beside RTKLIB 2.4.3 (pyrtklib, not demo5: one process cannot hold both) with the same products.
+    RTKLIB 2.4.3 reads at most 85 satellites of an SP3 file: it gets the file's GPS/Galileo/QZSS records."""
+    from dgcal.pos.gnss.carrier import carrier_observations
+    from dgcal.pos.gnss.ppk import STATUS, PpkOptions, ppk
+    from dgcal.pos.gnss.precise import read_sp3, write_sp3
+    from dgcal.pos.gnss.rinex import read_rinex_nav
+    from dgcal.pos.gnss.rinex_obs import read_obs_file
+    from dgcal.pos.gnss.rtklib import rtklib_ppk
+    rover, nav, base, base_pos = (str(v) if not isinstance(v, list) else v for v in STATIC)
+    r = carrier_observations(read_obs_file(rover), systems="GEJ")
+    b = carrier_observations(read_obs_file(base), systems="GEJ")
+    d = read_sp3(PRECISE_SP3)
+    keep = [j for j, s in enumerate(d.sats) if s[0] in "GEJ"]
+    with tempfile.TemporaryDirectory() as tmp:
+        sub = str(Path(tmp) / "gej.sp3")
+        write_sp3(sub, d.t, [d.sats[j] for j in keep], d.p[:, keep], d.clk[:, keep])
+        print("static 5.3 km baseline (rinex-sept / rinex-3034), GPS + Galileo + QZSS, against the known rover")
+        for label, ours, theirs in (("broadcast", [], []), ("CODE SP3", [PRECISE_SP3], [sub])):
+            nv = read_rinex_nav(nav, ours)
+            t0 = time.perf_counter()
+            res = ppk(r, b, nv, base_pos, PpkOptions(systems="GEJ"), p_init=r.p_approx_ecef)
+            sec = time.perf_counter() - t0
+            rk = rtklib_ppk(rover, nav, base, base_pos, systems="GEJ", precise=theirs, engine="rtklib")
+            fx = res.status == STATUS.index("fixed")
+            rf = rk["q"] == 1
+            e = np.linalg.norm(res.p[fx] - STATIC_REF, axis=1)
+            er = np.linalg.norm(rk["p_ecef"][rf] - STATIC_REF, axis=1)
+            i = _on(res.t_gps[fx], rk["t_gps"][rf])
+            apart = np.linalg.norm(res.p[fx][i >= 0] - rk["p_ecef"][rf][i[i >= 0]], axis=1)
+            print(f"  {label:10s} dgcal {100 * fx.mean():5.1f} % fixed, 3D RMS "
+                  f"{1e3 * np.sqrt(np.mean(e ** 2)):5.1f} mm, {1e3 * sec / len(res.t_gps):5.2f} ms/epoch | RTKLIB "
+                  f"{100 * rf.mean():5.1f} % fixed, 3D RMS "
+                  f"{1e3 * np.sqrt(np.mean(er ** 2)):5.1f} mm, {1e3 * rk['run_s'] / max(len(rk['t_gps']), 1):5.2f} "
+                  f"ms/epoch | apart: max {1e3 * apart.max():5.1f} mm, RMS {1e3 * np.sqrt(np.mean(apart ** 2)):5.1f} "
+                  f"mm over {len(apart)} common fixed epochs")
+
+
 def main() -> None:
     a = sys.argv[1:]
+    if a and a[0] == "precise":
+        precise()
+        return
     if a and a[0] == "sim":
         simulated(a[1] if len(a) > 1 else "uav", [int(v) for v in a[2:]] or range(3))
         return

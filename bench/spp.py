@@ -18,6 +18,8 @@ Run: .venv/bin/python bench/spp.py [OBS NAV] [--repeats 5] [--as-is]
    over the files. The static Septentrio and Trimble files of ../shared/data against their known positions and,
    when cssrlib-data's doy2021-265 drive is there (../shared/data/rinex-kinematic or DGCAL_KINEMATIC_DATA), the
    car's rover against dgcal's own PPK fixes and its static base. `--honesty-only` runs this part alone.
+6. Precise orbits (issue 30): SPP with CODE's final SP3 of the day beside broadcast orbits, dgcal beside RTKLIB's
+   pntpos with the same products. `--precise` runs this part alone.
 """
 from __future__ import annotations
 
@@ -275,6 +277,41 @@ def honesty(shared: Path) -> None:
                   f"broadcast errors)")
 
 
+PRECISE_SP3 = ROOT / "tests" / "pos" / "gnss" / "data" / "COD0MGXFIN_20210781100_02H_05M_ORB.SP3.gz"
+
+
+def precise(obs_path: str, nav_path: str, repeats: int) -> None:
+    """Section 6: SPP with CODE's final MGEX SP3 of the day (orbits and its 5-minute clocks) beside broadcast orbits,
+    dgcal's `spp_files` beside RTKLIB's pntpos with the same products: 3D RMS against the known position, the
+    engines' largest and mean distance, dgcal's time (median of `repeats`). RTKLIB 2.4.3 reads at most 85 satellites
+    of an SP3 file: it gets the file's GPS/Galileo/QZSS records (the same values, dgcal's SP3 writer)."""
+    from dgcal.pos.gnss.precise import read_sp3, write_sp3
+    from dgcal.pos.gnss.rtklib import rtklib_pntpos
+    from dgcal.pos.gnss.spp import SppOptions, spp_files
+    d = read_sp3(PRECISE_SP3)
+    keep = [j for j, s in enumerate(d.sats) if s[0] in "GEJ"]
+    opts = SppOptions(systems=("G", "E", "J"))
+    print("\n6. precise orbits (CODE final MGEX SP3, its clocks) beside broadcast, dgcal beside RTKLIB pntpos")
+    with tempfile.TemporaryDirectory() as tmp:
+        sub = str(Path(tmp) / "gej.sp3")
+        write_sp3(sub, d.t, [d.sats[j] for j in keep], d.p[:, keep], d.clk[:, keep])
+        for label, ours, theirs in (("broadcast", (), ()), ("CODE SP3", (str(PRECISE_SP3),), (sub,))):
+            times = []
+            for _ in range(max(repeats, 1)):
+                t0 = time.perf_counter()
+                run = spp_files(obs_path, (nav_path,) + ours, opts)
+                times.append(time.perf_counter() - t0)
+            sol = run.solution
+            t, p = rtklib_pntpos(obs_path, nav_path, systems="GEJ", sp3=theirs)
+            common, ia, ib = np.intersect1d(np.round(sol.t_gps[sol.ok], 3), np.round(t, 3), return_indices=True)
+            apart = np.linalg.norm(sol.p_ecef[sol.ok][ia] - p[ib], axis=1)
+            rms = np.sqrt(np.mean(np.sum((sol.p_ecef[sol.ok] - REF_ECEF) ** 2, axis=1)))
+            rms_rk = np.sqrt(np.mean(np.sum((p - REF_ECEF) ** 2, axis=1)))
+            print(f"  {label:10s} dgcal 3D RMS {rms:5.2f} m ({1e3 * np.median(times):5.1f} ms, reading included) | "
+                  f"RTKLIB {rms_rk:5.2f} m | apart max {apart.max():5.2f} m, mean {apart.mean():5.2f} m over "
+                  f"{len(common)} epochs | orbits: {run.summary['orbits']}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("files", nargs="*", metavar="OBS NAV", help="RINEX observation and navigation files "
@@ -283,8 +320,12 @@ def main() -> None:
     ap.add_argument("--as-is", action="store_true", help="per call: run in this environment as it is (without our "
                     "bytecode cache: where PYTHONDONTWRITEBYTECODE is set, dgcal's modules are compiled every call)")
     ap.add_argument("--honesty-only", action="store_true", help="section 5 alone (no timing)")
+    ap.add_argument("--precise", action="store_true", help="section 6 alone: precise orbits beside broadcast")
     a = ap.parse_args()
     obs_path, nav_path = a.files if len(a.files) == 2 else (str(DATA / "SEPT078M1.21O"), str(DATA / "SEPT078M.21P"))
+    if a.precise:
+        precise(obs_path, nav_path, a.repeats)
+        return
     if not a.honesty_only:
         per_call(obs_path, nav_path, a.repeats, a.as_is)
         run, rk = in_process(obs_path, nav_path, a.repeats)
