@@ -10,7 +10,8 @@ files back into dgcal's convention (round trip exact to the printed digits: 1e-9
   (the same as dgcal's FRD); the sensor frame of a nominal nadir camera is aligned with it: x = top of the image
   (-y_cv), y = right (x_cv), z = viewing direction (z_cv); boresight angles (tx, ty, tz) = roll, pitch, heading
   (Z-Y-X) of the sensor frame in the vehicle frame: R_sensor_to_vehicle = Rz(tz) Ry(ty) Rx(tx) (deg and arc
-  minutes).
+  minutes), Applanix's mounting angles (POS MV V4 User Guide sec. 2-49/2-50: clockwise = +z, bow up = +y, port
+  down = -x).
 - Inertial Explorer (NovAtel Waypoint): vehicle frame x right, y forward, z up (RFU, IE's body frame, attitude
   Rz(-heading) Rx(pitch) Ry(roll)): lever arm IMU -> camera in it. IE's Boresight Settings > Axes selects the
   image system; its default, the conventional frame, is x forward, y left, z up. This file assumes instead the

@@ -95,13 +95,17 @@ def test_metashape_offset_against_ypr2mat(seed):
         assert _angle(metashape_R_cam_to_body(flipped), R) > 0.5
 
 
-def test_pospac_boresight_from_scratch():
-    """POSPac: the sensor frame (x image top, y right, z view) of a camera pitched up 2 deg, then yawed 3 deg to the
-    right, in the vehicle frame (x fwd, y right, z down) is Rz(3) Ry(2); (tx, ty, tz) = (0, 2, 3)."""
-    R_sensor_to_vehicle = _rz(3) @ _ry(2)
+def test_pospac_boresight_applanix_example():
+    """Applanix's mounting-angle example (POS MV V4 User Guide 2009, sec. 2-50): a frame turned 3 deg clockwise, bow
+    edge 2 deg higher, port edge 5 deg lower than the reference frame (x fore, y starboard, z down) has mounting
+    angles z +3, y +2, x -5, reached by the Tait-Bryan sequence about z, the new y, the new x (LVX manual 4.6.11).
+    The camera's sensor frame (x image top, y right, z view) mounted that way gets (tx, ty, tz) = (-5, 2, 3)."""
+    R_sensor_to_vehicle = Rotation.from_euler("ZYX", [3.0, 2.0, -5.0], degrees=True).as_matrix()
+    x_s, y_s = R_sensor_to_vehicle[:, 0], R_sensor_to_vehicle[:, 1]
+    assert x_s[1] > 0.05 and x_s[2] < -0.03 and y_s[2] < -0.08    # clockwise, bow higher, starboard higher
     R_cv_to_sensor = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])    # CV x right -> sensor y, CV y down -> -x
     got = calibration_values(_mount(R_sensor_to_vehicle @ R_cv_to_sensor), "pospac")["boresight_tx_ty_tz_deg"]
-    assert np.allclose(got, [0, 2, 3], atol=1e-9)
+    assert np.allclose(got, [-5, 2, 3], atol=1e-9)
 
 
 @pytest.fixture(scope="module")
