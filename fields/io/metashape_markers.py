@@ -27,6 +27,7 @@ from xml.parsers import expat
 
 import numpy as np
 
+from dgcal.fields.crs import MapGrid, parse_crs
 from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
 from dgcal.fields.io.formats import Measurements, Points
@@ -85,11 +86,13 @@ def is_metashape_markers(path: str | Path) -> bool:
 
 def read_metashape_markers(path: str | Path, include_unpinned: bool = False,
                            image_names: Mapping[str, str] | Sequence[str] | None = None,
-                           chunk: int = 0) -> tuple[Points | None, Measurements, str | None]:
+                           chunk: int = 0, to_crs: str | None = None) -> tuple[Points | None, Measurements, str | None]:
     """Read a Metashape markers XML: (ground points or None, measurements in px (OpenCV), chunk CRS WKT or None).
 
     Control = markers whose reference is enabled, check = disabled; sigmas from `sx/sy/sz` (or `sxyz`), NaN when
-    absent. `image_names` maps camera labels to file names (a dict, or the folder's names matched by stem)."""
+    absent. `image_names` maps camera labels to file names (a dict, or the folder's names matched by stem).
+    `to_crs` converts the points from the chunk's CRS (geographic: x = longitude, y = latitude, ellipsoidal z) into
+    that CRS (pyproj through ECEF; sigmas kept, m) and returns it as the CRS."""
     path = Path(path)
     root = parse_xml_with_lines(read_text(path), path)
     chunks = [root] if root.tag == "chunk" else root.findall("chunk")
@@ -173,4 +176,11 @@ def read_metashape_markers(path: str | Path, include_unpinned: bool = False,
                         np.array(role, dtype=object), np.array(plines), path)
     crs_el = ch.find("reference")
     crs = crs_el.text.strip() if crs_el is not None and crs_el.text and crs_el.text.strip() else None
+    if to_crs is not None and points is not None:
+        if crs is None:
+            raise InputError("the chunk names no CRS (<reference>) to convert the markers from", path, field="crs")
+        src, dst = parse_crs(crs, "reference"), parse_crs(to_crs)
+        if src != dst:
+            points.xyz = MapGrid(dst).from_ecef(MapGrid(src).to_ecef(points.xyz))
+        crs = to_crs
     return points, meas, crs

@@ -179,3 +179,17 @@ def test_pix4d_article_example_with_blank_lines(tmp_path):
     m, _, _ = read_any_measurements(p, (4000, 3000), 0.0015, ["P1060498.JPG", "P1060499.JPG"])
     assert list(m.image) == ["P1060498.JPG"] * 2 + ["P1060499.JPG"] * 2 and list(m.id) == ["1006", "1020"] * 2
     assert np.allclose(m.xy[0], [1999.5 - 1.90643 / 0.0015, 1499.5 - 1.83493 / 0.0015])
+
+
+def test_metashape_geographic_markers_converted_to_the_map_crs(tmp_path):
+    lon, lat = 117.00321, 22.78012
+    geo = METASHAPE.replace('x="500100.123" y="2519800.456"', f'x="{lon}" y="{lat}"').split("<reference>PROJCS")[0]
+    geo += '<reference>GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],' \
+           'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433],AUTHORITY["EPSG","4326"]]</reference>\n' \
+           '  </chunk>\n</document>\n'
+    p = tmp_path / "geo.xml"
+    p.write_text(geo)
+    pts, _, crs = read_metashape_markers(p, to_crs="EPSG:32650")
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:32650", always_xy=True).transform(lon, lat)
+    assert crs == "EPSG:32650" and np.allclose(pts.xyz[0], [x, y, 101.5], atol=1e-6)
+    assert np.allclose(pts.sigma[0], [0.01, 0.01, 0.02])
