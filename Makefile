@@ -8,8 +8,9 @@ STAMP := $(VENV)/.installed
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	@echo "make: installing dgcal and its dependencies into $(VENV) (1-3 min the first time) ..."
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/python -m pip install --progress-bar off -e '.[test]'
 	$(BIN)/python -m dgcal.precompile
 	touch $(STAMP)
 

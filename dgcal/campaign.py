@@ -45,7 +45,8 @@ from dgcal.fields.io.atomic import (MANIFEST, atomic_write, clean_stale, file_sh
 from dgcal.fields.io.text_files import read_text
 from dgcal.fields.processes import cpus, fork_map
 from dgcal.precompile import load_cached_kernels
-from dgcal.step_pool import Outcome, StepPool
+from dgcal.fields import progress
+from dgcal.step_pool import Outcome, StepPool, log_notes, output_to_log
 from dgcal.steps import Campaign, Step, file_digest
 
 __all__ = ["CHAIN", "STATE", "Campaign", "DemoOptions", "Step", "load_campaign", "load_state", "plan", "run_campaign",
@@ -266,7 +267,8 @@ def _run_campaign(path: Path, out: Path, force: bool, runner: Callable[[list[str
         """Record a step that ended (the record last: only a finished step is done), or keep its failure."""
         nonlocal failure
         step = by_name[o.name]
-        err = _step_failure(step, o, cfg["_path"])
+        warnings, error_line = log_notes(step_log(out, step))
+        err = _step_failure(step, o, cfg["_path"], error_line, step_log(out, step))
         if err is not None:
             failure = failure or err
             done[step.name] = "failed"
@@ -275,44 +277,52 @@ def _run_campaign(path: Path, out: Path, force: bool, runner: Callable[[list[str
         records[step.name] = _record(step, fingerprints[step.name], cache)
         _save_state(state_path, records)
         done[step.name] = "ran"
-        print(f"[{step.name}] done in {o.seconds:.1f} s", file=log, flush=True)
+        for w in warnings:
+            print(f"[{step.name}] {w}", file=log)
+        print(f"[{step.name}] done in {o.seconds:.1f} s" + (f" ({len(warnings)} warning(s); log {step_log(out, step)})"
+                                                            if warnings else ""), file=log, flush=True)
 
-    try:
-        while pending or (pool and len(pool)):
-            # side by side the heaviest ready step first (iso before the quick mountings); in turn, plan order
-            for step in (sorted(pending, key=lambda s: -s.weight) if pool is not None else list(pending)):
-                if failure is not None or (pool is not None and len(pool) >= jobs):
-                    break
-                if waiting(step):
-                    continue
-                pending.remove(step)
-                fp = fingerprints[step.name] = step.fingerprint(cache)
-                why = ("--force" if force else "--rerun" if step.name in forced
-                       else _why_rerun(step, records.get(step.name), fp,
-                                       [n for n in step.after if done.get(n) == "ran"]))
-                if why is None:
-                    done[step.name] = "skipped"
-                    print(f"[{step.name}] up to date, skipped", file=log)
-                    continue
-                print(f"[{step.name}] ({why}) dgcal {' '.join(step.argv)}", file=log, flush=True)
-                records.pop(step.name, None)
-                _save_state(state_path, records)
-                if pool is None:
-                    finish(_run_here(step, runner))
-                else:
-                    # a step lighter than one running or waiting yields the CPU to it (the longer chain)
-                    heavier = any(s.weight > step.weight for s in [*pending, *(by_name[n] for n in pool.running)])
-                    pool.start(step.name, step.argv, nice=LIGHTER_STEP_NICE if heavier else 0)
-            if failure is not None and not (pool and len(pool)):
-                raise failure
-            if pool is not None and len(pool):
-                finish(pool.wait())
-            elif pending and all(waiting(s) for s in pending):
-                break                         # nothing can start (cannot happen with a well-formed plan)
-    except BaseException:
-        if pool is not None:
-            pool.stop()
-        raise
+    with progress.stage("campaign steps") as beat:
+        try:
+            while pending or (pool and len(pool)):
+                # side by side the heaviest ready step first (iso before the quick mountings); in turn, plan order
+                for step in (sorted(pending, key=lambda s: -s.weight) if pool is not None else list(pending)):
+                    if failure is not None or (pool is not None and len(pool) >= jobs):
+                        break
+                    if waiting(step):
+                        continue
+                    pending.remove(step)
+                    fp = fingerprints[step.name] = step.fingerprint(cache)
+                    why = ("--force" if force else "--rerun" if step.name in forced
+                           else _why_rerun(step, records.get(step.name), fp,
+                                           [n for n in step.after if done.get(n) == "ran"]))
+                    if why is None:
+                        done[step.name] = "skipped"
+                        print(f"[{step.name}] up to date, skipped", file=log)
+                        continue
+                    print(f"[{step.name}] ({why}) dgcal {' '.join(step.argv)}", file=log, flush=True)
+                    records.pop(step.name, None)
+                    _save_state(state_path, records)
+                    if pool is None:
+                        beat.set_text(f"step {step.name}")
+                        finish(_run_here(step, runner, step_log(out, step)))
+                    else:
+                        # a step lighter than one running or waiting yields the CPU to it (the longer chain)
+                        heavier = any(s.weight > step.weight for s in [*pending, *(by_name[n] for n in pool.running)])
+                        pool.start(step.name, step.argv, nice=LIGHTER_STEP_NICE if heavier else 0,
+                                   log=step_log(out, step))
+                        beat.set_text("steps " + ", ".join(pool.running))
+                if failure is not None and not (pool and len(pool)):
+                    raise failure
+                if pool is not None and len(pool):
+                    finish(pool.wait())
+                    beat.set_text("steps " + ", ".join(pool.running))
+                elif pending and all(waiting(s) for s in pending):
+                    break                         # nothing can start (cannot happen with a well-formed plan)
+        except BaseException:
+            if pool is not None:
+                pool.stop()
+            raise
     if failure is not None:
         raise failure
     result = {"steps": {s.name: done[s.name] for s in steps if s.name in done},
@@ -328,18 +338,29 @@ def _run_campaign(path: Path, out: Path, force: bool, runner: Callable[[list[str
     return result
 
 
-def _run_here(step: Step, runner: Callable[[list[str]], int]) -> Outcome:
-    """Run a step in this process: its outcome (exit status or exception) and wall time."""
+def step_log(out: Path, step: Step) -> Path:
+    """The log file of a step's own output (its progress, warnings, the libraries' messages)."""
+    return Path(out) / LOGS / (re.sub(r"[^A-Za-z0-9_.-]+", "_", step.name) + ".log")
+
+
+LOGS = "logs"   # the campaign's folder of step logs
+
+
+def _run_here(step: Step, runner: Callable[[list[str]], int], log: Path | None = None) -> Outcome:
+    """Run a step in this process (its output into `log`): its outcome (exit status or exception) and wall time."""
     t0 = time.perf_counter()
     try:
-        rc = runner(step.argv)
+        with output_to_log(log):
+            rc = runner(step.argv)
     except Exception as exc:
         return Outcome(step.name, error=exc, seconds=time.perf_counter() - t0)
     return Outcome(step.name, rc=int(rc or 0), seconds=time.perf_counter() - t0)
 
 
-def _step_failure(step: Step, o: Outcome, campaign: Path) -> InputError | None:
-    """The InputError a step's outcome makes (crash, non-zero exit, missing output), None when it is done."""
+def _step_failure(step: Step, o: Outcome, campaign: Path, error_line: str | None = None,
+                  log: Path | None = None) -> InputError | None:
+    """The InputError a step's outcome makes (crash, non-zero exit, missing output; its log's error line), None
+    when it is done."""
     if isinstance(o.error, InputError):
         return o.error
     if o.error is not None:   # a crash inside a verb: one line naming the step; earlier steps stay done
@@ -348,7 +369,10 @@ def _step_failure(step: Step, o: Outcome, campaign: Path) -> InputError | None:
         err.__cause__ = o.error
         return err
     if o.rc != 0:
-        return InputError(f"step {step.name} failed (exit {o.rc}); fix it and run again to resume", campaign)
+        said = f": {error_line}" if error_line else ""
+        where = f" (log {log})" if log is not None and log.is_file() else ""
+        return InputError(f"step {step.name} failed (exit {o.rc}){said}{where}; fix it and run again to resume",
+                          campaign)
     missing = [str(p) for p in step.outputs if not p.exists()]
     if missing:
         return InputError(f"step {step.name} did not write {', '.join(missing)}", campaign)

@@ -9,7 +9,9 @@ import re
 import sys
 from pathlib import Path
 
+from dgcal.fields import progress
 from dgcal.fields.errors import InputError
+from dgcal.fields.io.atomic import verb_output_lock
 from dgcal.flags import flags_in_errors
 
 
@@ -85,6 +87,8 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     _ARGV = None if argv is None else list(argv)
     parser = argparse.ArgumentParser(prog="dgcal", description="Calibrate UAV payloads for direct georeferencing.")
     parser.add_argument("--debug", action="store_true", help="show the full traceback on errors")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress lines on stderr (warnings and errors still); also DGCAL_QUIET=1")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     sub.required = True
     add_verbs(sub, "dgcal.commands", _ARGV)
@@ -96,9 +100,12 @@ def main(argv: list[str] | None = None) -> int:
     result, 3 an internal error, 130 interrupted)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
+    quiet = args.quiet or os.environ.get("DGCAL_QUIET", "") not in ("", "0")
     try:
-        with flags_in_errors(getattr(args, "_flags", {})):
-            return int(args._run(args) or 0)
+        with (flags_in_errors(getattr(args, "_flags", {})), progress.configured(quiet=quiet or None, prefix=args.verb),
+              progress.stage("working", announce=False)):
+            with verb_output_lock(getattr(args, "out", None)):   # a second run into --out refused now
+                return int(args._run(args) or 0)
     except InputError as exc:
         if args.debug:
             import traceback   # why: only on a failure

@@ -62,4 +62,6 @@ def load_cached_kernels(modules: Iterable[str]) -> int:
 
 
 if __name__ == "__main__":
-    precompile()
+    from dgcal.fields import progress
+    with progress.configured(prefix="precompile"), progress.stage("compiling dgcal's numba kernels (once, ~1 min)"):
+        precompile()

@@ -9,17 +9,20 @@ from __future__ import annotations
 import multiprocessing
 import multiprocessing.connection
 import os
+import re
 import signal
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Callable
+from pathlib import Path
+from typing import Callable, Iterator
 
 from threadpoolctl import threadpool_limits
 
 from dgcal.fields.processes import cpus, die_with_parent, frozen_heap
 
-__all__ = ["Outcome", "StepPool", "default_jobs"]
+__all__ = ["Outcome", "StepPool", "default_jobs", "log_notes", "output_to_log"]
 
 
 def default_jobs() -> int:
@@ -36,6 +39,46 @@ class Outcome:
     rc: int = 0
     error: BaseException | None = None
     seconds: float = 0.0
+
+
+@contextmanager
+def output_to_log(path: Path | None) -> Iterator[None]:
+    """File descriptors 1 and 2 into `path` for the block: the step's own lines and those of the compiled libraries
+    it calls (COLMAP, gtsam) go to its log file, not between the campaign's lines. None: left alone."""
+    if path is None:
+        yield
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    saved_fds, saved_streams = (os.dup(1), os.dup(2)), (sys.stdout, sys.stderr)
+    log = open(path, "w", encoding="utf-8", buffering=1)   # noqa: SIM115  (closed below, after the fds are back)
+    try:
+        os.dup2(log.fileno(), 1)
+        os.dup2(log.fileno(), 2)
+        sys.stdout = sys.stderr = log   # Python's streams too, where they are not the process's (a test's capture)
+        yield
+    finally:
+        log.flush()
+        sys.stdout, sys.stderr = saved_streams
+        os.dup2(saved_fds[0], 1)
+        os.dup2(saved_fds[1], 2)
+        os.close(saved_fds[0])
+        os.close(saved_fds[1])
+        log.close()
+
+
+_WARNING = re.compile(r"\b(warning:|\w*Warning:)", re.IGNORECASE)   # dgcal's "warning: ..." and Python's warnings
+
+
+def log_notes(path: Path | None, limit: int = 20) -> tuple[list[str], str | None]:
+    """The warning lines of a step's log (at most `limit`) and its last error line (None: no log or no error)."""
+    if path is None or not path.is_file():
+        return [], None
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    warnings = [ln.strip() for ln in lines if _WARNING.search(ln)]
+    errors = [ln.strip() for ln in lines if ": error:" in ln or "internal error" in ln]
+    return warnings[:limit], (errors[-1] if errors else None)
 
 
 @dataclass
@@ -58,13 +101,14 @@ class StepPool:
     def __len__(self) -> int:
         return len(self.running)
 
-    def start(self, name: str, argv: list[str], nice: int = 0) -> None:
-        """Fork a child that runs the step (at niceness `nice` above this process's); returns at once."""
+    def start(self, name: str, argv: list[str], nice: int = 0, log: Path | None = None) -> None:
+        """Fork a child that runs the step (at niceness `nice` above this process's, its output into `log`);
+        returns at once."""
         for stream in (sys.stdout, sys.stderr):   # nothing buffered is printed twice by the child
             stream.flush()
         parent_end, child_end = self._ctx.Pipe(duplex=False)
         proc = self._ctx.Process(target=_child, name=f"dgcal-{name}", daemon=False,
-                                 args=(self.runner, list(argv), child_end, os.getpid(), self.blas_threads, nice))
+                                 args=(self.runner, list(argv), child_end, os.getpid(), self.blas_threads, nice, log))
         with frozen_heap():
             proc.start()
         child_end.close()
@@ -106,7 +150,7 @@ class StepPool:
 
 
 def _child(runner: Callable[[list[str]], int], argv: list[str], conn, parent_pid: int, blas_threads: int,
-           nice: int = 0) -> None:
+           nice: int = 0, log: Path | None = None) -> None:
     """The step in the child: its exit status or its exception goes back through `conn`."""
     die_with_parent(parent_pid)
     # the steps side by side share the CPUs: OpenBLAS threads that spin-wait for a busy core slow a step 2-3x
@@ -115,7 +159,8 @@ def _child(runner: Callable[[list[str]], int], argv: list[str], conn, parent_pid
         os.nice(nice)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        message = ("rc", int(runner(argv) or 0))
+        with output_to_log(log):
+            message = ("rc", int(runner(argv) or 0))
     except BaseException as exc:   # noqa: BLE001  (the parent decides what a crash means)
         message = ("error", exc)
     try:
