@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from dgcal.calib.camera.files import write_camera_json
 from dgcal.calib.camera.models import Fraser7
+from dgcal.fields import progress
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.io.csv_tables import atomic_write, staged_dir
 from dgcal.fields.io.formats import EOP, Measurements, Points, write_eop, write_measurements, write_points
@@ -220,7 +221,7 @@ def _render_all(folder: Path, cam: Fraser7, names, R_world_to_cam, C_world, gp_l
     if targets == "aruco":
         dic = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
         markers = [cv2.aruco.generateImageMarker(dic, j, 120, borderBits=1) for j in range(len(gp_loc))]
-    for i, name in enumerate(names):
+    for i, name in progress.track(list(enumerate(names)), "rendering images"):
         d = rays_cam @ R_world_to_cam[i]          # world directions
         C_world_i = C_world[i]
         z = np.full(len(d), terrain_height(np.array([C_world_i[0]]), np.array([C_world_i[1]]))[0])
