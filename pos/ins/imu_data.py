@@ -20,6 +20,7 @@ from dgcal.fields.constants import G0, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.text_files import read_text
+from dgcal.fields.io.validate import gps_seconds_values
 
 # factors to rad (increments) / rad/s (rates), m/s (increments) / m/s^2 (rates)
 GYRO_UNITS = {"rad": 1.0, "deg": np.pi / 180.0, "rad/s": 1.0, "deg/s": np.pi / 180.0,
@@ -193,6 +194,7 @@ def _check_time(path: Path, lines: np.ndarray, t: np.ndarray) -> None:
 def finish_imu(path: Path, lines: np.ndarray, t: np.ndarray, g: np.ndarray, a: np.ndarray, kind: str,
                rate_hz: float | None, R_sensor_to_body: np.ndarray | None) -> ImuData:
     """ImuData (body FRD increments) from parsed times (GPS s), gyro and accel columns (SI) of `kind`."""
+    gps_seconds_values(t, path, "time", lines)    # a week or time of 1e20 is a corrupt value, not a date
     _check_time(path, lines, t)
     rate = float(rate_hz) if rate_hz else estimate_rate_hz(t, path)
     if kind == "increments":
