@@ -223,9 +223,14 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
                         precise=precise)
 
 
-# what a GNSS broadcast ephemeris can hold: orbits from MEO to GEO (Galileo E14/E18: e 0.16), clocks below a second
+# what a GNSS broadcast ephemeris can hold: orbits from MEO to GEO (Galileo E14/E18: e 0.16), clocks below a second,
+# angles in radians, harmonic corrections of a few km (radius) and milliradians (angles), group delays below 1 us
 EPH_LIMITS = {"A": (2.0e7, 4.5e7), "e": (0.0, 0.25), "af0": (-1.0, 1.0), "af1": (-1e-6, 1e-6), "af2": (-1e-9, 1e-9),
-              "i0": (-3.2, 3.2), "deln": (-1e-6, 1e-6), "idot": (-1e-6, 1e-6), "OMGd": (-1e-5, 1e-5)}
+              "i0": (-3.2, 3.2), "deln": (-1e-6, 1e-6), "idot": (-1e-6, 1e-6), "OMGd": (-1e-5, 1e-5),
+              "M0": (-7.0, 7.0), "omg": (-7.0, 7.0), "OMG0": (-7.0, 7.0), "crc": (-1e4, 1e4), "crs": (-1e4, 1e4),
+              "cuc": (-1e-2, 1e-2), "cus": (-1e-2, 1e-2), "cic": (-1e-2, 1e-2), "cis": (-1e-2, 1e-2),
+              "toes": (0.0, 604800.0), "tgd": (-1e-6, 1e-6), "tgd_b": (-1e-6, 1e-6)}
+EPH_MAX_ABS = 1e10      # no other number of a broadcast record is this large (weeks, IODs, health words, URA)
 
 
 def implausible_ephemeris(e) -> str:
@@ -237,6 +242,12 @@ def implausible_ephemeris(e) -> str:
         v = float(v)
         if not (np.isfinite(v) and lo <= v <= hi):
             return f"{name} = {v:.6g} outside [{lo:g}, {hi:g}]"
+    for name, v in vars(e).items():
+        vals = np.atleast_1d(np.asarray(v)) if isinstance(v, (int, float, np.number, np.ndarray)) else None
+        if vals is not None and vals.dtype.kind in "iuf":
+            bad = ~(np.abs(vals.astype(float)) <= EPH_MAX_ABS)
+            if bad.any():
+                return f"{name} = {vals.astype(float)[bad][0]:.6g}: not a broadcast value"
     return ""
 
 
