@@ -31,6 +31,7 @@ from dgcal.pos.gnss.rinex_obs import read_lines
 
 LAGRANGE_POINTS = 11                      # degree-10 Lagrange interpolation (RTKLIB's NMAX = 10)
 SP3_BAD_CLOCK_US = 999999.0               # SP3 "no clock value" (999999.999999 us)
+SP3_MAX_KM = 1.0e5                        # GNSS orbits lie within 50 000 km of the geocentre
 PRECISE_SIGMA_M = 0.05                    # orbit and clock error of final/rapid products along a line of sight, m
 # time system of a product -> seconds added to reach GPS time (UTC and GLONASS time need leap seconds: refused)
 _TIME_TO_GPS_S = {"GPS": 0.0, "GAL": 0.0, "QZS": 0.0, "IRN": 0.0, "BDT": 14.0, "TAI": -19.0}
@@ -173,6 +174,8 @@ def read_sp3(path: str | Path) -> Sp3Data:
             sid = _sat_id(line[1:4])
             vals = [_float(line[4 + 14 * j:18 + 14 * j], path, ln, n)
                     for j, n in enumerate(("x (km)", "y (km)", "z (km)"))]
+            if any(abs(v) > SP3_MAX_KM for v in vals):
+                raise InputError(f"position {vals} km is not a satellite's", path, ln, "x (km)")
             ctext = line[46:60]
             c_us = _float(ctext, path, ln, "clock (us)") if ctext.strip() else SP3_BAD_CLOCK_US + 1.0
             rows.setdefault(sid, []).append((k, vals, c_us))

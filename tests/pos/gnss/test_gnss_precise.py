@@ -252,3 +252,39 @@ def test_cli_spp_and_ppk_with_sp3_beside_rtklib(shared_data, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "not an SP3 orbit file" in err and "SEPT078M.21P" in err and "--sp3" in err and "\n" not in err
     assert not (tmp_path / "wrong").exists()
+
+
+def test_mutated_products_are_read_or_refused_with_input_error(tmp_path):
+    """300 random mutations (bytes deleted, replaced, lines dropped or doubled) of a real SP3 and of a clock file:
+    each is read (every position within 1e8 m, every clock within 1 s) or refused by an `InputError`."""
+    rng = np.random.default_rng(30)
+    sp3 = gzip.decompress(SP3.read_bytes()).decode().splitlines()[:400]
+    clk = tmp_path / "c.clk"
+    write_rinex_clock(clk, T_NOON + 30.0 * np.arange(4), ["G01", "E02"], np.full((4, 2), 1e-4))
+    clk_lines = clk.read_text().splitlines()
+    for case in range(300):
+        lines = list(sp3 if case % 2 == 0 else clk_lines)
+        for _ in range(rng.integers(1, 4)):
+            i = int(rng.integers(len(lines)))
+            op = rng.integers(4)
+            s = lines[i]
+            k = int(rng.integers(len(s) + 1))
+            if op == 0:
+                lines[i] = s[:k] + s[k + int(rng.integers(1, 6)):]
+            elif op == 1:
+                lines[i] = s[:k] + rng.choice(["9", "-", "x", " ", "1e17", "nan", "999999"]) + s[k + 1:]
+            elif op == 2:
+                del lines[i]
+            else:
+                lines.insert(i, s)
+        f = tmp_path / f"m{case}.{'sp3' if case % 2 == 0 else 'clk'}"
+        f.write_text("\n".join(lines) + "\n")
+        try:
+            d = read_sp3(f) if case % 2 == 0 else read_rinex_clock(f)
+        except InputError:
+            continue
+        if case % 2 == 0:
+            assert np.all(np.abs(d.p[np.isfinite(d.p)]) <= 1e8) and np.all(np.abs(d.clk[np.isfinite(d.clk)]) <= 1.0)
+        else:
+            assert np.all(np.abs(d.clk[np.isfinite(d.clk)]) <= 1.0)
+        assert np.all(np.diff(d.t) > 0)
