@@ -10,9 +10,10 @@
 - `out` holds other files too (a user's folder, or `merge=True`: a campaign folder holding the steps' folders
   beside its report): the new files are moved in one by one, and the manifest, written last, is what marks
   the set complete (`read_manifest`).
-`output_lock(out)` (taken by `staged_dir`, and by a campaign for its whole run) refuses a second dgcal process
-writing into the same folder: one-line InputError naming the folder and the process holding it. Errors of the
-file system (read-only, full disk, `out` a file) are one-line InputErrors naming the folder, not internal errors.
+`output_lock(out)` (taken by `staged_dir`, by a verb for its whole run: `verb_output_lock`, and by a campaign)
+refuses a second dgcal process writing into the same folder: one-line InputError naming the folder and the
+process holding it. Errors of the file system (read-only, full disk, `out` a file) are one-line InputErrors
+naming the folder, not internal errors.
 The manifest lists every file with its size and SHA-256 (`entries`), so a folder can be checked against it
 (`manifest_problems`). A stale staging or set-aside folder of an interrupted run, and the temporary files of
 an interrupted `atomic_write` in `out`, are cleaned up at the next `staged_dir(out)` (or `clean_stale(out)`):
@@ -254,6 +255,18 @@ def output_lock(out: str | Path) -> Iterator[None]:
                 os.unlink(key)   # before the unlock: a process that opened it meanwhile sees the inode go, retries
     finally:
         os.close(fd)
+
+
+@contextlib.contextmanager
+def verb_output_lock(out: str | Path | None) -> Iterator[None]:
+    """The lock of a verb's `--out` folder held for the verb's whole run, so that a second run into the same folder
+    is refused at its start (not after computing for minutes, nor allowed to replace the first's outputs); nothing
+    when there is no `--out` or it names an existing file (a verb writing one file, such as `compare`)."""
+    if out is None or Path(out).is_file():
+        yield
+        return
+    with output_lock(out):
+        yield
 
 
 @contextlib.contextmanager
