@@ -10,14 +10,12 @@ Python use::
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import dataclass
 from dataclasses import field as dataclass_field
 from functools import partial
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from dgcal.calib.camera.conversions import from_opencv, to_colmap, to_metashape, to_opencv
 from dgcal.calib.camera.files import (CONVERSION_WARN_PX, camera_json_dict, conversion_warning, load_camera,
@@ -32,6 +30,7 @@ from dgcal.calib.selfcal.frames import VIDEO_SUFFIXES, FrameChoice, choose_frame
     video_frames
 from dgcal.calib.selfcal.model_choice import ModelComparison, compare_models
 from dgcal.calib.selfcal.uncertainty import UncertaintyMap, converted_uncertainty_map, uncertainty_map
+from dgcal.fields.progress import track
 from dgcal.fields.errors import InputError
 from dgcal.fields.io import validate
 from dgcal.fields.frames import opk_from_R_cam_to_map
@@ -363,7 +362,7 @@ def calibrate_camera(field: Points | str | Path | None = None, measurements: Mea
     field_sigma = pts.sigma if np.isfinite(pts.sigma).any() else None
     progress_fn = None
     if progress:
-        progress_fn = partial(tqdm, desc="initial poses", unit="img", file=sys.stderr, leave=False)
+        progress_fn = partial(track, text="initial poses of the images")
     stated = meas.stated_sigma           # None when the file gives none (no NaN array is built for it)
     sigmas_given = stated is not None and bool(np.isfinite(stated).all())
     kw = dict(meas_sigma=stated, field_sigma=field_sigma, refine_targets=refine_targets, reject_k=reject_k,
