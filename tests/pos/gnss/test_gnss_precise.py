@@ -20,8 +20,8 @@ from cssrlib.rinex import rnxdec
 from dgcal.cli import main
 from dgcal.fields.errors import InputError
 from dgcal.pos.gnss.ephemeris import precise_group_delay_s, satellite_states, select_ephemeris
-from dgcal.pos.gnss.precise import (read_precise, read_rinex_clock, read_sp3, write_rinex_clock, write_sp3)
-from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
+from dgcal.pos.gnss.precise import read_precise, read_rinex_clock, read_sp3, write_rinex_clock, write_sp3
+from dgcal.pos.gnss.rinex import gps_seconds_from_calendar, read_rinex_nav, read_rinex_obs
 from dgcal.pos.gnss.spp import SppOptions, spp
 
 DATA = Path(__file__).parent / "data"
@@ -288,3 +288,54 @@ def test_mutated_products_are_read_or_refused_with_input_error(tmp_path):
         else:
             assert np.all(np.abs(d.clk[np.isfinite(d.clk)]) <= 1.0)
         assert np.all(np.diff(d.t) > 0)
+
+
+def _one_record_each(nav_text: str, t_mid: float) -> str:
+    """A RINEX 3 navigation file's text with one record per satellite: the one whose epoch is nearest `t_mid`."""
+    lines = nav_text.splitlines()
+    end = next(i for i, s in enumerate(lines) if "END OF HEADER" in s) + 1
+    best: dict[str, tuple[float, list[str]]] = {}
+    i = end
+    while i < len(lines):
+        j = i + 1
+        while j < len(lines) and lines[j][:4] == "    ":
+            j += 1
+        y, mo, d, h, mi, s = (int(x) for x in lines[i][4:23].split())
+        dt = abs(gps_seconds_from_calendar(y, mo, d, h, mi, s) - t_mid)
+        if lines[i][:3] not in best or dt < best[lines[i][:3]][0]:
+            best[lines[i][:3]] = (dt, lines[i:j])
+        i = j
+    return "\n".join(lines[:end] + [s for _, rec in best.values() for s in rec]) + "\n"
+
+
+def test_tc_with_products_written_from_broadcast_equals_broadcast_tc(tmp_path):
+    """`dgcal pos --mode tc --sp3 --clk` on a simulated flight: with SP3/CLK files written from the broadcast
+    orbits, the trajectory is the broadcast run's to a few mm (TC takes its satellites where SPP and PPK do)."""
+    sim = tmp_path / "sim"
+    assert main(["simulate", "pos", "--out", str(sim), "--seed", "4", "--duration", "120", "--rate", "50"]) == 0
+    t0 = read_rinex_obs(sim / "obs.rnx").epochs[0].t_gps
+    nav_file = tmp_path / "one.rnx"
+    nav_file.write_text(_one_record_each((sim / "nav.rnx").read_text(), t0 + 60.0))
+    nav = read_rinex_nav(nav_file)
+    sats = sorted(nav.by_sat)
+    t, p, clk = _broadcast_products(nav, t0 - 5400.0, t0 + 5400.0, 900.0, sats)
+    write_sp3(tmp_path / "b.sp3", t, sats, p, clk)
+    tc, _, cc = _broadcast_products(nav, t0 - 300.0, t0 + 420.0, 30.0, sats)
+    write_rinex_clock(tmp_path / "b.clk", tc, sats, cc)
+    common = ["pos", "--mode", "tc", "--rinex-obs", str(sim / "obs.rnx"), "--rinex-nav", str(nav_file),
+              "--imu", str(sim / "imu.csv"), "--events", str(sim / "events.csv"), "--imu-grade", "adis16488",
+              "--lever-arm", "0.05", "-0.1", "-0.3", "--set", "model_errors=false", "--no-progress", "--no-report"]
+    assert main(common + ["--out", str(tmp_path / "brdc")]) == 0
+    assert main(common + ["--sp3", str(tmp_path / "b.sp3"), "--clk", str(tmp_path / "b.clk"),
+                          "--out", str(tmp_path / "prec")]) == 0
+    a = np.loadtxt(tmp_path / "brdc" / "trajectory.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3, 4))
+    b = np.loadtxt(tmp_path / "prec" / "trajectory.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3, 4))
+    assert a.shape == b.shape and len(a) > 500 and np.array_equal(a[:, 0], b[:, 0])
+    d_lat_m = (b[:, 1] - a[:, 1]) * 111320.0
+    d_lon_m = (b[:, 2] - a[:, 2]) * 111320.0 * np.cos(np.radians(a[:, 1]))
+    assert np.abs(d_lat_m).max() < 0.005 and np.abs(d_lon_m).max() < 0.005 and np.abs(b[:, 3] - a[:, 3]).max() < 0.01
+    # the products are what TC used: without every other satellite in them the trajectory moves
+    write_sp3(tmp_path / "half.sp3", t, sats[::2], p[:, ::2], clk[:, ::2])
+    assert main(common + ["--sp3", str(tmp_path / "half.sp3"), "--out", str(tmp_path / "half")]) == 0
+    h = np.loadtxt(tmp_path / "half" / "trajectory.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3, 4))
+    assert np.abs(h[:, 3] - a[:, 3]).max() > 0.02
