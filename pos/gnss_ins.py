@@ -28,7 +28,7 @@ from dgcal.pos.gnss.rinex_obs import read_obs_file
 from dgcal.pos.gnss.solution_files import GnssSolution
 from dgcal.pos.gnss.spp import SppOptions, prepare_epochs, spp
 from dgcal.pos.gnss_ins_summary import (add_integrity, antenna_track, carrier_summary, observability_warnings,
-                                        summarize, withheld_fix_errors)
+                                        summarize, time_offset_summary, withheld_fix_errors)
 from dgcal.pos.ins.error_model import imu_grade
 from dgcal.pos.ins.integrity import ImuIntegrityOptions, check_imu
 from dgcal.pos.ins.plausibility import check_turn_sense
@@ -181,12 +181,13 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     if estimate_imu_time_offset:
         t0 = time.perf_counter()
         offset = estimate_time_offset(smoother_chi2(imu, fixes, grade, opts, mode, gnss, lc_fixes,
-                                                    fe.input if fe is not None else None))
+                                                    fe.input if fe is not None else None, windows=None))
         if not (np.isfinite(offset.sigma_s) and abs(offset.offset_s) < 10.0):
             why = offset.note or "the chi-square profile has no minimum within 10 s"
             raise ResultError(f"the IMU time offset cannot be estimated from these data ({why}); give the offset "
                               "instead", field="estimate_imu_time_offset")
-        imu = shifted_imu(imu, offset.offset_s)
+        if offset.determinable:      # an offset the data cannot pin down is reported, not applied
+            imu = shifted_imu(imu, offset.offset_s)
         timing["time_offset_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     sol = smooth(imu, fixes, grade, opts, mode=mode, gnss=gnss, lc_fixes=lc_fixes,
@@ -225,9 +226,13 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
                     spp_sol, fixes, carrier=fe)
     res.summary = summarize(res)
     if offset is not None:
-        res.summary["imu_time_offset"] = offset.as_dict()
+        res.summary["imu_time_offset"] = time_offset_summary(offset)
     add_integrity(res.summary, imu_report, sol.info.get("gnss_rejected", []))
     res.summary.setdefault("warnings", []).extend(observability_warnings(sol, grade))
+    if offset is not None and not offset.determinable:
+        res.summary["warnings"].append(f"IMU time offset not determinable: {offset.note}; the estimate "
+                                       f"({1e3 * offset.offset_s:+.1f} +- {1e3 * offset.sigma_s:.1f} ms) was not "
+                                       "applied: give the offset (--imu-time-offset)")
     if fe is not None:
         res.summary["carrier"] = carrier_summary(res)
     return res

@@ -174,3 +174,14 @@ def observability_warnings(sol, grade) -> list[str]:
                    f"grade's {np.degrees(lim) * 3600:.0f} deg/h (3 sigma): the motion leaves the heading (or that "
                    "axis) unobservable — slow, straight or static — or the grade is wrong; distrust the heading")
     return out
+
+
+def time_offset_summary(offset) -> dict:
+    """pos_summary.json's `imu_time_offset`: what was added to the IMU's tags (offset_ms: 0 when the estimate is
+    not determinable), its sigma, the profile's estimate and the jackknife over time windows
+    (`dgcal.pos.smoother.time_offset.TimeOffsetEstimate`)."""
+    d = offset.as_dict()
+    d["estimate_ms"] = d["offset_ms"]
+    if not offset.determinable:
+        d["offset_ms"] = 0.0
+    return d

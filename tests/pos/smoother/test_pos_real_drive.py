@@ -111,26 +111,33 @@ def test_gaps_accuracy_and_honest_sigmas(drive):
     assert 0.7 <= z <= 1.5
 
 
-def test_time_offset_estimated_on_the_drive(shared_data, drive):
+def test_time_offset_on_the_drive_is_not_determinable(shared_data, drive):
     """The IMU logging delay estimated from the same fixes (outside the gaps) instead of the data author's -125 ms:
-    the smoother's chi-square profile puts it near -200 ms (-214 ms with the noise the data show held through the
-    profile), and the gaps close as well as with -125 ms or better, the sigmas honest. (With -125 ms the smoother
-    now raises the IMU's noise to what its residuals show, the timing error among it, so that run is honest too:
-    0.198 m against 0.197 m.)"""
+    the chi-square profile's vertex is near -214 ms with a curvature sigma of about 2 ms, but the profile split
+    into time windows (block jackknife, `dgcal.pos.smoother.time_offset`) tells another story: the windows'
+    offsets run from about the author's -125 ms early in the drive to below -250 ms at its end, a jackknife sigma
+    near 17 ms, 9x the curvature's. A constant offset does not describe these data (errors the smoother does not
+    model, or an IMU clock rate off GNSS time): the estimate is reported as not determinable, with a warning, and
+    not applied; the run is the one with the -125 ms given (gaps as closed, sigmas honest)."""
     res, withheld = _drive_lc(shared_data, estimate_imu_time_offset=True)
     o = res.summary["imu_time_offset"]
-    total_ms = -125.0 + o["offset_ms"]
     dd, sig, n = _gap_errors(res, withheld)
     rms3 = float(np.sqrt(np.mean(np.sum(dd ** 2, axis=1))))
     z = float(np.sqrt(np.mean((dd / sig) ** 2)))
     base, _ = drive
     d0, _, _ = _gap_errors(base, withheld)
     rms0 = float(np.sqrt(np.mean(np.sum(d0 ** 2, axis=1))))
-    print(f"\nestimated delay {total_ms:+.1f} +- {o['sigma_ms']:.1f} ms: gaps 3D RMS {rms3:.3f} m (with -125 ms "
-          f"{rms0:.3f} m), error/sigma {z:.2f}")
-    assert -300.0 < total_ms < -125.0 and 0 < o["sigma_ms"] < 20.0
-    assert rms3 < rms0 + 0.01 and rms3 <= 0.31
-    assert 0.7 <= z <= 1.5
+    print(f"\nprofile vertex {-125.0 + o['estimate_ms']:+.1f} ms, sigma {o['sigma_ms']:.1f} (curvature "
+          f"{o['formal_sigma_ms']:.1f}, jackknife {o['jackknife_sigma_ms']:.1f}), windows "
+          f"{np.round(np.array(o['window_offsets_ms'], float) - 125.0)}; gaps {rms3:.3f} m (with -125 ms {rms0:.3f} m)"
+          f", error/sigma {z:.2f}")
+    assert -300.0 < -125.0 + o["estimate_ms"] < -150.0
+    assert o["jackknife_sigma_ms"] > 5.0 * o["formal_sigma_ms"] and o["sigma_ms"] == o["jackknife_sigma_ms"]
+    assert not o["determinable"] and o["offset_ms"] == 0.0
+    assert any("IMU time offset not determinable" in w for w in res.summary["warnings"])
+    w = np.array(o["window_offsets_ms"], float)
+    assert np.nanmax(w) - np.nanmin(w) > 100.0                       # the windows disagree by a tenth of a second
+    assert abs(rms3 - rms0) < 1e-3 and 0.7 <= z <= 1.5
 
 
 def test_drive_through_the_cli_defaults(shared_data, tmp_path):
