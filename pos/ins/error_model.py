@@ -107,8 +107,10 @@ class ImuErrorModel:
         A first-order Gauss-Markov bias instability b with correlation time T (at least 1 s) becomes a random
         walk of density b*sqrt(2/T), which matches its variance growth over one correlation time, added in
         quadrature to the bias random walk; the turn-on sigmas (the prior on the first bias) are at least the
-        instability; small floors keep the bias covariances positive. White noise, scale factor and
-        misalignment sigmas are unchanged (the smoother carries the last two as turn noise). Idempotent.
+        instability; small floors keep the bias covariances positive (the gyro's turn-on floor, 1e-9 rad/s, is
+        below a navigation grade's 0.005 deg/h: it would otherwise set the heading a static record gyrocompasses
+        to). White noise, scale factor and misalignment sigmas are unchanged (the smoother carries the last two as
+        turn noise). Idempotent.
         """
         tau_g = max(float(self.gyro_bias_tau_s), 1.0)
         tau_a = max(float(self.accel_bias_tau_s), 1.0)
@@ -119,7 +121,7 @@ class ImuErrorModel:
         return replace(self, gyro_arw=float(self.gyro_arw), accel_vrw=float(self.accel_vrw),
                        gyro_bias_instability=0.0, accel_bias_instability=0.0,
                        gyro_bias_rw=max(float(gyro_bias_rw), 1e-9), accel_bias_rw=max(float(accel_bias_rw), 1e-8),
-                       gyro_bias_sigma=max(float(self.gyro_bias_sigma), gbi, 1e-7),
+                       gyro_bias_sigma=max(float(self.gyro_bias_sigma), gbi, 1e-9),
                        accel_bias_sigma=max(float(self.accel_bias_sigma), abi, 1e-6),
                        gyro_scale_sigma=float(self.gyro_scale_sigma),
                        gyro_misalign_sigma=float(self.gyro_misalign_sigma),

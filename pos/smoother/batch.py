@@ -33,6 +33,7 @@ from dgcal.pos.smoother.factors import (B, CLK, DRIFT, FE, V, X, ZERO, clock_fac
                                   pseudorange_factors, velocity_factor)
 from dgcal.pos.smoother.preintegration import (ImuSegments, bias_moved, interval_gravity, interval_params,
                                                preintegrate, preintegration_params, set_gravity, split_at_keyframes)
+from dgcal.pos.smoother.heading_budget import HEADING_SPEED_MPS, HEADING_UNKNOWN_SIGMA_DEG, add_heading_budget
 from dgcal.pos.smoother.initial import (GnssFixes, anchor_attitude, initial_clocks, initial_track,
                                propagate_attitude)
 from dgcal.pos.smoother.integrity import (assemble_graph, factor_table, reject_outliers, screen_fixes,
@@ -72,10 +73,6 @@ class SmootherOptions:
     motion_noise: bool = True       # LC: raise the IMU white noise to what its factors' residuals show in motion
     lc_fix_tau_s: float | None = 60.0   # LC: the fixes' time-correlated errors as Gauss-Markov states (None: white)
     lc_fix_white_share: float | None = None  # LC: the white share of the fixes' stated variance (None: estimated)
-
-
-HEADING_SPEED_MPS = 3.0          # the GNSS course gives the first heading above this ground speed
-HEADING_UNKNOWN_SIGMA_DEG = 104.0  # a heading uniform over the circle (180/sqrt(3) deg)
 
 
 @dataclass
@@ -1051,6 +1048,7 @@ def smooth(imu, fixes: GnssFixes, grade: str | ImuErrorModel, opts: SmootherOpti
         if problem.dd and problem.carrier is not None:
             add_atmosphere_budget(sol, problem)
         add_tilt_budget(sol, noise)
+        add_heading_budget(sol, noise)
     sol.info["timing"] = {k: round(v, 2) for k, v in timing.items()}
     sol.problem, sol.values, sol.rows, sol.imu_noise = problem, values, rows, noise
     return sol
