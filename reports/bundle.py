@@ -12,7 +12,7 @@ from matplotlib.collections import PolyCollection
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
-from dgcal.reports.units import fmt_number
+from dgcal.reports.units import column_decimals, fmt_number
 
 
 def triangulation_honesty(res, points=None) -> dict:
@@ -118,7 +118,7 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
     rep.heading("Summary")
     rep.kv_table([("map CRS", s["crs"]), ("images oriented / given", f"{s['n_oriented']} / {s['n_images']}"),
                   ("control points used", s["n_control"]), ("tie points", s["n_tie_points"]),
-                  ("observations", s["n_observations"]), ("sigma0 (a posteriori)", s["sigma0"]),
+                  ("observations", s["n_observations"]), ("σ0 (a posteriori, unitless)", s["sigma0"]),
                   ("redundancy", s["redundancy"]), ("RMS reprojection (px)", s["rms_px"]),
                   ("converged", s["converged"]),
                   ("control RMSE E / N / U (m)", _triple(s["control_rmse_m"])),
@@ -161,7 +161,10 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
 
 
 def _triple(d: dict) -> str:
-    return " / ".join(fmt_number(d.get(k), "m") for k in ("E", "N", "U"))
+    """E / N / U (m) of a record, one resolution for the three."""
+    vals = [d.get(k) for k in ("E", "N", "U")]
+    dec = column_decimals([v for v in vals if v is not None], "m")
+    return " / ".join(fmt_number(v, "m", decimals=dec) for v in vals)
 
 
 def _arrow_scale(res) -> float:

@@ -473,9 +473,12 @@ def _triangulation_section(rep: HtmlReport, d: dict, out: Path, cfg: dict, files
         pairs = [(k, tri[k]) for k in ("n_images", "n_oriented", "sigma0", "n_observations", "n_points", "n_control",
                                        "n_check", "n_rejected") if k in tri and not isinstance(tri[k], (dict, list))]
         rep.kv_table(pairs)
-        for key, label in (("check_rmse_m", "check-point RMSE (m)"), ("control_rmse_m", "control-point RMSE (m)")):
-            if isinstance(tri.get(key), dict):
-                rep.kv_table([(f"{label} {a}", v if a == "n" else _m(v)) for a, v in tri[key].items()])
+        for key, what in (("check_rmse_m", "check-point RMSE"), ("control_rmse_m", "control-point RMSE")):
+            r = tri.get(key)
+            if isinstance(r, dict):
+                rep.kv_table([(f"{what} E, N, U (m)", ", ".join(_m(r.get(a)) for a in "ENU")),
+                              (f"{what} horizontal (m)", _m(r["horizontal"]) if "horizontal" in r else None),
+                              (f"{what}: points", r.get("n"))])
         rep.figure(partial(_fig_block, files["triangulation"].get("eop"), cfg),
                    "Projection centres (colour: height) and ground points of the calibration flight.")
         _link(rep, out, files["triangulation"].get("report"), "residuals, EOP sigmas, footprints")
@@ -551,8 +554,8 @@ def _dg_section(rep: HtmlReport, d: dict, out: Path, files: dict) -> None:
         rep.text("No DG check in this campaign.")
 
 
-def _m(v, nd: int = 4) -> str:
-    """A number with `nd` decimals (metres to 0.1 mm), '–' for missing values."""
+def _m(v, nd: int = 3) -> str:
+    """A number with `nd` decimals (metres to the mm), '–' for missing values."""
     try:
         v = float(v)
     except (TypeError, ValueError):
@@ -568,7 +571,7 @@ def _step_name(step: str) -> str:
     """A campaign step as words: 'mount_proposed' → 'mount (joint)'."""
     if step.startswith("mount_"):
         return f"mount ({method_name(step[len('mount_'):])})"
-    return label(step)
+    return {"pos": "POS", "triangulate": "triangulation", "check": "DG check"}.get(step, step.replace("_", " "))
 
 
 def asprs_label(key: str) -> str:

@@ -18,13 +18,14 @@ import matplotlib.pyplot as plt  # noqa: E402  (after the backend choice)
 import numpy as np  # noqa: E402
 from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from dgcal.fields.io.csv_tables import atomic_write  # noqa: E402
 from dgcal.fields.processes import fork_map  # noqa: E402
 from dgcal.reports.glossary import glossary_for, humanise_text, is_raw_key, label  # noqa: E402
-from dgcal.reports.units import column_decimals, fmt_value, gps_time, is_coordinate_label, unit_of_label  # noqa: E402
+from dgcal.reports.units import (column_decimals, fmt_number, fmt_value, gps_time, is_coordinate_label, plain,  # noqa: E402
+                                 unit_of_label)  # noqa: E402
 
 # tick labels in full numbers (no "1e9" offset or ×10⁶ factor above the axis: a GPS time or a coordinate reads as is)
 matplotlib.rcParams.update({"axes.formatter.useoffset": False, "axes.formatter.limits": (-6, 12),
@@ -40,6 +41,7 @@ th{background:#eef2f6}td:first-child,th:first-child{text-align:left}
 .ok{background:#eaf7ea;border-left:4px solid #3a3;padding:.4em .8em;margin:.3em 0}
 figure{margin:1em 0}figcaption{font-size:.9em;color:#555}img{max-width:100%}
 .small{font-size:.85em;color:#555}
+td.nw{white-space:nowrap}td.t{text-align:left}
 .lead{margin:.6em 0 1em}.lead table{font-size:1.05em}.lead th{background:#dde6ef}
 .nav a{margin-right:1em}dl.glossary dt{font-weight:600;margin-top:.4em}dl.glossary dd{margin-left:1.2em;color:#444}
 @media print{body{max-width:none;margin:0;font-size:10pt}figure{page-break-inside:avoid}h2{page-break-after:avoid}
@@ -61,6 +63,7 @@ def figure_png(fig, dpi: int = 110) -> bytes:
     that."""
     canvas = FigureCanvasAgg(fig)
     fig.set_dpi(dpi)
+    _readable_log_axes(fig)
     canvas.draw()
     rgba = np.asarray(canvas.buffer_rgba())
     face = rgba[0, 0].copy()   # the face as drawn (a clear face is Agg's transparent white); ink here: box None
@@ -74,6 +77,20 @@ def figure_png(fig, dpi: int = 110) -> bytes:
         _crop_png(rgba, box, int(round(pad * dpi)), face, dpi, buf)
     plt.close(fig)
     return buf.getvalue()
+
+
+def _readable_log_axes(fig) -> None:
+    """Log axes labelled in plain numbers (0.2, 1, 5 rather than 10⁰), with the 2 and 5 of each decade labelled
+    too when the axis spans fewer than three decades (matplotlib would label one tick, or none)."""
+    for ax in fig.get_axes():
+        for axis, scale in ((ax.xaxis, ax.get_xscale()), (ax.yaxis, ax.get_yscale())):
+            if scale != "log":
+                continue
+            lo, hi = sorted(axis.get_view_interval())
+            axis.set_major_formatter(FuncFormatter(lambda v, _: plain(v, 3)))
+            if lo > 0 and np.log10(hi / lo) < 3:
+                axis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
+                axis.set_minor_formatter(FuncFormatter(lambda v, _: plain(v, 3)))
 
 
 def _ink_box(rgba: np.ndarray, face: np.ndarray) -> tuple[int, int, int, int] | None:
@@ -158,6 +175,8 @@ def _cell(key_label: str, v) -> str:
     """A key/value table's value formatted by the unit of its label (GPS times as week and seconds of week)."""
     if isinstance(v, str):
         return v
+    if "lat, lon" in key_label and isinstance(v, (list, tuple)) and len(v) == 3:   # latitude, longitude, height
+        return f"{fmt_number(v[0], '°', True)}°, {fmt_number(v[1], '°', True)}°, {fmt_number(v[2], 'm')} m"
     if "GPS time" in key_label or key_label.endswith("(GPS s)"):
         return fmt_value([gps_time(x) for x in v]) if isinstance(v, (list, tuple)) else gps_time(v)
     return _fmt(v, unit_of_label(key_label), is_coordinate_label(key_label))
@@ -175,6 +194,19 @@ def _figure_html(png: bytes, caption: str) -> str:
     b64 = base64.b64encode(png).decode("ascii")
     cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
     return f'<figure><img src="data:image/png;base64,{b64}" alt="{html.escape(caption)}">{cap}</figure>'
+
+
+NOWRAP_CHARS = 24   # a cell this short (a value ± sigma) stays on one line: a line break inside a number misleads
+
+
+_NUMERIC = re.compile(r"^[+\-−]?[\d.]|^–$")
+
+
+def _td(text: str) -> str:
+    """A table cell: a short one on one line, words left-aligned (numbers stay right-aligned)."""
+    cls = (["nw"] if len(text) <= NOWRAP_CHARS else []) + ([] if _NUMERIC.match(text) else ["t"])
+    c = f' class="{" ".join(cls)}"' if cls else ""
+    return f"<td{c}>{html.escape(text)}</td>"
 
 
 def _strip_tags(text: str) -> str:
@@ -236,8 +268,8 @@ class HtmlReport:
         dec = [None if coords[j] else column_decimals([r[j] for r in rows if j < len(r)], units[j])
                for j in range(width)]
         head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-        body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(v, units[j], coords[j], dec[j]))}</td>"
-                                        for j, v in enumerate(r)) + "</tr>" for r in rows)
+        body = "".join("<tr>" + "".join(_td(_fmt(v, units[j], coords[j], dec[j])) for j, v in enumerate(r))
+                       + "</tr>" for r in rows)
         self.parts.append(f"<table><tr>{head}</tr>{body}</table>")
         return self
 

@@ -15,7 +15,7 @@ from dgcal.reports.boresight import boresight_angles_deg
 from dgcal.reports.glossary import METHOD_NOTE, label, method_name
 from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
-from dgcal.reports.units import fmt_value, pm, with_unit
+from dgcal.reports.units import fmt_number, fmt_value, pm, with_unit
 
 
 def improvement_pct(checks: dict, reference: str | None = None) -> dict:
@@ -55,10 +55,10 @@ def add_boresight_matrices(rep: HtmlReport, R_cam_to_body) -> None:
     """R_cam_to_body and the nominal mounting it is measured from, as two small tables, with the caption."""
     theta, R_nom = boresight_angles_deg(R_cam_to_body)
     R = np.asarray(R_cam_to_body, float)
-    rep.table(["R_cam_to_body, R_nominal (unitless)", "camera x", "camera y", "camera z", "", "camera x",
-               "camera y", "camera z"],
-              [[f"body {'xyz'[i]}", *(f"{v:+.8f}" for v in R[i]), f"body {'xyz'[i]}", *(f"{v:+.0f}" for v in R_nom[i])]
-               for i in range(3)])
+    rep.table(["R_cam_to_body (unitless)", "camera x", "camera y", "camera z"],
+              [[f"body {'xyz'[i]}", *(f"{v:+.8f}" for v in R[i])] for i in range(3)])
+    rep.table(["R_nominal (unitless)", "camera x", "camera y", "camera z"],
+              [[f"body {'xyz'[i]}", *(f"{v:+.0f}" for v in R_nom[i])] for i in range(3)])
     rep.text(BORESIGHT_CAPTION, cls="small")
 
 
@@ -145,7 +145,8 @@ def mount_report_html(main: dict, others: dict | None = None) -> str:
         corr = m["correlation"]
         rep.heading("Correlations (unitless)")
         rep.table(["correlation (unitless)"] + names,
-                  [[names[i]] + ["" if v is None else f"{v:+.3f}" for v in corr[i]] for i in range(len(names))])
+                  [[names[i]] + ["" if v is None else fmt_number(v, "", decimals=3) for v in corr[i]]
+                   for i in range(len(names))])
     rep.kv_table([(k, m[k]) for k in ("sigma0", "redundancy", "covariance_scaled_by") if k in m])
     rep.heading("Warnings")
     rep.warnings(m.get("warnings", []))
@@ -228,7 +229,7 @@ def check_report_html(checks: dict, improvement: dict | None = None, honesty: di
                   + [["predicted total", "", *(b["predicted_rms"][q] for q in AXES)],
                      ["achieved", "", *(b["achieved_rms"][q] for q in AXES)]])
         rep.text(f"mean flying height {with_unit(round(b['mean_flying_height_m']), 'm')}, mean speed "
-                 f"{with_unit(b['mean_speed_m_s'], 'm/s')}", cls="small")
+                 f"{b['mean_speed_m_s']:.1f} m/s", cls="small")
         rep.warnings(c.get("warnings", []) + c["asprs_2023"].get("warnings", []), f"{method_name(name)}: no warnings.")
     fig, axes = new_figure(5 * len(checks), 4.8, nrows=1, ncols=len(checks), squeeze=False)
     # one arrow scale for all methods, so the panels compare

@@ -240,12 +240,12 @@ def write_pos_report(path: str | Path, res, honesty: dict | None = None) -> Path
     rep = HtmlReport(f"GNSS/INS trajectory ({res.mode.upper()} smoother)")
     rep.headline([("median σ north, east, down (m)", s["median_sigma_m"]),
                   ("median σ roll, pitch, heading (°)", s["median_sigma_deg"])],
-                 f"{res.mode.upper()} smoothed trajectory, {with_unit(s['t_end_gps'] - s['t_start_gps'], 's')} "
-                 "long: its 1-sigma over the flight.")
+                 f"{res.mode.upper()} smoothed trajectory, {s['t_end_gps'] - s['t_start_gps']:.1f} s long: its "
+                 "1-sigma over the flight.")
     lat, lon, h = s["nav_frame_origin_deg_m"]
     rep.kv_table([("mode", res.mode.upper()), ("keyframes (one per GNSS epoch)", s["keyframes"]),
                   ("start (GPS time)", s["t_start_gps"]), ("end (GPS time)", s["t_end_gps"]),
-                  ("duration (s)", round(s["t_end_gps"] - s["t_start_gps"], 1)),
+                  ("duration (s)", f"{s['t_end_gps'] - s['t_start_gps']:.1f}"),
                   ("epochs with a GNSS update", s["epochs_with_gnss"]),
                   ("epochs without a GNSS update", s["epochs_without_gnss_update"]),
                   ("constellations", ", ".join(s["systems"]) or "–"),

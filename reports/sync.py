@@ -22,6 +22,13 @@ def write_sync_report(path: Path, res) -> Path:
     """One-file HTML report of a `dgcal.pos.lowcost.sync.SyncResult`."""
     rep = HtmlReport("dgcal time synchronisation")
     s = res.summary()
+    rep.headline([("events paired with an exposure / images", f"{s['n_events']} / {s['n_images']}"),
+                  ("exposure σ, median (ms)", None if s.get("exposure_sigma_s_median") is None
+                   else 1e3 * s["exposure_sigma_s_median"]),
+                  ("event time bound, max (ms)", None if s.get("event_time_bound_s_max") is None
+                   else 1e3 * s["event_time_bound_s_max"]),
+                  ("logger clock drift (ppm)", s.get("clock_drift_ppm"))],
+                 "Exposure times of the images in GPS time, from the logger's photoresistor and PPS:")
     rep.warnings(s["warnings"])
     add_honesty(rep, no_reference(SYNC_NO_REFERENCE))
     rep.heading("Checks")

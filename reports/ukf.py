@@ -14,7 +14,7 @@ from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import write_trajectory
 from dgcal.pos.lowcost.ukf_pos import UkfPosResult, errors_vs_truth
 from dgcal.reports.html import HtmlReport, new_figure
-from dgcal.reports.units import fmt_number, pm
+from dgcal.reports.units import canonical_unit, fmt_number, pm
 
 ACCURACY_COLUMNS = ("solution", "quantity", "unit", "median_sigma", "mean", "std", "rms", "normalised_rms")
 SEED000 = {"roll": 2.6, "pitch": 2.1}  # seed 000 (real flight, vs a vertical gyro): std of the UKF errors, deg
@@ -116,7 +116,7 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
                       st.get("roll_pitch_deg") or [], st.get("roll_pitch_sigma_deg") or []))
                    + f" ({st.get('levelled')})" if st else None),
                   ("start: heading", head if st else None),
-                  ("duration (s)", round(s["t_end_gps"] - s["t_start_gps"], 1)),
+                  ("duration (s)", f"{s['t_end_gps'] - s['t_start_gps']:.1f}"),
                   ("gyro bias, mean x, y, z (°/h)", s["gyro_bias_deg_h_mean"]),
                   ("accelerometer bias, mean x, y, z (mg)", s["accel_bias_mg_mean"]),
                   ("NIS per dimension, mean (unitless)", s["nis_mean"]),
@@ -142,7 +142,7 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
              f"{SEED000['pitch']} deg.")
     rep.table(["solution", "quantity", "unit", "median σ (unit column)", "mean error (unit column)",
                "error std (unit column)", "error RMS (unit column)", "error/σ RMS"],
-              [[r.get("solution"), r.get("quantity"), r.get("unit")]
+              [[r.get("solution"), r.get("quantity"), canonical_unit(r.get("unit"))]
                + [fmt_number(r.get(c), r.get("unit")) for c in ACCURACY_COLUMNS[3:7]]
                + [fmt_number(r.get("normalised_rms"), "", decimals=2)] for r in rows])
     rep.heading("Sigma envelopes").figure(partial(_sigmas, res), "1-sigma of the UKF (and the smoother, dashed)")

@@ -26,12 +26,17 @@ _UNIT_IN_PARENS = re.compile(r"\(([^()]*)\)\s*$")
 
 
 def _decimals_for(v: float, base: int) -> int:
-    """`base` decimals, more when |v| would keep fewer than two significant digits there (at most MAX_DECIMALS;
-    a value below even that resolution: `base`, it reads as 0)."""
+    """`base` decimals (the unit's resolution), more when |v| is below that resolution (two significant digits then,
+    at most MAX_DECIMALS; a value below even that: `base`, it reads as 0)."""
     a = abs(v)
-    if a == 0 or a >= 10 ** (1 - base) or a < 10 ** -MAX_DECIMALS:
+    if a == 0 or a >= 10 ** -base or a < 10 ** -MAX_DECIMALS:
         return base
     return min(MAX_DECIMALS, max(base, 1 - int(math.floor(math.log10(a)))))
+
+
+def _sigma_decimals(s: float, base: int | None) -> int:
+    """Decimals that show a sigma with two significant digits, at least `base` (the unit's resolution)."""
+    return min(MAX_DECIMALS, max(base or 0, 1 - int(math.floor(math.log10(s)))))
 
 
 def column_decimals(values, unit: str | None) -> int | None:
@@ -134,8 +139,7 @@ def value_sigma(v, sigma, unit: str | None = None, signed: bool = False) -> tupl
     sign = "+" if signed and _positive(v) else ""
     if not math.isfinite(fs) or fs <= 0:
         return sign + fmt_number(v, u), "–"
-    d = _decimals_for(fs, DECIMALS[u]) if u in DECIMALS else min(MAX_DECIMALS, max(0, 1 - int(math.floor(
-        math.log10(fs)))))
+    d = _sigma_decimals(fs, DECIMALS.get(u))
     return sign + fmt_number(v, u, decimals=d), fmt_number(fs, u, decimals=d)
 
 

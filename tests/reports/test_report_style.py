@@ -78,7 +78,7 @@ def test_a_page_of_a_raw_summary_reads_clean():
                   "0.12346, -0.00025, 3.00000", "35.12345679", "-3962108.673", "datum statement", "new σ (px)",
                   "lever x", "Glossary", "yes"):
         assert words in text, words
-    assert "0.0011 0.00091" in text and "-0.0123 0.00210" in text             # a column: one resolution
+    assert "A 0.001 0.00091 3" in text and "B -0.012 0.00210 4" in text         # a column: one resolution
 
 
 # ------------------------------------------------------------------------------------------------ mounting, check
