@@ -51,6 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "ionosphere (docs/gnss.md)")
     p.add_argument("--clk", metavar="CLK", nargs="+", default=None,
                    help="precise satellite clocks (RINEX clock files, plain or .gz) beside --sp3")
+    p.add_argument("--atx", metavar="ANTEX", default=None,
+                   help="satellite antenna phase-centre offsets (ANTEX file, e.g. igs20.atx) for the --sp3 orbits "
+                   "(without it they are the satellites' centres of mass)")
     p.add_argument("--mode", choices=("spp", "ppk", "tc", "lc", "ukf"), default="spp",
                    help="spp: GNSS code only; ppk: carrier-phase PPK against --rinex-base; tc: tightly coupled "
                    "GNSS/INS; lc: loosely coupled; ukf: seed 000's 15-state UKF on the fixes (--gnss or SPP), "
@@ -167,11 +170,13 @@ def _other_modes(mode: str) -> dict:
 
 
 def _nav_files(args: argparse.Namespace) -> tuple:
-    """--rinex-nav's files, then --sp3's and --clk's (each checked to be what its flag says): the navigation
+    """--rinex-nav's files, then --sp3's, --clk's and --atx's (each checked to be what its flag says): the navigation
     files every mode reads together (dgcal.pos.gnss.rinex.read_rinex_nav tells them apart by content)."""
     from dgcal.pos.gnss.precise import require_kind
-    return (tuple(args.rinex_nav or ()) + tuple(require_kind(f, "sp3", "--sp3") for f in args.sp3 or ())
-            + tuple(require_kind(f, "clk", "--clk") for f in args.clk or ()))
+    sp3, clk, atx = (getattr(args, k, None) for k in ("sp3", "clk", "atx"))
+    return (tuple(args.rinex_nav or ()) + tuple(require_kind(f, "sp3", "--sp3") for f in sp3 or ())
+            + tuple(require_kind(f, "clk", "--clk") for f in clk or ())
+            + ((require_kind(atx, "atx", "--atx"),) if atx else ()))
 
 
 def spp_mode_options(args: argparse.Namespace):

@@ -8,10 +8,13 @@ linearly between the two epochs around the time. Products carry no periodic rela
 ``-2 r.v / c^2`` (the broadcast clock's ``F e sqrt(A) sin E`` in another form). The precise clocks refer to the
 ionosphere-free combination (GPS L1/L2 P(Y), Galileo E1/E5a, BeiDou B1I/B3I); `dgcal.pos.gnss.ephemeris` takes the
 broadcast group delay off for single-frequency users as for broadcast clocks (RTKLIB 2.4.3 does the same).
-Satellite antenna phase-centre offsets are not applied (no ANTEX file is read): the positions are the centre of
-mass, up to ~2.5 m from the antenna along the radial direction; for code positioning that offset is nearly common
-to all satellites of a system and goes mostly into the receiver clock, and double differences over short
-baselines cancel it.
+Satellite antenna phase-centre offsets come from an ANTEX file when one is given (cssrlib's `atxdec` reads it):
+the offset of the products' ionosphere-free combination (IGS: GPS/QZSS L1/L2, Galileo E1/E5a, BeiDou B1I/B3I),
+rotated into ECEF by the nominal yaw attitude (z to the earth's centre, y along z x the sun direction), is added
+to the centre-of-mass position, as RTKLIB's `satantoff` does; the antenna's phase variations are not applied.
+Without an ANTEX file the positions are the centre of mass, up to ~2.5 m from the antenna along the radial
+direction; for code positioning that offset is nearly common to all satellites of a system and goes mostly into
+the receiver clock, and double differences over short baselines cancel it.
 
 Files are recognised by content (`product_kind`); gzip-compressed files are read as they are. Every malformed
 value is an `InputError` naming file, line and field.
@@ -24,8 +27,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from cssrlib.gnss import gpst2time, gpst2utc, sat2id
+from cssrlib.peph import atxdec, sunmoonpos
 
-from dgcal.fields.constants import C_LIGHT, OMEGA_EARTH
+from dgcal.fields.constants import C_LIGHT, OMEGA_EARTH, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.pos.gnss.rinex_obs import read_lines
 
@@ -72,7 +77,7 @@ def product_kind(path: str | Path, first_line: str | None = None) -> str:
 
 
 _KIND_NAMES = {"sp3": "an SP3 orbit file (first line #c or #d)", "clk": "a RINEX clock file (type 'C')",
-               "atx": "an ANTEX file", "nav": "a RINEX navigation file"}
+               "atx": "an ANTEX file (first line ANTEX VERSION / SYST)", "nav": "a RINEX navigation file"}
 
 
 def require_kind(path: str | Path, kind: str, field: str) -> Path:
@@ -261,6 +266,70 @@ def read_rinex_clock(path: str | Path) -> ClockData:
     return ClockData(t_arr[order], sats, clk[order])
 
 
+# the two carriers of each system's ionosphere-free clock reference in IGS products: ANTEX frequency code, Hz
+IF_CARRIERS = {"G": (("L1", 1575.42e6), ("L2", 1227.60e6)), "J": (("L1", 1575.42e6), ("L2", 1227.60e6)),
+               "E": (("L1", 1575.42e6), ("L5", 1176.45e6)), "C": (("L2", 1561.098e6), ("L6", 1268.52e6))}
+
+
+def _gtime_seconds(t) -> float:
+    """cssrlib gtime_t -> continuous GPS seconds (0 for an unset time)."""
+    return float(t.time) + float(t.sec) - 315964800.0 if t.time else 0.0
+
+
+def read_antex_pco(path: str | Path) -> dict[str, list[tuple[float, float, np.ndarray]]]:
+    """Satellite antenna phase-centre offsets of an ANTEX file (plain), per satellite id: (valid from, valid until
+    (continuous GPS s; 0: open), offset (m) in the antenna frame x, y, z) of the ionosphere-free combination of
+    `IF_CARRIERS`; satellites of other systems, or without both carriers, are left out."""
+    path = Path(path)
+    if product_kind(path) != "atx":
+        raise InputError("not an ANTEX file (no 'ANTEX VERSION / SYST' first line)", path, 1, "ANTEX VERSION / SYST")
+    dec = atxdec()
+    try:
+        dec.readpcv(str(path))
+    except (OSError, UnicodeDecodeError, ValueError, IndexError, KeyError) as exc:
+        raise InputError(f"cannot read ANTEX file: {exc}", path) from None
+    out: dict[str, list] = {}
+    for pcv in dec.pcvs:
+        sid = sat2id(pcv.sat) if pcv.sat else ""
+        carriers = IF_CARRIERS.get(sid[:1])
+        if not carriers:
+            continue
+        offs = {str(sig).strip()[1:]: np.asarray(off, float) for sig, off in pcv.off.items()
+                if str(sig)[:1] == sid[0]}
+        if not all(c in offs for c, _ in carriers):
+            continue
+        (c1, f1), (c2, f2) = carriers
+        pco = (f1 ** 2 * offs[c1] - f2 ** 2 * offs[c2]) / (f1 ** 2 - f2 ** 2) * 1e-3
+        if not np.all(np.abs(pco) < 10.0):
+            raise InputError(f"satellite antenna offset {pco} m of {sid} is not a satellite's", path,
+                             field="NORTH / EAST / UP")
+        out.setdefault(sid, []).append((_gtime_seconds(pcv.ts), _gtime_seconds(pcv.te), pco))
+    return out
+
+
+def _sun_ecef(t_gps: float) -> np.ndarray:
+    """Sun position (ECEF m) at continuous GPS seconds (cssrlib's ephemeris, UT1 = UTC)."""
+    week = int(np.floor(t_gps / SECONDS_PER_WEEK))
+    rsun, _, _ = sunmoonpos(gpst2utc(gpst2time(week, t_gps - week * SECONDS_PER_WEEK)), np.zeros(5), True)
+    return np.asarray(rsun, float)
+
+
+def antenna_offsets_ecef(p_ecef: np.ndarray, pco: np.ndarray, t_gps: np.ndarray) -> np.ndarray:
+    """Antenna offsets (n,3) in ECEF (m) of satellites at `p_ecef` (n,3) with antenna-frame offsets `pco` (n,3) at
+    times `t_gps` (n,), by the nominal yaw attitude: z to the earth's centre, y = z x (sun - sat) normalised,
+    x = y x z (RTKLIB's `satantoff`, cssrlib's `orb2ecef`). The sun is placed once per minute (it moves 0.25 deg)."""
+    minutes = np.round(np.asarray(t_gps, float) / 60.0)
+    sun = {m: _sun_ecef(m * 60.0) for m in np.unique(minutes)}
+    r_sun = np.array([sun[m] for m in minutes]).reshape(-1, 3)
+    ez = -p_ecef / np.linalg.norm(p_ecef, axis=1, keepdims=True)
+    es = r_sun - p_ecef
+    es /= np.linalg.norm(es, axis=1, keepdims=True)
+    ey = np.cross(ez, es)
+    ey /= np.linalg.norm(ey, axis=1, keepdims=True)
+    ex = np.cross(ey, ez)
+    return pco[:, :1] * ex + pco[:, 1:2] * ey + pco[:, 2:3] * ez
+
+
 def _merge(ts: list[np.ndarray], sats_l: list[list[str]], vals: list[np.ndarray]):
     """Epochs of several files on one time axis and one satellite list (first file wins at a repeated epoch)."""
     sats = sorted({s for ss in sats_l for s in ss})
@@ -290,15 +359,31 @@ class PreciseProducts:
     clk: np.ndarray
     sp3_paths: tuple[str, ...] = ()
     clk_paths: tuple[str, ...] = ()
+    pco: dict = field(default_factory=dict)     # satellite id -> [(from, until, offset xyz m)] (`read_antex_pco`)
+    atx_paths: tuple[str, ...] = ()
     _col: dict = field(default_factory=dict, repr=False)
 
     @property
     def label(self) -> str:
-        """Which products: "SP3 a.sp3 + CLK b.clk", or "SP3 a.sp3 (its own clocks)"."""
+        """Which products: "SP3 a.sp3 + CLK b.clk [+ ATX c.atx]", or "SP3 a.sp3 (its own clocks)"."""
         sp3 = "SP3 " + ", ".join(Path(p).name for p in self.sp3_paths)
         if self.clk_paths:
-            return sp3 + " + CLK " + ", ".join(Path(p).name for p in self.clk_paths)
-        return sp3 + " (its own clocks)"
+            sp3 += " + CLK " + ", ".join(Path(p).name for p in self.clk_paths)
+        else:
+            sp3 += " (its own clocks)"
+        if self.atx_paths:
+            sp3 += " + ATX " + ", ".join(Path(p).name for p in self.atx_paths)
+        return sp3
+
+    def offsets(self, sats: list[str], t_gps: np.ndarray) -> np.ndarray:
+        """Antenna-frame offsets (n,3) m of satellites at times (GPS s) from the ANTEX file; NaN without one."""
+        out = np.full((len(sats), 3), np.nan)
+        for i, (sid, t) in enumerate(zip(sats, t_gps)):
+            for t0, t1, off in self.pco.get(sid, ()):
+                if (t0 == 0.0 or t >= t0) and (t1 == 0.0 or t <= t1):
+                    out[i] = off
+                    break
+        return out
 
     def columns(self, sats: list[str]) -> np.ndarray:
         """Column of each satellite id in the products, -1 where absent."""
@@ -370,14 +455,28 @@ class PreciseProducts:
         v_in = vel + OMEGA_EARTH * np.stack([-p0[:, 1], p0[:, 0], np.zeros(len(p0))], axis=1)
         acc = -3.986004418e14 * p0 / np.linalg.norm(p0, axis=1, keepdims=True) ** 3
         rel_rate = -2.0 * (np.sum(v_in * v_in, axis=1) + np.sum(p0 * acc, axis=1)) / C_LIGHT ** 2
+        if self.pco:
+            # antenna phase centre: the products' offset, rotated by the nominal attitude; satellites the ANTEX file
+            # lacks are not used (their centre of mass would be metres off the others)
+            off = self.offsets([sats[k] for k in i], ti)
+            have = np.all(np.isfinite(off), axis=1)
+            apc = antenna_offsets_ecef(p0[have], off[have], ti[have])
+            p0[have] += apc
+            keep_ok = np.zeros(len(i), bool)
+            keep_ok[have] = True
+            ok[i[~keep_ok]] = False
+            p0[~keep_ok] = np.nan
         p[i], v[i] = p0, vel
         clk[i] = c0 + slope * (ti - ta) + rel
         drift[i] = slope + rel_rate
+        bad = i[~ok[i]]
+        p[bad], v[bad], clk[bad], drift[bad] = np.nan, np.nan, np.nan, np.nan
         return p, v, clk, drift, ok
 
 
-def read_precise(sp3_paths, clk_paths=()) -> PreciseProducts:
-    """Read SP3 orbit files (and RINEX clock files; without them the SP3 clocks) into one `PreciseProducts`."""
+def read_precise(sp3_paths, clk_paths=(), atx_paths=()) -> PreciseProducts:
+    """Read SP3 orbit files (and RINEX clock files; without them the SP3 clocks; and ANTEX files for the satellite
+    antenna offsets) into one `PreciseProducts`."""
     sp3 = [read_sp3(pth) for pth in sp3_paths]
     if not sp3:
         raise InputError("precise clocks need precise orbits: give an SP3 file too", Path(clk_paths[0]),
@@ -394,8 +493,12 @@ def read_precise(sp3_paths, clk_paths=()) -> PreciseProducts:
     idx = {s: j for j, s in enumerate(sats)}
     po[:, [idx[s] for s in sats_o]] = p_orb
     co[:, [idx[s] for s in sats_c]] = clk
+    pco: dict = {}
+    for pth in atx_paths:
+        for sid, rows in read_antex_pco(pth).items():
+            pco.setdefault(sid, []).extend(rows)
     return PreciseProducts(sats, t_orb, po, t_clk, co, tuple(str(x) for x in sp3_paths),
-                           tuple(str(x) for x in clk_paths))
+                           tuple(str(x) for x in clk_paths), pco, tuple(str(x) for x in atx_paths))
 
 
 def write_sp3(path: str | Path, t_gps: np.ndarray, sats: list[str], p_ecef: np.ndarray, clk_s: np.ndarray,

@@ -162,7 +162,7 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
     if not all_paths:
         raise InputError("precise orbits and clocks need a broadcast navigation file beside them (group delays, "
                          "ionosphere)", given[0], field="rinex_nav")
-    precise = read_precise(sp3, clk) if sp3 or clk else None
+    precise = read_precise(sp3, clk, atx) if sp3 or clk else None
     skipped_notes: list[str] = []
     nav = Nav()
     ion_gps = ion_qzs = ion_bds = None
@@ -200,12 +200,13 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
     warnings, ion_source = list(skipped_notes), "GPSA/GPSB"
     if precise is not None:
         source += " + " + ", ".join(str(p) for p in sp3 + clk)
-        warnings.append(f"orbits and clocks: {precise.label} (centre of mass; satellite antenna offsets not applied"
-                        + (f": ANTEX {', '.join(p.name for p in atx)} is not read yet" if atx else "")
+        warnings.append(f"orbits and clocks: {precise.label} ("
+                        + ("satellite antenna phase-centre offsets from the ANTEX file, phase variations not applied"
+                           if atx else "centre of mass: satellite antenna offsets not applied, no ANTEX file")
                         + "; the broadcast records give the group delays)")
     elif atx:
-        warnings.append(f"{', '.join(str(p) for p in atx)}: ANTEX file not used (only with SP3 orbits, and not "
-                        "read yet)")
+        warnings.append(f"{', '.join(str(p) for p in atx)}: ANTEX file not used (broadcast orbits are the antenna's "
+                        "already; it serves SP3 orbits)")
     if dropped:
         warnings.append(f"{source}: {len(dropped)} ephemeris record(s) with impossible orbit or clock values left "
                         f"out: {'; '.join(dropped[:3])}" + (" ..." if len(dropped) > 3 else ""))

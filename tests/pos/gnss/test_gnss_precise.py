@@ -8,19 +8,22 @@ Real products: CODE's final multi-GNSS SP3 of 2021-03-19 (tests/pos/gnss/data, c
 import csv
 import gzip
 import json
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 from cssrlib.gnss import Nav, gpst2time, id2sat
-from cssrlib.peph import peph
+from cssrlib.peph import orb2ecef, peph
 from cssrlib.rinex import rnxdec
 
 from dgcal.cli import main
 from dgcal.fields.errors import InputError
 from dgcal.pos.gnss.ephemeris import precise_group_delay_s, satellite_states, select_ephemeris
-from dgcal.pos.gnss.precise import read_precise, read_rinex_clock, read_sp3, write_rinex_clock, write_sp3
+from dgcal.pos.gnss.precise import (read_antex_pco, read_precise, read_rinex_clock, read_sp3, write_rinex_clock,
+                                     write_sp3)
 from dgcal.pos.gnss.rinex import gps_seconds_from_calendar, read_rinex_nav, read_rinex_obs
 from dgcal.pos.gnss.spp import SppOptions, spp
 
@@ -339,3 +342,100 @@ def test_tc_with_products_written_from_broadcast_equals_broadcast_tc(tmp_path):
     assert main(common + ["--sp3", str(tmp_path / "half.sp3"), "--out", str(tmp_path / "half")]) == 0
     h = np.loadtxt(tmp_path / "half" / "trajectory.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3, 4))
     assert np.abs(h[:, 3] - a[:, 3]).max() > 0.02
+
+
+ATX_SATS = {"G05": {"G01": (279.0, -12.0, 2319.0), "G02": (279.0, -12.0, 2250.0)},
+            "G10": {"G01": (394.0, 0.0, 1600.0), "G02": (394.0, 0.0, 1650.0)},
+            "E11": {"E01": (150.0, 20.0, 900.0), "E05": (150.0, 20.0, 800.0)}}
+
+
+def _antex(sats: dict) -> str:
+    """A minimal ANTEX 1.4 file of satellite antennas: {sid: {frequency code: (x, y, z) mm}}, no phase variations."""
+    out = [f"{'     1.4            M':<60}ANTEX VERSION / SYST", f"{'A':<60}PCV TYPE / REFANT", f"{'':60}END OF HEADER"]
+    for sid, freqs in sats.items():
+        out += [f"{'':60}START OF ANTENNA", f"{'BLOCK TEST':<20}{sid:<20}{sid + '0':<10}{'2009-014A':<10}"
+                "TYPE / SERIAL NO", f"{'':45}0    01-JAN-21 METH / BY / # / DATE", f"{'     0.0':<60}DAZI",
+                f"{'     0.0  17.0   1.0':<60}ZEN1 / ZEN2 / DZEN", f"{len(freqs):6d}{'':54}# OF FREQUENCIES",
+                f"{'  2009     3    24     0     0    0.0000000':<60}VALID FROM"]
+        for fc, (x, y, z) in freqs.items():
+            out += [f"{'   ' + fc:<60}START OF FREQUENCY", f"{x:10.2f}{y:10.2f}{z:10.2f}{'':30}NORTH / EAST / UP",
+                    "   NOAZI" + f"{0.0:8.2f}" * 18, f"{'   ' + fc:<60}END OF FREQUENCY"]
+        out.append(f"{'':60}END OF ANTENNA")
+    return "\n".join(out) + "\n"
+
+
+_RTKLIB_SATANTOFF = """
+import json, sys
+import pyrtklib as rk
+atx, week, sow, states = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), json.loads(sys.argv[4])
+pcvs = rk.pcvs_t()
+rk.readpcv(atx, pcvs)
+t = rk.gpst2time(week, sow)
+nav = rk.nav_t()
+out, keep = {}, []
+for sid, rv in states.items():
+    sat = rk.satid2no(sid)
+    keep.append(rk.searchpcv(sat, "", t, pcvs))
+    nav.pcvs[sat - 1] = keep[-1]
+    rs, dant = rk.Arr1Ddouble(6), rk.Arr1Ddouble(3)
+    for k in range(6):
+        rs[k] = rv[k]
+    rk.satantoff(t, rs, sat, nav, dant)
+    out[sid] = [dant[0], dant[1], dant[2]]
+print(json.dumps(out), flush=True)
+import os
+os._exit(0)          # RTKLIB's nav_t would free the pcv entries assigned above a second time
+"""
+
+
+def test_antex_offsets_beside_cssrlib_and_rtklib(tmp_path, shared_data):
+    """With an ANTEX file the SP3 positions move to the antenna phase centre: the ionosphere-free offset (GPS L1/L2,
+    Galileo E1/E5a) rotated by the nominal yaw attitude, as cssrlib's `orb2ecef` and RTKLIB 2.4.3's `satantoff`
+    (GPS; RTKLIB pairs Galileo's frequencies otherwise) compute it, to 1 mm. A satellite the file lacks is not used;
+    the products' label names the file."""
+    atx = tmp_path / "sat.atx"
+    atx.write_text(_antex(ATX_SATS))
+    pco = read_antex_pco(atx)
+    g1, g2 = 1575.42e6 ** 2, 1227.60e6 ** 2
+    assert np.allclose(pco["G05"][0][2], [0.279, -0.012, (g1 * 2.319 - g2 * 2.250) / (g1 - g2)], atol=1e-9)
+    e5 = 1176.45e6 ** 2
+    assert np.allclose(pco["E11"][0][2], [0.150, 0.020, (g1 * 0.900 - e5 * 0.800) / (g1 - e5)], atol=1e-9)
+    com = read_precise([SP3])
+    apc = read_precise([SP3], (), [atx])
+    assert apc.label.endswith("+ ATX sat.atx")
+    sats = ["G05", "G10", "E11", "E27"]
+    dt = 17.3
+    p0, v0, c0, _, ok0 = com.states(sats, np.full(4, T_NOON + dt))
+    p1, v1, c1, _, ok1 = apc.states(sats, np.full(4, T_NOON + dt))
+    assert ok0.all() and list(ok1) == [True, True, True, False]          # E27 is not in the ANTEX file
+    assert np.array_equal(c0[:3], c1[:3])
+    t = gpst2time(2149, 475200.0 + dt)
+    for i, sid in enumerate(sats[:3]):
+        want = pco[sid][0][2] @ orb2ecef(t, p0[i])
+        assert np.linalg.norm(p1[i] - p0[i] - want) < 1e-3
+        assert abs(np.linalg.norm(p1[i] - p0[i]) - np.linalg.norm(pco[sid][0][2])) < 1e-9 + 1e-3
+    states = {sid: list(p0[i]) + list(v0[i]) for i, sid in enumerate(sats[:2])}
+    run = subprocess.run([sys.executable, "-c", _RTKLIB_SATANTOFF, str(atx), "2149", str(475200.0 + dt),
+                          json.dumps(states)], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    rk = json.loads(run.stdout)
+    for i, sid in enumerate(sats[:2]):
+        assert np.linalg.norm(np.array(rk[sid]) - (p1[i] - p0[i])) < 1e-3, sid
+    # through the navigation reader: the warning says the offsets are applied
+    nav = read_rinex_nav(shared_data / NAV, [SP3, atx])
+    assert nav.precise.atx_paths and any("offsets from the ANTEX file" in w for w in nav.warnings)
+    # the command line: every GPS/Galileo/QZSS satellite with a 1.5 m radial offset (z), SPP moves by less than the
+    # offset (nearly common to the satellites: most goes into the receiver clocks)
+    band2 = {"G": "G02", "E": "E05", "J": "J02"}
+    every = {sid: {sid[0] + "01": (0.0, 0.0, 1500.0), band2[sid[0]]: (0.0, 0.0, 1500.0)}
+             for sid in com.sats if sid[0] in "GEJ"}
+    (tmp_path / "all.atx").write_text(_antex(every))
+    args = ["pos", "--mode", "spp", "--rinex-obs", str(shared_data / OBS), "--rinex-nav", str(shared_data / NAV),
+            "--sp3", str(SP3), "--systems", "GEJ", "--no-progress", "--no-report"]
+    assert main(args + ["--atx", str(tmp_path / "all.atx"), "--out", str(tmp_path / "a")]) == 0
+    assert main(args + ["--out", str(tmp_path / "b")]) == 0
+    sa = json.loads((tmp_path / "a" / "gnss_summary.json").read_text())
+    sb = json.loads((tmp_path / "b" / "gnss_summary.json").read_text())
+    assert sa["orbits"].endswith("+ ATX all.atx") and sa["n_fixed"] == sb["n_fixed"] == 60
+    moved = np.linalg.norm(np.array(sa["median_ecef_m"]) - np.array(sb["median_ecef_m"]))
+    assert 0.0 < moved < 1.5
