@@ -35,13 +35,13 @@ _STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;
 color:#222;line-height:1.4;padding:0 1em}
 h1{font-size:1.6em;border-bottom:2px solid #345;padding-bottom:.2em}h2{font-size:1.25em;margin-top:1.6em;color:#345}
-table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.2em .6em;text-align:right}
-th{background:#eef2f6}td:first-child,th:first-child{text-align:left}
+table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.2em .6em;text-align:left}
+th{background:#eef2f6}td.n{text-align:right}
 .warn{background:#fff4e0;border-left:4px solid #e69500;padding:.4em .8em;margin:.3em 0}
 .ok{background:#eaf7ea;border-left:4px solid #3a3;padding:.4em .8em;margin:.3em 0}
 figure{margin:1em 0}figcaption{font-size:.9em;color:#555}img{max-width:100%}
 .small{font-size:.85em;color:#555}
-td.nw{white-space:nowrap}td.t{text-align:left}
+td.nw{white-space:nowrap}
 .lead{margin:.6em 0 1em}.lead table{font-size:1.05em}.lead th{background:#dde6ef}
 .nav a{margin-right:1em}dl.glossary dt{font-weight:600;margin-top:.4em}dl.glossary dd{margin-left:1.2em;color:#444}
 @media print{body{max-width:none;margin:0;font-size:10pt}figure{page-break-inside:avoid}h2{page-break-after:avoid}
@@ -203,10 +203,12 @@ _NUMERIC = re.compile(r"^[+\-−]?[\d.]|^–$")
 
 
 def _td(text: str) -> str:
-    """A table cell: a short one on one line, words left-aligned (numbers stay right-aligned)."""
-    cls = (["nw"] if len(text) <= NOWRAP_CHARS else []) + ([] if _NUMERIC.match(text) else ["t"])
-    c = f' class="{" ".join(cls)}"' if cls else ""
-    return f"<td{c}>{html.escape(text)}</td>"
+    """A table cell: numbers right-aligned, a short one on one line (a line break inside a value ± sigma
+    misleads); words left-aligned, as they are."""
+    if not _NUMERIC.match(text):
+        return f"<td>{html.escape(text)}</td>"
+    c = "n nw" if len(text) <= NOWRAP_CHARS else "n"
+    return f'<td class="{c}">{html.escape(text)}</td>'
 
 
 def _strip_tags(text: str) -> str:
@@ -241,7 +243,7 @@ class HtmlReport:
         """A table of name/value rows: a raw summary key becomes words (dgcal.reports.glossary.label), a value is
         formatted by the unit in its name's parentheses (dgcal.reports.units); rows whose value is None are left
         out. `cls`: a class of the table ('lead': the headline result)."""
-        rows = "".join(f"<tr><th>{html.escape(lab)}</th><td>{html.escape(_cell(lab, v))}</td></tr>"
+        rows = "".join(f"<tr><th>{html.escape(lab)}</th>{_td(_cell(lab, v))}</tr>"
                        for lab, v in ((_label(k), v) for k, v in pairs if v is not None))
         c = f' class="{cls}"' if cls else ""
         self.parts.append(f"<table{c}>{rows}</table>")
