@@ -254,9 +254,10 @@ def precise_group_delay_s(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray)
 def precise_states(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`satellite_states` from the precise products of ``nav.precise`` (`dgcal.pos.gnss.precise`): centre-of-mass
-    positions, clocks with the relativistic term, minus the single-frequency signal's delay against the products'
-    ionosphere-free reference (`precise_group_delay_s`, from the broadcast group delays); ``ura`` is
-    `PRECISE_SIGMA_M`. A satellite without products at the time is not ok (no fallback to the broadcast orbit)."""
+    positions (antenna phase centres with an ANTEX file), clocks with the relativistic term, minus the
+    single-frequency signal's delay against the products' ionosphere-free reference (`precise_group_delay_s`, from
+    the broadcast group delays); ``ura`` is `PRECISE_SIGMA_M`. A satellite without products at the time is not ok
+    (no fallback to the broadcast orbit)."""
     t_gps = np.array(np.broadcast_to(np.asarray(t_gps, float), (len(sats),)))
     p, v, clk, drift, ok = nav.precise.states(list(sats), t_gps)
     clk = clk - precise_group_delay_s(nav, sats, t_gps)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import gzip
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -285,7 +286,10 @@ def read_antex_pco(path: str | Path) -> dict[str, list[tuple[float, float, np.nd
         raise InputError("not an ANTEX file (no 'ANTEX VERSION / SYST' first line)", path, 1, "ANTEX VERSION / SYST")
     dec = atxdec()
     try:
-        dec.readpcv(str(path))
+        with tempfile.TemporaryDirectory() as tmp:
+            plain = Path(tmp) / "sat.atx"            # cssrlib opens the file itself: a gzip file is unpacked first
+            plain.write_text("\n".join(read_lines(path)) + "\n")
+            dec.readpcv(str(plain))
     except (OSError, UnicodeDecodeError, ValueError, IndexError, KeyError) as exc:
         raise InputError(f"cannot read ANTEX file: {exc}", path) from None
     out: dict[str, list] = {}
