@@ -39,7 +39,8 @@ FOREIGN = "my_notes.txt"           # the user's own file in the output folder
 FOREIGN_TEXT = "the user's notes: keep me\n"
 # the writing verbs (issue 31): the argv templates of test_fuzz_cli, and flow and simulate on their own data
 KILL_VERBS = {
-    "camera": VERBS["camera"][0], "triangulate": VERBS["triangulate"][0], "pos": VERBS["pos-lc"][0],
+    "camera": VERBS["camera"][0], "triangulate": VERBS["triangulate"][0] + " --accept-poor",
+    "pos": "pos --mode spp --rinex-obs {gnss_sim}/sim.obs --rinex-nav {gnss_sim}/nav.rnx --no-progress --out {out}",
     "mount": VERBS["mount"][0], "check": VERBS["check"][0], "export": VERBS["export"][0], "sync": VERBS["sync"][0],
     "georef": VERBS["georef"][0], "field": VERBS["field"][0], "run": VERBS["run"][0],
     "flow": "flow --images {fc}/frames --gnss {fc}/gnss_velocity.csv --camera {fc}/camera.json --no-progress "
@@ -58,9 +59,19 @@ def fc(tmp_path_factory) -> Path:
     return d / "fc"
 
 
+@pytest.fixture(scope="module")
+def gnss_sim(tmp_path_factory) -> Path:
+    """Five minutes of simulated GNSS observations (RINEX) for `pos --mode spp`."""
+    d = tmp_path_factory.mktemp("kill_gnss") / "gnss"
+    r = subprocess.run(_dgcal("simulate", "gnss", "--out", d), capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return d
+
+
 def _files(verb: str, request) -> dict[str, Path]:
-    """The verbs' input files (test_fuzz_cli's data set; the flight of `fc` for flow)."""
-    return {**request.getfixturevalue("data"), **({"fc": request.getfixturevalue("fc")} if verb == "flow" else {})}
+    """The verbs' input files (test_fuzz_cli's data set; simulated flights for flow and pos)."""
+    extra = {"flow": "fc", "pos": "gnss_sim"}.get(verb)
+    return {**request.getfixturevalue("data"), **({extra: request.getfixturevalue(extra)} if extra else {})}
 
 
 def _dgcal(*argv) -> list[str]:
