@@ -120,7 +120,7 @@ def _epoch(fields: list[str], path: Path, ln: int, name: str) -> float:
     try:
         y, mo, d, h, mi = (int(x) for x in fields[:5])
         s = float(fields[5])
-        if not (1980 <= y <= 2200 and 0.0 <= s < 61.0):
+        if not (1980 <= y <= 2200 and 0 <= h <= 23 and 0 <= mi <= 59 and 0.0 <= s < 61.0):
             raise ValueError
         return _gps_seconds(y, mo, d, h, mi, s)
     except (ValueError, IndexError):
