@@ -366,6 +366,7 @@ class PreciseProducts:
     pco: dict = field(default_factory=dict)     # satellite id -> [(from, until, offset xyz m)] (`read_antex_pco`)
     atx_paths: tuple[str, ...] = ()
     _col: dict = field(default_factory=dict, repr=False)
+    _lam: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def label(self) -> str:
@@ -395,8 +396,20 @@ class PreciseProducts:
             self._col.update({s: j for j, s in enumerate(self.sats)})
         return np.array([self._col.get(s, -1) for s in sats], int)
 
+    def _barycentric(self) -> np.ndarray:
+        """Barycentric weights (m-10, 11) of every 11-epoch window: 1 / prod_{j != k} (t_k - t_j), fixed by the
+        epochs alone, so an interpolation costs O(11) per time instead of O(11^2)."""
+        if self._lam is None:
+            n_win = max(len(self.t_orb) - LAGRANGE_POINTS + 1, 0)
+            tw = self.t_orb[np.arange(n_win)[:, None] + np.arange(LAGRANGE_POINTS)]
+            diff = tw[:, :, None] - tw[:, None, :]
+            diff[:, np.arange(LAGRANGE_POINTS), np.arange(LAGRANGE_POINTS)] = 1.0
+            self._lam = 1.0 / np.prod(diff, axis=2)
+        return self._lam
+
     def _positions(self, t: np.ndarray, j: np.ndarray, start: np.ndarray) -> np.ndarray:
-        """Lagrange-interpolated ECEF positions (n,3) at times t of satellites j over windows from `start`."""
+        """Lagrange-interpolated ECEF positions (n,3) at times t of satellites j over windows from `start`
+        (barycentric form: w_k = lam_k / (t - t_k) normalised; exactly the sample at a sample's time)."""
         w = start[:, None] + np.arange(LAGRANGE_POINTS)
         tw = self.t_orb[w] - t[:, None]                                   # (n, 11) s relative to t
         pw = self.p_orb[w, j[:, None]]                                    # (n, 11, 3)
@@ -404,11 +417,11 @@ class PreciseProducts:
         c, s = np.cos(th), np.sin(th)
         x = c * pw[..., 0] - s * pw[..., 1]
         y = s * pw[..., 0] + c * pw[..., 1]
-        diff = tw[:, :, None] - tw[:, None, :]                            # tw_k - tw_m
-        eye = np.eye(LAGRANGE_POINTS, dtype=bool)
-        num = np.where(eye, 1.0, -tw[:, None, :])                         # (0 - tw_m)
-        den = np.where(eye, 1.0, diff)
-        lw = np.prod(num / den, axis=2)                                   # (n, 11) weights at 0
+        at = tw == 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = self._barycentric()[start] / -tw
+        q = np.where(at.any(axis=1, keepdims=True), at.astype(float), q)
+        lw = q / np.sum(q, axis=1, keepdims=True)
         return np.stack([np.sum(lw * x, axis=1), np.sum(lw * y, axis=1), np.sum(lw * pw[..., 2], axis=1)], axis=1)
 
     def states(self, sats: list[str], t_gps: np.ndarray):
