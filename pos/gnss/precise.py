@@ -156,7 +156,7 @@ def read_sp3(path: str | Path) -> Sp3Data:
     tsys = "GPS"
     seen_c = False
     t_list: list[float] = []
-    rows: dict[str, list] = {}
+    recs: list[tuple[int, int]] = []            # (epoch, line index) of every position record
     k = -1
     for i, line in enumerate(lines):
         ln = i + 1
@@ -177,30 +177,50 @@ def read_sp3(path: str | Path) -> Sp3Data:
         elif line[:1] == "P":
             if k < 0:
                 raise InputError("position record before the first epoch header", path, ln, "P record")
-            sid = _sat_id(line[1:4])
-            vals = [_float(line[4 + 14 * j:18 + 14 * j], path, ln, n)
-                    for j, n in enumerate(("x (km)", "y (km)", "z (km)"))]
-            if any(abs(v) > SP3_MAX_KM for v in vals):
-                raise InputError(f"position {vals} km is not a satellite's", path, ln, "x (km)")
-            ctext = line[46:60]
-            c_us = _float(ctext, path, ln, "clock (us)") if ctext.strip() else SP3_BAD_CLOCK_US + 1.0
-            rows.setdefault(sid, []).append((k, vals, c_us))
+            recs.append((k, i))
         elif line.startswith("EOF"):
             break
     if not t_list:
         raise InputError("no epoch in SP3 file", path, len(lines), "epoch header")
-    sats = sorted(rows)
-    m, n = len(t_list), len(sats)
-    p = np.full((m, n, 3), np.nan)
-    clk = np.full((m, n), np.nan)
-    for j, sid in enumerate(sats):
-        for kk, vals, c_us in rows[sid]:
-            v = np.array(vals) * 1e3
-            if np.any(v != 0.0):                  # 0, 0, 0: no position
-                p[kk, j] = v
-            if abs(c_us) < SP3_BAD_CLOCK_US:
-                clk[kk, j] = c_us * 1e-6
+    vals = _sp3_values(lines, [i for _, i in recs], path)
+    ids: dict[str, str] = {}
+    sid = [ids.setdefault(lines[i][1:4], _sat_id(lines[i][1:4])) for _, i in recs]
+    sats = sorted(set(sid))
+    col = {x: j for j, x in enumerate(sats)}
+    kk = np.array([k for k, _ in recs], int)
+    jj = np.array([col[x] for x in sid], int)
+    p = np.full((len(t_list), len(sats), 3), np.nan)
+    clk = np.full((len(t_list), len(sats)), np.nan)
+    has_p = np.any(vals[:, :3] != 0.0, axis=1)              # 0, 0, 0: no position
+    p[kk[has_p], jj[has_p]] = vals[has_p, :3] * 1e3
+    has_c = np.abs(vals[:, 3]) < SP3_BAD_CLOCK_US
+    clk[kk[has_c], jj[has_c]] = vals[has_c, 3] * 1e-6
     return Sp3Data(np.array(t_list), sats, p, clk)
+
+
+_SP3_FIELDS = ("x (km)", "y (km)", "z (km)", "clock (us)")
+
+
+def _sp3_values(lines: list[str], rows: list[int], path: Path) -> np.ndarray:
+    """x, y, z (km) and clock (us; a blank clock is SP3's missing value) of the position records at line indices
+    `rows`, (n, 4): converted all at once; a bad field is found line by line and named (`InputError`)."""
+    if not rows:
+        return np.zeros((0, 4))
+    text = np.array([[lines[i][4 + 14 * f:18 + 14 * f] for f in range(4)] for i in rows])
+    text[:, 3] = np.where(np.char.strip(text[:, 3]) == "", "999999.999999", text[:, 3])
+    try:
+        vals = text.astype(float)
+        good = bool(np.all(np.isfinite(vals)))
+    except ValueError:
+        good = False
+    if not good:
+        vals = np.array([[_float(text[r, f], path, rows[r] + 1, _SP3_FIELDS[f]) for f in range(4)]
+                         for r in range(len(rows))])
+    far = np.flatnonzero(np.any(np.abs(vals[:, :3]) > SP3_MAX_KM, axis=1))
+    if len(far):
+        raise InputError(f"position {vals[far[0], :3].tolist()} km is not a satellite's", path, rows[far[0]] + 1,
+                         "x (km)")
+    return vals
 
 
 @dataclass
