@@ -123,7 +123,7 @@ def truth_honesty(d: dict, truth: dict, base: Path, files: dict) -> dict:
     tc = d.get("truth_comparison", {})
     for k, e in tc.get("mounting", {}).items():
         m = d["mounting"][k]
-        ref = f"mounting {k}"
+        ref = f"mounting {method_name(k)}"
         rows += honesty_rows([1e3 * e["delay_error_s"]], [1e3 * m.get("delay_sigma_s", np.nan)], ["delay"], ref, "ms")
         rows += honesty_rows(np.asarray(e["lever_arm_error_m"], float),
                              np.asarray(m.get("lever_arm_sigma_m", [np.nan] * 3), float), ["lever arm x/y/z"], ref)

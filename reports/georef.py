@@ -8,13 +8,14 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+from matplotlib.ticker import MaxNLocator
 
 from dgcal.calib.dg.single_image import GeorefRun, ImageGeoref
 from dgcal.fields.io.csv_tables import atomic_write, write_table
 from dgcal.reports.honesty import add_honesty, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
 
-GEOREF_NO_REFERENCE = ("No reference: the ground points are not compared with known coordinates (chi2/dof above is "
+GEOREF_NO_REFERENCE = ("No reference: the ground points are not compared with known coordinates (χ²/dof above is "
                        "how the single-image estimates of a point agree with each other; check points: dgcal check).")
 
 
@@ -55,7 +56,7 @@ def georef_report(res: ImageGeoref, crs: str, height_source: str) -> HtmlReport:
                   ("median σ x, y of the averages (m)", np.median(sig, axis=0) if sig else None)],
                  "Ground points from single images (averaged over the images that see them), with 1-sigma.")
     rep.kv_table([("CRS", crs), ("height source", height_source), ("pixels", len(res.id)),
-                  ("georeferenced", int(res.ok.sum())), ("points averaged", len(res.averages))])
+                  ("georeferenced", int(res.ok.sum()))])
     rows = []
     for pid, (av, z) in res.averages.items():
         s = np.sqrt(np.diag(av.cov_with_common))
@@ -64,9 +65,15 @@ def georef_report(res: ImageGeoref, crs: str, height_source: str) -> HtmlReport:
     add_honesty(rep, no_reference(GEOREF_NO_REFERENCE))
     ids = list(res.averages)[:6]
     if ids:
-        fig, axes = new_figure(4.0 * len(ids), 4.0, ncols=len(ids), squeeze=False)
+        ncols = min(3, len(ids))
+        nrows = -(-len(ids) // ncols)
+        fig, axes = new_figure(3.6 * ncols, 3.6 * nrows, ncols=ncols, nrows=nrows, squeeze=False)
+        for ax in axes.ravel()[len(ids):]:
+            ax.set_visible(False)
         t = np.linspace(0, 2 * np.pi, 100)
-        for ax, pid in zip(axes[0], ids):
+        for ax, pid in zip(axes.ravel(), ids):
+            ax.xaxis.set_major_locator(MaxNLocator(nbins=4))
+            ax.yaxis.set_major_locator(MaxNLocator(nbins=4))
             av, _ = res.averages[pid]
             m = (res.id == pid) & res.ok
             d = res.xyz[m][:, :2] - av.weighted

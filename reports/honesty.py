@@ -104,7 +104,7 @@ def table_rows(section: dict) -> list[list[str]]:
     """The rows of the honesty table as text (the HEADER's columns); a verdict on few values says so."""
     out = []
     for r in section["rows"]:
-        v = r["verdict"] + (f" (only {r['n']} values)" if r["n"] < FEW_VALUES else "")
+        v = r["verdict"] + (f" (only {r['n']} value{'s' if r['n'] != 1 else ''})" if r["n"] < FEW_VALUES else "")
         out.append([r.get("reference", ""), r["quantity"], str(r["n"]), _num(r["rms_error"], r["unit"]),
                     _num(r["median_sigma"], r["unit"]), f"{r['error_over_sigma_rms']:.2f}",
                     f"{r['max_abs_error_over_sigma']:.2f}", v])
