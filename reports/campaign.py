@@ -31,7 +31,7 @@ from dgcal.reports.distortion import distortion_figure
 from dgcal.reports.glossary import METHOD_NOTE, label, method_name
 from dgcal.reports.honesty import add_honesty, honesty_rows, honesty_section, merge_sections, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
-from dgcal.reports.mounting import (IMPROVEMENT_NOTE, LEVER_NOTE, MOUNT_HEADER, _mount_row, add_boresight_matrices,
+from dgcal.reports.mounting import (IMPROVEMENT_NOTE, LEVER_NOTE, MOUNT_HEADER, mount_row, add_boresight_matrices,
                                     improvement_pct)
 from dgcal.reports.tables import add_residual_table, parameter_rows, parameter_unit
 from dgcal.reports.units import pm, value_sigma
@@ -367,7 +367,7 @@ def _link(rep: HtmlReport, out: Path, path: Path | None, text: str) -> None:
 
 def _mount_rows(mounts: dict) -> list:
     """Every method's estimates with sigmas (the mounting report's rows) and its rejected epochs."""
-    return [_mount_row(k, m) + [len(m.get("rejected_epochs", []))] for k, m in mounts.items()]
+    return [mount_row(k, m) + [len(m.get("rejected_epochs", []))] for k, m in mounts.items()]
 
 
 def build_html(d: dict, out: Path, cfg: dict, files: dict) -> str:

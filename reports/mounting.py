@@ -35,7 +35,7 @@ IMPROVEMENT_NOTE = ("Improvement = (old − new) / old × 100 %, old the RMS err
                     "below half.")
 
 
-def _mount_row(name: str, r: dict) -> list:
+def mount_row(name: str, r: dict) -> list:
     """One method's estimates as text: delay, lever arm x/y/z and boresight angles about body x/y/z with sigmas."""
     held = r.get("delay_sigma_s", 0.0) == 0.0          # two-step (or a held delay): not estimated
     theta, _ = boresight_angles_deg(r["boresight_R_cam_to_body"])
@@ -137,7 +137,7 @@ def mount_report_html(main: dict, others: dict | None = None) -> str:
                                                                zip(theta, m["boresight_sigma_deg"]))),
         ("epochs", m.get("n_epochs"))], "The mounting to use for direct georeferencing, with 1-sigma:")
     rep.heading("Estimates of every method")
-    rep.table(MOUNT_HEADER, [_mount_row(k, r) for k, r in results.items()])
+    rep.table(MOUNT_HEADER, [mount_row(k, r) for k, r in results.items()])
     rep.text(LEVER_NOTE + " " + METHOD_NOTE, cls="small")
     add_boresight_matrices(rep, m["boresight_R_cam_to_body"])
     if m.get("correlation"):
