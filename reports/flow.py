@@ -14,6 +14,7 @@ from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.pos.lowcost.flow import ROW_COLUMNS, FlowRun
 from dgcal.reports.honesty import add_honesty, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.units import WEEK_S, fmt_number
 
 TRUTH_COLUMNS = ("true_roll", "true_pitch", "true_yaw", "err_roll", "err_pitch", "err_yaw", "true_agl_m", "err_agl_m")
 
@@ -116,24 +117,26 @@ def write_flow_report(path: Path, run: FlowRun) -> Path:
                   ("median angle of attack (°)", m["angle_of_attack"]),
                   ("median drift angle (°)", m["drift_angle"]),
                   ("median height above ground (m)", m["agl_m"]), ("median FOE inliers", m["n_inliers"])])
-    rep.warnings([f"{f['t_gps']:.2f}: {f['reason']}" for f in s["failed"][:20]], "Every frame pair gave an attitude.")
+    rep.warnings([f"pair at {f['t_gps'] % WEEK_S:.2f} s of GPS week: {f['reason']}" for f in s["failed"][:20]],
+                 "Every frame pair gave an attitude.")
     add_honesty(rep, s.get("honesty") or flow_honesty(run))
     t2 = run.table2
     if t2 is not None:
         rep.heading("Seed 001 Table 2: Euler angle errors")
+        axes = ("roll", "pitch", "yaw")
         rep.table(["quantity (unit)", "roll (unit of the row)", "pitch (unit of the row)", "yaw (unit of the row)"],
-                  [["error mean (deg)"] + [t2[k]["mean_deg"] for k in ("roll", "pitch", "yaw")],
-                   ["error std (deg)"] + [t2[k]["std_deg"] for k in ("roll", "pitch", "yaw")],
-                   ["error/σ RMS (unitless)"] + [t2[k]["normalised_rms"] for k in ("roll", "pitch", "yaw")],
-                   ["seed 001 mean (deg)"] + [t2["seed001"][k]["mean_deg"] for k in ("roll", "pitch", "yaw")],
-                   ["seed 001 std (deg)"] + [t2["seed001"][k]["std_deg"] for k in ("roll", "pitch", "yaw")]])
+                  [["error mean (°)"] + [fmt_number(t2[k]["mean_deg"], "°") for k in axes],
+                   ["error std (°)"] + [fmt_number(t2[k]["std_deg"], "°") for k in axes],
+                   ["error/σ RMS (unitless)"] + [fmt_number(t2[k]["normalised_rms"], "", decimals=2) for k in axes],
+                   ["seed 001 mean (°)"] + [fmt_number(t2["seed001"][k]["mean_deg"], "°") for k in axes],
+                   ["seed 001 std (°)"] + [fmt_number(t2["seed001"][k]["std_deg"], "°") for k in axes]])
         po = t2["pseudo_only"]
-        txt = (f"Pseudo attitude alone: pitch off by {po['pitch_mean_deg']:.2f} deg, "
-               f"yaw by {po['yaw_mean_deg']:.2f} deg "
+        txt = (f"Pseudo attitude alone: pitch off by {po['pitch_mean_deg']:.2f}°, "
+               f"yaw by {po['yaw_mean_deg']:.2f}° "
                "(angle of attack and drift); the focus of expansion removes them.")
         if "agl" in t2:
             a = t2["agl"]
-            txt += (f" Height above ground: error {a['mean_error_m']:.2f} +- {a['std_error_m']:.2f} m "
+            txt += (f" Height above ground: error {a['mean_error_m']:.2f} ± {a['std_error_m']:.2f} m "
                     f"(median {100 * a['median_rel_error']:.1f} %).")
         rep.text(txt)
         rep.figure(partial(_errors, run), "Errors against the truth with the claimed 1-sigma band")
