@@ -25,7 +25,7 @@ LABELS = {
     "median_sigma_m": "median σ N, E, D (m)", "max_sigma_m": "max σ N, E, D (m)",
     "median_sigma_deg": "median σ roll, pitch, heading (°)", "systems": "constellations",
     "events": "events", "rms_3d_m": "3D RMS (m)", "rms_ned_m": "RMS N, E, D (m)", "max_3d_m": "max 3D (m)",
-    "median_pdop": "median PDOP", "mean_n_sat": "satellites used, mean", "rms_normalised": "RMS / σ",
+    "median_pdop": "median PDOP", "mean_n_sat": "satellites used, mean (count)", "rms_normalised": "RMS / σ",
     "share_beyond_3sigma": "share beyond 3σ", "share_beyond_99pc": "share beyond χ² 99 %",
     "nis_per_dim": "NIS per dimension", "nis_mean": "NIS per dimension, mean", "max_abs": "max |e|",
     "clock_drift_ppm": "logger clock drift (ppm)", "clock_offset_s": "logger clock offset (s)",

@@ -23,7 +23,7 @@ def draw_spp_report(path: str | Path, series: dict, summary: dict) -> Path:
     rep.kv_table([("observations (RINEX)", summary.get("rinex_obs", "")),
                   ("navigation (RINEX)", summary.get("rinex_nav", "")),
                   ("signals", "; ".join(f"{k}: {fmt_value(v)}" for k, v in summary.get("signals", {}).items())),
-                  ("satellites used, mean", summary["mean_n_sat"]),
+                  ("satellites used, mean (count)", summary["mean_n_sat"]),
                   ("median PDOP", summary["median_pdop"]),
                   ("satellite observations rejected by RAIM", summary["n_rejected"])])
     warn = []

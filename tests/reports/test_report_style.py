@@ -137,6 +137,24 @@ def test_improvement_is_old_minus_new_over_old():
     assert "(old − new) / old" in text
 
 
+def test_spp_page_from_its_series_reads_clean(tmp_path):
+    """The SPP page (drawn from plain arrays): the signals' lists, sigmas and the residual table by unit."""
+    from dgcal.reports.gnss_page import draw_spp_report
+    rng = np.random.default_rng(1)
+    t = np.arange(60.0)
+    series = {"t_fix_s": t, "enu_m": rng.normal(size=(60, 3)) * 0.4, "sigma_enu_m": np.full((60, 3), 0.4),
+              "reference_known": True, "t_s": t, "n_sat": np.full(60, 23), "pdop": np.full(60, 1.08),
+              "residuals_m": {f"G{k:02d}": (t, rng.normal(size=60) * 0.5) for k in range(1, 9)},
+              "sky_azim_deg": rng.uniform(0, 360, 50), "sky_elev_deg": rng.uniform(10, 90, 50)}
+    summary = {"rinex_obs": "/data/SEPT078M1.21O", "rinex_nav": "/data/SEPT078M.21P",
+               "signals": {"G": ["C1C", "C2W"], "E": ["C1C"]}, "n_epochs": 60, "n_fixed": 60, "mean_n_sat": 23.4,
+               "median_pdop": 1.0834, "median_sigma_enu_m": [0.371, 0.401, 0.887], "n_rejected": 0}
+    page = draw_spp_report(tmp_path / "gnss_report.html", series, summary).read_text()
+    assert problems(page) == []
+    text = " ".join(parse(page).text)
+    assert "G: C1C, C2W; E: C1C" in text and "0.371, 0.401, 0.887" in text and 'class="lead"' in page
+
+
 # ------------------------------------------------------------------------------------------------ distortion
 def test_distortion_sign_is_positive_outward_in_both_reports():
     """Pincushion (K1 > 0) is drawn positive, barrel (K1 < 0) negative: the camera and the campaign report draw
