@@ -347,8 +347,9 @@ def _fig_check(chk: dict):
         for j, (lab, off) in enumerate((("E", -0.25), ("N", 0.0), ("U", 0.25))):
             ax.bar(x + off, e[:, j], width=0.25, label=lab)
             ax.errorbar(x + off, np.zeros(len(x)), yerr=s[:, j], fmt="none", ecolor="k", lw=0.6, capsize=1.5)
-        ax.set_title(f"{k}: DG errors on check points (bars) and predicted 1-sigma (whiskers)", fontsize=9)
-        ax.set_ylabel("m")
+        ax.set_title(f"{method_name(k)}: DG errors on check points (bars) and predicted 1-sigma (whiskers)",
+                     fontsize=9)
+        ax.set_ylabel("error (m)")
         ax.grid(alpha=0.3, axis="y")
         ax.set_xticks(x, ids, rotation=90, fontsize=7)
         ax.legend(fontsize=8, ncol=3)
