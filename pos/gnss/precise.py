@@ -72,7 +72,8 @@ def product_kind(path: str | Path, first_line: str | None = None) -> str:
         return "sp3"
     if "ANTEX VERSION" in first_line:
         return "atx"
-    if "RINEX VERSION / TYPE" in first_line and first_line[20:21] == "C":
+    # RINEX clock: type 'C' after the version (column 21 up to 3.02; 3.04 writes F4.2,17X: column 23)
+    if "RINEX VERSION / TYPE" in first_line and first_line.split()[1:2] in (["C"], ["CLOCK"]):
         return "clk"
     return "nav"
 
@@ -242,9 +243,9 @@ def read_rinex_clock(path: str | Path) -> ClockData:
     tsys = "GPS"
     end = None
     for i, line in enumerate(lines):
-        lab = line[60:80].strip()
+        lab = line[60:].strip()                  # labels from column 61 (up to 3.02) or 66 (3.04)
         if lab.startswith("TIME SYSTEM ID"):
-            tsys = line[:60].strip() or "GPS"
+            tsys = line[:line.index("TIME SYSTEM ID")].strip() or "GPS"
             if tsys not in _TIME_TO_GPS_S:
                 raise InputError(f"time system {tsys!r} is not read (GPS, GAL, QZS, BDT, TAI are)", path, i + 1,
                                  "TIME SYSTEM ID")

@@ -439,3 +439,25 @@ def test_antex_offsets_beside_cssrlib_and_rtklib(tmp_path, shared_data):
     assert sa["orbits"].endswith("+ ATX all.atx") and sa["n_fixed"] == sb["n_fixed"] == 60
     moved = np.linalg.norm(np.array(sa["median_ecef_m"]) - np.array(sb["median_ecef_m"]))
     assert 0.0 < moved < 1.5
+
+
+def test_rinex_clock_304_layout(tmp_path):
+    """RINEX clock 3.04 (version F4.2 then the type in column 23, labels from column 66, 9-character names) reads
+    as the 3.00 layout does, and as cssrlib reads it."""
+    t = T_NOON + 30.0 * np.arange(3)
+    clk = np.array([[1.5e-4, -2.25e-5], [1.5000001e-4, -2.2500002e-5], [1.5000002e-4, np.nan]])
+    old = tmp_path / "c300.clk"
+    write_rinex_clock(old, t, ["G01", "E02"], clk)
+    lines = old.read_text().splitlines()
+    end = next(i for i, s in enumerate(lines) if "END OF HEADER" in s)
+    new = [f"{3.04:4.2f}{'':17}C{'':19}G{'':19}{'':4}RINEX VERSION / TYPE"]
+    new += [s[:60] + " " * 5 + s[60:] for s in lines[1:end + 1]]
+    new += ["AS " + s[3:7] + " " * 5 + s[7:] for s in lines[end + 1:]]
+    f = tmp_path / "c304.clk"
+    f.write_text("\n".join(new) + "\n")
+    a, b = read_rinex_clock(old), read_rinex_clock(f)
+    assert b.sats == a.sats == ["E02", "G01"]
+    assert np.array_equal(a.t, b.t) and np.allclose(a.clk, b.clk, equal_nan=True, rtol=0, atol=0)
+    assert np.allclose(b.clk[:, 1], clk[:, 0], rtol=1e-11, atol=0)
+    cn = rnxdec().decode_clk(str(f), Nav())
+    assert cn.nc == 3 and np.isclose(cn.pclk[1].clk[id2sat("E02") - 1], clk[1, 1], rtol=1e-11, atol=0)
