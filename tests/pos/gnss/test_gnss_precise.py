@@ -461,3 +461,19 @@ def test_rinex_clock_304_layout(tmp_path):
     assert np.allclose(b.clk[:, 1], clk[:, 0], rtol=1e-11, atol=0)
     cn = rnxdec().decode_clk(str(f), Nav())
     assert cn.nc == 3 and np.isclose(cn.pclk[1].clk[id2sat("E02") - 1], clk[1, 1], rtol=1e-11, atol=0)
+
+
+def test_consecutive_sp3_files_merge_into_one_span(tmp_path):
+    """Two SP3 files of consecutive spans (here the real file cut at 12:00, the 12:00 epoch in both) interpolate
+    across the join as the whole file does."""
+    d = read_sp3(SP3)
+    first, second = d.t <= T_NOON, d.t >= T_NOON
+    write_sp3(tmp_path / "a.sp3", d.t[first], d.sats, d.p[first], d.clk[first])
+    write_sp3(tmp_path / "b.sp3", d.t[second], d.sats, d.p[second], d.clk[second])
+    whole, parts = read_precise([SP3]), read_precise([tmp_path / "a.sp3", tmp_path / "b.sp3"])
+    assert np.array_equal(parts.t_orb, whole.t_orb) and parts.sats == whole.sats
+    sats = ["G05", "E11", "C20", "J01"]
+    for dt in (-1234.5, -10.0, 0.0, 17.3, 2000.0):
+        a = whole.states(sats, np.full(4, T_NOON + dt))
+        b = parts.states(sats, np.full(4, T_NOON + dt))
+        assert np.allclose(a[0], b[0], atol=1e-6, rtol=0) and np.allclose(a[2], b[2], atol=1e-15, rtol=0)
