@@ -45,6 +45,9 @@ class BundleInput:
     point_prior_sigma: np.ndarray | None = None   # (m,3) m; 0 = fixed
     center_prior: np.ndarray | None = None        # (n,3) GNSS centres (NaN = none)
     center_prior_sigma: np.ndarray | None = None  # (n,3) m
+    antenna_offset_cam: np.ndarray | None = None  # (3,) m: the centres are of an antenna at C + R_cam_to_world a
+    centre_flight: np.ndarray | None = None       # (n,) flight index per image: a shift of each flight's centres
+                                                  # (3 unknowns per flight, world E, N, Up, m) is estimated
     refine: tuple[str, ...] = ()                  # camera parameters to refine
     intrinsic_prior_sigma: dict[str, float] = field(default_factory=dict)  # optional soft constraints
     held_images: tuple[int, ...] = ()             # images whose poses are held (known, or a gauge)
@@ -90,6 +93,7 @@ class BundleResult:
     problem: Problem = field(repr=False, default=None)
     normals: Normals = field(repr=False, default=None)    # undamped, at the solution
     aposteriori: bool = True
+    globals_: np.ndarray = field(repr=False, default=None)   # the estimated globals: intrinsics, flight shifts
 
     @cached_property
     def covariance(self) -> Covariance:
@@ -105,7 +109,27 @@ class BundleResult:
     @cached_property
     def cov_intrinsics(self) -> np.ndarray:
         """(p,p) covariance of the refined intrinsics in the order of `refine`, scaled by `scale2`."""
-        return self.covariance.global_cofactors() * self.scale2
+        return self.covariance.global_cofactors(np.arange(len(self.refine))) * self.scale2
+
+    @property
+    def n_flights(self) -> int:
+        """Flights whose centre shift was estimated (0: none)."""
+        fl = self.inputs.centre_flight
+        return 0 if fl is None or not len(fl) else int(np.max(fl)) + 1
+
+    @property
+    def flight_shift(self) -> np.ndarray:
+        """(F,3) the estimated shift of each flight's centres (world E, N, Up, m)."""
+        return self.globals_[len(self.refine):].reshape(-1, 3)
+
+    @cached_property
+    def cov_flight_shift(self) -> np.ndarray:
+        """(F,3,3) covariance of each flight's centre shift (m^2), scaled by `scale2`."""
+        F, p = self.n_flights, len(self.refine)
+        out = np.empty((F, 3, 3))
+        for f in range(F):
+            out[f] = self.covariance.global_cofactors(p + 3 * f + np.arange(3)) * self.scale2
+        return out
 
     @property
     def poses(self) -> Poses:
@@ -150,23 +174,28 @@ def problem_of(inp: BundleInput, opt: BundleOptions) -> tuple[Problem, State]:
     n, m = len(inp.images), len(inp.point_ids)
     blocks = [ImageObservations(cam, inp.obs_image, inp.obs_point, inp.obs_uv, inp.obs_sigma, inp.refine, 0,
                                 opt.loss, opt.loss_scale)]
-    if inp.point_prior is not None:
+    if inp.point_prior is not None and np.isfinite(np.asarray(inp.point_prior, float)).any():
         pp = np.asarray(inp.point_prior, float)
         ps = np.full((m, 3), np.nan) if inp.point_prior_sigma is None else np.asarray(inp.point_prior_sigma, float)
         ps = np.where(np.isfinite(pp) & ~(ps > FIXED_SIGMA), FIXED_SIGMA, ps)
         blocks.append(PointPriors.from_arrays(pp, ps))
-    if inp.center_prior is not None:
+    n_shift = 0
+    if inp.center_prior is not None and np.isfinite(np.asarray(inp.center_prior, float)).any():
         cs = np.asarray(inp.center_prior_sigma, float)
-        blocks.append(CentrePriors.from_arrays(inp.center_prior, cs))
+        fl = inp.centre_flight
+        n_shift = 0 if fl is None or not len(fl) else 3 * (int(np.max(fl)) + 1)
+        shift_glob = len(inp.refine) + np.arange(n_shift) if n_shift else None
+        blocks.append(CentrePriors.from_arrays(inp.center_prior, cs, offset_cam=inp.antenna_offset_cam,
+                                               flight=fl if n_shift else None, shift_glob=shift_glob))
     ips = np.array([inp.intrinsic_prior_sigma.get(p, np.nan) for p in inp.refine], float)
     if np.isfinite(ips).any():
         g = np.flatnonzero(np.isfinite(ips))
         ref_idx = [cam.PARAMS.index(p) for p in inp.refine]
         blocks.append(GlobalPriors(g, cam.params[ref_idx][g], ips[g]))
-    prob = Problem(blocks, n, m, len(inp.refine))
+    prob = Problem(blocks, n, m, len(inp.refine) + n_shift)
     prob.pose_free[list(inp.held_images)] = False
     state = State(Poses(inp.R_world_to_cam, inp.C_world), np.asarray(inp.X_world, float).reshape(-1, 3).copy(),
-                  cam.params[[cam.PARAMS.index(p) for p in inp.refine]].copy())
+                  np.r_[cam.params[[cam.PARAMS.index(p) for p in inp.refine]], np.zeros(n_shift)])
     return prob, state
 
 
@@ -185,7 +214,8 @@ def adjust(inp: BundleInput, options: BundleOptions | None = None) -> BundleResu
     sigma0 = float(np.sqrt(nrm.cost / redundancy)) if redundancy > 0 else float("nan")
     res = BundleResult(inp.camera, sol.state.poses.R_world_to_cam, sol.state.poses.C_world, sol.state.points,
                        tuple(inp.refine), sigma0, redundancy, np.empty((0, 2)), nrm.weights[0], sol.iterations,
-                       sol.converged, sol.history, sol.stop_reason, inp, prob, nrm, opt.aposteriori)
+                       sol.converged, sol.history, sol.stop_reason, inp, prob, nrm, opt.aposteriori,
+                       sol.state.globals.copy())
     img = prob.blocks[0]
     cam = img.camera_at(sol.state.globals)
     if len(inp.refine):

@@ -20,7 +20,10 @@ from dgcal.bundle.triangulation import TriangulationOptions, TriangulationResult
 from dgcal.calib.camera.files import load_camera
 from dgcal.calib.camera.models import CameraModel
 from dgcal.fields.crs import parse_crs
+from dgcal.bundle.triangulation import centres_in_block, no_datum_reason
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
+from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.io.formats import EOP, Measurements, Points, read_eop
 from dgcal.fields.io.gcp_files import read_any_measurements, read_any_points
 
@@ -46,6 +49,8 @@ class TriangulateOptions:
     geoid: str | None = None                     # undulation (m) or PROJ vertical grid
     approx: Path | None = None                   # approximate EOP CSV (initial values, spatial pairs)
     gnss: Path | None = None                     # EOP CSV whose X,Y,Z (sX..sZ) are camera-centre priors
+    antenna_offset_cam: tuple[float, float, float] | None = None   # m, camera axes (see TriangulationOptions)
+    flight_shift: bool = False                   # a shift of the centres per flight (`flight` column, else one)
     max_features: int = 4000                     # SIFT features per image
     targets: str | None = None                   # ArUco dictionary of GCP targets to detect in the images
     reject_blunders: bool = True
@@ -72,6 +77,7 @@ class TriangulationInputs:
     measurements: Measurements | None
     approx: EOP | None = None
     centre_priors: EOP | None = None
+    centre_flights: np.ndarray | None = None            # flight label per row of the centres (their `flight` column)
     all_images: list[str] | None = None
     warnings: list[str] = field(default_factory=list)
     tie_stats: dict = field(default_factory=dict)       # SIFT features, matches, tracks and times (with images)
@@ -86,6 +92,68 @@ class TriangulationRun:
     inputs: TriangulationInputs
     crs: str | None
     formats: list[str]
+
+
+CENTRE_ANGLES = ("omega", "phi", "kappa")
+CENTRE_SIGMAS = ("sx", "sy", "sz")
+
+
+def read_centres(path: str | Path) -> EOP:
+    """GNSS camera centres: an EOP CSV `image,X,Y,Z[,omega,phi,kappa][,sX,sY,sZ]` in the map CRS (m, deg) whose
+    angles and sigmas may be blank or absent (NaN: angles unknown, sigma the triangulation's default); a full
+    EOP file (angles and all six sigmas) reads the same. Every given value is checked; errors name the line."""
+    return read_centres_with_flights(path)[0]
+
+
+def read_centres_with_flights(path: str | Path) -> tuple[EOP, np.ndarray | None]:
+    """`read_centres` and the optional `flight` column (a label per row; None without the column)."""
+    tab = read_table(path, ("image", "x", "y", "z"),
+                     CENTRE_ANGLES + CENTRE_SIGMAS + ("somega", "sphi", "skappa", "flight"),
+                     text=("image", "flight") + CENTRE_ANGLES + CENTRE_SIGMAS + ("somega", "sphi", "skappa"))
+    image = tab["image"]
+    n = len(image)
+    seen: dict[str, int] = {}
+    for i, name in enumerate(image.tolist()):
+        if name in seen:
+            raise InputError(f"image {name!r} appears twice", tab.path, int(tab.lines[i]), "image")
+        seen[name] = i
+    for c in ("x", "y", "z"):
+        validate.values_in_range(tab[c], -validate.MAX_COORDINATE_M, validate.MAX_COORDINATE_M, tab.path, c,
+                                 tab.lines, unit="m")
+    xyz = np.column_stack([tab["x"], tab["y"], tab["z"]])
+    opk = np.column_stack([_blank_floats(tab, c) for c in CENTRE_ANGLES])
+    for j, c in enumerate(CENTRE_ANGLES):
+        validate.values_in_range(opk[:, j], -validate.MAX_ANGLE_DEG, validate.MAX_ANGLE_DEG, tab.path, c, tab.lines,
+                                 allow_nan=True, unit="deg")
+    sig = np.full((n, 6), np.nan)
+    for j, c in enumerate(CENTRE_SIGMAS):
+        sig[:, j] = _blank_floats(tab, c)
+        validate.positive_values(sig[:, j], tab.path, c, tab.lines, allow_nan=True, hi=validate.MAX_COORDINATE_M,
+                                 what="sigma")
+    for j, c in enumerate(("somega", "sphi", "skappa")):
+        sig[:, 3 + j] = _blank_floats(tab, c)
+    flights = None
+    if "flight" in tab:
+        flights = np.array([str(v).strip() for v in tab["flight"].tolist()], dtype=object)
+        if (flights == "").any():
+            i = int(np.argmax(flights == ""))
+            raise InputError("blank flight", tab.path, int(tab.lines[i]), "flight")
+    return EOP(image, xyz, opk, sig, None, tab.lines, tab.path), flights
+
+
+def _blank_floats(tab, name: str) -> np.ndarray:
+    """A text column as floats, blank cells NaN (a column the file lacks: all NaN); InputError naming the line."""
+    if name not in tab:
+        return np.full(len(tab), np.nan)
+    out = np.full(len(tab), np.nan)
+    for i, v in enumerate(tab[name].tolist()):
+        v = str(v).strip()
+        if v and v.lower() != "nan":
+            try:
+                out[i] = float(v) if v.isascii() else float("x")
+            except ValueError:
+                raise InputError(f"not a number: {v[:40]!r}", tab.path, int(tab.lines[i]), name) from None
+    return out
 
 
 def merge_measurements(a: Measurements, b: Measurements) -> Measurements:
@@ -190,8 +258,8 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
         raise InputError(f"--image-size {tuple(opts.image_size)} differs from the camera's {tuple(camera.image_size)}",
                          field="image_size")
     approx = read_eop(opts.approx) if opts.approx else opts.approx_eop
-    inp = TriangulationInputs(camera, points, meas, approx=approx,
-                              centre_priors=read_eop(opts.gnss) if opts.gnss else None)
+    centres, flights = read_centres_with_flights(opts.gnss) if opts.gnss else (None, None)
+    inp = TriangulationInputs(camera, points, meas, approx=approx, centre_priors=centres, centre_flights=flights)
     if opts.images:
         names = list_images(opts.images)
         check_image_size(opts.images, names[0], camera)
@@ -205,6 +273,7 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
         if opts.targets:
             meas, w = add_gcp_targets(meas, opts.images, names, opts.targets, points, opts.sigma_px)
             inp.warnings += w
+        refuse_without_datum(points, meas, inp.centre_priors, names)   # before the expensive SIFT stage
         _say(opts, f"tie points: SIFT features and matching of {len(pairs)} pairs of {len(names)} images")
         tie = extract_tie_points(opts.images, names, pairs, max_features=opts.max_features,
                                  camera_K=camera.pinhole_K(), stats=inp.tie_stats)
@@ -214,6 +283,21 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
             tie.sigma[:] = opts.tie_sigma_px
         inp.measurements = append_measurements(meas, tie)
     return inp
+
+
+def refuse_without_datum(points: Points, meas: Measurements | None, centres: EOP | None,
+                         names: list[str] | None = None) -> None:
+    """InputError unless a control point is measured or camera centres name a measured (or listed) image: without
+    either the block has no datum, and nothing later (SIFT, the adjustment) can give it one."""
+    role = {str(k): str(r) for k, r in zip(points.ids, points.role)}
+    if meas is not None and any(role.get(i) == "control" for i in set(meas.id.astype(str))):
+        return
+    if centres is not None and names:
+        if set(centres.image.astype(str)[np.isfinite(centres.xyz).all(1)]) & set(names):
+            return
+    if centres is not None and meas is not None and len(centres_in_block(centres, meas)):
+        return
+    raise InputError(no_datum_reason(centres), None if meas is None else meas.path, field="gcp")
 
 
 def _say(opts: TriangulateOptions, text: str) -> None:
@@ -238,11 +322,13 @@ def triangulate_files(opts: TriangulateOptions) -> TriangulationRun:
     sol = TriangulationOptions(sigma_px=opts.sigma_px, tie_sigma_px=opts.tie_sigma_px, fixed_gcps=opts.fixed_gcps,
                                refine=refine_parameters(inp.camera, opts.refine), geoid=opts.geoid,
                                reject_blunders=opts.reject_blunders, check_as_tie=opts.check_as_tie,
-                               accept_poor=opts.accept_poor, use_mapper=opts.use_mapper)
+                               accept_poor=opts.accept_poor, use_mapper=opts.use_mapper,
+                               antenna_offset_cam=opts.antenna_offset_cam, flight_shift=opts.flight_shift)
     crs = None if opts.local else opts.crs
     _say(opts, f"adjustment: initial orientation and bundle adjustment of {len(inp.measurements)} measurements")
     res = triangulate(inp.camera, inp.points, inp.measurements, crs, sol, image_size=opts.image_size,
-                      approx=inp.approx, centre_priors=inp.centre_priors, all_images=inp.all_images)
+                      approx=inp.approx, centre_priors=inp.centre_priors, all_images=inp.all_images,
+                      centre_flights=inp.centre_flights)
     _say(opts, f"adjustment: {res.summary['initial_orientation']}, {res.summary['rounds']['adjustments']} "
                f"adjustment(s) in {sum(res.summary['timings_s'].get(k, 0) for k in ('initialised', 'adjusted')):.1f} s")
     res.warnings[:0] = inp.warnings

@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,6 +29,8 @@ from scipy.special import chdtrc, gammaln, ndtri_exp   # not scipy.stats: 0.5-0.
 
 from dgcal.bundle.adjustment import BundleInput, BundleOptions, BundleResult, adjust
 from dgcal.bundle.blunders import CRITICAL_W, Suspect
+from dgcal.bundle.datum import (datum_statement, focal_height_correlation, focal_height_warning, reference_sigma_m,
+                                weak_datum)
 from dgcal.bundle.initial import initial_orientation
 from dgcal.bundle.intersection import intersect, propagate_pose_covariance
 from dgcal.bundle.resection import pnp, triangulate_tracks
@@ -40,6 +43,9 @@ from dgcal.fields.world import World
 
 DEFAULT_SIGMA_PX = 0.5          # image measurement sigma when the file gives none
 DEFAULT_GCP_SIGMA_M = (0.02, 0.02, 0.03)
+DEFAULT_CENTRE_SIGMA_M = 0.05   # camera-centre prior sigma (m) where the centres file gives none
+MIN_IMAGE_POINTS = 4            # an image keeping fewer points after cleaning is left out (named), not trusted on them
+MAX_REJECTED_CONTROL = 1 / 3    # more control points rejected than this share: the inputs disagree, not blunders
 _CHI2_MEDIAN_2D = float(np.sqrt(2 * np.log(2)))   # median of the norm of a 2-D standard normal
 START_CUT_FACTOR = 4.0     # the cut at the initial orientation, in units of the tie-outlier cut (gross errors only)
 START_CUT_ROUNDS = 50      # rounds of that cut at most (the worst ray of each point per round)
@@ -66,6 +72,9 @@ class TriangulationOptions:
     use_mapper: bool = True                    # pycolmap's incremental mapper for the initial orientation
     max_sigma0: float = 3.0                    # sigma0 above this: the result is not trusted
     max_left_out: float = 0.1                  # share of connected images that may stay unoriented
+    antenna_offset_cam: tuple[float, float, float] | None = None   # m, camera axes: the centres are of an antenna
+                                               # at C + R_cam_to_world offset (applied with each image's rotation)
+    flight_shift: bool = False                 # estimate a shift (E, N, Up) of the centres per flight (needs control)
     accept_poor: bool = False                  # return an untrusted result (with its problems) instead of failing
     verbose: bool = False
 
@@ -129,35 +138,77 @@ def _check_measurements(camera: CameraModel, meas: Measurements, image_size) -> 
                          f"{w_img}x{h_img} image", meas.path, None if meas.lines is None else int(meas.lines[i]), "x")
 
 
-def _georef(points: Points, meas: Measurements, crs: str | None, opt: TriangulationOptions) -> tuple[World, np.ndarray]:
-    """The world frame at the centroid of the measured control points, and every ground point in it."""
+def centres_in_block(centre_priors: EOP | None, meas: Measurements) -> np.ndarray:
+    """Rows of `centre_priors` (map CRS) with finite X, Y, Z that name a measured image (empty: none)."""
+    if centre_priors is None or not len(centre_priors.image):
+        return np.zeros(0, int)
+    measured = set(meas.image.astype(str))
+    ok = np.isfinite(centre_priors.xyz).all(1)
+    return np.array([r for r in np.flatnonzero(ok) if str(centre_priors.image[r]) in measured], int)
+
+
+def no_datum_reason(centre_priors: EOP | None) -> str:
+    """Why a block without measured control has no datum (the message of the early refusal)."""
+    if centre_priors is None:
+        return ("none of the control points (role 'control') is measured in any image and no camera centres are "
+                "given: the block has no datum; measure control points, or give GNSS camera centres (--gnss)")
+    return (f"none of the control points (role 'control') is measured in any image and none of the "
+            f"{len(centre_priors.image)} camera centres names a measured image (with finite X, Y, Z): the block "
+            "has no datum")
+
+
+def _georef(points: Points, meas: Measurements, crs: str | None, opt: TriangulationOptions,
+            centre_priors: EOP | None = None) -> tuple[World, np.ndarray]:
+    """The world frame at the centroid of the measured control points (without them: of the camera centres, at
+    the height of the measured ground points if any), and every ground point in it."""
     role_of = {str(k): str(r) for k, r in zip(points.ids, points.role)}
     measured = set(meas.id.astype(str))
     ctrl_mask = np.array([str(c) in measured and role_of[str(c)] == "control" for c in points.ids], bool)
-    if not ctrl_mask.any():
-        raise InputError("none of the control points is measured in any image", meas.path, field="id")
-    geo = World.from_crs(crs, points.xyz[ctrl_mask].mean(0), opt.geoid, points.path)
+    c_rows = centres_in_block(centre_priors, meas)
+    if ctrl_mask.any():
+        origin = points.xyz[ctrl_mask].mean(0)
+    elif len(c_rows):
+        origin = centre_priors.xyz[c_rows].mean(0)
+        gp = np.array([str(c) in measured for c in points.ids], bool)
+        if gp.any():
+            origin[2] = float(np.median(points.xyz[gp, 2]))
+    else:
+        raise InputError(no_datum_reason(centre_priors), meas.path, field="id")
+    geo = World.from_crs(crs, origin, opt.geoid, points.path if ctrl_mask.any() else centre_priors.path)
     P_world = geo.to_world(points.xyz)
     if not np.isfinite(P_world).all():
         bad = int(np.argmax(~np.isfinite(P_world).all(1)))
         raise InputError(f"point {points.ids[bad]} is not a valid coordinate in CRS {crs}", points.path,
                          None if points.lines is None else int(points.lines[bad]), "x")
-    spread = np.ptp(P_world[ctrl_mask], axis=0)
+    spread = np.ptp(P_world[ctrl_mask], axis=0) if ctrl_mask.any() else np.zeros(3)
     if ctrl_mask.sum() > 2 and max(spread[:2]) > 5e4:
         raise InputError(f"control points span {max(spread[:2]) / 1e3:.0f} km in CRS {crs}: wrong CRS or "
                          "coordinate order?", points.path, field="crs")
+    if len(c_rows):
+        C_world = geo.to_world(centre_priors.xyz[c_rows])
+        bad = ~np.isfinite(C_world).all(1)
+        if bad.any():
+            r = int(c_rows[np.argmax(bad)])
+            raise InputError(f"camera centre of {centre_priors.image[r]} is not a valid coordinate in CRS {crs}",
+                             centre_priors.path, None if centre_priors.lines is None else int(centre_priors.lines[r]),
+                             "X")
+        if max(np.ptp(C_world[:, :2], axis=0)) > 5e4:
+            raise InputError(f"camera centres span {max(np.ptp(C_world[:, :2], axis=0)) / 1e3:.0f} km in CRS {crs}: "
+                             "wrong CRS or coordinate order?", centre_priors.path, field="crs")
     return geo, P_world
 
 
 def _block(points: Points, P_world: np.ndarray, meas: Measurements, opt: TriangulationOptions, check_as_tie: bool,
-           all_images: list[str] | None, msgs: list[str]) -> _Block:
-    """Observations of control, tie (and check, as ties) points; points measured once (not control) left out."""
+           all_images: list[str] | None, msgs: list[str], has_centres: bool = False) -> _Block:
+    """Observations of control, tie (and check, as ties) points; points measured once (not control) left out.
+    Without control points the camera centres (`has_centres`) must give the datum."""
     pidx = points.index()
     ids = meas.id.astype(str)
     role_of = {str(k): str(r) for k, r in zip(points.ids, points.role)}
     control_ids = [str(k) for k, r in zip(points.ids, points.role) if r == "control"]
-    if not control_ids:
-        raise InputError("no control points (role 'control') in the ground point file", points.path, field="role")
+    if not control_ids and not has_centres:
+        raise InputError("no control points (role 'control') in the ground point file and no camera centres (--gnss):"
+                         " the block has no datum", points.path, field="role")
     measured = set(ids)
     for pid in points.ids:
         if str(pid) not in measured:
@@ -216,17 +267,59 @@ def _approx_poses(approx: EOP | None, geo: World, images: list[str]) -> tuple[np
 
 
 def _centre_priors(centre_priors: EOP | None, geo: World, images: list[str]):
+    """Camera-centre priors (n,3) in the world frame and their sigmas (n,3) (m; NaN where an image has none;
+    a sigma the file leaves blank is DEFAULT_CENTRE_SIGMA_M). The file's sigmas are along grid E, N, Up, taken
+    as world E, N, Up (they differ by the meridian convergence, a few degrees at most)."""
     if centre_priors is None:
         return None, None
     cprior = np.full((len(images), 3), np.nan)
     csig = np.full((len(images), 3), np.nan)
     c_idx = {str(k): i for i, k in enumerate(centre_priors.image)}
-    for i, name in enumerate(images):
-        if name in c_idx:
-            r = c_idx[name]
-            cprior[i] = geo.to_world(centre_priors.xyz[r][None])[0]
-            csig[i] = centre_priors.sigma[r, :3] if centre_priors.sigma is not None else 0.05
+    have = [i for i, name in enumerate(images) if name in c_idx]
+    if not have:
+        return None, None
+    rows = np.array([c_idx[images[i]] for i in have])
+    cprior[have] = geo.to_world(centre_priors.xyz[rows])
+    s = centre_priors.sigma[rows, :3] if centre_priors.sigma is not None else np.full((len(rows), 3), np.nan)
+    csig[have] = np.where(np.isfinite(s) & (s > 0), s, DEFAULT_CENTRE_SIGMA_M)
+    cprior[~np.isfinite(cprior).all(1)] = np.nan
+    if not np.isfinite(cprior).any():
+        return None, None
     return cprior, csig
+
+
+def _control_measured(points: Points, meas: Measurements) -> bool:
+    """True when a control point (role control) is measured in an image."""
+    ctrl = {str(k) for k, r in zip(points.ids, points.role) if r == "control"}
+    return bool(ctrl & set(meas.id.astype(str)))
+
+
+def _flights(centre_priors: EOP, centre_flights: np.ndarray | None, images: list[str]) -> tuple[np.ndarray, list[str]]:
+    """Flight index per image (0 where an image has no centre) and the flights' names: from `centre_flights`
+    (a label per row of the centres), else one flight."""
+    if centre_flights is None:
+        return np.zeros(len(images), int), ["all"]
+    lab = {str(k): str(f) for k, f in zip(centre_priors.image, centre_flights)}
+    names = sorted({lab[n] for n in images if n in lab})
+    idx = {f: i for i, f in enumerate(names)}
+    return np.array([idx.get(lab.get(n, ""), 0) for n in images], int), names
+
+
+def _approx_with_centre_angles(approx: EOP | None, centre_priors: EOP | None) -> EOP | None:
+    """Approximate EOPs, completed by the rows of the centres file that give angles (a camera-centre file with
+    omega, phi, kappa is a full approximate orientation); `approx` wins where both give an image."""
+    if centre_priors is None:
+        return approx
+    full = np.isfinite(centre_priors.xyz).all(1) & np.isfinite(centre_priors.opk).all(1)
+    if approx is not None:
+        full &= ~np.isin(centre_priors.image.astype(str), approx.image.astype(str))
+    if not full.any():
+        return approx
+    extra = EOP(centre_priors.image[full], centre_priors.xyz[full], centre_priors.opk[full])
+    if approx is None:
+        return extra
+    return EOP(np.concatenate([approx.image, extra.image]), np.vstack([approx.xyz, extra.xyz]),
+               np.vstack([approx.opk, extra.opk]))
 
 
 class _Adjuster:
@@ -238,16 +331,20 @@ class _Adjuster:
         self.R_world_to_cam, self.C_world = R_world_to_cam.copy(), C_world.copy()
         self.oriented, self.X, self.point_ok = oriented.copy(), X.copy(), point_ok
         self.cprior, self.csig = cprior, csig
+        self.flight: np.ndarray | None = None      # (n,) flight index per image when a shift per flight is estimated
+        self.flight_names: list[str] = []
         self.active = np.ones(len(blk.oi), bool)
+        self.excluded = np.zeros(len(blk.images), bool)     # images left out for good (too few rays kept)
         self.is_prior = np.isfinite(blk.X_prior).all(1)     # control points whose coordinates are observations
         self.res: BundleResult | None = None
         self.img_keep = self.pt_keep = self.obs_keep = None
         self.runs: list[dict] = []           # every adjustment: iterations, converged, why it stopped, seconds
+        self.datum: dict | None = None       # what fixes the datum (`dgcal.bundle.datum.datum_statement`)
 
     def bundle_input(self) -> BundleInput:
         b = self.blk
         free = ~self.is_prior
-        use = self.active & self.oriented[b.oi] & self.point_ok[b.op]
+        use = self.active & self.oriented[b.oi] & ~self.excluded[b.oi] & self.point_ok[b.op]
         self.lone = np.zeros(len(b.oi), bool)
         while True:   # tie points need two active rays
             cnt = np.bincount(b.op[use], minlength=len(b.point_ids))
@@ -265,14 +362,17 @@ class _Adjuster:
         use &= im_map[b.oi] >= 0
         self.img_keep, self.pt_keep, self.obs_keep = img_keep, pt_keep, np.flatnonzero(use)
         k = self.obs_keep
-        cp = cs = None
+        cp = cs = fl = None
         if self.cprior is not None:
             cp, cs = self.cprior[img_keep], self.csig[img_keep]
+            if self.flight is not None:
+                fl = self.flight[img_keep]
         Xp = np.where(self.is_prior[:, None], b.X_prior, np.nan)
+        off = None if self.opt.antenna_offset_cam is None else np.asarray(self.opt.antenna_offset_cam, float)
         return BundleInput(self.camera, [b.images[i] for i in img_keep], self.R_world_to_cam[img_keep],
                            self.C_world[img_keep], [b.point_ids[j] for j in pt_keep], self.X[pt_keep],
                            im_map[b.oi[k]], pt_map[b.op[k]], b.uv[k], b.sig[k], Xp[pt_keep], b.S_prior[pt_keep], cp,
-                           cs, tuple(self.opt.refine))
+                           cs, off, fl, tuple(self.opt.refine))
 
     def run(self, loss: str | None = None) -> BundleResult:
         bopt = BundleOptions(loss=loss or self.opt.loss, loss_scale=self.opt.loss_scale,
@@ -294,7 +394,7 @@ class _Adjuster:
         known = np.zeros(len(b.point_ids), bool)
         known[self.pt_keep] = True
         joined = 0
-        for i in np.flatnonzero(~self.oriented):
+        for i in np.flatnonzero(~self.oriented & ~self.excluded):
             kk = np.flatnonzero((b.oi == i) & known[b.op] & self.active)
             if len(kk) < 6:
                 continue
@@ -505,6 +605,25 @@ def _suspect(adj: _Adjuster, what: str, idx: int, w: float, red: float, removed:
                    coordinate_error_m=tuple(float(v) for v in d))
 
 
+def _leave_out_thin_images(adj: _Adjuster, msgs: list[str]) -> bool:
+    """Images the cleaning left with fewer than MIN_IMAGE_POINTS points: each named and left out for good (its
+    pose would rest on a handful of rays no test can check, with sigmas that do not show it); True if any."""
+    b = adj.blk
+    adj.bundle_input()          # the observations the next adjustment would use (after the latest cuts)
+    n_pts = np.bincount(b.oi[adj.obs_keep], minlength=len(b.images))
+    thin = np.flatnonzero(adj.oriented & ~adj.excluded & (n_pts < MIN_IMAGE_POINTS))
+    if not len(thin):
+        return False
+    n_meas = np.bincount(b.oi, minlength=len(b.images))
+    for i in thin:
+        _warn(msgs, f"image {b.images[i]} kept {int(n_pts[i])} of its {int(n_meas[i])} measurements after the "
+                    f"outliers were dropped (fewer than {MIN_IMAGE_POINTS} points): left out, its orientation would "
+                    "rest on rays that nothing checks", adj.opt.verbose)
+    adj.excluded[thin] = True
+    adj.oriented[thin] = False
+    return True
+
+
 def _adjust_and_clean(adj: _Adjuster, msgs: list[str]) -> tuple[list[Suspect], list[dict], dict]:
     """Adjust, drop tie outliers, retry left-out images, snoop the control until clean (see the module doc)."""
     opt = adj.opt
@@ -519,6 +638,8 @@ def _adjust_and_clean(adj: _Adjuster, msgs: list[str]) -> tuple[list[Suspect], l
         changed = False
         if np.isfinite(adj.res.sigma0) and (adj.blk.kind != "control").any() and _drop_tie_outliers(adj, msgs, dropped):
             rounds["tie_rounds"] += 1
+            changed = True
+        if _leave_out_thin_images(adj, msgs):
             changed = True
         if (~adj.oriented).any() and adj.retry_left_out(msgs):
             rounds["retries"] += 1
@@ -541,7 +662,7 @@ def _adjust_and_clean(adj: _Adjuster, msgs: list[str]) -> tuple[list[Suspect], l
 def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: str | None,
                 options: TriangulationOptions | None = None, image_size: tuple[int, int] | None = None,
                 approx: EOP | None = None, centre_priors: EOP | None = None,
-                all_images: list[str] | None = None) -> TriangulationResult:
+                all_images: list[str] | None = None, centre_flights: np.ndarray | None = None) -> TriangulationResult:
     """Aerial triangulation: EOPs (map CRS, PATB deg) with covariance from ground points and measurements (px).
 
     `meas` holds control, check and tie measurements (ids not in `points` are tie points). `approx`
@@ -554,22 +675,32 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     msgs: list[str] = []
     _check_measurements(camera, meas, image_size)
     check_as_tie = (all_images is None) if opt.check_as_tie is None else bool(opt.check_as_tie)
-    geo, P_world = _georef(points, meas, crs, opt)
-    blk = _block(points, P_world, meas, opt, check_as_tie, all_images, msgs)
+    geo, P_world = _georef(points, meas, crs, opt, centre_priors)
+    if opt.flight_shift and not _control_measured(points, meas):
+        raise InputError("a shift of the camera centres per flight needs measured control points: with the centres "
+                         "alone the shift is the datum itself", meas.path, field="flight_shift")
+    blk = _block(points, P_world, meas, opt, check_as_tie, all_images, msgs,
+                 has_centres=len(centres_in_block(centre_priors, meas)) > 0)
     unknown_ids = sorted(set(meas.id.astype(str)) - set(points.ids.astype(str)))
     clock["prepared"] = time.perf_counter()
-    R_world_to_cam_0, C_world_0 = _approx_poses(approx, geo, blk.images)
+    R_world_to_cam_0, C_world_0 = _approx_poses(_approx_with_centre_angles(approx, centre_priors), geo, blk.images)
     init = initial_orientation(camera, blk.images, blk.oi, blk.op, blk.uv, blk.X_prior, R_world_to_cam_0, C_world_0,
                                use_mapper=opt.use_mapper)
     for note in init.notes:
         _warn(msgs, note, opt.verbose)
     if not init.oriented.any():
+        _emit(msgs)
         raise InputError("no image could be oriented: each needs >= 4 control points, or tie points shared with "
-                         "oriented images, or approximate EOPs", meas.path)
+                         "oriented images, or approximate EOPs"
+                         + ("" if np.isfinite(blk.X_prior).all(1).any() else
+                            " (without control the camera centres alone do not start the orientation: give "
+                            "--approx EOPs, or angles in the centres file)"), meas.path)
     clock["initialised"] = time.perf_counter()
     cprior, csig = _centre_priors(centre_priors, geo, blk.images)
     adj = _Adjuster(camera, blk, init.R_world_to_cam, init.C_world, init.oriented, init.X_world, init.point_ok,
                     cprior, csig, opt)
+    if opt.flight_shift and cprior is not None:
+        adj.flight, adj.flight_names = _flights(centre_priors, centre_flights, blk.images)
     suspects, dropped, rounds = _adjust_and_clean(adj, msgs)
     res = adj.res
     lone = np.flatnonzero(adj.lone)
@@ -579,11 +710,13 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
         _warn(msgs, f"{len(lone)} tie observation(s) left out: their point has no other usable ray", opt.verbose)
     clock["adjusted"] = time.perf_counter()
     images_k = [blk.images[i] for i in adj.img_keep]
-    for i in np.flatnonzero(~adj.oriented):
+    for i in np.flatnonzero(~adj.oriented & ~adj.excluded):
         nm = int(np.sum(blk.oi == i))
         _warn(msgs, f"image {blk.images[i]} could not be oriented ({nm} usable measurements): left out"
               if nm else f"image {blk.images[i]} has no measurements: left out", opt.verbose)
+    datum = _datum_diagnostics(res, adj, msgs)
     out = _outputs(camera, res, adj, geo, points, meas, images_k, blk, msgs, opt, suspects, unknown_ids, P_world)
+    out.summary.update(datum)
     out.dropped = dropped
     out.summary.update({"initial_orientation": init.method, "rounds": rounds, "adjustment_runs": adj.runs,
                         "n_dropped_tie_observations": len(dropped), "dropped_tie_observations": dropped[:1000]})
@@ -597,10 +730,60 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     if opt.verbose:
         print(f"sigma0 {res.sigma0:.3f}, {len(images_k)} images, {len(adj.pt_keep)} points, "
               f"redundancy {res.redundancy}")
+    _emit(msgs)
     if out.problems and not opt.accept_poor:
         raise ResultError("triangulation not trusted: " + "; ".join(out.problems)
                           + " (--accept-poor writes it anyway)", meas.path)
     return out
+
+
+def _emit(msgs: list[str]) -> None:
+    """Each warning once through Python's `warnings` (UserWarning): a library user sees what the CLI reports."""
+    for text in dict.fromkeys(msgs):
+        warnings.warn(text, UserWarning, stacklevel=3)
+
+
+def _datum_diagnostics(res: BundleResult, adj: _Adjuster, msgs: list[str]) -> dict:
+    """The summary's `datum` (what fixes position, scale and rotation, and how precisely: `dgcal.bundle.datum`)
+    and `f_height` (the focal length-height correlation when f is refined); their warnings added to `msgs`."""
+    b = adj.blk
+    C_src = cs = np.zeros((0, 3))
+    if adj.cprior is not None:
+        cp, cs = adj.cprior[adj.img_keep], adj.csig[adj.img_keep]
+        have = np.isfinite(cp).all(1)
+        C_src, cs = cp[have], cs[have]
+    ctrl = adj.pt_keep[adj.is_prior[adj.pt_keep]]
+    G_src, gs = b.X_prior[ctrl], b.S_prior[ctrl]
+    stmt = datum_statement(C_src, cs, G_src, gs)
+    if stmt["not_fixed"]:
+        _warn(msgs, "datum: " + stmt["text"], adj.opt.verbose)
+    d = np.linalg.norm(res.X_world[res.obs_point] - res.C_world[res.obs_image], axis=1)
+    gsd = float(np.median(d)) / float(res.camera["f"]) if len(d) else 0.0
+    ref = reference_sigma_m(cs if len(cs) else None, gs if len(gs) else None, gsd)
+    precision, warn = weak_datum(res, ref)
+    stmt["precision"] = precision
+    adj.datum = stmt
+    for w in warn:
+        _warn(msgs, w, adj.opt.verbose)
+    centre_model = None
+    if adj.cprior is not None:
+        centre_model = {"antenna_offset_cam_m": None if adj.opt.antenna_offset_cam is None
+                        else [float(v) for v in adj.opt.antenna_offset_cam], "flight_shift": []}
+        if res.n_flights:
+            cov = res.cov_flight_shift
+            for f in range(res.n_flights):
+                used = adj.flight[adj.img_keep] == f
+                name = adj.flight_names[f] if f < len(adj.flight_names) else str(f)
+                centre_model["flight_shift"].append({
+                    "flight": name, "n_images": int(used.sum()), "shift_ENU_m": res.flight_shift[f].tolist(),
+                    "sigma_ENU_m": np.sqrt(np.clip(np.diag(cov[f]), 0, None)).tolist()})
+            stmt["text"] += (f"; a shift of the centres estimated per flight ({res.n_flights}): their position "
+                             "comes from the GCPs")
+    fh = focal_height_correlation(res)
+    w = focal_height_warning(fh)
+    if w:
+        _warn(msgs, w, adj.opt.verbose)
+    return {"datum": stmt, "f_height": fh, "centre_model": centre_model}
 
 
 def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: TriangulationOptions,
@@ -609,6 +792,13 @@ def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: Triangulation
     out = []
     if not res.converged:
         out.append(f"the adjustment did not converge ({res.stop_reason})")
+    datum = adj.datum
+    if datum is not None and datum["not_fixed"]:
+        out.append(f"the datum is not fixed: {datum['text']}")
+    capped = sum(not r["converged"] for r in adj.runs)
+    if res.converged and capped > len(adj.runs) / 2:
+        out.append(f"{capped} of {len(adj.runs)} adjustments stopped at their iteration limit (the start was far "
+                   "from the solution, or the block does not fit together)")
     if not np.isfinite(res.sigma0) or res.sigma0 > opt.max_sigma0:
         out.append(f"sigma0 {res.sigma0:.2f} exceeds {opt.max_sigma0:g} (measurement sigmas or data inconsistent)")
     # images connected to the block: >= 10 observations of points that other images see too
@@ -631,14 +821,12 @@ def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: Triangulation
     # a point disagrees when its coordinates go, or most of its measurements (single bad clicks are blunders)
     n_rej = len({s_.point for s_ in suspects if s_.removed and s_.kind == "coordinates" and s_.point in ctrl}
                 | {p for p, k in meas_rej.items() if k > 0.5 * n_obs.get(p, 0)})
-    if n_ctrl and n_rej >= max(3, MAX_REJECTED_CONTROL * n_ctrl):
+    if n_ctrl and n_rej >= 2 and n_rej > MAX_REJECTED_CONTROL * n_ctrl:
         out.append(f"{n_rej} of {n_ctrl} control points had their coordinates or measurements rejected as "
                    "blunders: so many disagreeing with the images point to their coordinates as a whole (heights "
                    "in feet? another CRS, datum or vertical reference? a shifted file?), not to single blunders")
     return out
 
-
-MAX_REJECTED_CONTROL = 0.25    # share of control points with rejections before their coordinates as a whole are doubted
 
 
 def _outputs(camera, res: BundleResult, adj: _Adjuster, geo: World, points: Points, meas: Measurements,
@@ -753,15 +941,22 @@ def _check_points(camera, res: BundleResult, geo: World, points: Points, meas: M
         R_world_to_grid = geo.R_world_to_grid_at(X[None])[0]
         d = R_world_to_grid @ (X - given)
         s = np.sqrt(np.clip(np.diag(R_world_to_grid @ cov_j @ R_world_to_grid.T), 0, None))
+        survey = points.sigma[pidx[pid]]
+        survey = np.where(np.isfinite(survey), survey, 0.0)
+        total = np.hypot(s, survey)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(total > 0, d / total, np.nan)
         out.append({"id": pid, "n_images": n_rays, "evaluated": True, "how": how,
                     "xyz": points.xyz[pidx[pid]].tolist(), "intersected": geo.to_map(X[None])[0].tolist(),
-                    "dENU_m": d.tolist(), "sigma_ENU_m": s.tolist(), "rms_px": rms})
+                    "dENU_m": d.tolist(), "sigma_ENU_m": s.tolist(), "survey_sigma_ENU_m": survey.tolist(),
+                    "sigma_total_ENU_m": total.tolist(), "normalised": z.tolist(), "rms_px": rms})
     return out
 
 
 def _summary(res, eop, images, images_k, gcp_rep, check_rep, unknown_rep, suspects, msgs, geo, kind_k) -> dict:
     ev = [c for c in check_rep if c.get("evaluated")]
     d = np.array([c["dENU_m"] for c in ev]) if ev else np.zeros((0, 3))
+    z = np.array([c["normalised"] for c in ev], float) if ev else np.zeros((0, 3))
     g = np.array([c["dENU_m"] for c in gcp_rep if c["coordinates_used"]]) if gcp_rep else np.zeros((0, 3))
     g = g.reshape(-1, 3)
     fin = np.isfinite(res.residuals_px).all(1)
@@ -775,6 +970,8 @@ def _summary(res, eop, images, images_k, gcp_rep, check_rep, unknown_rep, suspec
         "control_rmse_m": {"E": _rms(g[:, 0]), "N": _rms(g[:, 1]), "U": _rms(g[:, 2])},
         "check_rmse_m": {"E": _rms(d[:, 0]), "N": _rms(d[:, 1]), "U": _rms(d[:, 2]),
                           "horizontal": _rms(np.hypot(d[:, 0], d[:, 1])) if len(d) else None, "n": len(d)},
+        # error over (adjustment sigma (+) survey sigma), RMS per axis: near 1 when the sigmas are honest
+        "check_normalised_rms": {k: _rms(z[:, j][np.isfinite(z[:, j])]) for j, k in enumerate("ENU")},
         "median_sigma": {k: float(np.median(eop.sigma[:, j])) for j, k in
                          enumerate(("X_m", "Y_m", "Z_m", "omega_deg", "phi_deg", "kappa_deg"))},
         "camera": {"model": cam.NAME, "refined": list(res.refine), "params": cam.as_dict(),

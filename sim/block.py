@@ -8,7 +8,12 @@ what it sees (0.3 px noise by default). Coordinates are in a map CRS (a UTM zone
 the meridian convergence exceeds 1 degree), ellipsoidal heights; EOPs are PATB omega/phi/kappa in that CRS.
 
 `simulate_block(...)` returns a `BlockSim` in memory; `write_block(sim, out)` writes `gcp.csv`,
-`measurements.csv` (all image measurements), `camera.json`, `truth_eop.csv` and `truth.json`.
+`measurements.csv` (all image measurements), `camera.json`, `truth_eop.csv`, `truth.json` and, when the
+block has GNSS camera centres (`centre_sigma_m`), `centres.csv` (EOP columns, angles blank, sX,sY,sZ).
+
+The RTK-drone family (`rtk_drone_pattern`, `p1_35mm_camera`, `simulate_rtk_block`): a 35 mm lens on an
+8192 x 5460 px full frame (4.4 um pixels, DJI Zenmuse P1 class), 150 m above the mean terrain, 80 % / 70 %
+overlap, +-50 m hills, a gimbal-stabilised nadir camera, RTK camera centres with noise 2/2/5 cm (E, N, Up).
 """
 from __future__ import annotations
 
@@ -22,7 +27,7 @@ from dgcal.calib.camera.files import write_camera_json
 from dgcal.calib.camera.models import Fraser7
 from dgcal.fields.crs import LocalENU, MapGrid
 from dgcal.fields.frames import R_CV_TO_PHOTO
-from dgcal.fields.io.csv_tables import atomic_write, staged_dir
+from dgcal.fields.io.csv_tables import atomic_write, formatted, staged_dir, write_columns
 from dgcal.fields.io.formats import EOP, Measurements, Points, write_eop, write_measurements, write_points
 from dgcal.fields.pose import Poses, so3_exp
 from dgcal.fields.world import World
@@ -36,6 +41,12 @@ def full_frame_20mm_camera() -> Fraser7:
     """A 20 mm lens on a 36 x 24 mm, 6000 x 4000 px sensor (6 um pixels): f = 3333 px, mild distortion."""
     return Fraser7((6000, 4000), np.array([3333.3, 2999.5 + 12.0, 1999.5 - 8.0, -0.045, 0.012, 0.0,
                                            1.5e-4, -1.0e-4, 0.3, 0.1]))
+
+
+def p1_35mm_camera() -> Fraser7:
+    """A 35 mm lens on a 35.9 x 24 mm, 8192 x 5460 px sensor (4.4 um pixels): f = 7954.5 px, mild distortion."""
+    return Fraser7((8192, 5460), np.array([7954.5, 4095.5 + 9.0, 2729.5 - 6.0, -0.021, 0.006, 0.0,
+                                           6.0e-5, -4.0e-5, 0.0, 0.0]))
 
 
 @dataclass
@@ -71,6 +82,7 @@ class BlockSim:
     measurements: Measurements      # ground and tie points together
     strip: list[str] = field(default_factory=list)
     pattern: BlockPattern | None = None
+    centres: EOP | None = None      # GNSS camera centres (map CRS, truth + noise) with sigma (n,6), angles NaN
 
     def truth_dict(self) -> dict:
         """The truth as JSON-able data."""
@@ -82,7 +94,8 @@ class BlockSim:
                             "strip": self.strip[i]} for i, n in enumerate(self.images)],
                 "ground_points": [{"id": str(self.points.ids[i]), "role": str(self.points.role[i]),
                                    "xyz": self.points_true_map[i].tolist()} for i in range(len(self.points.ids))],
-                "n_tie_points": int(len(self.tie_world)), "n_observations": int(len(self.measurements.id))}
+                "n_tie_points": int(len(self.tie_world)), "n_observations": int(len(self.measurements.id)),
+                "centre_sigma_m": None if self.centres is None else self.centres.sigma[0, :3].tolist()}
 
 
 def terrain(e: np.ndarray, n: np.ndarray, amplitude_m: float) -> np.ndarray:
@@ -130,13 +143,15 @@ def _ground_point_layout(lo: np.ndarray, hi: np.ndarray, n: int, n_control: int,
     cell = span / np.array([gx - 1, gy - 1])
     pts = np.column_stack([ee.ravel(), nn.ravel()])
     pts = pts[rng.permutation(len(pts))[:n]] + rng.uniform(-0.25, 0.25, (n, 2)) * cell
+    control = np.zeros(n, bool)
+    if n_control <= 0:
+        return pts, control
     order = [int(np.argmin(np.linalg.norm(pts - lo, axis=1)))]
     dmin = np.linalg.norm(pts - pts[order[0]], axis=1)
     while len(order) < n_control:
         k = int(np.argmax(dmin))
         order.append(k)
         dmin = np.minimum(dmin, np.linalg.norm(pts - pts[k], axis=1))
-    control = np.zeros(n, bool)
     control[order] = True
     return pts, control
 
@@ -161,8 +176,10 @@ def _observe(camera: Fraser7, poses: Poses, names: list[str], ids: np.ndarray, X
 def simulate_block(seed: int = 0, pattern: BlockPattern | None = None, *, camera: Fraser7 | None = None,
                    site: tuple[float, float, float] = SITE, crs: str = SITE_CRS, n_control: int = 12,
                    n_check: int = 10, n_tie: int = 3000, noise_px: float = 0.3,
-                   gcp_sigma_m: tuple[float, float, float] = (0.01, 0.01, 0.015)) -> BlockSim:
-    """A measurement-only block with known truth (see the module docstring)."""
+                   gcp_sigma_m: tuple[float, float, float] = (0.01, 0.01, 0.015),
+                   centre_sigma_m: tuple[float, float, float] | None = None) -> BlockSim:
+    """A measurement-only block with known truth (see the module docstring); `centre_sigma_m` (E, N, Up, m) adds
+    GNSS camera centres: the true centres plus normal noise of these sigmas, in the map CRS."""
     pattern = pattern or BlockPattern()
     rng = np.random.default_rng(seed)
     cam = camera or full_frame_20mm_camera()
@@ -209,12 +226,58 @@ def simulate_block(seed: int = 0, pattern: BlockPattern | None = None, *, camera
     points = Points(gp_ids, gp_map + rng.normal(0, 1.0, gp_map.shape) * sig, sig, role)
     C_map, opk, _ = world.poses_to_eop(poses)
     eop = EOP(np.array(names, dtype=object), C_map, opk)
+    centres = None
+    if centre_sigma_m is not None:
+        # map grid axes and ENU differ by the convergence (< 2 deg): the noise is drawn along grid E, N, Up,
+        # the axes of an EOP file's sigmas
+        csig = np.tile(np.r_[np.asarray(centre_sigma_m, float), np.full(3, np.nan)], (n, 1))
+        centres = EOP(eop.image.copy(), C_map + rng.normal(0, 1.0, (n, 3)) * csig[:, :3], np.full((n, 3), np.nan),
+                      csig)
     return BlockSim(crs, local, cam, names, poses, eop, points, gp_map, tie, meas,
-                    [p["strip"] for p in plan], pattern)
+                    [p["strip"] for p in plan], pattern, centres)
+
+
+def rtk_drone_pattern(n_strips: int = 6, images_per_strip: int = 16, terrain_amplitude_m: float = 50.0,
+                      height_m: float = 150.0) -> BlockPattern:
+    """The RTK-drone family's flight: strips in opposite headings at 150 m, 80 % / 70 % overlap, +-50 m hills, a
+    gimbal-stabilised nadir camera (0.5 deg attitude jitter), the planned line held to a metre."""
+    return BlockPattern(heights_m=(height_m,), n_strips=(n_strips,), images_per_strip=(images_per_strip,),
+                        forward_overlap=0.8, side_overlap=0.7, terrain_amplitude_m=terrain_amplitude_m,
+                        jitter_deg=(0.5, 0.5, 1.0), jitter_m=(1.0, 1.0, 0.5))
+
+
+RTK_CENTRE_SIGMA_M = (0.02, 0.02, 0.05)   # E, N, Up of an RTK camera centre
+
+
+def simulate_rtk_block(seed: int = 0, n_images: int = 96, n_control: int = 0, n_check: int = 10,
+                       n_tie: int | None = None, noise_px: float = 0.3,
+                       centre_sigma_m: tuple[float, float, float] | None = RTK_CENTRE_SIGMA_M,
+                       terrain_amplitude_m: float = 50.0) -> BlockSim:
+    """An RTK-drone block of about `n_images` images (strips about 2.5 times as many as the images per strip: a
+    roughly square block) with `n_control` GCPs, `n_check` check points and RTK camera centres (see the module
+    docstring)."""
+    n_strips = max(2, int(round(np.sqrt(n_images / 2.5))))
+    per_strip = max(3, int(round(n_images / n_strips)))
+    pattern = rtk_drone_pattern(n_strips, per_strip, terrain_amplitude_m)
+    # about 60 tie points per image are seen by each image (a real block has hundreds: the accuracy of the
+    # centres, not of the ties, is what this family tests)
+    n_tie = n_tie if n_tie is not None else 120 * n_strips * per_strip
+    return simulate_block(seed, pattern, camera=p1_35mm_camera(), n_control=n_control, n_check=n_check,
+                          n_tie=n_tie, noise_px=noise_px, gcp_sigma_m=(0.01, 0.01, 0.015),
+                          centre_sigma_m=centre_sigma_m)
+
+
+def write_centres(path: str | Path, centres: EOP) -> None:
+    """GNSS camera centres as an EOP CSV whose angles are blank: image,X,Y,Z,omega,phi,kappa,sX,sY,sZ (map CRS, m)."""
+    blank = [""] * len(centres.image)
+    cols = [list(centres.image)] + [formatted(centres.xyz[:, j], "%.4f") for j in range(3)] + [blank] * 3
+    cols += [formatted(centres.sigma[:, j], "%.4f") for j in range(3)]
+    write_columns(path, ["image", "X", "Y", "Z", "omega", "phi", "kappa", "sX", "sY", "sZ"], cols)
 
 
 def write_block(sim: BlockSim, out: str | Path) -> Path:
-    """Write gcp.csv, measurements.csv, camera.json, truth_eop.csv and truth.json into `out` (all or nothing)."""
+    """Write gcp.csv, measurements.csv, camera.json, truth_eop.csv, truth.json (and centres.csv when the block has
+    GNSS centres) into `out` (all or nothing)."""
     out = Path(out)
     with staged_dir(out) as tmp:
         write_points(tmp / "gcp.csv", sim.points, with_role=True)
@@ -222,6 +285,8 @@ def write_block(sim: BlockSim, out: str | Path) -> Path:
         write_camera_json(tmp / "camera.json", sim.camera, stats={"rms_px": 0.0, "n_observations": 0,
                                                                   "n_rejected": 0})
         write_eop(tmp / "truth_eop.csv", sim.eop)
+        if sim.centres is not None:
+            write_centres(tmp / "centres.csv", sim.centres)
         with atomic_write(tmp / "truth.json") as fh:
             json.dump(sim.truth_dict(), fh, indent=1)
     return out

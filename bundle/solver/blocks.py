@@ -280,36 +280,66 @@ class PointPriors(Block):
 class CentrePriors(Block):
     """Observed projection centres (e.g. GNSS), one item per coordinate: pose (k,), axis (k,), value, sigma (m).
 
-    Residual (C_world[pose, axis] - value) / sigma. `from_arrays` takes (n,3) arrays with NaN = no prior."""
+    Residual (C_world[pose, axis] - value) / sigma. `from_arrays` takes (n,3) arrays with NaN = no prior.
+    An antenna not at the projection centre: `offset_cam` (3,) m, the antenna in camera axes, observed at
+    C + R_cam_to_world offset_cam (known, applied with each pose's rotation). A shift common to a flight's centres
+    (a GNSS base or datum offset): `flight` (k,) index per item and `shift_glob` (3F,) the globals of the shifts
+    (E, N, Up per flight, world axes, m), observed at ... + shift[flight]."""
 
     dim = 1
 
     def __init__(self, pose: np.ndarray, axis: np.ndarray, value: np.ndarray, sigma: np.ndarray,
-                 name: str = "centre_prior"):
+                 name: str = "centre_prior", offset_cam: np.ndarray | None = None, flight: np.ndarray | None = None,
+                 shift_glob: np.ndarray | None = None):
         self.pose = np.asarray(pose, int)
         self.axis = np.asarray(axis, int)
         self.value = np.asarray(value, float)
         self.w = 1.0 / np.broadcast_to(np.asarray(sigma, float), self.value.shape)
         self.name = name
+        self.offset_cam = None if offset_cam is None or not np.any(offset_cam) else np.asarray(offset_cam, float)
+        self.flight = None if flight is None else np.asarray(flight, int)
+        self.shift_glob = None if shift_glob is None else np.asarray(shift_glob, int)
 
     @classmethod
-    def from_arrays(cls, C: np.ndarray, sigma: np.ndarray, name: str = "centre_prior") -> "CentrePriors":
-        """Priors from (n,3) centres and sigmas; NaN coordinates skipped."""
+    def from_arrays(cls, C: np.ndarray, sigma: np.ndarray, name: str = "centre_prior",
+                    offset_cam: np.ndarray | None = None, flight: np.ndarray | None = None,
+                    shift_glob: np.ndarray | None = None) -> "CentrePriors":
+        """Priors from (n,3) centres and sigmas; NaN coordinates skipped; `flight` (n,) per pose (with
+        `shift_glob`: a shift per flight)."""
         C = np.asarray(C, float).reshape(-1, 3)
         i, a = np.nonzero(np.isfinite(C))
         sig = np.broadcast_to(np.asarray(sigma, float), C.shape)
-        return cls(i, a, C[i, a], sig[i, a], name)
+        fl = None if flight is None else np.asarray(flight, int)[i]
+        return cls(i, a, C[i, a], sig[i, a], name, offset_cam, fl, shift_glob)
 
     def __len__(self) -> int:
         return len(self.pose)
 
     def evaluate(self, state: State, jacobians: bool) -> BlockEval:
-        r = ((state.poses.C_world[self.pose, self.axis] - self.value) * self.w)[:, None]
+        k = np.arange(len(self.pose))
+        pred = state.poses.C_world[self.pose, self.axis]
+        R_cam_to_world = None
+        if self.offset_cam is not None:
+            R_cam_to_world = np.swapaxes(state.poses.R_world_to_cam[self.pose], -1, -2)
+            pred = pred + (R_cam_to_world @ self.offset_cam)[k, self.axis]
+        if self.shift_glob is not None:
+            pred = pred + state.globals[self.shift_glob[3 * self.flight + self.axis]]
+        r = ((pred - self.value) * self.w)[:, None]
         ev = BlockEval(r, np.ones(len(r), bool))
         if jacobians:
             J = np.zeros((len(r), 1, 6))
-            J[np.arange(len(r)), 0, self.axis] = self.w
+            J[k, 0, self.axis] = self.w
+            if R_cam_to_world is not None:
+                # R <- R Exp(dtheta): d(R a) = -R [a]x dtheta
+                a = self.offset_cam
+                ax = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+                J[:, 0, 3:] = -(R_cam_to_world @ ax)[k, self.axis] * self.w[:, None]
             ev.pose, ev.J_pose = self.pose, J
+            if self.shift_glob is not None:
+                g = np.unique(self.shift_glob)
+                Jg = np.zeros((len(r), 1, len(g)))
+                Jg[k, 0, np.searchsorted(g, self.shift_glob[3 * self.flight + self.axis])] = self.w
+                ev.glob, ev.J_glob = g, Jg
         return ev
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 from dgcal.steps import Campaign
 import dgcal.arg_types as arg_types  # not `from dgcal import`: dgcal.__getattr__ would load the API
@@ -41,7 +42,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refine", default="", help="camera parameters to refine, comma separated, or 'all'")
     p.add_argument("--geoid", help="geoid undulation (m) or PROJ vertical grid: map heights are orthometric")
     p.add_argument("--approx", help="approximate EOP CSV in --crs (initial values and spatial image pairs)")
-    p.add_argument("--gnss", help="EOP CSV in --crs whose X,Y,Z (and sX..sZ) are camera-centre priors")
+    p.add_argument("--gnss", help="GNSS camera centres: EOP CSV in --crs, image,X,Y,Z[,sX,sY,sZ] (angles may be "
+                                  "blank): centre priors that fix the datum with or without control points")
+    p.add_argument("--antenna-offset", nargs=3, type=arg_types.finite, metavar=("DX", "DY", "DZ"),
+                   help="with --gnss: the antenna phase centre in camera axes (x right, y down, z forward, m) from "
+                        "the perspective centre, applied with each image's rotation")
+    p.add_argument("--flight-shift", action="store_true",
+                   help="with --gnss and control points: estimate a shift (E, N, Up) of the centres per flight "
+                        "(their 'flight' column, else one for all)")
     p.add_argument("--max-features", type=arg_types.positive_int, default=4000, help="SIFT features per image")
     p.add_argument("--targets", metavar="DICT", help="detect ArUco GCP targets (e.g. DICT_4X4_50) in --images; "
                    "marker id = point id; measurements in --measurements take precedence")
@@ -79,11 +87,21 @@ def run(args: argparse.Namespace) -> int:
         sigma_px=args.sigma_px, tie_sigma_px=args.tie_sigma_px,
         gcp_sigma_m=None if args.gcp_sigma is None else tuple(args.gcp_sigma), fixed_gcps=args.fixed_gcps,
         refine=_words(args.refine), geoid=args.geoid, approx=args.approx, gnss=args.gnss,
+        antenna_offset_cam=None if args.antenna_offset is None else tuple(args.antenna_offset),
+        flight_shift=args.flight_shift,
         max_features=args.max_features, targets=args.targets, reject_blunders=not args.no_blunder_rejection,
         formats=_words(args.formats), approx_eop=approx_eop, check_as_tie=args.check_as_tie,
         accept_poor=args.accept_poor, use_mapper=not args.no_mapper,
         progress=None if args.no_progress else _progress)
-    tri = triangulate_files(opts)
+    # the library reports each warning through `warnings` too (for Python users): printed here once, our way
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UserWarning)
+        try:
+            tri = triangulate_files(opts)
+        except Exception:
+            _print_warnings([str(w.message) for w in caught if issubclass(w.category, UserWarning)])
+            raise
+    _print_warnings(tri.result.warnings)
     with staged_dir(args.out) as tmp:
         write_triangulation_outputs(tmp, tri, OUTPUTS)
     s, res = tri.result.summary, tri.result
@@ -93,6 +111,18 @@ def run(args: argparse.Namespace) -> int:
     if res.problems:
         print("NOT TRUSTED (--accept-poor): " + "; ".join(res.problems))
     return 0
+
+
+MAX_PRINTED_WARNINGS = 20   # the rest are in summary.json and the report
+
+
+def _print_warnings(texts: list[str]) -> None:
+    """Each warning once on stderr, at most MAX_PRINTED_WARNINGS."""
+    texts = list(dict.fromkeys(texts))
+    for t in texts[:MAX_PRINTED_WARNINGS]:
+        print(f"[{NAME}] warning: {t}", file=sys.stderr)
+    if len(texts) > MAX_PRINTED_WARNINGS:
+        print(f"[{NAME}] ... {len(texts) - MAX_PRINTED_WARNINGS} more warning(s) in summary.json", file=sys.stderr)
 
 
 def _progress(text: str) -> None:
