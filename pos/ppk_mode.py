@@ -95,7 +95,7 @@ def run_ppk(opts: PpkModeOptions) -> PpkRun:
     summary.update({"rinex_obs": str(rover.rinex_obs), "rinex_base": str(opts.base.rinex),
                     "rinex_nav": nav.source, "base_ecef_m": base.tolist(), "base_position_source": src,
                     "base_spp_ecef_m": base_spp.tolist() if base_spp is not None else None,
-                    "base_minus_spp_m": d_spp, "ionosphere_model": nav.ion_source,
+                    "base_minus_spp_m": d_spp, "ionosphere_model": nav.ion_source, "orbits": nav.orbits,
                     "run_time_s": round(t_run, 2),
                     "time_per_epoch_ms": round(1e3 * t_run / max(len(res.t_gps), 1), 2),
                     "warnings": warnings})

@@ -60,6 +60,7 @@ def test_header_position_warns_and_geodetic_position_matches(shared_data, tmp_pa
     s2 = json.loads((out2 / "gnss_summary.json").read_text())
     np.testing.assert_allclose(s2["base_ecef_m"], BASE_ECEF, atol=1e-3)
     assert s2["warnings"] == [] and s2["fix_rate"] >= 0.8 and s2["error_fixed"]["rms_3d_m"] < 0.02
+    assert s2["orbits"] == "broadcast"   # which orbits were used, in the summary (precise: test_gnss_precise)
 
 
 def test_a_base_position_metres_off_is_refused_or_warned(shared_data, tmp_path, capsys):
