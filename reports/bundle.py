@@ -12,6 +12,7 @@ from matplotlib.collections import PolyCollection
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.tables import flat_pairs
 from dgcal.reports.units import column_decimals, fmt_number
 
 
@@ -125,6 +126,10 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
                   ("check RMSE E / N / U (m)", _triple(chk)), ("check points evaluated", chk["n"]),
                   ("camera", f"{s['camera']['model']}, "
                              f"refined: {', '.join(s['camera']['refined']) or 'none (fixed)'}")])
+    more = flat_pairs(s, SUMMARY_SHOWN)
+    if more:
+        rep.heading("Datum and further results")
+        rep.kv_table(more)
     rep.heading("Warnings")
     rep.warnings(s["warnings"])
     add_honesty(rep, honesty if honesty is not None else triangulation_honesty(res))
@@ -158,6 +163,15 @@ def write_bundle_report(path: str | Path, res, title: str = "Aerial triangulatio
                "σφ (°)", "σκ (°)"],
               [[st["image"], st["n_obs"], st["n_control"], st["rms_px"], *st["sigma"]] for st in res.image_stats])
     return rep.write(path)
+
+
+# summary keys the page shows in its own tables (or leaves to summary.json: the adjustment's bookkeeping); any other
+# key, such as one a later version adds, is shown under "Datum and further results" (`flat_pairs`)
+SUMMARY_SHOWN = {"crs", "sigma0", "redundancy", "converged", "n_images", "n_oriented", "n_control", "n_tie_points",
+                 "n_observations", "rms_px", "control_rmse_m", "check_rmse_m", "camera", "warnings", "problems",
+                 "unknown_points", "suspects", "images", "control_points", "check_points", "honesty", "timings_s",
+                 "adjustment_runs", "rounds", "iterations", "stop_reason", "dropped_tie_observations", "trusted",
+                 "n_unknown_ids"}
 
 
 def _triple(d: dict) -> str:

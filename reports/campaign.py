@@ -473,7 +473,8 @@ def _triangulation_section(rep: HtmlReport, d: dict, out: Path, cfg: dict, files
     if tri:
         pairs = [(k, tri[k]) for k in ("n_images", "n_oriented", "sigma0", "n_observations", "n_points", "n_control",
                                        "n_check", "n_rejected") if k in tri and not isinstance(tri[k], (dict, list))]
-        rep.kv_table(pairs)
+        datum = tri.get("datum")
+        rep.kv_table(pairs + [("datum", datum.get("text") if isinstance(datum, dict) else datum)])
         for key, what in (("check_rmse_m", "check-point RMSE"), ("control_rmse_m", "control-point RMSE")):
             r = tri.get(key)
             if isinstance(r, dict):

@@ -44,7 +44,13 @@ LABELS = {
     "fixed_parameters": "parameters held fixed", "clock_drift": "logger clock drift (s/s)",
     "covariance_scaled_by": "covariance scaled by (unitless)", "pos_position": "POS position",
     "pos_attitude": "POS attitude", "image_measurements": "image measurements", "lever_arm": "lever arm",
-    "delay": "exposure delay", "dd_rows_dropped": "double differences dropped as outliers",
+    "delay": "exposure delay", "rho": "correlation ρ (unitless)", "sigma_f_px": "σf (px)",
+    "sigma_f_relative": "σf / f (unitless)", "height_above_ground_m": "height above ground (m)",
+    "height_sigma_from_f_m": "height σ from σf (m)", "sigma_height_above_ground_m": "σ height above ground (m)",
+    "f_height": "focal length and flying height", "datum": "datum", "trusted": "trusted",
+    "check_normalised_rms": "check points' error/σ RMS", "median_sigma": "median σ of the images",
+    "initial_orientation": "initial orientation", "n_dropped_tie_observations": "tie observations dropped",
+    "dd_rows_dropped": "double differences dropped as outliers",
 }
 
 # words inside keys: abbreviations as written, symbols

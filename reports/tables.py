@@ -46,6 +46,30 @@ def residual_rows(stats: dict) -> list[list[str]]:
     return rows
 
 
+def flat_pairs(summary: dict, skip=()) -> list[tuple[str, object]]:
+    """(name, value) rows of a summary's keys not in `skip` whose values a table can show: numbers, texts, lists of
+    numbers, and one level of a mapping of those (as 'key: sub-key'); a mapping's 'text' is the key's own row.
+    Deeper structures (lists of records) are left to the JSON file. Names stay raw keys: the page's builder turns
+    them into words with units (dgcal.reports.glossary)."""
+    out = []
+    for k, v in summary.items():
+        if k in skip or v is None:
+            continue
+        if isinstance(v, dict):
+            if isinstance(v.get("text"), str):
+                out.append((k, v["text"]))
+            out += [(f"{label(k)}: {label(sk)}", sv) for sk, sv in v.items() if sk != "text" and _flat(sv)]
+        elif _flat(v):
+            out.append((k, v))
+    return out
+
+
+def _flat(v) -> bool:
+    if isinstance(v, (list, tuple)):
+        return len(v) <= 12 and all(isinstance(x, (int, float, str)) and not isinstance(x, bool) for x in v)
+    return isinstance(v, (int, float, str, bool))
+
+
 def add_residual_table(rep, stats: dict) -> None:
     """The residual statistics of a GNSS/INS run as one table in `rep` (nothing when there are none)."""
     if stats:

@@ -81,6 +81,22 @@ def test_a_page_of_a_raw_summary_reads_clean():
     assert "A 0.001 0.00091 3" in text and "B -0.012 0.00210 4" in text         # a column: one resolution
 
 
+def test_keys_a_later_version_adds_show_as_words():
+    """The triangulation page's further results: a new statement with its flat details, nested records left to the
+    JSON file, keys the page shows elsewhere skipped."""
+    from dgcal.reports.tables import flat_pairs
+    s = {"sigma0": 1.0, "datum": {"text": "3 GCPs and 40 camera centres fix the block", "n_centres": 40,
+                                  "centre_sigma_m": [0.02, 0.02, 0.05], "precision": {"weak": False}},
+         "new_offset_deg": 0.00012, "runs": [{"a": 1}]}
+    pairs = flat_pairs(s, skip={"sigma0"})
+    assert pairs == [("datum", "3 GCPs and 40 camera centres fix the block"), ("datum: centres", 40),
+                     ("datum: centre σ (m)", [0.02, 0.02, 0.05]), ("new_offset_deg", 0.00012)]
+    rep = HtmlReport("t")
+    rep.kv_table(pairs)
+    page = rep.render()
+    assert problems(page) == [] and "new offset (°)" in page and "0.020, 0.020, 0.050" in page
+
+
 # ------------------------------------------------------------------------------------------------ mounting, check
 def _mounting(method: str, R_cam_to_body: np.ndarray, delay_sigma: float = 0.002) -> dict:
     return {"method": method, "lever_arm_m": [-0.3012, 0.1198, 0.2003], "lever_arm_sigma_m": [0.0021, 0.0019, 0.0032],
