@@ -22,6 +22,11 @@
    relative difference and the largest difference between their projection centres, and whether issue 17's
    target is met (<= 1.5x time and memory).
 2. The whole triangulation from measurements (300 images x 50k ties, no approximate EOPs): stage times.
+   Before it, the initial orientation of issue 29's 60-image block (4 strips in opposite headings, hills of
+   +-50 m, 1.8 deg meridian convergence, 12 GCPs, 0.3 px): the mapper on its thinned observations alone (the
+   start before issue 29), on all of them, `initial_orientation` as a whole (thinned, retried with all points
+   when that breaks up, models joined through control and ties, leftovers resected) and the start from camera
+   centres (5 cm) with kappa from image motion; images oriented, centre and angle errors against the truth, s.
 3. Triangulation from photos (`dgcal simulate flight --seed 1`, rendered): `dgcal triangulate --images` (SIFT
    and matching by pycolmap, dgcal's initial orientation and adjustments) beside pycolmap's extract + match of
    the same pairs + incremental mapper, each run in its own process, alternating; the peer's extraction and
@@ -330,6 +335,55 @@ def bench_adjustment(sizes: list[int], repeats: int, threads: int, target_chi2: 
           "computed on first use))")
 
 
+def bench_initial_orientation() -> None:
+    from dgcal.bundle.initial import initial_orientation, place_models
+    from dgcal.bundle.mapper import orient_by_mapper
+    from dgcal.fields.pose import so3_log
+    from dgcal.fields.world import World
+    print("2a. initial orientation of issue 29's 60-image block (opposite headings, hills, 1.8 deg convergence)")
+    sim = simulate_block(1, BlockPattern(n_strips=(4,), images_per_strip=(15,), terrain_amplitude_m=50,
+                                         heading_deg=37.0), n_control=12, n_tie=12000)
+    control = sim.points.role == "control"
+    geo = World.from_crs(sim.crs, sim.points.xyz[control].mean(0))
+    ids = sim.measurements.id.astype(str)
+    point_ids = list(dict.fromkeys(ids))
+    pt_index = {q: i for i, q in enumerate(point_ids)}
+    img_index = {q: i for i, q in enumerate(sim.images)}
+    oi = np.array([img_index[q] for q in sim.measurements.image.astype(str)])
+    op = np.array([pt_index[q] for q in ids])
+    uv = sim.measurements.xy
+    X_control = np.full((len(point_ids), 3), np.nan)
+    for k, pid in enumerate(sim.points.ids.astype(str)):
+        if control[k] and pid in pt_index:
+            X_control[pt_index[pid]] = geo.to_world(sim.points.xyz[k][None])[0]
+    truth = geo.eop_to_poses(sim.eop.xyz, sim.eop.opk)
+
+    def line(what, R, C, ok, seconds):
+        dC = np.linalg.norm(C - truth.C_world, axis=1)[ok]
+        da = np.degrees(np.linalg.norm(so3_log(np.einsum("nij,nkj->nik", R, truth.R_world_to_cam)), axis=1))[ok]
+        print(f"   {what:<58} {int(ok.sum()):>2}/{len(ok)} images, centres RMS {np.sqrt(np.mean(dC ** 2)):7.3f} m "
+              f"(max {dC.max():7.3f}), angles RMS {np.sqrt(np.mean(da ** 2)):.4f} deg, {seconds:5.1f} s")
+
+    known = np.isfinite(X_control).all(1)
+    for what, per_image, keep in (("mapper, thinned (150/image, control not kept: as before)", 150, None),
+                                  ("mapper, all points", None, known)):
+        t0 = time.perf_counter()
+        res = orient_by_mapper(sim.camera, sim.images, oi, op, uv, len(point_ids), per_image=per_image,
+                               keep_points=keep)
+        placed = place_models(res.models, sim.camera.ray(uv), oi, op, X_control, 2.0, "mapper")
+        line(f"{what}: {len(res.models)} model(s)", placed.R_world_to_cam, placed.C_world, placed.oriented,
+             time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    init = initial_orientation(sim.camera, sim.images, oi, op, uv, X_control)
+    line(f"initial_orientation ({init.method})", init.R_world_to_cam, init.C_world, init.oriented,
+         time.perf_counter() - t0)
+    C_prior = truth.C_world + np.random.default_rng(1).normal(0, 0.05, truth.C_world.shape)
+    t0 = time.perf_counter()
+    init = initial_orientation(sim.camera, sim.images, oi, op, uv, X_control, C_world_prior=C_prior)
+    line("camera centres (5 cm) + kappa from image motion", init.R_world_to_cam, init.C_world, init.oriented,
+         time.perf_counter() - t0)
+
+
 def bench_triangulation() -> None:
     from dgcal.bundle.triangulation import TriangulationOptions, triangulate
     print("2. triangulation from measurements: 300 images x 50k tie points, no approximate EOPs")
@@ -489,6 +543,7 @@ def main() -> None:
     if args.sizes:
         bench_adjustment(args.sizes, args.repeats, args.threads, args.target_chi2)
     if not args.skip_measurements:
+        bench_initial_orientation()
         bench_triangulation()
     if not args.skip_photos:
         bench_photos(args.photo_repeats, args.threads)

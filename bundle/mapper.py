@@ -11,6 +11,9 @@ Pixels: COLMAP's origin is the top-left pixel's corner, dgcal's that pixel's cen
 """
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +33,26 @@ class MapperResult:
     models: list[tuple[Poses, np.ndarray, np.ndarray]] = field(default_factory=list)   # (poses, X (m,3), registered)
     n_verified_pairs: int = 0
     seconds: dict = field(default_factory=dict)
+    log: list[str] = field(default_factory=list)    # COLMAP's own log lines (kept off the console)
+    n_observations: int = 0                         # observations the mapper was given
+
+
+@contextlib.contextmanager
+def captured_stderr(lines: list[str]):
+    """Run a block with file descriptor 2 sent to a temporary file (glog, which COLMAP logs through, writes
+    there directly, past `sys.stderr`); its text is appended to `lines`, one entry per line."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            lines.extend(t for t in tmp.read().decode(errors="replace").splitlines() if t.strip())
 
 
 def image_pairs_by_shared_points(obs_image: np.ndarray, obs_point: np.ndarray, n_images: int,
@@ -62,9 +85,10 @@ def image_pairs_by_shared_points(obs_image: np.ndarray, obs_point: np.ndarray, n
     return ia, ib, ra, rb
 
 
-def _strong_subset(oi: np.ndarray, op: np.ndarray, n_images: int, n_points: int, per_image: int) -> np.ndarray:
+def _strong_subset(oi: np.ndarray, op: np.ndarray, n_images: int, n_points: int, per_image: int,
+                   keep_points: np.ndarray | None = None) -> np.ndarray:
     """Observations of the points taken, longest tracks first, while an image they see still has fewer than
-    `per_image` taken observations; (k,) bool."""
+    `per_image` taken observations, and all observations of `keep_points` (m,) bool; (k,) bool."""
     L = np.bincount(op, minlength=n_points)
     by_point = np.argsort(op, kind="stable")
     starts = np.concatenate([[0], np.cumsum(L)])
@@ -75,19 +99,24 @@ def _strong_subset(oi: np.ndarray, op: np.ndarray, n_images: int, n_points: int,
         if len(imgs) and have[imgs].min() < per_image:
             take[j] = True
             have[imgs] += 1
+    if keep_points is not None:
+        take |= keep_points
     return take[op]
 
 
 def orient_by_mapper(camera: CameraModel, image_names: list[str], obs_image: np.ndarray, obs_point: np.ndarray,
                      obs_uv: np.ndarray, n_points: int, *, min_matches: int = 8, num_threads: int = 1,
-                     verify: bool = False, per_image: int = 150, workdir: str | Path | None = None) -> MapperResult:
+                     verify: bool = False, per_image: int | None = 150, keep_points: np.ndarray | None = None,
+                     workdir: str | Path | None = None) -> MapperResult:
     """Orient a block from its measurements alone (no control, no approximate EOPs) with pycolmap's mapper.
 
     The mapper is given the points of the longest tracks until every image has `per_image` of them (all
     points when there are fewer): its cost grows with the observations, and an initial orientation needs
     no more; the adjustment that follows uses them all. With a fixed seed and one thread (the default) the
     mapper's answer, and so the triangulation's last digits, are the same in every run (two threads: about
-    8 % faster on a 128-image block, but the start, and the adjustment's last digits, vary run to run)."""
+    8 % faster on a 128-image block, but the start, and the adjustment's last digits, vary run to run).
+    `per_image` None gives it every observation; `keep_points` (m,) bool: points always given whole (control:
+    the model needs them to be moved onto the world). COLMAP's log lines go to `MapperResult.log`."""
     import pycolmap   # deferred: heavy, and only this step needs it
     import time
     pycolmap.logging.minloglevel = 2
@@ -103,11 +132,12 @@ def orient_by_mapper(camera: CameraModel, image_names: list[str], obs_image: np.
     order = np.argsort(oi, kind="stable")
     counts = np.bincount(oi, minlength=n)
     kp[order] = np.arange(len(oi)) - np.repeat(np.cumsum(counts) - counts, counts)
-    good &= _strong_subset(oi, op, n, n_points, per_image)
+    if per_image is not None:
+        good &= _strong_subset(oi, op, n, n_points, per_image, keep_points)
     ia, ib, ra, rb = image_pairs_by_shared_points(oi[good], op[good], n, min_matches)
     rows_good = np.flatnonzero(good)
     ra, rb = rows_good[ra], rows_good[rb]
-    result = MapperResult()
+    result = MapperResult(n_observations=int(good.sum()))
     with tempfile.TemporaryDirectory(dir=workdir, prefix="dgcal-mapper-") as tmp:
         tmp = Path(tmp)
         db_path = tmp / "db.sqlite"
@@ -136,7 +166,8 @@ def orient_by_mapper(camera: CameraModel, image_names: list[str], obs_image: np.
             # measured correspondences are nearly outlier-free: RANSAC ends after a few trials (its default
             # floor of 100 trials per model and pair costs more than the mapping of a 300-image block)
             tvo.ransac.min_num_trials = 20
-            pycolmap.verify_matches(db_path, tmp / "pairs.txt", tvo)
+            with captured_stderr(result.log):
+                pycolmap.verify_matches(db_path, tmp / "pairs.txt", tvo)
         else:
             # the ids make the matches: every pair is taken as calibrated two-view geometry, and the mapper's
             # own robust estimation (initial pair, absolute poses, triangulation filters) meets any blunder
@@ -167,7 +198,8 @@ def orient_by_mapper(camera: CameraModel, image_names: list[str], obs_image: np.
         po.ba_local_max_num_iterations = 15
         po.ba_global_max_refinements = 2
         (tmp / "sparse").mkdir()
-        recs = pycolmap.incremental_mapping(db_path, tmp, tmp / "sparse", po)
+        with captured_stderr(result.log):   # "Failed to create any sparse model" is the caller's to report
+            recs = pycolmap.incremental_mapping(db_path, tmp, tmp / "sparse", po)
         result.seconds["mapping"] = time.perf_counter() - clock - sum(result.seconds.values())
         id_to_index = {iid: i for i, iid in enumerate(ids)}
         # observation row of (image index, keypoint index)

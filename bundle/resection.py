@@ -209,3 +209,81 @@ def relative_bootstrap(camera: CameraModel, n_images: int, obs_image: np.ndarray
         X_world[known] = X_known[known]
         return R_world_to_cam, C_world, ok, X_world, okp | known
     return None
+
+
+def resect_by_relative_orientation(camera: CameraModel, image: int, R_world_to_cam: np.ndarray, C_world: np.ndarray,
+                                   oriented: np.ndarray, obs_image: np.ndarray, obs_point: np.ndarray,
+                                   obs_uv: np.ndarray, min_shared: int = 12, threshold_px: float = 2.0,
+                                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pose of an image that shares points with two or more oriented images but too few known points for PnP
+    (tie points seen in two images only): its rotation from the relative orientations (essential matrices) to
+    those images, its centre where their baseline directions meet. (R_world_to_cam (3,3), C_world (3,)) or None."""
+    oi, op = np.asarray(obs_image, int), np.asarray(obs_point, int)
+    mine = np.flatnonzero(oi == image)
+    f = float(camera.pinhole_K()[0, 0])
+    rots, origins, dirs, weights, pairs = [], [], [], [], []
+    pts_i = op[mine]
+    for j in np.flatnonzero(oriented):
+        theirs = np.flatnonzero(oi == j)
+        common, ki, kj = np.intersect1d(pts_i, op[theirs], return_indices=True)
+        if len(common) < min_shared:
+            continue
+        x_i = camera.undistort_normalized(obs_uv[mine[ki]])
+        x_j = camera.undistort_normalized(obs_uv[theirs[kj]])
+        try:
+            E, mask = cv2.findEssentialMat(x_j, x_i, np.eye(3), cv2.RANSAC, 0.999, threshold_px / f)
+            if E is None or E.shape != (3, 3):
+                continue
+            n_in, R_j_to_i, t_i, mask = cv2.recoverPose(E, x_j, x_i, np.eye(3), mask=mask)
+        except cv2.error:
+            continue
+        if n_in < min_shared:
+            continue
+        R_i = R_j_to_i @ R_world_to_cam[j]
+        pairs.append((x_j, x_i, j))
+        rots.append(R_i)
+        origins.append(C_world[j])
+        # x_i ~ R_j_to_i x_j + t: camera j's centre in camera i is t, so C_i = C_j - s R_i^T t (s > 0)
+        dirs.append(-R_i.T @ t_i.ravel())
+        weights.append(float(n_in))
+    if len(rots) < 2:
+        return None
+    rots, origins, dirs, w = np.array(rots), np.array(origins), np.array(dirs), np.array(weights)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    # the estimates most others agree with (a planar patch or a weak pair can flip a relative orientation)
+    tr = np.einsum("aij,bij->ab", rots, rots)             # trace of R_a R_b^T: the angle between them
+    agree = np.degrees(np.arccos(np.clip((tr - 1) / 2, -1, 1))) < 1.0
+    keep = agree[np.argmax(agree @ w)]
+    while keep.sum() >= 2:
+        C, widest = triangulate_midpoint(origins[keep], dirs[keep])
+        if widest < 2.0:
+            return None      # baselines nearly parallel: the centre slides along them
+        v = C - origins
+        off = np.degrees(np.arccos(np.clip(np.einsum("kj,kj->k", v, dirs) / np.linalg.norm(v, axis=1), -1, 1)))
+        worst = int(np.argmax(np.where(keep, off, -1)))
+        if off[worst] < 2.0:
+            U, _, Vt = np.linalg.svd(np.einsum("k,kij->ij", w[keep], rots[keep]))   # chordal mean
+            R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+            # the pose must explain every kept neighbour's shared rays (epipolar distances): a start is a few
+            # tenths of a degree off (0.01 f), a wrong one far more
+            for k in np.flatnonzero(keep):
+                x_j, x_i, j = pairs[k]
+                if np.median(epipolar_px(x_j, x_i, R_world_to_cam[j], C_world[j], R, C, f)) > 0.01 * f:
+                    return None
+            return R, C
+        keep[worst] = False
+    return None
+
+
+def epipolar_px(x_a: np.ndarray, x_b: np.ndarray, R_a: np.ndarray, C_a: np.ndarray, R_b: np.ndarray,
+                C_b: np.ndarray, f_px: float) -> np.ndarray:
+    """Distances (px) of image b's normalised points x_b (k,2) from the epipolar lines of x_a (k,2), for poses
+    (R_world_to_cam, C_world) a and b."""
+    R_ab = R_b @ R_a.T
+    t = R_b @ (C_a - C_b)
+    E = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ R_ab
+    ha = np.column_stack([x_a, np.ones(len(x_a))])
+    hb = np.column_stack([x_b, np.ones(len(x_b))])
+    line = ha @ E.T
+    return f_px * np.abs(np.sum(hb * line, 1)) / np.maximum(np.hypot(line[:, 0], line[:, 1]), 1e-12)
+
