@@ -49,7 +49,17 @@ LABELS = {
     "height_sigma_from_f_m": "height σ from σf (m)", "sigma_height_above_ground_m": "σ height above ground (m)",
     "f_height": "focal length and flying height", "datum": "datum", "trusted": "trusted",
     "check_normalised_rms": "check points' error/σ RMS", "median_sigma": "median σ of the images",
-    "initial_orientation": "initial orientation", "n_dropped_tie_observations": "tie observations dropped",
+    "initial_orientation": "initial orientation", "orbits": "orbits and clocks",
+    "ionosphere_model": "ionosphere model", "ionosphere": "ionosphere", "scatter_enu_m": "scatter E, N, U (m)",
+    "rms_3d_vs_reference_m": "3D RMS against the reference (m)", "median_sigma_3d_m": "median σ 3D (m)",
+    "median_ecef_fixed_m": "median position of the fixed epochs (ECEF X, Y, Z m)",
+    "reference_ecef_m": "reference position (ECEF X, Y, Z m)", "base_spp_ecef_m": "base SPP position (ECEF X, Y, Z m)",
+    "median_sigma_enu_fixed_m": "median σ E, N, U of the fixed epochs (m)", "error_fixed": "error, fixed epochs",
+    "error_all": "error, all epochs", "mean_enu_m": "mean E, N, U (m)", "forward_fixed": "forward pass: fixed epochs",
+    "backward_fixed": "backward pass: fixed epochs",
+    "forward_fixed_by_held_integers": "forward pass: epochs fixed by held integers",
+    "backward_fixed_by_held_integers": "backward pass: epochs fixed by held integers",
+    "n_dropped_tie_observations": "tie observations dropped",
     "dd_rows_dropped": "double differences dropped as outliers",
 }
 

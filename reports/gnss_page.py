@@ -10,6 +10,7 @@ import numpy as np
 
 from dgcal.reports.honesty import add_honesty
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.tables import flat_pairs
 from dgcal.reports.units import fmt_value
 
 
@@ -33,6 +34,10 @@ def draw_spp_report(path: str | Path, series: dict, summary: dict) -> Path:
     if summary["n_rejected"]:
         warn.append(f"{summary['n_rejected']} satellite observations rejected by RAIM.")
     warn += list(summary.get("warnings", []))
+    more = flat_pairs(summary, SPP_SHOWN)
+    if more:
+        rep.heading("Further results")
+        rep.kv_table(more)
     rep.warnings(warn)
     add_honesty(rep, summary.get("honesty"))
     if not len(series["t_fix_s"]):
@@ -90,6 +95,10 @@ def _geometry_figure(s: dict):
     ax.grid(alpha=0.3)
     return fig
 
+
+# summary keys shown above or left to gnss_summary.json (settings); any other is shown under "Further results"
+SPP_SHOWN = {"rinex_obs", "rinex_nav", "signals", "n_epochs", "n_fixed", "mean_n_sat", "median_pdop",
+             "median_sigma_enu_m", "n_rejected", "warnings", "honesty", "options", "code_noise"}
 
 SYSTEMS = {"G": "GPS", "E": "Galileo", "C": "BeiDou", "J": "QZSS", "R": "GLONASS"}
 

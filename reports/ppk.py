@@ -15,7 +15,15 @@ from dgcal.pos.ppk_mode import PpkRun
 from dgcal.reports.gnss import TIME_CORRELATED
 from dgcal.reports.honesty import add_honesty, honesty_rows, honesty_section, no_reference
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.tables import flat_pairs
 from dgcal.reports.units import fmt_value
+
+# summary keys shown above or left to gnss_summary.json (settings, engine internals); any other key, such as one a
+# later version adds, is shown under "Further results"
+PPK_SHOWN = {"rinex_obs", "rinex_base", "rinex_nav", "base_ecef_m", "base_position_source", "counts", "n_epochs",
+             "fix_rate", "median_ratio_fixed", "age_s", "slips_flagged_rover", "slips_flagged_base", "warnings",
+             "honesty", "options", "engine", "signals_rover", "signals_base", "forward_float_reasons",
+             "backward_float_reasons", "mode", "n_fixed", "run_time_s", "time_per_epoch_ms"}
 
 _COLOURS = {"fixed": "tab:green", "float": "tab:orange", "single": "tab:red"}
 
@@ -64,6 +72,10 @@ def write_ppk_report(path: str | Path, run: PpkRun) -> Path:
                   ("median ratio of the ambiguity test, fixed epochs (unitless)", s.get("median_ratio_fixed")),
                   ("age of differential median / max (s)", f"{s['age_s']['median']} / {s['age_s']['max']}"),
                   ("slips flagged rover / base", f"{s['slips_flagged_rover']} / {s['slips_flagged_base']}")])
+    more = flat_pairs(s, PPK_SHOWN)
+    if more:
+        rep.heading("Further results")
+        rep.kv_table(more)
     rep.warnings(run.warnings)
     add_honesty(rep, s.get("honesty") or ppk_honesty(run))
     ok = res.status >= 1
