@@ -21,8 +21,9 @@ class Suspect:
                                      # 3-dof test as an equivalent |w|)
     redundancy: float                # smallest redundancy number of its two coordinates
     removed: bool = False
-    kind: str = "measurement"        # "measurement" (an image measurement) or "coordinates" (a control point's)
-    coordinate_error_m: tuple[float, float, float] | None = None   # adjusted - given (world axes), coordinates
+    kind: str = "measurement"        # "measurement" (an image measurement), "coordinates" (a control point's) or
+                                     # "centre" (an image's camera-centre prior: `image` names it)
+    coordinate_error_m: tuple[float, float, float] | None = None   # adjusted - given (world axes): coordinates, centre
 
     def as_dict(self) -> dict:
         d = {"kind": self.kind, "image": self.image, "id": self.point,

@@ -572,6 +572,7 @@ def _snoop_control(adj: _Adjuster, msgs: list[str], suspects: list[Suspect], app
             w_eq = equivalent_w(T, len(rows))
             if w_eq > opt.critical_w:
                 cand.append((w_eq, "coordinates", int(adj.pt_keep[j_loc]), float(min(np.diag(Qvv)))))
+    cand += _centre_candidates(adj)
     if not cand:
         return False
     cand.sort(key=lambda c: -c[0])
@@ -586,6 +587,12 @@ def _snoop_control(adj: _Adjuster, msgs: list[str], suspects: list[Suspect], app
         adj.active[k[idx]] = False
         _warn(msgs, f"measurement of control point {s.point} in {s.image} rejected as a blunder "
                     f"(standardised residual {wk:.1f})", opt.verbose)
+    elif what == "centre":
+        adj.cprior[idx] = np.nan
+        d = s.coordinate_error_m
+        _warn(msgs, f"camera centre of {s.image} rejected as a blunder (test {wk:.1f} as |w|; the adjusted centre is "
+                    f"{d[0]:+.3f}/{d[1]:+.3f}/{d[2]:+.3f} m E/N/Up from it): the image is kept on its rays",
+              opt.verbose)
     else:
         adj.is_prior[idx] = False
         _warn(msgs, f"coordinates of control point {s.point} rejected as a blunder (test {wk:.1f} as |w|): "
@@ -593,8 +600,43 @@ def _snoop_control(adj: _Adjuster, msgs: list[str], suspects: list[Suspect], app
     return True
 
 
+def _centre_candidates(adj: _Adjuster) -> list[tuple[float, str, int, float]]:
+    """Camera centres whose 3-dof test (whitened residuals over their cofactor, `T = v' Qvv^-1 v`, as an equivalent
+    |w|) exceeds the critical value: (w, "centre", image index of the block, smallest redundancy)."""
+    if adj.cprior is None or not adj.opt.reject_blunders:
+        return []
+    res = adj.res
+    cp, cs = adj.cprior[adj.img_keep], adj.csig[adj.img_keep]
+    have = np.flatnonzero(np.isfinite(cp).all(1))
+    if len(have) < 4:
+        return []
+    off = adj.opt.antenna_offset_cam
+    pred = res.C_world[have].copy()
+    if off is not None:
+        pred += np.swapaxes(res.R_world_to_cam[have], -1, -2) @ np.asarray(off, float)
+    if res.n_flights:
+        pred += res.flight_shift[adj.flight[adj.img_keep][have]]
+    v = (pred - cp[have]) / cs[have]
+    Q = res.covariance.pose_cofactors()[have][:, :3, :3]
+    W = 1.0 / cs[have]
+    Qvv = np.eye(3)[None] - W[:, :, None] * Q * W[:, None, :]   # the antenna's cofactor taken as the centre's
+    out = []
+    for i, (vi, Qi) in enumerate(zip(v, Qvv)):
+        if not np.isfinite(Qi).all() or np.linalg.eigvalsh(Qi).min() < 0.02:
+            continue
+        w_eq = equivalent_w(float(vi @ np.linalg.solve(Qi, vi)), 3)
+        if w_eq > adj.opt.critical_w:
+            out.append((w_eq, "centre", int(adj.img_keep[have[i]]), float(np.diag(Qi).min())))
+    return out
+
+
 def _suspect(adj: _Adjuster, what: str, idx: int, w: float, red: float, removed: bool) -> Suspect:
     b = adj.blk
+    if what == "centre":
+        i_loc = int(np.searchsorted(adj.img_keep, idx))
+        d = adj.res.C_world[i_loc] - adj.cprior[idx]
+        return Suspect(b.images[idx], "", (float("nan"), float("nan")), w, red, removed, kind="centre",
+                       coordinate_error_m=tuple(float(v) for v in d))
     if what == "measurement":
         row = adj.obs_keep[idx]
         return Suspect(b.images[b.oi[row]], b.point_ids[b.op[row]], tuple(adj.res.residuals_px[idx]), w, red,
@@ -792,6 +834,11 @@ def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: Triangulation
     out = []
     if not res.converged:
         out.append(f"the adjustment did not converge ({res.stop_reason})")
+    n_centres = 0 if adj.cprior is None else int(np.isfinite(adj.cprior).all(1).sum())
+    n_c_rej = sum(1 for s_ in suspects if s_.removed and s_.kind == "centre")
+    if n_c_rej >= 2 and n_c_rej > MAX_REJECTED_CONTROL * (n_centres + n_c_rej):
+        out.append(f"{n_c_rej} of {n_centres + n_c_rej} camera centres were rejected as blunders: so many point to "
+                   "the centres as a whole (another CRS or height reference? an antenna offset? a time shift?)")
     datum = adj.datum
     if datum is not None and datum["not_fixed"]:
         out.append(f"the datum is not fixed: {datum['text']}")
