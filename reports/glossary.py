@@ -49,7 +49,8 @@ LABELS = {
     "height_sigma_from_f_m": "height σ from σf (m)", "sigma_height_above_ground_m": "σ height above ground (m)",
     "f_height": "focal length and flying height", "datum": "datum", "trusted": "trusted",
     "check_normalised_rms": "check points' error/σ RMS", "median_sigma": "median σ of the images",
-    "initial_orientation": "initial orientation", "orbits": "orbits and clocks",
+    "initial_orientation": "initial orientation", "orbits": "orbits and clocks", "imu_grade": "IMU error model",
+    "withheld_fixes": "withheld fixes",
     "ionosphere_model": "ionosphere model", "ionosphere": "ionosphere", "scatter_enu_m": "scatter E, N, U (m)",
     "rms_3d_vs_reference_m": "3D RMS against the reference (m)", "median_sigma_3d_m": "median σ 3D (m)",
     "median_ecef_fixed_m": "median position of the fixed epochs (ECEF X, Y, Z m)",
@@ -67,7 +68,9 @@ LABELS = {
 WORDS = {"rms": "RMS", "gps": "GPS", "gnss": "GNSS", "imu": "IMU", "ecef": "ECEF", "enu": "E, N, U", "ned": "N, E, D",
          "pdop": "PDOP", "nis": "NIS", "eop": "EOP", "eops": "EOPs", "agl": "AGL", "foe": "FOE", "ppk": "PPK",
          "spp": "SPP", "raim": "RAIM", "utc": "UTC", "crs": "CRS", "3d": "3D", "2d": "2D", "tc": "TC", "lc": "LC",
-         "ukf": "UKF", "pps": "PPS", "dg": "DG", "gcp": "GCP", "asprs": "ASPRS", "rinex": "RINEX", "sat": "satellites",
+         "ukf": "UKF", "pps": "PPS", "arw": "angle random walk",
+         "vrw": "velocity random walk", "dg": "DG", "gcp": "GCP", "asprs": "ASPRS", "rinex": "RINEX",
+         "sat": "satellites",
          "sats": "satellites", "lt4": "fewer than 4", "dof": "dof", "std": "std", "avg": "mean", "pc": "%",
          "rmse": "RMSE", "opk": "ω, φ, κ", "rpy": "roll, pitch, yaw", "xyz": "X, Y, Z", "sigma": "σ",
          "obs": "observations",
@@ -75,7 +78,8 @@ WORDS = {"rms": "RMS", "gps": "GPS", "gnss": "GNSS", "imu": "IMU", "ecef": "ECEF
          "dop": "Doppler", "pr": "pseudorange", "cv": "cross-validation", "chi2": "χ²", "mps": "m/s"}
 
 # unit suffixes of keys, the longest first (a pair such as _deg_h before _h)
-UNIT_SUFFIXES = ((("deg", "h"), "°/h"), (("deg", "s"), "°/s"), (("m", "s"), "m/s"), (("mps",), "m/s"),
+UNIT_SUFFIXES = ((("deg", "rt", "h"), "°/√h"), (("m", "s", "rt", "h"), "m/s/√h"),
+                 (("deg", "h"), "°/h"), (("deg", "s"), "°/s"), (("m", "s"), "m/s"), (("mps",), "m/s"),
                  (("deg",), "°"), (("px",), "px"), (("mm",), "mm"), (("cm",), "cm"), (("ms",), "ms"),
                  (("ppm",), "ppm"), (("mg",), "mg"), (("pct",), "%"), (("m",), "m"), (("s",), "s"),
                  (("hz",), "Hz"), (("arcsec",), "″"), (("rad",), "rad"))

@@ -22,7 +22,7 @@ from dgcal.reports.gnss import TIME_CORRELATED
 from dgcal.reports.honesty import add_honesty, combined_sigma, honesty_rows, honesty_section, no_reference
 from dgcal.reports.glossary import label
 from dgcal.reports.html import HtmlReport, new_figure
-from dgcal.reports.tables import add_residual_table
+from dgcal.reports.tables import add_residual_table, flat_pairs
 from dgcal.reports.units import fmt_value, pm, with_unit
 
 
@@ -233,6 +233,14 @@ def _integrity_section(rep: HtmlReport, it: Mapping) -> None:
         rep.text(f"{more} more findings in pos_summary.json.")
 
 
+# summary keys shown on the page's own tables (or left to pos_summary.json: the smoother's bookkeeping); any other
+# key, such as one a later version adds, is shown under "Further results"
+POS_SHOWN = {"mode", "keyframes", "t_start_gps", "t_end_gps", "nav_frame_origin_deg_m", "epochs_with_gnss",
+             "epochs_without_gnss_update", "systems", "median_sigma_m", "median_sigma_deg", "max_sigma_m",
+             "gyro_bias_deg_h_mean", "accel_bias_mg_mean", "residuals", "innovations", "normalised_innovations",
+             "events", "warnings", "carrier", "honesty", "integrity", "imu_time_offset", "smoother"}
+
+
 def write_pos_report(path: str | Path, res, honesty: dict | None = None) -> Path:
     """Write DIR/report.html for a dgcal.pos.gnss_ins.PosResult; `honesty`: its honesty record (None: the summary's,
     else `pos_honesty` without withheld fixes)."""
@@ -265,6 +273,10 @@ def write_pos_report(path: str | Path, res, honesty: dict | None = None) -> Path
     warn += list(s.get("warnings", []))
     rep.warnings(warn)
     add_honesty(rep, honesty or s.get("honesty") or pos_honesty(res))
+    more = flat_pairs(s, POS_SHOWN)
+    if more:
+        rep.heading("Further results")
+        rep.kv_table(more)
     _integrity_section(rep, s.get("integrity", {}))
     toff = s.get("imu_time_offset")
     if toff is not None:

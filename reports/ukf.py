@@ -14,6 +14,7 @@ from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.formats import write_trajectory
 from dgcal.pos.lowcost.ukf_pos import UkfPosResult, errors_vs_truth
 from dgcal.reports.html import HtmlReport, new_figure
+from dgcal.reports.tables import flat_pairs
 from dgcal.reports.units import canonical_unit, fmt_number, pm
 
 ACCURACY_COLUMNS = ("solution", "quantity", "unit", "median_sigma", "mean", "std", "rms", "normalised_rms")
@@ -93,6 +94,14 @@ def _innovations(res: UkfPosResult):
     return fig
 
 
+# summary keys shown on the page (or left to pos_summary.json); any other, such as one a later version adds, is
+# shown under "Further results"
+UKF_SHOWN = {"mode", "filter", "keyframes", "t_start_gps", "t_end_gps", "median_sigma_m", "median_sigma_deg",
+             "gyro_bias_deg_h_mean", "accel_bias_mg_mean", "nis_mean", "events", "epochs_without_gnss_update",
+             "gnss_outages", "events_in_gnss_outages", "start", "compared_epochs", "skip_s", "truth",
+             "smoother_compared", "accuracy", "integrity", "warnings", "honesty", "smoother"}
+
+
 def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
     """One-file HTML report of a `dgcal pos --mode ukf` run."""
     s = res.summary
@@ -132,6 +141,10 @@ def write_ukf_report(path: Path, res: UkfPosResult) -> Path:
             if z is not None and not 0.5 <= z <= 2.0:
                 warn.append(f"{r['solution']} {r['quantity']}: error / sigma RMS {z:.2f} (1 when the sigmas are "
                             "honest)")
+    more = flat_pairs(s, UKF_SHOWN)
+    if more:
+        rep.heading("Further results")
+        rep.kv_table(more)
     rep.warnings(warn)
     rep.heading("Accuracy: the UKF beside the smoother")
     rep.text("Median 1-sigma each solution claims" + (", and its errors against the true trajectory (mean, std, "

@@ -14,7 +14,7 @@ import numpy as np
 # decimals per unit: the resolution a surveyor reads (m: mm; px: 0.01 px; deg: 0.0001° ≈ 0.4")
 DECIMALS = {"m": 3, "cm": 1, "mm": 1, "km": 3, "deg": 4, "°": 4, "rad": 6, "arcsec": 1, "″": 1, "px": 2, "s": 3,
             "ms": 2, "µs": 1, "ns": 1, "ppm": 2, "%": 1, "m/s": 3, "m/s²": 4, "°/h": 2, "deg/h": 2, "°/s": 3,
-            "deg/s": 3, "mg": 2, "µg": 1, "Hz": 1, "dB-Hz": 1, "dB": 1, "K": 1, "°C": 1}
+            "deg/s": 3, "°/√h": 3, "m/s/√h": 4, "mg": 2, "µg": 1, "Hz": 1, "dB-Hz": 1, "dB": 1, "K": 1, "°C": 1}
 COORDINATE_DECIMALS = {"m": 3, "deg": 8, "°": 8}   # map/ECEF coordinates and latitudes/longitudes
 MAX_DECIMALS = 8           # a tiny value gets more decimals than its unit's, up to this many
 SIGNIFICANT = 4            # unitless numbers: about this many significant digits
