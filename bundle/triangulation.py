@@ -726,6 +726,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     unknown_ids = sorted(set(meas.id.astype(str)) - set(points.ids.astype(str)))
     clock["prepared"] = time.perf_counter()
     R_world_to_cam_0, C_world_0 = _approx_poses(_approx_with_centre_angles(approx, centre_priors), geo, blk.images)
+    cprior, csig = _centre_priors(centre_priors, geo, blk.images)   # (n,3) world, NaN where an image has none
     init = initial_orientation(camera, blk.images, blk.oi, blk.op, blk.uv, blk.X_prior, R_world_to_cam_0, C_world_0,
                                use_mapper=opt.use_mapper)
     for note in init.notes:
@@ -738,7 +739,6 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
                             " (without control the camera centres alone do not start the orientation: give "
                             "--approx EOPs, or angles in the centres file)"), meas.path)
     clock["initialised"] = time.perf_counter()
-    cprior, csig = _centre_priors(centre_priors, geo, blk.images)
     adj = _Adjuster(camera, blk, init.R_world_to_cam, init.C_world, init.oriented, init.X_world, init.point_ok,
                     cprior, csig, opt)
     if opt.flight_shift and cprior is not None:
