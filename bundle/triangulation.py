@@ -288,6 +288,23 @@ def _centre_priors(centre_priors: EOP | None, geo: World, images: list[str]):
     return cprior, csig
 
 
+def _warn_unmatched_centres(centre_priors: EOP | None, images: list[str], cprior: np.ndarray | None, msgs: list[str],
+                            verbose: bool) -> None:
+    """Warnings for centres that name no image of the block and for images without a centre (the file's image
+    names must be the measurements' or the folder's)."""
+    if centre_priors is None:
+        return
+    names = set(images)
+    extra = [str(k) for k in centre_priors.image if str(k) not in names]
+    if extra:
+        _warn(msgs, f"{len(extra)} camera centre(s) name no image of the block (e.g. {extra[0]}): not used", verbose)
+    missing = [images[i] for i in range(len(images))] if cprior is None else \
+        [images[i] for i in np.flatnonzero(~np.isfinite(cprior).all(1))]
+    if missing:
+        _warn(msgs, f"{len(missing)} image(s) have no camera centre (e.g. {missing[0]}): they are held by their rays "
+                    "only", verbose)
+
+
 def _control_measured(points: Points, meas: Measurements) -> bool:
     """True when a control point (role control) is measured in an image."""
     ctrl = {str(k) for k, r in zip(points.ids, points.role) if r == "control"}
@@ -727,6 +744,7 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     clock["prepared"] = time.perf_counter()
     R_world_to_cam_0, C_world_0 = _approx_poses(_approx_with_centre_angles(approx, centre_priors), geo, blk.images)
     cprior, csig = _centre_priors(centre_priors, geo, blk.images)   # (n,3) world, NaN where an image has none
+    _warn_unmatched_centres(centre_priors, blk.images, cprior, msgs, opt.verbose)
     init = initial_orientation(camera, blk.images, blk.oi, blk.op, blk.uv, blk.X_prior, R_world_to_cam_0, C_world_0,
                                use_mapper=opt.use_mapper)
     for note in init.notes:

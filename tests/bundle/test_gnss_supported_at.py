@@ -126,6 +126,21 @@ def test_no_control_and_no_centres_is_refused_with_the_reason():
         triangulate(sim.camera, sim.points, sim.measurements, sim.crs, approx=approx_of(sim), centre_priors=other)
 
 
+def test_centres_of_other_images_and_images_without_centres_are_named():
+    sim = simulate_rtk_block(3, n_images=24, n_control=0)
+    keep = np.arange(24) != 7
+    c = sim.centres
+    centres = EOP(np.r_[c.image[keep], ["IMG_9999.tif"]].astype(object), np.vstack([c.xyz[keep], c.xyz[:1]]),
+                  np.vstack([c.opk[keep], c.opk[:1]]), np.vstack([c.sigma[keep], c.sigma[:1]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        res = triangulate(sim.camera, sim.points, sim.measurements, sim.crs, approx=approx_of(sim),
+                          centre_priors=centres)
+    assert any(w.startswith("1 camera centre(s) name no image of the block (e.g. IMG_9999.tif)") for w in res.warnings)
+    assert any(w.startswith(f"1 image(s) have no camera centre (e.g. {sim.images[7]})") for w in res.warnings)
+    assert res.summary["datum"]["n_centres"] == 23 and res.summary["n_oriented"] == 24
+
+
 def test_images_mode_refuses_before_sift(tmp_path, monkeypatch):
     import cv2
     sim = simulate_rtk_block(0, n_images=24, n_control=0, centre_sigma_m=None)
