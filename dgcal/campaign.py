@@ -88,8 +88,8 @@ def load_campaign(path: Path) -> dict:
         raise InputError(f"not valid TOML: {' '.join(str(exc).split())}", path) from None
     except RecursionError:
         raise InputError("not valid TOML: nested too deeply", path) from None
-    validate.toml_numbers_in_range(cfg, path, text)
     check_campaign(cfg, path, text)
+    validate.toml_numbers_in_range(cfg, path, text)   # what the keys' own checks leave
     cfg["_base"] = path.parent.resolve()
     cfg["_path"] = path.resolve()
     return cfg

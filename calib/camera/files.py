@@ -146,7 +146,7 @@ def camera_from_json_dict(d: dict, path: str | Path | None = None) -> CameraMode
     sig = d.get("sigmas")
     if isinstance(sig, dict) and all(k in sig for k in cls.PARAMS):
         cam.sigmas = np.array([np.nan if sig[k] is None else validate.non_negative(sig[k], path, None,
-                                                                                   f"sigmas.{k}")
+                                                                                   f"sigmas.{k}", validate.MAX_PIXEL)
                                for k in cls.PARAMS])
     return cam
 

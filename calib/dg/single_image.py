@@ -32,6 +32,7 @@ from dgcal.calib.mounting.common import read_mounting_json
 from dgcal.fields.crs import MapGrid, parse_crs
 from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_NED_TO_ENU, R_body_to_ned_from_rph, R_cam_to_map_from_opk
+from dgcal.fields.io import validate
 from dgcal.fields.io.csv_tables import read_table
 from dgcal.fields.io.formats import read_eop, read_events, read_measurements, read_trajectory
 from dgcal.fields.pose import Poses, so3_exp, so3_log
@@ -392,7 +393,9 @@ def read_laser_ranges(path: Path) -> dict:
     bad = np.flatnonzero(~np.isfinite(r) | (r <= 0))
     if len(bad):
         raise InputError("range must be a positive number", path, line=int(tab.lines[bad[0]]), field="range_m")
+    validate.values_in_range(r, 0.0, validate.MAX_HEIGHT_M, path, "range_m", tab.lines, unit="m")
     s = np.asarray(tab["s_range_m"], float) if "s_range_m" in tab else np.full(len(r), np.nan)
+    validate.positive_values(s, path, "s_range_m", tab.lines, allow_nan=True, hi=validate.MAX_HEIGHT_M, what="sigma")
     return {str(k): (float(a), float(b)) for k, a, b in zip(tab["image"], r, s)}
 
 

@@ -21,6 +21,8 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
 from dgcal.fields.io.timescales import gps_from_unix_gpst
 
+MAX_DATA_FILE_BYTES = 1e12     # a terabyte: no IMU log is larger (a larger position is a damaged tag)
+
 HEADER_LEN = 64
 MAGIC = b"TIMETAG RTKLIB"
 
@@ -78,6 +80,10 @@ def read_time_tag(path: str | Path, fpos_bytes: int | None = None) -> TimeTag:
     if tick is None:
         raise InputError(f"record block of {len(body)} bytes is not a whole number of (tick, position) records",
                          path, field="record")
+    big = np.flatnonzero(fpos > MAX_DATA_FILE_BYTES)
+    if big.size:
+        raise InputError(f"file position {fpos[big[0]]} at record {big[0] + 1} is beyond any data file "
+                         f"({MAX_DATA_FILE_BYTES:.0e} bytes)", path, field="fpos")
     back = np.flatnonzero(np.diff(tick) < 0)
     if back.size:
         raise InputError(f"tick goes back at record {back[0] + 2} ({tick[back[0] + 1]} after {tick[back[0]]} ms)",

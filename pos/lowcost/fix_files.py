@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from dgcal.fields.errors import InputError
+from dgcal.fields.io import validate
 from dgcal.fields.io.csv_tables import atomic_write, read_table
 from dgcal.pos.smoother.initial import GnssFixes
 
@@ -35,6 +36,16 @@ def read_gnss_fixes(path: str | Path) -> GnssFixes:
         bad = np.flatnonzero(tab[c] <= 0)
         if len(bad):
             raise InputError("a sigma must be positive", tab.path, int(tab.lines[bad[0]]), c)
+    validate.gps_seconds_values(tab["t_gps"], tab.path, "t_gps", tab.lines)
+    validate.ecef_near_surface(np.column_stack([tab[c] for c in ("x", "y", "z")]), tab.path, tab.lines, "x")
+    for c in FIX_COLUMNS[7:10] + FIX_COLUMNS[10:]:   # velocities and their sigmas may be NaN: not given
+        if c in tab:
+            validate.positive_values(tab[c], tab.path, c, tab.lines, allow_nan=c in FIX_COLUMNS[10:],
+                                     hi=validate.MAX_COORDINATE_M / 1e3, what="sigma")
+    for c in FIX_COLUMNS[4:7]:
+        if c in tab:
+            validate.values_in_range(tab[c], -validate.MAX_SPEED_M_S, validate.MAX_SPEED_M_S, tab.path, c, tab.lines,
+                                     allow_nan=True, unit="m/s")
     t = tab["t_gps"]
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):

@@ -293,4 +293,7 @@ def read_gnss_log(path: str | Path, fmt: GnssLogFormat | None = None) -> GnssLog
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         raise InputError("time does not increase", path, int(lines[back[0] + 1]), str(fmt.time))
+    if cols.get("height") is not None:
+        validate.values_in_range(cols["height"], -validate.MAX_HEIGHT_M, validate.MAX_HEIGHT_M, path, str(fmt.height),
+                                 lines, unit="m")
     return GnssLog(t, cols.get("height"), lines, path)
