@@ -287,7 +287,8 @@ def run(args: argparse.Namespace) -> int:
             write_ukf_outputs(tmp, res, UKF_OUTPUTS, report=not args.no_report)
         s = res.summary
         print(f"{Path(args.out) / UKF_OUTPUTS['trajectory']}: UKF {s['keyframes']} epochs, {s['events']} events, "
-              f"median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg"
+              f"median sigma position {_triple(s['median_sigma_m'], 3)} m, "
+              f"attitude {_triple(s['median_sigma_deg'], 3)} deg"
               + ("" if args.no_report else f"; report {Path(args.out) / UKF_OUTPUTS['report']}"), file=sys.stderr)
         return 0
     with staged_dir(args.out) as tmp:
@@ -366,3 +367,9 @@ def campaign_steps(c: Campaign) -> None:
     step = c.add(NAME, a, ins, out, INS_OUTPUTS, required=("trajectory", "events"), weight=4.0)
     c.provide("trajectory", step.files["trajectory"])
     c.provide("events", events)
+
+
+def _triple(values, digits: int) -> str:
+    """'a/b/c' of a number or a sequence of numbers (one line for people, not a Python list)."""
+    vals = values if isinstance(values, (list, tuple)) else [values]
+    return "/".join(f"{float(v):.{digits}f}" for v in vals)
