@@ -67,6 +67,9 @@ def split_at_keyframes(t_imu: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t
     return ImuSegments(gyro[idx], accel[idx], dt, key_pos)
 
 
+SIGNED_TURNS = True   # the turn noise from the net manoeuvre within the window (False: from its absolute rates)
+
+
 def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, earth_rotation: bool = True,
                     window_s: float = 10.0) -> list:
     """Preintegration parameters per keyframe interval (one object each: `set_gravity` gives each interval its
@@ -78,9 +81,11 @@ def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, ear
     (a bias allowed to jump at a turn entry stays wrong on the next straight line, which spoiled pitch 3x, and
     heading 30x on the last strip of a flight). It is added as white
     noise whose integral over the manoeuvre has the variance of the correlated error: an interval with
-    deviation |d_k| gets density s^2 |d_k| A_k, A_k the integral of |d| within `window_s` s around it, so a
-    turn through an angle A within the window accumulates (s A)^2; a longer manoeuvre (continuous circling) is
-    taken as correlated over the window only (a 180 deg turn at 13 deg/s gets ~90 % of (s A)^2).
+    deviation |d_k| gets density s^2 |d_k| A_k, A_k the net (signed) integral of d within `window_s` s around it,
+    so a turn through an angle A within the window accumulates (s A)^2; a longer manoeuvre (continuous circling) is
+    taken as correlated over the window only (a 180 deg turn at 13 deg/s gets ~90 % of (s A)^2). Net, because the
+    error is the scale or misalignment times the net angle: a fixed wing's roll into a bank and out of it within
+    the window leave none (with |d| integrated they counted twice the bank angle, on every turn).
     """
     K = len(seg.start) - 1
     turn = bool(noise.gyro_scale_sigma or noise.gyro_misalign_sigma or noise.accel_scale_sigma
@@ -94,11 +99,14 @@ def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, ear
     t_mid = np.cumsum(T) - 0.5 * T
 
     def turn_density(x, s, m, centre):
-        a = np.abs(x - centre)
-        c = np.vstack([np.zeros((1, 3)), np.cumsum(a * T[:, None], axis=0)])
+        d = x - centre
+        # the net (signed) manoeuvre within the window: a roll into a bank and out of it again cancel, as the error
+        # they make does (a scale or misalignment error times the net angle)
+        w = d if SIGNED_TURNS else np.abs(d)
+        c = np.vstack([np.zeros((1, 3)), np.cumsum(w * T[:, None], axis=0)])
         lo = np.searchsorted(t_mid, t_mid - window_s, side="left")
         hi = np.searchsorted(t_mid, t_mid + window_s, side="right")
-        aw = a * (c[hi] - c[lo])
+        aw = np.abs(d) * np.abs(c[hi] - c[lo])
         return s ** 2 * aw + m ** 2 * (aw.sum(1, keepdims=True) - aw)
     # the gyro's reference is zero rate, not the flight's median: a flight circling more than half its time
     # (a calibration orbit) has its circling rate as median, and its straight lines then got the turn noise

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
 from dgcal.fields.constants import OMEGA_EARTH
 from dgcal.fields.crs import ecef_to_geodetic
@@ -21,8 +22,8 @@ P = np.array([-3962108.673, 3381309.574, 3668678.638])     # 35.3 deg N
 
 def _static(grade: str, heading_deg: float, seed: int, seconds: float = 120.0, extra_gyro_bias_deg_h=(0, 0, 0),
             velocities: bool = False):
-    """A static record whose IMU carries the grade's white noise and a turn-on bias drawn from it (plus
-    `extra_gyro_bias_deg_h`), with 1 Hz fixes of 1 cm noise (and zero velocities)."""
+    """A static record whose IMU carries the grade's white noise, a turn-on bias and an in-run (Gauss-Markov) bias
+    drawn from it (plus `extra_gyro_bias_deg_h`), with 1 Hz fixes of 1 cm noise (and zero velocities)."""
     g = imu_grade(grade)
     lat = ecef_to_geodetic(P)[0]
     rng = np.random.default_rng(seed)
@@ -31,8 +32,14 @@ def _static(grade: str, heading_deg: float, seed: int, seconds: float = 120.0, e
     h = np.radians(heading_deg)
     w_ned = OMEGA_EARTH * np.array([np.cos(np.radians(lat)), 0.0, -np.sin(np.radians(lat))])
     R_ned_to_body = np.array([[np.cos(h), np.sin(h), 0.0], [-np.sin(h), np.cos(h), 0.0], [0.0, 0.0, 1.0]])
-    b_g = rng.normal(0, g.gyro_bias_sigma, 3) + np.radians(np.asarray(extra_gyro_bias_deg_h, float) / 3600.0)
-    b_a = rng.normal(0, g.accel_bias_sigma, 3)
+    def gauss_markov(sigma: float, tau_s: float) -> np.ndarray:
+        phi = np.exp(-1.0 / (rate * tau_s))
+        w = rng.normal(0.0, sigma * np.sqrt(1.0 - phi ** 2), (len(t), 3))
+        w[0] = rng.normal(0.0, sigma, 3)
+        return lfilter([1.0], [1.0, -phi], w, axis=0)
+    b_g = (rng.normal(0, g.gyro_bias_sigma, 3) + np.radians(np.asarray(extra_gyro_bias_deg_h, float) / 3600.0)
+           + gauss_markov(g.gyro_bias_instability, g.gyro_bias_tau_s))
+    b_a = rng.normal(0, g.accel_bias_sigma, 3) + gauss_markov(g.accel_bias_instability, g.accel_bias_tau_s)
     dth = (R_ned_to_body @ w_ned + b_g) / rate + rng.normal(0, g.gyro_arw / np.sqrt(rate), (len(t), 3))
     dv = (np.array([0.0, 0.0, -9.797]) + b_a) / rate + rng.normal(0, g.accel_vrw / np.sqrt(rate), (len(t), 3))
     tf = np.arange(t[0] + 0.5, t[-1], 1.0)
@@ -87,14 +94,14 @@ def test_heading_from_motion_and_heading_rows():
 
 
 def test_static_mems_record_reports_an_unknown_heading():
-    """Consumer grade, static, five headings/seeds: the heading error is whatever the start was, its sigma 104 deg
-    (before: 25-30 deg with 60-150 deg errors, error/sigma up to 4), error/sigma RMS <= 1.4."""
-    runs = _heading_z("consumer", range(5))
+    """Consumer grade, static, eight headings/seeds: the heading error is whatever the start was, its sigma 104 deg
+    (before: 25-30 deg with 60-150 deg errors, error/sigma up to 4), error/sigma RMS 0.7-1.4 (0.84)."""
+    runs = _heading_z("consumer", range(8))
     z = np.array([e / s for e, s, _ in runs])
     print("\nconsumer static: errors", [round(e, 1) for e, _, _ in runs], "sigma", runs[0][1],
           f"error/sigma RMS {np.sqrt(np.mean(z ** 2)):.2f}")
     assert all(s == pytest.approx(HEADING_UNKNOWN_SIGMA_DEG, rel=0.01) for _, s, _ in runs)
-    assert np.sqrt(np.mean(z ** 2)) <= 1.4 and np.abs(z).max() <= 180.0 / HEADING_UNKNOWN_SIGMA_DEG + 1e-6
+    assert 0.7 <= np.sqrt(np.mean(z ** 2)) <= 1.4 and np.abs(z).max() <= 180.0 / HEADING_UNKNOWN_SIGMA_DEG + 1e-6
     res = runs[0][2]
     assert res.smoothed.info["heading_budget_deg"] == pytest.approx(HEADING_UNKNOWN_SIGMA_DEG)
     assert any("heading not observable" in w for w in res.summary["warnings"])
@@ -103,9 +110,10 @@ def test_static_mems_record_reports_an_unknown_heading():
 
 
 def test_static_navigation_grade_gyrocompasses():
-    """Navigation grade, static, five headings/seeds: the heading from the earth rate alone, within 0.2 deg, every
-    error within 3 sigma and the sigma no larger than twice the gyrocompassing limit."""
-    runs = _heading_z("navigation", range(5))
+    """Navigation grade, static, eight headings/seeds: the heading from the earth rate alone, within 0.2 deg, its
+    sigma (0.093 deg: the gyrocompassing limit of the turn-on bias, 0.056 deg, with the in-run bias the accelerometers
+    and gyros drift by) between the limit and twice it, error/sigma RMS 0.7-1.4 (0.85)."""
+    runs = _heading_z("navigation", range(8))
     err = np.array([e for e, _, _ in runs])
     sig = np.array([s for _, s, _ in runs])
     limit = np.degrees(gyrocompass_sigma(imu_grade("navigation").smoother_noise(), 35.3, 120.0))
@@ -114,6 +122,7 @@ def test_static_navigation_grade_gyrocompasses():
           f"{np.sqrt(np.mean(z ** 2)):.2f}")
     assert np.abs(err).max() < 0.2
     assert np.all(np.abs(z) < 3.0) and np.all(sig >= limit * 0.999) and np.all(sig < 2.0 * limit)
+    assert 0.7 <= np.sqrt(np.mean(z ** 2)) <= 1.4
 
 
 def test_gyro_bias_beyond_the_grade_is_flagged():

@@ -285,3 +285,36 @@ def test_scale_and_misalignment_are_turn_noise_not_bias_jumps():
     assert np.all(extra[t < 45.0] == 0) and np.all(extra[t > 50.0 + np.pi / 0.4 + 11.0] == 0)
     for p in ps:
         assert np.allclose(np.diag(p.getBiasOmegaCovariance()), noise.gyro_bias_rw ** 2)
+
+
+def test_roll_in_and_out_within_the_window_make_no_turn_noise():
+    """A fixed wing's roll into a 30 deg bank and out again 4 s later: the net angle within the window is zero, and
+    so is the error a roll-axis scale makes after it; the turn noise follows the net angle (it counted twice the bank
+    angle with the absolute rates), while a roll in without the roll out gets (scale * 30 deg)^2."""
+    from dgcal.pos.ins.error_model import ImuErrorModel
+    from dgcal.pos.smoother import preintegration
+    from dgcal.pos.smoother.preintegration import ImuSegments, interval_params
+    dt = 0.05
+    t = np.arange(0.0, 60.0, dt)
+    bank = np.radians(30.0)
+    roll_in = (t >= 20.0) & (t < 21.0)
+    roll_out = (t >= 25.0) & (t < 26.0)
+    noise = ImuErrorModel("test", gyro_arw=1e-4, accel_vrw=5e-4, gyro_bias_rw=1e-6, accel_bias_rw=4e-5,
+                          gyro_bias_sigma=1e-4, accel_bias_sigma=2e-2, gyro_scale_sigma=5e-4, gyro_misalign_sigma=0.0)
+
+    def roll_axis_variance(w_x: np.ndarray) -> float:
+        n = len(t)
+        seg = ImuSegments(np.column_stack([w_x, np.zeros(n), np.zeros(n)]), np.tile([0.0, 0.0, -9.8], (n, 1)),
+                          np.full(n, dt), np.arange(n + 1))
+        ps = interval_params(noise, NavFrame(23.0, 120.0, 0.0), seg, earth_rotation=False)
+        return float(sum((p.getGyroscopeCovariance()[0, 0] - noise.gyro_arw ** 2) * dt for p in ps))
+
+    both = np.where(roll_in, bank, 0.0) - np.where(roll_out, bank, 0.0)
+    one_way = np.where(roll_in, bank, 0.0)
+    assert roll_axis_variance(one_way) == pytest.approx((5e-4 * bank) ** 2, rel=0.01)
+    assert roll_axis_variance(both) < 0.3 * (5e-4 * bank) ** 2
+    try:
+        preintegration.SIGNED_TURNS = False
+        assert roll_axis_variance(both) == pytest.approx(2 * 2 * (5e-4 * bank) ** 2, rel=0.01)
+    finally:
+        preintegration.SIGNED_TURNS = True
