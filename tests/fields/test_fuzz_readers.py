@@ -23,7 +23,10 @@ from hypothesis import strategies as st
 from dgcal.fields.errors import InputError
 
 from fuzz_checks import FuzzStats, check_read, nan_fields
+from test_bingo_metashape import METASHAPE as METASHAPE_MARKERS
 from test_formats_fuzz import GNSS_CSV, NMEA, POS, _mutate
+from test_pix4d_companions import GCPS as PIX4D_GCPS
+from test_pix4d_companions import MARKS as PIX4D_MARKS
 from test_gnss_rinex2 import NAV_211, NAV_304, OBS_211, OBS_304
 
 DEFAULT_CASES = 60
@@ -624,6 +627,11 @@ READERS = {
     "fix-input-nmea": (_const(NMEA.encode()), ".nmea", _fix_input_reader),
     "sp3": (s_sp3, ".sp3", _imp("dgcal.pos.gnss.precise", "read_sp3")),
     "smrmsg": (s_smrmsg, ".out", _smrmsg_reader),
+    # the companions of Pix4D's and Metashape's exports (issue 29's readers)
+    "pix4d-gcps": (_const(PIX4D_GCPS.encode()), ".txt", _imp("dgcal.fields.io.pix4d_marks", "read_pix4d_gcps")),
+    "pix4d-marks": (_const(PIX4D_MARKS.encode()), ".txt", _imp("dgcal.fields.io.pix4d_marks", "read_pix4d_marks")),
+    "metashape-markers": (_const(METASHAPE_MARKERS.encode()), ".xml", _imp("dgcal.fields.io.metashape_markers",
+                                                                            "read_metashape_markers")),
     "plate-layout-json": (s_plate_layout, ".json", _layout_reader("dgcal.fields.targets.plate", "load_layout")),
     "board-layout-json": (s_board_layout, ".json", _layout_reader("dgcal.fields.targets.boards",
                                                                    "load_board_layout")),
