@@ -24,6 +24,7 @@ from dgcal.pos.gnss.observations import CLOCK_GROUP, SYSTEMS, GnssEpoch, GnssObs
 from dgcal.pos.gnss.spp_batch import (GROUPS, ObsTable, code_noise_from_residuals, merge_fits, model, solve_epochs,
                                       to_epoch)
 from dgcal.pos.gnss.rinex import BroadcastNav, read_rinex_nav, read_rinex_obs
+from dgcal.pos.gnss.spp_error_model import covariance, iono_error_field
 from dgcal.pos.gnss.rinex_obs import read_obs_file
 
 
@@ -164,6 +165,7 @@ class SppSolution:
     residuals_m: list[dict[str, float]] = field(default_factory=list)
     options: SppOptions | None = None                 # the options the epochs were solved with
     code_noise: dict = field(default_factory=dict)    # the code noise at the zenith: given or estimated, and from what
+    error_model: dict = field(default_factory=dict)   # which model the covariances come from (`spp_error_model`)
 
 
 def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None,
@@ -201,6 +203,9 @@ def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None
         guesses = _previous_fix(fits, header)
         fits = solve_epochs(tab, nav, guesses, opts)
     fits = _chain(tab, nav, fits, guesses, header, opts)
+    error_model = {"model": "independent"}
+    if opts.model_errors:
+        fits.cov_p, error_model = covariance(tab, fits, nav, iono_error_field(tab, fits, nav))
     b = fits.bounds
     groups = sorted({CLOCK_GROUP[s] for s in obs.systems}, key=SYSTEMS.index)
     pa = fits.m.p_approx
@@ -216,7 +221,7 @@ def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None
         chi2_dof=fits.chi2_dof, used=[list(ep.sat) if ep is not None else [] for ep in epochs],
         rejected=[list(r) for r in fits.rejected], epochs=epochs,
         residuals_m=[dict(zip(ep.sat, res[b[e]:b[e + 1]])) if ep is not None else {} for e, ep in enumerate(epochs)],
-        options=opts, code_noise=noise)
+        options=opts, code_noise=noise, error_model=error_model)
 
 
 def _chain(tab: ObsTable, nav: BroadcastNav, fits, guesses: np.ndarray, header: np.ndarray, opts: SppOptions):

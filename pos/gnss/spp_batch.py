@@ -249,7 +249,7 @@ def _bounds(ep: np.ndarray, E: int) -> np.ndarray:
     return np.searchsorted(ep, np.arange(E + 1))
 
 
-def _segment_sum(x: np.ndarray, b: np.ndarray) -> np.ndarray:
+def segment_sum(x: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Sums of x over the row segments b[e]:b[e+1] (empty segments give 0)."""
     out = np.zeros((len(b) - 1,) + x.shape[1:])
     ne = b[1:] > b[:-1]
@@ -275,9 +275,9 @@ def _padding(absent: np.ndarray, b: np.ndarray) -> np.ndarray:
     return pad
 
 
-def _normal_inverse(Hw: np.ndarray, b: np.ndarray, absent: np.ndarray) -> np.ndarray:
+def normal_inverse(Hw: np.ndarray, b: np.ndarray, absent: np.ndarray) -> np.ndarray:
     """Inverse (E,6,6) of each epoch's normal matrix sum(Hw Hw'), unit information on its absent parameters."""
-    N = _segment_sum(Hw[:, :, None] * Hw[:, None, :], b)
+    N = segment_sum(Hw[:, :, None] * Hw[:, None, :], b)
     i = np.arange(6)
     N[:, i, i] += _padding(absent, b)
     return np.linalg.inv(N)
@@ -311,8 +311,8 @@ def fit_positions(m: Modelled, grp: np.ndarray, y: np.ndarray, x0: np.ndarray, a
         Hw = H / sub.sigma_pr[:, None]
         b = np.searchsorted(sub.ep, ep_a)
         b = np.r_[b, len(rows)]
-        Ni = _normal_inverse(Hw, b, absent[ep_a])
-        dx = np.einsum("eij,ej->ei", Ni, _segment_sum(Hw * (v / sub.sigma_pr)[:, None], b))
+        Ni = normal_inverse(Hw, b, absent[ep_a])
+        dx = np.einsum("eij,ej->ei", Ni, segment_sum(Hw * (v / sub.sigma_pr)[:, None], b))
         x[ep_a] += dx
         Ninv[ep_a] = Ni
         active[ep_a[np.linalg.norm(dx, axis=1) < 1e-4]] = False
@@ -332,7 +332,7 @@ def dops(H: np.ndarray, b: np.ndarray, absent: np.ndarray, p_ecef: np.ndarray) -
     """GDOP/PDOP/HDOP/VDOP (E,) of each epoch's line-of-sight rows H (one clock column per present group); inf
     where the geometry is singular."""
     E = len(b) - 1
-    N = _segment_sum(H[:, :, None] * H[:, None, :], b)
+    N = segment_sum(H[:, :, None] * H[:, None, :], b)
     i = np.arange(6)
     pad = _padding(absent, b)
     N[:, i, i] += pad
@@ -387,19 +387,19 @@ def fit_velocities(tab: ObsTable, m: Modelled, p: np.ndarray, E: int):
     for _ in range(3):
         w = keep & going[mm.ep]
         Hw = H / sig[:, None] * w[:, None]
-        N = _segment_sum(Hw[:, :, None] * Hw[:, None, :], b)
+        N = segment_sum(Hw[:, :, None] * Hw[:, None, :], b)
         N[~going] = np.eye(4)
         Ni = np.linalg.inv(N)
-        xx = np.einsum("eij,ej->ei", Ni, _segment_sum(Hw * (y / sig)[:, None], b))
+        xx = np.einsum("eij,ej->ei", Ni, segment_sum(Hw * (y / sig)[:, None], b))
         x[going] = xx[going]
         Ninv[going] = Ni[going]
         r = y - np.einsum("ni,ni->n", H, x[mm.ep])
-        z2 = _segment_sum(np.where(keep, (r / sig) ** 2, 0.0), b)
-        nk = _segment_sum(keep.astype(float), b)
+        z2 = segment_sum(np.where(keep, (r / sig) ** 2, 0.0), b)
+        nk = segment_sum(keep.astype(float), b)
         s = np.sqrt(np.maximum(z2 / np.maximum(nk - 4, 1), 1.0))
         bad = np.abs(r / sig) > 5.0 * s[mm.ep]
-        any_bad = _segment_sum((bad & keep).astype(float), b) > 0
-        left = _segment_sum((keep & ~bad).astype(float), b)
+        any_bad = segment_sum((bad & keep).astype(float), b) > 0
+        left = segment_sum((keep & ~bad).astype(float), b)
         stop = ~any_bad | (left < 5)
         upd = going & ~stop
         keep &= ~(bad & upd[mm.ep])
@@ -501,7 +501,7 @@ def solve_epochs(tab: ObsTable, nav, guesses: np.ndarray, opts, which: np.ndarra
             fit = fit_positions(sub, g, sub.pr_corr(tab), x0, ~present, E)
             b = _bounds(sub.ep, E)
             dof = cnt - n_par
-            chi2 = _segment_sum((fit.res / sub.sigma_pr) ** 2, b)
+            chi2 = segment_sum((fit.res / sub.sigma_pr) ** 2, b)
             n_rej = np.array([len(r) for r in rejected])
             need = in_loop & opts.raim & has_prep & (dof >= 1) & (n_rej < opts.max_reject) & \
                 (chi2 > np.nan_to_num(chi2_limit(dof, opts.raim_alpha), nan=np.inf))
@@ -555,7 +555,7 @@ def solve_epochs(tab: ObsTable, nav, guesses: np.ndarray, opts, which: np.ndarra
     v, cov_v, drift, dsig = fit_velocities(tab, m, np.where(ok[:, None], X[:, :3], 1e7), E)
     nsys = (~absent_f).sum(axis=1)
     dof = cnt - 3 - nsys
-    chi2 = _segment_sum((res / m.sigma_pr) ** 2, b)
+    chi2 = segment_sum((res / m.sigma_pr) ** 2, b)
     nan = np.full(E, np.nan)
     i3 = np.arange(3)
     clk = np.where(~absent_f & ok[:, None], X[:, 3:], np.nan)
