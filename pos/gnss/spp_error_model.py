@@ -223,4 +223,4 @@ def slow_scale(fits, W: _Weights, noise2: np.ndarray, slow2: np.ndarray, common:
         return 1.0, {"slow_scale": 1.0, "slow_scale_file": None, "slow_dof": nu}
     hat = max((q - a) / d, 0.0)
     scale = (nu * hat + PRIOR_DOF) / (nu + PRIOR_DOF)
-    return scale, {"slow_scale": scale, "slow_scale_file": hat, "slow_dof": nu}
+    return float(scale), {"slow_scale": float(scale), "slow_scale_file": float(hat), "slow_dof": int(nu)}

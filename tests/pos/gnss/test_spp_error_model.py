@@ -138,3 +138,13 @@ def test_simulator_code_error_family(shared_data, scale, high):
     print(f"x{scale}: error/sigma RMS E/N/U {pooled.round(2)}")
     assert np.all((pooled > 0.7) & (pooled < high)), pooled
     assert np.mean(np.abs(np.concatenate(allz)) > 5.0) < 0.01
+
+
+def test_the_summary_says_which_model(shared_data):
+    """`dgcal pos --mode spp`'s summary names the model of its sigmas and what the file measured (JSON-ready)."""
+    import json
+    from dgcal.pos.gnss.spp import spp_files
+    run = spp_files(shared_data / "rinex-sept/SEPT078M1.21O", [shared_data / "rinex-sept/SEPT078M.21P"], SppOptions())
+    em = json.loads(json.dumps(run.summary["error_model"]))
+    assert em["model"] == "structured" and em["slow_dof"] >= 10 and 0.0 < em["slow_scale"] < 10.0
+    assert em["ionosphere"]["satellites"] == 23 and em["ionosphere"]["common_sigma"] > 0
