@@ -141,8 +141,10 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     own estimates (`forward_solution`), False (the default: what the trajectory and events need) for none.
 
     estimate_imu_time_offset: the IMU-GNSS time offset estimated from the smoother's chi-square profile
-    (`dgcal.pos.smoother.time_offset`, 7-11 smoothings without covariances), applied to the IMU's time tags and
-    reported with its sigma in `summary['imu_time_offset']`; a ResultError when the data cannot determine it.
+    (`dgcal.pos.smoother.time_offset`, 9-13 smoothings without covariances; its sigma the larger of the curvature's
+    and the block jackknife's over time windows), applied to the IMU's time tags and reported in
+    `summary['imu_time_offset']`; a ResultError when the profile has no minimum; not applied, and warned, when it
+    is not determinable (windows that disagree, or a sigma beyond the estimate).
     """
     if mode not in ("tc", "lc"):
         raise InputError(f"must be tc or lc, not {mode!r}", field="mode")
