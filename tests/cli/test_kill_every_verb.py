@@ -189,13 +189,17 @@ def verb_kills(verb: str, files: dict, root: Path, n: int, rng) -> dict:
     seen = {"kills": 0, "runs": 0}
     while seen["kills"] < n and seen["runs"] < 4 * n:
         mode = ("start", "staging", "merge")[seen["runs"] % 3]
+        if mode == "merge" and (out / INCOMPLETE).exists() and verb != "run":
+            old = _changed_copy(ref, out)   # a kill's mark gone, so the kill lands in this run's merge
         delay = {"start": rng.uniform(0.3, run_s), "staging": rng.uniform(0, 0.3), "merge": rng.uniform(0, 0.01)}[mode]
         killed = _kill_once(argv, out, mode, float(delay))
         seen["runs"] += 1
         seen["kills"] += killed
         state = _state(out, old, new)
         seen[state] = seen.get(state, 0) + 1
-        if state == "new" and verb != "run":    # back to the earlier outputs for the next kill
+        # back to the earlier outputs for the next kill (after an interrupted merge, every other time: the next run
+        # then starts from the mark, or from the old folder)
+        if verb != "run" and (state == "new" or (state == "incomplete" and rng.random() < 0.5)):
             old = _changed_copy(ref, out)
     r = subprocess.run(argv, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
