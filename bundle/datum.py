@@ -19,7 +19,8 @@ import numpy as np
 
 from dgcal.bundle.adjustment import BundleResult
 
-COLLINEAR_M = 1.0          # datum sources within this RMS distance of a line leave the rotation about it free
+COLLINEAR_SIGMAS = 5.0     # datum sources within this many of their sigmas (RMS) of a line leave the rotation about it
+                           # free (farther, the rotation is fixed, perhaps weakly: `weak_datum` says how well)
 WEAK_FACTOR = 5.0          # a datum effect beyond this many source sigmas is weak
 F_HEIGHT_CORRELATION = 0.9  # |rho(f, height above ground)| above this is reported
 
@@ -41,21 +42,26 @@ def _azimuth_deg(axis: np.ndarray) -> float:
 def datum_statement(centres_world: np.ndarray, centre_sigma_m: np.ndarray, control_world: np.ndarray,
                     control_sigma_m: np.ndarray) -> dict:
     """What fixes position, scale and rotation: camera centres (k,3) and control points (g,3) in the world frame
-    (m) with sigmas (k,3)/(g,3) (m). Returns a JSON-able dict with `text` (one line for a report)."""
+    (m) with sigmas (k,3)/(g,3) (m). Sources within COLLINEAR_SIGMAS of their sigmas of a line leave the rotation
+    about it free (within that of a point: the scale). Returns a JSON-able dict with `text` (one line)."""
     C = np.asarray(centres_world, float).reshape(-1, 3)
     G = np.asarray(control_world, float).reshape(-1, 3)
     P = np.vstack([C, G])
     n_c, n_g = len(C), len(G)
+    c_sig = np.median(np.asarray(centre_sigma_m, float).reshape(-1, 3), axis=0) if n_c else None
+    g_sig = np.median(np.asarray(control_sigma_m, float).reshape(-1, 3), axis=0) if n_g else None
+    limit = COLLINEAR_SIGMAS * max(min(float(np.sqrt(np.mean(s ** 2))) for s in (c_sig, g_sig) if s is not None)
+                                   if len(P) else 0.0, 1e-3)
     fixes, free = [], []
     line = None
     if len(P):
         fixes.append("position")
         d = P - P.mean(0)
-        if np.max(np.linalg.norm(d, axis=1)) > COLLINEAR_M:
+        if np.max(np.linalg.norm(d, axis=1)) > limit:
             fixes.append("scale")
         _, s, Vt = np.linalg.svd(d, full_matrices=False)
         lateral = float(s[1] / np.sqrt(len(P))) if len(s) > 1 else 0.0
-        if lateral > COLLINEAR_M:
+        if lateral > limit:
             fixes.append("rotation")
         elif "scale" in fixes:
             ax = Vt[0]
@@ -69,8 +75,6 @@ def datum_statement(centres_world: np.ndarray, centre_sigma_m: np.ndarray, contr
     if not fixes:
         free.insert(0, "position")
     sources = []
-    c_sig = np.median(np.asarray(centre_sigma_m, float).reshape(-1, 3), axis=0) if n_c else None
-    g_sig = np.median(np.asarray(control_sigma_m, float).reshape(-1, 3), axis=0) if n_g else None
     if n_c:
         sources.append(f"{n_c} camera centre{'s' if n_c > 1 else ''} (σ {_sigma_text(c_sig)})")
     if n_g:
