@@ -269,7 +269,9 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
             if missing:
                 inp.warnings.append(f"{len(missing)} measured image(s) not in {opts.images} (e.g. {missing[0]}): "
                                     "their measurements are used without tie points")
-        pairs = image_pairs(names, camera, points, inp.approx)
+        # spatial pairs from the approximate EOPs, else from the camera centres (strips side by side share images
+        # that the sequential pairs of file names never pair)
+        pairs = image_pairs(names, camera, points, inp.approx if inp.approx is not None else inp.centre_priors)
         if opts.targets:
             meas, w = add_gcp_targets(meas, opts.images, names, opts.targets, points, opts.sigma_px)
             inp.warnings += w

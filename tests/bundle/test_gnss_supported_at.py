@@ -359,3 +359,17 @@ def test_a_wrong_camera_centre_is_rejected_and_named():
     assert sum("camera centre of" in w and "rejected as a blunder" in w for w in res.warnings) == 2
     assert res.summary["trusted"] and res.summary["datum"]["n_centres"] == 22
     assert np.abs(eop_z(sim, res)).max() < 5 and res.summary["n_oriented"] == 24
+
+
+def test_camera_centres_give_spatial_image_pairs_across_strips():
+    from dgcal.bundle.inputs import image_pairs
+    sim = simulate_rtk_block(0, n_images=48, n_control=0)
+    names = list(sim.images)
+    pairs = image_pairs(names, sim.camera, sim.points, sim.centres)
+    strip = dict(zip(names, sim.strip))
+    gap = {abs(int(strip[a][3:]) - int(strip[b][3:])) for a, b in pairs}
+    assert {0, 1} <= gap            # along the strips and to the neighbouring strip (30 % of a footprint away)
+    # neighbours only: no pair farther apart than a footprint
+    C = dict(zip(names, sim.centres.xyz))
+    fp = 150.0 * 8192 / sim.camera["f"]
+    assert max(np.linalg.norm(C[a][:2] - C[b][:2]) for a, b in pairs) < fp
