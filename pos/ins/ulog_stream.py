@@ -3,8 +3,8 @@
 pyulog recovers from a corrupt message by stepping one byte and reading up to 64 KiB again (a damaged 1 MB log
 took over 100 s of CPU), and flattens nested formats without bound (a format of 65535 elements of a format of
 65535 elements). `scan_ulog` walks the messages once (3-byte headers: uint16 size, uint8 type) and refuses:
-- a message pyulog would take as corrupt (type 0, size 0, or an unknown type larger than 10 000 bytes): the
-  error names the byte offset and how many bytes before it are readable;
+- a message pyulog would take as corrupt (a type it does not parse in that section of the log, of size 0 or
+  larger than 10 000 bytes): the error names the byte offset and how many bytes before it are readable;
 - a format that flattens to more fields than a message can hold (65535 bytes), or that contains itself.
 A last message cut short by the end of the file (a log whose writer lost power) ends the stream, as in pyulog.
 """
@@ -17,7 +17,10 @@ from dgcal.fields.errors import InputError
 
 MAGIC = b"ULog\x01\x12\x35"
 HEADER_BYTES = 16
-KNOWN_TYPES = frozenset(b"BFIMPQARDLCSO")
+# the message types pyulog parses in its definitions and in its data section; any other type of size 0 or above
+# 10 000 bytes it takes as a corrupt header (and steps one byte)
+DEFINITION_TYPES = frozenset(b"BFIMPQALC")
+DATA_TYPES = frozenset(b"IMPQALCDOS")
 MAX_UNKNOWN_SIZE = 10_000       # pyulog's bound: an unknown type above it is a corrupt header
 MAX_FIELDS = 65_535             # a data message holds at most 65535 bytes, each field at least one
 BASIC_TYPES = frozenset(("int8_t", "uint8_t", "int16_t", "uint16_t", "int32_t", "uint32_t", "int64_t",
@@ -89,15 +92,23 @@ def scan_ulog(path: str | Path, data: bytes | None = None) -> int:
     logged: list[str] = []
     unpack = struct.Struct("<HB").unpack_from
     offset, ends = HEADER_BYTES, [total]      # segments: the main stream, then each block of appended data
+    definitions = True                        # before the first subscription or log line (pyulog's first section)
     while True:
         size, kind = unpack(data, offset) if offset + 3 <= ends[0] else (0, -1)
-        if kind < 0 or offset + 3 + size > ends[0]:
+        cut = kind < 0 or offset + 3 + size > ends[0]
+        handled = DEFINITION_TYPES if definitions else DATA_TYPES
+        corrupt = kind >= 0 and kind not in handled and (kind == 0 or size == 0 or size > MAX_UNKNOWN_SIZE)
+        # a corrupt header cut short by the end of the file among the definitions sends pyulog back and forth for
+        # ever (it steps back over more than it read); in the data section it ends the log
+        if corrupt and (definitions or not cut):
+            raise _corrupt(path, offset, size, kind, total)
+        if cut:
             if len(ends) == 1:
                 break                         # a last message cut short (or none): the file ends
             offset = ends.pop(0)              # the main stream stops short of the appended data (as pyulog)
             continue
-        if kind not in KNOWN_TYPES and (kind == 0 or size == 0 or size > MAX_UNKNOWN_SIZE):
-            raise _corrupt(path, offset, size, kind, total)
+        if kind in (0x41, 0x4C, 0x43):        # 'A', 'L', 'C' end pyulog's definitions section
+            definitions = False
         payload = data[offset + 3:offset + 3 + size]
         if kind == 0x42 and offset == HEADER_BYTES and size >= 40:   # 'B' flag bits: appended data's offsets
             starts = sorted({o for o in struct.unpack_from("<3Q", payload, 16) if offset < o < total})

@@ -34,8 +34,9 @@ KNOWN_OPEN = {
 MAX_ABS = 1e12           # no quantity dgcal reads is this large in its units (GPS s ~1.5e9, ECEF m ~6.4e6)
 
 
-class Hang(Exception):
-    """A read that did not return within HANG_S seconds."""
+class Hang(BaseException):
+    """A read that did not return within HANG_S seconds (a BaseException: a reader's `except Exception` that turns
+    library failures into InputErrors must not hide it)."""
 
 
 def _alarm(signum, frame):

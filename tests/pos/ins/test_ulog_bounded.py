@@ -1,9 +1,11 @@
 """PX4 ULog read with bounded effort (issue 31): a valid log written byte by byte reads as IMU data and camera events;
 a damaged one (nested formats that flatten to billions of fields, a format containing itself, a corrupt message
-header, values beyond any IMU) is refused with one InputError naming the file, within seconds - pyulog alone
-spends minutes on the first; cut or mutated logs read or are refused within seconds."""
+header, a corrupt header among the definitions on which pyulog loops for ever, values beyond any IMU) is refused
+with one InputError naming the file, within seconds - pyulog alone spends minutes on the first and never returns
+on the fourth; cut or mutated logs read or are refused within seconds."""
 from __future__ import annotations
 
+import struct
 import time
 
 import numpy as np
@@ -15,7 +17,7 @@ from dgcal.pos.ins.ulog import read_ulog_camera_capture, read_ulog_imu
 from dgcal.pos.ins.ulog_stream import scan_ulog
 from dgcal.pos.readers import ImuInput, read_imu_input
 
-from ulog_writer import msg, ulog_bytes
+from ulog_writer import FORMATS, MAGIC, msg, ulog_bytes
 
 
 def _write(tmp_path, data: bytes, name="log.ulg"):
@@ -64,6 +66,20 @@ def test_corrupt_message_header_names_the_offset(tmp_path):
     p = _write(tmp_path, bad)
     with pytest.raises(InputError, match=rf"damaged at byte {k} of {len(bad)} .*first {k} bytes are readable"):
         read_ulog_imu(p)
+
+
+@pytest.mark.parametrize("tail", [struct.pack("<HB", 5000, 0) + b"x" * 10,      # cut short by the end of the file
+                                  struct.pack("<HB", 20000, ord("D")) + bytes(20000)])   # data among definitions
+def test_corrupt_header_among_the_definitions_refused(tmp_path, tail):
+    """pyulog loops for ever on the first (it steps back over more than it read) and steps byte by byte on the
+    second: both refused at once."""
+    defs = MAGIC + b"\x01" + struct.pack("<Q", 0) + msg("B", bytes(40)) + b"".join(
+        msg("F", f"{k}:{v}".encode()) for k, v in FORMATS.items())
+    p = _write(tmp_path, defs + tail)
+    t0 = time.perf_counter()
+    with pytest.raises(InputError, match=rf"damaged at byte {len(defs)} of"):
+        read_ulog_imu(p)
+    assert time.perf_counter() - t0 < 2.0
 
 
 @pytest.mark.parametrize("value", [1e20, np.inf, np.nan])
