@@ -68,6 +68,13 @@ def split_at_keyframes(t_imu: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t
 
 
 SIGNED_TURNS = True   # the turn noise from the net manoeuvre within the window (False: from its absolute rates)
+# the share of the gyro misalignment's turn-noise variance carried: the white-noise equivalent of a constant
+# misalignment (m times the net rotation about the other axes, added up turn after turn as if independent)
+# over-states what is left once GNSS and accelerometers see the attitude between turns; a quarter of it (half its
+# sigma) makes roll/pitch/heading error/sigma 0.76-1.18 over the simulated 5-minute families (8 seeds each; the
+# whole variance gave 0.66-1.11, the fixed wing's heading 0.66-0.76) and 0.60/1.08/0.73 on 20-minute multirotor
+# TC flights (0.54/0.94/0.65); none of it gave up to 1.19 (TC) and 4.8 sigma (docs/pos_smoother.md)
+GYRO_MISALIGN_SHARE = 0.25
 
 
 def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, earth_rotation: bool = True,
@@ -111,7 +118,7 @@ def interval_params(noise: ImuErrorModel, frame: NavFrame, seg: ImuSegments, ear
     # the gyro's reference is zero rate, not the flight's median: a flight circling more than half its time
     # (a calibration orbit) has its circling rate as median, and its straight lines then got the turn noise
     # (heading sigmas 5x too large there)
-    qg = turn_density(wbar, noise.gyro_scale_sigma, noise.gyro_misalign_sigma, 0.0)
+    qg = turn_density(wbar, noise.gyro_scale_sigma, np.sqrt(GYRO_MISALIGN_SHARE) * noise.gyro_misalign_sigma, 0.0)
     qa = turn_density(fbar, noise.accel_scale_sigma, noise.accel_misalign_sigma, np.median(fbar, axis=0))
     for k, p in enumerate(out):
         p.setGyroscopeCovariance(np.diag(noise.gyro_arw ** 2 + qg[k]))

@@ -264,9 +264,10 @@ def test_forward_pass_meets_the_smoother_at_the_last_epoch():
 
 def test_scale_and_misalignment_are_turn_noise_not_bias_jumps():
     """A 180 deg turn between straight lines: the extra gyro noise integrates to (scale * 180 deg)^2 on the turn
-    axis, (misalignment * 180 deg)^2 on the others, nothing on the straights, and the bias walk is unchanged."""
+    axis, GYRO_MISALIGN_SHARE of (misalignment * 180 deg)^2 on the others, nothing on the straights, and the bias
+    walk is unchanged."""
     from dgcal.pos.ins.error_model import ImuErrorModel
-    from dgcal.pos.smoother.preintegration import ImuSegments, interval_params
+    from dgcal.pos.smoother.preintegration import GYRO_MISALIGN_SHARE, ImuSegments, interval_params
     dt = 0.5
     t = np.arange(0.0, 120.0, dt)
     w = np.where((t >= 50.0) & (t < 50.0 + np.pi / 0.4), 0.4, 0.0)  # 0.4 rad/s for pi rad, shorter than the window
@@ -281,7 +282,7 @@ def test_scale_and_misalignment_are_turn_noise_not_bias_jumps():
     total = (extra * dt).sum(0)
     angle = (w * dt).sum()  # pi, to the sampling
     assert total[2] == pytest.approx((5e-4 * angle) ** 2, rel=1e-6)
-    assert total[0] == pytest.approx((3e-4 * angle) ** 2, rel=1e-6)
+    assert total[0] == pytest.approx(GYRO_MISALIGN_SHARE * (3e-4 * angle) ** 2, rel=1e-6)
     assert np.all(extra[t < 45.0] == 0) and np.all(extra[t > 50.0 + np.pi / 0.4 + 11.0] == 0)
     for p in ps:
         assert np.allclose(np.diag(p.getBiasOmegaCovariance()), noise.gyro_bias_rw ** 2)
