@@ -234,7 +234,7 @@ def process(mode: str, imu, grade, lever_arm_b, *, raw_obs=None, nav=None, spp_o
     if offset is not None and not offset.determinable:
         res.summary["warnings"].append(f"IMU time offset not determinable: {offset.note}; the estimate "
                                        f"({1e3 * offset.offset_s:+.1f} +- {1e3 * offset.sigma_s:.1f} ms) was not "
-                                       "applied: give the offset (--imu-time-offset)")
+                                       "applied: the offset given (--imu-time-offset) stands")
     if fe is not None:
         res.summary["carrier"] = carrier_summary(res)
     return res

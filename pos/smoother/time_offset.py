@@ -176,7 +176,8 @@ def judge_determinable(est: TimeOffsetEstimate) -> None:
                    f"{1e3 * est.formal_sigma_s:.1f} ms from the curvature): errors the smoother does not model "
                    "shape the profile" + window_trend(est.window_offsets_s, est.window_weights))
     if est.sigma_s > abs(est.offset_s) and est.sigma_s > MIN_USEFUL_SIGMA_S:
-        why.append(f"its sigma ({1e3 * est.sigma_s:.1f} ms) exceeds the estimate ({1e3 * est.offset_s:+.1f} ms)")
+        why.append(f"its sigma ({1e3 * est.sigma_s:.1f} ms) exceeds the estimate ({1e3 * est.offset_s:+.1f} ms): the "
+                   "data cannot tell it from the offset given")
     if why:
         est.determinable = False
         est.note = "; ".join(why)
