@@ -312,6 +312,10 @@ class MountingResult:
         per_epoch = d.get("per_epoch") if isinstance(d.get("per_epoch"), dict) else {}
         if not isinstance(per_epoch.get("image", []), list):
             raise InputError("must be a list of image names", source, field="per_epoch.image")
+        for key, values in per_epoch.items():    # the per-epoch diagnostics: numbers finite and bounded
+            for i, x in enumerate(values if isinstance(values, list) and key != "image" else []):
+                if isinstance(x, (int, float)) and not isinstance(x, bool) and x == x:   # NaN: an epoch left out
+                    validate.in_range(x, -1e12, 1e12, source, None, f"per_epoch.{key}[{i}]")  # GPS s, map m
         extra = {}
         if "pos_common_fraction" in d:
             extra["pos_common_fraction"] = validate.in_range(d["pos_common_fraction"], 0.0, 1.0, source, None,

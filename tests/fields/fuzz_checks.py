@@ -21,6 +21,7 @@ from dgcal.fields.errors import InputError
 HANG_S = 10.0            # a read taking longer is a hang (the acceptance of issue 31)
 # NaN is "not given" in optional uncertainty columns (docs/formats.md: a blank sigma), however the file wrote it
 OPTIONAL_NAN = ("sigma", "cov")
+NAN_NOT_GIVEN = {"laser-ranges"}   # readers whose result is {image: (range m, sigma m or NaN: not given)}
 # out-of-range values the fuzz runs found in readers of other owners' modules, left open (named in issue 31's notes):
 # reader -> prefixes of the result paths; such a value is counted (FuzzStats.known_open), not failed
 KNOWN_OPEN = {
@@ -84,7 +85,8 @@ def nan_fields(result) -> set[str]:
     return {p for p, a in numbers(result) if np.isnan(a).any()}
 
 
-def bad_values(result, allowed_nan: set[str], wrote_nan: bool, skip: tuple[str, ...] = ()) -> str | None:
+def bad_values(result, allowed_nan: set[str], wrote_nan: bool, skip: tuple[str, ...] = (),
+               stats_reader: str = "") -> str | None:
     """What is wrong with the numbers a read accepted, or None: an inf, |x| > MAX_ABS, or (when the mutation
     wrote a NaN) a NaN at a path the valid sample holds none at; paths starting with one of `skip` are not looked at."""
     for path, a in numbers(result):
@@ -96,7 +98,7 @@ def bad_values(result, allowed_nan: set[str], wrote_nan: bool, skip: tuple[str, 
             big = np.abs(a) > MAX_ABS
         if big.any():
             return f"{path or 'result'}: {a[big][0]:.6g} accepted (|x| > {MAX_ABS:g})"
-        optional = any(k in path.lower() for k in OPTIONAL_NAN)
+        optional = any(k in path.lower() for k in OPTIONAL_NAN) or stats_reader in NAN_NOT_GIVEN
         if wrote_nan and np.isnan(a).any() and not optional and not any(path.startswith(p) or p.startswith(path)
                                                                         for p in allowed_nan):
             return f"{path or 'result'}: NaN accepted"
@@ -146,7 +148,7 @@ def check_read(reader, p: Path, data: bytes, stats: FuzzStats, allowed_nan: set[
     stats.accepted += 1
     wrote_nan = b"nan" in data.lower()
     open_paths = KNOWN_OPEN.get(stats.reader, ())
-    if open_paths and bad_values(result, allowed_nan, wrote_nan) is not None:
+    if open_paths and bad_values(result, allowed_nan, wrote_nan, stats_reader=stats.reader) is not None:
         stats.known_open += 1
-    problem = bad_values(result, allowed_nan, wrote_nan, open_paths)
+    problem = bad_values(result, allowed_nan, wrote_nan, open_paths, stats.reader)
     assert problem is None, problem

@@ -1,6 +1,7 @@
 """What the 2,000-case reader fuzz run of issue 31 found accepted, each refused now with an InputError naming the file
 and field: a camera parameter sigma of 1e25, a GNSS-fix velocity sigma of 1e308, a NaN height in a GNSS packet log,
-an infinite laser-range sigma, an RTKLIB time tag's file position of 4.5e16 bytes."""
+an infinite laser-range sigma, an RTKLIB time tag's file position of 4.5e16 bytes, an infinite per-epoch value in a
+mounting.json."""
 from __future__ import annotations
 
 import json
@@ -70,3 +71,19 @@ def test_time_tag_file_position_beyond_any_file(tmp_path):
         read_time_tag(p, fpos_bytes=8)
     p.write_bytes(head + b"".join(struct.pack("<IQ", t, f) for t, f in recs))
     assert np.array_equal(read_time_tag(p, fpos_bytes=8).fpos, [f for _, f in recs])
+
+
+@pytest.mark.parametrize("value", ["Infinity", "1e300"])
+def test_mounting_per_epoch_value(tmp_path, value):
+    from dgcal.calib.mounting.common import read_mounting_json
+    from test_fuzz_readers import s_mounting
+    text = s_mounting(tmp_path).decode()
+    d = json.loads(text)
+    d["per_epoch"]["lever_x"][1] = 0.125
+    p = tmp_path / "mounting.json"
+    p.write_text(json.dumps(d).replace("0.125", value))
+    with pytest.raises(InputError, match=r"field 'per_epoch\.lever_x\[1\]'"):
+        read_mounting_json(p)
+    d["per_epoch"]["lever_x"][1] = float("nan")            # an epoch left out: kept
+    p.write_text(json.dumps(d))
+    assert np.isnan(read_mounting_json(p).per_epoch["lever_x"][1])
