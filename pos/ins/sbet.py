@@ -26,6 +26,7 @@ SBET_DTYPE = np.dtype([(n, "<f8") for n in SBET_FIELDS])
 SMRMSG_FIELDS = ("time", "s_north", "s_east", "s_down", "s_vn", "s_ve", "s_vd", "s_roll", "s_pitch", "s_heading")
 SMRMSG_DTYPE = np.dtype([(n, "<f8") for n in SMRMSG_FIELDS])
 ARCMIN = 1.0 / 60.0  # degrees
+SMRMSG_MAX_SIGMA = 21600.0   # m, m/s or arcmin (360 deg): a larger sigma is no estimate
 
 
 @dataclass
@@ -123,6 +124,11 @@ def read_smrmsg(path: str | Path, gps_week: int | None) -> tuple[np.ndarray, np.
     """Read an SMRMSG file: (t GPS s, sigma (N,6) = s_north, s_east, s_down m, s_roll, s_pitch, s_heading deg)."""
     path = Path(path)
     r = _read_records(path, SMRMSG_DTYPE, "SMRMSG")
+    for name in SMRMSG_FIELDS[1:]:     # sigmas: m, m/s, arcmin (NaN, negative and 1e20 are a corrupt file)
+        bad = np.flatnonzero(~((r[name] >= 0) & (r[name] <= SMRMSG_MAX_SIGMA)))
+        if bad.size:
+            raise InputError(f"{r[name][bad[0]]:.6g} in record {bad[0] + 1} is outside [0, {SMRMSG_MAX_SIGMA:g}]: a "
+                             "corrupt file, or not an SMRMSG", path, field=name)
     t = _gps_time(path, r["time"], gps_week)
     sig = np.column_stack([r["s_north"], r["s_east"], r["s_down"],
                            r["s_roll"] * ARCMIN, r["s_pitch"] * ARCMIN, r["s_heading"] * ARCMIN])

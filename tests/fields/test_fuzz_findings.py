@@ -1,7 +1,7 @@
 """What the 2,000-case reader fuzz run of issue 31 found accepted, each refused now with an InputError naming the file
 and field: a camera parameter sigma of 1e25, a GNSS-fix velocity sigma of 1e308, a NaN height in a GNSS packet log,
 an infinite laser-range sigma, an RTKLIB time tag's file position of 4.5e16 bytes, an infinite per-epoch value in a
-mounting.json."""
+mounting.json, an SMRMSG sigma of 3.4e12."""
 from __future__ import annotations
 
 import json
@@ -87,3 +87,20 @@ def test_mounting_per_epoch_value(tmp_path, value):
     d["per_epoch"]["lever_x"][1] = float("nan")            # an epoch left out: kept
     p.write_text(json.dumps(d))
     assert np.isnan(read_mounting_json(p).per_epoch["lever_x"][1])
+
+
+@pytest.mark.parametrize("value", [3.4e12, -0.5, np.nan])
+def test_smrmsg_sigma(tmp_path, value):
+    from dgcal.pos.ins.sbet import SMRMSG_DTYPE, read_smrmsg
+    from test_fuzz_readers import s_smrmsg
+    r = np.frombuffer(s_smrmsg(tmp_path), SMRMSG_DTYPE).copy()
+    assert read_smrmsg(_write(tmp_path, r), 2374)[1].shape == (4, 6)
+    r["s_east"][2] = value
+    with pytest.raises(InputError, match=r"smrmsg\.out: field 's_east': .* in record 3 is outside"):
+        read_smrmsg(_write(tmp_path, r), 2374)
+
+
+def _write(tmp_path, r):
+    p = tmp_path / "smrmsg.out"
+    p.write_bytes(r.tobytes())
+    return p
