@@ -746,16 +746,17 @@ def triangulate(camera: CameraModel, points: Points, meas: Measurements, crs: st
     cprior, csig = _centre_priors(centre_priors, geo, blk.images)   # (n,3) world, NaN where an image has none
     _warn_unmatched_centres(centre_priors, blk.images, cprior, msgs, opt.verbose)
     init = initial_orientation(camera, blk.images, blk.oi, blk.op, blk.uv, blk.X_prior, R_world_to_cam_0, C_world_0,
-                               use_mapper=opt.use_mapper)
+                               use_mapper=opt.use_mapper, C_world_prior=cprior)
     for note in init.notes:
         _warn(msgs, note, opt.verbose)
     if not init.oriented.any():
         _emit(msgs)
         raise InputError("no image could be oriented: each needs >= 4 control points, or tie points shared with "
                          "oriented images, or approximate EOPs"
-                         + ("" if np.isfinite(blk.X_prior).all(1).any() else
-                            " (without control the camera centres alone do not start the orientation: give "
-                            "--approx EOPs, or angles in the centres file)"), meas.path)
+                         + ("" if np.isfinite(blk.X_prior).all(1).any() or cprior is None else
+                            " (the camera centres did not start the orientation either: too few tie points shared "
+                            "between neighbouring images? give --approx EOPs, or angles in the centres file)"),
+                         meas.path)
     clock["initialised"] = time.perf_counter()
     adj = _Adjuster(camera, blk, init.R_world_to_cam, init.C_world, init.oriented, init.X_world, init.point_ok,
                     cprior, csig, opt)
