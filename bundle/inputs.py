@@ -22,8 +22,8 @@ from dgcal.calib.camera.models import CameraModel
 from dgcal.fields.crs import parse_crs
 from dgcal.bundle.triangulation import centres_in_block, no_datum_reason
 from dgcal.fields.errors import InputError
-from dgcal.fields.io import validate
-from dgcal.fields.io.csv_tables import read_table
+from dgcal.fields.io.centres import read_centres_with_flights
+from dgcal.fields.io.dji_images import is_jpeg, read_any_centres
 from dgcal.fields.io.formats import EOP, Measurements, Points, read_eop
 from dgcal.fields.io.gcp_files import read_any_measurements, read_any_points
 
@@ -92,68 +92,6 @@ class TriangulationRun:
     inputs: TriangulationInputs
     crs: str | None
     formats: list[str]
-
-
-CENTRE_ANGLES = ("omega", "phi", "kappa")
-CENTRE_SIGMAS = ("sx", "sy", "sz")
-
-
-def read_centres(path: str | Path) -> EOP:
-    """GNSS camera centres: an EOP CSV `image,X,Y,Z[,omega,phi,kappa][,sX,sY,sZ]` in the map CRS (m, deg) whose
-    angles and sigmas may be blank or absent (NaN: angles unknown, sigma the triangulation's default); a full
-    EOP file (angles and all six sigmas) reads the same. Every given value is checked; errors name the line."""
-    return read_centres_with_flights(path)[0]
-
-
-def read_centres_with_flights(path: str | Path) -> tuple[EOP, np.ndarray | None]:
-    """`read_centres` and the optional `flight` column (a label per row; None without the column)."""
-    tab = read_table(path, ("image", "x", "y", "z"),
-                     CENTRE_ANGLES + CENTRE_SIGMAS + ("somega", "sphi", "skappa", "flight"),
-                     text=("image", "flight") + CENTRE_ANGLES + CENTRE_SIGMAS + ("somega", "sphi", "skappa"))
-    image = tab["image"]
-    n = len(image)
-    seen: dict[str, int] = {}
-    for i, name in enumerate(image.tolist()):
-        if name in seen:
-            raise InputError(f"image {name!r} appears twice", tab.path, int(tab.lines[i]), "image")
-        seen[name] = i
-    for c in ("x", "y", "z"):
-        validate.values_in_range(tab[c], -validate.MAX_COORDINATE_M, validate.MAX_COORDINATE_M, tab.path, c,
-                                 tab.lines, unit="m")
-    xyz = np.column_stack([tab["x"], tab["y"], tab["z"]])
-    opk = np.column_stack([_blank_floats(tab, c) for c in CENTRE_ANGLES])
-    for j, c in enumerate(CENTRE_ANGLES):
-        validate.values_in_range(opk[:, j], -validate.MAX_ANGLE_DEG, validate.MAX_ANGLE_DEG, tab.path, c, tab.lines,
-                                 allow_nan=True, unit="deg")
-    sig = np.full((n, 6), np.nan)
-    for j, c in enumerate(CENTRE_SIGMAS):
-        sig[:, j] = _blank_floats(tab, c)
-        validate.positive_values(sig[:, j], tab.path, c, tab.lines, allow_nan=True, hi=validate.MAX_COORDINATE_M,
-                                 what="sigma")
-    for j, c in enumerate(("somega", "sphi", "skappa")):
-        sig[:, 3 + j] = _blank_floats(tab, c)
-    flights = None
-    if "flight" in tab:
-        flights = np.array([str(v).strip() for v in tab["flight"].tolist()], dtype=object)
-        if (flights == "").any():
-            i = int(np.argmax(flights == ""))
-            raise InputError("blank flight", tab.path, int(tab.lines[i]), "flight")
-    return EOP(image, xyz, opk, sig, None, tab.lines, tab.path), flights
-
-
-def _blank_floats(tab, name: str) -> np.ndarray:
-    """A text column as floats, blank cells NaN (a column the file lacks: all NaN); InputError naming the line."""
-    if name not in tab:
-        return np.full(len(tab), np.nan)
-    out = np.full(len(tab), np.nan)
-    for i, v in enumerate(tab[name].tolist()):
-        v = str(v).strip()
-        if v and v.lower() != "nan":
-            try:
-                out[i] = float(v) if v.isascii() else float("x")
-            except ValueError:
-                raise InputError(f"not a number: {v[:40]!r}", tab.path, int(tab.lines[i]), name) from None
-    return out
 
 
 def merge_measurements(a: Measurements, b: Measurements) -> Measurements:
@@ -247,6 +185,17 @@ def add_gcp_targets(meas: Measurements | None, folder: Path, names: list[str], d
     return append_measurements(meas, det), warnings
 
 
+def _read_gnss_centres(opts: TriangulateOptions) -> tuple[EOP | None, np.ndarray | None]:
+    """`--gnss`: a centres CSV (with its optional `flight` column), or DJI images (a folder or one JPEG) whose
+    XMP/EXIF positions are converted into the map CRS."""
+    if not opts.gnss:
+        return None, None
+    p = Path(opts.gnss)
+    if p.is_dir() or is_jpeg(p):
+        return read_any_centres(p, opts.crs), None
+    return read_centres_with_flights(p)
+
+
 def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
     """Read and assemble every input of the triangulation: camera, ground points, merged measurements and,
     with an image folder, the image list, detected GCP targets and SIFT tie points (see the module doc)."""
@@ -258,7 +207,7 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
         raise InputError(f"--image-size {tuple(opts.image_size)} differs from the camera's {tuple(camera.image_size)}",
                          field="image_size")
     approx = read_eop(opts.approx) if opts.approx else opts.approx_eop
-    centres, flights = read_centres_with_flights(opts.gnss) if opts.gnss else (None, None)
+    centres, flights = _read_gnss_centres(opts)
     inp = TriangulationInputs(camera, points, meas, approx=approx, centre_priors=centres, centre_flights=flights)
     if opts.images:
         names = list_images(opts.images)

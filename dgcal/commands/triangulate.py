@@ -43,7 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--geoid", help="geoid undulation (m) or PROJ vertical grid: map heights are orthometric")
     p.add_argument("--approx", help="approximate EOP CSV in --crs (initial values and spatial image pairs)")
     p.add_argument("--gnss", help="GNSS camera centres: EOP CSV in --crs, image,X,Y,Z[,sX,sY,sZ] (angles may be "
-                                  "blank): centre priors that fix the datum with or without control points")
+                                  "blank), or DJI images (a folder of JPEGs, or one) whose XMP/EXIF positions are "
+                                  "read: centre priors that fix the datum with or without control points")
     p.add_argument("--antenna-offset", nargs=3, type=arg_types.finite, metavar=("DX", "DY", "DZ"),
                    help="with --gnss: the antenna phase centre in camera axes (x right, y down, z forward, m) from "
                         "the perspective centre, applied with each image's rotation")

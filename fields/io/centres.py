@@ -18,30 +18,66 @@ from dgcal.fields.io.formats import EOP
 CENTRE_COLUMNS = ("image", "X", "Y", "Z", "omega", "phi", "kappa", "sX", "sY", "sZ")
 
 
+CENTRE_ANGLES = ("omega", "phi", "kappa")
+CENTRE_SIGMAS = ("sx", "sy", "sz")
+
+
 def read_centres(path: str | Path) -> EOP:
-    """Read camera centres `image,X,Y,Z[,omega,phi,kappa][,sX,sY,sZ]` (m, deg; blanks = not given, NaN)."""
-    tab = read_table(path, ("image", "x", "y", "z"), ("omega", "phi", "kappa", "sx", "sy", "sz"))
+    """GNSS camera centres: an EOP CSV `image,X,Y,Z[,omega,phi,kappa][,sX,sY,sZ]` in the map CRS (m, deg) whose
+    angles and sigmas may be blank or absent (NaN: angles unknown, sigma the triangulation's default); a full
+    EOP file (angles and all six sigmas) reads the same. Every given value is checked; errors name the line."""
+    return read_centres_with_flights(path)[0]
+
+
+def read_centres_with_flights(path: str | Path) -> tuple[EOP, np.ndarray | None]:
+    """`read_centres` and the optional `flight` column (a label per row; None without the column)."""
+    tab = read_table(path, ("image", "x", "y", "z"),
+                     CENTRE_ANGLES + CENTRE_SIGMAS + ("somega", "sphi", "skappa", "flight"),
+                     text=("image", "flight") + CENTRE_ANGLES + CENTRE_SIGMAS + ("somega", "sphi", "skappa"))
+    image = tab["image"]
+    n = len(image)
+    seen: dict[str, int] = {}
+    for i, name in enumerate(image.tolist()):
+        if name in seen:
+            raise InputError(f"image {name!r} appears twice", tab.path, int(tab.lines[i]), "image")
+        seen[name] = i
     for c in ("x", "y", "z"):
         validate.values_in_range(tab[c], -validate.MAX_COORDINATE_M, validate.MAX_COORDINATE_M, tab.path, c,
                                  tab.lines, unit="m")
-    n = len(tab)
-    opk = np.column_stack([tab.get(c, np.full(n, np.nan)) for c in ("omega", "phi", "kappa")])
-    for j, c in enumerate(("omega", "phi", "kappa")):
+    xyz = np.column_stack([tab["x"], tab["y"], tab["z"]])
+    opk = np.column_stack([_blank_floats(tab, c) for c in CENTRE_ANGLES])
+    for j, c in enumerate(CENTRE_ANGLES):
         validate.values_in_range(opk[:, j], -validate.MAX_ANGLE_DEG, validate.MAX_ANGLE_DEG, tab.path, c, tab.lines,
                                  allow_nan=True, unit="deg")
-    sig = None
-    if any(c in tab for c in ("sx", "sy", "sz")):
-        s3 = np.column_stack([tab.get(c, np.full(n, np.nan)) for c in ("sx", "sy", "sz")])
-        for j, c in enumerate(("sx", "sy", "sz")):
-            validate.positive_values(s3[:, j], tab.path, c, tab.lines, allow_nan=True, hi=validate.MAX_COORDINATE_M,
-                                     what="sigma")
-        sig = np.column_stack([s3, np.full((n, 3), np.nan)])
-    image = np.array([str(v) for v in tab["image"]], dtype=object)
-    _, first = np.unique(image, return_index=True)
-    if len(first) < n:
-        dup = int(np.setdiff1d(np.arange(n), first)[0])
-        raise InputError(f"image {image[dup]!r} appears twice", tab.path, int(tab.lines[dup]), "image")
-    return EOP(image, np.column_stack([tab["x"], tab["y"], tab["z"]]), opk, sig, None, tab.lines, tab.path)
+    sig = np.full((n, 6), np.nan)
+    for j, c in enumerate(CENTRE_SIGMAS):
+        sig[:, j] = _blank_floats(tab, c)
+        validate.positive_values(sig[:, j], tab.path, c, tab.lines, allow_nan=True, hi=validate.MAX_COORDINATE_M,
+                                 what="sigma")
+    for j, c in enumerate(("somega", "sphi", "skappa")):
+        sig[:, 3 + j] = _blank_floats(tab, c)
+    flights = None
+    if "flight" in tab:
+        flights = np.array([str(v).strip() for v in tab["flight"].tolist()], dtype=object)
+        if (flights == "").any():
+            i = int(np.argmax(flights == ""))
+            raise InputError("blank flight", tab.path, int(tab.lines[i]), "flight")
+    return EOP(image, xyz, opk, sig, None, tab.lines, tab.path), flights
+
+
+def _blank_floats(tab, name: str) -> np.ndarray:
+    """A text column as floats, blank cells NaN (a column the file lacks: all NaN); InputError naming the line."""
+    if name not in tab:
+        return np.full(len(tab), np.nan)
+    out = np.full(len(tab), np.nan)
+    for i, v in enumerate(tab[name].tolist()):
+        v = str(v).strip()
+        if v and v.lower() != "nan":
+            try:
+                out[i] = float(v) if v.isascii() else float("x")
+            except ValueError:
+                raise InputError(f"not a number: {v[:40]!r}", tab.path, int(tab.lines[i]), name) from None
+    return out
 
 
 def _cells(values: np.ndarray, fmt: str) -> list[str]:

@@ -279,11 +279,15 @@ def read_any_centres(path: str | Path, crs: str, geoid_undulation_m: float = 0.0
     p = Path(path)
     if p.is_dir():
         return dji_centres(p, crs, geoid_undulation_m)
-    try:
-        with open(p, "rb") as fh:
-            magic = fh.read(2)
-    except OSError:
-        magic = b""
-    if magic == b"\xff\xd8":
+    if is_jpeg(p):
         return dji_centres([p], crs, geoid_undulation_m)
     return read_centres(p)
+
+
+def is_jpeg(path: str | Path) -> bool:
+    """True when `path` is a file that starts like a JPEG (SOI marker)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(2) == b"\xff\xd8"
+    except OSError:
+        return False

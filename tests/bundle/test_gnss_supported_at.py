@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from dgcal.bundle import inputs as inputs_mod
-from dgcal.bundle.inputs import TriangulateOptions, gather_inputs, read_centres
+from dgcal.bundle.inputs import TriangulateOptions, gather_inputs
+from dgcal.fields.io.centres import read_centres
 from dgcal.bundle.triangulation import TriangulationOptions, triangulate
 from dgcal.cli import main
 from dgcal.fields.errors import InputError

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from dgcal.bundle.inputs import read_centres
+from dgcal.fields.io.centres import read_centres
 from dgcal.cli import main
 from dgcal.fields.io.formats import read_eop, read_measurements, read_points
 from dgcal.sim.block import RTK_CENTRE_SIGMA_M, p1_35mm_camera, simulate_rtk_block
