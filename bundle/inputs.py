@@ -40,6 +40,7 @@ class TriangulateOptions:
     gcp: Path | None = None
     images: Path | None = None                   # image folder: SIFT tie points and the image list
     measurements: tuple[Path, ...] = ()          # merged; a point measured twice in one image is an error
+    pixel_size_mm: float | None = None           # the sensor's pixel pitch: BINGO files hold sensor millimetres
     image_size: tuple[int, int] | None = None    # (width, height) px, checked against the camera
     sigma_px: float = 0.5                        # measurement sigma where a file gives none
     tie_sigma_px: float | None = None            # sigma of SIFT tie measurements
@@ -116,19 +117,27 @@ def append_measurements(meas: Measurements | None, more: Measurements) -> Measur
                         meas.path)
 
 
-def gather_measurements(opts: TriangulateOptions) -> tuple[Points, Measurements | None]:
+def gather_measurements(opts: TriangulateOptions, camera: CameraModel | None = None,
+                        image_names: list[str] | None = None) -> tuple[Points, Measurements | None]:
     """Ground points and the merged measurements of every --measurements file; every file's CRS must be
-    `opts.crs`; without --gcp the ground points of an ODM gcp_list.txt are used."""
+    `opts.crs`; without --gcp the ground points of an ODM gcp_list.txt are used. `camera` gives a BINGO file's
+    image size, `image_names` the file names that Pix4D's and Metashape's labels (without extension) stand for."""
     local = opts.local
     if not local:
         parse_crs(opts.crs)
     points, gcp_crs = read_any_points(opts.gcp) if opts.gcp else (None, None)
     meas, meas_points, crs_sources = None, None, [(opts.gcp, gcp_crs)]
+    read = []
     for path in opts.measurements:
-        m, c, p = read_any_measurements(path)
+        m, c, p = read_any_measurements(path, None if camera is None else tuple(camera.image_size),
+                                        opts.pixel_size_mm, image_names)
         crs_sources.append((path, c))
-        meas = m if meas is None else merge_measurements(meas, m)
+        read.append(m)
         meas_points = meas_points if p is None else p
+    if image_names is None and len(read) > 1:   # labels without extension (Pix4D, Metashape) -> the others' names
+        read = [_names_from_others(m, [o for o in read if o is not m]) for m in read]
+    for m in read:
+        meas = m if meas is None else merge_measurements(meas, m)
     for src, c in crs_sources:
         if c is not None and not local and parse_crs(c) != parse_crs(opts.crs):
             raise InputError(f"the file's CRS {c!r} differs from --crs {opts.crs!r}", src, 1, "--crs")
@@ -185,6 +194,42 @@ def add_gcp_targets(meas: Measurements | None, folder: Path, names: list[str], d
     return append_measurements(meas, det), warnings
 
 
+def _names_from_others(m: Measurements, others: list[Measurements]) -> Measurements:
+    """`m` with image labels that drop the extension (`IMG_0001` for `IMG_0001.JPG`, as Pix4D and Metashape write
+    them) named as the other files name the images: when all of the others' names share one extension, every
+    label of `m` without one gets it; else each label that one other name has as its stem is renamed."""
+    names = {str(n) for o in others for n in o.image.tolist()}
+    labels = {str(x) for x in m.image.tolist()}
+    suffixes = {Path(n).suffix for n in names}
+    stems = {Path(n).stem: n for n in names}
+    if not labels & stems.keys() - names:
+        return m
+    if len(suffixes) == 1 and next(iter(suffixes)) and not any(Path(lab).suffix for lab in labels):
+        rename = {lab: lab + next(iter(suffixes)) for lab in labels}
+    else:
+        by_stem: dict[str, set[str]] = {}
+        for n in names:
+            by_stem.setdefault(Path(n).stem, set()).add(n)
+        rename = {lab: next(iter(by_stem[lab])) for lab in labels
+                  if lab not in names and len(by_stem.get(lab, ())) == 1}
+    image = np.array([rename.get(str(x), str(x)) for x in m.image.tolist()], dtype=object)
+    return Measurements(image, m.id, m.xy, m.stated_sigma, m.lines, m.path)
+
+
+def _known_image_names(opts: TriangulateOptions) -> list[str] | None:
+    """The images' file names where the inputs give them (the folder's, else the centres' or approximate EOPs'
+    image column): what other programs' extension-less labels are matched to."""
+    if opts.images and Path(opts.images).is_dir():
+        return list_images(opts.images)
+    for path in (opts.gnss, opts.approx):
+        if path and Path(path).is_file() and not is_jpeg(path):
+            try:
+                return [str(n) for n in read_centres_with_flights(path)[0].image]
+            except InputError:   # reported where the file is read for what it holds
+                return None
+    return None
+
+
 def _read_gnss_centres(opts: TriangulateOptions) -> tuple[EOP | None, np.ndarray | None]:
     """`--gnss`: a centres CSV (with its optional `flight` column), or DJI images (a folder or one JPEG) whose
     XMP/EXIF positions are converted into the map CRS."""
@@ -202,7 +247,7 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
     if not opts.images and not opts.measurements:
         raise InputError("give --images DIR or --measurements MEAS.csv (or both)", field="measurements")
     camera = load_camera(opts.camera)
-    points, meas = gather_measurements(opts)
+    points, meas = gather_measurements(opts, camera, _known_image_names(opts))
     if opts.image_size and tuple(opts.image_size) != tuple(camera.image_size):
         raise InputError(f"--image-size {tuple(opts.image_size)} differs from the camera's {tuple(camera.image_size)}",
                          field="image_size")

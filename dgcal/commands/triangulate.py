@@ -42,6 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refine", default="", help="camera parameters to refine, comma separated, or 'all'")
     p.add_argument("--geoid", help="geoid undulation (m) or PROJ vertical grid: map heights are orthometric")
     p.add_argument("--approx", help="approximate EOP CSV in --crs (initial values and spatial image pairs)")
+    p.add_argument("--pixel-size-mm", type=arg_types.positive, default=None, metavar="MM",
+                   help="the sensor's pixel pitch (mm): needed to read a Pix4D/BINGO measurement file (sensor mm)")
     p.add_argument("--gnss", help="GNSS camera centres: EOP CSV in --crs, image,X,Y,Z[,sX,sY,sZ] (angles may be "
                                   "blank), or DJI images (a folder of JPEGs, or one) whose XMP/EXIF positions are "
                                   "read: centre priors that fix the datum with or without control points")
@@ -83,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
                   if args.approx_from_pos else None)
     opts = TriangulateOptions(
         camera=args.camera, crs=args.crs, gcp=args.gcp, images=args.images,
-        measurements=tuple(args.measurements or ()),
+        measurements=tuple(args.measurements or ()), pixel_size_mm=args.pixel_size_mm,
         image_size=None if args.image_size is None else tuple(args.image_size),
         sigma_px=args.sigma_px, tie_sigma_px=args.tie_sigma_px,
         gcp_sigma_m=None if args.gcp_sigma is None else tuple(args.gcp_sigma), fixed_gcps=args.fixed_gcps,

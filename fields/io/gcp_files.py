@@ -293,8 +293,9 @@ def read_any_measurements(path: str | Path, image_size: tuple[int, int] | None =
         return meas, crs, pts
     if is_bingo(p):
         if image_size is None or pixel_size_mm is None:
-            raise InputError("a BINGO file holds sensor millimetres: give the camera's image size and its pixel "
-                             "size in mm to turn them into pixels", p, field="pixel_size_mm")
+            # an option is missing, not a value of the file: the error names the option (the CLI's flag)
+            raise InputError(f"{p} is a BINGO file, which holds sensor millimetres: give the camera's image size "
+                             "and its pixel size in mm to turn them into pixels", field="pixel_size_mm")
         return read_bingo(p, image_size, pixel_size_mm, image_names), None, None
     if is_pix4d_marks(p):
         return read_pix4d_marks(p, image_names=image_names), None, None

@@ -76,3 +76,27 @@ def test_bingo_export_reads_back_to_the_pixels(block, tmp_path):
     back, crs, pts = read_any_measurements(tmp_path / "p_bingo.txt", size, 0.0039, sorted(set(m.image)))
     assert crs is None and pts is None and list(back.image) == list(m.image) and list(back.id) == list(m.id)
     assert np.abs(back.xy - m.xy).max() < 1e-3      # 6 decimals of mm = 2.6e-4 px at 3.9 um
+
+
+def test_bingo_file_from_the_cli(block, tmp_path, capsys):
+    """`--measurements p_bingo.txt --pixel-size-mm MM`: the tie points as Pix4D's BINGO export (sensor mm, labels
+    without extension, matched to the control file's image names) give the EOPs of the CSV run; without the pixel
+    size the run is refused naming the option."""
+    from dgcal.fields.io.bingo import write_bingo
+    d, truth = block
+    cam = read_camera(d / "camera.json")
+    size = tuple(int(v) for v in cam.image_size)
+    write_bingo(tmp_path / "p_bingo.txt", read_measurements(d / "tie_measurements.csv"), size, 0.0039)
+    args = ["triangulate", "--camera", d / "camera.json", "--crs", truth["crs"], "--sigma-px", 0.3, "--gcp",
+            d / "gcp.csv", "--gcp-sigma", 0.01, 0.01, 0.02]
+    bingo = [*map(str, args), "--measurements", str(d / "measurements.csv"), str(tmp_path / "p_bingo.txt")]
+    assert main(bingo + ["--out", str(tmp_path / "nopix")]) == 2
+    assert "--pixel-size-mm" in capsys.readouterr().err
+    assert not (tmp_path / "nopix").exists()
+    assert main(bingo + ["--pixel-size-mm", "0.0039", "--out", str(tmp_path / "bingo")]) == 0
+    assert main([*map(str, args), "--measurements", str(d / "measurements.csv"), str(d / "tie_measurements.csv"),
+                 "--out", str(tmp_path / "csv")]) == 0
+    a, b = read_eop(tmp_path / "bingo" / "eop.csv"), read_eop(tmp_path / "csv" / "eop.csv")
+    ib = [list(b.image).index(n) for n in a.image]
+    assert sorted(a.image) == sorted(b.image)
+    assert (np.abs(a.xyz - b.xyz[ib]) / b.sigma[ib, :3]).max() < 0.05
