@@ -18,7 +18,7 @@ from dgcal.fields.crs import R_ecef_to_ned_at
 from dgcal.fields.errors import InputError, ResultError
 from dgcal.fields.processes import fork_map
 from dgcal.pos.base_station import read_base
-from dgcal.pos.events import read_any_events
+from dgcal.pos.events import list_image_files, read_any_events
 from dgcal.pos.gnss.carrier import carrier_observations
 from dgcal.pos.gnss.dd import DDOptions, carrier_front_end, imu_aided_front_end
 from dgcal.pos.gnss.observations import GnssObservations
@@ -330,7 +330,9 @@ def run_gnss_ins(opts: InsModeOptions) -> PosResult | UkfPosResult:
     except ValueError as exc:
         raise InputError(str(exc), field="imu_grade") from None
     lever = np.asarray(opts.lever_arm_m or (0.0, 0.0, 0.0), float)
-    events = read_any_events(opts.events, opts.events_format) if opts.events else None
+    events = read_any_events(opts.events, opts.events_format, opts.mrk_names,
+                             list_image_files(opts.event_images) if opts.event_images else None,
+                             opts.mrk_pairing) if opts.events else None
     raw = nav = lc = withheld = carrier = base_info = None
     rinex_warnings: list = []
     week = int(np.floor(events.t[0] / SECONDS_PER_WEEK)) if events is not None and len(events) else None

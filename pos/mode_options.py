@@ -81,6 +81,9 @@ class InsModeOptions:
     fixes: FixInput = field(default_factory=FixInput)
     events: Path | None = None              # camera events (dgcal CSV, DJI MRK, image,utc CSV, PX4 .ulg)
     events_format: str | None = None        # None: recognised by content
+    event_images: Path | None = None        # the image folder a DJI MRK's rows are paired with (or None)
+    mrk_names: str = "DJI_{index:04d}.JPG"  # an MRK row's image name, or the pattern its index is found in names by
+    mrk_pairing: str = "index"              # MRK rows to images: by the index in the names, or "time" (in order)
     lever_arm_m: tuple[float, float, float] | None = None
     imu_grade: str | None = None            # error-model preset or datasheet TOML (None: adis16488)
     estimate_imu_time_offset: bool = False  # the IMU-GNSS time offset from the data, with its sigma

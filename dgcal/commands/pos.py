@@ -89,12 +89,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds added to every IMU sample time (e.g. -0.125 for a logger's delay)")
     p.add_argument("--estimate-imu-time-offset", action="store_true",
                    help="tc/lc: estimate the IMU-GNSS time offset (beyond --imu-time-offset) from the data, with its "
-                   "sigma (7-11 smoother runs; needs motion); reported in pos_summary.json imu_time_offset")
+                   "sigma (9-13 smoother runs; needs motion); reported in pos_summary.json imu_time_offset, not "
+                   "applied when the data do not determine it")
     p.add_argument("--events", metavar="EVENTS",
                    help="camera events (tc/lc, optional): dgcal CSV image,gps_week,gps_sow, DJI .MRK, image,utc CSV "
                    "or a PX4 .ulg (camera_capture)")
     p.add_argument("--events-format", choices=("dgcal", "mrk", "utc-csv", "px4"), default=None,
                    help="format of --events (default: recognised by content)")
+    p.add_argument("--event-images", metavar="DIR",
+                   help="DJI MRK events: the folder of the images its rows are paired with (by --mrk-pairing)")
+    p.add_argument("--mrk-names", default="DJI_{index:04d}.JPG", metavar="PATTERN",
+                   help="DJI MRK events: an image name per row, or with --event-images the pattern its index is "
+                   "found in ({index}, {any} or *; 're:' + a regex with (?P<index>...)); e.g. 'DJI_{any}_{index}.JPG' "
+                   "for a P1's DJI_<yyyymmddhhmmss>_<index>.JPG (default %(default)s)")
+    p.add_argument("--mrk-pairing", choices=("index", "time"), default="index",
+                   help="DJI MRK events with --event-images: pair rows and images by the index in the names, or in "
+                   "time order (default %(default)s)")
     p.add_argument("--gnss", metavar="GNSS", help="GNSS antenna positions for lc mode: dgcal gnss.csv, RTKLIB .pos "
                    "(llh or xyz, with its covariance), NMEA GGA or a ROS 1/2 bag (sensor_msgs/NavSatFix)")
     p.add_argument("--gnss-format", choices=("dgcal-csv", "rtklib-pos", "nmea", "rosbag"), default=None,
@@ -216,7 +226,8 @@ def pos_options(args: argparse.Namespace):
                                     float(args.imu_time_offset or 0.0)),
                        fixes=FixInput(args.gnss, args.gnss_format, args.gnss_quality, args.nmea_date,
                                       tup(args.gnss_outages)),
-                       events=args.events, events_format=args.events_format, lever_arm_m=tup(args.lever_arm),
+                       events=args.events, events_format=args.events_format, event_images=args.event_images,
+                       mrk_names=args.mrk_names, mrk_pairing=args.mrk_pairing, lever_arm_m=tup(args.lever_arm),
                        imu_grade=args.imu_grade, estimate_imu_time_offset=bool(args.estimate_imu_time_offset),
                        progress=not args.no_progress)
             opts.ppk = PpkOptions(**{**vars(opts.ppk), **ppk_common})
@@ -300,11 +311,17 @@ def run(args: argparse.Namespace) -> int:
             write_sbet_files(staged if staged is not None else sbet, res.trajectory)
     s = res.summary
     print(f"{Path(args.out) / INS_OUTPUTS['trajectory']}: {opts.mode.upper()} {s['keyframes']} keyframes, "
-          f"{s['events']} events, median sigma {s['median_sigma_m']} m / {s['median_sigma_deg']} deg", file=sys.stderr)
+          f"{s['events']} events, median sigma position {_triple(s['median_sigma_m'], 3)} m, "
+          f"attitude {_triple(s['median_sigma_deg'], 4)} deg", file=sys.stderr)
     if "imu_time_offset" in s:
         o = s["imu_time_offset"]
-        print(f"IMU time offset estimated: {o['offset_ms']:+.2f} +- {o['sigma_ms']:.2f} ms (applied on top of "
-              f"--imu-time-offset {1e3 * opts.imu.time_offset_s:+.1f} ms)", file=sys.stderr)
+        if o.get("determinable", True):
+            print(f"IMU time offset estimated: {o['offset_ms']:+.2f} +- {o['sigma_ms']:.2f} ms (applied on top of "
+                  f"--imu-time-offset {1e3 * opts.imu.time_offset_s:+.1f} ms)", file=sys.stderr)
+        else:
+            print(f"IMU time offset not determinable by these data (best fit {o.get('estimate_ms', float('nan')):+.1f}"
+                  f" ms, its time windows disagree: sigma {o.get('sigma_ms', float('nan')):.1f} ms): not applied, "
+                  f"--imu-time-offset {1e3 * opts.imu.time_offset_s:+.1f} ms stands", file=sys.stderr)
     w = s.get("withheld_fixes")
     if w and w.get("n"):
         print(f"withheld fixes: {w['n']}, antenna 3D RMS {w['rms_3d_m']} m (N,E,D {w['rms_ned_m']} m), max "

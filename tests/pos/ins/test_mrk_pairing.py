@@ -47,7 +47,7 @@ def test_pairing_errors(mrk):
         rec.events("DJI_{any}_{index}.JPG")          # {any} cannot make names
     with pytest.raises(InputError, match="exactly one"):
         index_pattern("DJI_{any}.JPG")
-    with pytest.raises(InputError, match="needs the image names"):
+    with pytest.raises(InputError, match="needs the image folder"):
         read_any_events(mrk, pairing="time")
     # the default names stay DJI_0001.JPG ...
     assert list(read_any_events(mrk).image) == ["DJI_0001.JPG", "DJI_0002.JPG", "DJI_0003.JPG"]
@@ -66,3 +66,24 @@ def test_mrk_centres_are_the_rows_positions_in_the_map_crs(mrk):
     assert np.isnan(c.opk).all() and list(mrk_centres(rec, "EPSG:32650").image)[0] == "DJI_0001.JPG"
     with pytest.raises(InputError, match="projected CRS"):
         mrk_centres(rec, "EPSG:4326")
+
+
+def test_pos_cli_pairs_mrk_rows_with_an_image_folder(mrk, tmp_path, capsys):
+    """`dgcal pos --events X.MRK --event-images DIR --mrk-names PATTERN`: the options reach the events reader
+    (the library call `dgcal pos` makes) and pair the P1's files; a missing folder names its flag."""
+    from dgcal.cli import build_parser, main
+    from dgcal.commands.pos import pos_options
+    from dgcal.pos.events import list_image_files
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for n in P1_NAMES:
+        (folder / n).write_bytes(b"\xff\xd8")
+    argv = ["pos", "--mode", "lc", "--imu", "imu.txt", "--gnss", "g.csv", "--out", str(tmp_path / "o"),
+            "--events", str(mrk), "--event-images", str(folder), "--mrk-names", "DJI_{any}_{index}.JPG"]
+    opts = pos_options(build_parser(argv).parse_args(argv))
+    ev = read_any_events(opts.events, opts.events_format, opts.mrk_names, list_image_files(opts.event_images),
+                         opts.mrk_pairing)
+    assert list(ev.image) == P1_NAMES
+    argv[argv.index("--event-images") + 1] = str(tmp_path / "nowhere")
+    assert main(argv) == 2
+    assert "--event-images" in capsys.readouterr().err
