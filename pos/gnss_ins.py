@@ -345,7 +345,7 @@ def run_gnss_ins(opts: InsModeOptions) -> PosResult | UkfPosResult:
         else:
             rx = read_obs_file(rover.rinex_obs, t_start=rover.t_start, t_end=rover.t_end)
             raw = read_rinex_obs(rover.rinex_obs, systems=opts.spp.systems, rinex=rx)
-            rinex_warnings = list(rx.warnings)
+            rinex_warnings = list(rx.warnings) + list(nav.warnings)   # with a base, tc_carrier_inputs adds them
         if len(raw.epochs):
             week = int(np.floor(raw.epochs[0].t_gps / SECONDS_PER_WEEK))
     elif mode == "tc":
@@ -380,6 +380,8 @@ def run_gnss_ins(opts: InsModeOptions) -> PosResult | UkfPosResult:
     except ValueError as exc:
         raise InputError(str(exc), opts.imu.path) from None
     res.summary["imu_grade"] = grade.datasheet()
+    if nav is not None:
+        res.summary["orbits"] = nav.orbits   # broadcast, or the precise products' files
     if base_info is not None:
         res.summary.setdefault("carrier", {}).update(base_info)
     if withheld is not None:

@@ -342,6 +342,12 @@ def test_tc_with_products_written_from_broadcast_equals_broadcast_tc(tmp_path):
     assert main(common + ["--sp3", str(tmp_path / "half.sp3"), "--out", str(tmp_path / "half")]) == 0
     h = np.loadtxt(tmp_path / "half" / "trajectory.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3, 4))
     assert np.abs(h[:, 3] - a[:, 3]).max() > 0.02
+    # the summary names the orbits used, and without a base the navigation warnings reach it too
+    import json
+    s_b = json.loads((tmp_path / "brdc" / "pos_summary.json").read_text())
+    s_p = json.loads((tmp_path / "prec" / "pos_summary.json").read_text())
+    assert s_b["orbits"] == "broadcast" and "b.sp3" in s_p["orbits"] and "b.clk" in s_p["orbits"]
+    assert any("b.sp3" in w for w in s_p["warnings"])
 
 
 ATX_SATS = {"G05": {"G01": (279.0, -12.0, 2319.0), "G02": (279.0, -12.0, 2250.0)},
