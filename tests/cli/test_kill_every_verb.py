@@ -191,7 +191,8 @@ def verb_kills(verb: str, files: dict, root: Path, n: int, rng) -> dict:
         mode = ("start", "staging", "merge")[seen["runs"] % 3]
         if mode == "merge" and (out / INCOMPLETE).exists() and verb != "run":
             old = _changed_copy(ref, out)   # a kill's mark gone, so the kill lands in this run's merge
-        delay = {"start": rng.uniform(0.3, run_s), "staging": rng.uniform(0, 0.3), "merge": rng.uniform(0, 0.01)}[mode]
+        delay = {"start": rng.uniform(0.3, max(run_s, 0.6)), "staging": rng.uniform(0, 0.3),
+                 "merge": rng.uniform(0, 0.01)}[mode]
         killed = _kill_once(argv, out, mode, float(delay))
         seen["runs"] += 1
         seen["kills"] += killed
