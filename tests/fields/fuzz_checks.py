@@ -21,7 +21,8 @@ from dgcal.fields.errors import InputError
 HANG_S = 10.0            # a read taking longer is a hang (the acceptance of issue 31)
 # NaN is "not given" in optional uncertainty columns (docs/formats.md: a blank sigma), however the file wrote it
 OPTIONAL_NAN = ("sigma", "cov")
-NAN_NOT_GIVEN = {"laser-ranges"}   # readers whose result is {image: (range m, sigma m or NaN: not given)}
+# laser ranges: {image: (range m, sigma m or NaN: not given)}; camera centres: angles NaN when not given
+NAN_NOT_GIVEN = {"laser-ranges", "centres-csv"}
 # out-of-range values the fuzz runs found in readers of other owners' modules, left open (named in issue 31's notes):
 # reader -> prefixes of the result paths; such a value is counted (FuzzStats.known_open), not failed
 KNOWN_OPEN = {
@@ -31,6 +32,7 @@ KNOWN_OPEN = {
     "rinex-nav-3": (".eph",),
     "rinex-obs-2": (".p_approx_ecef", ".epochs"),                  # pos/gnss/rinex_obs.py: NaN approx position,
     "rinex-obs-3": (".p_approx_ecef", ".epochs"),                  # C/N0 of 1e308
+    "centres-csv": (".sigma",),            # fields/io/centres.py: the angle sigmas somega/sphi/skappa unchecked (inf)
 }
 MAX_ABS = 1e12           # no quantity dgcal reads is this large in its units (GPS s ~1.5e9, ECEF m ~6.4e6)
 

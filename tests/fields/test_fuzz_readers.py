@@ -23,7 +23,11 @@ from hypothesis import strategies as st
 from dgcal.fields.errors import InputError
 
 from fuzz_checks import FuzzStats, check_read, nan_fields
+from test_bingo_metashape import H as BINGO_H
 from test_bingo_metashape import METASHAPE as METASHAPE_MARKERS
+from test_bingo_metashape import PIX_MM as BINGO_PIX_MM
+from test_bingo_metashape import W as BINGO_W
+from test_bingo_metashape import pix4d_bingo_text, truth
 from test_formats_fuzz import GNSS_CSV, NMEA, POS, _mutate
 from test_pix4d_companions import GCPS as PIX4D_GCPS
 from test_pix4d_companions import MARKS as PIX4D_MARKS
@@ -436,6 +440,7 @@ def _layout_reader(module: str, name: str):
     return make
 
 
+BINGO = pix4d_bingo_text(truth(n_img=2, n_pts=3))
 LASER_RANGES = b"image,range_m,s_range_m\nIMG_0001.JPG,120.5,0.05\nIMG_0002.JPG,121.25,0.05\n"
 
 
@@ -493,6 +498,11 @@ def s_smrmsg(tmp):
     for name in SMRMSG_DTYPE.names[1:]:
         r[name] = 0.01 + 0.001 * np.arange(4)
     return r.tobytes()
+
+
+def _bingo_reader(tmp):
+    from dgcal.fields.io.bingo import read_bingo
+    return lambda p: read_bingo(p, (BINGO_W, BINGO_H), BINGO_PIX_MM)
 
 
 def _smrmsg_reader(tmp):
@@ -632,6 +642,8 @@ READERS = {
     "pix4d-marks": (_const(PIX4D_MARKS.encode()), ".txt", _imp("dgcal.fields.io.pix4d_marks", "read_pix4d_marks")),
     "metashape-markers": (_const(METASHAPE_MARKERS.encode()), ".xml", _imp("dgcal.fields.io.metashape_markers",
                                                                             "read_metashape_markers")),
+    "pix4d-bingo": (_const(BINGO.encode()), ".txt", _bingo_reader),
+    "centres-csv": (s_eop, ".csv", _imp("dgcal.fields.io.centres", "read_centres")),
     "plate-layout-json": (s_plate_layout, ".json", _layout_reader("dgcal.fields.targets.plate", "load_layout")),
     "board-layout-json": (s_board_layout, ".json", _layout_reader("dgcal.fields.targets.boards",
                                                                    "load_board_layout")),
