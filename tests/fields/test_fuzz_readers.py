@@ -500,6 +500,32 @@ def s_smrmsg(tmp):
     return r.tobytes()
 
 
+def _colmap_tracks_model(tmp) -> Path:
+    from test_colmap_tracks import write_text_model
+    d = tmp / "colmap_tracks_model"
+    if not d.exists():
+        write_text_model(d, np.random.default_rng(5), n_img=3, n_pts=8)
+    return d
+
+
+def s_colmap_tracks_images(tmp):
+    return (_colmap_tracks_model(tmp) / "images.txt").read_bytes()
+
+
+def _colmap_tracks_reader(tmp):
+    """read_colmap_tracks of a model folder whose images.txt is the mutated file (errors naming it: say it is `p`)."""
+    from dgcal.fields.io.colmap_tracks import read_colmap_tracks
+    d = _colmap_tracks_model(tmp)
+
+    def read(p):
+        (d / "images.txt").write_bytes(p.read_bytes())
+        try:
+            return read_colmap_tracks(d)
+        except InputError as exc:
+            raise InputError(str(exc).replace(str(d / "images.txt"), str(p)).replace(str(d), str(p))) from None
+    return read
+
+
 def _bingo_reader(tmp):
     from dgcal.fields.io.bingo import read_bingo
     return lambda p: read_bingo(p, (BINGO_W, BINGO_H), BINGO_PIX_MM)
@@ -644,6 +670,7 @@ READERS = {
                                                                             "read_metashape_markers")),
     "pix4d-bingo": (_const(BINGO.encode()), ".txt", _bingo_reader),
     "centres-csv": (s_eop, ".csv", _imp("dgcal.fields.io.centres", "read_centres")),
+    "colmap-tracks": (s_colmap_tracks_images, ".txt", _colmap_tracks_reader),
     "plate-layout-json": (s_plate_layout, ".json", _layout_reader("dgcal.fields.targets.plate", "load_layout")),
     "board-layout-json": (s_board_layout, ".json", _layout_reader("dgcal.fields.targets.boards",
                                                                    "load_board_layout")),
