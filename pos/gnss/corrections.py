@@ -109,12 +109,13 @@ def code_sigma_m(elev: np.ndarray, zenith_m: float = 0.3) -> np.ndarray:
 # Broadcast orbit and clock: the signal-in-space range error (orbit and clock, RMS over the Earth) each system's
 # broadcast ephemerides leave, as measured against precise orbits and clocks (Montenbruck et al. 2018, "Multi-GNSS
 # signal-in-space range error assessment", GPS Solutions 22:7: GPS 0.6 m, Galileo 0.2-0.3 m, QZSS 0.6 m, BeiDou
-# ~1 m). The navigation message's own URA/SISA (2-3 m when all is nominal) is a conservative bound, three to ten
-# times these: as the budget it made SPP's sigmas two to four times too large (issue 27).
-SISRE_M = {"G": 0.6, "E": 0.3, "J": 0.6, "C": 1.0}
+# ~1 m, GLONASS 1.5-2 m: 1.8 m here). The navigation message's own URA/SISA (2-3 m when all is nominal) is a
+# conservative bound, three to ten times these: as the budget it made SPP's sigmas two to four times too large
+# (issue 27).
+SISRE_M = {"G": 0.6, "E": 0.3, "J": 0.6, "C": 1.0, "R": 1.8}
 # The URA/SISA a nominal message states (m): GPS and BeiDou URA index 0 (at most 2.4 m; RINEX files write 2.0),
 # QZSS 2.8 m, Galileo's usual SISA 3.12 m. A satellite whose message states more is trusted less in proportion.
-URA_NOMINAL_M = {"G": 2.4, "E": 3.12, "J": 2.8, "C": 2.4}
+URA_NOMINAL_M = {"G": 2.4, "E": 3.12, "J": 2.8, "C": 2.4, "R": 2.4}   # GLONASS records state none: given this
 # Saastamoinen with the standard atmosphere: its zenith delay is off by ~0.1 m (the wet part the standard humidity
 # does not know); mapped to the satellite's elevation.
 ZTD_SIGMA_M = 0.1

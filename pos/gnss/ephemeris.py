@@ -10,6 +10,8 @@ from cssrlib.ephemeris import eph2pos
 from cssrlib.gnss import timeadd
 
 from dgcal.fields.constants import C_LIGHT, GM_GPS, OMEGA_EARTH
+from dgcal.pos.gnss.corrections import URA_NOMINAL_M
+from dgcal.pos.gnss.glonass import glonass_states
 from dgcal.pos.gnss.precise import PRECISE_SIGMA_M
 from dgcal.pos.gnss.rinex import BroadcastNav, gps_seconds_from_gtime, gtime_from_gps_seconds
 
@@ -162,11 +164,33 @@ def satellite_states(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray
     for the single-frequency signal (polynomial + relativistic term - TGD/BGD), ``drift`` (n,)
     s/s, ``ura`` (n,) m, and ``ok`` (n,) bool (False: no valid healthy ephemeris, values NaN).
     BeiDou GEO satellites use cssrlib's ``eph2pos`` (their frame rotation), the rest the
-    vectorised ``kepler_states``. With precise products (``nav.precise``) every satellite's orbit and clock come
-    from them (`precise_states`), and ``ura`` is their accuracy.
+    vectorised ``kepler_states``, GLONASS satellites their records' integrated orbits
+    (`dgcal.pos.gnss.glonass.glonass_states`; ``ura`` the nominal `URA_NOMINAL_M`, the records state none). With
+    precise products (``nav.precise``) every satellite's orbit and clock come from them (`precise_states`), and
+    ``ura`` is their accuracy.
     """
     if getattr(nav, "precise", None) is not None:
         return precise_states(nav, sats, t_gps)
+    glo = np.array([str(s)[0] == "R" for s in sats], bool)
+    if glo.any():
+        n = len(sats)
+        t_all = np.array(np.broadcast_to(np.asarray(t_gps, float), (n,)))
+        out = (np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.full(n, np.nan), np.full(n, np.nan),
+               np.full(n, np.nan), np.zeros(n, bool))
+        rest = np.flatnonzero(~glo)
+        for a, b in zip(out, _broadcast_states(nav, [sats[i] for i in rest], t_all[rest])):
+            a[rest] = b
+        gi = np.flatnonzero(glo)
+        if getattr(nav, "glonass", None) is not None:
+            p, v, clk, drift, ok = glonass_states(nav.glonass, [sats[i] for i in gi], t_all[gi])
+            for a, b in zip(out, (p, v, clk, drift, np.where(ok, URA_NOMINAL_M["R"], np.nan), ok)):
+                a[gi] = b
+        return out
+    return _broadcast_states(nav, sats, t_gps)
+
+
+def _broadcast_states(nav: BroadcastNav, sats: list[str], t_gps: np.ndarray) -> tuple:
+    """`satellite_states` of GPS, Galileo, BeiDou and QZSS satellites from their Keplerian records."""
     n = len(sats)
     t_gps = np.array(np.broadcast_to(np.asarray(t_gps, float), (n,)))
     p = np.full((n, 3), np.nan)

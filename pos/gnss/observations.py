@@ -22,7 +22,7 @@ The *corrected pseudorange* is::
               = |sat_pos_ecef - p_rx_ecef| + c * dt_rx[system] + noise(sigma_pr_m)
 
 where ``c * dt_rx[CLOCK_GROUP[system]]`` is the receiver clock bias in metres of the
-constellation (one per clock group: 'G' (GPS and QZSS), 'E', 'C'), and the *corrected range rate* is::
+constellation (one per clock group: 'G' (GPS and QZSS), 'E', 'C', 'R'), and the *corrected range rate* is::
 
     rr_corr_mps = range_rate_mps + c * sat_clk_drift
                 = e . (sat_vel_ecef - v_rx_ecef) + c * ddt_rx + noise(sigma_rr_mps)
@@ -39,10 +39,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dgcal.fields.constants import C_LIGHT, SECONDS_PER_WEEK
-SYSTEMS = ("G", "E", "C", "J")  # GPS, Galileo, BeiDou, QZSS
+SYSTEMS = ("G", "E", "C", "J")  # GPS, Galileo, BeiDou, QZSS: every mode's default
+ALL_SYSTEMS = SYSTEMS + ("R",)  # and GLONASS, which SPP alone uses (when asked for)
 # Receiver clock parameter of each system: QZSS L1 C/A is interoperable with GPS and shares its
-# receiver clock bias (as in RTKLIB); Galileo and BeiDou have their own (inter-system bias).
-CLOCK_GROUP = {"G": "G", "J": "G", "E": "E", "C": "C"}
+# receiver clock bias (as in RTKLIB); Galileo, BeiDou and GLONASS have their own (inter-system bias; GLONASS's
+# inter-frequency code biases between its FDMA channels are left in the code noise, as in RTKLIB).
+CLOCK_GROUP = {"G": "G", "J": "G", "E": "E", "C": "C", "R": "R"}
 
 
 def split_gps_time(t_gps):
@@ -115,7 +117,7 @@ class GnssEpoch:
 
     @property
     def clock_group(self) -> np.ndarray:
-        """Receiver clock parameter ('G', 'E', 'C') of each satellite, see ``CLOCK_GROUP``."""
+        """Receiver clock parameter ('G', 'E', 'C', 'R') of each satellite, see ``CLOCK_GROUP``."""
         return np.array([CLOCK_GROUP[s] for s in self.system])
 
     @property
@@ -171,8 +173,8 @@ class GnssObservations:
 
     @property
     def systems(self) -> list[str]:
-        """Constellations present, in the order of ``SYSTEMS``."""
+        """Constellations present, in the order of ``ALL_SYSTEMS``."""
         have = set()
         for e in self.epochs:
             have.update(np.unique(e.system).tolist())
-        return [s for s in SYSTEMS if s in have]
+        return [s for s in ALL_SYSTEMS if s in have]

@@ -21,7 +21,8 @@ from cssrlib.rinex import rnxdec
 from dgcal.fields.constants import C_LIGHT, SECONDS_PER_DAY, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
-from dgcal.pos.gnss.observations import SYSTEMS, GnssEpoch, GnssObservations
+from dgcal.pos.gnss.glonass import GlonassEphemerides, glonass_frequency_hz
+from dgcal.pos.gnss.observations import ALL_SYSTEMS, SYSTEMS, GnssEpoch, GnssObservations
 from dgcal.pos.gnss.precise import product_kind, read_precise
 from dgcal.pos.gnss.rinex_nav import ION_DEFAULT, nav_text_for_cssrlib
 from dgcal.pos.gnss.rinex_obs import RinexObsFile, read_obs_file
@@ -32,12 +33,14 @@ CODE_PRIORITY = {
     "J": ("C1C", "C1X", "C1L"),
     "E": ("C1C", "C1X", "C1B"),
     "C": ("C2I", "C1I", "C2X"),
+    "R": ("C1C", "C1P"),
 }
 # The second code of each system for the dual-frequency ionosphere-free combination (first available; L1 as above).
 CODE2_PRIORITY = {
     "G": ("C2W", "C2L", "C2S", "C2X", "C2P", "C2D", "C5Q", "C5X", "C5I"),
     "J": ("C2L", "C2S", "C2X", "C5Q", "C5X", "C5I"),
     "E": ("C5Q", "C5X", "C5I", "C7Q", "C7X", "C7I"),
+    "R": ("C2C", "C2P"),
 }
 # Carrier frequency (Hz) by system and RINEX band digit.
 FREQ_HZ = {
@@ -52,7 +55,8 @@ GPS_EPOCH = _dt.datetime(1980, 1, 6)
 def signal_frequency_hz(system: str, code: str) -> float:
     """Carrier frequency (Hz) of a RINEX 3 observation code such as 'C1C' for a system letter.
 
-    In RINEX 3.01 BeiDou B1I is band '1'; from 3.02 on it is band '2' (both 1561.098 MHz).
+    In RINEX 3.01 BeiDou B1I is band '1'; from 3.02 on it is band '2' (both 1561.098 MHz). GLONASS FDMA
+    frequencies depend on the satellite (`dgcal.pos.gnss.glonass.glonass_frequency_hz`): ValueError here.
     """
     try:
         return FREQ_HZ[(system, code[1])]
@@ -135,6 +139,7 @@ class BroadcastNav:
     ion_source: str = "GPSA/GPSB"
     warnings: list[str] = field(default_factory=list)
     precise: object | None = None           # dgcal.pos.gnss.precise.PreciseProducts: used for every satellite
+    glonass: GlonassEphemerides | None = None   # GLONASS records (`dgcal.pos.gnss.glonass`), SPP only
 
     @property
     def orbits(self) -> str:
@@ -148,8 +153,9 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
     Precise products among the files (SP3 orbits, RINEX clock files; recognised by content,
     `dgcal.pos.gnss.precise.product_kind`) are read into ``BroadcastNav.precise``: every satellite's orbit
     and clock then come from them, the broadcast records give the group delays, the ionosphere and the
-    leap seconds (at least one broadcast file is needed). Records of systems dgcal does not use
-    (GLONASS, SBAS, NavIC) are skipped with one warning per file (`dgcal.pos.gnss.rinex_nav`).
+    leap seconds (at least one broadcast file is needed). GLONASS records (RINEX 3 'R' records, RINEX 2 'G'
+    files) go to ``BroadcastNav.glonass`` (used by SPP); records of systems dgcal does not use (SBAS, NavIC) are
+    skipped with one warning per file (`dgcal.pos.gnss.rinex_nav`).
     Without Klobuchar coefficients in any header the QZSS ones are used, else RTKLIB's defaults,
     with a warning in ``BroadcastNav.warnings`` (never silently zero).
     """
@@ -167,10 +173,13 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
     nav = Nav()
     ion_gps = ion_qzs = ion_bds = None
     leap = 18
+    glonass: list[GlonassEphemerides] = []
     for k, p in enumerate(all_paths):
         text, hdr = nav_text_for_cssrlib(p)
         if hdr.skipped:
             skipped_notes.append(f"{p}: " + hdr.skipped)
+        if hdr.glonass is not None:
+            glonass.append(hdr.glonass)
         ion_gps = hdr.ion_gps if hdr.ion_gps is not None else ion_gps
         ion_qzs = hdr.ion_qzs if hdr.ion_qzs is not None else ion_qzs
         ion_bds = hdr.ion_bds if hdr.ion_bds is not None else ion_bds
@@ -193,8 +202,9 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
                 dropped.append(f"{sid} toe {float(getattr(e, 'toes', np.nan)):.0f}: {why}")
                 continue
             by_sat.setdefault(sid, []).append(e)
-    if not by_sat:
-        raise InputError("no GPS/Galileo/BeiDou/QZSS ephemeris in navigation file"
+    glo = GlonassEphemerides.concat(glonass) if glonass else None
+    if not by_sat and glo is None:
+        raise InputError("no GPS/Galileo/BeiDou/QZSS/GLONASS ephemeris in navigation file"
                          + (f" (all implausible: {dropped[0]})" if dropped else ""), all_paths[0])
     source = ", ".join(str(p) for p in all_paths)
     warnings, ion_source = list(skipped_notes), "GPSA/GPSB"
@@ -221,7 +231,7 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
                             "RTKLIB's default Klobuchar coefficients are used")
     return BroadcastNav(eph=nav.eph, by_sat=by_sat, ion_gps=ion_gps, ion_bds=ion_bds,
                         leap_seconds=leap, source=source, ion_source=ion_source, warnings=warnings,
-                        precise=precise)
+                        precise=precise, glonass=glo)
 
 
 # what a GNSS broadcast ephemeris can hold: orbits from MEO to GEO (Galileo E14/E18: e 0.16), clocks below a second,
@@ -278,7 +288,8 @@ def _choose_second_codes(obs_types: dict[str, list[str]], signals: dict[str, str
 
 def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
                    t_start: float | None = None, t_end: float | None = None,
-                   decimate_s: float | None = None, rinex: RinexObsFile | None = None) -> GnssObservations:
+                   decimate_s: float | None = None, rinex: RinexObsFile | None = None,
+                   glonass_k: dict[str, int] | None = None) -> GnssObservations:
     """Read a RINEX 2.10/2.11/3.x observation file into raw ``GnssEpoch``s (front-end fields NaN).
 
     One code signal per system (see ``CODE_PRIORITY``) with its Doppler and C/N0, and a second code where the
@@ -287,18 +298,33 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
     signal by central differences between neighbouring epochs (no loss-of-lock flag, gap <= 1.5
     epoch intervals); ``doppler_hz`` is then the equivalent Doppler. Times are GPS time.
     ``rinex``: the file already read by ``dgcal.pos.gnss.rinex_obs.read_obs_file`` (not read again).
+    GLONASS ('R' in ``systems``): each satellite's frequency channel from ``glonass_k`` (the navigation records',
+    `GlonassEphemerides.frequency_numbers`) or the header's GLONASS SLOT / FRQ #; satellites of unknown channel
+    are left out. GLONASS observations present but not asked for are named in ``rinex.warnings``.
     """
 
     path = Path(path)
     rx = rinex if rinex is not None else read_obs_file(path, t_start=t_start, t_end=t_end)
     obs_types = rx.obs_types
-    signals = _choose_signals(obs_types, [s for s in systems if s in SYSTEMS])
+    signals = _choose_signals(obs_types, [s for s in systems if s in ALL_SYSTEMS])
+    if "R" in rx.systems and rx.systems["R"].sats and "R" not in signals:
+        note = (f"{path}: GLONASS observations of {len(rx.systems['R'].sats)} satellite(s) not used"
+                + (" (GLONASS is used by SPP only: dgcal pos --mode spp --systems ...R)" if "R" not in systems
+                   else " (no C1C/C1P code)"))
+        if note not in rx.warnings:
+            rx.warnings.append(note)
     if not signals:
         raise InputError(f"no usable code observations for systems {list(systems)} "
                          f"(have {obs_types})", path, field="SYS / # / OBS TYPES")
-    wavelength = {s: C_LIGHT / signal_frequency_hz(s, code) for s, code in signals.items()}
+    k_glo = {**rx.glonass_k, **(glonass_k or {})}
+    wavelength = {s: C_LIGHT / signal_frequency_hz(s, code) for s, code in signals.items() if s != "R"}
     signals2 = _choose_second_codes(obs_types, signals)
-    wavelength2 = {s: C_LIGHT / signal_frequency_hz(s, code) for s, code in signals2.items()}
+    wavelength2 = {s: C_LIGHT / signal_frequency_hz(s, code) for s, code in signals2.items() if s != "R"}
+    for sid, k in k_glo.items():
+        if "R" in signals:
+            wavelength[sid] = C_LIGHT / float(glonass_frequency_hz(k, signals["R"][1]))
+        if "R" in signals2:
+            wavelength2[sid] = C_LIGHT / float(glonass_frequency_hz(k, signals2["R"][1]))
     t = rx.t_gps
     keep_t = np.ones(len(t), dtype=bool)
     if rinex is not None:
@@ -310,12 +336,15 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
         keep_t &= np.abs(t / decimate_s - np.round(t / decimate_s)) <= 1e-6
     epochs = []
     for k, sat, vals in _chosen_rows(rx, np.nonzero(keep_t)[0], signals, signals2):
+        if "R" in signals:      # GLONASS satellites of unknown frequency channel cannot be used
+            known = np.array([s[0] != "R" or s in wavelength for s in sat], bool)
+            sat, vals = [s for s, u in zip(sat, known) if u], vals[known]
         pr, pr2, ph, dop, cn0, lli = vals.T
         if not sat:
             continue
         n = len(sat)
         system = np.array([s[0] for s in sat])
-        lam = np.array([wavelength[s] for s in system])
+        lam = np.array([wavelength[s if s[0] == "R" else s[0]] for s in sat])
         dop = np.array(dop, dtype=float)
         nan = np.full(n, np.nan)
         ep = GnssEpoch(t_gps=float(t[k]), sat=sat, system=system, pr_m=np.array(pr, dtype=float), doppler_hz=dop,
@@ -326,7 +355,7 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
                        sigma_pr_m=nan.copy(), sigma_rr_mps=nan.copy())
         if signals2:
             ep.pr2_m = np.array(pr2, dtype=float)
-            ep.wavelength2_m = np.array([wavelength2.get(s, np.nan) for s in system])
+            ep.wavelength2_m = np.array([wavelength2.get(s if s[0] == "R" else s[0], np.nan) for s in sat])
         ep._phase = np.array(ph, dtype=float)  # cycles; used only to derive a missing Doppler
         ep._lli = np.array(lli, dtype=int)
         epochs.append(ep)
@@ -465,7 +494,7 @@ def write_rinex_obs(path: str | Path, obs: GnssObservations, marker: str = "DGCA
         fh.writelines(lines)
         for ep in obs.epochs:
             y, mo, d, h, mi, sec = calendar_from_gps_seconds(ep.t_gps)
-            order = sorted(range(ep.n), key=lambda i: (SYSTEMS.index(ep.sat[i][0]), ep.sat[i]))
+            order = sorted(range(ep.n), key=lambda i: (ALL_SYSTEMS.index(ep.sat[i][0]), ep.sat[i]))
             fh.write(f"> {y:4d} {mo:02d} {d:02d} {h:02d} {mi:02d}{sec:11.7f}  0{len(order):3d}\n")
             for i in order:
                 fh.write(ep.sat[i] + val(ep.pr_m[i]) + val(ep.doppler_hz[i]) + val(ep.cn0_dbhz[i]).rstrip() + "\n")

@@ -5,7 +5,9 @@ files unchanged, 3.00/3.01 files with the version patched (their GPS/Galileo/Bei
 laid out the same), and RINEX 2.10/2.11 GPS navigation files (type ``N``) rewritten record by record
 into RINEX 3 layout with **the same line numbers**, so that decoder messages still name the original
 line. Every numeric field of a RINEX 2 record is checked on the way (``InputError`` naming file, line
-and the field's name). The header's Klobuchar coefficients are returned as well (RINEX 3
+and the field's name). GLONASS records (RINEX 3 ``R`` records of 4 or 5 lines, RINEX 2 ``G`` files), which cssrlib's
+path does not serve here, are read into `dgcal.pos.gnss.glonass.GlonassEphemerides` (``NavHeader.glonass``) and left
+out of the text handed on. The header's Klobuchar coefficients are returned as well (RINEX 3
 ``GPSA/GPSB``, ``QZSA/QZSB``, ``BDSA/BDSB``; RINEX 2 ``ION ALPHA/ION BETA``) with the leap seconds.
 """
 from __future__ import annotations
@@ -17,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from dgcal.fields.errors import InputError
+from dgcal.pos.gnss.glonass import GlonassEphemerides, gps_seconds_from_utc
 from dgcal.pos.gnss.rinex_obs import read_lines, rinex_version_type
 
 # RTKLIB's default Klobuchar coefficients (alpha, beta; 2004/1/1), used when a file has none
@@ -39,7 +42,10 @@ _BDS_FIELDS = (("SV clock bias", "SV clock drift", "SV clock drift rate"),
                ("IDOT", "spare", "BDT week", "spare"), ("SV accuracy", "SatH1", "TGD1", "TGD2"),
                ("transmission time", "AODC", "spare", "spare"))
 _FIELDS = {"G": _GPS_FIELDS, "J": _GPS_FIELDS, "E": _GAL_FIELDS, "C": _BDS_FIELDS}
-USED_SYSTEMS = "GECJ"
+USED_SYSTEMS = "GECJ"                    # read by cssrlib; GLONASS ('R') by `_glonass_record`
+_GLO_FIELDS = (("-TauN", "+GammaN", "message frame time"), ("X", "X velocity", "X acceleration", "health"),
+               ("Y", "Y velocity", "Y acceleration", "frequency number"),
+               ("Z", "Z velocity", "Z acceleration", "age of operation"))
 SYSTEM_NAMES = {"G": "GPS", "R": "GLONASS", "E": "Galileo", "C": "BeiDou", "J": "QZSS", "S": "SBAS", "I": "NavIC"}
 
 
@@ -55,6 +61,7 @@ class NavHeader:
     leap_seconds: int
     end_line: int
     skipped: str = ""                   # the records left out (systems dgcal does not use), for a warning
+    glonass: GlonassEphemerides | None = None   # the GLONASS records, read here (not by cssrlib)
 
 
 def _num(s: str, path, ln: int, name: str) -> float:
@@ -109,6 +116,59 @@ def parse_nav_header(lines: list[str], path: Path) -> NavHeader:
     return NavHeader(ver, typ, pair("GPSA", "GPSB"), pair("QZSA", "QZSB"), pair("BDSA", "BDSB"), leap, end)
 
 
+def _glonass_record(lines: list[str], i: int, path: Path, rinex2: bool) -> dict:
+    """One GLONASS record starting at line index i: RINEX 3 ``Rnn yyyy mm dd hh mm ss`` + 3 orbit lines (a 3.05
+    status line after them is not needed), or RINEX 2 ``nn yy mm dd hh mm ss.s`` + 3; epoch UTC -> GPS seconds,
+    kilometres -> metres; every field checked (`InputError` naming file, line and field)."""
+    line, ln = lines[i], i + 1
+    try:
+        if rinex2:
+            prn = int(line[0:2])
+            ep = [int(line[2 + 3 * k:5 + 3 * k]) for k in range(5)] + [float(line[17:22])]
+            ep[0] += 2000 if ep[0] < 80 else 1900
+            c0, c1 = 22, 3
+        else:
+            prn = int(line[1:3])
+            ep = [int(x) for x in line[4:23].split()]
+            c0, c1 = 23, 4
+        if len(ep) != 6 or not (1980 <= ep[0] <= 2200 and 1 <= ep[1] <= 12 and 1 <= ep[2] <= 31
+                                and 0 <= ep[5] < 61):
+            raise ValueError
+    except ValueError:
+        raise InputError(f"bad GLONASS satellite / epoch {line[:23].strip()!r}", path, ln,
+                         "SV / EPOCH / SV CLK") from None
+    clk = [_num(line[c0 + 19 * k:c0 + 19 * (k + 1)], path, ln, _GLO_FIELDS[0][k]) for k in range(3)]
+    orb = []
+    for m in range(1, 4):
+        if i + m >= len(lines) or not lines[i + m].strip():
+            raise InputError(f"GLONASS record with {m - 1} orbit lines (3 expected)", path, min(i + m + 1, len(lines)),
+                             f"BROADCAST ORBIT - {m}")
+        orb.append([_num(lines[i + m][c1 + 19 * k:c1 + 19 * (k + 1)], path, i + m + 1,
+                         f"BROADCAST ORBIT - {m}: {_GLO_FIELDS[m][k]}") for k in range(4)])
+    o = np.array(orb)
+    sec = float(ep[5])
+    toe = gps_seconds_from_utc(*ep[:5], sec)
+    pos, vel, acc = o[:, 0] * 1e3, o[:, 1] * 1e3, o[:, 2] * 1e3
+    if not (1.5e7 < np.linalg.norm(pos) < 3.5e7 and np.linalg.norm(vel) < 1e4 and abs(clk[0]) < 1.0
+            and abs(clk[1]) < 1e-6 and abs(o[1, 3]) <= 20):
+        raise InputError("GLONASS record with an impossible orbit, clock or frequency number", path, ln,
+                         "SV / EPOCH / SV CLK")
+    return {"sat": f"R{prn:02d}", "toe": toe, "pos": pos, "vel": vel, "acc": acc, "taun": -clk[0], "gamn": clk[1],
+            "frq": int(round(o[1, 3])), "svh": int(round(o[0, 3])), "age": o[2, 3], "line": ln}
+
+
+def _rinex2_glonass(lines: list[str], hdr: NavHeader, path: Path) -> GlonassEphemerides | None:
+    """The records of a RINEX 2 GLONASS navigation file (type 'G'; 4 lines each)."""
+    rows, i = [], hdr.end_line + 1
+    while i < len(lines):
+        if not lines[i].strip():
+            i += 1
+            continue
+        rows.append(_glonass_record(lines, i, path, rinex2=True))
+        i += 4
+    return GlonassEphemerides.from_rows(rows) if rows else None
+
+
 def _rinex2_gps_to_3(lines: list[str], hdr: NavHeader, path: Path) -> list[str]:
     """RINEX 2 GPS records rewritten in RINEX 3 layout, line for line (same numbering)."""
     out = [""] * len(lines)
@@ -152,13 +212,15 @@ def _rinex2_gps_to_3(lines: list[str], hdr: NavHeader, path: Path) -> list[str]:
 
 
 def _rinex3_used_records(lines: list[str], hdr: NavHeader, path: Path) -> tuple[list[str], str]:
-    """The lines of a RINEX 3 navigation file with the records of systems dgcal does not use blanked (same line
-    numbers), and a note naming what was left out. A record is its first line (system letter, PRN, epoch) and the
-    indented lines after it, so GLONASS records of any length (4 lines before RINEX 3.05, 5 from 3.05 on, as DJI
-    writes them either way) are skipped alike. Records of the systems used are checked field by field
-    (`InputError` naming file, line and field); they must have their 8 lines."""
+    """The lines of a RINEX 3 navigation file with the records of systems cssrlib does not decode here blanked (same
+    line numbers), and a note naming what was left out (SBAS, NavIC). A record is its first line (system letter,
+    PRN, epoch) and the indented lines after it, so GLONASS records of any length (4 lines before RINEX 3.05, 5 from
+    3.05 on, as DJI writes them either way) are found alike: they are read into ``hdr.glonass``. Records of the
+    systems used are checked field by field (`InputError` naming file, line and field); they must have their 8
+    lines."""
     out = list(lines)
     skipped: dict[str, list[int]] = {}
+    glonass: list[dict] = []
     n = len(lines)
     i = hdr.end_line + 1
     while i < n:
@@ -174,6 +236,12 @@ def _rinex3_used_records(lines: list[str], hdr: NavHeader, path: Path) -> tuple[
         j = i + 1
         while j < n and lines[j][:4] == "    " and lines[j].strip():
             j += 1
+        if sys == "R":
+            glonass.append(_glonass_record(lines, i, path, rinex2=False))
+            for k in range(i, j):
+                out[k] = ""
+            i = j
+            continue
         if sys not in USED_SYSTEMS:
             cnt = skipped.setdefault(sys, [0, ln])
             cnt[0] += 1
@@ -206,6 +274,7 @@ def _rinex3_used_records(lines: list[str], hdr: NavHeader, path: Path) -> tuple[
         parts = [f"{c} {SYSTEM_NAMES[sy]} (first at line {first})" for sy, (c, first) in skipped.items()]
         note = (f"{sum(c for c, _ in skipped.values())} navigation record(s) of systems dgcal does not use skipped: "
                 + ", ".join(parts))
+    hdr.glonass = GlonassEphemerides.from_rows(glonass) if glonass else None
     return out, note
 
 
@@ -220,8 +289,12 @@ def nav_text_for_cssrlib(path: str | Path) -> tuple[io.StringIO, NavHeader]:
             text[0] = f"{3.02:9.2f}" + lines[0][9:]
     elif hdr.file_type == "N":
         text = _rinex2_gps_to_3(lines, hdr, path)
+    elif hdr.file_type == "G":
+        hdr.glonass = _rinex2_glonass(lines, hdr, path)
+        text = [f"{3.04:9.2f}{'':11}{'N: GNSS NAV DATA':<20}{'R: GLONASS':<20}RINEX VERSION / TYPE",
+                f"{'':60}END OF HEADER"]
     else:
-        kind = {"G": "GLONASS", "H": "SBAS", "E": "Galileo", "J": "QZSS"}[hdr.file_type]
-        raise InputError(f"RINEX 2 {kind} navigation files are not read (GPS 'N' files and RINEX 3 are)",
+        kind = {"H": "SBAS", "E": "Galileo", "J": "QZSS"}[hdr.file_type]
+        raise InputError(f"RINEX 2 {kind} navigation files are not read (GPS 'N', GLONASS 'G' files and RINEX 3 are)",
                          path, 1, "RINEX VERSION / TYPE")
     return io.StringIO("\n".join(text) + "\n"), hdr

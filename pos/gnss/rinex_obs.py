@@ -124,7 +124,8 @@ class RinexObsFile:
     ``epoch_sats``: the satellites of each epoch in file order. ``p_approx_ecef`` is NaN when the
     header has no (or a zero) APPROX POSITION XYZ. ``warnings``: epoch records skipped (satellite count
     inconsistent with the lines that follow), sorted into time order or dropped (repeated), each naming the file
-    and line.
+    and line. ``glonass_k``: the GLONASS frequency channel of each satellite the header's GLONASS SLOT / FRQ #
+    lines name (RINEX 3).
     """
 
     path: str
@@ -146,6 +147,7 @@ class RinexObsFile:
     header_lines: int = 0
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)   # epoch records skipped, sorted or dropped (file:line)
+    glonass_k: dict[str, int] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.t_gps)
@@ -209,7 +211,7 @@ def _parse_header(lines: list[str], path: Path) -> dict:
     file_sys = lines[0][40:41].strip() or "G"
     h = {"version": version, "file_system": file_sys, "marker": "", "receiver": "", "antenna": "",
          "p_approx": np.full(3, np.nan), "delta_hen": np.zeros(3), "interval": float("nan"),
-         "time_system": "", "obs_types": {}, "types2": [], "leap": None, "wavelength2": False}
+         "time_system": "", "obs_types": {}, "types2": [], "leap": None, "wavelength2": False, "glonass_k": {}}
     i = 1
     pending: tuple[str, int] | None = None   # (system, count) of a continued obs-types record
     n2 = 0
@@ -238,6 +240,14 @@ def _parse_header(lines: list[str], path: Path) -> dict:
             h["time_system"] = line[48:51].strip()
         elif lab == "LEAP SECONDS":
             h["leap"] = _int(line[:6], path, ln, lab, 18)
+        elif lab == "GLONASS SLOT / FRQ #":
+            # I3, then up to 8 of 'Rnn kk ' (A1, I2, 1X, I2, 1X) per line
+            for k in range(8):
+                sid, frq = line[4 + 7 * k:7 + 7 * k], line[8 + 7 * k:10 + 7 * k]
+                if sid.strip():
+                    if sid[0] != "R" or not sid[1:].strip().isdigit():
+                        raise InputError(f"not a GLONASS satellite: {sid!r}", path, ln, lab)
+                    h["glonass_k"][f"R{int(sid[1:]):02d}"] = _int(frq, path, ln, lab)
         elif lab == "WAVELENGTH FACT L1/2":
             if line[:12].split() and any(v.strip() == "2" for v in (line[0:6], line[6:12])):
                 h["wavelength2"] = True
@@ -605,4 +615,4 @@ def read_obs_file(path: str | Path, t_start: float | None = None, t_end: float |
                         power_failure=np.array([r.flag == 1 for r in recs], dtype=bool),
                         epoch_line=np.array([r.i + 1 for r in recs], dtype=int), epoch_sats=sats_list,
                         systems=out_sys, first_obs_line=h["end"] + 2, header_lines=h["end"] + 1,
-                        warnings=warnings)
+                        warnings=warnings, glonass_k=dict(h["glonass_k"]))

@@ -21,7 +21,7 @@ from dgcal.fields.errors import InputError
 from dgcal.fields.frames import R_ecef_to_enu
 from dgcal.fields.io.csv_tables import write_table
 from dgcal.pos.gnss.observations import CLOCK_GROUP, SYSTEMS, GnssEpoch, GnssObservations, split_gps_time
-from dgcal.pos.gnss.spp_batch import (GROUPS, ObsTable, code_noise_from_residuals, merge_fits, model, solve_epochs,
+from dgcal.pos.gnss.spp_batch import (GROUPS, NG, ObsTable, code_noise_from_residuals, merge_fits, model, solve_epochs,
                                       to_epoch)
 from dgcal.pos.gnss.rinex import BroadcastNav, read_rinex_nav, read_rinex_obs
 from dgcal.pos.gnss.spp_error_model import covariance, iono_error_field
@@ -43,7 +43,8 @@ class SppOptions:
     probability of the chi-square test. ``iono``: ``auto``
     uses the dual-frequency ionosphere-free code combination for every GPS, QZSS and Galileo satellite with a
     second code (``GnssEpoch.pr2_m``) and Klobuchar for the others, ``klobuchar`` the first code only,
-    ``iono-free`` only satellites with two codes.
+    ``iono-free`` only satellites with two codes. ``systems``: the constellations used, letters of
+    ``ALL_SYSTEMS`` (GLONASS 'R' only when named: its own receiver clock, FDMA frequencies per satellite).
     """
 
     elev_mask_deg: float = 10.0
@@ -131,7 +132,7 @@ def solve_epoch(raw: GnssEpoch, nav: BroadcastNav, p_guess: np.ndarray | None,
                              np.full(3, np.nan), np.full((3, 3), np.nan), np.nan, np.nan, int(fits.n_sat[0]), [],
                              list(fits.rejected[0]), {}, np.nan)
     ep = to_epoch(tab, fits.m, raw, 0, b[0], b[1])
-    have = [j for j in range(3) if np.isfinite(fits.clk[0, j])]
+    have = [j for j in range(NG) if np.isfinite(fits.clk[0, j])]
     return EpochSolution(
         t_gps=raw.t_gps, ok=True, p_ecef=fits.p[0], cov_p=fits.cov_p[0],
         clk_m={GROUPS[j]: float(fits.clk[0, j]) for j in have},
@@ -207,7 +208,7 @@ def spp(obs: GnssObservations, nav: BroadcastNav, opts: SppOptions | None = None
     if opts.model_errors:
         fits.cov_p, error_model = covariance(tab, fits, nav, iono_error_field(tab, fits, nav))
     b = fits.bounds
-    groups = sorted({CLOCK_GROUP[s] for s in obs.systems}, key=SYSTEMS.index)
+    groups = sorted({CLOCK_GROUP[s] for s in obs.systems}, key=GROUPS.index)
     pa = fits.m.p_approx
     known = np.all(np.isfinite(pa), axis=1) & (np.linalg.norm(np.nan_to_num(pa), axis=1) > 6e6)
     epochs = [to_epoch(tab, fits.m, obs.epochs[e], e, b[e], b[e + 1], bool(known[e])) if fits.ok[e] else None
@@ -274,7 +275,7 @@ def spp_files(obs_path: str | Path | None, nav_paths: Sequence[str | Path], opts
             raise InputError("required for --mode spp", field=name)
     nav = read_rinex_nav(nav_paths[0], list(nav_paths[1:]))
     rx = read_obs_file(obs_path, t_start=t_start, t_end=t_end)
-    obs = read_rinex_obs(obs_path, systems=opts.systems, rinex=rx)
+    obs = read_rinex_obs(obs_path, systems=opts.systems, rinex=rx, glonass_k=_glonass_channels(nav))
     sol = spp(obs, nav, opts, progress=progress)
     if not sol.ok.any():
         raise InputError("no epoch could be positioned (too few satellites with ephemeris?)", obs_path)
@@ -290,6 +291,12 @@ def spp_files(obs_path: str | Path | None, nav_paths: Sequence[str | Path], opts
     return SppRun(sol, summary, ref)
 
 
+def _glonass_channels(nav: BroadcastNav) -> dict[str, int] | None:
+    """Frequency channel of each GLONASS satellite of the navigation records (None without GLONASS records)."""
+    glo = getattr(nav, "glonass", None)
+    return None if glo is None else glo.frequency_numbers()
+
+
 def load_gnss(obs_path, nav_path, opts: SppOptions | None = None, progress: bool = False
               ) -> tuple[GnssObservations, SppSolution]:
     """Read RINEX obs + nav, run SPP, and return the epochs modelled at the SPP positions.
@@ -301,7 +308,7 @@ def load_gnss(obs_path, nav_path, opts: SppOptions | None = None, progress: bool
     if opts is None:
         opts = SppOptions()
     nav = read_rinex_nav(nav_path)
-    raw = read_rinex_obs(obs_path, systems=opts.systems)
+    raw = read_rinex_obs(obs_path, systems=opts.systems, glonass_k=_glonass_channels(nav))
     sol = spp(raw, nav, opts, progress=progress)
     epochs = [e for e, ok in zip(sol.epochs, sol.ok) if ok and e is not None]
     good = sol.p_ecef[sol.ok]

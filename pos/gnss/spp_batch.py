@@ -4,7 +4,7 @@
 An hour of 1 Hz data is 3600 small problems of ~10 satellites; solved one by one, NumPy's per-call overhead is
 almost all of the time (2.9 ms per epoch). Here every step runs on all epochs at once: the satellites of all epochs
 are one flat table (sorted by epoch), normal matrices are summed per epoch (`np.add.reduceat`) and inverted as a
-stack. Each epoch's parameters are [x, y, z, one clock per clock group G, E, C] (m); a clock group without a
+stack. Each epoch's parameters are [x, y, z, one clock per clock group G, E, C, R] (m); a clock group without a
 satellite in the epoch gets unit information, coupled to nothing, which leaves the other parameters exactly as
 the reduced problem gives them. Every decision (RAIM rejections, the outer iterations at the moved position, the
 DOP and Doppler tests) is taken per epoch exactly as `spp.solve_epoch` describes.
@@ -24,8 +24,10 @@ from dgcal.pos.gnss.corrections import (KLOBUCHAR_SHARE, code_sigma_m, klobuchar
 from dgcal.pos.gnss.ephemeris import group_delay_s, states_at_transmission
 from dgcal.pos.gnss.observations import GnssEpoch
 
-GROUPS = ("G", "E", "C")                 # receiver clock parameters, in `SYSTEMS` order
-_GROUP_OF = {"G": 0, "J": 0, "E": 1, "C": 2}
+GROUPS = ("G", "E", "C", "R")            # receiver clock parameters, in `ALL_SYSTEMS` order
+NG = len(GROUPS)
+NP = 3 + NG                              # parameters of an epoch
+_GROUP_OF = {"G": 0, "J": 0, "E": 1, "C": 2, "R": 3}
 IF_CODE_BIAS_M = 1.0   # sigma (m) of the uncorrected code biases in the ionosphere-free combination
 _RAW = ("pr_m", "doppler_hz", "range_rate_mps", "wavelength_m", "cn0_dbhz")
 
@@ -46,7 +48,7 @@ class ObsTable:
 
     @property
     def group(self) -> np.ndarray:
-        """Clock group index (0 G/J, 1 E, 2 C; -1 other) of every row."""
+        """Clock group index (0 G/J, 1 E, 2 C, 3 R; -1 other) of every row."""
         if getattr(self, "_group", None) is None:
             self._group = np.select([self.system == s for s in _GROUP_OF], list(_GROUP_OF.values()), -1)
         return self._group
@@ -131,13 +133,13 @@ class Modelled:
 
 
 def dual_frequency(tab: ObsTable, mode: str) -> np.ndarray:
-    """Satellites whose ionosphere-free combination the front end uses (GPS, QZSS, Galileo with a second code),
-    under the `SppOptions.iono` mode."""
+    """Satellites whose ionosphere-free combination the front end uses (GPS, QZSS, Galileo, GLONASS with a second
+    code), under the `SppOptions.iono` mode."""
     if mode not in ("auto", "klobuchar", "iono-free"):
         raise ValueError(f"iono must be auto, klobuchar or iono-free, not {mode!r}")
     if mode == "klobuchar":
         return np.zeros(len(tab.ep), bool)
-    return np.isfinite(tab.pr2) & np.isfinite(tab.wl2) & np.isin(tab.system, ["G", "J", "E"])
+    return np.isfinite(tab.pr2) & np.isfinite(tab.wl2) & np.isin(tab.system, ["G", "J", "E", "R"])
 
 
 def _known(p: np.ndarray) -> np.ndarray:
@@ -259,33 +261,33 @@ def segment_sum(x: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _design(m: Modelled, x: np.ndarray, grp: np.ndarray):
-    """Geometry rows H (M,6) and ranges rho (M,) at the epochs' parameters x (E,6)."""
+    """Geometry rows H (M,NP) and ranges rho (M,) at the epochs' parameters x (E,NP)."""
     d = m.sat_pos - x[m.ep, :3]
     rho = np.linalg.norm(d, axis=1)
-    H = np.zeros((len(rho), 6))
+    H = np.zeros((len(rho), NP))
     H[:, :3] = -d / rho[:, None]
     H[np.arange(len(rho)), 3 + grp] = 1.0
     return H, rho
 
 
 def _padding(absent: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Parameters (E,6) given unit information: the absent clock groups, and all of an epoch without rows."""
+    """Parameters (E,NP) given unit information: the absent clock groups, and all of an epoch without rows."""
     pad = np.concatenate([np.zeros((len(absent), 3), bool), absent], axis=1)
     pad[b[1:] == b[:-1]] = True
     return pad
 
 
 def normal_inverse(Hw: np.ndarray, b: np.ndarray, absent: np.ndarray) -> np.ndarray:
-    """Inverse (E,6,6) of each epoch's normal matrix sum(Hw Hw'), unit information on its absent parameters."""
+    """Inverse (E,NP,NP) of each epoch's normal matrix sum(Hw Hw'), unit information on its absent parameters."""
     N = segment_sum(Hw[:, :, None] * Hw[:, None, :], b)
-    i = np.arange(6)
+    i = np.arange(NP)
     N[:, i, i] += _padding(absent, b)
     return np.linalg.inv(N)
 
 
 @dataclass
 class PositionFit:
-    """Per epoch: parameters x (E,6), N^-1 of the last iteration (E,6,6); per satellite: final rows H (M,6) and
+    """Per epoch: parameters x (E,NP), N^-1 of the last iteration (E,NP,NP); per satellite: final rows H (M,NP) and
     residuals (M,) m."""
 
     x: np.ndarray
@@ -297,10 +299,10 @@ class PositionFit:
 def fit_positions(m: Modelled, grp: np.ndarray, y: np.ndarray, x0: np.ndarray, absent: np.ndarray, E: int,
                   iters: int = 10) -> PositionFit:
     """Gauss-Newton of every epoch (spp's `_solve_position`) on corrected pseudoranges y (M,) m of satellites of clock
-    groups `grp` (M,): x0 (E,6) start, each epoch iterated until its step is below 0.1 mm (at most `iters`); the
+    groups `grp` (M,): x0 (E,NP) start, each epoch iterated until its step is below 0.1 mm (at most `iters`); the
     returned N^-1 is that of the last step, H and residuals at the end."""
     x = x0.copy()
-    Ninv = np.zeros((E, 6, 6))
+    Ninv = np.zeros((E, NP, NP))
     active = np.bincount(m.ep, minlength=E) > 0
     rows = np.arange(len(m.ep))
     for _ in range(iters):
@@ -324,7 +326,7 @@ def fit_positions(m: Modelled, grp: np.ndarray, y: np.ndarray, x0: np.ndarray, a
 
 
 def groups(tab: ObsTable, m: Modelled) -> np.ndarray:
-    """Clock group index (0 G/J, 1 E, 2 C) of each modelled satellite."""
+    """Clock group index (0 G/J, 1 E, 2 C, 3 R) of each modelled satellite."""
     return tab.group[m.idx]
 
 
@@ -333,11 +335,11 @@ def dops(H: np.ndarray, b: np.ndarray, absent: np.ndarray, p_ecef: np.ndarray) -
     where the geometry is singular."""
     E = len(b) - 1
     N = segment_sum(H[:, :, None] * H[:, None, :], b)
-    i = np.arange(6)
+    i = np.arange(NP)
     pad = _padding(absent, b)
     N[:, i, i] += pad
     out = {k: np.full(E, np.inf) for k in ("gdop", "pdop", "hdop", "vdop")}
-    Q = np.full((E, 6, 6), np.nan)
+    Q = np.full((E, NP, NP), np.nan)
     good = np.ones(E, bool)
     try:
         Q = np.linalg.inv(N)
@@ -415,7 +417,7 @@ def fit_velocities(tab: ObsTable, m: Modelled, p: np.ndarray, E: int):
 
 @dataclass
 class EpochFits:
-    """SPP of E epochs: `ok` (E,); position (E,3) and covariance (E,3,3) m, clocks (E,3) m and sigmas per clock group
+    """SPP of E epochs: `ok` (E,); position (E,3) and covariance (E,3,3) m, clocks (E,NG) m and sigmas per clock group
     (NaN where absent), velocity, its covariance, drift and sigma (m/s), satellites used, rejected names, DOPs,
     chi-square per degree of freedom; `m` the modelled satellites used (epoch order) with their residuals `res` (m)."""
 
@@ -460,9 +462,9 @@ def solve_epochs(tab: ObsTable, nav, guesses: np.ndarray, opts, which: np.ndarra
     rejected: list = [[] for _ in range(E)]
     fail = np.zeros(E, bool)
     n_sat = np.zeros(E, int)
-    X = np.zeros((E, 6))
-    NI = np.zeros((E, 6, 6))
-    absent_f = np.zeros((E, 3), bool)
+    X = np.zeros((E, NP))
+    NI = np.zeros((E, NP, NP))
+    absent_f = np.zeros((E, NG), bool)
     parts: list = []
     res_parts: list = []
     todo = np.arange(E) if which is None else np.asarray(which, int)
@@ -476,16 +478,16 @@ def solve_epochs(tab: ObsTable, nav, guesses: np.ndarray, opts, which: np.ndarra
             m = m.take(np.array([tab.sat[i] not in rejected[e] for i, e in zip(m.idx, m.ep)], bool))
         grp = groups(tab, m)
         alive = np.ones(len(m.idx), bool)
-        Hm = np.zeros((len(m.idx), 6))
+        Hm = np.zeros((len(m.idx), NP))
         resm = np.zeros(len(m.idx))
-        absent_r = np.zeros((E, 3), bool)
+        absent_r = np.zeros((E, NG), bool)
         in_loop = np.zeros(E, bool)
         in_loop[todo] = True
         while in_loop.any():
             rows = np.flatnonzero(alive & in_loop[m.ep])
             sub, g = m.take(rows), grp[rows]
             cnt = np.bincount(sub.ep, minlength=E)
-            present = np.stack([np.bincount(sub.ep[g == j], minlength=E) > 0 for j in range(3)], axis=1)
+            present = np.stack([np.bincount(sub.ep[g == j], minlength=E) > 0 for j in range(NG)], axis=1)
             n_par = 3 + present.sum(axis=1)
             few = in_loop & (cnt < n_par)
             fail |= few
@@ -496,7 +498,7 @@ def solve_epochs(tab: ObsTable, nav, guesses: np.ndarray, opts, which: np.ndarra
                 rows, sub, g = rows[k], sub.take(k), g[k]
             if not in_loop.any():
                 break
-            x0 = np.zeros((E, 6))
+            x0 = np.zeros((E, NP))
             x0[:, :3] = x_prep
             fit = fit_positions(sub, g, sub.pr_corr(tab), x0, ~present, E)
             b = _bounds(sub.ep, E)
@@ -542,7 +544,7 @@ def solve_epochs(tab: ObsTable, nav, guesses: np.ndarray, opts, which: np.ndarra
     b = _bounds(m.ep, E)
     cnt = np.diff(b)
     grp = groups(tab, m)
-    H = np.zeros((len(m.idx), 6))
+    H = np.zeros((len(m.idx), NP))
     H[:, :3] = -(m.sat_pos - X[m.ep, :3]) / np.linalg.norm(m.sat_pos - X[m.ep, :3], axis=1, keepdims=True)
     H[np.arange(len(m.idx)), 3 + grp] = 1.0
     ok = ~fail & (cnt > 0)
@@ -557,7 +559,7 @@ def solve_epochs(tab: ObsTable, nav, guesses: np.ndarray, opts, which: np.ndarra
     dof = cnt - 3 - nsys
     chi2 = segment_sum((res / m.sigma_pr) ** 2, b)
     nan = np.full(E, np.nan)
-    i3 = np.arange(3)
+    i3 = np.arange(NG)
     clk = np.where(~absent_f & ok[:, None], X[:, 3:], np.nan)
     clk_sigma = np.where(~absent_f & ok[:, None], np.sqrt(np.abs(NI[:, 3 + i3, 3 + i3])), np.nan)
     return EpochFits(

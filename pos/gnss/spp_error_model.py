@@ -42,7 +42,7 @@ import numpy as np
 from dgcal.fields.constants import C_LIGHT
 from dgcal.pos.gnss.corrections import KLOBUCHAR_SHARE, ZTD_SIGMA_M, tropo_mapping
 from dgcal.pos.gnss.ephemeris import group_delay_s
-from dgcal.pos.gnss.spp_batch import normal_inverse, segment_sum, groups
+from dgcal.pos.gnss.spp_batch import NG, NP, groups, normal_inverse, segment_sum
 
 IONO_LOCAL_SHARE = 0.1    # the ionosphere's error not in a common share or a gradient: 10 % of the delay per satellite
 # Before the file speaks: Klobuchar removes about half of the delay's RMS (Klobuchar 1987), so its common relative
@@ -142,7 +142,8 @@ PRIOR_DOF = 4   # the budget's weight against the file's own residuals, in redun
 
 @dataclass
 class _Weights:
-    """An epoch-stacked least-squares problem: rows H (M,6), weights w (M,) 1/m^2, N^-1 (E,6,6), leverages h (M,)."""
+    """An epoch-stacked least-squares problem: rows H (M,NP), weights w (M,) 1/m^2, N^-1 (E,NP,NP), leverages h
+    (M,)."""
 
     H: np.ndarray
     w: np.ndarray
@@ -156,11 +157,11 @@ class _Weights:
         grp = groups(tab, m)
         X = np.where(fits.ok[:, None], fits.p, 0.0)
         d = m.sat_pos - X[m.ep]
-        H = np.zeros((len(m.ep), 6))
+        H = np.zeros((len(m.ep), NP))
         H[:, :3] = -d / np.linalg.norm(d, axis=1, keepdims=True)
         H[np.arange(len(m.ep)), 3 + grp] = 1.0
         w = 1.0 / m.sigma_pr ** 2
-        absent = ~np.stack([np.bincount(m.ep[grp == j], minlength=E) > 0 for j in range(3)], axis=1)
+        absent = ~np.stack([np.bincount(m.ep[grp == j], minlength=E) > 0 for j in range(NG)], axis=1)
         Ninv = normal_inverse(H * np.sqrt(w)[:, None], b, absent)
         return cls(H, w, Ninv, w * np.einsum("ni,nij,nj->n", H, Ninv[m.ep], H))
 

@@ -1,6 +1,7 @@
 """Navigation files with records dgcal does not use (issue 30): the DJI M300 writes RINEX 3.05 headers with GLONASS
-records in the older 4-line layout; such records are skipped with one warning, the GPS/Galileo/QZSS records read as
-from a file without them. A corrupt record of a system in use is still an error naming file, line and field."""
+records in the older 4-line layout; such records are read for SPP (`BroadcastNav.glonass`), SBAS records skipped with
+one warning, the GPS/Galileo/QZSS records read as from a file without them. A corrupt record of a system in use is
+still an error naming file, line and field."""
 import numpy as np
 import pytest
 
@@ -61,7 +62,7 @@ def _params(nav) -> list[tuple]:
 
 
 @pytest.mark.parametrize("five_line", [False, True])
-def test_glonass_records_skipped_the_rest_read_identically(shared_data, tmp_path, five_line):
+def test_glonass_records_read_sbas_skipped_the_rest_read_identically(shared_data, tmp_path, five_line):
     src = (shared_data / NAV).read_text().splitlines()
     lines, n_glo, first = _dji_like(src, five_line=five_line, sbas=True)
     f = tmp_path / "dji.rnx"
@@ -73,7 +74,9 @@ def test_glonass_records_skipped_the_rest_read_identically(shared_data, tmp_path
     assert np.array_equal(nav.ion_gps, ref.ion_gps) and nav.leap_seconds == ref.leap_seconds
     skipped = [w for w in nav.warnings if "skipped" in w]
     assert len(skipped) == 1, nav.warnings
-    assert f"{n_glo} GLONASS (first at line {first})" in skipped[0] and "1 SBAS" in skipped[0]
+    assert "GLONASS" not in skipped[0] and "1 SBAS" in skipped[0]
+    assert len(nav.glonass) == n_glo and nav.glonass.line.min() == first
+    assert np.all(nav.glonass.frq == 1) and np.all(nav.glonass.svh == 0)
     assert str(f) in skipped[0]
     assert [w for w in nav.warnings if "skipped" not in w] == ref.warnings
 
@@ -106,10 +109,14 @@ def test_corrupt_record_of_a_used_system_names_line_and_field(shared_data, tmp_p
     assert e.value.line == g + 1 and e.value.field == "SV / EPOCH / SV CLK"
 
 
-def test_only_glonass_is_an_error_naming_the_systems(shared_data, tmp_path):
+def test_only_sbas_is_an_error_naming_the_systems_only_glonass_is_read(shared_data, tmp_path):
     src = (shared_data / NAV).read_text().splitlines()
     head, _ = _records(src)
+    f = tmp_path / "sbas.rnx"
+    f.write_text("\n".join(list(head) + SBAS) + "\n")
+    with pytest.raises(InputError, match="no GPS/Galileo/BeiDou/QZSS/GLONASS ephemeris"):
+        read_rinex_nav(f)
     f = tmp_path / "glo.rnx"
     f.write_text("\n".join(list(head) + [s.format(prn=3) for s in GLO_4]) + "\n")
-    with pytest.raises(InputError, match="no GPS/Galileo/BeiDou/QZSS ephemeris"):
-        read_rinex_nav(f)
+    nav = read_rinex_nav(f)
+    assert not nav.by_sat and list(nav.glonass.sat) == ["R03"]
