@@ -25,7 +25,7 @@ from dgcal.pos.gnss.glonass import GlonassEphemerides, glonass_frequency_hz
 from dgcal.pos.gnss.observations import ALL_SYSTEMS, SYSTEMS, GnssEpoch, GnssObservations
 from dgcal.pos.gnss.precise import product_kind, read_precise
 from dgcal.pos.gnss.rinex_nav import ION_DEFAULT, nav_text_for_cssrlib
-from dgcal.pos.gnss.rinex_obs import RinexObsFile, read_obs_file
+from dgcal.pos.gnss.rinex_obs import GLONASS_NOT_USED, RinexObsFile, read_obs_file
 
 # Preferred code observations per system, best first (RINEX 3 codes).
 CODE_PRIORITY = {
@@ -308,9 +308,9 @@ def read_rinex_obs(path: str | Path, systems: Sequence[str] = SYSTEMS,
     obs_types = rx.obs_types
     signals = _choose_signals(obs_types, [s for s in systems if s in ALL_SYSTEMS])
     if "R" in rx.systems and rx.systems["R"].sats and "R" not in signals:
-        note = (f"{path}: GLONASS observations of {len(rx.systems['R'].sats)} satellite(s) not used"
-                + (" (GLONASS is used by SPP only: dgcal pos --mode spp --systems ...R)" if "R" not in systems
-                   else " (no C1C/C1P code)"))
+        n = len(rx.systems["R"].sats)
+        note = f"{path}: " + (GLONASS_NOT_USED.format(n=n) if "R" not in systems
+                              else f"GLONASS observations of {n} satellite(s) not used (no C1C/C1P code)")
         if note not in rx.warnings:
             rx.warnings.append(note)
     if not signals:

@@ -31,6 +31,8 @@ from dgcal.fields.errors import InputError
 
 GPS_EPOCH = _dt.datetime(1980, 1, 6)
 BDT_MINUS_GPST_S = -14.0          # BeiDou time = GPS time - 14 s
+GLONASS_NOT_USED = ("GLONASS observations of {n} satellite(s) not used (GLONASS is used by SPP only: dgcal pos --mode "
+                    "spp --systems ...R)")
 KNOWN_SYSTEMS = "GRECJSI"         # GPS, GLONASS, Galileo, BeiDou, QZSS, SBAS, NavIC/IRNSS
 
 
@@ -593,7 +595,8 @@ def read_obs_file(path: str | Path, t_start: float | None = None, t_end: float |
 
     Epoch records are checked: a satellite count that disagrees with the lines that follow skips the record,
     an epoch out of time order is sorted in, a repeated epoch (or a satellite repeated in a record) is
-    dropped — each with a warning naming the file and line in ``RinexObsFile.warnings``."""
+    dropped — each with a warning naming the file and line in ``RinexObsFile.warnings``; so are GLONASS observations
+    that ``systems`` leaves out (`GLONASS_NOT_USED`)."""
     path = Path(path)
     lines = read_lines(path)
     h = _parse_header(lines, path)
@@ -605,6 +608,10 @@ def read_obs_file(path: str | Path, t_start: float | None = None, t_end: float |
         types = {s: [rinex2_code(s, c, h["version"]) or f"?{c}" for c in h["types2"]] for s in KNOWN_SYSTEMS}
     warnings: list[str] = []
     recs = _ordered(_scan_records(lines, h, path, t_start, t_end, warnings), path, warnings)
+    if systems and "R" not in keep_sys:     # PPK and the GNSS/INS modes: say that GLONASS is left out
+        glo = {i.strip() for r in recs for i in r.ids if i[:1] == "R" or (i[:1] == " " and h["file_system"] == "R")}
+        if glo:
+            warnings.append(f"{path}: " + GLONASS_NOT_USED.format(n=len(glo)))
     out_sys, sats_list = _system_arrays(recs, types, keep_sys, h, path, warnings)
     obs_types = {s: [c for c in types[s] if not c.startswith("?")] for s in types
                  if v3 or s in out_sys}

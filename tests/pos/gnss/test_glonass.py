@@ -11,7 +11,7 @@ import pytest
 from dgcal.fields.constants import C_LIGHT, F_L1, OMEGA_EARTH
 from dgcal.fields.crs import ecef_to_geodetic
 from dgcal.pos.gnss.corrections import elevation_azimuth, klobuchar_delay_m, saastamoinen_delay_m
-from dgcal.pos.gnss.ephemeris import satellite_states
+from dgcal.pos.gnss.ephemeris import group_delay_s, satellite_states
 from dgcal.pos.gnss.glonass import (MU_GLO, OMGE_GLO, glonass_frequency_hz, glonass_states,
                                     integrate_orbits)
 from dgcal.pos.gnss.observations import GnssEpoch, GnssObservations
@@ -168,9 +168,10 @@ def _glonass_rinex3(rows: list[dict]) -> list[str]:
     return out
 
 
-def _simulate(nav, t: np.ndarray, systems: str, sigma: float, rng) -> GnssObservations:
+def _simulate(nav, t: np.ndarray, systems: str, sigma: float, rng, dual: bool = False) -> GnssObservations:
     """Raw epochs of a static receiver at P_RX: exact light time and earth rotation, receiver clock and per-system
-    biases, broadcast satellite clocks, Klobuchar at each signal's frequency, Saastamoinen, white code noise."""
+    biases, broadcast satellite clocks, Klobuchar at each signal's frequency, Saastamoinen, white code noise; with
+    `dual` a second code (GPS L2, GLONASS G2: the ionosphere scaled to it, the group delay of L2)."""
     lat, lon, h = ecef_to_geodetic(P_RX)
     sats = sorted([s for s in nav.by_sat if s[0] in systems]
                   + ([str(s) for s in np.unique(nav.glonass.sat)] if "R" in systems else []))
@@ -190,6 +191,7 @@ def _simulate(nav, t: np.ndarray, systems: str, sigma: float, rng) -> GnssObserv
         use = ok & (el > np.radians(12.0))
         sys_ = np.array([x[0] for x in sats])
         freq = np.array([glonass_frequency_hz(k_of[x]) if x[0] == "R" else F_L1 for x in sats])
+        freq2 = np.array([glonass_frequency_hz(k_of[x], "2") if x[0] == "R" else 1227.60e6 for x in sats])
         iono = klobuchar_delay_m(ti, lat, lon, el, az, nav.ion_gps, freq)
         tropo = saastamoinen_delay_m(lat, h, el)
         noise = sigma * np.sqrt(0.5 + 0.5 / np.sin(el) ** 2) * rng.standard_normal(len(sats))
@@ -198,12 +200,17 @@ def _simulate(nav, t: np.ndarray, systems: str, sigma: float, rng) -> GnssObserv
         i = np.flatnonzero(use)
         n = len(i)
         nan = np.full(n, np.nan)
+        if dual:     # L1's clock is the combination's less TGD, L2's less (f1/f2)^2 TGD
+            tgd = group_delay_s(nav, sats, np.full(len(sats), t_true))
+            pr2 = (pr - noise + (freq / freq2) ** 2 * iono - iono + C_LIGHT * tgd * ((freq / freq2) ** 2 - 1.0)
+                   + sigma * np.sqrt(0.5 + 0.5 / np.sin(el) ** 2) * rng.standard_normal(len(sats)))
         epochs.append(GnssEpoch(
             t_gps=float(ti), sat=[sats[j] for j in i], system=sys_[i], pr_m=pr[i], doppler_hz=nan.copy(),
             range_rate_mps=nan.copy(), wavelength_m=C_LIGHT / freq[i], cn0_dbhz=np.full(n, 45.0),
             sat_pos_ecef=np.full((n, 3), np.nan), sat_vel_ecef=np.full((n, 3), np.nan), sat_clk_s=nan.copy(),
             sat_clk_drift=nan.copy(), iono_m=nan.copy(), tropo_m=nan.copy(), elev_deg=nan.copy(),
-            azim_deg=nan.copy(), sigma_pr_m=nan.copy(), sigma_rr_mps=nan.copy()))
+            azim_deg=nan.copy(), sigma_pr_m=nan.copy(), sigma_rr_mps=nan.copy(),
+            pr2_m=pr2[i] if dual else None, wavelength2_m=C_LIGHT / freq2[i] if dual else None))
     return GnssObservations(epochs, p_approx_ecef=P_RX + 50.0,
                             signals={s: "C1C" for s in systems}, source="simulation")
 
@@ -284,6 +291,13 @@ def test_spp_files_reads_glonass_from_rinex(glonass_case, tmp_path):
     rx = read_obs_file(f)
     g_only = read_rinex_obs(f, systems=("G",), rinex=rx)
     assert g_only.systems == ["G"] and any("GLONASS observations" in w and "SPP only" in w for w in rx.warnings)
+    # PPK and TC with a base read the file for their systems only: the same warning, before they collect them
+    n_glo = len({s for e in obs.epochs for s in e.sat if s[0] == "R"})
+    rx = read_obs_file(f, systems="GECJ")
+    assert "R" not in rx.systems and [w for w in rx.warnings if "GLONASS" in w] == [
+        f"{f}: GLONASS observations of {n_glo} satellite(s) not used (GLONASS is used by SPP only: dgcal pos --mode "
+        "spp --systems ...R)"]
+    assert not read_obs_file(f).warnings
 
 
 def test_cli_systems_with_r(glonass_case, tmp_path, capsys):
@@ -306,3 +320,21 @@ def test_cli_systems_with_r(glonass_case, tmp_path, capsys):
     capsys.readouterr()
     assert _systems("GR", "ppk") == ("G",) and "does not use GLONASS" in capsys.readouterr().err
     assert _systems("gecjr") == ("G", "E", "C", "J", "R")
+
+
+def test_spp_iono_free_with_glonass(glonass_case):
+    """Two codes: the ionosphere-free combination of each GLONASS satellite at its own FDMA frequencies (no Klobuchar
+    left) recovers the truth with honest sigmas, GPS + GLONASS as well as GPS alone."""
+    nav, _, _, _ = glonass_case
+    t = T0 + np.arange(0.0, 600.0, 10.0)
+    obs = _simulate(nav, t, "GR", 0.3, np.random.default_rng(5), dual=True)
+    for systems in ("G", "GR"):
+        sol = spp(obs, nav, SppOptions(systems=tuple(systems), iono="iono-free", model_errors=False,
+                                       code_sigma_zenith_m=0.3))
+        assert sol.ok.all() and (systems == "G" or any(s[0] == "R" for s in sol.used[0]))
+        assert all(np.all(ep.iono_m == 0.0) for ep in sol.epochs)
+        err, cov = _errors(sol)
+        z = np.sqrt(np.mean(np.einsum("ni,nij,nj->n", err, np.linalg.inv(cov), err) / 3.0))
+        mean = err.mean(axis=0)          # unbiased: the mean error within 3 sigma of the mean of white errors
+        z_mean = np.sqrt(mean @ np.linalg.solve(cov.mean(axis=0) / len(err), mean) / 3.0)
+        assert 0.7 < z < 1.4 and z_mean < 3.0, (systems, z, mean)
