@@ -338,3 +338,67 @@ def test_spp_iono_free_with_glonass(glonass_case):
         mean = err.mean(axis=0)          # unbiased: the mean error within 3 sigma of the mean of white errors
         z_mean = np.sqrt(mean @ np.linalg.solve(cov.mean(axis=0) / len(err), mean) / 3.0)
         assert 0.7 < z < 1.4 and z_mean < 3.0, (systems, z, mean)
+
+
+# Real records with a negative frequency channel: the GLONASS records of BRDM00DLR_R_20130010000_01D_MN.rnx (DLR/TUM
+# MGEX merged broadcast file of 2013-01-01, RINEX 3.02, as shipped with georinex's tests), under its own header.
+DLR_2013 = """     3.02           NAVIGATION DATA     M (Mixed)           RINEX VERSION / TYPE
+BCEmerge            congo               20130508 065656 GMT PGM / RUN BY / DATE
+    16                                                      LEAP SECONDS
+                                                            END OF HEADER
+R01 2013 01 01 00 15 00-1.750094816089e-04 0.000000000000e+00 1.728000000000e+05
+     8.450493652344e+03 1.381167411804e+00 0.000000000000e+00 0.000000000000e+00
+    -1.874471679688e+04-1.543292045593e+00 1.862645149231e-09 1.000000000000e+00
+     1.510979541016e+04-2.684219360352e+00-9.313225746155e-10 0.000000000000e+00
+R01 2013 01 01 00 45 00-1.750094816089e-04 0.000000000000e+00 1.746000000000e+05
+     1.032079345703e+04 7.040367126465e-01 0.000000000000e+00 0.000000000000e+00
+    -2.120131738281e+04-1.142783164978e+00 1.862645149231e-09 1.000000000000e+00
+     9.757022460938e+03-3.224708557129e+00 0.000000000000e+00 0.000000000000e+00
+R02 2013 01 01 00 15 00-3.537535667419e-04-1.818989403546e-12 1.728000000000e+05
+    -7.231270996094e+03 2.204895019531e+00 0.000000000000e+00 0.000000000000e+00
+    -8.523518554688e+03-2.232992172241e+00 0.000000000000e+00-4.000000000000e+00
+     2.292787548828e+04-1.328620910645e-01-2.793967723846e-09 0.000000000000e+00
+R02 2013 01 01 00 45 00-3.537572920322e-04-1.818989403546e-12 1.746000000000e+05
+    -3.627707031250e+03 1.771393775940e+00 0.000000000000e+00 0.000000000000e+00
+    -1.273327636719e+04-2.401859283447e+00 0.000000000000e+00-4.000000000000e+00
+     2.180566308594e+04-1.105895042419e+00-1.862645149231e-09 0.000000000000e+00
+"""
+
+_RTKLIB_SATPOS = """
+import json, sys
+import pyrtklib as rk
+path, queries = sys.argv[1], json.loads(sys.argv[2])
+obs, nav, sta = rk.obs_t(), rk.nav_t(), rk.sta_t()
+rk.readrnx(path, 0, "", obs, nav, sta)
+out = []
+for sid, week, tow in queries:
+    t = rk.gpst2time(week, tow)
+    rs, dts, var, svh = rk.Arr1Ddouble(6), rk.Arr1Ddouble(2), rk.Arr1Ddouble(1), rk.Arr1Dint(1)
+    ok = rk.satpos(t, t, rk.satid2no(sid), rk.EPHOPT_BRDC, nav, rs, dts, var, svh)
+    out.append([ok, rs[0], rs[1], rs[2], dts[0]])
+print(json.dumps(out), flush=True)
+import os
+os._exit(0)
+"""
+
+
+def test_real_records_beside_rtklib_reading_the_same_file(tmp_path):
+    """RTKLIB 2.4.3 reads the same real file itself (its UTC -> GPS conversion, its record choice) and positions both
+    satellites (channels 1 and -4) at times around and between the records: dgcal's states agree within 1 cm and
+    1e-12 s where RTKLIB has one, and both have none more than 30 min from a record (35 min before the first and
+    after the last)."""
+    f = tmp_path / "BRDM00DLR_R_20130010000_01D_MN.rnx"
+    f.write_text(DLR_2013)
+    g = read_rinex_nav(f).glonass
+    assert sorted(g.frequency_numbers().items()) == [("R01", 1), ("R02", -4)]
+    t0 = 1721 * 604800.0 + 2 * 86400.0          # 2013-01-01 00:00 GPS (Tuesday of week 1721)
+    assert g.toe.min() == t0 + 15 * 60 + 16       # 00:15 UTC + 16 leap seconds
+    offsets = np.array([-1200.0, 0.0, 600.0, 1500.0, 2100.0, 2900.0, 4500.0, 4800.0])   # s after 00:00 GPS
+    queries = [[s, 1721, 2 * 86400.0 + dt] for s in ("R01", "R02") for dt in offsets]
+    out = subprocess.run([sys.executable, "-c", _RTKLIB_SATPOS, str(f), json.dumps(queries)],
+                         capture_output=True, text=True, check=True).stdout
+    rk = np.array(json.loads(out))
+    p, _, clk, _, ok = glonass_states(g, [q[0] for q in queries], np.array([t0 + q[2] - 2 * 86400.0 for q in queries]))
+    assert np.array_equal(ok, rk[:, 0] == 1) and ok.sum() == 12
+    assert np.linalg.norm(p[ok] - rk[ok, 1:4], axis=1).max() < 0.01
+    assert np.abs(clk[ok] - rk[ok, 4]).max() < 1e-12
