@@ -8,6 +8,9 @@ import re
 
 # keys whose words need more than humanising; the unit in parentheses sets how values are formatted
 LABELS = {
+    "slow_scale": "slow error scale, applied (variance factor, unitless)",
+    "slow_scale_file": "slow error scale, the file's own (variance factor, unitless)",
+    "slow_dof": "satellites beyond four (count)",
     "n_images": "images", "n_oriented": "images oriented", "n_control": "control points used",
     "n_check": "check points", "n_observations": "observations", "n_points": "ground points",
     "n_tie_points": "tie points", "n_rejected": "observations rejected", "n_epochs": "epochs",
