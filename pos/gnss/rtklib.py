@@ -58,7 +58,7 @@ def rtklib_pntpos_cov(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
             rk.readrnxc(f, nav)
     opt = rk.prcopt_default
     opt.mode = rk.PMODE_SINGLE
-    opt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS, "C": rk.SYS_CMP}[s]
+    opt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS, "C": rk.SYS_CMP, "R": rk.SYS_GLO}[s]
                      for s in systems)
     opt.elmin = np.radians(elev_mask_deg)
     opt.tropopt = rk.TROPOPT_SAAS
@@ -141,7 +141,8 @@ def _postpos(files: list[str], settings: dict, elev_mask_deg: float, systems: st
     try:
         for k, v in settings.items():
             setattr(popt, k, v)
-        popt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS, "C": rk.SYS_CMP}[s] for s in systems)
+        popt.navsys = sum({"G": rk.SYS_GPS, "E": rk.SYS_GAL, "J": rk.SYS_QZS, "C": rk.SYS_CMP, "R": rk.SYS_GLO}[s]
+                          for s in systems)
         popt.elmin = np.radians(elev_mask_deg)
         popt.ionoopt = rk.IONOOPT_BRDC
         popt.tropopt = rk.TROPOPT_SAAS
