@@ -21,7 +21,7 @@ from cssrlib.rinex import rnxdec
 from dgcal.fields.constants import C_LIGHT, SECONDS_PER_DAY, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.csv_tables import atomic_write
-from dgcal.pos.gnss.glonass import GlonassEphemerides, glonass_frequency_hz
+from dgcal.pos.gnss.glonass import F1_BASE_HZ, F1_STEP_HZ, GlonassEphemerides, glonass_frequency_hz
 from dgcal.pos.gnss.observations import ALL_SYSTEMS, SYSTEMS, GnssEpoch, GnssObservations
 from dgcal.pos.gnss.precise import product_kind, read_precise
 from dgcal.pos.gnss.rinex_nav import ION_DEFAULT, nav_text_for_cssrlib
@@ -455,7 +455,8 @@ def write_rinex_obs(path: str | Path, obs: GnssObservations, marker: str = "DGCA
     """Write code, Doppler and C/N0 of ``obs`` as a RINEX 3.04 observation file (atomic write).
 
     Per system the codes of ``obs.signals`` are written with their Doppler ('D..') and signal
-    strength ('S..'); values that are NaN are left blank.
+    strength ('S..'); values that are NaN are left blank. GLONASS satellites' frequency channels (from their
+    wavelengths) go to the header's GLONASS SLOT / FRQ # lines.
     """
 
     systems = obs.systems
@@ -480,6 +481,16 @@ def write_rinex_obs(path: str | Path, obs: GnssObservations, marker: str = "DGCA
              hdr(f"{0.0:14.4f}{0.0:14.4f}{0.0:14.4f}", "ANTENNA: DELTA H/E/N")]
     for s in systems:
         lines.append(hdr(f"{s}{len(types[s]):5d} " + " ".join(types[s]), "SYS / # / OBS TYPES"))
+    if "R" in systems:      # each GLONASS satellite's frequency channel, from its wavelength
+        k = {}
+        for ep in obs.epochs:
+            for sid, lam in zip(ep.sat, ep.wavelength_m):
+                if sid[0] == "R" and sid not in k and np.isfinite(lam):
+                    k[sid] = int(round((C_LIGHT / lam - F1_BASE_HZ) / F1_STEP_HZ))
+        items = sorted(k.items())
+        for j in range(0, max(len(items), 1), 8):
+            part = "".join(f"{sid} {kk:2d} " for sid, kk in items[j:j + 8])
+            lines.append(hdr((f"{len(items):3d} " if j == 0 else "    ") + part, "GLONASS SLOT / FRQ #"))
     lines.append(hdr(f"{dt:10.3f}", "INTERVAL"))
     for tt, label in ((t0, "TIME OF FIRST OBS"), (t1, "TIME OF LAST OBS")):
         y, mo, d, h, mi, sec = calendar_from_gps_seconds(tt)

@@ -268,21 +268,17 @@ def test_spp_files_reads_glonass_from_rinex(glonass_case, tmp_path):
     ref = spp(obs, nav, opts)
     assert np.abs(run.solution.p_ecef - ref.p_ecef).max() < 1e-3
     assert any(s.startswith("R") for s in run.solution.used[0])
-    # channels from the header instead of the navigation records: the same wavelengths
+    # channels from the header (the writer's GLONASS SLOT / FRQ # lines) instead of the navigation records: the same
+    # wavelengths
     k = nav.glonass.frequency_numbers()
-    lines = f.read_text().splitlines()
-    end = next(i for i, s in enumerate(lines) if "END OF HEADER" in s)
-    items = sorted(k.items())
-    slot = []
-    for j in range(0, len(items), 8):
-        part = "".join(f"{s} {v:2d} " for s, v in items[j:j + 8])
-        slot.append((f"{len(items):3d} " if j == 0 else "    ") + f"{part:<56}GLONASS SLOT / FRQ #")
-    f2 = tmp_path / "slots.rnx"
-    f2.write_text("\n".join(lines[:end] + slot + lines[end:]) + "\n")
-    rx = read_obs_file(f2)
-    assert rx.glonass_k == k
-    a = read_rinex_obs(f2, systems=("G", "R"), rinex=rx)
-    b = read_rinex_obs(f, systems=("G", "R"), glonass_k=k)
+    seen = {s for e in obs.epochs for s in e.sat if s[0] == "R"}
+    rx = read_obs_file(f)
+    assert rx.glonass_k == {s: v for s, v in k.items() if s in seen} and len(seen) >= 5
+    a = read_rinex_obs(f, systems=("G", "R"), rinex=rx)
+    f3 = tmp_path / "no_slots.rnx"          # channels from the navigation records only
+    f3.write_text("\n".join(s for s in f.read_text().splitlines() if "GLONASS SLOT" not in s) + "\n")
+    assert not read_obs_file(f3).glonass_k and read_rinex_obs(f3, systems=("G", "R")).systems == ["G"]   # unknown k
+    b = read_rinex_obs(f3, systems=("G", "R"), glonass_k=k)
     assert all(np.array_equal(x.wavelength_m, y.wavelength_m) for x, y in zip(a.epochs, b.epochs))
     r = [i for i, s in enumerate(a.epochs[0].sat) if s[0] == "R"]
     assert r and np.allclose(a.epochs[0].wavelength_m[r],
