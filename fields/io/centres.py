@@ -56,6 +56,7 @@ def read_centres_with_flights(path: str | Path) -> tuple[EOP, np.ndarray | None]
                                  what="sigma")
     for j, c in enumerate(("somega", "sphi", "skappa")):
         sig[:, 3 + j] = _blank_floats(tab, c)
+        validate.positive_values(sig[:, 3 + j], tab.path, c, tab.lines, allow_nan=True, hi=360.0, what="sigma")
     flights = None
     if "flight" in tab:
         flights = np.array([str(v).strip() for v in tab["flight"].tolist()], dtype=object)

@@ -124,7 +124,7 @@ def _epoch(fields: list[str], path: Path, ln: int, name: str) -> float:
         if not (1980 <= y <= 2200 and 0 <= h <= 23 and 0 <= mi <= 59 and 0.0 <= s < 61.0):
             raise ValueError
         return _gps_seconds(y, mo, d, h, mi, s)
-    except (ValueError, IndexError):
+    except (ValueError, IndexError, OverflowError):   # a month of 1e30 overflows the calendar
         raise InputError(f"bad epoch {' '.join(fields[:6])!r}", path, ln, name) from None
 
 

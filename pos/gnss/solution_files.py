@@ -220,6 +220,11 @@ def read_rtklib_pos(path: str | Path) -> GnssSolution:
     negsd = np.flatnonzero(np.any(np.stack(sd) < 0, axis=0))
     if negsd.size:
         raise InputError("negative standard deviation", path, int(lno[negsd[0]]), "sdn(m)")
+    for name, values in col.items():   # sigmas of a position (m) and of a velocity (m/s), velocities (m/s)
+        is_vel = name.startswith(("sdv", "v"))
+        if name.startswith(("sd", "v")):
+            hi = validate.MAX_SPEED_M_S if is_vel else validate.MAX_HEIGHT_M
+            validate.values_in_range(values, -hi, hi, path, name, lno, unit="m/s" if is_vel else "m")
     v = Cv = None
     if kind in ("llh", "dms") and all(k in col for k in ("vn(m/s)", "ve(m/s)", "vu(m/s)")):
         v_ned = np.column_stack([col["vn(m/s)"], col["ve(m/s)"], -col["vu(m/s)"]])

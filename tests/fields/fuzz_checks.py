@@ -26,13 +26,10 @@ NAN_NOT_GIVEN = {"laser-ranges", "centres-csv"}
 # out-of-range values the fuzz runs found in readers of other owners' modules, left open (named in issue 31's notes):
 # reader -> prefixes of the result paths; such a value is counted (FuzzStats.known_open), not failed
 KNOWN_OPEN = {
-    "rtklib-pos": (".cov_ned", ".cov_v_ned", ".v_ecef"),            # pos/gnss/solution_files.py: sigmas unbounded
-    "fix-input-rtklib-pos": (".cov_ned", ".cov_v_ned", ".v_ecef"),
     "rinex-nav-2": (".eph",),                                      # pos/gnss/rinex.py: IODC, fit, Cis of 1e308
     "rinex-nav-3": (".eph",),
     "rinex-obs-2": (".p_approx_ecef", ".epochs"),                  # pos/gnss/rinex_obs.py: NaN approx position,
     "rinex-obs-3": (".p_approx_ecef", ".epochs"),                  # C/N0 of 1e308
-    "centres-csv": (".sigma",),            # fields/io/centres.py: the angle sigmas somega/sphi/skappa unchecked (inf)
 }
 MAX_ABS = 1e12           # no quantity dgcal reads is this large in its units (GPS s ~1.5e9, ECEF m ~6.4e6)
 

@@ -488,7 +488,12 @@ def s_sp3(tmp):
     src = Path(__file__).resolve().parents[1] / "pos/gnss/data/COD0MGXFIN_20210781100_02H_05M_ORB.SP3.gz"
     lines = gzip.open(src, "rb").read().split(b"\n")
     epochs = [i for i, ln in enumerate(lines) if ln.startswith(b"*")]
-    return b"\n".join(lines[:epochs[2]] + [b"EOF", b""])
+    body = lines[:epochs[2]]
+    # as real products have them: a satellite missing at one epoch, one bad clock (NaN in memory: "no value")
+    del body[epochs[1] + 1]
+    first = epochs[0] + 1
+    body[first] = body[first][:46] + b"999999.999999" + body[first][60:]
+    return b"\n".join(body + [b"EOF", b""])
 
 
 def s_smrmsg(tmp):
