@@ -157,15 +157,36 @@ def _glonass_record(lines: list[str], i: int, path: Path, rinex2: bool) -> dict:
             "frq": int(round(o[1, 3])), "svh": int(round(o[0, 3])), "age": o[2, 3], "line": ln}
 
 
+def _add_glonass(lines: list[str], i: int, path: Path, rinex2: bool, rows: list, bad: list) -> None:
+    """`_glonass_record` at line index i into `rows`, or, when it cannot be read, its location and reason into `bad`:
+    GLONASS is optional (SPP only, when asked for), so a record dgcal cannot use leaves the file readable."""
+    try:
+        rows.append(_glonass_record(lines, i, path, rinex2))
+    except InputError as exc:
+        bad.append(f"line {exc.line}" + (f" ({exc.field})" if exc.field else "") + f": {exc.reason}")
+
+
+def _glonass_note(bad: list[str]) -> str:
+    """The warning for GLONASS records left out (first three named)."""
+    if not bad:
+        return ""
+    return (f"{len(bad)} GLONASS record(s) that cannot be read left out: " + "; ".join(bad[:3])
+            + (" ..." if len(bad) > 3 else ""))
+
+
 def _rinex2_glonass(lines: list[str], hdr: NavHeader, path: Path) -> GlonassEphemerides | None:
-    """The records of a RINEX 2 GLONASS navigation file (type 'G'; 4 lines each)."""
-    rows, i = [], hdr.end_line + 1
+    """The records of a RINEX 2 GLONASS navigation file (type 'G'; 4 lines each); unreadable ones are named in
+    ``hdr.skipped``."""
+    rows: list = []
+    bad: list = []
+    i = hdr.end_line + 1
     while i < len(lines):
         if not lines[i].strip():
             i += 1
             continue
-        rows.append(_glonass_record(lines, i, path, rinex2=True))
+        _add_glonass(lines, i, path, True, rows, bad)
         i += 4
+    hdr.skipped = _glonass_note(bad)
     return GlonassEphemerides.from_rows(rows) if rows else None
 
 
@@ -221,6 +242,7 @@ def _rinex3_used_records(lines: list[str], hdr: NavHeader, path: Path) -> tuple[
     out = list(lines)
     skipped: dict[str, list[int]] = {}
     glonass: list[dict] = []
+    bad_glonass: list[str] = []
     n = len(lines)
     i = hdr.end_line + 1
     while i < n:
@@ -237,7 +259,7 @@ def _rinex3_used_records(lines: list[str], hdr: NavHeader, path: Path) -> tuple[
         while j < n and lines[j][:4] == "    " and lines[j].strip():
             j += 1
         if sys == "R":
-            glonass.append(_glonass_record(lines, i, path, rinex2=False))
+            _add_glonass(lines, i, path, False, glonass, bad_glonass)
             for k in range(i, j):
                 out[k] = ""
             i = j
@@ -275,6 +297,7 @@ def _rinex3_used_records(lines: list[str], hdr: NavHeader, path: Path) -> tuple[
         note = (f"{sum(c for c, _ in skipped.values())} navigation record(s) of systems dgcal does not use skipped: "
                 + ", ".join(parts))
     hdr.glonass = GlonassEphemerides.from_rows(glonass) if glonass else None
+    note = "; ".join(x for x in (note, _glonass_note(bad_glonass)) if x)
     return out, note
 
 

@@ -52,13 +52,19 @@ def test_record_read_from_rinex3_and_rinex2_alike(shared_data, tmp_path):
     nav2 = read_rinex_nav(shared_data / NAV, [f2])
     for k in ("toe", "pos", "vel", "acc", "taun", "gamn", "frq"):
         assert np.array_equal(getattr(nav2.glonass, k), getattr(g, k)), k
-    # a corrupt field names its line and field
-    from dgcal.fields.errors import InputError
-    bad = list(GLO_REC)
+    # a record that cannot be read is left out with a warning naming its line and field (GLONASS is optional: the
+    # file stays readable, as when dgcal skipped every GLONASS record)
+    bad = list(GLO_REC) + [s.replace("R05", "R06") for s in GLO_REC]
     bad[2] = bad[2][:23] + "x" + bad[2][24:]
-    with pytest.raises(InputError) as e:
-        read_rinex_nav(_nav_with(shared_data, tmp_path, bad, "bad.rnx"))
-    assert e.value.field == "BROADCAST ORBIT - 2: Y velocity"
+    f = _nav_with(shared_data, tmp_path, bad, "bad.rnx")
+    nav = read_rinex_nav(f)
+    assert list(nav.glonass.sat) == ["R06"] and len(nav.by_sat) == len(read_rinex_nav(shared_data / NAV).by_sat)
+    ln = f.read_text().splitlines().index(bad[2]) + 1
+    assert any(f"{f}: 1 GLONASS record(s) that cannot be read left out: line {ln} (BROADCAST ORBIT - 2: Y velocity): "
+               "not a number" in w for w in nav.warnings), nav.warnings
+    f2.write_text("\n".join(r2[:3] + ["   " + s[4:] for s in bad[1:2]]) + "\n")   # orbit lines missing
+    nav2 = read_rinex_nav(shared_data / NAV, [f2])
+    assert nav2.glonass is None and any("GLONASS record(s) that cannot be read" in w for w in nav2.warnings)
 
 
 _RTKLIB_GEPH = """
