@@ -147,11 +147,14 @@ def _glonass_record(lines: list[str], i: int, path: Path, rinex2: bool) -> dict:
                          f"BROADCAST ORBIT - {m}: {_GLO_FIELDS[m][k]}") for k in range(4)])
     o = np.array(orb)
     sec = float(ep[5])
-    toe = gps_seconds_from_utc(*ep[:5], sec)
+    try:
+        toe = gps_seconds_from_utc(*ep[:5], sec)
+    except ValueError:          # 30 February, hour 25
+        raise InputError(f"not a date: {line[:23].strip()!r}", path, ln, "SV / EPOCH / SV CLK") from None
     pos, vel, acc = o[:, 0] * 1e3, o[:, 1] * 1e3, o[:, 2] * 1e3
     if not (1.5e7 < np.linalg.norm(pos) < 3.5e7 and np.linalg.norm(vel) < 1e4 and abs(clk[0]) < 1.0
-            and abs(clk[1]) < 1e-6 and abs(o[1, 3]) <= 20):
-        raise InputError("GLONASS record with an impossible orbit, clock or frequency number", path, ln,
+            and abs(clk[1]) < 1e-6 and abs(o[1, 3]) <= 20 and abs(o[0, 3]) < 1e6 and abs(o[2, 3]) < 1e6):
+        raise InputError("GLONASS record with an impossible orbit, clock, health, age or frequency number", path, ln,
                          "SV / EPOCH / SV CLK")
     return {"sat": f"R{prn:02d}", "toe": toe, "pos": pos, "vel": vel, "acc": acc, "taun": -clk[0], "gamn": clk[1],
             "frq": int(round(o[1, 3])), "svh": int(round(o[0, 3])), "age": o[2, 3], "line": ln}
