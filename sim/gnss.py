@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,15 +34,17 @@ from dgcal.pos.gnss.carrier import CarrierObs
 from dgcal.pos.gnss.corrections import (KLOBUCHAR_SHARE, code_sigma_m, klobuchar_delay_m, model_sigma_m,
                                         saastamoinen_delay_m)
 from dgcal.pos.gnss.ephemeris import satellite_states
+from dgcal.pos.gnss.glonass import MU_GLO, OMGE_GLO, GlonassEphemerides, glonass_frequency_hz, integrate_orbits
 from dgcal.pos.gnss.observations import GnssEpoch, GnssObservations
 from dgcal.pos.gnss.rinex import BroadcastNav, read_rinex_nav, signal_frequency_hz, write_rinex_obs
+from dgcal.pos.gnss.rinex_nav import glonass_rinex3_lines
 from dgcal.pos.gnss.spp import SppOptions, prepare_epoch
 
 
 DEFAULT_NAV = Path(__file__).resolve().parents[2] / "shared" / "data" / "rinex-sept" / "SEPT078M.21P"
 # 2021-03-19 12:00:00 GPS time, inside the validity of DEFAULT_NAV
 DEFAULT_T0_GPS = 2149 * SECONDS_PER_WEEK + 5 * SECONDS_PER_DAY + 12 * 3600.0
-SIGNAL = {"G": "C1C", "J": "C1C", "E": "C1C", "C": "C2I"}
+SIGNAL = {"G": "C1C", "J": "C1C", "E": "C1C", "C": "C2I", "R": "C1C"}
 
 
 @dataclass
@@ -57,7 +59,7 @@ class RxClock:
     drift: float = 5.0e-8
     q_bias: float = 1.0e-19
     q_drift: float = 4.0e-19
-    isb_m: dict[str, float] = field(default_factory=lambda: {"G": 0.0, "J": 0.0, "E": 2.5, "C": -4.0})
+    isb_m: dict[str, float] = field(default_factory=lambda: {"G": 0.0, "J": 0.0, "E": 2.5, "C": -4.0, "R": -7.0})
 
 
 @dataclass
@@ -81,14 +83,23 @@ class CodeErrorModel:
 def _load_nav(nav, t_span: tuple[float, float] | None = None, systems=("G", "E", "C"),
               seed: int = 0) -> BroadcastNav:
     if isinstance(nav, BroadcastNav):
-        return nav
+        return _with_glonass(nav, t_span, systems, seed)
     if nav is None:
         nav = DEFAULT_NAV
     if isinstance(nav, str) and nav == "synthetic":
         if t_span is None:
             raise ValueError("a synthetic constellation needs the time span")
         return synthetic_nav(t_span[0], t_span[1], systems, seed)
-    return read_rinex_nav(nav)
+    return _with_glonass(read_rinex_nav(nav), t_span, systems, seed)
+
+
+def _with_glonass(nav: BroadcastNav, t_span, systems, seed: int) -> BroadcastNav:
+    """`nav`, or a copy with `synthetic_glonass` records when GLONASS is asked for and `nav` has none."""
+    if "R" not in systems or getattr(nav, "glonass", None) is not None:
+        return nav
+    if t_span is None:
+        raise ValueError("a synthetic GLONASS constellation needs the time span")
+    return replace(nav, glonass=synthetic_glonass(t_span[0], t_span[1], seed), _toe={})
 
 
 def load_nav(nav=None, t_span: tuple[float, float] | None = None, systems=("G", "E", "C"),
@@ -110,7 +121,7 @@ def synthetic_nav(t0_gps: float, t1_gps: float, systems=("G", "E", "C"), seed: i
     spec = {"G": (26559.7e3, 55.0, 6, 4), "E": (29600.0e3, 56.0, 3, 8), "C": (27906.1e3, 55.0, 3, 8)}
     toes = np.arange(np.floor(t0_gps / 7200.0) * 7200.0 - 7200.0, t1_gps + 7200.0 + 1.0, 7200.0)
     eph_all, by_sat = [], {}
-    for s in systems:
+    for s in (s for s in systems if s != "R"):
         a, inc, n_planes, per_plane = spec[s]
         n_mot = np.sqrt(GM_GPS / a ** 3)
         prn = 0
@@ -143,7 +154,35 @@ def synthetic_nav(t0_gps: float, t1_gps: float, systems=("G", "E", "C"), seed: i
     ion = np.array([[1.118e-08, 7.451e-09, -5.960e-08, -5.960e-08],
                     [9.011e+04, 0.0, -1.966e+05, -6.554e+04]])
     return BroadcastNav(eph=eph_all, by_sat=by_sat, ion_gps=ion, ion_bds=None, leap_seconds=18,
-                        source="synthetic")
+                        source="synthetic",
+                        glonass=synthetic_glonass(t0_gps, t1_gps, seed) if "R" in systems else None)
+
+
+def synthetic_glonass(t0_gps: float, t1_gps: float, seed: int = 0) -> GlonassEphemerides:
+    """A GLONASS-like constellation as broadcast records every 30 min covering [t0, t1] (GPS s): 24 satellites in 3
+    planes (i = 64.8 deg, a = 25510 km, circular), each record's state integrated from the one before (the orbit is
+    continuous across records), frequency channels -7..6 (antipodal satellites share one), small clock offsets."""
+    rng = np.random.default_rng(seed + 1000)
+    a, inc = 25510e3, np.radians(64.8)
+    toes = np.arange(np.floor(t0_gps / 1800.0) * 1800.0 - 1800.0, t1_gps + 1800.0 + 1.0, 1800.0)
+    rows = []
+    for plane in range(3):
+        raan = np.radians(120.0 * plane + 10.0)
+        P = np.array([np.cos(raan), np.sin(raan), 0.0])
+        Q = np.array([-np.sin(raan) * np.cos(inc), np.cos(raan) * np.cos(inc), np.sin(inc)])
+        for slot in range(8):
+            u = np.radians(45.0 * slot + 15.0 * plane)
+            r = a * (np.cos(u) * P + np.sin(u) * Q)
+            v = np.sqrt(MU_GLO / a) * (-np.sin(u) * P + np.cos(u) * Q) - np.cross([0.0, 0.0, OMGE_GLO], r)
+            taun, gamn = rng.normal(0.0, 1e-5), rng.normal(0.0, 1e-12)
+            for j, toe in enumerate(toes):
+                if j:
+                    pr, vr = integrate_orbits(r[None], v[None], np.zeros((1, 3)), np.array([1800.0]))
+                    r, v = pr[0], vr[0]
+                rows.append({"sat": f"R{8 * plane + slot + 1:02d}", "toe": toe, "pos": r, "vel": v,
+                             "acc": np.zeros(3), "taun": taun - gamn * (toe - toes[0]), "gamn": gamn,
+                             "frq": (4 * plane + slot % 4) % 14 - 7, "svh": 0, "age": 0, "line": 0})
+    return GlonassEphemerides.from_rows(rows)
 
 
 def _clock_series(t: np.ndarray, clk: RxClock, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -192,9 +231,10 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
 
     ``traj_t_gps`` (N,) continuous GPS seconds (the receiver epochs), ``p_ecef_antenna`` (N,3) m,
     ``v_ecef`` (N,3) m/s; ``nav``: a RINEX navigation path, a ``BroadcastNav``, ``"synthetic"``
-    (``synthetic_nav`` over the trajectory's span: any date, G/E/C) or None for the bundled real
+    (``synthetic_nav`` over the trajectory's span: any date, G/E/C/R) or None for the bundled real
     file (then the flight must lie within about 2021-03-19 10:00-15:30 GPS time, e.g. from
-    ``DEFAULT_T0_GPS``; G, E and J are available). ``outages``:
+    ``DEFAULT_T0_GPS``; G, E and J are available). GLONASS ('R' in ``systems``): the navigation's GLONASS records,
+    or `synthetic_glonass`'s when it has none (FDMA wavelengths per satellite). ``outages``:
     (t0, t1, max_sats) -- between t0 and t1 only the ``max_sats`` highest satellites are kept.
     ``sigma_pr``/``sigma_doppler``: zenith noise (m, m/s). With ``prepare`` the epochs are run
     through ``dgcal.pos.gnss.spp.prepare_epoch`` at the true positions (sigmas = the simulated noise, no
@@ -205,7 +245,7 @@ def simulate_gnss(traj_t_gps: np.ndarray, p_ecef_antenna: np.ndarray, v_ecef: np
     """
     rng = np.random.default_rng(seed)
     t = np.asarray(traj_t_gps, float)
-    nav = _load_nav(nav, (t[0], t[-1]), tuple(s for s in systems if s in "GEC"), seed)
+    nav = _load_nav(nav, (t[0], t[-1]), tuple(s for s in systems if s in "GECR"), seed)
     clk = rx_clock or RxClock()
     P = np.asarray(p_ecef_antenna, float).reshape(-1, 3)
     V = np.asarray(v_ecef, float).reshape(-1, 3)
@@ -235,6 +275,9 @@ def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_
     llh = ecef_to_geodetic(p_rx).reshape(n_ep, 3)
     R_ecef_to_local_enu = R_ecef_to_enu(llh[:, 0], llh[:, 1]).reshape(n_ep, 3, 3)
     sats = sorted(s for s in nav.by_sat if s[0] in systems)
+    if "R" in systems and getattr(nav, "glonass", None) is not None:
+        sats += sorted(set(str(x) for x in nav.glonass.sat))
+    k_glo = nav.glonass.frequency_numbers() if "R" in systems and nav.glonass is not None else {}
 
     def elev_azim(k_idx, p_sat):
         d = p_sat - p_rx[k_idx]
@@ -276,8 +319,9 @@ def _simulate_raw(t, P, V, bias, drift, nav, clk: RxClock, rng, sigma_pr, sigma_
     rr = (rho_p - rho_m) / (2 * h_d)
     dts = clk_s + clk_d * ((t_true[K] - tau) - t_s0)
     sysv = np.array([s[0] for s in S])
-    lam = {s: C_LIGHT / signal_frequency_hz(s, SIGNAL[s]) for s in systems}
-    lam_v = np.array([lam[s] for s in sysv])
+    lam = {s: C_LIGHT / signal_frequency_hz(s, SIGNAL[s]) for s in systems if s != "R"}
+    lam.update({sid: C_LIGHT / float(glonass_frequency_hz(k)) for sid, k in k_glo.items()})   # FDMA
+    lam_v = np.array([lam[sid if sid[0] == "R" else sid[0]] for sid in S])
     iono = klobuchar_delay_m(t_true[K], llh[K, 0], llh[K, 1], el, az, nav.ion_gps, C_LIGHT / lam_v)
     tropo = saastamoinen_delay_m(llh[K, 0], llh[K, 2], el)
     isb = np.array([clk.isb_m.get(s, 0.0) for s in sysv])
@@ -361,7 +405,8 @@ def simulate_gnss_dataset(out: str | Path, seed: int = 0, nav: str | Path | None
     """Simulate RINEX 3 observations of a receiver static at (lat, lon deg, height m ellipsoidal) or on a
     horizontal circle (`radius_m`, `speed_mps`) from `duration_s` at `rate_hz` (t0: continuous GPS s, default
     DEFAULT_T0_GPS) into out/sim.obs, with the navigation file (default DEFAULT_NAV) as out/nav.rnx and the
-    truth (positions, clocks) in out/truth.json; returns the observation file's path."""
+    truth (positions, clocks) in out/truth.json; returns the observation file's path. With 'R' in `systems` and no
+    GLONASS records in the navigation file, `synthetic_glonass`'s records are simulated and written into nav.rnx."""
     t0 = t0_gps if t0_gps is not None else DEFAULT_T0_GPS
     t = t0 + np.arange(0.0, duration_s + 1e-9, 1.0 / rate_hz)
     p, v = circle_trajectory(t, lat, lon, height, radius_m, speed_mps)
@@ -370,6 +415,13 @@ def simulate_gnss_dataset(out: str | Path, seed: int = 0, nav: str | Path | None
     with staged_dir(out) as d:
         write_rinex_obs(Path(d) / "sim.obs", obs)
         shutil.copyfile(nav or DEFAULT_NAV, Path(d) / "nav.rnx")
+        used = obs.truth["nav"]
+        if "R" in systems and read_rinex_nav(Path(d) / "nav.rnx").glonass is None:
+            # the synthetic GLONASS records the observations came from, after the header
+            lines = (Path(d) / "nav.rnx").read_text().splitlines()
+            end = next(i for i, x in enumerate(lines) if x[60:].startswith("END OF HEADER"))
+            (Path(d) / "nav.rnx").write_text("\n".join(lines[:end + 1] + glonass_rinex3_lines(used.glonass)
+                                                        + lines[end + 1:]) + "\n")
         truth = {"kind": "gnss", "seed": seed, "systems": list(systems),
                  "sigma_pr_m": sigma_pr, "sigma_doppler_mps": sigma_doppler,
                  "t_gps": t.tolist(), "p_ecef": p.tolist(), "v_ecef": v.tolist(),

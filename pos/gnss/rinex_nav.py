@@ -12,6 +12,7 @@ out of the text handed on. The header's Klobuchar coefficients are returned as w
 """
 from __future__ import annotations
 
+import datetime as _dt
 import io
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from dgcal.fields.errors import InputError
-from dgcal.pos.gnss.glonass import GlonassEphemerides, gps_seconds_from_utc
+from dgcal.pos.gnss.glonass import GlonassEphemerides, gps_minus_utc_s, gps_seconds_from_utc
 from dgcal.pos.gnss.rinex_obs import read_lines, rinex_version_type
 
 # RTKLIB's default Klobuchar coefficients (alpha, beta; 2004/1/1), used when a file has none
@@ -324,3 +325,23 @@ def nav_text_for_cssrlib(path: str | Path) -> tuple[io.StringIO, NavHeader]:
         raise InputError(f"RINEX 2 {kind} navigation files are not read (GPS 'N', GLONASS 'G' files and RINEX 3 are)",
                          path, 1, "RINEX VERSION / TYPE")
     return io.StringIO("\n".join(text) + "\n"), hdr
+
+
+def glonass_rinex3_lines(eph: GlonassEphemerides) -> list[str]:
+    """RINEX 3 navigation records (4 lines each; epochs UTC, kilometres) of GLONASS ephemerides, as
+    `_glonass_record` reads them back."""
+    def d(x: float) -> str:
+        m, e = f"{x:.12E}".split("E")
+        return f"{m:>15}E{int(e):+03d}"
+
+    out = []
+    gps_epoch = _dt.datetime(1980, 1, 6)
+    for i in np.argsort(eph.toe, kind="stable"):
+        t = gps_epoch + _dt.timedelta(seconds=float(eph.toe[i]))
+        t -= _dt.timedelta(seconds=gps_minus_utc_s(t.year, t.month))
+        out.append(f"{eph.sat[i]} {t:%Y %m %d %H %M %S}" + d(-eph.taun[i]) + d(eph.gamn[i]) + d(0.0))
+        extra = (eph.svh[i], eph.frq[i], eph.age[i])
+        for c in range(3):
+            out.append("    " + d(eph.pos[i, c] / 1e3) + d(eph.vel[i, c] / 1e3) + d(eph.acc[i, c] / 1e3)
+                       + d(float(extra[c])))
+    return out
