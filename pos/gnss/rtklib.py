@@ -48,7 +48,8 @@ def rtklib_pntpos_cov(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
 
     obs, nav, sta = rk.obs_t(), rk.nav_t(), rk.sta_t()
     rk.readrnx(str(obs_path), 1, "", obs, nav, sta)
-    rk.readrnx(str(nav_path), 1, "", obs, nav, sta)
+    for f in ([nav_path] if isinstance(nav_path, (str, os.PathLike)) else nav_path):   # one file or several
+        rk.readrnx(str(f), 1, "", obs, nav, sta)
     rk.sortobs(obs)
     rk.uniqnav(nav)
     with tempfile.TemporaryDirectory() as d:
