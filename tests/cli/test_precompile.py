@@ -37,7 +37,9 @@ def test_the_tiny_campaign_compiles_every_campaign_kernel():
         for name in names:
             kernel = getattr(mod, name)
             assert isinstance(kernel, CPUDispatcher), f"{module}.{name} is not a numba kernel any more"
-            if not kernel.signatures:
+            # compiled here or in a forked child of the run (fork_map's tasks go to whichever process is free):
+            # what counts is the machine code in numba's cache on disk, which the next process loads
+            if not kernel.signatures and not kernel._cache._cache_file._load_index():
                 missing.append(f"{module}.{name}")
     assert not missing, f"not compiled by dgcal.precompile: {missing}"
 
