@@ -330,6 +330,10 @@ def run_gnss_ins(opts: InsModeOptions) -> PosResult | UkfPosResult:
     except ValueError as exc:
         raise InputError(str(exc), field="imu_grade") from None
     lever = np.asarray(opts.lever_arm_m or (0.0, 0.0, 0.0), float)
+    for name, systems in (("spp.systems", opts.spp.systems), ("ppk.systems", opts.ppk.systems)):
+        if "R" in str(systems):   # the CLI's --systems drops it with a warning; a --set or a caller must not pass it
+            raise InputError(f"GLONASS (R) is used by SPP only; tc, lc and ukf take {systems!r} without it",
+                             field=name)
     events = read_any_events(opts.events, opts.events_format, opts.mrk_names,
                              list_image_files(opts.event_images) if opts.event_images else None,
                              opts.mrk_pairing) if opts.events else None

@@ -106,3 +106,18 @@ def test_a_missing_input_names_the_flag(tmp_path, capsys):
     assert main(["pos", "--mode", "ppk", "--rinex-obs", "r.rnx", "--rinex-nav", "n.rnx",
                  "--out", str(tmp_path / "o")]) == 2
     assert "--rinex-base" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("mode", ["tc", "lc", "ukf"])
+def test_glonass_outside_spp_is_refused_naming_the_field(mode):
+    """GLONASS is used by SPP only: a Python caller's options with R in the systems of tc/lc/ukf are refused
+    naming the field, before any file is read (the --systems flag drops R with a warning)."""
+    from dataclasses import replace
+
+    from dgcal.pos.gnss_ins import run_gnss_ins
+    opts = (UkfModeOptions() if mode == "ukf" else InsModeOptions(mode=mode))
+    opts.imu = replace(opts.imu, path="imu.csv")
+    opts.spp = replace(opts.spp, systems="GR")
+    with pytest.raises(InputError, match="GLONASS") as exc:
+        run_gnss_ins(opts)
+    assert exc.value.field == "spp.systems"
