@@ -348,7 +348,14 @@ def _decode_fields(rows: list[str], line_no: np.ndarray, n_codes: int, codes: li
                         raise InputError(f"not a number: {s[r, k].decode(errors='replace').strip()!r}", path,
                                          int(line_no[r, k]), codes[k]) from None
         raise
+    # an F14.3 field holds at most 9 999 999 999.999: "inf", "nan" or 1e308 in one is a damaged record
+    bad = ~blank & ~(np.abs(val) < 1e10)
+    if bad.any():
+        r, k = np.argwhere(bad)[0]
+        raise InputError(f"not an observation value: {s[r, k].decode(errors='replace').strip()!r}", path,
+                         int(line_no[r, k]), codes[k])
     val[val == 0.0] = np.nan
+
     def flag(col):
         c = a[:, :, col]
         out = np.where((c >= 48) & (c <= 57), c - 48, 0).astype(np.uint8)

@@ -20,17 +20,13 @@ from dgcal.fields.errors import InputError
 
 HANG_S = 10.0            # a read taking longer is a hang (the acceptance of issue 31)
 # NaN is "not given" in optional uncertainty columns (docs/formats.md: a blank sigma), however the file wrote it
-OPTIONAL_NAN = ("sigma", "cov")
-# laser ranges: {image: (range m, sigma m or NaN: not given)}; camera centres: angles NaN when not given
-NAN_NOT_GIVEN = {"laser-ranges", "centres-csv"}
-# out-of-range values the fuzz runs found in readers of other owners' modules, left open (named in issue 31's notes):
-# reader -> prefixes of the result paths; such a value is counted (FuzzStats.known_open), not failed
-KNOWN_OPEN = {
-    "rinex-nav-2": (".eph",),                                      # pos/gnss/rinex.py: IODC, fit, Cis of 1e308
-    "rinex-nav-3": (".eph",),
-    "rinex-obs-2": (".p_approx_ecef", ".epochs"),                  # pos/gnss/rinex_obs.py: NaN approx position,
-    "rinex-obs-3": (".p_approx_ecef", ".epochs"),                  # C/N0 of 1e308
-}
+OPTIONAL_NAN = ("sigma", "cov", "p_approx")   # p_approx: a RINEX header's approximate position, NaN = not given
+# laser ranges: {image: (range m, sigma m or NaN: not given)}; camera centres: angles NaN when not given; RINEX
+# observations: any field of a record may be blank (NaN: not observed)
+NAN_NOT_GIVEN = {"laser-ranges", "centres-csv", "rinex-obs-2", "rinex-obs-3"}
+# out-of-range values the fuzz runs found in readers, left open (named in issue 31's notes): reader -> prefixes of the
+# result paths; such a value is counted (FuzzStats.known_open), not failed. Empty: every reader holds.
+KNOWN_OPEN: dict[str, tuple[str, ...]] = {}
 MAX_ABS = 1e12           # no quantity dgcal reads is this large in its units (GPS s ~1.5e9, ECEF m ~6.4e6)
 
 
