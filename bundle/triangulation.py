@@ -713,6 +713,10 @@ def _adjust_and_clean(adj: _Adjuster, msgs: list[str]) -> tuple[list[Suspect], l
         rounds["snooping"] += 1
         adj.run()
         rounds["adjustments"] += 1
+        if control_disagrees(*rejected_control(adj.blk, suspects)):
+            # the control as a whole disagrees (a unit, a CRS): snooping on would only hide it (and cost minutes)
+            _warn(msgs, "data snooping stopped: more than a third of the control points rejected", opt.verbose)
+            break
     # what is left above the critical value (not removed: the cap was reached, or rejection is off)
     _snoop_control(adj, msgs, suspects, apply=False)
     return suspects, dropped, rounds
@@ -847,6 +851,25 @@ def _datum_diagnostics(res: BundleResult, adj: _Adjuster, msgs: list[str]) -> di
     return {"datum": stmt, "f_height": fh, "centre_model": centre_model}
 
 
+def rejected_control(blk: _Block, suspects: list[Suspect]) -> tuple[int, int]:
+    """(control points the images reject, control points): a point is rejected when its coordinates go, or most of
+    its measurements (single bad clicks are blunders)."""
+    ctrl = {blk.point_ids[j] for j in np.flatnonzero(np.isfinite(blk.X_prior).all(1))}
+    n_obs = dict(zip(blk.point_ids, np.bincount(blk.op, minlength=len(blk.point_ids)).tolist()))
+    meas_rej: dict[str, int] = {}
+    for s_ in suspects:
+        if s_.removed and s_.kind == "measurement" and s_.point in ctrl:
+            meas_rej[s_.point] = meas_rej.get(s_.point, 0) + 1
+    n_rej = len({s_.point for s_ in suspects if s_.removed and s_.kind == "coordinates" and s_.point in ctrl}
+                | {p for p, k in meas_rej.items() if k > 0.5 * n_obs.get(p, 0)})
+    return n_rej, len(ctrl)
+
+
+def control_disagrees(n_rej: int, n_ctrl: int) -> bool:
+    """More control rejected than single blunders explain: the control as a whole disagrees with the images."""
+    return bool(n_ctrl) and n_rej >= 2 and n_rej > MAX_REJECTED_CONTROL * n_ctrl
+
+
 def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: TriangulationOptions,
               suspects: list[Suspect] = ()) -> list[str]:
     """Why the result cannot be trusted (empty when it can)."""
@@ -877,17 +900,8 @@ def _problems(res: BundleResult, adj: _Adjuster, blk: _Block, opt: Triangulation
                    f"(more than {opt.max_left_out:.0%})")
     # control points the images reject (their coordinates or their measurements): one is a blunder, many are a wrong
     # datum or unit
-    ctrl = {blk.point_ids[j] for j in np.flatnonzero(np.isfinite(blk.X_prior).all(1))}
-    n_ctrl = len(ctrl)
-    n_obs = dict(zip(blk.point_ids, np.bincount(blk.op, minlength=len(blk.point_ids)).tolist()))
-    meas_rej: dict[str, int] = {}
-    for s_ in suspects:
-        if s_.removed and s_.kind == "measurement" and s_.point in ctrl:
-            meas_rej[s_.point] = meas_rej.get(s_.point, 0) + 1
-    # a point disagrees when its coordinates go, or most of its measurements (single bad clicks are blunders)
-    n_rej = len({s_.point for s_ in suspects if s_.removed and s_.kind == "coordinates" and s_.point in ctrl}
-                | {p for p, k in meas_rej.items() if k > 0.5 * n_obs.get(p, 0)})
-    if n_ctrl and n_rej >= 2 and n_rej > MAX_REJECTED_CONTROL * n_ctrl:
+    n_rej, n_ctrl = rejected_control(blk, suspects)
+    if control_disagrees(n_rej, n_ctrl):
         out.append(f"{n_rej} of {n_ctrl} control points had their coordinates or measurements rejected as "
                    "blunders: so many disagreeing with the images point to their coordinates as a whole (heights "
                    "in feet? another CRS, datum or vertical reference? a shifted file?), not to single blunders")
