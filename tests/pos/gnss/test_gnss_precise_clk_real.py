@@ -169,3 +169,16 @@ def test_spp_with_sp3_and_clk_beside_rtklib(files, systems):
     assert rms_apart < 0.2 and apart.max() < 0.4
     for iono in ("klobuchar", "iono-free"):
         assert err[iono, "clk"] < err[iono, "sp3"] + 0.05
+
+
+def test_cli_takes_the_gzip_clock_file(tmp_path):
+    """`dgcal pos --mode spp --sp3 F.gz --clk F.gz`: the summary names both products; the epochs before the clock
+    file's span are not positioned (15 of 31, none from SP3 clocks); a clock file after --sp3 is refused."""
+    from dgcal.cli import main
+    args = ["pos", "--mode", "spp", "--rinex-obs", str(OBS), "--rinex-nav", str(NAV), "--no-progress", "--no-report"]
+    assert main(args + ["--sp3", str(SP3), "--clk", str(CLK), "--out", str(tmp_path / "a")]) == 0
+    s = json.loads((tmp_path / "a" / "gnss_summary.json").read_text())
+    assert s["orbits"] == f"SP3 {SP3.name} + CLK {CLK.name}" and s["n_fixed"] == 15 and s["n_epochs"] == 31
+    ref = spp_files(OBS, [NAV, SP3, CLK], SppOptions(), t_start=T_START, t_end=T_END).solution
+    assert np.linalg.norm(np.array(s["median_ecef_m"]) - np.median(ref.p_ecef, axis=0)) < 1e-3
+    assert main(args + ["--sp3", str(CLK), "--out", str(tmp_path / "b")]) == 2
