@@ -34,6 +34,7 @@ from cssrlib.peph import atxdec, sunmoonpos
 from dgcal.fields.constants import C_LIGHT, OMEGA_EARTH, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.pos.gnss.rinex_obs import read_lines
+from dgcal.pos.gnss.rinex_nav import fortran_float
 
 LAGRANGE_POINTS = 11                      # degree-10 Lagrange interpolation (RTKLIB's NMAX = 10)
 SP3_BAD_CLOCK_US = 999999.0               # SP3 "no clock value" (999999.999999 us)
@@ -107,14 +108,7 @@ def _calendar(t: float) -> tuple[int, int, int, int, int, float]:
 
 
 def _float(text: str, path: Path, ln: int, name: str) -> float:
-    t = text.strip()
-    try:
-        v = float(t.replace("D", "E").replace("d", "e"))
-    except ValueError:
-        raise InputError(f"not a number: {t!r}", path, ln, name) from None
-    if not np.isfinite(v):
-        raise InputError(f"not a finite number: {t!r}", path, ln, name)
-    return v
+    return fortran_float(text, path, ln, name)
 
 
 def _epoch(fields: list[str], path: Path, ln: int, name: str) -> float:

@@ -65,10 +65,12 @@ class NavHeader:
     glonass: GlonassEphemerides | None = None   # the GLONASS records, read here (not by cssrlib)
 
 
-def _num(s: str, path, ln: int, name: str) -> float:
+def fortran_float(s: str, path, ln: int, name: str, blank: float | None = None) -> float:
+    """A number of a RINEX/SP3 field (Fortran `D` exponents allowed); a blank field is `blank` (None: an error);
+    InputError naming file, line and field for anything else that is not a finite number."""
     t = s.strip()
-    if not t:
-        return 0.0
+    if not t and blank is not None:
+        return blank
     try:
         v = float(t.replace("D", "E").replace("d", "e"))
     except ValueError:
@@ -76,6 +78,10 @@ def _num(s: str, path, ln: int, name: str) -> float:
     if not np.isfinite(v):
         raise InputError(f"not a finite number: {t!r}", path, ln, name)
     return v
+
+
+def _num(s: str, path, ln: int, name: str) -> float:
+    return fortran_float(s, path, ln, name, blank=0.0)
 
 
 def parse_nav_header(lines: list[str], path: Path) -> NavHeader:
