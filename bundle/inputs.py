@@ -216,18 +216,12 @@ def _names_from_others(m: Measurements, others: list[Measurements]) -> Measureme
     return Measurements(image, m.id, m.xy, m.stated_sigma, m.lines, m.path)
 
 
-def _known_image_names(opts: TriangulateOptions) -> list[str] | None:
-    """The images' file names where the inputs give them (the folder's, else the centres' or approximate EOPs'
-    image column): what other programs' extension-less labels are matched to."""
-    if opts.images and Path(opts.images).is_dir():
-        return list_images(opts.images)
-    for path in (opts.gnss, opts.approx):
-        if path and Path(path).is_file() and not is_jpeg(path):
-            try:
-                return [str(n) for n in read_centres_with_flights(path)[0].image]
-            except InputError:   # reported where the file is read for what it holds
-                return None
-    return None
+def _known_image_names(folder_names: list[str] | None, *eops: EOP | None) -> list[str] | None:
+    """The images' file names where the inputs give them (the image folder's, else the image column of the centres
+    or the approximate EOPs): what other programs' extension-less labels are matched to."""
+    if folder_names is not None:
+        return folder_names
+    return next(([str(n) for n in e.image] for e in eops if e is not None and len(e)), None)
 
 
 def _read_gnss_centres(opts: TriangulateOptions) -> tuple[EOP | None, np.ndarray | None]:
@@ -247,15 +241,15 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
     if not opts.images and not opts.measurements:
         raise InputError("give --images DIR or --measurements MEAS.csv (or both)", field="measurements")
     camera = load_camera(opts.camera)
-    points, meas = gather_measurements(opts, camera, _known_image_names(opts))
+    approx = read_eop(opts.approx) if opts.approx else opts.approx_eop
+    centres, flights = _read_gnss_centres(opts)
+    names = list_images(opts.images) if opts.images else None
+    points, meas = gather_measurements(opts, camera, _known_image_names(names, centres, approx))
     if opts.image_size and tuple(opts.image_size) != tuple(camera.image_size):
         raise InputError(f"--image-size {tuple(opts.image_size)} differs from the camera's {tuple(camera.image_size)}",
                          field="image_size")
-    approx = read_eop(opts.approx) if opts.approx else opts.approx_eop
-    centres, flights = _read_gnss_centres(opts)
     inp = TriangulationInputs(camera, points, meas, approx=approx, centre_priors=centres, centre_flights=flights)
     if opts.images:
-        names = list_images(opts.images)
         check_image_size(opts.images, names[0], camera)
         inp.all_images = names
         if meas is not None:

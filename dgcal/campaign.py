@@ -267,8 +267,9 @@ def _run_campaign(path: Path, out: Path, force: bool, runner: Callable[[list[str
         """Record a step that ended (the record last: only a finished step is done), or keep its failure."""
         nonlocal failure
         step = by_name[o.name]
-        warnings, error_line = log_notes(step_log(out, step))
-        err = _step_failure(step, o, cfg["_path"], error_line, step_log(out, step))
+        step_log_path = step_log(out, step)
+        warnings, error_line = log_notes(step_log_path)
+        err = _step_failure(step, o, cfg["_path"], error_line, step_log_path)
         if err is not None:
             failure = failure or err
             done[step.name] = "failed"
@@ -279,7 +280,7 @@ def _run_campaign(path: Path, out: Path, force: bool, runner: Callable[[list[str
         done[step.name] = "ran"
         for w in warnings:
             print(f"[{step.name}] {w}", file=log)
-        print(f"[{step.name}] done in {o.seconds:.1f} s" + (f" ({len(warnings)} warning(s); log {step_log(out, step)})"
+        print(f"[{step.name}] done in {o.seconds:.1f} s" + (f" ({len(warnings)} warning(s); log {step_log_path})"
                                                             if warnings else ""), file=log, flush=True)
 
     with progress.stage("campaign steps") as beat:
