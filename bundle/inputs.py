@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from dgcal.bundle.gcp_targets import detect_gcp_targets
-from dgcal.bundle.tiepoints import extract_tie_points, list_images, sequential_pairs, spatial_pairs
+from dgcal.bundle.tiepoints import extract_tie_points, sequential_pairs, spatial_pairs
 from dgcal.bundle.triangulation import TriangulationOptions, TriangulationResult, triangulate
 from dgcal.calib.camera.files import load_camera
 from dgcal.calib.camera.models import CameraModel
@@ -24,6 +24,7 @@ from dgcal.bundle.triangulation import centres_in_block, no_datum_reason
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.centres import read_centres_with_flights
 from dgcal.fields.io.dji_images import is_jpeg, read_any_centres
+from dgcal.fields.io.image_folders import list_image_names
 from dgcal.fields.io.formats import EOP, Measurements, Points, read_eop
 from dgcal.fields.io.gcp_files import read_any_measurements, read_any_points
 
@@ -243,7 +244,7 @@ def gather_inputs(opts: TriangulateOptions) -> TriangulationInputs:
     camera = load_camera(opts.camera)
     approx = read_eop(opts.approx) if opts.approx else opts.approx_eop
     centres, flights = _read_gnss_centres(opts)
-    names = list_images(opts.images) if opts.images else None
+    names = list_image_names(opts.images) if opts.images else None
     points, meas = gather_measurements(opts, camera, _known_image_names(names, centres, approx))
     if opts.image_size and tuple(opts.image_size) != tuple(camera.image_size):
         raise InputError(f"--image-size {tuple(opts.image_size)} differs from the camera's {tuple(camera.image_size)}",

@@ -15,22 +15,9 @@ from scipy.sparse.csgraph import connected_components
 
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import Measurements
+from dgcal.fields.io.image_folders import list_image_names
 
 COLMAP_PIXEL_SHIFT = 0.5
-IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
-
-
-def list_images(folder: str | Path) -> list[str]:
-    """Image file names (sorted) in a folder; InputError when there are none."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError("image folder not found", folder, field="images")
-    names = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
-    if not names:
-        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in the folder", folder, field="images")
-    return names
-
-
 def spatial_pairs(names: list[str], centres: np.ndarray, footprint_m: float | np.ndarray,
                   max_neighbours: int = 20) -> list[tuple[str, str]]:
     """Image pairs whose approximate centres (m) lie closer than their footprint size: the overlapping ones."""
@@ -68,7 +55,7 @@ def extract_tie_points(image_dir: str | Path, names: list[str] | None = None,
     import pycolmap   # deferred: a module-level pycolmap import gave an import-order heap corruption
     pycolmap.logging.minloglevel = 1   # COLMAP's per-image INFO lines would drown the command's output
     image_dir = Path(image_dir)
-    names = list(names) if names is not None else list_images(image_dir)
+    names = list(names) if names is not None else list_image_names(image_dir)
     missing = [n for n in names if not (image_dir / n).is_file()]
     if missing:
         raise InputError(f"image {missing[0]} not found"

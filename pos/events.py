@@ -309,20 +309,6 @@ def sniff_events_format(path: str | Path) -> str:
     return "dgcal"
 
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png", ".dng")
-
-
-def list_image_files(folder: str | Path) -> list[str]:
-    """The image file names of a folder (not recursive), sorted; InputError naming the folder when it has none."""
-    folder = Path(folder)
-    if not folder.is_dir():   # the option's error (its flag named by the CLI), the folder in the message
-        raise InputError(f"{folder} is not a folder", field="event_images")
-    names = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
-    if not names:
-        raise InputError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}", field="event_images")
-    return names
-
-
 def read_any_events(path: str | Path, fmt: str | None = None, name_pattern: str = "DJI_{index:04d}.JPG",
                     image_names=None, pairing: str = "index") -> Events:
     """Camera events from a dgcal events CSV, a DJI `.MRK`, an `image,utc` CSV or a PX4 ULog's camera_capture

@@ -18,7 +18,8 @@ from dgcal.fields.crs import R_ecef_to_ned_at
 from dgcal.fields.errors import InputError, ResultError
 from dgcal.fields.processes import fork_map
 from dgcal.pos.base_station import read_base
-from dgcal.pos.events import list_image_files, read_any_events
+from dgcal.fields.io.image_folders import list_image_names
+from dgcal.pos.events import read_any_events
 from dgcal.pos.gnss.carrier import carrier_observations
 from dgcal.pos.gnss.dd import DDOptions, carrier_front_end, imu_aided_front_end
 from dgcal.pos.gnss.observations import GnssObservations
@@ -334,8 +335,8 @@ def run_gnss_ins(opts: InsModeOptions) -> PosResult | UkfPosResult:
         if "R" in str(systems):   # the CLI's --systems drops it with a warning; a --set or a caller must not pass it
             raise InputError(f"GLONASS (R) is used by SPP only; tc, lc and ukf take {systems!r} without it",
                              field=name)
-    events = read_any_events(opts.events, opts.events_format, opts.mrk_names,
-                             list_image_files(opts.event_images) if opts.event_images else None,
+    image_names = list_image_names(opts.event_images, "event_images", raw=True) if opts.event_images else None
+    events = read_any_events(opts.events, opts.events_format, opts.mrk_names, image_names,
                              opts.mrk_pairing) if opts.events else None
     raw = nav = lc = withheld = carrier = base_info = None
     rinex_warnings: list = []

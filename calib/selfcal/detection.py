@@ -25,9 +25,9 @@ from tqdm import tqdm
 
 from dgcal.fields.errors import InputError
 from dgcal.fields.io.formats import Measurements, read_points
+from dgcal.fields.io.image_folders import list_image_files
 from dgcal.fields.targets.plate import TargetField, load_layout
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
 # sigma = hypot(SIGMA_FACTOR * propagated noise sigma, SIGMA_FLOOR_PX * max(1, 4 / half-window)^2), fitted to rendered
 # images (JPEG q95, blur 0.8 px, noise 2 and 5 DN; 1200x800 and 3000x2000): the factor covers JPEG and correlated
 # gradient noise, the floor the remaining model error (sampling, perspective within the window)
@@ -52,17 +52,6 @@ class Detection:
     stats: dict
     window_px: np.ndarray | None = None  # half-size of each corner's cornerSubPix window (px)
     square_px: np.ndarray | None = None  # local size of a square (px, geometric mean of the two axes)
-
-
-def list_images(image_dir: str | Path) -> list[Path]:
-    """Image files of a folder (by suffix, sorted); InputError when the folder is missing or has none."""
-    d = Path(image_dir)
-    if not d.is_dir():
-        raise InputError("image folder not found", d)
-    files = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise InputError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in the folder", d)
-    return files
 
 
 def read_gray(path: str | Path) -> np.ndarray:
@@ -349,7 +338,7 @@ def detect_folder(image_dir: str | Path, field: TargetField | str | Path, worker
     Returns the measurement table (`image` = file name, `id`, pixel `xy`, `sigma` px) and a report:
     per-image counts (markers, corners, rejections, size, noise), `image_size` when all images agree
     (else None) and the layout source. Unreadable images or an empty folder raise InputError naming the file."""
-    files = list_images(image_dir)
+    files = list_image_files(image_dir)
     tf, keep, source = resolve_field(field)
     for f in files:  # fail fast, before any work, on files that cannot even be opened as images
         if f.stat().st_size == 0:

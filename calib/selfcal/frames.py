@@ -35,7 +35,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from dgcal.calib.selfcal.detection import IMAGE_SUFFIXES, Detection, read_gray
+from dgcal.calib.selfcal.detection import Detection, read_gray
+from dgcal.fields.io.image_folders import RASTER_SUFFIXES
 from dgcal.fields.errors import InputError
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".mts", ".m2ts")
@@ -56,19 +57,19 @@ def expand_sources(paths) -> list[Source]:
     for p in ([paths] if isinstance(paths, (str, Path)) else list(paths)):
         p = Path(p)
         if p.is_dir():
-            known = IMAGE_SUFFIXES + VIDEO_SUFFIXES
+            known = RASTER_SUFFIXES + VIDEO_SUFFIXES
             found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in known)
             if not found:
-                raise InputError(f"no images ({', '.join(IMAGE_SUFFIXES)}) or videos in the folder", p)
+                raise InputError(f"no images ({', '.join(RASTER_SUFFIXES)}) or videos in the folder", p)
             out += [Source(q, "video" if q.suffix.lower() in VIDEO_SUFFIXES else "image") for q in found]
         elif p.is_file():
             suf = p.suffix.lower()
             if suf in VIDEO_SUFFIXES:
                 out.append(Source(p, "video"))
-            elif suf in IMAGE_SUFFIXES:
+            elif suf in RASTER_SUFFIXES:
                 out.append(Source(p, "image"))
             else:
-                raise InputError(f"not an image or video file (suffixes {', '.join(IMAGE_SUFFIXES + VIDEO_SUFFIXES)})",
+                raise InputError(f"not an image or video file (suffixes {', '.join(RASTER_SUFFIXES + VIDEO_SUFFIXES)})",
                                  p)
         else:
             raise InputError("image folder, image or video file not found", p)

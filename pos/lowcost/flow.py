@@ -36,9 +36,9 @@ from dgcal.pos.gnss.solution_files import read_gnss_solution
 from dgcal.pos.ins.interpolate import interpolate_trajectory
 from dgcal.pos.lowcost.optic_flow import (FB_MAX_PX, R_CAM_TO_BODY_FORWARD, FlowAttitude, flow_attitude,
                                           mean_velocity, pool_sigmas, variance_ratios)
+from dgcal.fields.io.image_folders import list_image_files
 from dgcal.pos.lowcost.ukf_pos import read_true_trajectory
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 SEED001_TABLE2 = {"roll": {"mean_deg": -0.0276, "std_deg": 0.1981}, "pitch": {"mean_deg": -0.1400, "std_deg": 0.2872},
                   "yaw": {"mean_deg": 0.0934, "std_deg": 0.4210}}
 ROW_COLUMNS = ("t_gps", "image1", "image2", "dt_s", "roll", "pitch", "yaw", "sigma_roll", "sigma_pitch", "sigma_yaw",
@@ -134,11 +134,7 @@ class Frames:
             raise InputError("give exactly one of --images DIR or --video FILE", field="images")
         if opts.images is not None:
             d = Path(opts.images)
-            if not d.is_dir():
-                raise InputError("not a folder", d)
-            files = {p.name: p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
-            if not files:
-                raise InputError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in the folder", d)
+            files = {p.name: p for p in list_image_files(d)}
             ft = opts.frame_times or next((p for p in (d / "frames.csv", d.parent / "frames.csv") if p.is_file()),
                                           None)
             if ft is None:

@@ -40,9 +40,8 @@ from dgcal.pos.lowcost.logger_format import (LENGTH_UNITS, LoggerFormat, read_gn
                                             read_logger_format)
 from dgcal.pos.lowcost.stream_align import (ClockFit, CoarseAlignment, coarse_by_correlation, coarse_by_ends,
                                             coarse_by_time_tags, fit_pps_clock, resolve_whole_seconds)
+from dgcal.fields.io.image_folders import list_image_files
 from dgcal.pos.lowcost.time_axis import RestoredAxis, restore_from_counter, restore_from_time_tags
-
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png", ".cr2", ".nef", ".dng", ".arw")
 
 
 @dataclass
@@ -455,9 +454,7 @@ def read_images(images: Path) -> tuple[list[str], np.ndarray | None]:
     every image has them)."""
     images = Path(images)
     if images.is_dir():
-        files = sorted(p for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        if not files:
-            raise InputError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in the folder", images)
+        files = list_image_files(images, raw=True)
         times = [_exif_time(p) for p in files]
         clock = None if any(t is None for t in times) else np.array(times, float)
         return [p.name for p in files], clock

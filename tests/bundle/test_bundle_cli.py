@@ -87,7 +87,8 @@ def test_image_size_mismatch_and_missing_folder(small, tmp_path, capsys):
     assert _run(base + ["--measurements", d / "measurements_all.csv", "--image-size", 1000, 800]) == 2
     assert "image-size" in capsys.readouterr().err
     assert _run(base + ["--images", tmp_path / "nowhere"]) == 2
-    assert "image folder not found" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "the image folder does not exist" in err and "--images" in err
 
 
 def test_unmeasured_gcp_and_single_image_gcp_are_reported(small, tmp_path):

@@ -1,7 +1,8 @@
 """The image path end to end: rendered flight -> pycolmap SIFT tie points -> triangulation vs truth."""
 import numpy as np
 
-from dgcal.bundle.tiepoints import extract_tie_points, list_images
+from dgcal.bundle.tiepoints import extract_tie_points
+from dgcal.fields.io.image_folders import list_image_names
 from dgcal.bundle.triangulation import triangulate
 from dgcal.calib.camera.files import load_camera
 from dgcal.fields.io.formats import Measurements, read_eop, read_measurements, read_points
@@ -12,7 +13,7 @@ def test_rendered_flight_with_sift_tie_points(tmp_path):
     truth = simulate_block_flight(tmp_path, seed=5, render=True, heights=(80.0,), n_strips=(2,), n_images=(5,),
                                   n_control=8, n_check=4, n_tie=10, image_size=(600, 400))
     cam = load_camera(tmp_path / "camera.json")
-    names = list_images(tmp_path / "images")
+    names = list_image_names(tmp_path / "images")
     assert len(names) == 10
     tie = extract_tie_points(tmp_path / "images", names, max_features=1500, camera_K=cam.pinhole_K())
     assert len(set(tie.id)) > 300

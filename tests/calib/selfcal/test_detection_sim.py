@@ -76,7 +76,7 @@ def test_bad_inputs_name_the_file(sim, tmp_path):
     out, _ = sim
     with pytest.raises(InputError, match="no images"):
         detect_folder(tmp_path, out / "field.csv", progress=False)
-    with pytest.raises(InputError, match="not found"):
+    with pytest.raises(InputError, match="does not exist"):
         detect_folder(tmp_path / "nope", out / "field.csv", progress=False)
     imgs = tmp_path / "imgs"
     imgs.mkdir()

@@ -73,7 +73,7 @@ def test_pos_cli_pairs_mrk_rows_with_an_image_folder(mrk, tmp_path, capsys):
     (the library call `dgcal pos` makes) and pair the P1's files; a missing folder names its flag."""
     from dgcal.cli import build_parser, main
     from dgcal.commands.pos import pos_options
-    from dgcal.pos.events import list_image_files
+    from dgcal.fields.io.image_folders import list_image_names
     folder = tmp_path / "images"
     folder.mkdir()
     for n in P1_NAMES:
@@ -81,8 +81,8 @@ def test_pos_cli_pairs_mrk_rows_with_an_image_folder(mrk, tmp_path, capsys):
     argv = ["pos", "--mode", "lc", "--imu", "imu.txt", "--gnss", "g.csv", "--out", str(tmp_path / "o"),
             "--events", str(mrk), "--event-images", str(folder), "--mrk-names", "DJI_{any}_{index}.JPG"]
     opts = pos_options(build_parser(argv).parse_args(argv))
-    ev = read_any_events(opts.events, opts.events_format, opts.mrk_names, list_image_files(opts.event_images),
-                         opts.mrk_pairing)
+    names = list_image_names(opts.event_images, "event_images", raw=True)
+    ev = read_any_events(opts.events, opts.events_format, opts.mrk_names, names, opts.mrk_pairing)
     assert list(ev.image) == P1_NAMES
     argv[argv.index("--event-images") + 1] = str(tmp_path / "nowhere")
     assert main(argv) == 2
