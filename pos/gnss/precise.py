@@ -16,13 +16,12 @@ Without an ANTEX file the positions are the centre of mass, up to ~2.5 m from th
 direction; for code positioning that offset is nearly common to all satellites of a system and goes mostly into
 the receiver clock, and double differences over short baselines cancel it.
 
-Files are recognised by content (`product_kind`); gzip-compressed files are read as they are. Every malformed
-value is an `InputError` naming file, line and field.
+Files are recognised by content (`product_kind`); compressed files (gzip, .Z, bzip2, zip) are read as they are.
+Every malformed value is an `InputError` naming file, line and field.
 """
 from __future__ import annotations
 
 import datetime as _dt
-import gzip
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +32,7 @@ from cssrlib.peph import atxdec, sunmoonpos
 
 from dgcal.fields.constants import C_LIGHT, OMEGA_EARTH, SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
+from dgcal.pos.gnss.gnss_files import first_gnss_line
 from dgcal.pos.gnss.rinex_obs import read_lines
 from dgcal.pos.gnss.rinex_nav import fortran_float
 
@@ -52,23 +52,11 @@ def _open_lines(path: Path) -> list[str]:
         raise InputError(f"cannot read: {exc}", path) from None
 
 
-def _first_line(path: Path) -> str:
-    """The first line of a plain or gzip file; '' when it cannot be read (the RINEX reader then says why)."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(2)
-        opener = gzip.open if head == b"\x1f\x8b" else open
-        with opener(path, "rt", errors="replace") as fh:
-            return fh.readline().rstrip("\r\n")
-    except (OSError, EOFError):
-        return ""
-
-
 def product_kind(path: str | Path, first_line: str | None = None) -> str:
     """What a navigation-side file is, from its first line: "sp3", "clk" (RINEX clock), "atx" (ANTEX) or "nav"
     (anything else, checked later as a RINEX navigation file)."""
     if first_line is None:
-        first_line = _first_line(Path(path))
+        first_line = first_gnss_line(path)
     if first_line[:1] == "#" and first_line[1:2] in "abcd" and first_line[1:2] != "":
         return "sp3"
     if "ANTEX VERSION" in first_line:
@@ -140,7 +128,7 @@ class Sp3Data:
 
 
 def read_sp3(path: str | Path) -> Sp3Data:
-    """Read an SP3-c/d orbit file (plain or gzip): ECEF positions in m and clocks in s per epoch and satellite,
+    """Read an SP3-c/d orbit file (plain or compressed): ECEF positions in m and clocks in s per epoch and satellite,
     times in GPS time (the file's time system converted)."""
     path = Path(path)
     lines = _open_lines(path)
@@ -228,7 +216,7 @@ class ClockData:
 
 
 def read_rinex_clock(path: str | Path) -> ClockData:
-    """Read the satellite clock records (``AS``) of a RINEX clock file 2.x/3.x (plain or gzip), in GPS time."""
+    """Read the satellite clock records (``AS``) of a RINEX clock file 2.x/3.x (plain or compressed), in GPS time."""
     path = Path(path)
     lines = _open_lines(path)
     if not lines or product_kind(path, lines[0]) != "clk":

@@ -19,7 +19,6 @@ order are sorted, repeated epochs dropped, each with a warning naming the file a
 from __future__ import annotations
 
 import datetime as _dt
-import gzip
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 
 from dgcal.fields.constants import SECONDS_PER_DAY
 from dgcal.fields.errors import InputError
+from dgcal.pos.gnss.gnss_files import read_gnss_lines
 
 GPS_EPOCH = _dt.datetime(1980, 1, 6)
 BDT_MINUS_GPST_S = -14.0          # BeiDou time = GPS time - 14 s
@@ -36,20 +36,10 @@ GLONASS_NOT_USED = ("GLONASS observations of {n} satellite(s) not used (GLONASS 
 KNOWN_SYSTEMS = "GRECJSI"         # GPS, GLONASS, Galileo, BeiDou, QZSS, SBAS, NavIC/IRNSS
 
 
-def _open_text(path: Path):
-    if not path.is_file():
-        raise InputError("file not found", path)
-    if path.suffix.lower() in (".gz", ".z"):
-        return gzip.open(path, "rt", encoding="ascii", errors="replace")
-    return open(path, "rt", encoding="ascii", errors="replace")
-
-
 def read_lines(path: str | Path) -> list[str]:
-    """All lines of a (possibly gzip-compressed) text file, without line ends."""
-    path = Path(path)
-    with _open_text(path) as fh:
-        text = fh.read()
-    return text.splitlines()
+    """All lines of a GNSS text file without line ends: plain, gzip, .Z, bzip2, zip or Hatanaka-compressed
+    (`dgcal.pos.gnss.gnss_files`)."""
+    return read_gnss_lines(path)
 
 
 def rinex2_code(system: str, code: str, version: float) -> str | None:
@@ -187,13 +177,13 @@ def _int(s: str, path, lineno, name, default: int | None = None) -> int:
 
 def rinex_version_type(lines: list[str], path: Path) -> tuple[float, str]:
     """Version and file type (column 21: ``O``, ``N``, ...) of a RINEX 2/3 file from its first line, checked: the
-    file is not empty, not Hatanaka-compressed, begins with a ``RINEX VERSION / TYPE`` line of a version 2.x or
+    file is not empty, not left Hatanaka-compressed, begins with a ``RINEX VERSION / TYPE`` line of a version 2.x or
     3.x (`InputError` naming line 1 otherwise). The caller checks the type."""
     if not lines:
         raise InputError("empty file", path, 1)
     first = lines[0]
     if "CRINEX VERS" in first:
-        raise InputError("Hatanaka-compressed RINEX: decompress it first (crx2rnx)", path, 1)
+        raise InputError("Hatanaka-compressed RINEX that did not expand (crx2rnx)", path, 1)
     if "RINEX VERSION / TYPE" not in first:
         raise InputError("not a RINEX file (no 'RINEX VERSION / TYPE' header line)", path, 1)
     try:

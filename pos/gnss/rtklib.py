@@ -2,9 +2,7 @@
 rtklibexplorer's demo5 fork (pyrtklib5, ``engine="demo5"``), for side-by-side comparison with dgcal."""
 from __future__ import annotations
 
-import gzip
 import os
-import shutil
 import tempfile
 import time
 from typing import Sequence
@@ -12,6 +10,7 @@ from typing import Sequence
 import numpy as np
 
 from dgcal.fields.constants import SECONDS_PER_WEEK
+from dgcal.pos.gnss.gnss_files import CRINEX_MARK, container_of, first_gnss_line, read_gnss_bytes
 
 
 def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
@@ -24,15 +23,20 @@ def rtklib_pntpos(obs_path: str, nav_path: str, elev_mask_deg: float = 10.0,
 
 
 def _plain_copies(paths: Sequence[str], folder: str) -> list[str]:
-    """Uncompressed copies of gzip files in `folder` under names RTKLIB recognises (.sp3, .clk); others as given."""
+    """Plain copies of compressed files (gzip, .Z, bzip2, zip, Hatanaka) in `folder` under names RTKLIB recognises
+    (.sp3, .clk: the compression suffix dropped); plain files as given."""
     out = []
     for p in paths:
         p = str(p)
-        if p.endswith(".gz"):
-            name = os.path.basename(p)[:-3]
+        with open(p, "rb") as fh:
+            compressed = container_of(fh.read(4)) != "plain"
+        if compressed or first_gnss_line(p).find(CRINEX_MARK) >= 0:
+            name = os.path.basename(p)
+            stem, suffix = os.path.splitext(name)
+            name = stem if suffix.lower() in (".gz", ".z", ".bz2", ".zip") else name
             dst = os.path.join(folder, name)
-            with gzip.open(p, "rb") as src, open(dst, "wb") as fh:
-                shutil.copyfileobj(src, fh)
+            with open(dst, "wb") as fh:
+                fh.write(read_gnss_bytes(p))
             p = dst
         out.append(p)
     return out

@@ -11,10 +11,12 @@ time tags, Metashape, ROS camera_info, ODM files); this file covers the rest. Th
 """
 from __future__ import annotations
 
+import gzip
 import json
 import os
 from pathlib import Path
 
+import hatanaka
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -638,6 +640,11 @@ READERS = {
     "imu-text": (s_kf_gins, ".txt", _imu_text_reader),
     "rinex-obs-2": (_const(OBS_211.encode()), ".21o", _imp("dgcal.pos.gnss.rinex", "read_rinex_obs")),
     "rinex-obs-3": (_const(OBS_304.encode()), ".rnx", _imp("dgcal.pos.gnss.rinex", "read_rinex_obs")),
+    # Hatanaka-compressed (crx2rnx on the mutated stream) and gzip containers (`pos/gnss/gnss_files.py`)
+    "rinex-obs-crinex": (_const(hatanaka.rnx2crx(OBS_304.encode())), ".21d",
+                         _imp("dgcal.pos.gnss.rinex", "read_rinex_obs")),
+    "rinex-obs-gzip": (_const(gzip.compress(OBS_211.encode())), ".21o.gz",
+                       _imp("dgcal.pos.gnss.rinex", "read_rinex_obs")),
     "rinex-nav-2": (_const(NAV_211.encode()), ".21n", _imp("dgcal.pos.gnss.rinex", "read_rinex_nav")),
     "rinex-nav-3": (_const(NAV_304.encode()), ".rnx", _imp("dgcal.pos.gnss.rinex", "read_rinex_nav")),
     # exports read back

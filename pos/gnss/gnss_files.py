@@ -1,0 +1,89 @@
+"""GNSS data files as they come from archives: plain, gzip, Unix compress (.Z), bzip2, zip, and Hatanaka-compressed
+RINEX observations (CRINEX, `.crx`/`.YYd`), all read as text.
+
+Why: CORS and IGS archives serve observations as `.crx.gz` / `.YYd.Z` and products as `.Z` or `.gz`; a user should
+not have to unpack them by hand. Containers are recognised by their first bytes, not their names (a `.Z` file is LZW,
+not gzip); the decompression is the `hatanaka` package's (RNXCMP's crx2rnx, Geospatial Information Authority of
+Japan, with Python's and ncompress's decoders).
+"""
+from __future__ import annotations
+
+import bz2
+import gzip
+import io
+import zipfile
+import zlib
+from pathlib import Path
+
+import hatanaka
+import ncompress
+
+from dgcal.fields.errors import InputError
+
+_GZIP, _LZW, _BZIP2, _ZIP = b"\x1f\x8b", b"\x1f\x9d", b"BZh", b"PK\x03\x04"
+CRINEX_MARK = "CRINEX VERS"
+
+
+def container_of(head: bytes) -> str:
+    """The compression of a file from its first bytes: "gzip", "lzw" (Unix compress .Z), "bzip2", "zip" or "plain"."""
+    for magic, name in ((_GZIP, "gzip"), (_LZW, "lzw"), (_BZIP2, "bzip2"), (_ZIP, "zip")):
+        if head.startswith(magic):
+            return name
+    return "plain"
+
+
+def _unpack(data: bytes, kind: str, path: Path) -> bytes:
+    try:
+        if kind == "gzip":
+            return gzip.decompress(data)
+        if kind == "lzw":
+            return ncompress.decompress(data)
+        if kind == "bzip2":
+            return bz2.decompress(data)
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            names = [n for n in zf.namelist() if not n.endswith("/")]
+            if len(names) != 1:
+                raise InputError(f"a zip archive must hold exactly one file, this one holds {len(names)}", path)
+            return zf.read(names[0])
+    except InputError:
+        raise
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile, RuntimeError, zlib.error) as exc:
+        raise InputError(f"cannot decompress the {kind} file: {exc}", path) from None
+
+
+def read_gnss_bytes(path: str | Path) -> bytes:
+    """The plain content of a GNSS file (RINEX, SP3, clock, ANTEX) whatever its container; a Hatanaka-compressed
+    observation file comes back as RINEX. InputError naming the file when it is missing or cannot be decoded."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", path)
+    data = path.read_bytes()
+    kind = container_of(data[:4])
+    if kind != "plain":
+        data = _unpack(data, kind, path)
+    if data[:80].decode("ascii", "replace").find(CRINEX_MARK) >= 0:
+        try:
+            data = hatanaka.crx2rnx(data)
+        except (ValueError, RuntimeError, OSError) as exc:
+            raise InputError(f"cannot expand the Hatanaka-compressed RINEX (crx2rnx): {str(exc).strip()}", path) \
+                from None
+    return data
+
+
+def read_gnss_lines(path: str | Path) -> list[str]:
+    """All lines of a GNSS file (see `read_gnss_bytes`) as ASCII text without line ends (bytes that are not ASCII
+    become U+FFFD, for the readers to name)."""
+    return read_gnss_bytes(path).decode("ascii", errors="replace").splitlines()
+
+
+def first_gnss_line(path: str | Path) -> str:
+    """The first line of a GNSS file's plain content; '' when it cannot be read (the reader then says why)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.readline(4096)
+        if container_of(head[:4]) == "plain":     # the common case: no need to read the whole file
+            return head.decode("ascii", errors="replace").rstrip("\r\n")
+        lines = read_gnss_lines(path)
+    except (InputError, OSError):
+        return ""
+    return lines[0] if lines else ""
