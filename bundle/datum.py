@@ -8,7 +8,10 @@ pose covariances: a datum that is fixed in principle but weakly (control within 
 centreline) shows as a block rotation whose sigma, times the camera-to-ground distance, moves the ground by
 several times the sources' own sigmas. `focal_height_correlation` reads the correlation of a refined focal
 length with the block's height above the ground (mean camera Z minus mean point Z): nadir images from one
-height cannot separate them, so with free f the error goes into the heights.
+height cannot separate them, so with free f the error goes into the heights. `principal_point_correlation` does
+the same for a refined principal point: a shift of d px is a tilt of d/f or a horizontal shift of H d/f of the
+centres (or, with 0 GCPs, of the ground), which nadir images of flat ground cannot tell apart; its figure is the
+multiple correlation of cx/cy with those block-level combinations (`pp_combinations`).
 
 Frames: world (a local Cartesian ENU frame of the problem, m); pose covariances [C (m), dtheta (rad, camera
 axes)] as `dgcal.fields.pose`.
@@ -23,6 +26,8 @@ COLLINEAR_SIGMAS = 5.0     # datum sources within this many of their sigmas (RMS
                            # free (farther, the rotation is fixed, perhaps weakly: `weak_datum` says how well)
 WEAK_FACTOR = 5.0          # a datum effect beyond this many source sigmas is weak
 F_HEIGHT_CORRELATION = 0.9  # |rho(f, height above ground)| above this is reported
+PP_CORRELATION = 0.9        # rho(cx or cy, the block-level combinations of `pp_combinations`) above this is reported
+PP_COMBINATIONS = ("centres", "ground_E", "ground_N", "tilt")   # the block-level combinations of `pp_combinations`
 
 
 def _sigma_text(s: np.ndarray) -> str:
@@ -181,3 +186,107 @@ def focal_height_warning(fh: dict | None) -> str | None:
             f"{fh['height_above_ground_m']:.0f} m above the ground; nadir images from one height cannot separate f "
             "from the height: add oblique images, cross strips or a second flying height, or GCPs with heights, "
             "or fix f (leave it out of --refine)")
+
+
+
+def _focal_px(camera, axis: int) -> float:
+    """The focal length (px) along image axis 0 (x) or 1 (y): f, or fx/fy of a model with two."""
+    return float(camera["f"] if "f" in camera.PARAMS else camera[("fx", "fy")[axis]])
+
+
+def pp_combinations(res: BundleResult, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """The block-level combinations a principal-point shift of d px along image axis `axis` (0: x, 1: y) moves, as
+    rows over the camera side (nc,4) and the points (3M,4), in `PP_COMBINATIONS` order: the centres' mean shift
+    along that camera axis times f/H (px; H the image's height above the ground: a shift of H d/f is d), the
+    ground's mean position E and N (m, free points weighted by their observations), and the mean rotation about
+    the other camera axis times f (px: a tilt of d/f is d). Held parameters get 0."""
+    N, M = res.problem.n_poses, res.problem.n_points
+    bad = res.covariance.camera_side.bad
+    oj = res.obs_point
+    H = np.abs(res.C_world[:, 2] - np.median(res.X_world[oj, 2])) if len(oj) else np.ones(N)
+    f = _focal_px(res.camera, axis)
+    e_world = res.R_world_to_cam[:, axis, :]            # the camera axis, world components
+    l_c = np.zeros((res.problem.n_camera_side, 4))
+    l_x = np.zeros((3 * M, 4))
+    l_c[:6 * N, 0].reshape(N, 6)[:, :3] = e_world * (f / np.maximum(H, 1e-6))[:, None] / N
+    l_c[:6 * N, 3].reshape(N, 6)[:, 4 - axis] = f / N
+    w = np.bincount(oj, minlength=M) / max(len(oj), 1)
+    l_x[0::3, 1], l_x[1::3, 2] = w, w
+    l_c[bad] = 0.0
+    if M:
+        l_x[~res.normals.observed_x] = 0.0
+    return l_c, l_x
+
+
+def multiple_correlation(C: np.ndarray, sel: np.ndarray) -> float:
+    """The multiple correlation of variable 0 of covariance matrix C with the variables `sel` (indices > 0): the
+    largest correlation with any linear combination of them, sqrt(c^T C_ss^-1 c / C_00); 0 for none."""
+    sel = np.asarray(sel, int)
+    sel = sel[np.diag(C)[sel] > 0]
+    if not len(sel) or not C[0, 0] > 0:
+        return 0.0
+    d = np.sqrt(np.diag(C)[sel])
+    R = C[np.ix_(sel, sel)] / np.outer(d, d)            # on one scale: the combinations are in px and m
+    c = C[sel, 0] / (d * np.sqrt(C[0, 0]))
+    a = np.linalg.lstsq(R, c, rcond=1e-12)[0]
+    return float(np.sqrt(np.clip(c @ a, 0.0, 1.0)))
+
+
+def principal_point_correlation(res: BundleResult) -> dict | None:
+    """How far refined cx/cy are separable from the horizontal datum: for each, `rho`, its multiple correlation
+    with the combinations of `pp_combinations` (the centres' shift along the image axis, the ground's horizontal
+    position, the mean tilt), the variance inflation 1/(1 - rho^2), the parts `rho_centres`, `rho_ground`,
+    `rho_tilt`, sigma (px), and `shift_per_sigma_m` (sigma/f times the height above ground: the horizontal shift
+    of centres or ground that sigma equals); None without cx and cy. Four extra solves per coordinate."""
+    if not {"cx", "cy"} & set(res.refine):
+        return None
+    cv = res.covariance
+    N = res.problem.n_poses
+    bad = cv.camera_side.bad
+    depth = float(np.median(np.abs(res.C_world[:, 2][res.obs_image] - res.X_world[res.obs_point, 2])))
+    out = {"height_above_ground_m": depth}
+    for axis, p in enumerate(("cx", "cy")):
+        if p not in res.refine or bad[6 * N + list(res.refine).index(p)]:
+            continue
+        g = 6 * N + list(res.refine).index(p)
+        l_c, l_x = pp_combinations(res, axis)
+        y_c, y_x = cv.response(l_c, l_x)
+        B = l_c.T @ y_c + l_x.T @ y_x
+        q = float(cv.global_cofactors()[g - 6 * N, g - 6 * N])
+        C = np.block([[np.array([[q]]), y_c[g][None]], [y_c[g][:, None], 0.5 * (B + B.T)]])
+        if not (np.isfinite(C).all() and q > 0):
+            continue
+        r = multiple_correlation(C, np.arange(1, 5))
+        sig = float(np.sqrt(q * res.scale2))
+        out[p] = {"rho": r, "variance_inflation": 1.0 / max(1.0 - r * r, 1e-12),
+                  "rho_centres": multiple_correlation(C, [1]), "rho_ground": multiple_correlation(C, [2, 3]),
+                  "rho_tilt": multiple_correlation(C, [4]), "sigma_px": sig,
+                  "shift_per_sigma_m": sig / _focal_px(res.camera, axis) * depth}
+    return out if len(out) > 1 else None
+
+
+def principal_point_warning(pp: dict | None) -> str | None:
+    """The warning of a principal point the block cannot separate from the horizontal datum (see
+    `principal_point_correlation`), or None."""
+    ps = [p for p in ("cx", "cy") if pp and p in pp]
+    hit = [p for p in ps if pp[p]["rho"] > PP_CORRELATION]
+    if not hit:
+        return None
+    parts = {"rho_centres": "the centres' shift along the image axes", "rho_ground": "the ground's horizontal "
+             "position", "rho_tilt": "the mean tilt (omega/phi)"}
+    main = max(parts, key=lambda k: max(pp[p][k] for p in hit))
+    what = "/".join(ps)
+
+    def fig(key: str, fmt: str) -> str:
+        """The figure of cx and cy, 'a/b'."""
+        return "/".join(format(pp[p][key], fmt) for p in ps)
+
+    cm = "/".join(f"{100 * pp[p]['shift_per_sigma_m']:.2g}" for p in ps)
+    return (f"principal point and horizontal datum are correlated ({what}: ρ = {fig('rho', '.2f')}, variance "
+            f"inflation {fig('variance_inflation', '.3g')}; mostly {parts[main]}): σ{what} = {fig('sigma_px', '.2g')} "
+            f"px, {cm} cm of horizontal shift of the camera centres or the ground at "
+            f"{pp['height_above_ground_m']:.0f} m above the ground; nadir images of flat ground cannot separate the "
+            "principal point from the horizontal position of the centres or the ground or from omega/phi, so a "
+            "centre error along the image axes (an antenna offset) goes into it: add tilted or oblique images, or "
+            f"fix {what} from a lab calibration (leave {what} out of --refine); cross strips, a second flying height "
+            "and GCPs well spread lower its σ where the ground follows it (strips all flown one way)")

@@ -29,8 +29,8 @@ from scipy.special import chdtrc, gammaln, ndtri_exp   # not scipy.stats: 0.5-0.
 
 from dgcal.bundle.adjustment import BundleInput, BundleOptions, BundleResult, adjust
 from dgcal.bundle.blunders import CRITICAL_W, Suspect
-from dgcal.bundle.datum import (datum_statement, focal_height_correlation, focal_height_warning, reference_sigma_m,
-                                weak_datum)
+from dgcal.bundle.datum import (datum_statement, focal_height_correlation, focal_height_warning,
+                                principal_point_correlation, principal_point_warning, reference_sigma_m, weak_datum)
 from dgcal.bundle.initial import initial_orientation
 from dgcal.bundle.intersection import intersect, propagate_pose_covariance
 from dgcal.bundle.resection import pnp, triangulate_tracks
@@ -809,8 +809,9 @@ def _emit(msgs: list[str]) -> None:
 
 
 def _datum_diagnostics(res: BundleResult, adj: _Adjuster, msgs: list[str]) -> dict:
-    """The summary's `datum` (what fixes position, scale and rotation, and how precisely: `dgcal.bundle.datum`)
-    and `f_height` (the focal length-height correlation when f is refined); their warnings added to `msgs`."""
+    """The summary's `datum` (what fixes position, scale and rotation, and how precisely: `dgcal.bundle.datum`),
+    `f_height` (the focal length-height correlation when f is refined) and `principal_point` (cx/cy with the
+    horizontal datum when they are refined); their warnings added to `msgs`."""
     b = adj.blk
     C_src = cs = np.zeros((0, 3))
     if adj.cprior is not None:
@@ -845,10 +846,11 @@ def _datum_diagnostics(res: BundleResult, adj: _Adjuster, msgs: list[str]) -> di
             stmt["text"] += (f"; a shift of the centres estimated per flight ({res.n_flights}): their position "
                              "comes from the GCPs")
     fh = focal_height_correlation(res)
-    w = focal_height_warning(fh)
-    if w:
-        _warn(msgs, w, adj.opt.verbose)
-    return {"datum": stmt, "f_height": fh, "centre_model": centre_model}
+    pp = principal_point_correlation(res)
+    for w in (focal_height_warning(fh), principal_point_warning(pp)):
+        if w:
+            _warn(msgs, w, adj.opt.verbose)
+    return {"datum": stmt, "f_height": fh, "principal_point": pp, "centre_model": centre_model}
 
 
 def rejected_control(blk: _Block, suspects: list[Suspect]) -> tuple[int, int]:

@@ -1,0 +1,143 @@
+"""The principal point against the horizontal datum in aerial triangulation with cx/cy refined
+(`dgcal.bundle.datum.principal_point_correlation`): a flat nadir block cannot separate cx/cy from the centres'
+shift along the image axes (a shift of d px is a shift of H d/f of the centres), which is warned about with the
+figure and the remedies; tilted images with cross strips at two heights separate them; the figure is the multiple
+correlation of the adjustment's covariance, checked against the inverse of the whole normal matrix.
+
+The blocks are `dgcal.sim.block`'s: the RTK-drone family (35 mm on 8192 x 5460 px, 150 m, RTK centres 2/2/5 cm,
+0 GCPs) over flat ground, and the same camera in cross strips at 150 and 250 m with 15 deg tilts."""
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from dgcal.bundle import triangulation as triangulation_mod
+from dgcal.bundle.datum import PP_CORRELATION, pp_combinations, principal_point_correlation
+from dgcal.bundle.triangulation import TriangulationOptions, triangulate
+from dgcal.cli import main
+from dgcal.fields.io.formats import write_eop
+from dgcal.sim.block import BlockPattern, p1_35mm_camera, simulate_block, simulate_rtk_block, write_block
+from test_gnss_supported_at import RTK, approx_of
+
+WARNING = "principal point and horizontal datum are correlated"
+
+
+def _run(sim, refine=("cx", "cy")):
+    """Triangulate with `refine`; (result, the UserWarnings' texts)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = triangulate(sim.camera, sim.points, sim.measurements, sim.crs, TriangulationOptions(refine=refine),
+                          approx=approx_of(sim), centre_priors=sim.centres)
+    return res, [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
+
+
+def _separating_pattern(n_strips=(3, 2), per_strip=(8, 6), cross=2) -> BlockPattern:
+    """Cross strips at 150 and 250 m over flat ground, images tilted by 15 deg (sigma per axis)."""
+    return BlockPattern(heights_m=(150.0, 250.0), n_strips=n_strips, images_per_strip=per_strip, cross_strips=cross,
+                        forward_overlap=0.8, side_overlap=0.7, terrain_amplitude_m=0.0, jitter_deg=(15.0, 15.0, 1.0),
+                        jitter_m=(1.0, 1.0, 0.5))
+
+
+@pytest.fixture(scope="module")
+def flat_nadir():
+    """The 48-image RTK block over flat ground, cx/cy refined: (sim, result, warnings)."""
+    sim = simulate_rtk_block(0, n_images=48, terrain_amplitude_m=0.0)
+    return (sim, *_run(sim))
+
+
+def test_a_flat_nadir_block_warns_that_the_principal_point_follows_the_centres(flat_nadir):
+    sim, res, caught = flat_nadir
+    pp = res.summary["principal_point"]
+    assert res.summary["f_height"] is None
+    for p in ("cx", "cy"):
+        # a principal-point shift is a shift of the centres along the image axis: the correlation is with them
+        assert pp[p]["rho"] > 0.93 and pp[p]["variance_inflation"] > 7
+        assert pp[p]["rho_centres"] > 0.9 and pp[p]["rho_ground"] < 0.2
+        assert pp[p]["variance_inflation"] == pytest.approx(1 / (1 - pp[p]["rho"] ** 2))
+        # the sigma is honest and the figure in metres is sigma/f x the height above ground
+        assert abs(res.camera[p] - sim.camera[p]) < 4 * pp[p]["sigma_px"]
+        assert pp[p]["sigma_px"] == pytest.approx(res.summary["camera"]["sigmas"][p], rel=1e-6)
+        assert pp[p]["shift_per_sigma_m"] == pytest.approx(pp[p]["sigma_px"] / sim.camera["f"] * 150, rel=0.05)
+    w = [x for x in res.warnings if WARNING in x]
+    assert len(w) == 1 and w[0] in caught
+    assert f"ρ = {pp['cx']['rho']:.2f}/{pp['cy']['rho']:.2f}" in w[0] and "mostly the centres' shift" in w[0]
+    assert all(s in w[0] for s in ("tilted or oblique images", "cross strips", "second flying height",
+                                   "GCPs well spread", "cx/cy from a lab calibration", "leave cx/cy out of --refine"))
+    json.dumps(res.summary)   # the figures are JSON
+
+
+def test_tilted_images_in_cross_strips_at_two_heights_separate_it(flat_nadir):
+    _, nadir, _ = flat_nadir
+    sim = simulate_block(0, _separating_pattern(), camera=p1_35mm_camera(), n_control=0, n_check=6, n_tie=4000,
+                         centre_sigma_m=RTK)
+    res, caught = _run(sim)
+    pp, pn = res.summary["principal_point"], nadir.summary["principal_point"]
+    for p in ("cx", "cy"):
+        assert pp[p]["rho"] < 0.85 < PP_CORRELATION < pn[p]["rho"]
+        assert pp[p]["rho_centres"] < pn[p]["rho_centres"] - 0.3
+        assert pp[p]["sigma_px"] < 0.5 * pn[p]["sigma_px"]
+        assert abs(res.camera[p] - sim.camera[p]) < 4 * pp[p]["sigma_px"]
+    assert not any(WARNING in x for x in res.warnings + caught)
+
+
+def test_the_figures_are_those_of_the_inverse_of_the_whole_normal_matrix(monkeypatch):
+    # a small block: the whole normal matrix (poses, intrinsics and points) inverted densely, without the Schur
+    # complement and the solves with it that the adjustment's covariance uses
+    sim = simulate_block(2, _separating_pattern((2, 1), (5, 4), 1), camera=p1_35mm_camera(), n_control=0,
+                         n_check=4, n_tie=500, centre_sigma_m=RTK)
+    seen = []
+
+    def capture(res):
+        seen.append(res)
+        return principal_point_correlation(res)
+
+    monkeypatch.setattr(triangulation_mod, "principal_point_correlation", capture)
+    res, _ = _run(sim, refine=("f", "cx", "cy"))
+    pp = res.summary["principal_point"]
+    bres = seen[0]
+    nrm, N = bres.normals, bres.problem.n_poses
+    W = nrm.W.toarray()
+    V = np.zeros((len(nrm.V) * 3,) * 2)
+    for j, b in enumerate(nrm.V):
+        V[3 * j:3 * j + 3, 3 * j:3 * j + 3] = b
+    full = np.block([[nrm.U, W], [W.T, V]])
+    ok = np.r_[nrm.observed_c, nrm.observed_x]
+    assert len(full) == len(ok) and ok.sum() > 900
+    Sigma = np.zeros_like(full)
+    Sigma[np.ix_(ok, ok)] = np.linalg.inv(full[np.ix_(ok, ok)])
+    for axis, p in enumerate(("cx", "cy")):
+        g = 6 * N + list(bres.refine).index(p)
+        l_c, l_x = pp_combinations(bres, axis)
+        L = np.vstack([np.eye(len(full))[g], np.vstack([l_c, l_x]).T])
+        C = L @ Sigma @ L.T
+        # 1 - rho^2 = 1 / (C_00 (C^-1)_00): the variance of p with the combinations known over its variance
+        vif = C[0, 0] * np.linalg.inv(C)[0, 0]
+        assert pp[p]["variance_inflation"] == pytest.approx(vif, rel=1e-5)
+        assert pp[p]["rho"] == pytest.approx(np.sqrt(1 - 1 / vif), rel=1e-6)
+        assert pp[p]["rho_tilt"] == pytest.approx(abs(C[0, 4]) / np.sqrt(C[0, 0] * C[4, 4]), rel=1e-6)
+        assert pp[p]["rho_centres"] == pytest.approx(abs(C[0, 1]) / np.sqrt(C[0, 0] * C[1, 1]), rel=1e-6)
+        assert pp[p]["sigma_px"] == pytest.approx(np.sqrt(Sigma[g, g] * bres.scale2), rel=1e-6)
+    # the combinations are what a principal-point shift moves: 1 px of cx is f/H px of centre shift along x
+    l_c, _ = pp_combinations(bres, 0)
+    dC = np.zeros(len(l_c))
+    H = bres.C_world[:, 2] - np.median(bres.X_world[bres.obs_point, 2])
+    dC[:6 * N].reshape(N, 6)[:, :3] = bres.R_world_to_cam[:, 0, :] * (H / bres.camera["f"])[:, None]
+    assert l_c[:, 0] @ dC == pytest.approx(1.0, rel=1e-9)
+
+
+def test_no_figure_without_cx_and_cy_and_the_cli_writes_it(tmp_path):
+    sim = simulate_rtk_block(0, n_images=10, terrain_amplitude_m=0.0, n_check=4)
+    res, _ = _run(sim, refine=("f",))
+    assert res.summary["principal_point"] is None and not any(WARNING in x for x in res.warnings)
+    d = tmp_path / "blk"
+    write_block(sim, d)
+    write_eop(d / "approx.csv", approx_of(sim))
+    out = tmp_path / "out"
+    rc = main(["triangulate", "--camera", str(d / "camera.json"), "--gcp", str(d / "gcp.csv"), "--crs", sim.crs,
+               "--measurements", str(d / "measurements.csv"), "--image-size", "8192", "5460", "--gnss",
+               str(d / "centres.csv"), "--approx", str(d / "approx.csv"), "--refine", "cy", "--out", str(out)])
+    assert rc == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert set(s["principal_point"]) == {"cy", "height_above_ground_m"}
+    assert 0 < s["principal_point"]["cy"]["rho"] <= 1 and s["principal_point"]["cy"]["sigma_px"] > 0
