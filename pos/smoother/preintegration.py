@@ -72,8 +72,9 @@ SIGNED_TURNS = True   # the turn noise from the net manoeuvre within the window 
 # misalignment (m times the net rotation about the other axes, added up turn after turn as if independent)
 # over-states what is left once GNSS and accelerometers see the attitude between turns; a quarter of it (half its
 # sigma) makes roll/pitch/heading error/sigma 0.76-1.18 over the simulated 5-minute families (8 seeds each; the
-# whole variance gave 0.66-1.11, the fixed wing's heading 0.66-0.76) and 0.60/1.08/0.73 on 20-minute multirotor
-# TC flights (0.54/0.94/0.65); none of it gave up to 1.19 (TC) and 4.8 sigma (docs/pos_smoother.md)
+# whole variance gave 0.66-1.11, the fixed wing's heading 0.66-0.76) and 1.10/0.99/1.02 on 20-minute multirotor
+# TC flights (8 seeds; none of it 1.20/1.10/1.08, all of it 1.01/0.84/0.97: there it is a third of the roll
+# variance, the tilt budget another); none of it gave up to 1.19 (5-minute TC) and 4.8 sigma (docs/pos_smoother.md)
 GYRO_MISALIGN_SHARE = 0.25
 
 
