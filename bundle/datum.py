@@ -28,6 +28,8 @@ WEAK_FACTOR = 5.0          # a datum effect beyond this many source sigmas is we
 F_HEIGHT_CORRELATION = 0.9  # |rho(f, height above ground)| above this is reported
 PP_CORRELATION = 0.9        # rho(cx or cy, the block-level combinations of `pp_combinations`) above this is reported
 PP_COMBINATIONS = ("centres", "ground_E", "ground_N", "tilt")   # the block-level combinations of `pp_combinations`
+PP_PARTS = {"rho_centres": "the centres' shift along the image axes", "rho_ground": "the ground's horizontal position",
+            "rho_tilt": "the mean tilt (omega/phi)"}
 
 
 def _sigma_text(s: np.ndarray) -> str:
@@ -233,18 +235,20 @@ def multiple_correlation(C: np.ndarray, sel: np.ndarray) -> float:
 
 
 def principal_point_correlation(res: BundleResult) -> dict | None:
-    """How far refined cx/cy are separable from the horizontal datum: for each, `rho`, its multiple correlation
-    with the combinations of `pp_combinations` (the centres' shift along the image axis, the ground's horizontal
-    position, the mean tilt), the variance inflation 1/(1 - rho^2), the parts `rho_centres`, `rho_ground`,
-    `rho_tilt`, sigma (px), and `shift_per_sigma_m` (sigma/f times the height above ground: the horizontal shift
-    of centres or ground that sigma equals); None without cx and cy. Four extra solves per coordinate."""
+    """How far refined cx/cy are separable from the horizontal datum, as lists in the order of `parameters` (cx,
+    cy or one of them): `rho`, the multiple correlation with the combinations of `pp_combinations` (the centres'
+    shift along the image axis, the ground's horizontal position, the mean tilt), `variance_inflation`
+    1/(1 - rho^2), the parts `rho_centres`, `rho_ground`, `rho_tilt`, `sigma_px`, and `shift_per_sigma_m`
+    (sigma/f times the height above ground: the horizontal shift of centres or ground that sigma equals); with
+    `height_above_ground_m`, the dominant part `mostly` (centres, ground or tilt) and a `text` line; None without
+    cx and cy. Four extra solves per coordinate."""
     if not {"cx", "cy"} & set(res.refine):
         return None
     cv = res.covariance
     N = res.problem.n_poses
     bad = cv.camera_side.bad
     depth = float(np.median(np.abs(res.C_world[:, 2][res.obs_image] - res.X_world[res.obs_point, 2])))
-    out = {"height_above_ground_m": depth}
+    rows = {}
     for axis, p in enumerate(("cx", "cy")):
         if p not in res.refine or bad[6 * N + list(res.refine).index(p)]:
             continue
@@ -258,33 +262,36 @@ def principal_point_correlation(res: BundleResult) -> dict | None:
             continue
         r = multiple_correlation(C, np.arange(1, 5))
         sig = float(np.sqrt(q * res.scale2))
-        out[p] = {"rho": r, "variance_inflation": 1.0 / max(1.0 - r * r, 1e-12),
-                  "rho_centres": multiple_correlation(C, [1]), "rho_ground": multiple_correlation(C, [2, 3]),
-                  "rho_tilt": multiple_correlation(C, [4]), "sigma_px": sig,
-                  "shift_per_sigma_m": sig / _focal_px(res.camera, axis) * depth}
-    return out if len(out) > 1 else None
+        rows[p] = {"rho": r, "variance_inflation": 1.0 / max(1.0 - r * r, 1e-12),
+                   "rho_centres": multiple_correlation(C, [1]), "rho_ground": multiple_correlation(C, [2, 3]),
+                   "rho_tilt": multiple_correlation(C, [4]), "sigma_px": sig,
+                   "shift_per_sigma_m": sig / _focal_px(res.camera, axis) * depth}
+    if not rows:
+        return None
+    ps = list(rows)
+    out = {"parameters": ps, **{k: [rows[p][k] for p in ps] for k in rows[ps[0]]}, "height_above_ground_m": depth}
+    main = max(PP_PARTS, key=lambda k: max(out[k]))
+    out["mostly"] = main.removeprefix("rho_")
+    out["text"] = (f"{'/'.join(ps)}: ρ {'/'.join(f'{v:.2f}' for v in out['rho'])} with the horizontal datum "
+                   f"(mostly {PP_PARTS[main]}), σ {'/'.join(f'{v:.2g}' for v in out['sigma_px'])} px")
+    return out
 
 
 def principal_point_warning(pp: dict | None) -> str | None:
     """The warning of a principal point the block cannot separate from the horizontal datum (see
     `principal_point_correlation`), or None."""
-    ps = [p for p in ("cx", "cy") if pp and p in pp]
-    hit = [p for p in ps if pp[p]["rho"] > PP_CORRELATION]
-    if not hit:
+    if pp is None or max(pp["rho"]) <= PP_CORRELATION:
         return None
-    parts = {"rho_centres": "the centres' shift along the image axes", "rho_ground": "the ground's horizontal "
-             "position", "rho_tilt": "the mean tilt (omega/phi)"}
-    main = max(parts, key=lambda k: max(pp[p][k] for p in hit))
-    what = "/".join(ps)
+    what = "/".join(pp["parameters"])
 
     def fig(key: str, fmt: str) -> str:
         """The figure of cx and cy, 'a/b'."""
-        return "/".join(format(pp[p][key], fmt) for p in ps)
+        return "/".join(format(v, fmt) for v in pp[key])
 
-    cm = "/".join(f"{100 * pp[p]['shift_per_sigma_m']:.2g}" for p in ps)
+    cm = "/".join(f"{100 * v:.2g}" for v in pp["shift_per_sigma_m"])
     return (f"principal point and horizontal datum are correlated ({what}: ρ = {fig('rho', '.2f')}, variance "
-            f"inflation {fig('variance_inflation', '.3g')}; mostly {parts[main]}): σ{what} = {fig('sigma_px', '.2g')} "
-            f"px, {cm} cm of horizontal shift of the camera centres or the ground at "
+            f"inflation {fig('variance_inflation', '.3g')}; mostly {PP_PARTS['rho_' + pp['mostly']]}): σ{what} = "
+            f"{fig('sigma_px', '.2g')} px, {cm} cm of horizontal shift of the camera centres or the ground at "
             f"{pp['height_above_ground_m']:.0f} m above the ground; nadir images of flat ground cannot separate the "
             "principal point from the horizontal position of the centres or the ground or from omega/phi, so a "
             "centre error along the image axes (an antenna offset) goes into it: add tilted or oblique images, or "

@@ -6,6 +6,7 @@ correlation of the adjustment's covariance, checked against the inverse of the w
 
 The blocks are `dgcal.sim.block`'s: the RTK-drone family (35 mm on 8192 x 5460 px, 150 m, RTK centres 2/2/5 cm,
 0 GCPs) over flat ground, and the same camera in cross strips at 150 and 250 m with 15 deg tilts."""
+import html
 import json
 import warnings
 
@@ -49,19 +50,20 @@ def flat_nadir():
 def test_a_flat_nadir_block_warns_that_the_principal_point_follows_the_centres(flat_nadir):
     sim, res, caught = flat_nadir
     pp = res.summary["principal_point"]
-    assert res.summary["f_height"] is None
-    for p in ("cx", "cy"):
+    assert res.summary["f_height"] is None and pp["parameters"] == ["cx", "cy"]
+    for k, p in enumerate(pp["parameters"]):
         # a principal-point shift is a shift of the centres along the image axis: the correlation is with them
-        assert pp[p]["rho"] > 0.93 and pp[p]["variance_inflation"] > 7
-        assert pp[p]["rho_centres"] > 0.9 and pp[p]["rho_ground"] < 0.2
-        assert pp[p]["variance_inflation"] == pytest.approx(1 / (1 - pp[p]["rho"] ** 2))
+        assert pp["rho"][k] > 0.93 and pp["variance_inflation"][k] > 7
+        assert pp["rho_centres"][k] > 0.9 and pp["rho_ground"][k] < 0.2
+        assert pp["variance_inflation"][k] == pytest.approx(1 / (1 - pp["rho"][k] ** 2))
         # the sigma is honest and the figure in metres is sigma/f x the height above ground
-        assert abs(res.camera[p] - sim.camera[p]) < 4 * pp[p]["sigma_px"]
-        assert pp[p]["sigma_px"] == pytest.approx(res.summary["camera"]["sigmas"][p], rel=1e-6)
-        assert pp[p]["shift_per_sigma_m"] == pytest.approx(pp[p]["sigma_px"] / sim.camera["f"] * 150, rel=0.05)
+        assert abs(res.camera[p] - sim.camera[p]) < 4 * pp["sigma_px"][k]
+        assert pp["sigma_px"][k] == pytest.approx(res.summary["camera"]["sigmas"][p], rel=1e-6)
+        assert pp["shift_per_sigma_m"][k] == pytest.approx(pp["sigma_px"][k] / sim.camera["f"] * 150, rel=0.05)
+    assert pp["mostly"] == "centres" and pp["text"].startswith(f"cx/cy: ρ {pp['rho'][0]:.2f}/{pp['rho'][1]:.2f}")
     w = [x for x in res.warnings if WARNING in x]
     assert len(w) == 1 and w[0] in caught
-    assert f"ρ = {pp['cx']['rho']:.2f}/{pp['cy']['rho']:.2f}" in w[0] and "mostly the centres' shift" in w[0]
+    assert f"ρ = {pp['rho'][0]:.2f}/{pp['rho'][1]:.2f}" in w[0] and "mostly the centres' shift" in w[0]
     assert all(s in w[0] for s in ("tilted or oblique images", "cross strips", "second flying height",
                                    "GCPs well spread", "cx/cy from a lab calibration", "leave cx/cy out of --refine"))
     json.dumps(res.summary)   # the figures are JSON
@@ -73,11 +75,11 @@ def test_tilted_images_in_cross_strips_at_two_heights_separate_it(flat_nadir):
                          centre_sigma_m=RTK)
     res, caught = _run(sim)
     pp, pn = res.summary["principal_point"], nadir.summary["principal_point"]
-    for p in ("cx", "cy"):
-        assert pp[p]["rho"] < 0.85 < PP_CORRELATION < pn[p]["rho"]
-        assert pp[p]["rho_centres"] < pn[p]["rho_centres"] - 0.3
-        assert pp[p]["sigma_px"] < 0.5 * pn[p]["sigma_px"]
-        assert abs(res.camera[p] - sim.camera[p]) < 4 * pp[p]["sigma_px"]
+    for k, p in enumerate(("cx", "cy")):
+        assert pp["rho"][k] < 0.85 < PP_CORRELATION < pn["rho"][k]
+        assert pp["rho_centres"][k] < pn["rho_centres"][k] - 0.3
+        assert pp["sigma_px"][k] < 0.5 * pn["sigma_px"][k]
+        assert abs(res.camera[p] - sim.camera[p]) < 4 * pp["sigma_px"][k]
     assert not any(WARNING in x for x in res.warnings + caught)
 
 
@@ -106,6 +108,7 @@ def test_the_figures_are_those_of_the_inverse_of_the_whole_normal_matrix(monkeyp
     assert len(full) == len(ok) and ok.sum() > 900
     Sigma = np.zeros_like(full)
     Sigma[np.ix_(ok, ok)] = np.linalg.inv(full[np.ix_(ok, ok)])
+    assert pp["parameters"] == ["cx", "cy"]
     for axis, p in enumerate(("cx", "cy")):
         g = 6 * N + list(bres.refine).index(p)
         l_c, l_x = pp_combinations(bres, axis)
@@ -113,11 +116,11 @@ def test_the_figures_are_those_of_the_inverse_of_the_whole_normal_matrix(monkeyp
         C = L @ Sigma @ L.T
         # 1 - rho^2 = 1 / (C_00 (C^-1)_00): the variance of p with the combinations known over its variance
         vif = C[0, 0] * np.linalg.inv(C)[0, 0]
-        assert pp[p]["variance_inflation"] == pytest.approx(vif, rel=1e-5)
-        assert pp[p]["rho"] == pytest.approx(np.sqrt(1 - 1 / vif), rel=1e-6)
-        assert pp[p]["rho_tilt"] == pytest.approx(abs(C[0, 4]) / np.sqrt(C[0, 0] * C[4, 4]), rel=1e-6)
-        assert pp[p]["rho_centres"] == pytest.approx(abs(C[0, 1]) / np.sqrt(C[0, 0] * C[1, 1]), rel=1e-6)
-        assert pp[p]["sigma_px"] == pytest.approx(np.sqrt(Sigma[g, g] * bres.scale2), rel=1e-6)
+        assert pp["variance_inflation"][axis] == pytest.approx(vif, rel=1e-5)
+        assert pp["rho"][axis] == pytest.approx(np.sqrt(1 - 1 / vif), rel=1e-6)
+        assert pp["rho_tilt"][axis] == pytest.approx(abs(C[0, 4]) / np.sqrt(C[0, 0] * C[4, 4]), rel=1e-6)
+        assert pp["rho_centres"][axis] == pytest.approx(abs(C[0, 1]) / np.sqrt(C[0, 0] * C[1, 1]), rel=1e-6)
+        assert pp["sigma_px"][axis] == pytest.approx(np.sqrt(Sigma[g, g] * bres.scale2), rel=1e-6)
     # the combinations are what a principal-point shift moves: 1 px of cx is f/H px of centre shift along x
     l_c, _ = pp_combinations(bres, 0)
     dC = np.zeros(len(l_c))
@@ -139,5 +142,9 @@ def test_no_figure_without_cx_and_cy_and_the_cli_writes_it(tmp_path):
                str(d / "centres.csv"), "--approx", str(d / "approx.csv"), "--refine", "cy", "--out", str(out)])
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
-    assert set(s["principal_point"]) == {"cy", "height_above_ground_m"}
-    assert 0 < s["principal_point"]["cy"]["rho"] <= 1 and s["principal_point"]["cy"]["sigma_px"] > 0
+    pp = s["principal_point"]
+    assert pp["parameters"] == ["cy"] and len(pp["rho"]) == len(pp["sigma_px"]) == 1
+    assert 0 < pp["rho"][0] <= 1 and pp["sigma_px"][0] > 0 and pp["text"].startswith("cy: ρ")
+    # the page shows the line and the figures
+    page = html.unescape((out / "report.html").read_text())
+    assert pp["text"] in page and "principal point: correlation ρ" in page
