@@ -210,8 +210,9 @@ def pp_combinations(res: BundleResult, axis: int) -> tuple[np.ndarray, np.ndarra
     e_world = res.R_world_to_cam[:, axis, :]            # the camera axis, world components
     l_c = np.zeros((res.problem.n_camera_side, 4))
     l_x = np.zeros((3 * M, 4))
-    l_c[:6 * N, 0].reshape(N, 6)[:, :3] = e_world * (f / np.maximum(H, 1e-6))[:, None] / N
-    l_c[:6 * N, 3].reshape(N, 6)[:, 4 - axis] = f / N
+    pose = 6 * np.arange(N)
+    l_c[pose[:, None] + np.arange(3), 0] = e_world * (f / np.maximum(H, 1e-6))[:, None] / N
+    l_c[pose + 4 - axis, 3] = f / N
     w = np.bincount(oj, minlength=M) / max(len(oj), 1)
     l_x[0::3, 1], l_x[1::3, 2] = w, w
     l_c[bad] = 0.0

@@ -127,6 +127,12 @@ def test_the_figures_are_those_of_the_inverse_of_the_whole_normal_matrix(monkeyp
     H = bres.C_world[:, 2] - np.median(bres.X_world[bres.obs_point, 2])
     dC[:6 * N].reshape(N, 6)[:, :3] = bres.R_world_to_cam[:, 0, :] * (H / bres.camera["f"])[:, None]
     assert l_c[:, 0] @ dC == pytest.approx(1.0, rel=1e-9)
+    # ... and a tilt of 1/f about the camera y axis, and a shift of the whole ground by 1 m east is 1 m
+    dth = np.zeros(len(l_c))
+    dth[6 * np.arange(N) + 4] = 1 / bres.camera["f"]
+    assert l_c[:, 3] @ dth == pytest.approx(1.0, rel=1e-9)
+    _, l_x = pp_combinations(bres, 0)
+    assert l_x[0::3, 1].sum() == pytest.approx(1.0) and not l_x[1::3, 1].any() and not l_x[:, [0, 3]].any()
 
 
 def test_no_figure_without_cx_and_cy_and_the_cli_writes_it(tmp_path):
