@@ -194,6 +194,7 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
             raise InputError("RINEX version not supported by the decoder", p, 1)
     by_sat: dict[str, list] = {}
     dropped: list[str] = []
+    kept = []                     # what `eph` holds: a corrupt record is left out of it too, not only of `by_sat`
     for e in nav.eph:
         sid = sat2id(e.sat)
         if isinstance(sid, str) and sid[0] in SYSTEMS:
@@ -202,6 +203,7 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
                 dropped.append(f"{sid} toe {float(getattr(e, 'toes', np.nan)):.0f}: {why}")
                 continue
             by_sat.setdefault(sid, []).append(e)
+        kept.append(e)
     glo = GlonassEphemerides.concat(glonass) if glonass else None
     if not by_sat and glo is None:
         raise InputError("no GPS/Galileo/BeiDou/QZSS/GLONASS ephemeris in navigation file"
@@ -229,7 +231,7 @@ def read_rinex_nav(path: str | Path, paths: Sequence[str | Path] = ()) -> Broadc
             ion_gps, ion_source = ION_DEFAULT.copy(), "default"
             warnings.append(f"{source}: no ionosphere coefficients (GPSA/GPSB, ION ALPHA/BETA); "
                             "RTKLIB's default Klobuchar coefficients are used")
-    return BroadcastNav(eph=nav.eph, by_sat=by_sat, ion_gps=ion_gps, ion_bds=ion_bds,
+    return BroadcastNav(eph=kept, by_sat=by_sat, ion_gps=ion_gps, ion_bds=ion_bds,
                         leap_seconds=leap, source=source, ion_source=ion_source, warnings=warnings,
                         precise=precise, glonass=glo)
 

@@ -1,5 +1,8 @@
 """RINEX navigation files of every version in the form cssrlib's decoder reads (RINEX 3.02+).
 
+RINEX 4.00-4.02 files (IGS's BRD4 merged files, receivers' own) are laid out as RINEX 3 first: their record-type
+lines blanked, the messages RINEX 3 carries kept, the Klobuchar ION records read into the header's coefficients.
+
 cssrlib decodes RINEX >= 3.02 navigation records. ``nav_text_for_cssrlib`` hands it RINEX 3.02-3.05
 files unchanged, 3.00/3.01 files with the version patched (their GPS/Galileo/BeiDou/QZSS records are
 laid out the same), and RINEX 2.10/2.11 GPS navigation files (type ``N``) rewritten record by record
@@ -85,7 +88,8 @@ def _num(s: str, path, ln: int, name: str) -> float:
 
 
 def parse_nav_header(lines: list[str], path: Path) -> NavHeader:
-    """Version, type, ionosphere coefficients and leap seconds of a RINEX 2/3 navigation header."""
+    """Version, type, ionosphere coefficients and leap seconds of a RINEX 2/3/4 navigation header (RINEX 4 keeps
+    the coefficients in ION records: `_rinex4_as_3`)."""
     ver, typ = rinex_version_type(lines, path)
     if ver >= 3.0 and typ != "N":
         raise InputError(f"not a navigation file (type '{typ}')", path, 1, "RINEX VERSION / TYPE")
@@ -311,13 +315,75 @@ def _rinex3_used_records(lines: list[str], hdr: NavHeader, path: Path) -> tuple[
     return out, note
 
 
+def _klobuchar_record(lines: list[str], i: int, path: Path, label: str) -> np.ndarray:
+    """The (alpha, beta) 2x4 of a RINEX 4 Klobuchar ION record whose epoch line is line index i: alpha0-2 after the
+    epoch, alpha3 beta0-2 on the next line, beta3 on the third (19-column fields from column 4)."""
+    if i + 2 >= len(lines):
+        raise InputError("file ends inside an ION record (3 lines expected)", path, len(lines), label)
+    f = [_num(lines[i][4 + 19 * k:23 + 19 * k], path, i + 1, f"{label} alpha{k - 1}") for k in (1, 2, 3)]
+    f += [_num(lines[i + 1][4 + 19 * k:23 + 19 * k], path, i + 2, f"{label} {n}")
+          for k, n in enumerate(("alpha3", "beta0", "beta1", "beta2"))]
+    f.append(_num(lines[i + 2][4:23], path, i + 3, f"{label} beta3"))
+    return np.array(f).reshape(2, 4)
+
+
+# RINEX 4 ephemeris messages laid out as RINEX 3's records (the ones dgcal reads; the others are left out)
+RINEX4_KEPT = {("G", "LNAV"), ("J", "LNAV"), ("E", "INAV"), ("E", "FNAV"), ("C", "D1"), ("C", "D2"), ("R", "FDMA"),
+               ("S", "SBAS"), ("I", "LNAV")}
+_RINEX4_KLOBUCHAR = {("G", "LNAV"): "ion_gps", ("J", "LNAV"): "ion_qzs", ("C", "D1D2"): "ion_bds"}
+
+
+def _rinex4_as_3(lines: list[str], hdr: NavHeader, path: Path) -> tuple[list[str], str]:
+    """A RINEX 4 navigation file in RINEX 3 layout, line numbers unchanged: each record's ``> EPH|ION|STO|EOP``
+    line blanked, the ephemeris messages RINEX 3 carries kept (`RINEX4_KEPT`: GPS/QZSS LNAV, Galileo I/NAV and
+    F/NAV, BeiDou D1/D2, GLONASS FDMA), the others (CNAV, CNV1-3, L1OC, ...) and the STO/EOP records blanked; the
+    first Klobuchar ION record of GPS, QZSS and BeiDou fills the header's coefficients (RINEX 4 moved them out of the
+    header). Returns the lines and a note naming the messages left out."""
+    out = list(lines)
+    out[0] = f"{3.04:9.2f}" + lines[0][9:]
+    left: dict[str, int] = {}
+    n = len(lines)
+    i = hdr.end_line + 1
+    while i < n:
+        line = lines[i]
+        if not line.strip():
+            i += 1
+            continue
+        if not line.startswith("> "):
+            raise InputError(f"expected a RINEX 4 record line ('> EPH', '> ION', '> STO', '> EOP'), not {line[:23]!r}",
+                             path, i + 1, "record type")
+        kind, sys, msg = line[2:5], line[6:7], line[10:14].strip()
+        j = i + 1
+        while j < n and not lines[j].startswith("> "):
+            j += 1
+        out[i] = ""
+        keep = kind == "EPH" and (sys, msg) in RINEX4_KEPT
+        if kind == "ION" and (sys, msg) in _RINEX4_KLOBUCHAR and getattr(hdr, _RINEX4_KLOBUCHAR[sys, msg]) is None:
+            coef = _klobuchar_record(lines, i + 1, path, f"ION {sys} {msg}")
+            setattr(hdr, _RINEX4_KLOBUCHAR[sys, msg], coef if np.any(coef) else None)
+        if kind == "EPH" and not keep:
+            name = f"{SYSTEM_NAMES.get(sys, sys)} {msg}"
+            left[name] = left.get(name, 0) + 1
+        if not keep:
+            for k in range(i + 1, j):
+                out[k] = ""
+        i = j
+    note = ("RINEX 4 messages RINEX 3 does not carry left out: " + ", ".join(f"{c} {m}" for m, c in left.items())
+            if left else "")
+    return out, note
+
+
 def nav_text_for_cssrlib(path: str | Path) -> tuple[io.StringIO, NavHeader]:
     """The file's text in a layout cssrlib's ``rnxdec._decode_nav`` reads, line numbers unchanged, and its header."""
     path = Path(path)
     lines = read_lines(path)
     hdr = parse_nav_header(lines, path)
     if hdr.version >= 3.0:
+        note4 = ""
+        if hdr.version >= 4.0:
+            lines, note4 = _rinex4_as_3(lines, hdr, path)
         text, hdr.skipped = _rinex3_used_records(lines, hdr, path)
+        hdr.skipped = "; ".join(x for x in (note4, hdr.skipped) if x)
         if hdr.version < 3.02:
             text[0] = f"{3.02:9.2f}" + lines[0][9:]
     elif hdr.file_type == "N":

@@ -177,8 +177,8 @@ def _int(s: str, path, lineno, name, default: int | None = None) -> int:
 
 def rinex_version_type(lines: list[str], path: Path) -> tuple[float, str]:
     """Version and file type (column 21: ``O``, ``N``, ...) of a RINEX 2/3 file from its first line, checked: the
-    file is not empty, not left Hatanaka-compressed, begins with a ``RINEX VERSION / TYPE`` line of a version 2.x or
-    3.x (`InputError` naming line 1 otherwise). The caller checks the type."""
+    file is not empty, not left Hatanaka-compressed, begins with a ``RINEX VERSION / TYPE`` line of a version 2.x,
+    3.x or 4.x (`InputError` naming line 1 otherwise). The caller checks the type."""
     if not lines:
         raise InputError("empty file", path, 1)
     first = lines[0]
@@ -190,8 +190,8 @@ def rinex_version_type(lines: list[str], path: Path) -> tuple[float, str]:
         version = float(first[:9])
     except ValueError:
         raise InputError("bad RINEX version", path, 1, "RINEX VERSION") from None
-    if not 2.0 <= version < 4.0:                # written so that a 'nan' version fails it too
-        raise InputError(f"RINEX version {version} is not supported (need 2.10-3.05)", path, 1, "RINEX VERSION")
+    if not 2.0 <= version < 5.0:                # written so that a 'nan' version fails it too
+        raise InputError(f"RINEX version {version} is not supported (need 2.10-4.02)", path, 1, "RINEX VERSION")
     return version, first[20:21]
 
 

@@ -647,6 +647,8 @@ READERS = {
                        _imp("dgcal.pos.gnss.rinex", "read_rinex_obs")),
     "rinex-nav-2": (_const(NAV_211.encode()), ".21n", _imp("dgcal.pos.gnss.rinex", "read_rinex_nav")),
     "rinex-nav-3": (_const(NAV_304.encode()), ".rnx", _imp("dgcal.pos.gnss.rinex", "read_rinex_nav")),
+    "rinex-nav-4": (_const((Path(__file__).parents[1] / "pos" / "gnss" / "data" / "233h_rnx_part.nav").read_bytes()),
+                    ".rnx", _imp("dgcal.pos.gnss.rinex", "read_rinex_nav")),
     # exports read back
     "pix4d": (_const(PIX4D), ".txt", _imp("dgcal.reports.exports.eop", "read_pix4d")),
     "metashape-opk": (s_metashape_opk, ".csv", _imp("dgcal.reports.exports.eop", "read_metashape")),
