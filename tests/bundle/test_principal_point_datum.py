@@ -153,4 +153,4 @@ def test_no_figure_without_cx_and_cy_and_the_cli_writes_it(tmp_path):
     assert 0 < pp["rho"][0] <= 1 and pp["sigma_px"][0] > 0 and pp["text"].startswith("cy: ρ")
     # the page shows the line and the figures
     page = html.unescape((out / "report.html").read_text())
-    assert pp["text"] in page and "principal point: correlation ρ" in page
+    assert pp["text"] in page and "principal point and horizontal datum: correlation ρ" in page
