@@ -12,6 +12,7 @@ from dgcal.pos.ins.error_model import imu_grade
 from dgcal.pos.ins.integrity import ImuIntegrity
 from dgcal.pos.ins.interpolate import interpolate_trajectory
 from dgcal.pos.smoother.batch import HEADING_SPEED_MPS
+from dgcal.pos.smoother.heading_budget import heading_determined
 from dgcal.pos.smoother.integrity import gnss_warnings
 
 
@@ -162,10 +163,16 @@ def observability_warnings(sol, grade) -> list[str]:
     turn-on bias and instability): a heading drifting where the motion leaves it unobservable, or a wrong grade."""
     out = []
     v_h = np.hypot(sol.v_nav[:, 0], sol.v_nav[:, 1])
-    if not np.any(v_h > HEADING_SPEED_MPS):
-        out.append(f"heading not observable: the platform never moved faster than {HEADING_SPEED_MPS:g} m/s (max "
-                   f"{v_h.max():.1f} m/s), so no course fixed it; its sigma is that of an unknown heading")
     model = imu_grade(grade) if isinstance(grade, str) else grade
+    if not heading_determined(sol, model.smoother_noise()):
+        out.append(f"heading not observable: the platform never moved faster than {HEADING_SPEED_MPS:g} m/s (max "
+                   f"{v_h.max():.1f} m/s) nor drove straight far enough for a course, so nothing fixed it; its sigma "
+                   "is that of an unknown heading")
+    if "heading_course_disagreement_deg" in sol.info:
+        out.append(f"heading disagrees with the GNSS course of the straight stretches by "
+                   f"{sol.info['heading_course_disagreement_deg']:.1f} deg RMS, beyond their sigmas: its sigma "
+                   "includes that disagreement; distrust the heading (a wrong gyro bias, or the body x axis not "
+                   "along the direction of travel)")
     lim = 3.0 * float(np.hypot(model.gyro_bias_sigma, model.gyro_bias_instability))
     b = np.abs(sol.bias[:, 3:]).max(axis=0)
     if lim > 0 and np.any(b > lim):

@@ -8,6 +8,8 @@
 - NavSatFix: latitude/longitude deg, altitude m above the WGS 84 ellipsoid, `position_covariance` row-major in
   ENU m^2 (type 0 = unknown: a default from the fix status), `status.status` -1 no fix (dropped), 0 fix,
   1 SBAS, 2 GBAS (RTK drivers such as ublox_gps report an RTK fix this way) -> RTKLIB Q 5, 3, 1.
+
+`write_rosbag` writes IMU data and fixes the other way (a simulated robot log, `dgcal.sim.robot_motion`).
 """
 from __future__ import annotations
 
@@ -16,11 +18,13 @@ from pathlib import Path
 
 import numpy as np
 from rosbags.highlevel import AnyReader
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
-from dgcal.fields.crs import geodetic_to_ecef
+from dgcal.fields.crs import ecef_to_geodetic, geodetic_to_ecef
 from dgcal.fields.errors import InputError
-from dgcal.fields.io.timescales import gps_from_unix_utc
+from dgcal.fields.io.timescales import gps_from_unix_utc, unix_utc_from_gps
 from dgcal.fields.io.validate import ecef_near_surface, gps_seconds_values, values_in_range
 from dgcal.pos.gnss.solution_files import GnssSolution
 from dgcal.pos.ins.imu_data import MAX_ACCEL_M_S2, MAX_GYRO_RAD_S, ImuData
@@ -179,3 +183,59 @@ def read_rosbag_navsatfix(path: str | Path, topic: str | None = None, time: str 
     return GnssSolution(t[order], p[order], cov_ned[order], q[order], np.zeros(len(order), int), path=path,
                         info={"format": "rosbag", "topic": name, "time": time,
                               "covariance": "default" if unknown.all() else "from the messages"})
+
+
+# RTKLIB Q -> NavSatStatus (fixed and float: GBAS, as RTK drivers report them; SBAS and DGPS: SBAS; else a fix)
+Q_TO_STATUS = {1: 2, 2: 2, 3: 1, 4: 1}
+
+
+def _header(ts, u: float, frame_id: str, version: int):
+    sec = int(np.floor(u))
+    nsec = min(int(round((u - sec) * 1e9)), 999_999_999)
+    stamp = ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
+    if version == 1:
+        return ts.types["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame_id), sec * 10 ** 9 + nsec
+    return ts.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id), sec * 10 ** 9 + nsec
+
+
+def write_rosbag(path: str | Path, imu: ImuData, fixes: GnssSolution | None = None, version: int = 2,
+                 imu_topic: str = "/imu/data", fix_topic: str = "/gps/fix") -> Path:
+    """Write `imu` (body FRD increments, GPS s) as `sensor_msgs/Imu` (FLU mean rates over each interval, stamped at
+    its end in Unix UTC) and `fixes` (antenna ECEF m, NED covariance m^2) as `sensor_msgs/NavSatFix` (ENU covariance,
+    type known) into a ROS 1 bag file or a ROS 2 bag folder (`version`); bag times are the stamps."""
+    path = Path(path)
+    if version not in (1, 2):
+        raise ValueError(f"ROS version {version!r} is not 1 or 2")
+    ts = get_typestore(Stores.ROS1_NOETIC if version == 1 else Stores.ROS2_HUMBLE)
+    serialize = ts.serialize_ros1 if version == 1 else ts.serialize_cdr
+    v3, quat = ts.types["geometry_msgs/msg/Vector3"], ts.types["geometry_msgs/msg/Quaternion"]
+    imu_t = ts.types["sensor_msgs/msg/Imu"]
+    msgs = []
+    u = unix_utc_from_gps(imu.t)
+    gyro, accel = imu.gyro_rad_s * FLU_TO_FRD, imu.accel_m_s2 * FLU_TO_FRD
+    for uk, g, a in zip(u, gyro.tolist(), accel.tolist()):
+        head, ns = _header(ts, float(uk), "imu_link", version)
+        msgs.append((ns, 0, imu_t(header=head, orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
+                                  orientation_covariance=np.array([-1.0] + [0.0] * 8),
+                                  angular_velocity=v3(x=g[0], y=g[1], z=g[2]), angular_velocity_covariance=np.zeros(9),
+                                  linear_acceleration=v3(x=a[0], y=a[1], z=a[2]),
+                                  linear_acceleration_covariance=np.zeros(9))))
+    if fixes is not None and len(fixes):
+        fix_t, status_t = ts.types["sensor_msgs/msg/NavSatFix"], ts.types["sensor_msgs/msg/NavSatStatus"]
+        llh = ecef_to_geodetic(np.asarray(fixes.p_ecef, float))
+        cov_enu = np.einsum("ji,njk,kl->nil", P_ENU_TO_NED, np.asarray(fixes.cov_ned, float), P_ENU_TO_NED)
+        for uk, p, c, q in zip(unix_utc_from_gps(fixes.t), llh, cov_enu, np.asarray(fixes.quality, int)):
+            head, ns = _header(ts, float(uk), "gps", version)
+            msgs.append((ns, 1, fix_t(header=head, status=status_t(status=Q_TO_STATUS.get(int(q), 0), service=1),
+                                      latitude=float(p[0]), longitude=float(p[1]), altitude=float(p[2]),
+                                      position_covariance=c.ravel().copy(), position_covariance_type=3)))
+    msgs.sort(key=lambda m: (m[0], m[1]))
+    types = ("sensor_msgs/msg/Imu", "sensor_msgs/msg/NavSatFix")
+    writer = Writer1(path) if version == 1 else Writer2(path, version=9)
+    with writer as w:
+        conns = {}
+        for i in sorted({m[1] for m in msgs}):
+            conns[i] = w.add_connection((imu_topic, fix_topic)[i], types[i], typestore=ts)
+        for ns, i, m in msgs:
+            w.write(conns[i], ns, serialize(m, types[i]))
+    return path

@@ -28,6 +28,7 @@ from dgcal.pos.smoother.fix_errors import (LcFixModel, error_estimates, fix_fact
                                           process_factors, set_white_share)
 from dgcal.pos.smoother.fix_errors import insert_initial as insert_fix_errors
 from dgcal.pos.smoother.linearised import KeyframeBlocks, KeyframeRows, keyframe_rows
+from dgcal.pos.smoother.slow_attitude import slow_platform_attitude
 from dgcal.pos.smoother.static import static_ends, static_white_noise, zero_motion_factors
 from dgcal.pos.smoother.factors import (B, CLK, DRIFT, FE, V, X, ZERO, clock_factors, doppler_factors, position_factor,
                                   pseudorange_factors, velocity_factor)
@@ -195,6 +196,11 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
 
     a, R_body_to_nav_anchor = anchor_attitude(t_key, v_ant)
     R_body_to_nav = propagate_attitude(pims, a, R_body_to_nav_anchor, p_ant, v_ant)
+    slow = not np.any(np.hypot(v_ant[:, 0], v_ant[:, 1]) > HEADING_SPEED_MPS)
+    if slow:
+        # no course above HEADING_SPEED_MPS: the gyros' unknown biases drift the propagated guess (slow_attitude)
+        R_body_to_nav = slow_platform_attitude(imu, t_key, R_body_to_nav, p_ant,
+                                               float(np.median(fixes.sigma_ned[:, :2])))
     p_imu = p_ant - np.einsum("kij,j->ki", R_body_to_nav, lever)
     omega_b = _imu_rate_at(imu, t_key)
 
@@ -206,7 +212,7 @@ def build_problem(imu, frame: NavFrame, t_key: np.ndarray, fixes: GnssFixes, imu
 
     prior = []
     rs = np.radians(opts.prior_rot_sigma_deg)
-    if not np.any(np.hypot(v_ant[:, 0], v_ant[:, 1]) > HEADING_SPEED_MPS):
+    if slow:
         # no course to take the heading from (static, slow): it starts as good as unknown, so its sigma says so
         rs = rs.copy()
         rs[2] = np.radians(HEADING_UNKNOWN_SIGMA_DEG)
