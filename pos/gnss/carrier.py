@@ -367,10 +367,20 @@ def code_observations(obs: CarrierObs, slot: int = 0) -> GnssObservations:
                             signals=signals, source=obs.source)
 
 
+def _glonass_channel(obs: CarrierObs, i: int) -> int:
+    """Frequency channel of GLONASS satellite `i` from its G1 (or G2) carrier frequency."""
+    for f in range(obs.n_slots):
+        band = obs.signals.get(("R", f), ("C1C",))[0][1]
+        if np.isfinite(obs.freq_hz[i, f]):
+            base, step = (1602.0e6, 0.5625e6) if band == "1" else (1246.0e6, 0.4375e6)
+            return int(round((obs.freq_hz[i, f] - base) / step))
+    return 0
+
+
 def write_rinex_carrier(path, obs: CarrierObs, marker: str = "DGCAL", comment: str = "simulated by dgcal") -> None:
     """Write code (m), carrier phase (cycles, with the loss-of-lock indicator), Doppler (Hz) and C/N0 of every
     slot of ``obs`` (its ``signals``) as a RINEX 3.04 observation file (atomic write); NaN is left blank."""
-    systems = [s for s in "GECJ" if any(sid[0] == s for sid in obs.sats)]
+    systems = [s for s in "GRECJSI" if any(sid[0] == s for sid in obs.sats)]
     types, slots = {}, {}
     for s in systems:
         fs = [f for f in range(obs.n_slots) if (s, f) in obs.signals]
@@ -396,6 +406,10 @@ def write_rinex_carrier(path, obs: CarrierObs, marker: str = "DGCAL", comment: s
         for j in range(0, len(ty), 13):
             head = f"{s}{len(ty):5d}" if j == 0 else " " * 6
             lines.append(hdr(head + "".join(f" {c}" for c in ty[j:j + 13]), "SYS / # / OBS TYPES"))
+    glo = [(sid, _glonass_channel(obs, i)) for i, sid in enumerate(obs.sats) if sid[0] == "R"]
+    for j in range(0, len(glo), 8):      # GLONASS channels (u-blox logs; the simulator writes none)
+        part = "".join(f"{sid} {k:2d} " for sid, k in glo[j:j + 8])
+        lines.append(hdr((f"{len(glo):3d} " if j == 0 else "    ") + part, "GLONASS SLOT / FRQ #"))
     lines.append(hdr(f"{dt:10.3f}", "INTERVAL"))
     for tt, label in ((t[0], "TIME OF FIRST OBS"), (t[-1], "TIME OF LAST OBS")):
         y, mo, d, h, mi, sec = calendar_from_gps_seconds(tt)
@@ -403,7 +417,7 @@ def write_rinex_carrier(path, obs: CarrierObs, marker: str = "DGCAL", comment: s
     lines.append(hdr("DBHZ", "SIGNAL STRENGTH UNIT"))
     lines.append(hdr("", "END OF HEADER"))
     col = {sid: i for i, sid in enumerate(obs.sats)}
-    order = sorted(obs.sats, key=lambda sid: ("GECJ".index(sid[0]), sid))
+    order = sorted(obs.sats, key=lambda sid: ("GRECJSI".index(sid[0]), sid))
 
     def val(v: float, lli: int = 0) -> str:
         if not math.isfinite(v):

@@ -4,7 +4,8 @@ RINEX observations (CRINEX, `.crx`/`.YYd`), all read as text.
 Why: CORS and IGS archives serve observations as `.crx.gz` / `.YYd.Z` and products as `.Z` or `.gz`; a user should
 not have to unpack them by hand. Containers are recognised by their first bytes, not their names (a `.Z` file is LZW,
 not gzip); the decompression is the `hatanaka` package's (RNXCMP's crx2rnx, Geospatial Information Authority of
-Japan, with Python's and ncompress's decoders).
+Japan, with Python's and ncompress's decoders). A u-blox UBX log (raw receiver output) is turned into RINEX 3.04 text
+by `dgcal.pos.gnss.ubx` when the caller says whether observations or navigation are wanted.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ import ncompress
 from dgcal.fields.errors import InputError
 
 _GZIP, _LZW, _BZIP2, _ZIP = b"\x1f\x8b", b"\x1f\x9d", b"BZh", b"PK\x03\x04"
+UBX_SYNC = b"\xb5\x62"          # a u-blox UBX log's first frame
 CRINEX_MARK = "CRINEX VERS"
 
 
@@ -51,16 +53,22 @@ def _unpack(data: bytes, kind: str, path: Path) -> bytes:
         raise InputError(f"cannot decompress the {kind} file: {exc}", path) from None
 
 
-def read_gnss_bytes(path: str | Path) -> bytes:
+def read_gnss_bytes(path: str | Path, kind: str | None = None) -> bytes:
     """The plain content of a GNSS file (RINEX, SP3, clock, ANTEX) whatever its container; a Hatanaka-compressed
-    observation file comes back as RINEX. InputError naming the file when it is missing or cannot be decoded."""
+    observation file comes back as RINEX, a u-blox UBX log (first bytes 0xB5 0x62) as the RINEX 3.04 observation
+    (`kind` "obs") or navigation ("nav") file of its RAWX / SFRBX messages (`dgcal.pos.gnss.ubx`). InputError naming
+    the file when it is missing or cannot be decoded."""
     path = Path(path)
     if not path.is_file():
         raise InputError("file not found", path)
     data = path.read_bytes()
-    kind = container_of(data[:4])
-    if kind != "plain":
-        data = _unpack(data, kind, path)
+    container = container_of(data[:4])
+    if container != "plain":
+        data = _unpack(data, container, path)
+    if data[:2] == UBX_SYNC:
+        # why here: ubx writes through pos/gnss/carrier.py, which imports the RINEX readers that call this
+        from dgcal.pos.gnss.ubx import ubx_rinex_lines
+        return ("\n".join(ubx_rinex_lines(data, path, kind or "")) + "\n").encode("ascii")
     if data[:80].decode("ascii", "replace").find(CRINEX_MARK) >= 0:
         try:
             data = hatanaka.crx2rnx(data)
@@ -70,10 +78,10 @@ def read_gnss_bytes(path: str | Path) -> bytes:
     return data
 
 
-def read_gnss_lines(path: str | Path) -> list[str]:
-    """All lines of a GNSS file (see `read_gnss_bytes`) as ASCII text without line ends (bytes that are not ASCII
-    become U+FFFD, for the readers to name)."""
-    return read_gnss_bytes(path).decode("ascii", errors="replace").splitlines()
+def read_gnss_lines(path: str | Path, kind: str | None = None) -> list[str]:
+    """All lines of a GNSS file (see `read_gnss_bytes`; `kind` "obs"/"nav" says what a UBX log is read for) as ASCII
+    text without line ends (bytes that are not ASCII become U+FFFD, for the readers to name)."""
+    return read_gnss_bytes(path, kind).decode("ascii", errors="replace").splitlines()
 
 
 def first_gnss_line(path: str | Path) -> str:

@@ -376,7 +376,7 @@ def _rinex4_as_3(lines: list[str], hdr: NavHeader, path: Path) -> tuple[list[str
 def nav_text_for_cssrlib(path: str | Path) -> tuple[io.StringIO, NavHeader]:
     """The file's text in a layout cssrlib's ``rnxdec._decode_nav`` reads, line numbers unchanged, and its header."""
     path = Path(path)
-    lines = read_lines(path)
+    lines = read_lines(path, "nav")
     hdr = parse_nav_header(lines, path)
     if hdr.version >= 3.0:
         note4 = ""

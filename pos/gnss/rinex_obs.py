@@ -36,10 +36,10 @@ GLONASS_NOT_USED = ("GLONASS observations of {n} satellite(s) not used (GLONASS 
 KNOWN_SYSTEMS = "GRECJSI"         # GPS, GLONASS, Galileo, BeiDou, QZSS, SBAS, NavIC/IRNSS
 
 
-def read_lines(path: str | Path) -> list[str]:
-    """All lines of a GNSS text file without line ends: plain, gzip, .Z, bzip2, zip or Hatanaka-compressed
-    (`dgcal.pos.gnss.gnss_files`)."""
-    return read_gnss_lines(path)
+def read_lines(path: str | Path, kind: str | None = None) -> list[str]:
+    """All lines of a GNSS text file without line ends: plain, gzip, .Z, bzip2, zip or Hatanaka-compressed, or a
+    u-blox UBX log as RINEX 3.04 observations (`kind` "obs") or navigation ("nav") (`dgcal.pos.gnss.gnss_files`)."""
+    return read_gnss_lines(path, kind)
 
 
 def rinex2_code(system: str, code: str, version: float) -> str | None:
@@ -595,7 +595,7 @@ def read_obs_file(path: str | Path, t_start: float | None = None, t_end: float |
     dropped — each with a warning naming the file and line in ``RinexObsFile.warnings``; so are GLONASS observations
     that ``systems`` leaves out (`GLONASS_NOT_USED`)."""
     path = Path(path)
-    lines = read_lines(path)
+    lines = read_lines(path, "obs")
     h = _parse_header(lines, path)
     v3 = h["version"] >= 3.0
     keep_sys = set(systems) if systems else set(KNOWN_SYSTEMS)
