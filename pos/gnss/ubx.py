@@ -110,6 +110,13 @@ def is_ubx(head: bytes) -> bool:
     return head[:2] == SYNC
 
 
+def ubx_frame(cls: int, mid: int, payload: bytes) -> bytes:
+    """One UBX message: sync, class, id, length, payload and checksum (to build or re-frame logs)."""
+    body = bytes([cls, mid]) + len(payload).to_bytes(2, "little") + payload
+    ck_a, ck_b = _checksum(np.frombuffer(body, dtype=np.uint8))
+    return SYNC + body + bytes([ck_a, ck_b])
+
+
 def _checksum(frame: np.ndarray) -> tuple[int, int]:
     """UBX 8-bit Fletcher checksum (CK_A, CK_B) of class, id, length and payload bytes."""
     b = frame.astype(np.int64)

@@ -610,6 +610,25 @@ def _const(data: bytes):
     return lambda tmp: data
 
 
+UBX_LOG = Path(__file__).parents[1] / "pos" / "gnss" / "data" / "walk_0827_60s.ubx"
+
+
+def s_ubx_obs(tmp):
+    """The real u-blox log's first 12 RXM-RAWX epochs with the NMEA sentences between them (`pos/gnss/ubx.py`)."""
+    data, k = UBX_LOG.read_bytes(), 0
+    for _ in range(13):
+        k = data.find(b"\xb5\x62\x02\x15", k + 1)
+    return data[:k]
+
+
+def s_ubx_nav(tmp):
+    """The real log's first RAWX epoch and every RXM-SFRBX message, re-framed (3 GPS, 6 Galileo, 8 BeiDou sets)."""
+    from dgcal.pos.gnss.ubx import ubx_frame, ubx_frames
+    msgs = ubx_frames(UBX_LOG.read_bytes()).messages
+    first = next(m for m in msgs if m[:2] == (0x02, 0x15))
+    return ubx_frame(*first) + b"".join(ubx_frame(*m) for m in msgs if m[:2] == (0x02, 0x13))
+
+
 READERS = {
     # cameras
     "camera-json": (s_camera_json, ".json", _camera_reader),
@@ -649,6 +668,9 @@ READERS = {
     "rinex-nav-3": (_const(NAV_304.encode()), ".rnx", _imp("dgcal.pos.gnss.rinex", "read_rinex_nav")),
     "rinex-nav-4": (_const((Path(__file__).parents[1] / "pos" / "gnss" / "data" / "233h_rnx_part.nav").read_bytes()),
                     ".rnx", _imp("dgcal.pos.gnss.rinex", "read_rinex_nav")),
+    # u-blox UBX raw logs read as RINEX (`pos/gnss/ubx.py`)
+    "ubx-obs": (s_ubx_obs, ".ubx", _imp("dgcal.pos.gnss.rinex", "read_rinex_obs")),
+    "ubx-nav": (s_ubx_nav, ".ubx", _imp("dgcal.pos.gnss.rinex", "read_rinex_nav")),
     # exports read back
     "pix4d": (_const(PIX4D), ".txt", _imp("dgcal.reports.exports.eop", "read_pix4d")),
     "metashape-opk": (s_metashape_opk, ".csv", _imp("dgcal.reports.exports.eop", "read_metashape")),

@@ -9,7 +9,6 @@ this log's Galileo pages).
 from __future__ import annotations
 
 import importlib.util
-import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -22,7 +21,7 @@ from dgcal.fields.errors import InputError
 from dgcal.pos.gnss.rinex import read_rinex_nav
 from dgcal.pos.gnss.rinex_obs import read_obs_file
 from dgcal.pos.gnss.spp import SppOptions, spp_files
-from dgcal.pos.gnss.ubx import RAWX_HEAD, RAWX_MEAS, _klobuchar, read_ubx, ubx_frames
+from dgcal.pos.gnss.ubx import RAWX_HEAD, RAWX_MEAS, _klobuchar, read_ubx, ubx_frame, ubx_frames
 
 UBX = Path(__file__).parent / "data" / "walk_0827_60s.ubx"
 EPH_FIELDS = ("af0", "af1", "af2", "iode", "crs", "deln", "M0", "cuc", "e", "cus", "A", "toes", "cic", "OMG0", "cis",
@@ -48,18 +47,9 @@ def rtklib(tmp_path_factory):
     return _convrnx(rk, UBX, tmp_path_factory.mktemp("rtklib"))
 
 
-def _frame(cls: int, mid: int, payload: bytes) -> bytes:
-    body = bytes([cls, mid]) + struct.pack("<H", len(payload)) + payload
-    a = b = 0
-    for x in body:
-        a = (a + x) & 0xFF
-        b = (b + a) & 0xFF
-    return b"\xb5\x62" + body + bytes([a, b])
-
-
 def _frames_of(data: bytes, keep) -> bytes:
     """The log re-framed with only the messages `keep(class, id)` accepts."""
-    return b"".join(_frame(c, i, p) for c, i, p in ubx_frames(data).messages if keep(c, i))
+    return b"".join(ubx_frame(c, i, p) for c, i, p in ubx_frames(data).messages if keep(c, i))
 
 
 def test_observations_equal_rtklib_convrnx(rtklib, tmp_path):
@@ -199,7 +189,7 @@ def test_glonass_frequency_numbers_and_rinex_codes(tmp_path):
     data = b""
     for k in range(3):
         head = np.array([(400000.0 + k, 2381, 18, len(rows), 1, 1, (0, 0))], RAWX_HEAD)
-        data += _frame(0x02, 0x15, head.tobytes() + meas.tobytes())
+        data += ubx_frame(0x02, 0x15, head.tobytes() + meas.tobytes())
     p = tmp_path / "glo.ubx"
     p.write_bytes(data)
     obs = read_obs_file(p)
