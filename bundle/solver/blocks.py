@@ -84,11 +84,27 @@ def _indices(a) -> np.ndarray:
     return a if a.dtype.kind in "iu" else np.asarray(a, int)
 
 
+@dataclass
+class BoardWarp:
+    """A flat target board's bow (mrcal's model): every point moves along the board normal `normal_world` (3,) by
+    shape (M,2) @ w, w = the globals `glob` (2,) in metres, shape = (1 - u^2, 1 - v^2) with u, v the point's
+    coordinates along the board's axes scaled to [-1, 1] (0 at the edges, 1 at the centre lines)."""
+
+    shape: np.ndarray
+    normal_world: np.ndarray
+    glob: np.ndarray
+
+    def points(self, points: np.ndarray, globals_: np.ndarray) -> np.ndarray:
+        """The bowed points (M,3) m of the flat ones `points` at the warp of `globals_`."""
+        return points + (self.shape @ globals_[self.glob])[:, None] * self.normal_world[None, :]
+
+
 class ImageObservations(Block):
     """Pixel measurements uv (k,2) of points by posed images through a camera model, whitened by sigma (k,2) px.
 
     `intrinsics` names the camera parameters that are unknowns; they are globals `glob_offset + 0..`;
-    `points_fixed` marks the points as known (no point unknowns, e.g. a target field held fixed).
+    `points_fixed` marks the points as known (no point unknowns, e.g. a target field held fixed); `warp` (a
+    `BoardWarp`, known points only) bows them by two more globals.
     Model: X_cam = R_world_to_cam[pose] (X[point] - C_world[pose]),  uv = camera.project(X_cam).
     """
 
@@ -96,7 +112,11 @@ class ImageObservations(Block):
 
     def __init__(self, camera: CameraModel, pose: np.ndarray, point: np.ndarray, uv: np.ndarray,
                  sigma: np.ndarray, intrinsics: Sequence[str] = (), glob_offset: int = 0,
-                 loss: str = "none", loss_scale: float = 3.0, name: str = "image", points_fixed: bool = False):
+                 loss: str = "none", loss_scale: float = 3.0, name: str = "image", points_fixed: bool = False,
+                 warp: BoardWarp | None = None):
+        if warp is not None and not points_fixed:
+            raise ValueError("a board warp bows known points: points_fixed must be True")
+        self.warp = warp
         self.camera = camera
         self.pose = _indices(pose)
         self.point = _indices(point)
@@ -183,14 +203,15 @@ class ImageObservations(Block):
         """Whitened residuals (and Jacobians) of every item, or of the part `rows` (a slice of `chunks`)."""
         cam = self.camera_at(state.globals)
         R_world_to_cam, C_world = state.poses.R_world_to_cam, state.poses.C_world
+        points = state.points if self.warp is None else self.warp.points(state.points, state.globals)
         # per-pose products for known points (self-calibration: numba never loaded); compiled otherwise
         pose, point, uv_m, sigma, runs = self._part(rows, len(C_world))
         if runs is None:
             R_world_to_cam = np.ascontiguousarray(R_world_to_cam)
-            Xc = to_camera(R_world_to_cam, np.ascontiguousarray(C_world), np.ascontiguousarray(state.points),
+            Xc = to_camera(R_world_to_cam, np.ascontiguousarray(C_world), np.ascontiguousarray(points),
                            pose.astype(np.int64, copy=False), point.astype(np.int64, copy=False))
         else:                       # many items per pose, sorted: one small matrix product per pose
-            Xc = state.points[point]
+            Xc = points[point]
             for i, s in runs:
                 Xc[s] -= C_world[i]
                 Xc[s] = Xc[s] @ R_world_to_cam[i].T
@@ -217,9 +238,13 @@ class ImageObservations(Block):
             _times_cross_matrices(JXw, Xc, J_pose[:, :, 3:])
         r = (uv - uv_m) / sigma
         valid &= np.isfinite(r).all(1)
+        glob, J_glob = self.glob, (self._intrinsic_jacobian(J_int, w) if len(self.glob) else None)
+        if self.warp is not None:     # d r / d w = (d r / d X_world . normal) shape(point): JR is whitened dr/dX
+            J_w = (JR @ self.warp.normal_world)[:, :, None] * self.warp.shape[point][:, None, :]
+            glob = np.r_[glob, self.warp.glob]
+            J_glob = J_w if J_glob is None else np.concatenate([J_glob, J_w], axis=2)
         return BlockEval(r, valid, pose, J_pose, None if self.points_fixed else point,
-                         None if self.points_fixed else JR, self.glob,
-                         self._intrinsic_jacobian(J_int, w) if len(self.glob) else None)
+                         None if self.points_fixed else JR, glob if len(glob) else self.glob, J_glob)
 
     def _intrinsic_jacobian(self, J_int: np.ndarray, w: np.ndarray) -> np.ndarray:
         """The whitened Jacobian of the unknown intrinsics (all of the model's, or a selection)."""

@@ -7,7 +7,10 @@ Observation model (OpenCV camera frame, pixels as in docs/conventions.md)::
 Unknowns: the free camera parameters, every image's pose in the field frame (`dgcal.fields.pose`: the field is
 the world) and, optionally, the target coordinates — either as a free network with a minimal datum (7
 coordinates of three well-spread targets held, fixing position, orientation and scale, which image
-observations cannot determine) or as weighted unknowns with their CSV sigmas as priors. Solved by the
+observations cannot determine) or as weighted unknowns with their CSV sigmas as priors; or, for a flat board, its
+bow (`warp`: two unknowns, mrcal's parabola along each board axis, `dgcal.bundle.solver.blocks.BoardWarp`): a
+printed board is rarely flat to the millimetre, and a bow the model lacks goes into the focal length and the
+principal point (mrcal's figueroa board, 1.0 and 0.5 mm: fx 1.4 px, ten of its sigmas). Solved by the
 engine of `dgcal.bundle.solver` (Levenberg-Marquardt, targets eliminated by Schur complement), from the start
 values first on every k-th observation of an image with many (targets held), then on all. Outliers are
 rejected iteratively on the robustly scaled residual norm. Covariances are sigma0^2 N^-1 with sigma0 from
@@ -21,7 +24,7 @@ import cv2
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from dgcal.bundle.solver.blocks import ImageObservations, PointPriors, State
+from dgcal.bundle.solver.blocks import BoardWarp, ImageObservations, PointPriors, State
 from dgcal.bundle.solver.covariance import CameraSideCofactors, Covariance
 from dgcal.bundle.solver.lm import LMOptions, minimise
 from dgcal.bundle.solver.normals import Problem, linearise
@@ -49,6 +52,7 @@ COARSE_TOL_CHI2 = 1.0            # that first solve's stopping gain in chi^2 (a 
 # (eigenvalues ~1e-4 on 60 images: the principal point against the poses' rotations), which then take 2-3 more
 # iterations to converge
 WARM_LAMBDA0 = 1e-8
+REFINE_TARGETS = ("none", "free", "weighted", "warp")   # what of the target field the adjustment refines
 # why an observation is not in the adjustment: codes of `_InitialPoses.reason` (1 byte an observation)
 REASONS = ("", "image dropped: too few targets", "image dropped: no pose", "image dropped: too few inliers",
            "not in the subset")
@@ -94,8 +98,15 @@ class IntrinsicBAResult:
     redundancy: int
     rejection_settled: bool = True         # the outlier set stopped changing within max_rounds
     cov_camera_side: CameraSideCofactors | None = None  # sigma0^2 N^-1 of the poses [C (m), dtheta (rad)] and
-    #                  the camera parameters (points eliminated): `.dense()` (6M+P)^2 (NaN = held/unobserved),
-    #                  `.sandwich(L)`, by blocks for many images
+    #                  the camera parameters (points eliminated): `.dense()` (6M+G)^2 (NaN = held/unobserved),
+    #                  `.sandwich(L)`, by blocks for many images; G = P, + 2 with the board warp (its last columns)
+    board_warp_m: np.ndarray | None = None        # (2,) the board's bow along its two axes (refine_targets='warp')
+    board_warp_sigma_m: np.ndarray | None = None  # (2,) their sigmas
+
+    @property
+    def n_globals(self) -> int:
+        """Global unknowns of the adjustment: the camera parameters, and the board warp's two when estimated."""
+        return len(self.camera.PARAMS) + (0 if self.board_warp_m is None else 2)
 
     @property
     def n_observations(self) -> int:
@@ -255,16 +266,19 @@ def _focal_guess(groups, xyz, image_size, planar, plane_xyz) -> float:
 
 # ---------------------------------------------------------------------------------------------
 def _problem(cam: CameraModel, free_cam: np.ndarray, active: np.ndarray, obs_img, obs_pt, meas_xy, sig,
-             X0: np.ndarray, pt_free: np.ndarray, pt_prior_w: np.ndarray, M: int) -> Problem:
+             X0: np.ndarray, pt_free: np.ndarray, pt_prior_w: np.ndarray, M: int,
+             warp: BoardWarp | None = None) -> Problem:
     """The engine problem on the active observations: all camera parameters are globals (held ones masked),
-    the targets are points (held where `pt_free` is False), weighted targets get coordinate priors."""
+    the targets are points (held where `pt_free` is False), weighted targets get coordinate priors; a board
+    warp adds its two globals after the camera's."""
     refine = bool(pt_free.any())
     blocks = [ImageObservations(cam, obs_img[active], obs_pt[active], meas_xy[active], sig[active], cam.PARAMS, 0,
-                                points_fixed=not refine)]
+                                points_fixed=not refine, warp=warp)]
     prior = pt_free & (pt_prior_w > 0)
     if prior.any():
         blocks.append(PointPriors.from_arrays(np.where(prior, X0, np.nan), 1.0 / np.where(prior, pt_prior_w, 1.0)))
-    return Problem(blocks, M, len(X0), len(cam.PARAMS), point_free=pt_free, global_free=free_cam,
+    free = free_cam if warp is None else np.r_[free_cam, True, True]
+    return Problem(blocks, M, len(X0), len(free), point_free=pt_free, global_free=free,
                    chunk_items=SOLVER_CHUNK_ITEMS)
 
 
@@ -300,8 +314,9 @@ def adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, model
            min_points_per_image: int = 6, progress=None) -> IntrinsicBAResult:
     """Self-calibrating bundle adjustment of one camera from image measurements (px) of field targets (m).
 
-    refine_targets: 'none' (targets fixed), 'free' (free network, minimal datum of 7 held coordinates)
-    or 'weighted' (targets with their CSV sigmas `field_sigma` (m) as priors; NaN sigma = held).
+    refine_targets: 'none' (targets fixed), 'free' (free network, minimal datum of 7 held coordinates),
+    'weighted' (targets with their CSV sigmas `field_sigma` (m) as priors; NaN sigma = held) or 'warp' (a flat
+    board's bow: two unknowns, the targets otherwise held).
     fixed: names of camera parameters held at their initial values. meas_sigma (px) are relative weights.
     reject_k: an observation beyond k robust sigmas (of all observations and of its own image's) is rejected;
     0 or inf keeps every observation.
@@ -327,8 +342,9 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
     bad = [k for k in fixed if k not in cls.PARAMS]
     if bad:
         raise InputError(f"unknown parameter(s) to fix {bad}; {model} has {', '.join(cls.PARAMS)}", field="fixed")
-    if refine_targets not in ("none", "free", "weighted"):
-        raise InputError(f"refine_targets must be none, free or weighted, got {refine_targets!r}")
+    if refine_targets not in REFINE_TARGETS:
+        raise InputError(f"refine_targets must be {', '.join(REFINE_TARGETS)}, got {refine_targets!r}",
+                         field="refine_targets")
     M = obs.M
     c0, R_field_to_plane, planar = _plane_frame(obs.field_xyz[np.unique(obs.obs_pt)])
     plane_xyz = (obs.field_xyz - c0) @ R_field_to_plane.T
@@ -347,9 +363,16 @@ def _adjust(field_ids, field_xyz, meas_image, meas_id, meas_xy, image_size, mode
         raise InputError(f"only {M - len(init.dropped)} usable image(s) (no pose for {', '.join(init.dropped[:5])}); "
                          "need 3 or more")
     X0, pt_free, pt_prior_w = _target_unknowns(refine_targets, obs, init.active, field_sigma)
+    warp = None
+    if refine_targets == "warp":
+        if not planar:
+            raise InputError("refine_targets='warp' bows a flat board; this field is not planar (refine its targets "
+                             "with 'free' or 'weighted')", field="refine_targets")
+        warp = board_warp(obs.field_xyz, R_field_to_plane, len(cls.PARAMS))
     # all requested parameters at once (staging focal length/K1 first converged slower in tests)
-    adj = _Adjustment(cam, np.array([k not in fixed for k in cls.PARAMS]), obs, X0, pt_free, pt_prior_w)
-    start = State(Poses.from_R_t(init.R_field_to_cam, init.t_cam), X0.copy(), cam.params.copy())
+    adj = _Adjustment(cam, np.array([k not in fixed for k in cls.PARAMS]), obs, X0, pt_free, pt_prior_w, warp)
+    start = State(Poses.from_R_t(init.R_field_to_cam, init.t_cam), X0.copy(),
+                  cam.params.copy() if warp is None else np.r_[cam.params, 0.0, 0.0])
     state, total_it = adj.solve_from_start(start, init.active)
     state, active, usable, settled, it = _reject_outliers(adj, state, init, reject_k, max_rounds, min_points_per_image)
     total_it += it
@@ -529,6 +552,21 @@ def _pose_fitting_camera(cam: CameraModel, K0: np.ndarray, obj: np.ndarray, uv: 
     return pose
 
 
+def board_warp(field_xyz: np.ndarray, R_field_to_plane: np.ndarray, glob_offset: int) -> BoardWarp:
+    """The bow of a flat board (`BoardWarp`) with targets `field_xyz` (N,3) m: u, v from the targets' extent along
+    the board's own axes — the field's x and y when the board lies in its x-y plane (a board file's rows and
+    columns; the bow positive along +z), else the plane's principal axes and normal —, the two warp unknowns at
+    globals glob_offset, glob_offset + 1."""
+    normal = np.asarray(R_field_to_plane[2], float)
+    axes = R_field_to_plane[:2]
+    if abs(normal[2]) > 0.999:     # a board in the field's x-y plane: its axes, and a bow positive along +z (mrcal's)
+        axes, normal = np.eye(3)[:2], np.array([0.0, 0.0, 1.0])
+    xy = field_xyz @ axes.T
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    uv = 2.0 * (xy - lo) / np.where(hi > lo, hi - lo, 1.0) - 1.0
+    return BoardWarp(1.0 - uv ** 2, normal, glob_offset + np.arange(2))
+
+
 def _target_unknowns(refine_targets: str, obs: _Observations, active: np.ndarray,
                      field_sigma) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Start targets (N,3) (m), which coordinates are free, and prior weights (1/sigma, 1/m; 0 = no prior): none
@@ -537,7 +575,7 @@ def _target_unknowns(refine_targets: str, obs: _Observations, active: np.ndarray
     X0 = obs.field_xyz.copy()
     pt_free = np.zeros((N, 3), bool)
     pt_prior_w = np.zeros((N, 3))
-    if refine_targets == "none":
+    if refine_targets in ("none", "warp"):
         return X0, pt_free, pt_prior_w
     img_count = np.bincount(obs.obs_pt[active], minlength=N)  # each image measures a target once
     seen = img_count >= 2
@@ -567,12 +605,13 @@ class _Adjustment:
     X0: np.ndarray
     pt_free: np.ndarray
     pt_prior_w: np.ndarray
+    warp: BoardWarp | None = None
 
     def problem(self, active: np.ndarray) -> Problem:
         """The engine problem on the active observations."""
         o = self.obs
         return _problem(self.cam, self.free_cam, active, o.obs_img, o.obs_pt, o.xy, o.sig, self.X0, self.pt_free,
-                        self.pt_prior_w, o.M)
+                        self.pt_prior_w, o.M, self.warp)
 
     def solve(self, state: State, active: np.ndarray) -> tuple[State, int, bool]:
         """Levenberg-Marquardt on the active observations from `state`, a solution of (nearly) the same problem:
@@ -598,7 +637,8 @@ class _Adjustment:
         out = np.empty((len(idx), 2))
         for s in _row_chunks(len(idx)):
             k = idx[s]
-            blk = ImageObservations(self.cam, o.obs_img[k], o.obs_pt[k], o.xy[k], o.sig[k], self.cam.PARAMS, 0)
+            blk = ImageObservations(self.cam, o.obs_img[k], o.obs_pt[k], o.xy[k], o.sig[k], self.cam.PARAMS, 0,
+                                    points_fixed=self.warp is not None, warp=self.warp)
             out[s] = blk.evaluate(state, False).r
         return out
 
@@ -709,7 +749,14 @@ def _result(adj: _Adjustment, state: State, active: np.ndarray, usable: np.ndarr
     if pt_free.any():
         var = np.maximum(np.einsum("naa->na", cov.point_cofactors()), 0)
         pts_sigma = np.nan_to_num(sigma0 * np.sqrt(var)) * pt_free
-    camera = cls(size, state.globals)
+    warp_m = warp_sigma = None
+    points = state.points.copy()
+    if adj.warp is not None:      # the targets as bowed (a refit holds them there); the bow and its sigmas
+        wi = adj.warp.glob
+        warp_m = state.globals[wi].copy()
+        warp_sigma = sigma0 * np.sqrt(np.maximum(np.diag(cov.global_cofactors(wi)), 0))
+        points = adj.warp.points(state.points, state.globals)
+    camera = cls(size, state.globals[:Pn])
     camera.sigmas = sd
     del prob, nrm, cov            # the problem's copies of the observations go before the residuals come
     r_all = np.full((n, 2), np.nan)
@@ -732,11 +779,11 @@ def _result(adj: _Adjustment, state: State, active: np.ndarray, usable: np.ndarr
     return IntrinsicBAResult(
         camera=camera, free=free_cam.copy(), cov_camera=cov_cam, correlation=corr, cov_camera_side=cov_side,
         image_names=obs.image_names, poses=Poses(R_world_to_cam, C_world, pose_cov),
-        point_ids=list(obs.field_ids), points_xyz=state.points.copy(), points_sigma=pts_sigma,
+        point_ids=list(obs.field_ids), points_xyz=points, points_sigma=pts_sigma,
         points_free=pt_free.copy(), obs_image=obs.obs_img, obs_point=obs.obs_pt, obs_xy=obs.xy, obs_sigma=obs.sig,
         residuals=r_all, used=active, sigma0=sigma0, rms_px=rms, rejected=rejected, dropped_images=list(init.dropped),
         refine_targets=refine_targets, iterations=iterations, converged=converged, rejection_settled=settled,
-        redundancy=int(redundancy))
+        redundancy=int(redundancy), board_warp_m=warp_m, board_warp_sigma_m=warp_sigma)
 
 
 def refit(result: IntrinsicBAResult, images: np.ndarray) -> IntrinsicBAResult:

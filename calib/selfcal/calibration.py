@@ -153,6 +153,13 @@ class CameraCalibration:
         if ba.refine_targets != "none":
             moved = np.linalg.norm(ba.points_xyz - self.field.xyz, axis=1)
             out["targets_moved_max_m"] = float(moved.max())
+        if ba.board_warp_m is not None:
+            w, sw = ba.board_warp_m, ba.board_warp_sigma_m
+            out["board_warp"] = {"warp_m": w.tolist(), "sigma_m": sw.tolist(),
+                                 "significant": bool(np.any(np.abs(w) > 3 * sw)),
+                                 "definition": "bow along the board's two axes, m: each target moved along the "
+                                               "board normal by w_x (1 - u^2) + w_y (1 - v^2), u, v in [-1, 1] "
+                                               "across the targets (mrcal's calobject_warp)"}
         if self.uncertainty is not None:
             u = {"model": self.uncertainty.to_dict()}
             if self.opencv_uncertainty is not None:
@@ -460,7 +467,7 @@ class CameraOptions:
     image_size: tuple[int, int] | None = None  # (width, height) px; required with measurements
     model: str = "fraser7"                   # fraser7 | opencv8 | fisheye | auto
     fixed: tuple[str, ...] = ()              # parameters held at their initial values
-    refine_targets: str = "none"             # none | free | weighted
+    refine_targets: str = "none"             # none | free | weighted | warp
     reject_k: float = 4.0                    # reject beyond k robust sigmas (0: keep every observation)
     workers: int | None = None               # detection processes
     initial: Path | None = None              # camera file to start from

@@ -200,7 +200,8 @@ def diagnose(result, corr_threshold: float = 0.9, reject_warn_fraction: float = 
         warnings.append(f"systematic residual pattern over the frame that is not radial (cell means chi2/dof "
                         f"{pattern.chi2_per_dof:.1f}, pattern RMS {pattern.pattern_rms_px:.2f} px of "
                         f"{pattern.residual_rms_px:.2f} px): check the target coordinates (plate flatness or "
-                        "scale: refine the targets) and the measurements")
+                        "scale: --refine-targets warp for a board's bow, free for any shape) and the "
+                        "measurements")
     if sigmas_given and result.sigma0 > 3.0:
         warnings.append(f"the residuals are {result.sigma0:.1f} times the measurement sigmas given in the file "
                         "(sigma0); the model, the target coordinates or the stated sigmas are off")

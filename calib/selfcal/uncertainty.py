@@ -39,12 +39,12 @@ def mean_pose_covariance(ba: IntrinsicBAResult) -> np.ndarray:
     used &= np.bincount(ba.obs_image[ba.used], minlength=M) > 0
     idx = np.flatnonzero(used)
     n = len(idx)
-    L = np.zeros((6 + P, 6 * M + P))
+    L = np.zeros((6 + P, 6 * M + ba.n_globals))     # a board warp's two globals (after the camera's) not read
     R_world_to_cam = ba.poses.R_world_to_cam
     for i in idx:
         L[0:3, 6 * i:6 * i + 3] = -R_world_to_cam[i] / n
         L[3:6, 6 * i + 3:6 * i + 6] = np.eye(3) / n
-    L[6:, 6 * M:] = np.eye(P)
+    L[6:, 6 * M:6 * M + P] = np.eye(P)
     S = ba.cov_camera_side.sandwich(L)
     return 0.5 * (S + S.T)
 

@@ -35,9 +35,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fix", nargs="+", default=[], metavar="PARAM",
                    help="camera parameters held at their initial values, e.g. --fix K3 B2; fraser7 with --fix B2 "
                         "is OpenCV's 5-coefficient model")
-    p.add_argument("--refine-targets", choices=("none", "free", "weighted"), default="none",
-                   help="also adjust the target coordinates: free network (minimal datum) or weighted by "
-                        "the field's sx,sy,sz (default: targets fixed)")
+    p.add_argument("--refine-targets", choices=("none", "free", "weighted", "warp"), default="none",
+                   help="also adjust the target coordinates: free network (minimal datum), weighted by the "
+                        "field's sx,sy,sz, or warp: a flat board's bow along its two axes (2 unknowns, mrcal's "
+                        "model; printed boards are rarely flat to the millimetre) (default: targets fixed)")
     p.add_argument("--initial", metavar="CAMERA",
                    help="start from this camera (camera.json, opencv.yaml, cameras.txt, Metashape XML, ...)")
     p.add_argument("--reject", type=arg_types.non_negative, default=4.0, metavar="K",
