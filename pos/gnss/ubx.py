@@ -233,7 +233,7 @@ def _observations(rawx: list[tuple[np.ndarray, np.ndarray]], path: str) -> Carri
             freq[i, f] = BAND_FREQ_HZ.get((s, c[0]), np.nan)
     return CarrierObs(source=path, t_gps=t, sats=sats, freq_hz=freq, P=arrays["P"], L=arrays["L"], D=arrays["D"],
                       snr=arrays["snr"], lli=lli_arr, signals=signals, p_approx_ecef=np.full(3, np.nan),
-                      receiver="U-BLOX")
+                      receiver="U-BLOX", antenna="UNKNOWN")
 
 
 def _held_slips(slip: np.ndarray, valid: np.ndarray, first: np.ndarray) -> np.ndarray:

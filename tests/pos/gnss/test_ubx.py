@@ -239,3 +239,15 @@ def test_cli_spp_on_the_log(tmp_path, capsys):
     assert main(["pos", "--mode", "spp", "--rinex-obs", str(junk), "--rinex-nav", str(junk), "--no-progress",
                  "--no-report", "--out", str(tmp_path / "p")]) == 2
     assert "no ephemerides in the log" in capsys.readouterr().err
+
+
+def test_ppk_with_the_log_as_rover_and_base(tmp_path):
+    """PPK reads a UBX rover and a UBX base (here the same log: a zero baseline): every epoch fixed, at the base."""
+    base = [-1276965.2487, -4717231.7278, 4087230.1460]
+    out = tmp_path / "ppk"
+    assert main(["pos", "--mode", "ppk", "--rinex-obs", str(UBX), "--rinex-nav", str(UBX), "--rinex-base", str(UBX),
+                 "--base-position", *map(str, base), "--no-progress", "--no-report", "--out", str(out)]) == 0
+    rows = np.genfromtxt(out / "gnss.csv", delimiter=",", names=True, dtype=None, encoding="ascii")
+    assert len(rows) == 240 and np.all(rows["fix"] == "fixed") and np.median(rows["n_sat"]) >= 12
+    d = np.c_[rows["x"], rows["y"], rows["z"]] - base
+    assert np.abs(d).max() < 1e-3
