@@ -170,9 +170,10 @@ def observability_warnings(sol, grade) -> list[str]:
                    "is that of an unknown heading")
     if "heading_course_disagreement_deg" in sol.info:
         out.append(f"heading disagrees with the GNSS course of the straight stretches by "
-                   f"{sol.info['heading_course_disagreement_deg']:.1f} deg RMS, beyond their sigmas: its sigma "
-                   "includes that disagreement; distrust the heading (a wrong gyro bias, or the body x axis not "
-                   "along the direction of travel)")
+                   f"{sol.info['heading_course_disagreement_deg']:.1f} deg RMS (mean "
+                   f"{sol.info['heading_course_offset_deg']:+.1f} deg), beyond their sigmas: its sigma includes that "
+                   "disagreement; distrust the heading (a drifting one: a wrong gyro bias; a constant offset: the "
+                   "IMU's x axis not along the direction of travel, give its rotation with --imu-set axes...)")
     lim = 3.0 * float(np.hypot(model.gyro_bias_sigma, model.gyro_bias_instability))
     b = np.abs(sol.bias[:, 3:]).max(axis=0)
     if lim > 0 and np.any(b > lim):

@@ -113,18 +113,21 @@ def _solution_course(sol):
     return track_course(sol.t, sol.p_nav, psi, sigma_h)
 
 
-def course_disagreement(sol) -> tuple[float, float, int]:
+def course_disagreement(sol) -> tuple[float, float, int, float]:
     """The solution's heading against the course of its straight stretches (`track_course`): RMS of heading minus
-    course (rad), that RMS normalised by the course's and heading's sigmas, and the number of keyframes compared."""
+    course (rad), that RMS normalised by the course's and heading's sigmas, the number of keyframes compared and
+    the circular mean of heading minus course (rad: a constant offset is an IMU x axis yawed from the direction of
+    travel, or a heading off by as much)."""
     course, s_c, ok = _solution_course(sol)
     if not ok.any() or sol.cov_pose is None:
-        return 0.0, 0.0, 0
+        return 0.0, 0.0, 0, 0.0
     psi = np.arctan2(sol.R_body_to_nav[:, 1, 0], sol.R_body_to_nav[:, 0, 0])
     d = np.angle(np.exp(1j * (psi - course)))[ok]
     rows = heading_rows(sol.R_body_to_nav[ok])
     var_h = np.einsum("ni,nij,nj->n", rows, sol.cov_pose[ok, :3, :3], rows)
     z = d / np.sqrt(s_c[ok] ** 2 + var_h)
-    return float(np.sqrt(np.mean(d ** 2))), float(np.sqrt(np.mean(z ** 2))), int(ok.sum())
+    mean = float(np.angle(np.mean(np.exp(1j * d))))
+    return float(np.sqrt(np.mean(d ** 2))), float(np.sqrt(np.mean(z ** 2))), int(ok.sum()), mean
 
 
 def add_heading_budget(sol, noise) -> None:
@@ -146,13 +149,14 @@ def add_heading_budget(sol, noise) -> None:
         add = np.maximum(floor ** 2 - var_h, 0.0)
         sol.info["heading_budget_deg"] = round(float(np.degrees(floor)), 4)
     else:
-        rms, z, n = course_disagreement(sol)
+        rms, z, n, mean = course_disagreement(sol)
         if n == 0 or z <= COURSE_DISAGREEMENT_LIMIT:
             return
         # the heading drifts against the course (a wrong gyro bias the slow motion could not correct): its sigma
         # covers the disagreement seen
         add = np.full(len(var_h), rms ** 2)
         sol.info["heading_course_disagreement_deg"] = round(float(np.degrees(rms)), 3)
+        sol.info["heading_course_offset_deg"] = round(float(np.degrees(mean)), 3)
     dC = add[:, None, None] * np.einsum("ni,nj->nij", u_b, u_b)
     for C in (sol.cov_pose, sol.cov_block):
         if C is not None:

@@ -124,8 +124,9 @@ def test_heading_budget_on_a_track():
     assert np.array_equal(good.cov_pose, before) and not good.info
     drift = psi + np.radians(0.15) * t                             # 540 deg/h: 30 deg off after 200 s
     bad = _sol(t, psi, drift, p)
-    rms, z, n = course_disagreement(bad)
-    assert n > 100 and z > COURSE_DISAGREEMENT_LIMIT and 10.0 < np.degrees(rms) < 25.0
+    rms, z, n, mean = course_disagreement(bad)
+    assert n > 100 and z > COURSE_DISAGREEMENT_LIMIT and 10.0 < np.degrees(rms) < 25.0 and 5.0 < np.degrees(mean) < 25
+    assert course_disagreement(good)[1] < 1.0
     add_heading_budget(bad, noise)
     rows = heading_rows(bad.R_body_to_nav)
     sig = np.degrees(np.sqrt(np.einsum("ni,nij,nj->n", rows, bad.cov_pose[:, :3, :3], rows)))
@@ -194,3 +195,21 @@ def test_slow_robot_family_is_honest(tmp_path):
     print("error/sigma RMS over the family:", {k: round(v, 2) for k, v in rms.items()})
     for k in AXES:
         assert 0.7 <= rms[k] <= 1.4, (k, rms)
+
+
+def test_imu_yawed_from_the_direction_of_travel_is_warned(robot):
+    """The IMU mounted 30 deg off the robot's forward axis: its heading is no longer the course, which the heading
+    budget sees as a constant heading-minus-course offset of 30 deg; the sigma covers it and the summary says why."""
+    from dgcal.pos.gnss_ins import fixes_from_solution, process
+    from dgcal.pos.ins.imu_data import ImuData
+    yaw = np.radians(30.0)
+    R_sensor_to_body = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0, 0, 1.0]])
+    imu = ImuData(robot.imu.t, robot.imu.dtheta @ R_sensor_to_body, robot.imu.dvel @ R_sensor_to_body,
+                  robot.imu.rate_hz)
+    res = process("lc", imu, "consumer", R_sensor_to_body.T @ robot.lever_arm_b,
+                  lc_fixes=fixes_from_solution(robot.fixes))
+    tr = res.trajectory
+    err = (tr.rph[:, 2] - robot.truth.at(tr.t).rph[:, 2] - 30.0 + 180.0) % 360.0 - 180.0
+    assert np.abs(err / tr.sigma[:, 5]).max() < 5.0
+    assert res.smoothed.info["heading_course_offset_deg"] == pytest.approx(30.0, abs=5.0)
+    assert any("constant offset" in w and "+3" in w for w in res.summary["warnings"]), res.summary["warnings"]
