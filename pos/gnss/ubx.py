@@ -167,11 +167,14 @@ def _rawx(payload: bytes) -> tuple[np.ndarray, np.ndarray] | None:
     return head, np.frombuffer(payload, RAWX_MEAS, n, RAWX_HEAD.itemsize)
 
 
-def _sat_ids(sys: np.ndarray, sv: np.ndarray) -> np.ndarray:
-    """RINEX satellite ids ('G05', 'J01' for QZSS svId 1, 'S20' for SBAS PRN 120); '' for ids outside RINEX."""
-    prn = sv.astype(int) - np.where(sys == "S", 100, 0)
-    ok = (sys != "") & (prn >= 1) & (prn <= 99) & ~((sys == "R") & (sv == 255))
-    return np.where(ok, np.char.add(sys, np.char.zfill(prn.astype(str), 2)), "")
+_SYSTEMS = "GRECJSI"                 # RINEX order of the satellites and their systems' header lines
+_SYS_INDEX = np.full(256, -1, dtype=int)
+for _g, _s in SYSTEM_OF_GNSS_ID.items():
+    _SYS_INDEX[_g] = _SYSTEMS.index(_s)
+_CODES = {s: list(dict.fromkeys(c for (ss, _), c in SIGNALS.items() if ss == s)) for s in _SYSTEMS}
+_RANK = np.full((len(_SYSTEMS), 256), -1, dtype=int)        # [system, sigId] -> position in _CODES[system]
+for (_s, _g), _c in SIGNALS.items():
+    _RANK[_SYSTEMS.index(_s), _g] = _CODES[_s].index(_c)
 
 
 def _observations(rawx: list[tuple[np.ndarray, np.ndarray]], path: str) -> CarrierObs:
@@ -179,23 +182,24 @@ def _observations(rawx: list[tuple[np.ndarray, np.ndarray]], path: str) -> Carri
     t = np.array([h["week"] * SECONDS_PER_WEEK + h["rcvTow"] for h, _ in rawx], dtype=float)
     meas = np.concatenate([m for _, m in rawx])
     ep = np.repeat(np.arange(len(rawx)), [len(m) for _, m in rawx])
-    sys = np.array([SYSTEM_OF_GNSS_ID.get(int(g), "") for g in range(256)])[meas["gnssId"]]
-    sid = _sat_ids(sys, meas["svId"])
-    sig_of = {(s, g): c for (s, g), c in SIGNALS.items()}
-    sig = np.array([sig_of.get((s, int(g)), "") for s, g in zip(sys, meas["sigId"])]) if len(meas) else \
-        np.zeros(0, dtype="<U2")
-    keep = (sid != "") & (sig != "")
-    meas, ep, sid, sig, sys = meas[keep], ep[keep], sid[keep], sig[keep], sys[keep]
+    si = _SYS_INDEX[meas["gnssId"]]
+    rank = np.where(si >= 0, _RANK[np.maximum(si, 0), meas["sigId"]], -1)
+    sv = meas["svId"].astype(int)
+    prn = sv - np.where(si == _SYSTEMS.index("S"), 100, 0)
+    keep = (si >= 0) & (rank >= 0) & (prn >= 1) & (prn <= 99) & ~((si == _SYSTEMS.index("R")) & (sv == 255))
+    meas, ep, si, rank, prn = meas[keep], ep[keep], si[keep], rank[keep], prn[keep]
     trk = meas["trkStat"]
     P = np.where((trk & 1) != 0, meas["prMes"], np.nan)
     phase_ok = ((trk & 2) != 0) & (meas["cpMes"] != -0.5) & ((meas["cpStdev"] & 15) <= CPSTD_VALID)
     L = np.where(phase_ok, meas["cpMes"], np.nan)
-    prn = np.array([int(s[1:]) for s in sid], dtype=int)
-    L = L + np.where((sys == "C") & ((prn <= 5) | (prn >= 59)), 0.5, 0.0)   # BeiDou GEO half cycle (RTKLIB)
+    L = L + np.where((si == _SYSTEMS.index("C")) & ((prn <= 5) | (prn >= 59)), 0.5, 0.0)   # BeiDou GEO (RTKLIB)
+    sat_key = si * 100 + prn                   # sorts in RINEX order: system, then PRN
+    sat_keys, i_sat = np.unique(sat_key, return_inverse=True)
+    sats = [f"{_SYSTEMS[k // 100]}{k % 100:02d}" for k in sat_keys.tolist()]
     # loss of lock per (satellite, signal): compared with that signal's previous measurement in the log
-    key = np.char.add(sid, sig)
-    order = np.lexsort((ep, key))
-    k_s, lock, halfc = key[order], meas["locktime"][order].astype(int), (trk[order] >> 3) & 1
+    order = np.lexsort((ep, rank, sat_key))
+    k_s = (sat_key * 64 + rank)[order]
+    lock, halfc = meas["locktime"][order].astype(int), (trk[order] >> 3) & 1
     first = np.r_[True, k_s[1:] != k_s[:-1]]
     prev_lock = np.where(first, 0, np.r_[0, lock[:-1]])
     prev_halfc = np.where(first, 0, np.r_[0, halfc[:-1]])
@@ -204,33 +208,33 @@ def _observations(rawx: list[tuple[np.ndarray, np.ndarray]], path: str) -> Carri
     slip[order] = _held_slips(slip_s, np.isfinite(L[order]), first) | (ep[order] == 0)
     slip &= np.isfinite(L)
     lli = slip.astype(np.uint8) | np.where(trk & 4, 0, 2).astype(np.uint8)
-    sats = sorted(set(sid.tolist()), key=lambda s: ("GRECJSI".index(s[0]), s))
+    # one slot per signal a system has in the log, in the order of `SIGNALS`
     signals: dict[tuple[str, int], tuple[str, str]] = {}
-    slot_of: dict[tuple[str, str], int] = {}
-    for s in "GRECJSI":
-        codes = [c for (ss, _), c in SIGNALS.items() if ss == s]
-        used = sorted(set(sig[sys == s].tolist()), key=codes.index)
-        for f, c in enumerate(used):
-            signals[(s, f)] = ("C" + c, "L" + c)
-            slot_of[(s, c)] = f
+    slot_lut = np.zeros((len(_SYSTEMS), 64), dtype=int)
+    for k, sys in enumerate(_SYSTEMS):
+        for f, r in enumerate(np.unique(rank[si == k]).tolist()):
+            signals[(sys, f)] = ("C" + _CODES[sys][r], "L" + _CODES[sys][r])
+            slot_lut[k, r] = f
+    i_slot = slot_lut[si, rank]
     n_slots = max([f + 1 for (_, f) in signals] or [1])
-    col = {s: i for i, s in enumerate(sats)}
-    i_sat = np.array([col[s] for s in sid], dtype=int)
-    i_slot = np.array([slot_of[(s, c)] for s, c in zip(sys, sig)], dtype=int)
     shape = (len(t), len(sats), n_slots)
     arrays = {name: np.full(shape, np.nan) for name in ("P", "L", "D", "snr")}
     for name, v in (("P", P), ("L", L), ("D", meas["doMes"].astype(float)), ("snr", meas["cno"].astype(float))):
         arrays[name][ep, i_sat, i_slot] = v
     lli_arr = np.zeros(shape, dtype=np.uint8)
     lli_arr[ep, i_sat, i_slot] = lli
+    band_hz = np.full((len(_SYSTEMS), 64), np.nan)
+    for k, sys in enumerate(_SYSTEMS):
+        for r, c in enumerate(_CODES[sys]):
+            band_hz[k, r] = BAND_FREQ_HZ.get((sys, c[0]), np.nan)
+    f_meas = band_hz[si, rank]
+    glo = si == _SYSTEMS.index("R")
+    k_glo = meas["freqId"].astype(int) - 7
+    g1 = np.array([c[0] == "1" for c in _CODES["R"]])[np.where(glo, rank, 0)]
+    f_meas = np.where(glo, np.where(g1, F1_BASE_HZ + k_glo * F1_STEP_HZ,
+                                    _GLO_BAND2_BASE_HZ + k_glo * _GLO_BAND2_STEP_HZ), f_meas)
     freq = np.full((len(sats), n_slots), np.nan)
-    glo_k = (meas["freqId"].astype(int) - 7)
-    for i, s, c, k in zip(i_sat, sys, sig, glo_k):
-        f = slot_of[(s, c)]
-        if s == "R":
-            freq[i, f] = F1_BASE_HZ + k * F1_STEP_HZ if c[0] == "1" else _GLO_BAND2_BASE_HZ + k * _GLO_BAND2_STEP_HZ
-        else:
-            freq[i, f] = BAND_FREQ_HZ.get((s, c[0]), np.nan)
+    freq[i_sat, i_slot] = f_meas
     return CarrierObs(source=path, t_gps=t, sats=sats, freq_hz=freq, P=arrays["P"], L=arrays["L"], D=arrays["D"],
                       snr=arrays["snr"], lli=lli_arr, signals=signals, p_approx_ecef=np.full(3, np.nan),
                       receiver="U-BLOX", antenna="UNKNOWN")
