@@ -8,6 +8,7 @@ this log's Galileo pages).
 """
 from __future__ import annotations
 
+import gzip
 import importlib.util
 import subprocess
 import sys
@@ -168,6 +169,9 @@ def test_logs_without_rawx_or_sfrbx_and_files_neither_rinex_nor_ubx(tmp_path):
     with pytest.raises(InputError, match="no ephemerides in the log: give --rinex-nav a navigation file") as e:
         read_rinex_nav(only_obs)
     assert str(only_obs) in str(e.value)
+    gz = tmp_path / "walk.ubx.gz"                                  # a compressed log is a log too
+    gz.write_bytes(gzip.compress(data))
+    assert np.array_equal(read_obs_file(gz).t_gps, read_obs_file(UBX).t_gps)
     junk = tmp_path / "photo.jpg"
     junk.write_bytes(b"\xff\xd8\xff\xe0" + bytes(range(256)) * 8)
     for reader in (read_obs_file, read_rinex_nav):
