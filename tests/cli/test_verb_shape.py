@@ -30,7 +30,7 @@ def test_no_argparse_below_the_command_line():
 def test_simulators_are_sub_commands_and_sim_keeps_the_library():
     names = {m.name for m in pkgutil.iter_modules(dgcal.simulators.__path__)}
     assert names == {"block", "camera_field", "campaign", "flight", "forward_camera", "gnss", "imu", "logger",
-                     "lowcost", "mounting", "pos", "rover"}
+                     "lowcost", "mounting", "pos", "robot", "rover"}
     for name in names:
         mod = importlib.import_module(f"dgcal.simulators.{name}")
         assert mod.NAME and mod.HELP and callable(mod.add_arguments) and callable(mod.run)

@@ -154,10 +154,11 @@ def _true_gyro_z_deg_h(sim) -> float:
 
 
 def test_slow_robot_bag_through_the_cli(tmp_path, robot):
-    """`dgcal pos --mode lc` on the robot's ROS 2 bag as a user runs it: metre positions and a heading of a few
-    degrees with sigmas that hold (nothing beyond 5 sigma; before: heading sigma 104 deg, no course taken from the
-    slow track), the z-gyro bias recovered to within 3 sigma of the grade's... and not flagged."""
-    write_robot_dataset(tmp_path / "ds", robot, ros_version=2)
+    """`dgcal simulate robot`, then `dgcal pos --mode lc` on its ROS 2 bag as a user runs it: metre positions and
+    a heading of a few degrees with sigmas that hold (nothing beyond 5 sigma; before: the heading sigma of an unknown
+    heading, 104 deg, no course taken from the slow track), the z-gyro bias recovered and not flagged."""
+    assert _dgcal(["simulate", "robot", "--out", str(tmp_path / "ds"), "--seed", "2", "--duration", "300"]) == 0
+    assert (tmp_path / "ds" / "robot_bag" / "metadata.yaml").is_file()
     traj, summary = _cli_run(tmp_path / "ds", tmp_path / "out")
     h = trajectory_honesty(robot.truth, traj)
     print("\nslow robot (seed 2, CLI):", {k: (round(v["rms"], 3), round(v["sigma_median"], 3), round(v["z_rms"], 2),
