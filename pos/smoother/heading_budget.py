@@ -20,7 +20,10 @@ give one: over +-5 to 20 s (TRACK_HALF_WINDOWS_S) a displacement of several fix 
 degrees, and on the ground the course is the heading (`track_course`). Such a record keeps the smoother's own
 heading sigma (it holds there: error/sigma about 1 on simulated robots, issue 27) instead of an unknown heading's
 104 deg, unless its heading disagrees with those courses beyond COURSE_DISAGREEMENT_LIMIT sigmas (a heading
-drifting behind a wrong gyro bias): then the disagreement is added to its variance and the summary says so.
+drifting behind a wrong gyro bias): then the disagreement is added to its variance and the summary says so. That
+check also runs where the accelerations gave the heading (a tactical grade's small accelerometer bias makes any
+motion count) once a gyro bias estimate is beyond the grade's range: a consumer IMU processed as tactical grade
+drifted 30-44 deg against the course with a 3 deg sigma (the issue's real robot log), now a 28-36 deg sigma.
 """
 from __future__ import annotations
 
@@ -130,25 +133,35 @@ def course_disagreement(sol) -> tuple[float, float, int, float]:
     return float(np.sqrt(np.mean(d ** 2))), float(np.sqrt(np.mean(z ** 2))), int(ok.sum()), mean
 
 
+def gyro_bias_beyond_grade(sol, noise) -> bool:
+    """True when a gyro bias estimate of `sol` (sol.bias[:, 3:] rad/s) is beyond 3 sigma of the model `noise`'s
+    turn-on bias: the motion left it unobservable, or the grade given is wrong."""
+    bias = getattr(sol, "bias", None)
+    return bias is not None and bool(np.abs(np.asarray(bias)[:, 3:]).max() > 3.0 * float(noise.gyro_bias_sigma))
+
+
 def add_heading_budget(sol, noise) -> None:
-    """On a record whose speed and accelerations give no heading (`heading_from_motion` false) raise each
-    keyframe's heading variance (about the nav down axis in body coordinates, in the rotation blocks of
-    `sol.cov_pose` and `sol.cov_block`): to at least the gyrocompassing limit (`gyrocompass_sigma`) when its track
-    gives no course either (`heading_determined`; the floor, deg, in sol.info['heading_budget_deg']), and by the
-    disagreement between heading and course (`course_disagreement`) when it is beyond
-    COURSE_DISAGREEMENT_LIMIT of its sigmas (sol.info['heading_course_disagreement_deg'])."""
+    """On a record never faster than HEADING_SPEED_MPS raise each keyframe's heading variance (about the nav down
+    axis in body coordinates, in the rotation blocks of `sol.cov_pose` and `sol.cov_block`): to at least the
+    gyrocompassing limit (`gyrocompass_sigma`) when neither its accelerations nor its track give the heading
+    (`heading_determined`; the floor, deg, in sol.info['heading_budget_deg']); else, unless the accelerations give
+    it with gyro biases inside the grade's range (`gyro_bias_beyond_grade`), by the disagreement between
+    heading and course (`course_disagreement`) when it is beyond COURSE_DISAGREEMENT_LIMIT of its sigmas
+    (sol.info['heading_course_disagreement_deg'] and the mean offset 'heading_course_offset_deg')."""
     if sol.cov_pose is None:
         return
     u_b = sol.R_body_to_nav[:, 2, :]                     # nav down in body axes: a rotation about it is heading only
     rph_rate = heading_rows(sol.R_body_to_nav)
     var_h = np.einsum("ni,nij,nj->n", rph_rate, sol.cov_pose[:, :3, :3], rph_rate)
-    if heading_from_motion(sol.t, sol.v_nav, noise):
-        return                                           # a course above HEADING_SPEED_MPS, or accelerations
+    if np.any(np.hypot(sol.v_nav[:, 0], sol.v_nav[:, 1]) > HEADING_SPEED_MPS):
+        return                                           # a course above HEADING_SPEED_MPS
     if not heading_determined(sol, noise):
         floor = gyrocompass_sigma(noise, sol.frame.lat0, float(sol.t[-1] - sol.t[0]))
         add = np.maximum(floor ** 2 - var_h, 0.0)
         sol.info["heading_budget_deg"] = round(float(np.degrees(floor)), 4)
     else:
+        if heading_from_motion(sol.t, sol.v_nav, noise) and not gyro_bias_beyond_grade(sol, noise):
+            return                  # the accelerations give the heading (a multirotor's course is not its heading)
         rms, z, n, mean = course_disagreement(sol)
         if n == 0 or z <= COURSE_DISAGREEMENT_LIMIT:
             return

@@ -214,3 +214,21 @@ def test_imu_yawed_from_the_direction_of_travel_is_warned(robot):
     assert np.abs(err / tr.sigma[:, 5]).max() < 5.0
     assert res.smoothed.info["heading_course_offset_deg"] == pytest.approx(30.0, abs=5.0)
     assert any("constant offset" in w and "+3" in w for w in res.summary["warnings"]), res.summary["warnings"]
+
+
+def test_a_gyro_bias_beyond_the_given_grade_does_not_hide_the_heading_drift(robot):
+    """The issue's real robot log, simulated: a consumer IMU (1400 deg/h z bias) processed as the tactical grade the
+    user gave (adis16488, 36 deg/h turn-on): the smoother cannot take the bias, so the heading drifts tens of
+    degrees against the GNSS course; its sigma was 3 deg (error/sigma up to 20). The course budget now covers it
+    (nothing beyond 5 sigma) and the summary says the heading disagrees with the course."""
+    from dgcal.pos.gnss_ins import fixes_from_solution, process
+    res = process("lc", robot.imu, "adis16488", robot.lever_arm_b, lc_fixes=fixes_from_solution(robot.fixes))
+    tr = res.trajectory
+    err = (tr.rph[:, 2] - robot.truth.at(tr.t).rph[:, 2] + 180.0) % 360.0 - 180.0
+    z = err / tr.sigma[:, 5]
+    print(f"\nwrong grade: heading error RMS {np.sqrt(np.mean(err ** 2)):.1f} deg, sigma "
+          f"{np.median(tr.sigma[:, 5]):.1f}, error/sigma RMS {np.sqrt(np.mean(z ** 2)):.2f} max {np.abs(z).max():.2f}")
+    assert np.sqrt(np.mean(err ** 2)) > 10.0                       # the drift is there
+    assert np.abs(z).max() < 5.0 and np.sqrt(np.mean(z ** 2)) < 1.6
+    assert res.smoothed.info["heading_course_disagreement_deg"] > 10.0
+    assert any("disagrees with the GNSS course" in w for w in res.summary["warnings"]), res.summary["warnings"]
