@@ -22,8 +22,9 @@ heading sigma (it holds there: error/sigma about 1 on simulated robots, issue 27
 104 deg, unless its heading disagrees with those courses beyond COURSE_DISAGREEMENT_LIMIT sigmas (a heading
 drifting behind a wrong gyro bias): then the disagreement is added to its variance and the summary says so. That
 check also runs where the accelerations gave the heading (a tactical grade's small accelerometer bias makes any
-motion count) once a gyro bias estimate is beyond the grade's range: a consumer IMU processed as tactical grade
-drifted 30-44 deg against the course with a 3 deg sigma (the issue's real robot log), now a 28-36 deg sigma.
+motion count) once a gyro bias estimate is beyond the grade's range, and then adds any disagreement (the heading's
+own sigma is not to be trusted): a consumer IMU processed as tactical grade drifted 30-44 deg against the course
+with a 3 deg sigma (the issue's real robot log), now a 28-41 deg sigma.
 """
 from __future__ import annotations
 
@@ -146,7 +147,8 @@ def add_heading_budget(sol, noise) -> None:
     gyrocompassing limit (`gyrocompass_sigma`) when neither its accelerations nor its track give the heading
     (`heading_determined`; the floor, deg, in sol.info['heading_budget_deg']); else, unless the accelerations give
     it with gyro biases inside the grade's range (`gyro_bias_beyond_grade`), by the disagreement between
-    heading and course (`course_disagreement`) when it is beyond COURSE_DISAGREEMENT_LIMIT of its sigmas
+    heading and course (`course_disagreement`) when it is beyond COURSE_DISAGREEMENT_LIMIT of its sigmas (any
+    disagreement once a gyro bias is beyond the grade's range)
     (sol.info['heading_course_disagreement_deg'] and the mean offset 'heading_course_offset_deg')."""
     if sol.cov_pose is None:
         return
@@ -160,10 +162,12 @@ def add_heading_budget(sol, noise) -> None:
         add = np.maximum(floor ** 2 - var_h, 0.0)
         sol.info["heading_budget_deg"] = round(float(np.degrees(floor)), 4)
     else:
-        if heading_from_motion(sol.t, sol.v_nav, noise) and not gyro_bias_beyond_grade(sol, noise):
+        suspect = gyro_bias_beyond_grade(sol, noise)
+        if heading_from_motion(sol.t, sol.v_nav, noise) and not suspect:
             return                  # the accelerations give the heading (a multirotor's course is not its heading)
         rms, z, n, mean = course_disagreement(sol)
-        if n == 0 or z <= COURSE_DISAGREEMENT_LIMIT:
+        # with a gyro bias beyond the grade the heading's own sigma is not to be trusted: any disagreement counts
+        if n == 0 or z <= (0.0 if suspect else COURSE_DISAGREEMENT_LIMIT):
             return
         # the heading drifts against the course (a wrong gyro bias the slow motion could not correct): its sigma
         # covers the disagreement seen
