@@ -121,16 +121,17 @@ def course_disagreement(sol) -> tuple[float, float, int, float]:
     """The solution's heading against the course of its straight stretches (`track_course`): RMS of heading minus
     course (rad), that RMS normalised by the course's and heading's sigmas, the number of keyframes compared and
     the circular mean of heading minus course (rad: a constant offset is an IMU x axis yawed from the direction of
-    travel, or a heading off by as much)."""
+    travel, or a heading off by as much); all modulo 180 deg (driving backwards agrees with the heading)."""
     course, s_c, ok = _solution_course(sol)
     if not ok.any() or sol.cov_pose is None:
         return 0.0, 0.0, 0, 0.0
     psi = np.arctan2(sol.R_body_to_nav[:, 1, 0], sol.R_body_to_nav[:, 0, 0])
-    d = np.angle(np.exp(1j * (psi - course)))[ok]
+    # modulo 180 deg: a robot reversing (docking, backing out) has its course opposite its heading
+    d = 0.5 * np.angle(np.exp(2j * (psi - course)))[ok]
     rows = heading_rows(sol.R_body_to_nav[ok])
     var_h = np.einsum("ni,nij,nj->n", rows, sol.cov_pose[ok, :3, :3], rows)
     z = d / np.sqrt(s_c[ok] ** 2 + var_h)
-    mean = float(np.angle(np.mean(np.exp(1j * d))))
+    mean = float(0.5 * np.angle(np.mean(np.exp(2j * d))))
     return float(np.sqrt(np.mean(d ** 2))), float(np.sqrt(np.mean(z ** 2))), int(ok.sum()), mean
 
 

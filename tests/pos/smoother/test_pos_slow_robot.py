@@ -114,18 +114,20 @@ def test_heading_budget_on_a_track():
     drifting against it (a wrong gyro bias) gets the disagreement added; a track that never moves far gets the
     sigma of an unknown heading."""
     noise = imu_grade("consumer").smoother_noise()
-    t = np.arange(0.0, 200.0, 0.4)
-    psi = np.where(t < 100.0, np.radians(30.0), np.radians(120.0))
-    p = np.cumsum(0.8 * 0.4 * np.column_stack([np.cos(psi), np.sin(psi), 0 * t]), axis=0)
+    t = np.arange(0.0, 260.0, 0.4)
+    # two 80 m legs joined by an arc, then backwards (accelerations below the consumer accelerometers' bias)
+    psi = np.radians(np.interp(t, [0.0, 95.0, 105.0], [30.0, 30.0, 120.0]))
+    speed = np.interp(t, [0.0, 195.0, 205.0], [0.8, 0.8, -0.8])
+    p = np.cumsum((speed * 0.4)[:, None] * np.column_stack([np.cos(psi), np.sin(psi), 0 * t]), axis=0)
     good = _sol(t, psi, psi, p)
     assert heading_determined(good, noise)
     before = good.cov_pose.copy()
     add_heading_budget(good, noise)
     assert np.array_equal(good.cov_pose, before) and not good.info
-    drift = psi + np.radians(0.15) * t                             # 540 deg/h: 30 deg off after 200 s
+    drift = psi + np.radians(0.15) * t                             # 540 deg/h: 39 deg off after 260 s
     bad = _sol(t, psi, drift, p)
     rms, z, n, mean = course_disagreement(bad)
-    assert n > 100 and z > COURSE_DISAGREEMENT_LIMIT and 10.0 < np.degrees(rms) < 25.0 and 5.0 < np.degrees(mean) < 25
+    assert n > 100 and z > COURSE_DISAGREEMENT_LIMIT and 10.0 < np.degrees(rms) < 30.0 and 5.0 < np.degrees(mean) < 30
     assert course_disagreement(good)[1] < 1.0
     add_heading_budget(bad, noise)
     rows = heading_rows(bad.R_body_to_nav)
