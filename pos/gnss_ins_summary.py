@@ -94,7 +94,8 @@ def summarize(res) -> dict:
                                               "static_start_end_s", "static_white_noise", "imu_noise_used",
                                               "atmosphere_budget_m", "dd_rows_dropped", "lc_fix_errors",
                                               "lc_velocity", "imu_white_noise_scale", "imu_variance_factor",
-                                              "imu_redundancy", "tilt_budget_deg")
+                                              "imu_redundancy", "tilt_budget_deg", "heading_budget_deg",
+                                              "heading_course_disagreement_deg", "heading_course_offset_deg")
                      if k in sol.info},
         "events": int(len(res.events.t)) if res.events is not None else 0,
     }
