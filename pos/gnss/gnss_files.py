@@ -26,6 +26,52 @@ UBX_SYNC = b"\xb5\x62"          # a u-blox UBX log's first frame
 CRINEX_MARK = "CRINEX VERS"
 
 
+UBX_SEARCH_BYTES = 65536        # a logger may write NMEA or a partial frame before the first whole UBX frame
+
+
+def _valid_frame_at(data: bytes, k: int) -> bool:
+    """Whether a whole UBX frame with a correct checksum starts at byte k."""
+    if k + 8 > len(data):
+        return False
+    n = int.from_bytes(data[k + 4:k + 6], "little")
+    end = k + 6 + n
+    if end + 2 > len(data):
+        return False
+    ck_a = ck_b = 0
+    for c in data[k + 2:end]:
+        ck_a = (ck_a + c) & 0xFF
+        ck_b = (ck_b + ck_a) & 0xFF
+    return data[end] == ck_a and data[end + 1] == ck_b
+
+
+def looks_like_ubx(data: bytes) -> bool:
+    """Whether `data` (a file's plain content) is a u-blox UBX log: it starts with a UBX frame, or a whole frame with a
+    correct checksum follows within its first `UBX_SEARCH_BYTES` (NMEA sentences or a cut frame before it, as loggers
+    write them) and it does not begin as a RINEX file."""
+    if data[:2] == UBX_SYNC:
+        return True
+    if b"RINEX VERSION" in data[:200] or CRINEX_MARK.encode() in data[:200]:
+        return False
+    k = data.find(UBX_SYNC, 0, UBX_SEARCH_BYTES)
+    while 0 <= k < UBX_SEARCH_BYTES:
+        if _valid_frame_at(data, k):
+            return True
+        k = data.find(UBX_SYNC, k + 1, UBX_SEARCH_BYTES)
+    return False
+
+
+def is_ubx_file(path: str | Path) -> bool:
+    """Whether the file at `path` (plain or in an archive) is a u-blox UBX log; False when it cannot be read."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(UBX_SEARCH_BYTES + 8)
+        if container_of(head[:4]) != "plain":
+            head = _unpack(Path(path).read_bytes(), container_of(head[:4]), Path(path))[:UBX_SEARCH_BYTES + 8]
+    except (OSError, InputError):
+        return False
+    return looks_like_ubx(head)
+
+
 def container_of(head: bytes) -> str:
     """The compression of a file from its first bytes: "gzip", "lzw" (Unix compress .Z), "bzip2", "zip" or "plain"."""
     for magic, name in ((_GZIP, "gzip"), (_LZW, "lzw"), (_BZIP2, "bzip2"), (_ZIP, "zip")):
@@ -65,7 +111,7 @@ def read_gnss_bytes(path: str | Path, kind: str | None = None) -> bytes:
     container = container_of(data[:4])
     if container != "plain":
         data = _unpack(data, container, path)
-    if data[:2] == UBX_SYNC:
+    if looks_like_ubx(data[:UBX_SEARCH_BYTES + 8]):
         # why here: ubx writes through pos/gnss/carrier.py, which imports the RINEX readers that call this
         from dgcal.pos.gnss.ubx import ubx_rinex_lines
         return ("\n".join(ubx_rinex_lines(data, path, kind or "")) + "\n").encode("ascii")

@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from dgcal.pos.gnss.gnss_files import is_ubx_file
 from dgcal.pos.gnss.spp import SppOptions, SppRun, spp_files
 
 
@@ -20,6 +21,11 @@ class RinexInput:
     #                                         among them are precise products (recognised by content)
     t_start: float | None = None            # first epoch, continuous GPS seconds
     t_end: float | None = None              # last epoch, continuous GPS seconds
+
+    def __post_init__(self) -> None:
+        # a u-blox UBX log carries its own ephemerides (RXM-SFRBX): without navigation files it is its own
+        if self.rinex_obs and not self.rinex_nav and is_ubx_file(self.rinex_obs):
+            self.rinex_nav = (Path(self.rinex_obs),)
 
 
 @dataclass

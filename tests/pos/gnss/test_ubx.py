@@ -255,3 +255,25 @@ def test_ppk_with_the_log_as_rover_and_base(tmp_path):
     assert len(rows) == 240 and np.all(rows["fix"] == "fixed") and np.median(rows["n_sat"]) >= 12
     d = np.c_[rows["x"], rows["y"], rows["z"]] - base
     assert np.abs(d).max() < 1e-3
+
+
+def test_log_with_nmea_before_its_first_frame_and_its_own_navigation(tmp_path):
+    """Loggers write NMEA sentences (or a frame cut at the start) before the first whole UBX frame: such a log is
+    still told by content; without --rinex-nav a UBX log's own ephemerides are used; bytes that merely contain the
+    sync characters are not taken for a log."""
+    from dgcal.pos.gnss.gnss_files import is_ubx_file, looks_like_ubx
+    data = UBX.read_bytes()
+    lead = tmp_path / "nmea_first.ubx"
+    lead.write_bytes(b"$GNRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A\r\n" + data[3:4000]
+                     + data)
+    assert is_ubx_file(lead) and is_ubx_file(UBX)
+    assert read_obs_file(lead).t_gps.tolist() == read_obs_file(UBX).t_gps.tolist()
+    assert not looks_like_ubx(b"noise \xb5\x62 more noise" + bytes(100))
+    assert not looks_like_ubx(b"     3.04           OBSERVATION DATA    M                   RINEX VERSION / TYPE\n"
+                              + b"\xb5\x62" + bytes(20))
+    out_own, out_given = tmp_path / "own", tmp_path / "given"
+    assert main(["pos", "--mode", "spp", "--rinex-obs", str(lead), "--no-progress", "--no-report",
+                 "--out", str(out_own)]) == 0
+    assert main(["pos", "--mode", "spp", "--rinex-obs", str(UBX), "--rinex-nav", str(UBX), "--no-progress",
+                 "--no-report", "--out", str(out_given)]) == 0
+    assert (out_own / "gnss.csv").read_text() == (out_given / "gnss.csv").read_text()
