@@ -335,8 +335,15 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_ubx(path) -> bool:
+    """Whether a campaign's rover file is a u-blox UBX log (read only then: the check reads the file's head)."""
+    from dgcal.pos.gnss.gnss_files import is_ubx_file
+    return path is not None and Path(path).is_file() and is_ubx_file(path)
+
+
 def campaign_steps(c: Campaign) -> None:
-    """[pos] -> `dgcal pos --mode lc|tc`: `imu`, `events`, `gnss` (lc) or `rinex_obs` + `rinex_nav` (tc: with
+    """[pos] -> `dgcal pos --mode lc|tc`: `imu`, `events`, `gnss` (lc) or `rinex_obs` + `rinex_nav` (a UBX log as
+    `rinex_obs` needs no `rinex_nav`; tc: with
     `rinex_base`, `base_position` [X, Y, Z] ECEF m and `frequencies`, carrier phase against the base), `imu_grade`,
     `lever_arm_gnss`, `set` = [KEY=VALUE], `args`; with `trajectory` (+ `events`) an external POS is used and no
     step runs. Provides the trajectory and events to later steps."""
@@ -361,9 +368,11 @@ def campaign_steps(c: Campaign) -> None:
         a += ["--gnss", str(c.path(SECTION, "gnss"))]
         ins.append(c.path(SECTION, "gnss"))
     elif "rinex_obs" in pos or mode == "tc":
-        obs, nav = c.path(SECTION, "rinex_obs"), c.path(SECTION, "rinex_nav")
-        a += ["--rinex-obs", str(obs), "--rinex-nav", str(nav)]
-        ins += [obs, nav]
+        obs = c.path(SECTION, "rinex_obs")
+        # a u-blox UBX log is its own navigation file (`RinexInput`): rinex_nav may be left out for one
+        nav = c.path(SECTION, "rinex_nav", required=not _is_ubx(obs))
+        a += ["--rinex-obs", str(obs)] + ([] if nav is None else ["--rinex-nav", str(nav)])
+        ins += [obs] + ([] if nav is None else [nav])
         if mode == "tc" and "rinex_base" in pos:   # carrier phase against a base station
             base = c.path(SECTION, "rinex_base")
             a += ["--rinex-base", str(base)]

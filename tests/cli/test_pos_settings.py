@@ -121,3 +121,26 @@ def test_glonass_outside_spp_is_refused_naming_the_field(mode):
     with pytest.raises(InputError, match="GLONASS") as exc:
         run_gnss_ins(opts)
     assert exc.value.field == "spp.systems"
+
+
+def test_campaign_pos_step_with_a_ubx_rover_needs_no_navigation_file(tmp_path):
+    """[pos] rinex_obs = a u-blox UBX log: its own ephemerides serve, rinex_nav may be left out; a RINEX rover still
+    needs one (named as the campaign field)."""
+    import shutil
+    from pathlib import Path
+
+    from dgcal.commands.pos import campaign_steps
+    from dgcal.steps import Campaign
+    ubx = tmp_path / "rover.ubx"
+    shutil.copy(Path(__file__).parents[1] / "pos" / "gnss" / "data" / "walk_0827_60s.ubx", ubx)
+    (tmp_path / "rover.obs").write_text(f"{'3.04':>9}{'':11}{'OBSERVATION DATA':<20}{'M':<20}RINEX VERSION / TYPE\n")
+    cfg = {"_path": tmp_path / "c.toml", "_base": tmp_path, "crs": "EPSG:32613",
+           "pos": {"mode": "tc", "imu": "imu.csv", "events": "events.csv", "rinex_obs": "rover.ubx"}}
+    c = Campaign(cfg, tmp_path / "out")
+    campaign_steps(c)
+    argv = c.steps[-1].argv
+    assert argv[argv.index("--rinex-obs") + 1] == str(ubx) and "--rinex-nav" not in argv
+    cfg["pos"]["rinex_obs"] = "rover.obs"
+    with pytest.raises(InputError, match="needs 'rinex_nav'") as exc:
+        campaign_steps(Campaign(cfg, tmp_path / "out2"))
+    assert exc.value.field == "pos.rinex_nav"
