@@ -6,6 +6,7 @@ The RTK-drone family of `dgcal.sim.block` at a small scale (48 images, 4 strips 
 150 m over +-50 m hills, centres 2/2/5 cm); the approximate EOPs are the truth perturbed by 1 m and 0.5 deg, and
 one test starts from the centres alone."""
 import json
+from pathlib import Path
 import warnings
 
 import numpy as np
@@ -29,6 +30,19 @@ def approx_of(sim, seed=1, dpos=1.0, dang=0.5) -> EOP:
     n = len(sim.images)
     return EOP(sim.eop.image.copy(), sim.eop.xyz + rng.normal(0, dpos, (n, 3)),
                sim.eop.opk + rng.normal(0, dang, (n, 3)))
+
+
+def triangulate_block_cli(sim, tmp_path, refine: str) -> tuple[int, Path]:
+    """`dgcal triangulate` on the block written to files (camera, GCPs, measurements, centres, approximate EOPs),
+    `--refine REFINE`: (exit status, output folder)."""
+    d = tmp_path / "blk"
+    write_block(sim, d)
+    write_eop(d / "approx.csv", approx_of(sim))
+    out = tmp_path / "out"
+    rc = main(["triangulate", "--camera", str(d / "camera.json"), "--gcp", str(d / "gcp.csv"), "--crs", sim.crs,
+               "--measurements", str(d / "measurements.csv"), "--image-size", "8192", "5460", "--gnss",
+               str(d / "centres.csv"), "--approx", str(d / "approx.csv"), "--refine", refine, "--out", str(out)])
+    return rc, out
 
 
 def eop_z(sim, res) -> np.ndarray:
@@ -208,13 +222,7 @@ def test_python_users_see_each_warning_once_and_the_cli_prints_it_once(rtk, tmp_
     texts = [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
     assert texts and sorted(texts) == sorted(dict.fromkeys(res.warnings))
     # the CLI: a GCP file of check points only, centres with blank angles, f refined
-    d = tmp_path / "blk"
-    write_block(sim, d)
-    write_eop(d / "approx.csv", approx_of(sim))
-    out = tmp_path / "out"
-    rc = main(["triangulate", "--camera", str(d / "camera.json"), "--gcp", str(d / "gcp.csv"), "--crs", sim.crs,
-               "--measurements", str(d / "measurements.csv"), "--image-size", "8192", "5460", "--gnss",
-               str(d / "centres.csv"), "--approx", str(d / "approx.csv"), "--refine", "f", "--out", str(out)])
+    rc, out = triangulate_block_cli(sim, tmp_path, "f")
     assert rc == 0
     err = capsys.readouterr().err
     assert err.count("focal length and flying height are correlated") == 1

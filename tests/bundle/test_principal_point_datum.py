@@ -16,10 +16,8 @@ import pytest
 from dgcal.bundle import triangulation as triangulation_mod
 from dgcal.bundle.datum import PP_CORRELATION, pp_combinations, principal_point_correlation
 from dgcal.bundle.triangulation import TriangulationOptions, triangulate
-from dgcal.cli import main
-from dgcal.fields.io.formats import write_eop
-from dgcal.sim.block import BlockPattern, p1_35mm_camera, simulate_block, simulate_rtk_block, write_block
-from test_gnss_supported_at import RTK, approx_of
+from dgcal.sim.block import BlockPattern, p1_35mm_camera, simulate_block, simulate_rtk_block
+from test_gnss_supported_at import RTK, approx_of, triangulate_block_cli
 
 WARNING = "principal point and horizontal datum are correlated"
 
@@ -139,13 +137,7 @@ def test_no_figure_without_cx_and_cy_and_the_cli_writes_it(tmp_path):
     sim = simulate_rtk_block(0, n_images=10, terrain_amplitude_m=0.0, n_check=4)
     res, _ = _run(sim, refine=("f",))
     assert res.summary["principal_point"] is None and not any(WARNING in x for x in res.warnings)
-    d = tmp_path / "blk"
-    write_block(sim, d)
-    write_eop(d / "approx.csv", approx_of(sim))
-    out = tmp_path / "out"
-    rc = main(["triangulate", "--camera", str(d / "camera.json"), "--gcp", str(d / "gcp.csv"), "--crs", sim.crs,
-               "--measurements", str(d / "measurements.csv"), "--image-size", "8192", "5460", "--gnss",
-               str(d / "centres.csv"), "--approx", str(d / "approx.csv"), "--refine", "cy", "--out", str(out)])
+    rc, out = triangulate_block_cli(sim, tmp_path, "cy")
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
     pp = s["principal_point"]
