@@ -231,7 +231,7 @@ class TrueTrajectory:
 
 def _kinematics_chunked(profile: FlightProfile, t: np.ndarray, p_l: np.ndarray, keys, chunk: int) -> dict:
     out = {k: [] for k in keys}
-    for i0 in range(0, len(t), chunk):
+    for i0 in range(0, max(len(t), 1), chunk):     # no times: one empty chunk, so every key has its (0, ...) array
         sl = slice(i0, min(len(t), i0 + chunk))
         kin = profile.kinematics(t[sl], p_l[sl])
         for k in keys:
