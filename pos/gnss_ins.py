@@ -27,7 +27,7 @@ from dgcal.pos.gnss.ppk import PpkOptions, PpkResult
 from dgcal.pos.gnss.rinex import read_rinex_nav, read_rinex_obs
 from dgcal.pos.gnss.rinex_obs import read_obs_file
 from dgcal.pos.gnss.solution_files import GnssSolution
-from dgcal.pos.gnss.spp import SppOptions, prepare_epochs, spp
+from dgcal.pos.gnss.spp import SppOptions, glonass_channels, prepare_epochs, spp
 from dgcal.pos.gnss_ins_summary import (add_integrity, antenna_track, carrier_summary, observability_warnings,
                                         summarize, time_offset_summary, withheld_fix_errors)
 from dgcal.pos.ins.error_model import imu_grade
@@ -331,10 +331,13 @@ def run_gnss_ins(opts: InsModeOptions) -> PosResult | UkfPosResult:
     except ValueError as exc:
         raise InputError(str(exc), field="imu_grade") from None
     lever = np.asarray(opts.lever_arm_m or (0.0, 0.0, 0.0), float)
+    # GLONASS serves lc and ukf through their SPP fixes; not tc (in a window of three satellites its Doppler in the
+    # smoother made the end of a simulated flight 5-6 sigma off), and not a base station's double differences (FDMA
+    # carrier phase). The CLI's --systems drops it then with a warning; a --set or a caller must not pass it.
     for name, systems in (("spp.systems", opts.spp.systems), ("ppk.systems", opts.ppk.systems)):
-        if "R" in str(systems):   # the CLI's --systems drops it with a warning; a --set or a caller must not pass it
-            raise InputError(f"GLONASS (R) is used by SPP only; tc, lc and ukf take {systems!r} without it",
-                             field=name)
+        if (mode == "tc" or opts.base.rinex) and "R" in str(systems):
+            raise InputError(f"GLONASS (R) is used by spp, and by lc and ukf without a base station; take {systems!r} "
+                             "without it", field=name)
     image_names = list_image_names(opts.event_images, "event_images", raw=True) if opts.event_images else None
     events = read_any_events(opts.events, opts.events_format, opts.mrk_names, image_names,
                              opts.mrk_pairing) if opts.events else None
@@ -349,7 +352,7 @@ def run_gnss_ins(opts: InsModeOptions) -> PosResult | UkfPosResult:
             rinex_warnings = base_info.pop("rinex_warnings")
         else:
             rx = read_obs_file(rover.rinex_obs, t_start=rover.t_start, t_end=rover.t_end)
-            raw = read_rinex_obs(rover.rinex_obs, systems=opts.spp.systems, rinex=rx)
+            raw = read_rinex_obs(rover.rinex_obs, systems=opts.spp.systems, rinex=rx, glonass_k=glonass_channels(nav))
             rinex_warnings = list(rx.warnings) + list(nav.warnings)   # with a base, tc_carrier_inputs adds them
         if len(raw.epochs):
             week = int(np.floor(raw.epochs[0].t_gps / SECONDS_PER_WEEK))

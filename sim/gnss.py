@@ -397,6 +397,16 @@ def circle_trajectory(t_gps: np.ndarray, lat: float, lon: float, h: float, radiu
     return enu.to_ecef(p), v @ enu.R_ecef_to_enu
 
 
+def write_nav_file(path: Path, source: str | Path, used: BroadcastNav) -> None:
+    """A simulation's navigation file: `source` copied, with the GLONASS records of `used` (the synthetic ones the
+    observations came from) after its header when it has none of its own."""
+    shutil.copyfile(source, path)
+    if getattr(used, "glonass", None) is not None and read_rinex_nav(path).glonass is None:
+        lines = Path(path).read_text().splitlines()
+        end = next(i for i, x in enumerate(lines) if x[60:].startswith("END OF HEADER"))
+        Path(path).write_text("\n".join(lines[:end + 1] + glonass_rinex3_lines(used.glonass) + lines[end + 1:]) + "\n")
+
+
 def simulate_gnss_dataset(out: str | Path, seed: int = 0, nav: str | Path | None = None,
                           t0_gps: float | None = None, duration_s: float = 300.0, rate_hz: float = 1.0,
                           lat: float = 35.3, lon: float = 139.5, height: float = 100.0, radius_m: float = 0.0,
@@ -414,14 +424,7 @@ def simulate_gnss_dataset(out: str | Path, seed: int = 0, nav: str | Path | None
                         systems=tuple(systems), prepare=False)
     with staged_dir(out) as d:
         write_rinex_obs(Path(d) / "sim.obs", obs)
-        shutil.copyfile(nav or DEFAULT_NAV, Path(d) / "nav.rnx")
-        used = obs.truth["nav"]
-        if "R" in systems and read_rinex_nav(Path(d) / "nav.rnx").glonass is None:
-            # the synthetic GLONASS records the observations came from, after the header
-            lines = (Path(d) / "nav.rnx").read_text().splitlines()
-            end = next(i for i, x in enumerate(lines) if x[60:].startswith("END OF HEADER"))
-            (Path(d) / "nav.rnx").write_text("\n".join(lines[:end + 1] + glonass_rinex3_lines(used.glonass)
-                                                        + lines[end + 1:]) + "\n")
+        write_nav_file(Path(d) / "nav.rnx", nav or DEFAULT_NAV, obs.truth["nav"])
         truth = {"kind": "gnss", "seed": seed, "systems": list(systems),
                  "sigma_pr_m": sigma_pr, "sigma_doppler_mps": sigma_doppler,
                  "t_gps": t.tolist(), "p_ecef": p.tolist(), "v_ecef": v.tolist(),

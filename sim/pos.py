@@ -14,7 +14,6 @@ truth_events.csv, truth.json (with the base position and the exact `dgcal pos` c
 from __future__ import annotations
 
 import json
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,7 +28,8 @@ from dgcal.pos.gnss.carrier import write_rinex_carrier
 from dgcal.pos.gnss.rinex import write_rinex_obs
 from dgcal.pos.ins.error_model import imu_grade as grade_of
 from dgcal.pos.ins.imu_data import write_imu_csv
-from dgcal.sim.gnss import (DEFAULT_T0_GPS, CarrierErrorModel, CodeErrorModel, load_nav, simulate_gnss)
+from dgcal.sim.gnss import (DEFAULT_T0_GPS, CarrierErrorModel, CodeErrorModel, load_nav, simulate_gnss,
+                            write_nav_file)
 from dgcal.sim.imu import simulate_imu
 from dgcal.sim.rover_motion import RoverPath, airframe_mask, rover_base_with_turn_slips
 from dgcal.sim.trajectory import camera_events, simulate_true_trajectory
@@ -104,6 +104,7 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
     obs = simulate_gnss(t_gnss, p_ant, v_ant, nav=nav, seed=seed + 2, sigma_pr=sigma_pr,
                         sigma_doppler=sigma_doppler, outages=[outage], systems=tuple(systems), prepare=False,
                         code_errors=code_errors)
+    nav = obs.truth["nav"]      # with the synthetic GLONASS records the simulation drew, when it asked for R
     events = camera_events(traj, interval_s=event_interval_s)
     inside = (events.t > t_gnss[0] + 1.0) & (events.t < t_gnss[-1] - 1.0)  # the smoothed span
     events.image, events.t = events.image[inside], events.t[inside]
@@ -119,7 +120,9 @@ def simulate_pos(seed: int = 0, duration_s: float = 1200.0, kind: str = "multiro
         mask = airframe_mask(path, airframe_mask_deg) if airframe_mask_deg is not None else None
         csim = rover_base_with_turn_slips(path, base, mask, turn_slip_rate, np.random.default_rng(seed + 4),
                                           half_cycle_share=half_cycle_share, nav=nav, seed=seed + 3,
-                                          errors=carrier_errors, systems=tuple(systems), n_freq=2, outages=outages,
+                                          # GLONASS's FDMA carrier is not double-differenced: none in rover/base
+                                          errors=carrier_errors, systems=tuple(x for x in systems if x != "R"),
+                                          n_freq=2, outages=outages,
                                           n_random_slips=n_slips, doppler=carrier_doppler)
     return PosSimulation(traj, imu, err, obs, nav, events, lever, outage, grade, sigma_pr, sigma_doppler,
                          {"seed": seed, "flight": kind, "duration_s": duration_s, "rate_hz": rate_hz,
@@ -165,7 +168,9 @@ def write_pos_dataset(out, sim: PosSimulation) -> dict:
         "command": ("dgcal pos --mode tc --rinex-obs obs.rnx --rinex-nav nav.rnx --imu imu.csv --events events.csv "
                     f"--imu-grade {sim.grade.name} --lever-arm {' '.join('%g' % v for v in sim.lever_arm_b)} "
                     f"--code-sigma {sim.sigma_pr:g} --doppler-sigma {sim.sigma_doppler:g} "
-                    + ("" if sim.code_errors is not None else "--set model_errors=false ") + "--out OUT"),
+                    + ("" if sim.code_errors is not None else "--set model_errors=false ")
+                    + ("" if list(sim.obs.signals) == ["G", "E"] else f"--systems {''.join(sim.obs.signals)} ")
+                    + "--out OUT"),
     }
     with staged_dir(out) as d:
         d = Path(d)
@@ -176,7 +181,7 @@ def write_pos_dataset(out, sim: PosSimulation) -> dict:
             write_rinex_carrier(d / "base.rnx", sim.carrier.base, marker="BASE")
         src = Path(sim.nav.source) if sim.nav.source else None
         if src is not None and src.is_file():
-            shutil.copyfile(src, d / "nav.rnx")
+            write_nav_file(d / "nav.rnx", src, sim.nav)      # with the GLONASS records drawn, when R was asked for
         write_events(d / "events.csv", sim.events)
         write_trajectory(d / "truth_trajectory.csv", true_trajectory(sim.traj, t10))
         te = true_trajectory(sim.traj, sim.events.t)

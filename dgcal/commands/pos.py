@@ -120,8 +120,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sbet-out", metavar="FILE.out", default=None,
                    help="tc/lc: also write the trajectory as an Applanix SBET (and FILE's smrmsg beside it)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    p.add_argument("--systems", default="GECJ", help="constellations to use, letters of G,E,C,J (and R: GLONASS, "
-                   "--mode spp only)")
+    p.add_argument("--systems", default="GECJ", help="constellations to use, letters of G,E,C,J (and R: GLONASS, in "
+                   "spp, and in lc/ukf without a base station through their SPP fixes)")
     p.add_argument("--elev-mask", type=arg_types.elevation_deg, default=10.0, help="elevation mask, degrees")
     p.add_argument("--code-sigma", type=arg_types.positive, default=0.3,
                    help="code noise at zenith, m (real data: the starting value; the receiver's own is estimated from "
@@ -166,14 +166,16 @@ OPTION_FLAGS = {"rinex_nav": "--rinex-nav", "base.rinex": "--rinex-base", "base.
                 "estimate_imu_time_offset": "--estimate-imu-time-offset", "reference_ecef": "--reference"}
 
 
-def _systems(text: str, mode: str = "spp") -> tuple[str, ...]:
+def _systems(text: str, mode: str = "spp", carrier: bool = False) -> tuple[str, ...]:
     from dgcal.fields.errors import InputError
     systems = tuple(dict.fromkeys(s for s in str(text).upper() if s in "GECJR"))
-    if "R" in systems and mode != "spp":     # GLONASS is positioned by SPP only
-        print(f"warning: --mode {mode} does not use GLONASS (R): only --mode spp does", file=sys.stderr)
+    # GLONASS serves spp, and lc/ukf through their SPP fixes; not tc or a base station's double differences
+    if "R" in systems and (mode in ("ppk", "tc") or carrier):
+        print(f"warning: --mode {mode}{' with a base station' if carrier and mode != 'ppk' else ''} does not use "
+              "GLONASS (R): spp, and lc/ukf without a base station, do", file=sys.stderr)
         systems = tuple(s for s in systems if s != "R")
     if not systems:
-        raise InputError(f"no known constellation in '{text}' (letters of G, E, C, J; R for --mode spp)",
+        raise InputError(f"no known constellation in '{text}' (letters of G, E, C, J, R; R for spp, lc, ukf)",
                          field="--systems")
     return systems
 
@@ -200,7 +202,8 @@ def spp_mode_options(args: argparse.Namespace):
     from dgcal.pos.gnss.spp_mode import RinexInput, SppModeOptions
     spp = SppOptions(elev_mask_deg=args.elev_mask, code_sigma_zenith_m=args.code_sigma,
                      doppler_sigma_zenith_mps=args.doppler_sigma,
-                     systems=_systems(args.systems, getattr(args, "mode", "spp")),
+                     systems=_systems(args.systems, getattr(args, "mode", "spp"),
+                                      bool(getattr(args, "rinex_base", None))),
                      raim=not args.no_raim, iono=args.iono)
     return SppModeOptions(RinexInput(args.rinex_obs, _nav_files(args), args.t_start, args.t_end), spp,
                           None if args.reference is None else tuple(args.reference), not args.no_progress)

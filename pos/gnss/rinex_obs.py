@@ -31,8 +31,8 @@ from dgcal.pos.gnss.gnss_files import read_gnss_lines
 
 GPS_EPOCH = _dt.datetime(1980, 1, 6)
 BDT_MINUS_GPST_S = -14.0          # BeiDou time = GPS time - 14 s
-GLONASS_NOT_USED = ("GLONASS observations of {n} satellite(s) not used (GLONASS is used by SPP only: dgcal pos --mode "
-                    "spp --systems ...R)")
+GLONASS_NOT_USED = ("GLONASS observations of {n} satellite(s) not used (add R to --systems: spp, and lc/ukf without a "
+                    "base station, use GLONASS)")
 KNOWN_SYSTEMS = "GRECJSI"         # GPS, GLONASS, Galileo, BeiDou, QZSS, SBAS, NavIC/IRNSS
 
 

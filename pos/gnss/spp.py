@@ -275,7 +275,7 @@ def spp_files(obs_path: str | Path | None, nav_paths: Sequence[str | Path], opts
             raise InputError("required for --mode spp", field=name)
     nav = read_rinex_nav(nav_paths[0], list(nav_paths[1:]))
     rx = read_obs_file(obs_path, t_start=t_start, t_end=t_end)
-    obs = read_rinex_obs(obs_path, systems=opts.systems, rinex=rx, glonass_k=_glonass_channels(nav))
+    obs = read_rinex_obs(obs_path, systems=opts.systems, rinex=rx, glonass_k=glonass_channels(nav))
     sol = spp(obs, nav, opts, progress=progress)
     if not sol.ok.any():
         raise InputError("no epoch could be positioned (too few satellites with ephemeris?)", obs_path)
@@ -291,7 +291,7 @@ def spp_files(obs_path: str | Path | None, nav_paths: Sequence[str | Path], opts
     return SppRun(sol, summary, ref)
 
 
-def _glonass_channels(nav: BroadcastNav) -> dict[str, int] | None:
+def glonass_channels(nav: BroadcastNav) -> dict[str, int] | None:
     """Frequency channel of each GLONASS satellite of the navigation records (None without GLONASS records)."""
     glo = getattr(nav, "glonass", None)
     return None if glo is None else glo.frequency_numbers()
@@ -308,7 +308,7 @@ def load_gnss(obs_path, nav_path, opts: SppOptions | None = None, progress: bool
     if opts is None:
         opts = SppOptions()
     nav = read_rinex_nav(nav_path)
-    raw = read_rinex_obs(obs_path, systems=opts.systems, glonass_k=_glonass_channels(nav))
+    raw = read_rinex_obs(obs_path, systems=opts.systems, glonass_k=glonass_channels(nav))
     sol = spp(raw, nav, opts, progress=progress)
     epochs = [e for e, ok in zip(sol.epochs, sol.ok) if ok and e is not None]
     good = sol.p_ecef[sol.ok]

@@ -109,18 +109,24 @@ def test_a_missing_input_names_the_flag(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("mode", ["tc", "lc", "ukf"])
-def test_glonass_outside_spp_is_refused_naming_the_field(mode):
-    """GLONASS is used by SPP only: a Python caller's options with R in the systems of tc/lc/ukf are refused
-    naming the field, before any file is read (the --systems flag drops R with a warning)."""
+def test_glonass_in_tc_or_with_a_base_station_is_refused_naming_the_field(mode):
+    """GLONASS serves lc and ukf through their SPP fixes, not tc nor a base station's double differences: a Python
+    caller's options with R in the systems of tc, or of lc/ukf with a base station, are refused naming the field,
+    before any file is read (the --systems flag drops R with a warning); lc/ukf without a base pass that check."""
     from dataclasses import replace
 
     from dgcal.pos.gnss_ins import run_gnss_ins
     opts = (UkfModeOptions() if mode == "ukf" else InsModeOptions(mode=mode))
     opts.imu = replace(opts.imu, path="imu.csv")
     opts.spp = replace(opts.spp, systems="GR")
+    opts.base = replace(opts.base, rinex="base.rnx")
     with pytest.raises(InputError, match="GLONASS") as exc:
         run_gnss_ins(opts)
     assert exc.value.field == "spp.systems"
+    opts.base = replace(opts.base, rinex=None)
+    with pytest.raises(InputError) as exc:
+        run_gnss_ins(opts)
+    assert ("GLONASS" in str(exc.value)) == (mode == "tc")
 
 
 def test_campaign_pos_step_with_a_ubx_rover_needs_no_navigation_file(tmp_path):

@@ -293,19 +293,20 @@ def test_spp_files_reads_glonass_from_rinex(glonass_case, tmp_path):
     # GLONASS present but not asked for (PPK and TC never ask): a warning says so
     rx = read_obs_file(f)
     g_only = read_rinex_obs(f, systems=("G",), rinex=rx)
-    assert g_only.systems == ["G"] and any("GLONASS observations" in w and "SPP only" in w for w in rx.warnings)
+    assert g_only.systems == ["G"] and any("GLONASS observations" in w and "add R to --systems" in w
+                                           for w in rx.warnings)
     # PPK and TC with a base read the file for their systems only: the same warning, before they collect them
     n_glo = len({s for e in obs.epochs for s in e.sat if s[0] == "R"})
     rx = read_obs_file(f, systems="GECJ")
     assert "R" not in rx.systems and [w for w in rx.warnings if "GLONASS" in w] == [
-        f"{f}: GLONASS observations of {n_glo} satellite(s) not used (GLONASS is used by SPP only: dgcal pos --mode "
-        "spp --systems ...R)"]
+        f"{f}: GLONASS observations of {n_glo} satellite(s) not used (add R to --systems: spp, and lc/ukf without a "
+        "base station, use GLONASS)"]
     assert not read_obs_file(f).warnings
 
 
 def test_cli_systems_with_r(glonass_case, tmp_path, capsys):
-    """`dgcal pos --mode spp --systems GR` positions with GLONASS (its satellites in the summary's counts); other modes
-    leave R out with a warning."""
+    """`dgcal pos --mode spp --systems GR` positions with GLONASS (its satellites in the summary's counts); ppk, tc and
+    the modes with a base station leave R out with a warning, lc/ukf without one keep it."""
     from dgcal.cli import main
     from dgcal.commands.pos import _systems
     _, nav_file, obs, _ = glonass_case
@@ -322,6 +323,9 @@ def test_cli_systems_with_r(glonass_case, tmp_path, capsys):
     assert n_sat["GR"] > n_sat["G"] + 4
     capsys.readouterr()
     assert _systems("GR", "ppk") == ("G",) and "does not use GLONASS" in capsys.readouterr().err
+    assert _systems("GR", "tc") == ("G",) and "does not use GLONASS" in capsys.readouterr().err
+    assert _systems("GR", "lc", carrier=True) == ("G",) and "with a base station" in capsys.readouterr().err
+    assert _systems("GR", "lc") == ("G", "R") and _systems("GR", "ukf") == ("G", "R") and not capsys.readouterr().err
     assert _systems("gecjr") == ("G", "E", "C", "J", "R")
 
 
@@ -566,3 +570,20 @@ def test_real_glonass_beside_rtklib_with_the_same_precise_orbits(tmp_path):
         assert len(ia) == 31 and apart.max() < tol, (systems, apart.max())
         rms[systems] = np.sqrt(np.mean(np.sum((p_rk - ref) ** 2, axis=1)))
     assert rms["GR"] < 0.8 * rms["G"]
+
+
+def test_simulate_pos_with_glonass_writes_its_records(tmp_path):
+    """`dgcal simulate pos --systems GR`: obs.rnx with GLONASS, nav.rnx with the synthetic records it came from (the
+    bundled file has none), truth.json's command with --systems; SPP on them uses GLONASS."""
+    from dgcal.cli import main
+    d = tmp_path / "sim"
+    assert main(["simulate", "pos", "--out", str(d), "--duration", "60", "--no-carrier", "--systems", "GR",
+                 "--seed", "1"]) == 0
+    assert read_rinex_nav(d / "nav.rnx").glonass is not None
+    truth = json.loads((d / "truth.json").read_text())
+    assert truth["gnss"]["systems"] == ["G", "R"] and "--systems GR" in truth["command"]
+    out = tmp_path / "spp"
+    assert main(["pos", "--mode", "spp", "--rinex-obs", str(d / "obs.rnx"), "--rinex-nav", str(d / "nav.rnx"),
+                 "--systems", "GR", "--no-progress", "--no-report", "--out", str(out)]) == 0
+    s = json.loads((out / "gnss_summary.json").read_text())
+    assert s["options"]["systems"] == ["G", "R"] and s["mean_n_sat"] > 10
