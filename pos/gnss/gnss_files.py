@@ -18,30 +18,31 @@ from pathlib import Path
 
 import hatanaka
 import ncompress
+import numpy as np
 
 from dgcal.fields.errors import InputError
 
 _GZIP, _LZW, _BZIP2, _ZIP = b"\x1f\x8b", b"\x1f\x9d", b"BZh", b"PK\x03\x04"
-UBX_SYNC = b"\xb5\x62"          # a u-blox UBX log's first frame
+UBX_SYNC = b"\xb5\x62"          # a u-blox UBX frame's first two bytes
+UBX_SEARCH_BYTES = 65536        # a logger may write NMEA or a partial frame before the first whole UBX frame
 CRINEX_MARK = "CRINEX VERS"
 
 
-UBX_SEARCH_BYTES = 65536        # a logger may write NMEA or a partial frame before the first whole UBX frame
+def ubx_checksum(frame: np.ndarray) -> tuple[int, int]:
+    """UBX 8-bit Fletcher checksum (CK_A, CK_B) of a frame's class, id, length and payload bytes (uint8 array)."""
+    b = frame.astype(np.int64)
+    ck_b = int(np.dot(np.arange(len(b), 0, -1, dtype=np.int64), b) & 0xFF)
+    return int(b.sum() & 0xFF), ck_b
 
 
 def _valid_frame_at(data: bytes, k: int) -> bool:
     """Whether a whole UBX frame with a correct checksum starts at byte k."""
     if k + 8 > len(data):
         return False
-    n = int.from_bytes(data[k + 4:k + 6], "little")
-    end = k + 6 + n
+    end = k + 6 + int.from_bytes(data[k + 4:k + 6], "little")
     if end + 2 > len(data):
         return False
-    ck_a = ck_b = 0
-    for c in data[k + 2:end]:
-        ck_a = (ck_a + c) & 0xFF
-        ck_b = (ck_b + ck_a) & 0xFF
-    return data[end] == ck_a and data[end + 1] == ck_b
+    return ubx_checksum(np.frombuffer(data[k + 2:end], dtype=np.uint8)) == (data[end], data[end + 1])
 
 
 def looks_like_ubx(data: bytes) -> bool:
@@ -101,7 +102,7 @@ def _unpack(data: bytes, kind: str, path: Path) -> bytes:
 
 def read_gnss_bytes(path: str | Path, kind: str | None = None) -> bytes:
     """The plain content of a GNSS file (RINEX, SP3, clock, ANTEX) whatever its container; a Hatanaka-compressed
-    observation file comes back as RINEX, a u-blox UBX log (first bytes 0xB5 0x62) as the RINEX 3.04 observation
+    observation file comes back as RINEX, a u-blox UBX log (`looks_like_ubx`) as the RINEX 3.04 observation
     (`kind` "obs") or navigation ("nav") file of its RAWX / SFRBX messages (`dgcal.pos.gnss.ubx`). InputError naming
     the file when it is missing or cannot be decoded."""
     path = Path(path)

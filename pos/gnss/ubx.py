@@ -41,8 +41,9 @@ from dgcal.fields.constants import SECONDS_PER_WEEK
 from dgcal.fields.errors import InputError
 from dgcal.pos.gnss.carrier import BAND_FREQ_HZ, CarrierObs, write_rinex_carrier
 from dgcal.pos.gnss.glonass import F1_BASE_HZ, F1_STEP_HZ
+from dgcal.pos.gnss.gnss_files import UBX_SYNC, ubx_checksum
 
-SYNC = b"\xb5\x62"
+SYNC = UBX_SYNC
 RAWX, SFRBX = (0x02, 0x15), (0x02, 0x13)
 CPSTD_VALID = 5                      # RTKLIB: phase with a cpStdev index above this (0.004 cycle units) is dropped
 
@@ -105,23 +106,12 @@ class UbxLog:
         return self.bad_checksum + self.truncated + self.malformed
 
 
-def is_ubx(head: bytes) -> bool:
-    """Whether data starting with `head` is a UBX stream (first frame's sync characters 0xB5 0x62)."""
-    return head[:2] == SYNC
-
-
 def ubx_frame(cls: int, mid: int, payload: bytes) -> bytes:
     """One UBX message: sync, class, id, length, payload and checksum (to build or re-frame logs)."""
     body = bytes([cls, mid]) + len(payload).to_bytes(2, "little") + payload
-    ck_a, ck_b = _checksum(np.frombuffer(body, dtype=np.uint8))
+    ck_a, ck_b = ubx_checksum(np.frombuffer(body, dtype=np.uint8))
     return SYNC + body + bytes([ck_a, ck_b])
 
-
-def _checksum(frame: np.ndarray) -> tuple[int, int]:
-    """UBX 8-bit Fletcher checksum (CK_A, CK_B) of class, id, length and payload bytes."""
-    b = frame.astype(np.int64)
-    ck_b = int(np.dot(np.arange(len(b), 0, -1, dtype=np.int64), b) & 0xFF)
-    return int(b.sum() & 0xFF), ck_b
 
 
 def ubx_frames(data: bytes) -> UbxFrames:
@@ -147,7 +137,7 @@ def ubx_frames(data: bytes) -> UbxFrames:
             out.bad_checksum += 1      # a corrupt length field: resynchronise at the next sync pattern
             k = j + 2
             continue
-        if _checksum(arr[j + 2:end - 2]) != (data[end - 2], data[end - 1]):
+        if ubx_checksum(arr[j + 2:end - 2]) != (data[end - 2], data[end - 1]):
             out.bad_checksum += 1
             k = j + 2
             continue
