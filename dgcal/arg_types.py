@@ -1,5 +1,6 @@
-"""Numeric command-line options checked where argparse reads them: a value out of its physical range (a negative
-sigma, a significance level of 2, a NaN) is a usage error naming the option (exit 2), never a silent result."""
+"""Command-line options checked where argparse reads them: a value out of its physical range (a negative sigma, a
+significance level of 2, a NaN) or an unknown constellation letter is a usage error naming the option (exit 2),
+never a silent result."""
 from __future__ import annotations
 
 import argparse
@@ -67,3 +68,12 @@ def positive_int(text: str) -> int:
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be a whole number >= 1, not {text}")
     return v
+
+
+def constellations(text: str) -> tuple[str, ...]:
+    """Constellation letters of G, E, C, J, R (case ignored), in order, each once."""
+    letters = str(text).upper()
+    bad = sorted(set(letters) - set("GECJR"))
+    if not letters or bad:
+        raise argparse.ArgumentTypeError(f"letters of G, E, C, J, R, not {text!r}")
+    return tuple(dict.fromkeys(letters))

@@ -29,13 +29,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", type=arg_types.finite, default=10.0, help="m/s along the circle")
     p.add_argument("--sigma-pr", type=arg_types.finite, default=0.5, help="zenith code noise, m")
     p.add_argument("--sigma-doppler", type=arg_types.finite, default=0.05, help="zenith range-rate noise, m/s")
-    p.add_argument("--systems", default="GE", help="constellation letters, e.g. GEC")
+    p.add_argument("--systems", type=arg_types.constellations, default=("G", "E"),
+                   help="constellation letters, e.g. GEC")
 
 
 def run(args: argparse.Namespace) -> int:
     obs = simulate_gnss_dataset(args.out, seed=args.seed, nav=args.nav, t0_gps=args.t0, duration_s=args.duration,
                                 rate_hz=args.rate, lat=args.lat, lon=args.lon, height=args.height,
                                 radius_m=args.radius, speed_mps=args.speed, sigma_pr=args.sigma_pr,
-                                sigma_doppler=args.sigma_doppler, systems=tuple(args.systems.upper()))
+                                sigma_doppler=args.sigma_doppler, systems=args.systems)
     print(Path(args.out) / obs.name)
     return 0

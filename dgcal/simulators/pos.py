@@ -27,8 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nav", default=None, help="RINEX 3 navigation file (default: ../shared/data/rinex-sept)")
     p.add_argument("--outage-sats", type=int, default=3, help="satellites kept during the 60 s outage")
     p.add_argument("--no-carrier", action="store_true", help="no rover.rnx / base.rnx (carrier phase)")
-    p.add_argument("--systems", default="GE", help="constellations of obs.rnx, letters of G,E,C,J,R (R: GLONASS, with "
-                   "synthetic records written into nav.rnx when the navigation file has none; not in rover/base.rnx)")
+    p.add_argument("--systems", type=arg_types.constellations, default=("G", "E"),
+                   help="constellations of obs.rnx, letters of G,E,C,J,R (R: GLONASS, with synthetic "
+                   "records written into nav.rnx when the navigation file has none; not in rover/base.rnx)")
     p.add_argument("--airframe-mask", type=arg_types.finite, default=None, metavar="DEG",
                    help="carrier: hide satellites less than DEG above the body's horizontal plane (banks mask the low "
                    "wing's side; dgcal.sim.rover_motion)")
@@ -41,14 +42,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--code-errors", type=arg_types.finite, default=None, metavar="SCALE",
                    help="give every satellite of obs.rnx the slow error real broadcast models leave: SCALE x the "
                    "front end's budget (1: as budgeted; dgcal.sim.gnss.CodeErrorModel). Default: none (exact models)")
-
-
-def _systems(text: str) -> tuple[str, ...]:
-    """The constellation letters of --systems (G, E, C, J, R), in order, each once."""
-    systems = tuple(dict.fromkeys(c for c in str(text).upper() if c in "GECJR"))
-    if not systems or any(c not in "GECJR" for c in str(text).upper()):
-        raise InputError(f"letters of G, E, C, J, R, not {text!r}", field="--systems")
-    return systems
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
                            code_errors=None if args.code_errors is None else CodeErrorModel(scale=args.code_errors),
                            airframe_mask_deg=args.airframe_mask, turn_slip_rate=args.turn_slip_rate,
                            half_cycle_share=args.half_cycles, carrier_doppler=not args.no_doppler,
-                           systems=_systems(args.systems))
+                           systems=args.systems)
     except ValueError as exc:  # an unknown IMU grade
         raise InputError(str(exc), field="--imu-grade") from None
     write_pos_dataset(args.out, sim)

@@ -36,3 +36,13 @@ def test_a_number_in_range_passes_the_check():
     assert arg_types.positive("0.5") == 0.5 and arg_types.probability("0.01") == 0.01
     assert arg_types.fraction("1") == 1.0 and arg_types.elevation_deg("0") == 0.0 and arg_types.positive_int("3") == 3
     assert arg_types.finite("-1e3") == -1000.0 and arg_types.non_negative("0") == 0.0
+
+
+@pytest.mark.parametrize("verb", ["gnss", "pos"])
+def test_simulators_constellations_are_letters_of_gecjr(verb, capsys):
+    """`dgcal simulate gnss|pos --systems`: one checked type (dgcal.arg_types.constellations) for both."""
+    from dgcal import arg_types
+    assert arg_types.constellations("grg") == ("G", "R")
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", verb, "--out", "x", "--systems", "GX"])
+    assert exc.value.code == 2 and "--systems" in capsys.readouterr().err
