@@ -341,7 +341,7 @@ def run(args: argparse.Namespace) -> int:
 def _is_ubx(path) -> bool:
     """Whether a campaign's rover file is a u-blox UBX log (read only then: the check reads the file's head)."""
     from dgcal.pos.gnss.gnss_files import is_ubx_file
-    return path is not None and Path(path).is_file() and is_ubx_file(path)
+    return path is not None and is_ubx_file(path)      # False for a file that cannot be read
 
 
 def campaign_steps(c: Campaign) -> None:
